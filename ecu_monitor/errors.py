@@ -1,0 +1,46 @@
+"""One exception tree for the whole package.
+
+``EcuMonitorError`` is the root. ``UserInputError`` and its children mean "the user gave us something
+we cannot use" (a bad file, config key, CSV row, mapping): the CLI prints their one-line message and
+exits 2. Any other ``EcuMonitorError`` is an internal failure (exit 1).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "BusError",
+    "ConfigError",
+    "EcuMonitorError",
+    "EstimationError",
+    "FlightLogError",
+    "ParameterError",
+    "UserInputError",
+]
+
+
+class EcuMonitorError(Exception):
+    """Root of every error raised on purpose by ecu_monitor and virtual_bus."""
+
+
+class UserInputError(EcuMonitorError):
+    """Bad input from the user: the message names the file and the field (CLI exit code 2)."""
+
+
+class ConfigError(UserInputError):
+    """A YAML configuration (service config, model.yaml, mission, mapping) is invalid."""
+
+
+class FlightLogError(UserInputError):
+    """A flight log (canonical CSV, foreign CSV, CAN log) cannot be read as asked."""
+
+
+class ParameterError(UserInputError):
+    """A model parameter is outside its physical range or has the wrong shape."""
+
+
+class BusError(EcuMonitorError):
+    """The CAN bus failed (open, send or receive) in a way the caller must handle."""
+
+
+class EstimationError(EcuMonitorError):
+    """An estimator was used wrongly (for example, estimate() before initialise())."""

@@ -1,0 +1,168 @@
+"""Unmodelled-effect extensions of the nominal CHT model (DESIGN.md section 5).
+
+The paper's model has no airspeed, no density and no probe dynamics in its dissipation; real engines
+do. Each effect here is a named, parameterised physical term. It can be switched on in the virtual
+ECU's truth plant (to make a realistic sim-to-real gap) and, once the gap diagnosis finds it, in the
+identified model. An effect that is ``None`` in :class:`Effects` is off and the model is the paper's.
+
+- ``airspeed_cooling``: the convective conductance 1/R_Ce grows with calibrated airspeed,
+  ``G = (1/R_Ce) * max(floor, 1 + gain_per_mps * (v - reference_mps))``. At the reference speed
+  (cruise) the nominal R_Ce holds; on the ground only the propeller slipstream cools.
+- ``density_cooling``: forced convection scales with air density,
+  ``G *= (rho / reference_kg_m3) ** exponent`` with rho from ISA pressure and the measured OAT
+  (h ~ (rho v)^0.8 for a turbulent flow over fins, so exponent ~0.5-0.8).
+- ``sensor_lag``: the CHT probe (a thermocouple under the spark plug) lags the head with a first
+  order time constant: ``dT_probe/dt = (T - T_probe) / time_constant_s``.
+- ``mixture_cooling``: power enrichment at high load puts less heat into the head. With
+  ``load`` the first heat-map axis normalised to 0..1 over its breakpoints,
+  ``Q *= 1 - fraction * clip((load - onset) / (1 - onset), 0, 1)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+from ecu_monitor.errors import ParameterError
+
+__all__ = [
+    "EFFECT_NAMES",
+    "AirspeedCooling",
+    "DensityCooling",
+    "Effects",
+    "MixtureCooling",
+    "SensorLag",
+]
+
+
+def _check_range(effect: str, name: str, value: float, low: float, high: float) -> None:
+    if not isinstance(value, int | float) or not math.isfinite(value) or not low <= value <= high:
+        raise ParameterError(f"effects.{effect}.{name}: expected a number in [{low}, {high}], got {value!r}")
+
+
+@dataclass(frozen=True)
+class AirspeedCooling:
+    """Convective conductance grows linearly with calibrated airspeed.
+
+    gain_per_mps: relative conductance change per m/s (1/(m/s)), typically 0.005-0.03.
+    reference_mps: airspeed at which the nominal R_Ce holds (m/s), the cruise speed.
+    floor: smallest conductance multiplier (propeller slipstream on the ground), 0.05-1.
+    """
+
+    gain_per_mps: float = 0.015
+    reference_mps: float = 23.0
+    floor: float = 0.4
+
+    def __post_init__(self) -> None:
+        _check_range("airspeed_cooling", "gain_per_mps", self.gain_per_mps, -0.2, 0.2)
+        _check_range("airspeed_cooling", "reference_mps", self.reference_mps, 1.0, 200.0)
+        _check_range("airspeed_cooling", "floor", self.floor, 0.05, 1.0)
+
+
+@dataclass(frozen=True)
+class DensityCooling:
+    """Convective conductance scales with air density: (rho/reference_kg_m3)^exponent.
+
+    exponent: dimensionless, typically 0.5-0.8; reference_kg_m3: density of the nominal fit (kg/m^3).
+    """
+
+    exponent: float = 0.6
+    reference_kg_m3: float = 1.225
+
+    def __post_init__(self) -> None:
+        _check_range("density_cooling", "exponent", self.exponent, -3.0, 3.0)
+        _check_range("density_cooling", "reference_kg_m3", self.reference_kg_m3, 0.3, 1.6)
+
+
+@dataclass(frozen=True)
+class SensorLag:
+    """First-order lag of the CHT probe. time_constant_s: probe time constant (s), 0-300."""
+
+    time_constant_s: float = 8.0
+
+    def __post_init__(self) -> None:
+        _check_range("sensor_lag", "time_constant_s", self.time_constant_s, 0.0, 300.0)
+
+
+@dataclass(frozen=True)
+class MixtureCooling:
+    """Less heat into the head at high load from power enrichment.
+
+    fraction: heat reduction at full load (0-0.6); onset: normalised load where it starts (0-0.95).
+    """
+
+    fraction: float = 0.12
+    onset: float = 0.7
+
+    def __post_init__(self) -> None:
+        _check_range("mixture_cooling", "fraction", self.fraction, 0.0, 0.6)
+        _check_range("mixture_cooling", "onset", self.onset, 0.0, 0.95)
+
+
+_EFFECT_TYPES: dict[str, type] = {
+    "airspeed_cooling": AirspeedCooling,
+    "density_cooling": DensityCooling,
+    "sensor_lag": SensorLag,
+    "mixture_cooling": MixtureCooling,
+}
+EFFECT_NAMES: tuple[str, ...] = tuple(_EFFECT_TYPES)
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Which unmodelled effects are on (None = off) and their parameters."""
+
+    airspeed_cooling: AirspeedCooling | None = None
+    density_cooling: DensityCooling | None = None
+    sensor_lag: SensorLag | None = None
+    mixture_cooling: MixtureCooling | None = None
+
+    def __post_init__(self) -> None:
+        for name, kind in _EFFECT_TYPES.items():
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, kind):
+                raise ParameterError(f"effects.{name}: expected {kind.__name__} or None")
+
+    @property
+    def active(self) -> tuple[str, ...]:
+        """Names of the effects that are on."""
+        return tuple(name for name in EFFECT_NAMES if getattr(self, name) is not None)
+
+    def to_dict(self) -> dict[str, dict[str, float]]:
+        """Plain dict of the active effects (for YAML)."""
+        out: dict[str, dict[str, float]] = {}
+        for name in self.active:
+            value = getattr(self, name)
+            out[name] = {f.name: float(getattr(value, f.name)) for f in fields(value)}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "effects") -> Effects:
+        """Parse ``{name: {param: value}}``; unknown names or keys raise ParameterError."""
+        if data is None:
+            return cls()
+        if not isinstance(data, dict):
+            raise ParameterError(f"{where}: expected a mapping of effect name -> parameters")
+        kwargs: dict[str, Any] = {}
+        for name, params in data.items():
+            kind = _EFFECT_TYPES.get(name)
+            if kind is None:
+                raise ParameterError(f"{where}.{name}: unknown effect (known: {', '.join(EFFECT_NAMES)})")
+            params = params or {}
+            if not isinstance(params, dict):
+                raise ParameterError(f"{where}.{name}: expected a mapping of parameters")
+            known = {f.name for f in fields(kind)}
+            for key in params:
+                if key not in known:
+                    raise ParameterError(f"{where}.{name}.{key}: unknown parameter (known: {sorted(known)})")
+            kwargs[name] = kind(**{k: float(v) for k, v in params.items()})
+        return cls(**kwargs)
+
+    def replace(self, name: str, value: Any) -> Effects:
+        """A copy with one effect switched on (an effect object) or off (None)."""
+        if name not in _EFFECT_TYPES:
+            raise ParameterError(f"effects.{name}: unknown effect")
+        current = {n: getattr(self, n) for n in EFFECT_NAMES}
+        current[name] = value
+        return Effects(**current)

@@ -1,0 +1,199 @@
+"""The thermal model's parameters: a frozen, validated object that round-trips through model.yaml.
+
+Symbols follow the paper (notes.md, Eq. 2, 10-12, 18); units are in each field's comment.
+``paper_table_a1()`` is the paper's identified values (Table A1) with the reference engine's heat
+map: the default model everywhere. Note its radiative term uses degC inside T^4 (the only reading
+under which 8.1e5 makes physical sense, see notes.md); a model identified here states its own
+convention in ``radiation_in_kelvin``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ecu_monitor.errors import ConfigError, ParameterError
+from ecu_monitor.model.effects import Effects
+from ecu_monitor.model.heatmap import HeatMap, reference_heat_map
+
+__all__ = [
+    "MODEL_KIND",
+    "ThermalParams",
+    "load_model",
+    "paper_table_a1",
+    "save_model",
+]
+
+MODEL_KIND = "cht-0d-single-zone"
+_SCALARS: dict[str, tuple[float, float]] = {
+    # name: (lowest, highest) accepted
+    "c_w": (1.0, 1e6),
+    "r_ce": (1e-4, 100.0),
+    "alpha_r_e": (1.0, math.inf),
+    "tau_w": (0.05, 600.0),
+    "a": (-5.0, 10.0),
+    "b": (-5.0, 10.0),
+    "cht_limit_c": (20.0, 500.0),
+}
+
+
+@dataclass(frozen=True)
+class ThermalParams:
+    """Parameters of the 0D single-zone CHT model.
+
+    c_w: wall heat capacity C_w, J/degC.
+    r_ce: convective resistance R_Ce, degC/W.
+    alpha_r_e: radiative resistance alpha*R_e, degC^4/W (or K^4/W with radiation_in_kelvin);
+        ``inf`` switches radiation off.
+    radiation_in_kelvin: True to use Kelvin inside T^4 (physical); False for the paper's preset.
+    tau_w: heat-path delay of the first-order Pade approximation, s.
+    a, b: altitude-scaling exponents of g(z) = (p/p_SL)^a (T_SL/T_e)^b, dimensionless.
+    heat_map: sea-level heat into the wall Q_SL0 on n x m breakpoints, W.
+    effects: unmodelled-effect extensions switched on in this model (none in the paper's).
+    cht_limit_c: CHT limit of the engine for headroom and the step-climb, degC.
+    """
+
+    c_w: float = 570.0
+    r_ce: float = 0.15
+    alpha_r_e: float = 8.1e5
+    radiation_in_kelvin: bool = False
+    tau_w: float = 6.0
+    a: float = 1.55
+    b: float = 2.0
+    heat_map: HeatMap = field(default_factory=reference_heat_map)
+    effects: Effects = field(default_factory=Effects)
+    cht_limit_c: float = 150.0
+
+    def __post_init__(self) -> None:
+        for name, (low, high) in _SCALARS.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+                raise ParameterError(f"{name}: expected a number, got {value!r}")
+            if not low <= value <= high:
+                raise ParameterError(f"{name}: expected a value in [{low:g}, {high:g}], got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if not isinstance(self.radiation_in_kelvin, bool):
+            raise ParameterError("radiation_in_kelvin: expected true or false")
+        if not isinstance(self.heat_map, HeatMap):
+            raise ParameterError("heat_map: expected a HeatMap")
+        if not isinstance(self.effects, Effects):
+            raise ParameterError("effects: expected an Effects")
+
+    @property
+    def heat_axes(self) -> tuple[str, str]:
+        """The two flight columns that drive the heat map."""
+        return self.heat_map.x_axis, self.heat_map.y_axis
+
+    def replace(self, **changes: Any) -> ThermalParams:
+        """A validated copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for YAML (the model.yaml schema)."""
+        hm = self.heat_map
+        return {
+            "model": MODEL_KIND,
+            "version": 1,
+            "c_w": self.c_w,
+            "r_ce": self.r_ce,
+            "alpha_r_e": self.alpha_r_e,
+            "radiation_in_kelvin": self.radiation_in_kelvin,
+            "tau_w": self.tau_w,
+            "a": self.a,
+            "b": self.b,
+            "cht_limit_c": self.cht_limit_c,
+            "heat_map": {
+                "x_axis": hm.x_axis,
+                "y_axis": hm.y_axis,
+                "x_breakpoints": [float(v) for v in hm.x_breakpoints],
+                "y_breakpoints": [float(v) for v in hm.y_breakpoints],
+                "values_w": [[float(v) for v in row] for row in hm.values_w],
+            },
+            "effects": self.effects.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any) -> ThermalParams:
+        """Parse the model.yaml schema; raises ParameterError naming the key."""
+        if not isinstance(data, dict):
+            raise ParameterError("expected a mapping at the top level")
+        kind = data.get("model", MODEL_KIND)
+        if kind != MODEL_KIND:
+            raise ParameterError(f"model: expected {MODEL_KIND!r}, got {kind!r}")
+        known = {f.name for f in dataclasses.fields(cls)} | {"model", "version"}
+        for key in data:
+            if key not in known:
+                raise ParameterError(f"{key}: unknown key (known: {', '.join(sorted(known))})")
+        kwargs: dict[str, Any] = {}
+        for name in _SCALARS:
+            if name in data:
+                kwargs[name] = _number(data[name], name)
+        if "radiation_in_kelvin" in data:
+            kwargs["radiation_in_kelvin"] = data["radiation_in_kelvin"]
+        if "heat_map" in data:
+            kwargs["heat_map"] = _heat_map(data["heat_map"])
+        kwargs["effects"] = Effects.from_dict(data.get("effects"))
+        return cls(**kwargs)
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool):
+        raise ParameterError(f"{where}: expected a number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{where}: expected a number, got {value!r}") from None
+
+
+def _heat_map(data: Any) -> HeatMap:
+    if not isinstance(data, dict):
+        raise ParameterError("heat_map: expected a mapping")
+    required = ("x_axis", "y_axis", "x_breakpoints", "y_breakpoints", "values_w")
+    for key in data:
+        if key not in required:
+            raise ParameterError(f"heat_map.{key}: unknown key")
+    for key in required:
+        if key not in data:
+            raise ParameterError(f"heat_map.{key}: missing")
+    try:
+        xb = tuple(_number(v, "heat_map.x_breakpoints") for v in data["x_breakpoints"])
+        yb = tuple(_number(v, "heat_map.y_breakpoints") for v in data["y_breakpoints"])
+        values = tuple(tuple(_number(v, "heat_map.values_w") for v in row) for row in data["values_w"])
+    except TypeError:
+        raise ParameterError("heat_map: breakpoints and values_w must be lists of numbers") from None
+    return HeatMap(str(data["x_axis"]), str(data["y_axis"]), xb, yb, values)
+
+
+def paper_table_a1() -> ThermalParams:
+    """The paper's Table A1 (C_w 570, R_Ce 0.15, alpha*R_e 8.1e5 with degC in T^4, tau_w 6, a 1.55,
+    b 2) with the reference engine's documented heat map."""
+    return ThermalParams()
+
+
+def load_model(path: str | Path) -> ThermalParams:
+    """Read model.yaml; any problem raises ConfigError naming the file and the key."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read model file ({exc.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    try:
+        return ThermalParams.from_dict(data)
+    except ParameterError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def save_model(params: ThermalParams, path: str | Path, comment: str | None = None) -> None:
+    """Write model.yaml (loads back to an equal ThermalParams)."""
+    path = Path(path)
+    header = "".join(f"# {line}\n" for line in (comment or "").splitlines())
+    path.write_text(header + yaml.safe_dump(params.to_dict(), sort_keys=False), encoding="utf-8")
