@@ -107,7 +107,9 @@ def test_simulate_swarm_equals_each_member():
     swarm = [base, base.replace(c_w=450.0), base.replace(tau_w=12.0, a=1.2)]
     n = 300
     t = np.arange(n)
-    series = InputSeries(40 + 30 * np.sin(t / 40), 5000 + 2000 * np.sin(t / 40), 10 * t, 20 + 0 * t, 15 - 0.0065 * 10 * t)
+    series = InputSeries(
+        40 + 30 * np.sin(t / 40), 5000 + 2000 * np.sin(t / 40), 10 * t, 20 + 0 * t, 15 - 0.0065 * 10 * t
+    )
     together, _ = simulate(series, stack_coefficients(swarm), 1.0, 80.0)
     for i, params in enumerate(swarm):
         alone, _ = simulate(series, coefficients(params), 1.0, 80.0)
@@ -168,7 +170,10 @@ def test_yaml_round_trip(tmp_path):
         ("bogus: 1\n", "bogus"),
         ("effects: {warp_drive: {}}\n", "warp_drive"),
         ("effects: {sensor_lag: {time_constant_s: -1}}\n", "time_constant_s"),
-        ("heat_map: {x_axis: a, y_axis: b, x_breakpoints: [0, 1], y_breakpoints: [0, 1], values_w: [[1, 2]]}\n", "values_w"),
+        (
+            "heat_map: {x_axis: a, y_axis: b, x_breakpoints: [0, 1], y_breakpoints: [0, 1], values_w: [[1, 2]]}\n",
+            "values_w",
+        ),
         ("[1, 2\n", "YAML"),
     ],
 )

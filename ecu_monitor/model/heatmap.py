@@ -121,8 +121,7 @@ _REF_RPM = (2000.0, 3750.0, 5500.0, 7250.0, 9000.0)
 def reference_heat_map() -> HeatMap:
     """The documented 5 x 5 heat map of the reference UAV engine (throttle % x rpm, W)."""
     values = [
-        [1900.0 * (0.12 + 0.88 * (th / 100.0) ** 0.95) * (n / 9000.0) ** 0.7 for n in _REF_RPM]
-        for th in _REF_THROTTLE
+        [1900.0 * (0.12 + 0.88 * (th / 100.0) ** 0.95) * (n / 9000.0) ** 0.7 for n in _REF_RPM] for th in _REF_THROTTLE
     ]
     rounded = tuple(tuple(round(v, 1) for v in row) for row in values)
     return HeatMap("throttle_pct", "rpm", _REF_THROTTLE, _REF_RPM, rounded)

@@ -21,10 +21,10 @@ hold); the step is RK4.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import NDArray
 
 from ecu_monitor.model.atmosphere import (
     KELVIN_OFFSET,
@@ -37,11 +37,15 @@ from ecu_monitor.model.atmosphere import (
 from ecu_monitor.model.heatmap import bilinear
 from ecu_monitor.model.params import ThermalParams
 
+#: A float for one parameter set, or an array for a swarm / a whole flight.
+Real = float | NDArray[np.float64]
+
 __all__ = [
     "STATE_NAMES",
     "Coefficients",
     "Drive",
     "InputSeries",
+    "Real",
     "coefficients",
     "compute_drive",
     "derivatives",
@@ -63,44 +67,44 @@ class Coefficients(NamedTuple):
     Effects that are off take their neutral value (gain 0, exponent 0, lag 0, fraction 0).
     """
 
-    c_w: ArrayLike  # J/degC
-    r_ce: ArrayLike  # degC/W
-    radiative_conductance: ArrayLike  # 1/(alpha R_e), W/deg^4
+    c_w: Real  # J/degC
+    r_ce: Real  # degC/W
+    radiative_conductance: Real  # 1/(alpha R_e), W/deg^4
     radiation_offset_c: float  # 273.15 when T^4 is in Kelvin, 0 for the paper's preset
-    tau_w: ArrayLike  # s
-    a: ArrayLike
-    b: ArrayLike
+    tau_w: Real  # s
+    a: Real
+    b: Real
     heat_values_w: np.ndarray  # (n, m) or (P, n, m), W
     x_breakpoints: np.ndarray
     y_breakpoints: np.ndarray
-    airspeed_gain_per_mps: ArrayLike  # 1/(m/s)
-    airspeed_reference_mps: ArrayLike
-    airspeed_floor: ArrayLike
-    density_exponent: ArrayLike
-    density_reference_kg_m3: ArrayLike
-    sensor_lag_s: ArrayLike  # s, 0 = no lag
-    mixture_fraction: ArrayLike
-    mixture_onset: ArrayLike
+    airspeed_gain_per_mps: Real  # 1/(m/s)
+    airspeed_reference_mps: Real
+    airspeed_floor: Real
+    density_exponent: Real
+    density_reference_kg_m3: Real
+    sensor_lag_s: Real  # s, 0 = no lag
+    mixture_fraction: Real
+    mixture_onset: Real
 
 
 class Drive(NamedTuple):
     """Exogenous quantities of one step (or of every step of a flight), held over the step."""
 
-    q_sl0_w: ArrayLike  # sea-level heat map value Q_SL0, W
-    altitude_gain: ArrayLike  # g(z), dimensionless
-    ambient_c: ArrayLike  # T_e, degC
-    conductance_w_per_c: ArrayLike  # G = gains / R_Ce, W/degC
-    heat_gain: ArrayLike  # mixture-cooling multiplier on the heat, dimensionless
+    q_sl0_w: Real  # sea-level heat map value Q_SL0, W
+    altitude_gain: Real  # g(z), dimensionless
+    ambient_c: Real  # T_e, degC
+    conductance_w_per_c: Real  # G = gains / R_Ce, W/degC
+    heat_gain: Real  # mixture-cooling multiplier on the heat, dimensionless
 
 
 class InputSeries(NamedTuple):
     """Model inputs over time (arrays of length N, or floats for one step)."""
 
-    heat_x: ArrayLike  # first heat-map axis (e.g. throttle_pct)
-    heat_y: ArrayLike  # second heat-map axis (e.g. rpm)
-    altitude_m: ArrayLike
-    airspeed_mps: ArrayLike
-    oat_c: ArrayLike
+    heat_x: Real  # first heat-map axis (e.g. throttle_pct)
+    heat_y: Real  # second heat-map axis (e.g. rpm)
+    altitude_m: Real
+    airspeed_mps: Real
+    oat_c: Real
 
 
 def coefficients(params: ThermalParams) -> Coefficients:
@@ -178,19 +182,19 @@ def compute_drive(inputs: InputSeries, coeffs: Coefficients) -> Drive:
     )
 
 
-def initial_pade_state(drive: Drive) -> ArrayLike:
+def initial_pade_state(drive: Drive) -> Real:
     """Pade state w in steady state for the given drive (w = 2 Q_SL0), W."""
     return 2.0 * np.asarray(drive.q_sl0_w)
 
 
 def derivatives(
-    cht_c: ArrayLike,
-    pade_w: ArrayLike,
+    cht_c: Real,
+    pade_w: Real,
     drive: Drive,
     coeffs: Coefficients,
-    gamma_q: ArrayLike = 1.0,
-    gamma_d: ArrayLike = 1.0,
-) -> tuple[ArrayLike, ArrayLike]:
+    gamma_q: Real = 1.0,
+    gamma_d: Real = 1.0,
+) -> tuple[Real, Real]:
     """(dT/dt in degC/s, dw/dt in W/s) of the model (Eq. 18 with the Pade delay)."""
     q_sl = pade_w - drive.q_sl0_w
     heat_in = gamma_q * drive.heat_gain * drive.altitude_gain * q_sl
@@ -205,14 +209,14 @@ def derivatives(
 
 
 def rk4_step(
-    cht_c: ArrayLike,
-    pade_w: ArrayLike,
+    cht_c: Real,
+    pade_w: Real,
     drive: Drive,
     coeffs: Coefficients,
     dt_s: float,
-    gamma_q: ArrayLike = 1.0,
-    gamma_d: ArrayLike = 1.0,
-) -> tuple[ArrayLike, ArrayLike]:
+    gamma_q: Real = 1.0,
+    gamma_d: Real = 1.0,
+) -> tuple[Real, Real]:
     """One RK4 step of (T, w) over dt_s seconds with the drive held constant."""
     k1t, k1w = derivatives(cht_c, pade_w, drive, coeffs, gamma_q, gamma_d)
     h = 0.5 * dt_s
@@ -226,7 +230,7 @@ def rk4_step(
     )
 
 
-def sensor_step(probe_c: ArrayLike, cht_c: ArrayLike, coeffs: Coefficients, dt_s: float) -> ArrayLike:
+def sensor_step(probe_c: Real, cht_c: Real, coeffs: Coefficients, dt_s: float) -> Real:
     """Probe temperature after dt_s (exact first-order lag towards cht_c); no lag -> cht_c."""
     lag = np.asarray(coeffs.sensor_lag_s, dtype=float)
     alpha = np.where(lag > 0.0, -np.expm1(-dt_s / np.maximum(lag, 1e-12)), 1.0)
@@ -236,7 +240,7 @@ def sensor_step(probe_c: ArrayLike, cht_c: ArrayLike, coeffs: Coefficients, dt_s
 
 def steady_state_cht(
     drive: Drive, coeffs: Coefficients, gamma_q: float = 1.0, gamma_d: float = 1.0, iterations: int = 60
-) -> ArrayLike:
+) -> Real:
     """CHT (degC) where heat in equals heat out for a held drive (Newton on the balance)."""
     heat = gamma_q * gamma_d * np.asarray(drive.heat_gain) * drive.altitude_gain * drive.q_sl0_w
     g_conv = np.asarray(drive.conductance_w_per_c, dtype=float)
@@ -255,9 +259,9 @@ def simulate(
     inputs: InputSeries,
     coeffs: Coefficients,
     dt_s: float,
-    initial_cht_c: ArrayLike,
-    gamma_q: ArrayLike = 1.0,
-    gamma_d: ArrayLike = 1.0,
+    initial_cht_c: Real,
+    gamma_q: Real = 1.0,
+    gamma_d: Real = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Open-loop run over inputs sampled every dt_s (arrays of length N).
 
@@ -271,23 +275,22 @@ def simulate(
     swarm = np.ndim(coeffs.c_w) > 0
     per_time = coeffs
     if swarm:  # per-particle fields (P,) -> (P, 1) so the drive broadcasts to (P, N)
-        per_time = coeffs._replace(
-            **{
-                name: np.asarray(getattr(coeffs, name), dtype=float)[:, None]
-                for name in Coefficients._fields
-                if name not in ("radiation_offset_c", "heat_values_w", "x_breakpoints", "y_breakpoints")
-            }
-        )
+        columns: dict[str, Any] = {
+            name: np.asarray(getattr(coeffs, name), dtype=float)[:, None]
+            for name in Coefficients._fields
+            if name not in ("radiation_offset_c", "heat_values_w", "x_breakpoints", "y_breakpoints")
+        }
+        per_time = coeffs._replace(**columns)
     drive_all = Drive(*(np.asarray(v, dtype=float) for v in compute_drive(series, per_time)))
     g_q = np.broadcast_to(np.asarray(gamma_q, dtype=float), (n,))
     g_d = np.broadcast_to(np.asarray(gamma_d, dtype=float), (n,))
 
     def at(k: int) -> Drive:
-        return Drive(*(v[..., k] for v in drive_all))
+        return Drive(*(np.asarray(v)[..., k] for v in drive_all))
 
     first = at(0)
-    cht = np.asarray(initial_cht_c, dtype=float) + 0.0 * np.asarray(coeffs.c_w, dtype=float)
-    pade = np.asarray(initial_pade_state(first), dtype=float) + 0.0 * cht
+    cht: Any = np.asarray(initial_cht_c, dtype=float) + 0.0 * np.asarray(coeffs.c_w, dtype=float)
+    pade: Any = np.asarray(initial_pade_state(first), dtype=float) + 0.0 * cht
     probe = cht.copy()
     out_cht = np.empty((n, *cht.shape))
     out_probe = np.empty((n, *cht.shape))
