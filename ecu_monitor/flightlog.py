@@ -365,10 +365,15 @@ def _read_table(
         _note(notes, src, f"row {last_line}: truncated last row ({len(last_fields)} of {width} fields) dropped")
         if not rows:
             raise FlightLogError(f"{src}: row {last_line}: the only data row is truncated")
-    for line, fields in rows:
+    return _Table(header, rows)
+
+
+def _check_widths(src: str, table: _Table) -> None:
+    """Every data row must have as many fields as the header (called once the header is checked)."""
+    width = len(table.header)
+    for line, fields in table.rows:
         if len(fields) != width:
             raise FlightLogError(f"{src}: row {line}: {len(fields)} fields, the header has {width}")
-    return _Table(header, rows)
 
 
 def _note(notes: list[str], source: str, message: str) -> None:
@@ -507,6 +512,16 @@ def read_csv(path: str | os.PathLike[str]) -> FlightLog:
     notes: list[str] = []
     table = _read_table(path, notes)
     header = table.header
+    present = set(header)
+    for name in _REQUIRED_ALWAYS:
+        if name not in present:
+            hint = "" if present & _STRICT else " (not a canonical flight CSV: import it with a mapping)"
+            raise FlightLogError(f"{src}: row 1, column '{name}': required column missing{hint}")
+    if "throttle_pct" not in present and "fuel_flow_lph" not in present:
+        raise FlightLogError(
+            f"{src}: row 1, column 'throttle_pct': required column missing"
+            " (a log without throttle must carry fuel_flow_lph)"
+        )
     seen: set[str] = set()
     for name in header:
         if not name:
@@ -514,14 +529,7 @@ def read_csv(path: str | os.PathLike[str]) -> FlightLog:
         if name in seen:
             raise FlightLogError(f"{src}: row 1, column '{name}': duplicate column name")
         seen.add(name)
-    for name in _REQUIRED_ALWAYS:
-        if name not in seen:
-            raise FlightLogError(f"{src}: row 1, column '{name}': required column missing")
-    if "throttle_pct" not in seen and "fuel_flow_lph" not in seen:
-        raise FlightLogError(
-            f"{src}: row 1, column 'throttle_pct': required column missing"
-            " (a log without throttle must carry fuel_flow_lph)"
-        )
+    _check_widths(src, table)
     lines = np.array([line for line, _ in table.rows], dtype=np.int64)
     cols: dict[str, np.ndarray] = {}
     for i, name in enumerate(header):
@@ -802,6 +810,7 @@ def import_mapped_csv(path: str | os.PathLike[str], mapping_path: str | os.PathL
             if name not in index:
                 key = "column" if cm.reduce is None else "columns"
                 raise ConfigError(f"{mapping.path}: key 'columns.{cm.target}.{key}': column {name!r} not in {src}")
+    _check_widths(src, table)
     lines = np.array([line for line, _ in table.rows], dtype=np.int64)
     time = _parse_time(src, mapping.time, table, index, lines)
     cols: dict[str, np.ndarray] = {}
