@@ -40,7 +40,7 @@ def _make_table() -> tuple[int, ...]:
 _TABLE = _make_table()
 
 
-def crc8_sae_j1850(data: bytes) -> int:
+def crc8_sae_j1850(data: bytes | bytearray | memoryview) -> int:
     """CRC-8/SAE-J1850 of every byte of ``data`` (table driven, one lookup per byte)."""
     crc = _INIT
     for byte in data:
@@ -48,7 +48,7 @@ def crc8_sae_j1850(data: bytes) -> int:
     return crc ^ _XOR_OUT
 
 
-def frame_checksum(data: bytes) -> int:
+def frame_checksum(data: bytes | bytearray | memoryview) -> int:
     """Checksum of a CAN frame: CRC-8/SAE-J1850 over bytes 0..6.
 
     ``data`` is the 8-byte payload (byte 7, the checksum itself, is ignored) or just its first 7 bytes.

@@ -1,0 +1,268 @@
+"""The DBC contract: dbc/engine.dbc (frames in) and dbc/health.dbc (frames out), and the frame checksum."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cantools
+import pytest
+
+from ecu_monitor.bus.checksum import crc8_sae_j1850, frame_checksum
+
+DBC_DIR = Path(__file__).resolve().parents[1] / "dbc"
+
+#: file -> message -> (frame id, cycle time ms, sender, signal names). Other engineers code against these.
+CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
+    "engine.dbc": {
+        "ECU_Fast": (0x100, 20, "ECU", ("EngineSpeed", "ThrottlePos", "FuelFlow", "FastCounter", "FastChecksum")),
+        "ECU_Slow": (0x101, 100, "ECU", ("CHT", "OAT", "EcuStatus", "SlowCounter", "SlowChecksum")),
+        "AirData": (
+            0x200,
+            100,
+            "Autopilot",
+            ("PressureAltitude", "CalibratedAirspeed", "VerticalSpeed", "AirDataCounter", "AirDataChecksum"),
+        ),
+    },
+    "health.dbc": {
+        "Health_Status": (
+            0x300,
+            100,
+            "EcuMonitor",
+            ("ChtEstimate", "ModelDeviation", "DegradationState", "HealthCounter", "HealthChecksum"),
+        ),
+        "Health_Isolation": (
+            0x301,
+            500,
+            "EcuMonitor",
+            (
+                "GammaQEstimate",
+                "GammaDEstimate",
+                "ThermalHeadroom",
+                "ChtLimitMargin",
+                "IsolationCounter",
+                "IsolationChecksum",
+            ),
+        ),
+        "Health_Diag": (
+            0x302,
+            1000,
+            "EcuMonitor",
+            ("StaleInputs", "MalformedFrames", "BusErrors", "DiagCounter", "DiagChecksum"),
+        ),
+    },
+}
+
+#: message.signal -> (unit, at least this min, at least this max, resolution at most)
+RANGES: dict[str, tuple[str, float, float, float]] = {
+    "ECU_Fast.EngineSpeed": ("rpm", 0, 16000, 0.5),
+    "ECU_Fast.ThrottlePos": ("%", 0, 100, 0.01),
+    "ECU_Fast.FuelFlow": ("L/h", 0, 50, 0.01),
+    "ECU_Slow.CHT": ("degC", -40, 400, 0.1),
+    "ECU_Slow.OAT": ("degC", -60, 80, 0.1),
+    "AirData.PressureAltitude": ("m", -500, 10000, 0.5),
+    "AirData.CalibratedAirspeed": ("m/s", 0, 100, 0.01),
+    "AirData.VerticalSpeed": ("m/s", -30, 30, 0.01),
+    "Health_Status.ChtEstimate": ("degC", -40, 400, 0.1),
+    "Health_Status.ModelDeviation": ("degC/s", -10, 10, 0.001),
+    "Health_Isolation.GammaQEstimate": ("", 0.5, 2.5, 0.001),
+    "Health_Isolation.GammaDEstimate": ("", 0.5, 2.5, 0.001),
+    "Health_Isolation.ThermalHeadroom": ("s", 0, 6000, 1),
+    "Health_Isolation.ChtLimitMargin": ("degC", -200, 300, 0.1),
+    "Health_Diag.MalformedFrames": ("", 0, 65535, 1),
+    "Health_Diag.BusErrors": ("", 0, 255, 1),
+}
+
+CHOICES: dict[str, dict[int, str]] = {
+    "ECU_Slow.EcuStatus": {0: "OK", 1: "WARNING", 2: "FAULT", 3: "CHT_SENSOR_OPEN"},
+    "Health_Status.DegradationState": {
+        0: "NOMINAL",
+        1: "SUSPECT",
+        2: "DEGRADED",
+        3: "INPUT_STALE",
+        4: "SENSOR_FAULT",
+        5: "UNAVAILABLE",
+    },
+}
+
+
+def _load(name: str) -> Any:
+    return cantools.database.load_file(str(DBC_DIR / name), strict=True)
+
+
+def _find(dbs: list[Any], ref: str) -> Any:
+    msg_name, sig_name = ref.split(".")
+    msg = next(db.get_message_by_name(msg_name) for db in dbs if msg_name in {m.name for m in db.messages})
+    return msg.get_signal_by_name(sig_name)
+
+
+@pytest.fixture(scope="module", params=sorted(CONTRACT))
+def dbc(request: pytest.FixtureRequest) -> tuple[str, Any]:
+    return request.param, _load(request.param)
+
+
+def _messages() -> list[tuple[str, str]]:
+    return [(f, m) for f, msgs in CONTRACT.items() for m in msgs]
+
+
+def test_contract_names_ids_rates_and_senders(dbc: tuple[str, Any]) -> None:
+    name, db = dbc
+    assert sorted(m.name for m in db.messages) == sorted(CONTRACT[name])
+    for msg_name, (frame_id, cycle_ms, sender, signals) in CONTRACT[name].items():
+        msg = db.get_message_by_name(msg_name)
+        assert msg.frame_id == frame_id
+        assert not msg.is_extended_frame
+        assert msg.length == 8
+        assert msg.cycle_time == cycle_ms
+        assert msg.senders == [sender]
+        assert tuple(s.name for s in msg.signals) == signals
+
+
+def test_counter_and_checksum_positions(dbc: tuple[str, Any]) -> None:
+    _, db = dbc
+    for msg in db.messages:
+        counter, checksum = msg.signals[-2], msg.signals[-1]
+        assert counter.name.endswith("Counter") and (counter.start, counter.length) == (48, 4)
+        assert checksum.name.endswith("Checksum") and (checksum.start, checksum.length) == (56, 8)
+        assert counter.byte_order == checksum.byte_order == "little_endian"
+        for sig in msg.signals[:-2]:  # payload stays in bytes 0..5 (+ reserved high nibble of byte 6)
+            assert sig.start + sig.length <= 48, sig.name
+
+
+def test_units_ranges_and_resolution() -> None:
+    dbs = [_load(n) for n in CONTRACT]
+    for ref, (unit, lo, hi, res) in RANGES.items():
+        sig = _find(dbs, ref)
+        assert (sig.unit or "") == unit, ref
+        assert sig.minimum <= lo and sig.maximum >= hi, ref
+        assert sig.scale <= res + 1e-12, ref
+        raw_lo = (sig.minimum - sig.offset) / sig.scale
+        raw_hi = (sig.maximum - sig.offset) / sig.scale
+        span = (-(2 ** (sig.length - 1)), 2 ** (sig.length - 1) - 1) if sig.is_signed else (0, 2**sig.length - 1)
+        assert span[0] <= round(raw_lo) and round(raw_hi) <= span[1], f"{ref}: range does not fit the bits"
+
+
+def test_enumerations() -> None:
+    dbs = [_load(n) for n in CONTRACT]
+    for ref, choices in CHOICES.items():
+        sig = _find(dbs, ref)
+        assert {int(k): str(v) for k, v in sig.choices.items()} == choices
+        assert (sig.minimum, sig.maximum) == (min(choices), max(choices))
+
+
+@pytest.mark.parametrize(("dbc_name", "msg_name"), _messages())
+def test_round_trip_min_mid_max(dbc_name: str, msg_name: str) -> None:
+    msg: Any = _load(dbc_name).get_message_by_name(msg_name)
+    mids = {s.name: (s.minimum + s.maximum) / 2 for s in msg.signals}
+    for sig in msg.signals:
+        for value in (sig.minimum, mids[sig.name], sig.maximum):
+            values = dict(mids, **{sig.name: value})
+            data = msg.encode(values, strict=True)
+            assert len(data) == 8
+            decoded = msg.decode(data, decode_choices=False)
+            for name, expected in values.items():
+                tol = msg.get_signal_by_name(name).scale / 2 + 1e-9
+                assert decoded[name] == pytest.approx(expected, abs=tol), (name, value)
+
+
+def test_out_of_range_is_refused_strict() -> None:
+    msg = _load("engine.dbc").get_message_by_name("ECU_Fast")
+    values = {"EngineSpeed": 16000.25, "ThrottlePos": 0, "FuelFlow": 0, "FastCounter": 0, "FastChecksum": 0}
+    with pytest.raises(cantools.database.EncodeError, match="EngineSpeed"):
+        msg.encode(values, strict=True)
+
+
+# Frames pinned byte for byte (independently checked by hand: little-endian raw = (value - offset) / scale).
+GOLDEN_FRAMES = [
+    (
+        "engine.dbc",
+        "ECU_Fast",
+        {"EngineSpeed": 5200.25, "ThrottlePos": 63.5, "FuelFlow": 21.37, "FastCounter": 9},
+        "4151ce18590809cc",
+    ),
+    ("engine.dbc", "ECU_Slow", {"CHT": 187.0, "OAT": -12.3, "EcuStatus": 1, "SlowCounter": 15}, "de0885ff01000fa9"),
+    (
+        "health.dbc",
+        "Health_Isolation",
+        {
+            "GammaQEstimate": 1.0,
+            "GammaDEstimate": 0.8,
+            "ThermalHeadroom": 6000,
+            "ChtLimitMargin": -12.5,
+            "IsolationCounter": 3,
+        },
+        "f46109dc1dfc0390",
+    ),
+]
+
+
+@pytest.mark.parametrize(("dbc_name", "msg_name", "values", "hex_frame"), GOLDEN_FRAMES)
+def test_golden_frames(dbc_name: str, msg_name: str, values: dict[str, float], hex_frame: str) -> None:
+    msg = _load(dbc_name).get_message_by_name(msg_name)
+    checksum_name = msg.signals[-1].name
+    data = bytearray(msg.encode({**values, checksum_name: 0}, strict=True))
+    data[7] = frame_checksum(data)
+    assert data.hex() == hex_frame
+    assert frame_checksum(bytes.fromhex(hex_frame)) == bytes.fromhex(hex_frame)[7]
+
+
+def test_golden_bit_layout_of_packed_frame() -> None:
+    # Health_Isolation packs 11+11+13+13 bits; check against integer arithmetic, not cantools.
+    raw = int.from_bytes(bytes.fromhex(GOLDEN_FRAMES[2][3])[:6], "little")
+    assert raw == 500 | 300 << 11 | 6000 << 22 | (8192 - 125) << 35
+
+
+@pytest.mark.parametrize("dbc_name", sorted(CONTRACT))
+def test_dump_reload_round_trip(dbc_name: str, tmp_path: Path) -> None:
+    db = _load(dbc_name)
+    out = tmp_path / dbc_name
+    cantools.database.dump_file(db, str(out))
+    again: Any = cantools.database.load_file(str(out), strict=True)
+    assert [m.name for m in again.messages] == [m.name for m in db.messages]
+    for a, b in zip(db.messages, again.messages, strict=True):
+        assert (a.frame_id, a.length, a.cycle_time, a.senders) == (b.frame_id, b.length, b.cycle_time, b.senders)
+        for sa, sb in zip(a.signals, b.signals, strict=True):
+            assert (sa.name, sa.start, sa.length, sa.byte_order, sa.is_signed) == (
+                sb.name,
+                sb.start,
+                sb.length,
+                sb.byte_order,
+                sb.is_signed,
+            )
+            assert (sa.scale, sa.offset, sa.minimum, sa.maximum, sa.unit) == (
+                sb.scale,
+                sb.offset,
+                sb.minimum,
+                sb.maximum,
+                sb.unit,
+            )
+            assert sa.choices == sb.choices
+            assert sa.comment == sb.comment
+
+
+# AUTOSAR SWS_CRC "8-bit SAE-J1850 CRC Calculation" reference results, plus the catalogue check value.
+CRC_VECTORS = [
+    ("00000000", 0x59),
+    ("F20183", 0x37),
+    ("0FAA0055", 0x79),
+    ("00FF5511", 0xB8),
+    ("332255AABBCCDDEEFF", 0xCB),
+    ("926B55", 0x8C),
+    ("FFFFFFFF", 0x74),
+    ("313233343536373839", 0x4B),  # "123456789"
+]
+
+
+@pytest.mark.parametrize(("hex_data", "expected"), CRC_VECTORS)
+def test_crc8_known_vectors(hex_data: str, expected: int) -> None:
+    assert crc8_sae_j1850(bytes.fromhex(hex_data)) == expected
+
+
+def test_frame_checksum_covers_bytes_0_to_6_only() -> None:
+    frame = bytes.fromhex("4151ce18590809")
+    assert frame_checksum(frame) == frame_checksum(frame + b"\x00") == frame_checksum(frame + b"\xff") == 0xCC
+    assert frame_checksum(bytes(7)) != 0  # an all-zero frame does not check
+    flipped = bytes([frame[0] ^ 0x01]) + frame[1:]
+    assert frame_checksum(flipped) != 0xCC
+    with pytest.raises(ValueError, match="7 bytes"):
+        frame_checksum(b"\x00" * 6)
