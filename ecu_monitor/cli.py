@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "history",
     "import_log",
     "results",
+    "evaluate",
 )
 
 
