@@ -208,6 +208,8 @@ _COLUMN_QUANTITY: Mapping[str, str] = MappingProxyType(
 _NON_NEGATIVE: tuple[str, ...] = ("airspeed_mps", "fuel_flow_lph")
 
 _REDUCERS: Mapping[str, Callable[..., Any]] = MappingProxyType({"mean": np.mean, "max": np.max, "min": np.min})
+#: Timestamp tolerance of the sample-and-hold grid (log formats store us or 10 us resolution).
+_TIE_S = 1e-6
 _IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -951,7 +953,8 @@ def import_can_log(
     out: dict[str, np.ndarray] = {"time_s": offsets}
     stale_limit = max(1.0, 10.0 * dt_s)
     for column, (t, v) in arrays.items():
-        out[column] = v[np.searchsorted(t, grid, side="right") - 1]
+        # a frame stamped within _TIE_S after a grid instant counts as at that instant (timestamp rounding)
+        out[column] = v[np.searchsorted(t, grid + _TIE_S, side="right") - 1]
         stale = int(np.count_nonzero(np.diff(t) > stale_limit))
         if stale:
             _note(notes, src, f"'{smap[column]}': {stale} silence(s) longer than {stale_limit:g} s held over")
