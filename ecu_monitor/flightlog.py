@@ -966,21 +966,25 @@ def import_can_log(
 # --------------------------------------------------------------------------------------------------
 
 
-def _load_csv(path: Path, mapping: str | os.PathLike[str] | None, dbc_paths: Sequence[Any] | None) -> FlightLog:
-    if dbc_paths:
+def _load_csv(
+    path: Path, mapping: str | os.PathLike[str] | None, dbc_paths: Sequence[Any] | None, signal_map: Any
+) -> FlightLog:
+    if dbc_paths or signal_map:
         raise FlightLogError(f"{path}: DBC files apply to CAN logs, not to a CSV")
     if mapping is None:
         return read_csv(path)
     return import_mapped_csv(path, resolve_mapping(mapping))
 
 
-def _load_can(path: Path, mapping: str | os.PathLike[str] | None, dbc_paths: Sequence[Any] | None) -> FlightLog:
+def _load_can(
+    path: Path, mapping: str | os.PathLike[str] | None, dbc_paths: Sequence[Any] | None, signal_map: Any
+) -> FlightLog:
     if mapping is not None:
         raise FlightLogError(f"{path}: a CSV mapping does not apply to a CAN log (give DBC files)")
-    return import_can_log(path, list(dbc_paths) if dbc_paths else [DEFAULT_ENGINE_DBC])
+    return import_can_log(path, list(dbc_paths) if dbc_paths else [DEFAULT_ENGINE_DBC], signal_map)
 
 
-_LOADERS: Mapping[str, Callable[[Path, Any, Any], FlightLog]] = MappingProxyType(
+_LOADERS: Mapping[str, Callable[[Path, Any, Any, Any], FlightLog]] = MappingProxyType(
     {".csv": _load_csv, **dict.fromkeys(CAN_LOG_SUFFIXES, _load_can)}
 )
 
@@ -990,12 +994,14 @@ def load_flight(
     *,
     mapping: str | os.PathLike[str] | None = None,
     dbc_paths: Sequence[str | os.PathLike[str]] | None = None,
+    signal_map: Mapping[str, str] | None = None,
 ) -> FlightLog:
     """Load any supported flight log by suffix.
 
     ``.csv``: canonical (:func:`read_csv`), or foreign through ``mapping`` (a path or a shipped
     mapping's name, see :func:`resolve_mapping`). ``.asc/.blf/.log/.trc``: :func:`import_can_log` with
-    ``dbc_paths`` (default: the repository's dbc/engine.dbc).
+    ``dbc_paths`` (default: the repository's dbc/engine.dbc) and ``signal_map`` (default
+    :data:`DEFAULT_SIGNAL_MAP`).
     """
     path = Path(path)
     loader = _LOADERS.get(path.suffix.lower())
@@ -1003,4 +1009,4 @@ def load_flight(
         raise FlightLogError(
             f"{path}: unknown log type {path.suffix or '(no suffix)'!r} (known: {', '.join(_LOADERS)})"
         )
-    return loader(path, mapping, dbc_paths)
+    return loader(path, mapping, dbc_paths, signal_map)

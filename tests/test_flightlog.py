@@ -435,3 +435,47 @@ def test_cli_import_mapped_csv(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().startswith(f"{out}: 4 rows, 2.0 s") and "4 warning(s)" in result.stdout
     assert read_csv(out).names == ("time_s", "throttle_pct", "rpm", "altitude_m", "airspeed_mps", "oat_c", "cht_c")
+
+
+RUSEFI_DBC = G1000_CSV.parents[1] / "dbc" / "rusEFI_CAN_verbose.dbc"
+
+
+@pytest.mark.skipif(not RUSEFI_DBC.exists(), reason=f"shared rusEFI DBC not found at {RUSEFI_DBC}")
+def test_cli_import_can_log_of_another_ecu_is_configuration(tmp_path: Path) -> None:
+    rus: Any = cantools.database.load_file(str(RUSEFI_DBC), strict=False)
+    ours: Any = cantools.database.load_file(str(DEFAULT_ENGINE_DBC), strict=True)
+    base1, base2, base3 = (rus.get_message_by_name(n) for n in ("BASE1", "BASE2", "BASE3"))
+    air = ours.get_message_by_name("AirData")
+
+    def zeros(msg: Any, **values: float) -> bytes:
+        return bytes(msg.encode({**{s.name: 0 for s in msg.signals}, **values}, strict=False))
+
+    frames = []
+    for k in range(12):
+        t = T0 + 0.1 * k
+        frames += [
+            (t, base1.frame_id, zeros(base1, RPM=5000 + k)),
+            (t + 0.01, base2.frame_id, zeros(base2, TPS1=42.0)),
+            (t + 0.02, base3.frame_id, zeros(base3, AUX1Temp=150 + k, IntakeTemp=20, CoolantTemp=0, MCUTemp=0)),
+            (t + 0.03, air.frame_id, zeros(air, PressureAltitude=800, CalibratedAirspeed=25.0)),
+        ]
+    path = tmp_path / "rusefi.blf"
+    with can.Logger(str(path)) as writer:
+        for t, i, d in frames:
+            writer.on_message_received(can.Message(timestamp=t, arbitration_id=i, data=d, is_extended_id=False))
+    signals = {
+        "rpm": "BASE1.RPM",
+        "throttle_pct": "BASE2.TPS1",
+        "cht_c": "BASE3.AUX1Temp",
+        "oat_c": "BASE3.IntakeTemp",
+        "altitude_m": "AirData.PressureAltitude",
+        "airspeed_mps": "AirData.CalibratedAirspeed",
+    }
+    out = tmp_path / "flight.csv"
+    args: list[str | Path] = ["import", path, "--out", out, "--dbc", RUSEFI_DBC, "--dbc", DEFAULT_ENGINE_DBC]
+    args += [arg for column, ref in signals.items() for arg in ("--signal", f"{column}={ref}")]
+    result = _cli(*args, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    log = read_csv(out)
+    assert set(log.names) == {"time_s", *signals}
+    assert log["rpm"][0] == 5000 and log["cht_c"][0] == 150 and log["throttle_pct"][0] == 42.0
