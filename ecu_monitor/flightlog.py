@@ -33,7 +33,7 @@ Canonical CSV rules (:func:`read_csv`)
 * An empty file or a header without rows is an error; a last row with too few fields (a log cut
   mid-write) is dropped with a warning; a short row anywhere else is an error.
 * Extra columns are carried along as floats (blank fields stay NaN) when numeric, and dropped with a
-  debug message when they hold text.
+  debug message when they hold text or have no name (a trailing comma).
 
 Mapping YAML (:func:`import_mapped_csv`)
 ----------------------------------------
@@ -527,7 +527,7 @@ def read_csv(path: str | os.PathLike[str]) -> FlightLog:
     seen: set[str] = set()
     for name in header:
         if not name:
-            raise FlightLogError(f"{src}: row 1: empty column name in the header")
+            continue  # an unnamed column (trailing comma of a spreadsheet export) is dropped below
         if name in seen:
             raise FlightLogError(f"{src}: row 1, column '{name}': duplicate column name")
         seen.add(name)
@@ -535,6 +535,9 @@ def read_csv(path: str | os.PathLike[str]) -> FlightLog:
     lines = np.array([line for line, _ in table.rows], dtype=np.int64)
     cols: dict[str, np.ndarray] = {}
     for i, name in enumerate(header):
+        if not name:
+            _log.debug("%s: column %d has no name: dropped", src, i + 1)
+            continue
         fields = [row[i] for _, row in table.rows]
         if name in _STRICT:
             cols[name] = _numbers(src, name, fields, lines)

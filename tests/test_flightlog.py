@@ -479,3 +479,9 @@ def test_cli_import_can_log_of_another_ecu_is_configuration(tmp_path: Path) -> N
     log = read_csv(out)
     assert set(log.names) == {"time_s", *signals}
     assert log["rpm"][0] == 5000 and log["cht_c"][0] == 150 and log["throttle_pct"][0] == 42.0
+
+
+def test_trailing_comma_column_is_dropped(tmp_path: Path) -> None:
+    text = "\n".join([HEADER + ",", *(row + "," for row in _good(3))]) + "\n"
+    log = read_csv(_write(tmp_path, text))
+    assert log.names == CANONICAL_COLUMNS and len(log) == 3
