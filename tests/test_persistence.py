@@ -1,0 +1,228 @@
+"""Flight history database: flight detection from rpm, aggregates, rainflow cycles, crash recovery, kill -9."""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rainflow
+
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.service.persistence import (
+    DATABASE_NAME,
+    FlightRecorder,
+    FlightRules,
+    FlightSample,
+    ReversalFilter,
+    StateStore,
+    count_cycles,
+)
+
+SERIAL = "UAV-ENG-TEST"
+LIMIT_C = 200.0
+RULES = FlightRules(running_rpm=1000.0, min_flight_s=60.0, end_after_s=10.0, checkpoint_every_s=30.0)
+
+
+def _sample(t: float, rpm: float | None, cht: float, gamma_q: float = 1.0, state: str = "NOMINAL") -> FlightSample:
+    return FlightSample(time_s=t, wall_time_s=1.7e9 + t, rpm=rpm, cht_c=cht, gamma_q=gamma_q, gamma_d=1.0, state=state)
+
+
+def _feed(
+    recorder: FlightRecorder, t0: float, duration_s: float, rpm: float | None, cht, gamma_q=None, state="NOMINAL"
+):
+    """Samples at 10 Hz from t0 for duration_s; cht and gamma_q are functions of time since t0."""
+    n = round(duration_s * 10)
+    for i in range(n):
+        t = t0 + i * 0.1
+        q = 1.0 if gamma_q is None else gamma_q(t - t0)
+        recorder.add(_sample(t, rpm, cht(t - t0), q, state))
+    return t0 + n * 0.1
+
+
+def test_astm_e1049_example_counts() -> None:
+    # ASTM E1049-85 (2017) section 5.4.4 / Fig. 6 example: ranges 3 (0.5), 4 (1.5), 6 (0.5), 8 (1.0), 9 (0.5).
+    series = [-2.0, 1.0, -3.0, 5.0, -1.0, 3.0, -4.0, 4.0, -2.0]
+    reversals = ReversalFilter(hysteresis=0.5)
+    for value in series:
+        reversals.add(value)
+    assert reversals.points() == series
+    counted = {rng: count for rng, count in rainflow.count_cycles(reversals.points())}
+    assert counted == {3.0: 0.5, 4.0: 1.5, 6.0: 0.5, 8.0: 1.0, 9.0: 0.5}
+    total, histogram = count_cycles([10.0 * value for value in reversals.points()])  # degC x 10: 30..90
+    assert total == pytest.approx(4.0)
+    assert histogram["20-50"] == pytest.approx(2.0)  # ranges 30 (0.5) and 40 (1.5)
+    assert histogram["50-100"] == pytest.approx(2.0)  # ranges 60 (0.5), 80 (1.0) and 90 (0.5)
+
+
+def test_reversal_filter_drops_quantisation_noise_keeps_big_cycles() -> None:
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 2000.0, 0.1)
+    clean = 150.0 + 40.0 * np.sin(2 * np.pi * t / 200.0)  # 10 cycles of 80 degC range
+    noisy = np.round(clean + rng.normal(0.0, 0.4, t.size))  # 1 degC quantised sensor with noise
+    reversals = ReversalFilter(hysteresis=5.0)
+    for value in noisy:
+        reversals.add(float(value))
+    points = reversals.points()
+    assert len(points) < 40  # the noise produced thousands of raw reversals, none kept
+    assert sum(1 for _ in rainflow.reversals(noisy.tolist())) > 1000
+    total, histogram = count_cycles(points)
+    assert histogram["50-100"] == pytest.approx(10.0, abs=0.5)
+    assert total == pytest.approx(10.0, abs=0.6)
+    reference = sum(c for r, c in rainflow.count_cycles(clean.tolist()) if r >= 50.0)
+    assert histogram["50-100"] == pytest.approx(reference, abs=0.5)
+
+
+def test_flight_found_from_rpm_with_aggregates(tmp_path: Path) -> None:
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        t = _feed(recorder, 0.0, 30.0, 0.0, lambda s: 20.0)  # on the ground, engine off
+
+        def cht(s: float) -> float:  # 300 s run: above the 200 degC limit from 100 s to 160 s
+            return 210.0 if 100.0 <= s < 160.0 else 150.0
+
+        t = _feed(recorder, t, 300.0, 5000.0, cht, gamma_q=lambda s: 1.0 + 0.2 * s / 300.0)
+        assert recorder.in_flight
+        _feed(recorder, t, 20.0, 0.0, lambda s: 100.0)
+        assert not recorder.in_flight
+        (flight,) = store.flights(SERIAL)
+    assert flight.status == "finished"
+    assert flight.end_reason == "engine_stopped"
+    assert flight.duration_s == pytest.approx(299.9, abs=0.2)
+    assert flight.hours == pytest.approx(299.9 / 3600, rel=1e-3)
+    assert flight.end_utc - flight.start_utc == pytest.approx(flight.duration_s)
+    assert flight.max_cht_c == pytest.approx(210.0)
+    assert flight.time_above_limit_s == pytest.approx(60.0, abs=0.3)
+    assert flight.gamma_q_start == pytest.approx(1.0)
+    assert flight.gamma_q_end == pytest.approx(1.2, abs=1e-3)
+    assert flight.gamma_q_slope_per_h == pytest.approx(0.2 / 300.0 * 3600.0, rel=1e-3)
+    assert flight.gamma_d_slope_per_h == pytest.approx(0.0, abs=1e-9)
+    assert flight.cycles_total == pytest.approx(1.0)  # one 150 -> 210 -> 150 cycle (two half cycles)
+    assert flight.cycles_histogram["50-100"] == pytest.approx(1.0)
+
+
+def test_short_run_is_not_a_flight_and_stale_rpm_ends_one(tmp_path: Path) -> None:
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        t = _feed(recorder, 0.0, 30.0, 4000.0, lambda s: 100.0)  # ground run of 30 s < 60 s
+        t = _feed(recorder, t, 15.0, 0.0, lambda s: 100.0)
+        assert store.flights(SERIAL, include_running=True) == []
+        t = _feed(recorder, t, 90.0, 4000.0, lambda s: 100.0 + s / 10, state="SUSPECT")
+        t = _feed(recorder, t, 12.0, None, lambda s: math.nan, state="INPUT_STALE")  # rpm stale
+        assert not recorder.in_flight
+        (flight,) = store.flights(SERIAL)
+    assert flight.duration_s == pytest.approx(89.9, abs=0.2)
+    assert flight.worst_state == "SUSPECT"
+    assert flight.time_degraded_s == pytest.approx(89.9, abs=0.2)
+    assert flight.time_above_limit_s == 0.0
+
+
+def test_service_stop_keeps_a_flight_in_progress(tmp_path: Path) -> None:
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        _feed(recorder, 0.0, 75.0, 6000.0, lambda s: 180.0)
+        assert recorder.close("service_stop") is not None
+        (flight,) = store.flights(SERIAL)
+    assert flight.status == "finished"
+    assert flight.end_reason == "service_stop"
+
+
+def test_crash_recovery_closes_the_running_flight_at_its_checkpoint(tmp_path: Path) -> None:
+    store = StateStore(tmp_path)
+    recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+    _feed(recorder, 0.0, 100.0, 6000.0, lambda s: 150.0 + 30.0 * math.sin(s / 5.0))  # checkpoints at 30, 60, 90 s
+    assert store.flights(SERIAL) == []  # running flights are not listed
+    (running,) = store.flights(SERIAL, include_running=True)
+    assert running.status == "running"
+    store.close()  # the process "dies" without closing the flight
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        assert recorder.recovered == [running.id]
+        (flight,) = store.flights(SERIAL)
+    assert flight.status == "recovered"
+    assert flight.end_reason == "service_crashed"
+    assert flight.duration_s == pytest.approx(90.0, abs=0.2)
+    assert flight.cycles_total > 2  # counted from the checkpointed reversals
+
+
+def test_state_dir_that_cannot_be_made_is_a_config_error(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match="state_dir"):
+        StateStore(blocker / "sub")
+    with pytest.raises(ConfigError, match="no flight database"):
+        StateStore(tmp_path / "empty", readonly=True)
+
+
+def test_rules_are_validated() -> None:
+    with pytest.raises(ConfigError, match="min_flight_s"):
+        FlightRules(min_flight_s=-1.0)
+    with pytest.raises(ConfigError, match="checkpoint_every_s"):
+        FlightRules(checkpoint_every_s=0.0)
+
+
+_WRITER = textwrap.dedent(
+    """
+    import math, sys
+    from ecu_monitor.service.persistence import FlightRecorder, FlightRules, FlightSample, StateStore
+    rules = FlightRules(min_flight_s=5.0, end_after_s=1.0, checkpoint_every_s=2.0)
+    store = StateStore(sys.argv[1])
+    recorder = FlightRecorder(store, "UAV-ENG-KILL", 200.0, rules)
+    t = float(sys.argv[2])
+    while True:
+        for i in range(120):  # 12 s engine run at 10 Hz, checkpoints every 2 s
+            t += 0.1
+            cht = 150.0 + 40.0 * math.sin(i / 7.0)
+            recorder.add(FlightSample(t, 1.7e9 + t, 5000.0, cht, 1.0 + i * 1e-3, 1.0, "NOMINAL"))
+        for i in range(15):
+            t += 0.1
+            recorder.add(FlightSample(t, 1.7e9 + t, 0.0, 100.0, 1.0, 1.0, "NOMINAL"))
+        print("finished", recorder.finished[-1], flush=True)
+    """
+)
+
+
+@pytest.mark.slow
+def test_kill_9_at_random_moments_loses_no_finished_flight(tmp_path: Path) -> None:
+    rng = random.Random(1049)
+    promised: set[int] = set()
+    for round_index in range(6):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _WRITER, str(tmp_path), str(round_index * 1e5)],
+            stdout=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        try:
+            time.sleep(rng.uniform(0.8, 2.0))
+            proc.send_signal(signal.SIGKILL)
+            out, _ = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
+        assert proc.returncode == -signal.SIGKILL
+        promised.update(int(line.split()[1]) for line in out.splitlines() if line.startswith("finished"))
+        conn = sqlite3.connect(tmp_path / DATABASE_NAME)
+        try:
+            assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+            finished = {row[0] for row in conn.execute("SELECT id FROM flights WHERE status = 'finished'")}
+        finally:
+            conn.close()
+        assert promised <= finished
+    assert len(promised) >= 3  # the writer did get flights through between the kills
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, "UAV-ENG-KILL", 200.0, FlightRules(min_flight_s=5.0))
+        assert store.integrity_ok()
+        statuses = {f.status for f in store.flights("UAV-ENG-KILL", include_running=True)}
+        assert statuses <= {"finished", "recovered"}
+        assert recorder.finished == []
