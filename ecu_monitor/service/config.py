@@ -1,0 +1,445 @@
+"""The service configuration: YAML -> frozen, validated dataclasses (docs/service.md, configs/*.yaml).
+
+Every problem raises :class:`~ecu_monitor.errors.ConfigError` whose one-line message names the file,
+the key path and what was expected, e.g. ``configs/x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
+(the CLI prints it and exits 2). Paths in the file are relative to the file itself. The input DBC
+files are loaded (strict) while validating, so a ``Message.Signal`` that is not in them is caught
+here, not at the first frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import yaml
+
+from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec, load_dbc, unit_conversion
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
+from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+
+__all__ = [
+    "HEALTH_MESSAGES",
+    "MODEL_PRESETS",
+    "REQUIRED_INPUTS",
+    "Backoff",
+    "HealthRate",
+    "InputSpec",
+    "SensorFaultSettings",
+    "ServiceConfig",
+    "load_config",
+    "parse_config",
+]
+
+#: Inputs every configuration must map (the heat-map axes of the model come on top, checked by the pipeline).
+REQUIRED_INPUTS: tuple[str, ...] = ("cht_c", "oat_c", "altitude_m", "airspeed_mps")
+#: Health messages the pipeline knows how to fill, with their default rates (Hz, health.dbc GenMsgCycleTime).
+HEALTH_MESSAGES: Mapping[str, float] = MappingProxyType(
+    {"Health_Status": 10.0, "Health_Isolation": 2.0, "Health_Diag": 1.0}
+)
+#: Built-in model presets accepted by ``model:`` instead of a file.
+MODEL_PRESETS = MappingProxyType({"paper_table_a1": paper_table_a1})
+
+_TOP_KEYS = (
+    "engine",
+    "bus",
+    "reopen_backoff_s",
+    "dbc",
+    "health_dbc",
+    "inputs",
+    "health",
+    "model",
+    "estimator",
+    "detector",
+    "stale_predict_limit_s",
+    "state_dir",
+    "sensor_fault",
+)
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """One model input: ``name`` <- ``message.signal`` in ``unit``, stale after ``stale_after_s`` s of silence."""
+
+    name: str
+    message: str
+    signal: str
+    unit: str
+    stale_after_s: float
+
+    def signal_spec(self) -> SignalSpec:
+        """The decoder's view of this input."""
+        return SignalSpec(self.name, self.message, self.signal, self.unit)
+
+
+@dataclass(frozen=True)
+class HealthRate:
+    """A health message of health_dbc and its broadcast rate, Hz."""
+
+    message: str
+    rate_hz: float
+
+
+@dataclass(frozen=True)
+class Backoff:
+    """Delays between attempts to reopen a failed bus: initial, doubling up to max, s."""
+
+    initial: float = 0.5
+    max: float = 10.0
+
+
+@dataclass(frozen=True)
+class SensorFaultSettings:
+    """CHT sensor plausibility.
+
+    min_c, max_c: readings outside are an open / shorted probe, degC. stuck_after_s: a reading that
+    has not changed for this long while the model predicts a change of at least stuck_change_c
+    (degC) is stuck. status_message/status_signal/open_values: optional ECU status signal whose
+    value in open_values reports an open probe (engine.dbc: ECU_Slow.EcuStatus = 3 CHT_SENSOR_OPEN).
+    """
+
+    stuck_after_s: float = 120.0
+    min_c: float = -40.0
+    max_c: float = 350.0
+    stuck_change_c: float = 5.0
+    status_message: str | None = None
+    status_signal: str | None = None
+    open_values: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """The whole service configuration (see configs/example.yaml for every key with its meaning)."""
+
+    source: Path
+    engine_serial: str
+    bus: Mapping[str, Any]
+    reopen_backoff: Backoff
+    dbc_paths: tuple[Path, ...]
+    health_dbc: Path
+    inputs: tuple[InputSpec, ...]
+    health: tuple[HealthRate, ...]
+    model: str
+    estimator_name: str
+    estimator: EstimatorSettings
+    detector: Mapping[str, Any]
+    stale_predict_limit_s: float
+    state_dir: Path
+    sensor_fault: SensorFaultSettings = field(default_factory=SensorFaultSettings)
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Names of the mapped inputs, in config order."""
+        return tuple(spec.name for spec in self.inputs)
+
+    def input(self, name: str) -> InputSpec:
+        """The mapping of input ``name`` (KeyError if not mapped)."""
+        for spec in self.inputs:
+            if spec.name == name:
+                return spec
+        raise KeyError(name)
+
+    def load_params(self) -> ThermalParams:
+        """The thermal model named by ``model:`` (preset or file); ConfigError naming this file otherwise."""
+        preset = MODEL_PRESETS.get(self.model)
+        if preset is not None:
+            return preset()
+        try:
+            return load_model(self.model)
+        except ConfigError as exc:
+            raise ConfigError(f"{self.source}: model: {exc}") from None
+
+    def replace(self, **changes: Any) -> ServiceConfig:
+        """A copy with some fields changed (e.g. another estimator for replay)."""
+        return dataclasses.replace(self, **changes)
+
+
+class _Node:
+    """A mapping in the YAML with its key path, for messages naming file + key."""
+
+    def __init__(self, src: Path, path: str, data: Any, allowed: tuple[str, ...] | None = None) -> None:
+        self.src = src
+        self.path = path
+        if not isinstance(data, dict):
+            raise self.error(f"expected a mapping, got {_kind(data)}")
+        self.data: dict[Any, Any] = data
+        if allowed is not None:
+            for key in data:
+                if key not in allowed:
+                    raise self.error(f"unknown key '{key}' (known: {', '.join(allowed)})", key)
+
+    def key(self, name: str) -> str:
+        return f"{self.path}.{name}" if self.path else name
+
+    def error(self, message: str, name: str | None = None) -> ConfigError:
+        where = self.key(name) if name is not None else (self.path or "top level")
+        return ConfigError(f"{self.src}: {where}: {message}")
+
+    def has(self, name: str) -> bool:
+        return name in self.data
+
+    def raw(self, name: str, default: Any = ...) -> Any:
+        if name not in self.data:
+            if default is ...:
+                raise self.error("missing", name)
+            return default
+        return self.data[name]
+
+    def child(self, name: str, allowed: tuple[str, ...] | None = None, default: Any = ...) -> _Node:
+        return _Node(self.src, self.key(name), self.raw(name, default), allowed)
+
+    def string(self, name: str, default: Any = ...) -> str:
+        value = self.raw(name, default)
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(f"expected a non-empty string, got {_kind(value)}", name)
+        return value
+
+    def number(
+        self, name: str, default: Any = ..., *, low: float = -math.inf, high: float = math.inf, strict_low: bool = False
+    ) -> float:
+        value = self.raw(name, default)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise self.error(f"expected a number, got {_kind(value)}", name)
+        below = value <= low if strict_low else value < low
+        if below or value > high:
+            bound = f"> {low:g}" if strict_low else f">= {low:g}"
+            rng = bound if high == math.inf else f"{bound} and <= {high:g}"
+            raise self.error(f"expected a number {rng}, got {value!r}", name)
+        return float(value)
+
+    def path_value(self, name: str, default: Any = ...) -> Path:
+        value = self.raw(name, default)
+        if not isinstance(value, str | os.PathLike) or not str(value).strip():
+            raise self.error(f"expected a file path, got {_kind(value)}", name)
+        return _resolve(self.src, value)
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if value is None:
+        return "nothing"
+    return f"{type(value).__name__} {value!r}"
+
+
+def _resolve(src: Path, value: str | os.PathLike[str]) -> Path:
+    path = Path(os.path.expanduser(str(value)))
+    return path if path.is_absolute() else (src.parent / path)
+
+
+def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
+    """Read and validate a service configuration YAML file."""
+    src = Path(path)
+    try:
+        text = src.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{src}: no such config file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
+        raise ConfigError(f"{src}: cannot read config file ({reason})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{src}: not valid YAML{where}: {problem}") from None
+    return parse_config(data, src)
+
+
+def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
+    """Validate already-parsed YAML ``data``; ``src`` names the file in messages and anchors relative paths."""
+    source = Path(src)
+    top = _Node(source, "", data, _TOP_KEYS)
+
+    engine = top.child("engine", ("serial",))
+    serial = engine.string("serial")
+
+    bus = top.child("bus")
+    bus.string("interface")
+    if not bus.has("channel"):
+        raise bus.error("missing", "channel")
+    for key in bus.data:
+        if not isinstance(key, str):
+            raise bus.error(f"keys must be strings, got {key!r}")
+
+    backoff_node = top.child("reopen_backoff_s", ("initial", "max"), {})
+    initial = backoff_node.number("initial", 0.5, low=0.0, strict_low=True)
+    backoff = Backoff(initial, backoff_node.number("max", 10.0, low=initial))
+
+    dbc_paths, databases = _dbc_list(top)
+    health_dbc = top.path_value("health_dbc")
+    health_db = _load(top, "health_dbc", health_dbc)
+
+    sensor_node = top.child(
+        "sensor_fault", ("stuck_after_s", "min_c", "max_c", "stuck_change_c", "status_signal", "open_values"), {}
+    )
+    sensor = _sensor_fault(sensor_node, databases)
+
+    inputs = _inputs(top, databases)
+    estimator_name, estimator = _estimator(top)
+    health = _health(top, health_db, estimator.dt_s)
+
+    model = top.raw("model", "paper_table_a1")
+    if not isinstance(model, str) or not model.strip():
+        presets = ", ".join(MODEL_PRESETS)
+        raise top.error(f"expected a preset name ({presets}) or a file path, got {_kind(model)}", "model")
+    if model not in MODEL_PRESETS:
+        model_path = _resolve(source, model)
+        if not model_path.is_file():
+            raise top.error(f"no such model file {model_path} (or a preset: {', '.join(MODEL_PRESETS)})", "model")
+        model = str(model_path)
+
+    detector = top.child("detector", None, {})
+    for key in detector.data:
+        if not isinstance(key, str):
+            raise detector.error(f"keys must be strings, got {key!r}")
+
+    return ServiceConfig(
+        source=source,
+        engine_serial=serial,
+        bus=MappingProxyType(dict(bus.data)),
+        reopen_backoff=backoff,
+        dbc_paths=dbc_paths,
+        health_dbc=health_dbc,
+        inputs=inputs,
+        health=health,
+        model=model,
+        estimator_name=estimator_name,
+        estimator=estimator,
+        detector=MappingProxyType(dict(detector.data)),
+        stale_predict_limit_s=top.number("stale_predict_limit_s", 30.0, low=0.0),
+        state_dir=top.path_value("state_dir", "/var/lib/ecu-monitor"),
+        sensor_fault=sensor,
+    )
+
+
+def _load(node: _Node, key: str, path: Path) -> Any:
+    try:
+        return load_dbc(path)
+    except ConfigError as exc:
+        raise node.error(str(exc), key) from None
+
+
+def _dbc_list(top: _Node) -> tuple[tuple[Path, ...], list[tuple[Path, Any]]]:
+    value = top.raw("dbc")
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, list) or not items:
+        raise top.error(f"expected a DBC file path or a non-empty list of them, got {_kind(value)}", "dbc")
+    paths: list[Path] = []
+    databases: list[tuple[Path, Any]] = []
+    for index, item in enumerate(items):
+        key = f"dbc[{index}]"
+        if not isinstance(item, str) or not item.strip():
+            raise top.error(f"expected a file path, got {_kind(item)}", key)
+        path = _resolve(top.src, item)
+        databases.append((path, _load(top, key, path)))
+        paths.append(path)
+    return tuple(paths), databases
+
+
+def _find_signal(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any]]) -> tuple[str, str]:
+    """Split and check ``Message.Signal`` against the DBCs."""
+    if not isinstance(ref, str) or ref.count(".") != 1 or "" in ref.split("."):
+        raise node.error(f"expected 'Message.Signal', got {_kind(ref)}", key)
+    msg_name, sig_name = ref.split(".")
+    files = ", ".join(str(p) for p, _ in databases)
+    for _, db in databases:
+        for message in db.messages:
+            if message.name == msg_name:
+                if sig_name not in {s.name for s in message.signals}:
+                    known = ", ".join(s.name for s in message.signals)
+                    raise node.error(f"message '{msg_name}' has no signal '{sig_name}' (signals: {known})", key)
+                return msg_name, sig_name
+    raise node.error(f"no message '{msg_name}' in {files}", key)
+
+
+def _inputs(top: _Node, databases: list[tuple[Path, Any]]) -> tuple[InputSpec, ...]:
+    node = top.child("inputs", INPUT_NAMES)
+    specs: list[InputSpec] = []
+    for name in node.data:
+        item = node.child(name, ("signal", "unit", "stale_after_s"))
+        message, signal = _find_signal(item, "signal", item.raw("signal"), databases)
+        unit = item.string("unit")
+        try:
+            unit_conversion(unit, INPUT_QUANTITIES[name])
+        except ValueError as exc:
+            raise item.error(str(exc), "unit") from None
+        stale = item.number("stale_after_s", low=0.0, strict_low=True)
+        specs.append(InputSpec(name, message, signal, unit, stale))
+    for name in REQUIRED_INPUTS:
+        if name not in node.data:
+            raise node.error(f"missing (every configuration maps {', '.join(REQUIRED_INPUTS)})", name)
+    return tuple(specs)
+
+
+def _health(top: _Node, health_db: Any, dt_s: float) -> tuple[HealthRate, ...]:
+    defaults = {name: {"rate_hz": rate} for name, rate in HEALTH_MESSAGES.items()}
+    node = top.child("health", tuple(HEALTH_MESSAGES), defaults)
+    names = {m.name for m in health_db.messages}
+    rates: list[HealthRate] = []
+    for name in node.data:
+        if name not in names:
+            raise node.error(f"message not in health_dbc (it has: {', '.join(sorted(names))})", name)
+        item = node.child(name, ("rate_hz",))
+        rate = item.number("rate_hz", low=0.0, strict_low=True, high=1.0 / dt_s)
+        steps = 1.0 / (rate * dt_s)
+        if abs(steps - round(steps)) > 1e-6:
+            raise item.error(f"period 1/{rate:g} s is not a whole number of estimator steps of {dt_s:g} s", "rate_hz")
+        rates.append(HealthRate(name, rate))
+    if not any(r.message == "Health_Status" for r in rates):
+        raise node.error("missing (Health_Status is the frame the autopilot watches)", "Health_Status")
+    return tuple(rates)
+
+
+def _estimator(top: _Node) -> tuple[str, EstimatorSettings]:
+    node = top.child("estimator", None, {"name": "cbekf-au"})
+    name = node.string("name", "cbekf-au")
+    if name not in ESTIMATORS:
+        raise node.error(f"unknown estimator {name!r} (known: {', '.join(sorted(ESTIMATORS))})", "name")
+    known = {f.name for f in dataclasses.fields(EstimatorSettings)}
+    kwargs = {}
+    for key, value in node.data.items():
+        if key == "name":
+            continue
+        if key not in known:
+            raise node.error(f"unknown key '{key}' (known: name, {', '.join(sorted(known))})", key)
+        kwargs[key] = value
+    try:
+        settings = EstimatorSettings(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(f"{top.src}: {exc}") from None
+    return name, settings
+
+
+def _sensor_fault(node: _Node, databases: list[tuple[Path, Any]]) -> SensorFaultSettings:
+    min_c = node.number("min_c", -40.0)
+    max_c = node.number("max_c", 350.0, low=min_c, strict_low=True)
+    status_message = status_signal = None
+    open_values: tuple[int, ...] = ()
+    if node.has("status_signal"):
+        status_message, status_signal = _find_signal(node, "status_signal", node.raw("status_signal"), databases)
+        values = node.raw("open_values")
+        if not isinstance(values, list) or not values or not all(type(v) is int for v in values):
+            raise node.error(f"expected a non-empty list of integers, got {_kind(values)}", "open_values")
+        open_values = tuple(values)
+    elif node.has("open_values"):
+        raise node.error("given without status_signal", "open_values")
+    return SensorFaultSettings(
+        stuck_after_s=node.number("stuck_after_s", 120.0, low=0.0, strict_low=True),
+        min_c=min_c,
+        max_c=max_c,
+        stuck_change_c=node.number("stuck_change_c", 5.0, low=0.0, strict_low=True),
+        status_message=status_message,
+        status_signal=status_signal,
+        open_values=open_values,
+    )
