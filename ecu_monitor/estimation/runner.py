@@ -1,0 +1,366 @@
+"""Run an estimator over a whole flight log (replay, results, benchmarks): the fast path.
+
+:func:`run_estimator` puts the log on the filter's fixed step (inputs interpolated linearly, each CHT
+reading applied at the first step at or after its time stamp, no reading in between), computes the
+model's drive for every step at once (:func:`ecu_monitor.model.compute_drive` on arrays), and runs the
+scalar filter loop compiled with numba.
+
+One source of truth: the compiled loop is :func:`trace_loop` below calling
+:func:`ecu_monitor.estimation.ekf.filter_step`, which calls the model's own ``rk4_step`` and
+``derivatives``; :func:`_compiled_loop` hands numba those very functions, each re-bound so that its
+callees are the compiled twins (no equation is written twice). ``trace_loop`` also runs as plain
+Python (the reference in the tests). Estimators that are not a :class:`ThermalEKF` (registered by
+other layers) run step by step through their ``estimate()``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import types
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import FlightLogError
+from ecu_monitor.estimation import ekf as _ekf_module
+from ecu_monitor.estimation import quantiser as _quantiser
+from ecu_monitor.estimation.ekf import (
+    _RESET_CODES,
+    EstimatorSettings,
+    FilterState,
+    ThermalEKF,
+    filter_step,
+)
+from ecu_monitor.estimation.quantiser import level_of
+from ecu_monitor.estimation.registry import make_estimator
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, compute_drive
+from ecu_monitor.model import thermal as _thermal
+
+__all__ = [
+    "INPUT_COLUMNS",
+    "EstimateTrace",
+    "FixedStepFlight",
+    "fixed_step_flight",
+    "run_estimator",
+    "sample_indices",
+    "trace_loop",
+]
+
+#: Flight columns the model needs besides the heat map's two axes.
+INPUT_COLUMNS = ("altitude_m", "airspeed_mps", "oat_c")
+
+
+@dataclass(frozen=True)
+class EstimateTrace:
+    """An estimator's output over a flight, one value per fixed step (arrays of length N).
+
+    time_s: s. cht_meas_c: last CHT reading held, degC. cht_est_c: estimate, degC. deviation: model
+    deviation Delta/dt, degC/s. variance: P, degC^2. innovation: z - h(prior), degC (nan where no
+    reading). nis: normalised innovation squared (nan where no reading). reset: CBEKF-AU re-initialised
+    at this step. measured: a reading was applied at this step.
+    """
+
+    estimator: str
+    time_s: NDArray[np.float64]
+    cht_meas_c: NDArray[np.float64]
+    cht_est_c: NDArray[np.float64]
+    deviation: NDArray[np.float64]
+    variance: NDArray[np.float64]
+    innovation: NDArray[np.float64]
+    nis: NDArray[np.float64]
+    reset: NDArray[np.bool_]
+    measured: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+    def take(self, index: NDArray[np.intp]) -> EstimateTrace:
+        """The trace at the given step indices (e.g. decimated to the log's sample times)."""
+        return EstimateTrace(
+            self.estimator,
+            *(np.asarray(getattr(self, name))[index] for name in _ARRAY_FIELDS),
+        )
+
+
+_ARRAY_FIELDS = (
+    "time_s",
+    "cht_meas_c",
+    "cht_est_c",
+    "deviation",
+    "variance",
+    "innovation",
+    "nis",
+    "reset",
+    "measured",
+)
+
+
+@dataclass(frozen=True)
+class FixedStepFlight:
+    """A flight put on the filter's fixed step: inputs per step, readings where they fall.
+
+    time_s: step times, s. inputs: model inputs per step (arrays). z_c: reading applied at each step,
+    degC (nan: none). measured: a reading falls on this step. sample_step: for each log sample, the
+    step its reading was applied at.
+    """
+
+    time_s: NDArray[np.float64]
+    inputs: InputSeries
+    z_c: NDArray[np.float64]
+    measured: NDArray[np.bool_]
+    sample_step: NDArray[np.intp]
+
+
+def sample_indices(sample_times_s: NDArray[np.float64], t0_s: float, dt_s: float, n_steps: int) -> NDArray[np.intp]:
+    """Index of the first fixed step at or after each sample time (clipped to the grid)."""
+    steps = np.ceil((np.asarray(sample_times_s, dtype=float) - t0_s) / dt_s - 1e-9).astype(np.intp)
+    return np.clip(steps, 0, n_steps - 1)
+
+
+def fixed_step_flight(log: FlightLog, params: ThermalParams, dt_s: float) -> FixedStepFlight:
+    """Resample a flight log onto the fixed step (raises FlightLogError naming a missing column)."""
+    needed = (*params.heat_axes, *INPUT_COLUMNS, "cht_c")
+    missing = [name for name in needed if not log.has(name)]
+    if missing:
+        raise FlightLogError(
+            f"{log.source}: missing column(s) {', '.join(missing)} needed by the model"
+            f" (columns: {', '.join(log.names)})"
+        )
+    t = log.time_s
+    n = math.floor((t[-1] - t[0]) / dt_s + 1e-9) + 1
+    if n < 2:
+        raise FlightLogError(f"{log.source}: the log spans {t[-1] - t[0]:g} s, shorter than one step of {dt_s} s")
+    grid = t[0] + dt_s * np.arange(n, dtype=np.float64)
+
+    def column(name: str) -> NDArray[np.float64]:
+        values = np.asarray(log[name], dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise FlightLogError(f"{log.source}: column '{name}' holds non-finite values")
+        return np.interp(grid, t, values)
+
+    x_axis, y_axis = params.heat_axes
+    inputs = InputSeries(column(x_axis), column(y_axis), column("altitude_m"), column("airspeed_mps"), column("oat_c"))
+    readings = np.asarray(log["cht_c"], dtype=float)
+    steps = sample_indices(t, float(t[0]), dt_s, n)
+    z = np.full(n, np.nan)
+    valid = np.isfinite(readings)
+    z[steps[valid]] = readings[valid]  # a later sample on the same step wins
+    measured = np.isfinite(z)
+    if not measured[0]:
+        raise FlightLogError(f"{log.source}: column 'cht_c' has no reading at the first sample")
+    return FixedStepFlight(grid, inputs, z, measured, steps)
+
+
+def trace_loop(
+    q_sl0_w: NDArray[np.float64],
+    altitude_gain: NDArray[np.float64],
+    ambient_c: NDArray[np.float64],
+    conductance_w_per_c: NDArray[np.float64],
+    heat_gain: NDArray[np.float64],
+    z_c: NDArray[np.float64],
+    measured: NDArray[np.bool_],
+    coeffs: Coefficients,
+    initial_var: float,
+    dt: float,
+    Q: float,
+    R: float,
+    a: float,
+    b: float,
+    c: float,
+    tau: float,
+    use_deviation: bool,
+    reset_code: int,
+    out_x: NDArray[np.float64],
+    out_P: NDArray[np.float64],
+    out_delta: NDArray[np.float64],
+    out_innovation: NDArray[np.float64],
+    out_nis: NDArray[np.float64],
+    out_reset: NDArray[np.bool_],
+) -> None:
+    """The filter over a flight: step k uses the drive of step k-1 and the reading at step k.
+
+    Step 0 initialises from z_c[0] (x = z, P = initial_var, Pade state in steady state), exactly as
+    :meth:`ThermalEKF.initialise`. Plain Python here; :func:`_compiled_loop` compiles it.
+    """
+    z0 = z_c[0]
+    state = FilterState(z0, initial_var, 2.0 * q_sl0_w[0], 0.0, z0, 0.0, level_of(z0, c))
+    out_x[0] = z0
+    out_P[0] = initial_var
+    out_delta[0] = 0.0
+    out_innovation[0] = math.nan
+    out_nis[0] = math.nan
+    out_reset[0] = False
+    for k in range(1, z_c.shape[0]):
+        drive = Drive(
+            q_sl0_w[k - 1], altitude_gain[k - 1], ambient_c[k - 1], conductance_w_per_c[k - 1], heat_gain[k - 1]
+        )
+        state, innovation, nis, did_reset = filter_step(
+            state, drive, z_c[k], measured[k], coeffs, dt, Q, R, a, b, c, tau, use_deviation, reset_code
+        )
+        out_x[k] = state.x
+        out_P[k] = state.P
+        out_delta[k] = state.delta if use_deviation else 0.0
+        out_innovation[k] = innovation
+        out_nis[k] = nis
+        out_reset[k] = did_reset
+
+
+def _rebound(function: Callable[..., Any], **callees: Any) -> Callable[..., Any]:
+    """A copy of ``function`` whose global names ``callees`` point at other (compiled) functions."""
+    namespace = dict(function.__globals__)
+    namespace.update(callees)
+    clone = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
+    clone.__module__ = function.__module__
+    clone.__qualname__ = function.__qualname__
+    return clone
+
+
+@functools.cache
+def _compiled_loop() -> Callable[..., None]:
+    """numba-compile :func:`trace_loop` and everything it calls, from their own source (cached on disk)."""
+    import numba  # imported on first use: the live service never needs it
+
+    def jit(function: Callable[..., Any], **callees: Any) -> Any:
+        return numba.njit(cache=True, nogil=True)(_rebound(function, **callees))
+
+    derivatives = jit(_thermal.derivatives)
+    rk4_step = jit(_thermal.rk4_step, derivatives=derivatives)
+    sigmoid = jit(_quantiser.sigmoid)
+    sensor_model = jit(_quantiser.sensor_model, sigmoid=sigmoid)
+    sensor_slope = jit(_quantiser.sensor_slope, sigmoid=sigmoid)
+    level_of = jit(_quantiser.level_of)
+    reset_value = jit(_quantiser.reset_value)
+    predict = jit(_ekf_module.predict, rk4_step=rk4_step)
+    update = jit(_ekf_module.update, sensor_model=sensor_model, sensor_slope=sensor_slope)
+    deviation_update = jit(_ekf_module.deviation_update)
+    step = jit(
+        _ekf_module.filter_step,
+        predict=predict,
+        rk4_step=rk4_step,
+        update=update,
+        deviation_update=deviation_update,
+        level_of=level_of,
+        reset_value=reset_value,
+    )
+    loop: Callable[..., None] = jit(trace_loop, filter_step=step, level_of=level_of)
+    return loop
+
+
+def _scalar_coefficients(coeffs: Coefficients) -> Coefficients:
+    """Coefficients with every scalar field a Python float (one numba type for every model)."""
+    fields: dict[str, Any] = {
+        name: float(value) if np.ndim(value) == 0 else np.ascontiguousarray(value, dtype=np.float64)
+        for name, value in coeffs._asdict().items()
+    }
+    return Coefficients(**fields)
+
+
+def _run_compiled(
+    flight: FixedStepFlight, params: ThermalParams, settings: EstimatorSettings, estimator: ThermalEKF, compiled: bool
+) -> EstimateTrace:
+    coeffs = _scalar_coefficients(coefficients(params))
+    drive = compute_drive(flight.inputs, coeffs)
+    n = flight.time_s.size
+    arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
+    out_x, out_P, out_delta, out_innovation, out_nis = (np.empty(n) for _ in range(5))
+    out_reset = np.zeros(n, dtype=np.bool_)
+    loop: Callable[..., None] = _compiled_loop() if compiled else trace_loop
+    s = settings
+    loop(
+        *arrays,
+        flight.z_c,
+        flight.measured,
+        coeffs,
+        s.initial_var,
+        s.dt_s,
+        s.process_var,
+        s.measurement_var,
+        s.sigmoid_a,
+        s.sigmoid_b,
+        s.quantum_c,
+        s.deviation_time_s,
+        estimator.use_deviation,
+        _RESET_CODES[estimator.reset_mode],
+        out_x,
+        out_P,
+        out_delta,
+        out_innovation,
+        out_nis,
+        out_reset,
+    )
+    return EstimateTrace(
+        estimator.name,
+        flight.time_s,
+        _held(flight.z_c),
+        out_x,
+        out_delta / s.dt_s,
+        out_P,
+        out_innovation,
+        out_nis,
+        out_reset,
+        flight.measured.copy(),
+    )
+
+
+def _held(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Last finite value carried forward (z[0] is finite)."""
+    index = np.where(np.isfinite(z), np.arange(z.size), 0)
+    np.maximum.accumulate(index, out=index)
+    return z[index]
+
+
+def _run_stepwise(flight: FixedStepFlight, estimator: Any, name: str) -> EstimateTrace:
+    n = flight.time_s.size
+    out = {key: np.full(n, np.nan) for key in ("x", "P", "dev", "inn", "nis")}
+    reset = np.zeros(n, dtype=np.bool_)
+    columns = [np.asarray(v, dtype=float) for v in flight.inputs]
+
+    def inputs_at(k: int) -> InputSeries:
+        return InputSeries(*(float(col[k]) for col in columns))
+
+    estimator.initialise(float(flight.time_s[0]), inputs_at(0), float(flight.z_c[0]))
+    out["x"][0] = flight.z_c[0]
+    out["dev"][0] = 0.0
+    for k in range(1, n):
+        z = float(flight.z_c[k]) if flight.measured[k] else None
+        est = estimator.estimate(float(flight.time_s[k]), inputs_at(k), z)
+        out["x"][k], out["P"][k], out["dev"][k] = est.cht_c, est.variance_c2, est.deviation
+        out["inn"][k], out["nis"][k], reset[k] = est.innovation_c, est.nis, est.reset
+    return EstimateTrace(
+        name,
+        flight.time_s,
+        _held(flight.z_c),
+        out["x"],
+        out["dev"],
+        out["P"],
+        out["inn"],
+        out["nis"],
+        reset,
+        flight.measured.copy(),
+    )
+
+
+def run_estimator(
+    log: FlightLog,
+    params: ThermalParams,
+    name: str,
+    settings: EstimatorSettings | None = None,
+    *,
+    compiled: bool = True,
+) -> EstimateTrace:
+    """Run estimator ``name`` over a flight log on the fixed step (numba fast path for the built-ins).
+
+    ``compiled=False`` runs the same loop in plain Python (slow; the reference in tests). Estimators
+    registered by other layers run through their ``estimate()`` step by step.
+    """
+    settings = settings if settings is not None else EstimatorSettings()
+    estimator = make_estimator(name, params, settings)
+    flight = fixed_step_flight(log, params, settings.dt_s)
+    if isinstance(estimator, ThermalEKF):
+        return _run_compiled(flight, params, settings, estimator, compiled)
+    return _run_stepwise(flight, estimator, name)
