@@ -1,0 +1,32 @@
+"""The virtual engine ECU: mission profiles, truth plant, sensor model, frame emitter and recorder.
+
+Start with :func:`virtual_bus.missions.load_mission` and :func:`virtual_bus.plant.fly` (a mission to a
+FlightLog with the truth beside the measurements), :class:`virtual_bus.emitter.FrameEmitter` (frames
+onto a python-can bus) and :func:`virtual_bus.recorder.record` (CSV and CAN logs). The ``virtual-ecu``
+command is :mod:`virtual_bus.cli`.
+"""
+
+from virtual_bus.emitter import EmitStats, FrameEmitter, FrameEncoder
+from virtual_bus.missions import Mission, list_missions, load_mission, random_mission
+from virtual_bus.plant import Degradation, StepBlock, fly, iter_steps, parse_effects, random_effects
+from virtual_bus.recorder import RecordSummary, record
+from virtual_bus.sensors import SensorModel
+
+__all__ = [
+    "Degradation",
+    "EmitStats",
+    "FrameEmitter",
+    "FrameEncoder",
+    "Mission",
+    "RecordSummary",
+    "SensorModel",
+    "StepBlock",
+    "fly",
+    "iter_steps",
+    "list_missions",
+    "load_mission",
+    "parse_effects",
+    "random_effects",
+    "random_mission",
+    "record",
+]

@@ -1,0 +1,74 @@
+"""The bus section of a YAML config: which python-can bus ``virtual-ecu run`` emits onto.
+
+Schema (other top-level sections of the file, such as a service config's, are ignored)::
+
+    bus:
+      interface: virtual        # virtual | udp_multicast | socketcan | any python-can interface
+      channel: vcan0            # interface-specific channel name
+      # any further keys are passed to can.Bus() unchanged, e.g.
+      # receive_own_messages: false
+      # preserve_timestamps: true   (virtual only: receivers see mission time, not wall time)
+
+Problems raise :class:`~ecu_monitor.errors.ConfigError` naming the file and the key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import yaml
+
+from ecu_monitor.errors import ConfigError
+
+__all__ = ["BusConfig", "load_bus_config", "open_bus"]
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """A python-can bus: interface name, channel and extra keyword options for ``can.Bus``."""
+
+    interface: str
+    channel: str
+    options: dict[str, Any] = field(default_factory=dict)
+    source: str = "<command line>"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.interface, str) or self.interface not in can.interfaces.VALID_INTERFACES:
+            known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+            raise ConfigError(f"{self.source}: bus.interface: unknown interface {self.interface!r} (known: {known})")
+        if not isinstance(self.channel, str | int) or isinstance(self.channel, bool) or str(self.channel) == "":
+            raise ConfigError(f"{self.source}: bus.channel: expected a channel name, got {self.channel!r}")
+
+    def replace(self, interface: str | None = None, channel: str | None = None) -> BusConfig:
+        """A copy with the interface and/or channel overridden (command-line options)."""
+        return BusConfig(interface or self.interface, channel or self.channel, dict(self.options), self.source)
+
+
+def load_bus_config(path: str | Path) -> BusConfig:
+    """Read the ``bus`` section of a YAML file."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("bus"), dict):
+        raise ConfigError(f"{path}: bus: expected a mapping with interface and channel")
+    bus = dict(data["bus"])
+    for key in ("interface", "channel"):
+        if key not in bus:
+            raise ConfigError(f"{path}: bus.{key}: missing")
+    interface, channel = bus.pop("interface"), bus.pop("channel")
+    return BusConfig(interface, str(channel) if isinstance(channel, int) else channel, bus, str(path))
+
+
+def open_bus(config: BusConfig) -> can.BusABC:
+    """Open the configured bus; failures raise ConfigError (one line, naming the bus)."""
+    try:
+        return can.Bus(interface=config.interface, channel=config.channel, **config.options)
+    except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+        raise ConfigError(f"{config.source}: bus {config.interface}:{config.channel}: cannot open: {exc}") from None

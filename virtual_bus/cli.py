@@ -1,0 +1,235 @@
+"""The ``virtual-ecu`` command line: fly a mission through the truth plant to files or onto a CAN bus.
+
+    virtual-ecu record --mission FILE|NAME --out f.csv|f.asc|f.blf|f.log [--out ...] [--seed N]
+                       [--degrade gamma_q=1.2@1800] [--degrade gamma_d=1.1@600:ramp=300]
+                       [--effect airspeed_cooling] [--effect sensor_lag:time_constant_s=12] [--model model.yaml]
+    virtual-ecu run --config FILE | --interface NAME --channel CH  --mission FILE|NAME
+                    [--degrade ...] [--effect ...] [--realtime] [--speed X]
+
+Errors (bad mission file, bad --degrade syntax, unknown effect, bus that cannot open) print one line
+and exit 2, as ``ecu-monitor`` does; ``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from ecu_monitor.errors import ConfigError, EcuMonitorError, UserInputError
+from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+from virtual_bus.busconfig import BusConfig, load_bus_config, open_bus
+from virtual_bus.emitter import EmitStats, FrameEmitter, FrameEncoder
+from virtual_bus.missions import Mission, list_missions, load_mission
+from virtual_bus.plant import Degradation, iter_steps, parse_effects
+from virtual_bus.recorder import check_outputs, record
+
+__all__ = ["build_parser", "main"]
+
+
+class _Progress:
+    """A progress line on stderr, at most once a second: rewritten in place on a terminal, one line
+    every 10 s otherwise."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.tty = sys.stderr.isatty()
+        self.start = self.last = time.perf_counter()
+        self.shown = False
+
+    def __call__(self, text: str) -> None:
+        now = time.perf_counter()
+        if now - self.last < (1.0 if self.tty else 10.0):
+            return
+        self.last = now
+        line = f"{self.label}: {text} ({now - self.start:.0f} s elapsed)"
+        if self.tty:
+            print(f"\r{line}\033[K", end="", file=sys.stderr, flush=True)
+        else:
+            print(line, file=sys.stderr, flush=True)
+        self.shown = True
+
+    def done(self) -> None:
+        if self.shown and self.tty:
+            print(file=sys.stderr)
+
+
+def _add_flight_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--mission",
+        default="default",
+        metavar="FILE|NAME",
+        help=f"mission YAML or a shipped mission's name ({', '.join(list_missions())}); default: default",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the pilot's variations and the sensor noise")
+    parser.add_argument(
+        "--degrade",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="degradation event gamma_q|gamma_d=VALUE@START_S[:ramp=SECONDS] (repeatable)",
+    )
+    parser.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="unmodelled effect in the truth: NAME or NAME:key=value,... (airspeed_cooling, density_cooling,"
+        " sensor_lag, mixture_cooling; repeatable)",
+    )
+    parser.add_argument("--model", metavar="model.yaml", help="truth model (default: the paper's Table A1)")
+    parser.add_argument("--dt", type=float, default=0.02, help="integration step, s (default 0.02)")
+
+
+class _Flight:
+    """The parsed flight options: mission, truth model, effects and degradation."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.mission: Mission = load_mission(args.mission)
+        self.params: ThermalParams = load_model(args.model) if args.model else paper_table_a1()
+        self.degradation = tuple(Degradation.parse(spec) for spec in args.degrade)
+        self.effects = parse_effects(args.effect, base=self.params.effects) if args.effect else None
+        self.seed: int = args.seed
+        self.dt_s: float = args.dt
+
+    def describe(self) -> str:
+        effects = (self.effects or self.params.effects).active
+        parts = [f"mission {self.mission.name}", f"seed {self.seed}"]
+        parts.append("degradation " + (", ".join(map(str, self.degradation)) or "none"))
+        parts.append("effects " + (", ".join(effects) or "none"))
+        return "; ".join(parts)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``virtual-ecu`` parser with its two subcommands."""
+    parser = argparse.ArgumentParser(
+        prog="virtual-ecu",
+        description="Virtual engine ECU: fly a mission through the thermal truth plant to files or onto a CAN bus.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on error")
+    parser.add_argument("--log-level", default="WARNING", help="DEBUG, INFO, WARNING or ERROR")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    rec = sub.add_parser("record", help="simulate a mission to a canonical CSV and/or CAN logs (.asc, .blf, .log)")
+    _add_flight_options(rec)
+    rec.add_argument(
+        "--out", action="append", default=[], metavar="FILE", help="output .csv, .asc, .blf or .log (repeatable)"
+    )
+    rec.add_argument("--record-dt", type=float, default=0.1, help="CSV sample step, s (default 0.1)")
+    rec.set_defaults(func=_record)
+
+    run = sub.add_parser("run", help="emit a mission's frames onto a CAN bus")
+    _add_flight_options(run)
+    run.add_argument("--config", metavar="FILE", help="YAML file with a bus: {interface, channel, ...} section")
+    run.add_argument("--interface", help="python-can interface (overrides the config)")
+    run.add_argument("--channel", help="bus channel (overrides the config)")
+    run.add_argument(
+        "--realtime", action="store_true", help="pace frames to the wall clock (default: as fast as possible)"
+    )
+    run.add_argument("--speed", type=float, default=1.0, help="with --realtime: times real time (default 1)")
+    run.add_argument("--start-time", type=float, default=0.0, help="timestamp of mission time 0, s (default 0)")
+    run.set_defaults(func=_run)
+    return parser
+
+
+def _record(args: argparse.Namespace) -> int:
+    outputs = check_outputs(args.out)
+    flight = _Flight(args)
+    progress = _Progress(f"virtual-ecu record {flight.mission.name}")
+    summary = record(
+        flight.mission,
+        outputs,
+        flight.params,
+        effects=flight.effects,
+        degradation=flight.degradation,
+        seed=flight.seed,
+        dt_s=flight.dt_s,
+        record_dt_s=args.record_dt,
+        progress=lambda t: progress(f"t = {t:.0f} s"),
+    )
+    progress.done()
+    print(f"{flight.describe()}")
+    print(
+        f"flew {summary.duration_s:.1f} s ({summary.duration_s / 60.0:.1f} min); max CHT {summary.max_cht_c:.0f} degC"
+        f" measured, {summary.max_cht_true_c:.1f} degC true (limit {flight.params.cht_limit_c:.0f} degC)"
+    )
+    for path, what in summary.files.items():
+        print(f"wrote {path}: {what}")
+    return 0
+
+
+def _bus_config(args: argparse.Namespace) -> BusConfig:
+    if args.config:
+        return load_bus_config(args.config).replace(args.interface, args.channel)
+    if not (args.interface and args.channel):
+        raise ConfigError("run: give --config FILE or both --interface and --channel")
+    return BusConfig(args.interface, args.channel)
+
+
+def _run(args: argparse.Namespace) -> int:
+    flight = _Flight(args)
+    config = _bus_config(args)
+    if not args.speed > 0.0:
+        raise ConfigError(f"--speed: expected a positive factor, got {args.speed!r}")
+    progress = _Progress(f"virtual-ecu run {flight.mission.name} on {config.interface}:{config.channel}")
+
+    def show(stats: EmitStats) -> None:
+        t = stats.mission_time_s - args.start_time
+        progress(f"t = {t:.0f} s, {stats.frames_sent} frames, {stats.send_errors} send errors")
+
+    blocks = iter_steps(
+        flight.mission,
+        flight.params,
+        effects=flight.effects,
+        degradation=flight.degradation,
+        seed=flight.seed,
+        dt_s=flight.dt_s,
+    )
+    encoder = FrameEncoder(cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time)
+    with open_bus(config) as bus:
+        emitter = FrameEmitter(bus, encoder, realtime=args.realtime, speed=args.speed, progress=show)
+        stats = emitter.emit(blocks)
+    progress.done()
+    print(flight.describe())
+    print(
+        f"sent {stats.frames_sent} frames ({stats.send_errors} send errors) on {config.interface}:{config.channel};"
+        f" mission time {stats.mission_time_s - args.start_time:.1f} s in {stats.wall_time_s:.1f} s wall"
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``virtual-ecu``; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, str(args.log_level).upper(), logging.WARNING),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    func: Any = getattr(args, "func", None)
+    if func is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(func(args) or 0)
+    except UserInputError as exc:
+        if args.debug:
+            raise
+        print(f"virtual-ecu: error: {exc}", file=sys.stderr)
+        return 2
+    except EcuMonitorError as exc:
+        if args.debug:
+            raise
+        print(f"virtual-ecu: internal error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("virtual-ecu: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,236 @@
+"""Frame emitter of the virtual ECU: the truth plant's measurements as CAN frames of dbc/engine.dbc.
+
+:class:`FrameEncoder` turns :class:`~virtual_bus.plant.StepBlock` objects into ``can.Message`` frames:
+ECU_Fast (0x100) every 20 ms, ECU_Slow (0x101) and AirData (0x200) every 100 ms (the DBC's
+GenMsgCycleTime). Frame ``n`` of a message is stamped ``start_time_s + n * cycle`` (mission time) and
+carries the latest measurement at or before that time (sample and hold of the integration steps).
+Each frame has its rolling counter (+1 mod 16 per frame of that id) and its CRC-8 checksum in byte 7
+(:func:`ecu_monitor.bus.checksum.frame_checksum`). Values are encoded with cantools, strict, after
+clipping to the signal's DBC range (a real ECU saturates its outputs the same way).
+
+:class:`FrameEmitter` sends those frames onto any python-can ``BusABC`` passed in (it never opens a
+bus itself): as fast as possible by default, or paced to the wall clock (``realtime=True``, ``speed``
+times real time). A failed send (``can.CanError``) is counted and logged, never fatal.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+import numpy as np
+
+from ecu_monitor.bus.checksum import CHECKSUM_BYTE, frame_checksum
+from ecu_monitor.errors import ConfigError
+from virtual_bus.plant import StepBlock
+
+__all__ = [
+    "DBC_DIR",
+    "ENGINE_DBC",
+    "MESSAGE_SIGNALS",
+    "EmitStats",
+    "FrameEmitter",
+    "FrameEncoder",
+    "load_engine_dbc",
+]
+
+_log = logging.getLogger(__name__)
+
+#: The repository's DBC directory and the engine DBC the emitter encodes with.
+DBC_DIR = Path(__file__).resolve().parent.parent / "dbc"
+ENGINE_DBC = DBC_DIR / "engine.dbc"
+
+#: Message -> (signal -> field of :class:`~virtual_bus.sensors.Measurements`), counter, checksum.
+MESSAGE_SIGNALS: dict[str, tuple[dict[str, str], str, str]] = {
+    "ECU_Fast": (
+        {"EngineSpeed": "rpm", "ThrottlePos": "throttle_pct", "FuelFlow": "fuel_flow_lph"},
+        "FastCounter",
+        "FastChecksum",
+    ),
+    "ECU_Slow": ({"CHT": "cht_c", "OAT": "oat_c"}, "SlowCounter", "SlowChecksum"),
+    "AirData": (
+        {"PressureAltitude": "altitude_m", "CalibratedAirspeed": "airspeed_mps", "VerticalSpeed": "vspeed_mps"},
+        "AirDataCounter",
+        "AirDataChecksum",
+    ),
+}
+#: EcuStatus values (engine.dbc VAL_): OK below the CHT limit, WARNING at or above it.
+_STATUS_OK, _STATUS_WARNING = 0, 1
+
+
+@functools.lru_cache(maxsize=4)
+def load_engine_dbc(path: Path = ENGINE_DBC) -> Any:
+    """The engine DBC as a cantools database (loaded once per path, strict)."""
+    try:
+        return cantools.database.load_file(str(path), strict=True)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such DBC file") from None
+    except (OSError, cantools.database.Error) as exc:
+        raise ConfigError(f"{path}: cannot load DBC: {str(exc).splitlines()[0] if str(exc) else exc!r}") from None
+
+
+@dataclass
+class _MessageSpec:
+    """One message to send: its cantools definition, signal sources, cycle and running counter."""
+
+    definition: Any
+    sources: dict[str, str]
+    counter_signal: str
+    checksum_signal: str
+    cycle_ms: int
+    limits: dict[str, tuple[float, float]]
+    next_index: int = 0
+    counter: int = 0
+
+
+class FrameEncoder:
+    """Encodes StepBlocks into timestamped frames of engine.dbc, keeping the counters across blocks.
+
+    ``cht_limit_c`` sets EcuStatus (WARNING at or above it); ``start_time_s`` is added to every
+    timestamp (mission time 0 -> start_time_s).
+    """
+
+    def __init__(self, dbc_path: Path = ENGINE_DBC, *, cht_limit_c: float = 150.0, start_time_s: float = 0.0) -> None:
+        db = load_engine_dbc(Path(dbc_path))
+        self.cht_limit_c = cht_limit_c
+        self.start_time_s = start_time_s
+        self.specs: list[_MessageSpec] = []
+        for name, (sources, counter, checksum) in MESSAGE_SIGNALS.items():
+            try:
+                definition = db.get_message_by_name(name)
+            except KeyError:
+                raise ConfigError(f"{dbc_path}: no message {name!r}") from None
+            if not definition.cycle_time:
+                raise ConfigError(f"{dbc_path}: message {name!r} has no GenMsgCycleTime")
+            limits = {
+                s.name: (float(s.minimum), float(s.maximum))
+                for s in definition.signals
+                if s.minimum is not None and s.maximum is not None
+            }
+            self.specs.append(_MessageSpec(definition, sources, counter, checksum, int(definition.cycle_time), limits))
+
+    def frames(self, block: StepBlock) -> list[can.Message]:
+        """The frames due during ``block`` (times in [first step, first step + block length)), in time
+        order; messages due at the same instant go in MESSAGE_SIGNALS order."""
+        t = block.time_s
+        dt = float(t[1] - t[0]) if t.size > 1 else 0.02
+        end = float(t[-1]) + dt
+        due: list[tuple[float, int, can.Message]] = []
+        for order, spec in enumerate(self.specs):
+            while True:
+                stamp = spec.next_index * spec.cycle_ms / 1000.0
+                if stamp >= end - 1e-9:
+                    break
+                k = int(np.searchsorted(t, stamp + 1e-9, side="right")) - 1
+                due.append((stamp, order, self._encode(spec, block, max(k, 0), stamp)))
+                spec.next_index += 1
+        due.sort(key=lambda item: (item[0], item[1]))
+        return [msg for _, _, msg in due]
+
+    def _encode(self, spec: _MessageSpec, block: StepBlock, k: int, stamp: float) -> can.Message:
+        measured = block.measured
+        values: dict[str, float] = {}
+        for signal, source in spec.sources.items():
+            values[signal] = float(getattr(measured, source)[k])
+        if spec.definition.name == "ECU_Slow":
+            values["EcuStatus"] = _STATUS_WARNING if values["CHT"] >= self.cht_limit_c else _STATUS_OK
+        for signal, value in values.items():
+            low, high = spec.limits.get(signal, (value, value))
+            values[signal] = min(high, max(low, value))
+        values[spec.counter_signal] = spec.counter
+        values[spec.checksum_signal] = 0
+        data = bytearray(spec.definition.encode(values, strict=True))
+        data[CHECKSUM_BYTE] = frame_checksum(data)
+        spec.counter = (spec.counter + 1) % 16
+        return can.Message(
+            timestamp=self.start_time_s + stamp,
+            arbitration_id=spec.definition.frame_id,
+            is_extended_id=bool(spec.definition.is_extended_frame),
+            data=bytes(data),
+        )
+
+    def iter_frames(self, blocks: Iterable[StepBlock]) -> Iterator[can.Message]:
+        """Every frame of a flight, streamed block by block."""
+        for block in blocks:
+            yield from self.frames(block)
+
+
+@dataclass
+class EmitStats:
+    """What an emission did: frames sent, failed sends, last mission time (s) and wall time (s)."""
+
+    frames_sent: int = 0
+    send_errors: int = 0
+    mission_time_s: float = 0.0
+    wall_time_s: float = 0.0
+
+
+class FrameEmitter:
+    """Sends a flight's frames onto ``bus`` (any python-can ``BusABC``; the caller owns and shuts it down).
+
+    ``realtime=False`` sends as fast as possible; ``realtime=True`` paces the frames to the wall clock
+    at ``speed`` times real time. ``progress`` is called with the EmitStats after each block.
+    :meth:`stop` (from another thread) ends :meth:`emit` at the next frame.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        encoder: FrameEncoder | None = None,
+        *,
+        realtime: bool = False,
+        speed: float = 1.0,
+        send_timeout_s: float = 0.1,
+        progress: Callable[[EmitStats], None] | None = None,
+    ) -> None:
+        if not speed > 0.0:
+            raise ConfigError(f"--speed: expected a positive factor, got {speed!r}")
+        self.bus = bus
+        self.encoder = encoder or FrameEncoder()
+        self.realtime = realtime
+        self.speed = float(speed)
+        self.send_timeout_s = send_timeout_s
+        self.progress = progress
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        """Ask a running :meth:`emit` to return (idempotent, thread safe)."""
+        self._stop.set()
+
+    def emit(self, blocks: Iterable[StepBlock]) -> EmitStats:
+        """Send every frame of ``blocks``; returns the counts. Send failures are counted and logged."""
+        stats = EmitStats()
+        wall0 = time.perf_counter()
+        first_stamp: float | None = None
+        for block in blocks:
+            for msg in self.encoder.frames(block):
+                if self._stop.is_set():
+                    stats.wall_time_s = time.perf_counter() - wall0
+                    return stats
+                if first_stamp is None:
+                    first_stamp = msg.timestamp
+                if self.realtime:
+                    ahead = (msg.timestamp - first_stamp) / self.speed - (time.perf_counter() - wall0)
+                    if ahead > 0.0005:
+                        self._stop.wait(ahead)
+                try:
+                    self.bus.send(msg, timeout=self.send_timeout_s)
+                    stats.frames_sent += 1
+                except can.CanError as exc:
+                    stats.send_errors += 1
+                    if stats.send_errors <= 5 or stats.send_errors % 1000 == 0:
+                        _log.warning("send failed (%d so far) at t=%.3f s: %s", stats.send_errors, msg.timestamp, exc)
+                stats.mission_time_s = msg.timestamp
+            if self.progress is not None:
+                stats.wall_time_s = time.perf_counter() - wall0
+                self.progress(stats)
+        stats.wall_time_s = time.perf_counter() - wall0
+        return stats

@@ -1,0 +1,426 @@
+"""The truth plant of the virtual ECU: mission -> pilot -> airframe -> thermal model -> sensors.
+
+The cylinder-head temperature is integrated with the model layer's own equations
+(:func:`ecu_monitor.model.compute_drive` and :func:`ecu_monitor.model.rk4_step`, fixed step
+``dt_s`` = 0.02 s by default, inputs held over each step as in the estimators), with optional
+unmodelled effects switched on in the truth (:class:`ecu_monitor.model.Effects`) and a degradation
+schedule of gamma_Q (heat in) and gamma_D (dissipation). The CHT probe follows the head through
+:func:`ecu_monitor.model.sensor_step` (a first-order lag when the ``sensor_lag`` effect is on), and
+:class:`virtual_bus.sensors.SensorModel` adds noise and the 1 degC quantiser.
+
+Speed: the pilot decides once per control period (1 s = 50 steps); the airframe response and the
+model's drive quantities for the whole period are computed as numpy arrays, and only the RK4
+arithmetic runs per step, on Python floats (about 3 us a step: a 1 h mission in about 1 s).
+
+:func:`iter_steps` streams :class:`StepBlock` objects (one per control period, every step's truth
+and measurements), so a 16 h flight never has to be in memory; :func:`fly` collects them into a
+:class:`~ecu_monitor.flightlog.FlightLog` sampled every ``record_dt_s``.
+
+Degradation syntax (:meth:`Degradation.parse`, the CLI's ``--degrade``)::
+
+    gamma_q=1.2@1800            step of gamma_Q to 1.2 at t = 1800 s
+    gamma_d=1.1@600:ramp=300    gamma_D ramps linearly from its level at 600 s to 1.1 at 900 s
+
+Events of one factor apply in time order, each starting from the level the factor has reached.
+Effect syntax (:func:`parse_effect`, the CLI's ``--effect``): ``NAME`` (default sizes) or
+``NAME:key=value,key=value``, e.g. ``sensor_lag:time_constant_s=12``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ecu_monitor.errors import ConfigError, ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.model import (
+    EFFECT_NAMES,
+    AirspeedCooling,
+    DensityCooling,
+    Drive,
+    Effects,
+    InputSeries,
+    MixtureCooling,
+    SensorLag,
+    ThermalParams,
+    coefficients,
+    compute_drive,
+    initial_pade_state,
+    paper_table_a1,
+    rk4_step,
+    sensor_step,
+)
+from virtual_bus.missions import Mission
+from virtual_bus.pilot import CONTROL_PERIOD_S, AircraftState, Pilot, fly_period, fuel_flow_lph, propeller_rpm
+from virtual_bus.sensors import Measurements, SensorModel
+
+__all__ = [
+    "DEGRADATION_FACTORS",
+    "LOG_COLUMNS",
+    "Degradation",
+    "StepBlock",
+    "block_rows",
+    "collect",
+    "fly",
+    "gamma_schedule",
+    "iter_steps",
+    "parse_effect",
+    "parse_effects",
+    "random_effects",
+    "record_every",
+]
+
+DEGRADATION_FACTORS: tuple[str, ...] = ("gamma_q", "gamma_d")
+_DEGRADE_RE = re.compile(
+    r"^\s*(?P<factor>gamma_[qQdD])\s*=\s*(?P<value>[^@\s]+)\s*@\s*(?P<start>[^:\s]+)"
+    r"(?:\s*:\s*ramp\s*=\s*(?P<ramp>\S+))?\s*$"
+)
+
+
+@dataclass(frozen=True)
+class Degradation:
+    """One degradation event: ``factor`` (gamma_q or gamma_d) goes to ``value`` from ``start_s``,
+    as a step (ramp_s = 0) or a linear ramp over ``ramp_s`` seconds."""
+
+    factor: str
+    value: float
+    start_s: float
+    ramp_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.factor not in DEGRADATION_FACTORS:
+            raise ParameterError(f"degradation factor: expected gamma_q or gamma_d, got {self.factor!r}")
+        checks = (
+            ("value", self.value, 0.2, 5.0),
+            ("start_s", self.start_s, 0.0, 1e7),
+            ("ramp_s", self.ramp_s, 0.0, 1e7),
+        )
+        for name, value, low, high in checks:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ParameterError(f"degradation {name}: expected a number, got {value!r}")
+            if not low <= value <= high:
+                raise ParameterError(f"degradation {name}: expected a number in [{low:g}, {high:g}], got {value!r}")
+
+    @classmethod
+    def parse(cls, text: str) -> Degradation:
+        """Parse ``gamma_q=1.2@1800`` or ``gamma_d=1.1@600:ramp=300``; ConfigError on bad syntax."""
+        match = _DEGRADE_RE.match(text)
+        if match is None:
+            raise ConfigError(f"--degrade {text!r}: expected gamma_q|gamma_d=VALUE@START_S[:ramp=SECONDS]")
+        try:
+            value = float(match["value"])
+            start = float(match["start"])
+            ramp = float(match["ramp"]) if match["ramp"] is not None else 0.0
+        except ValueError:
+            raise ConfigError(f"--degrade {text!r}: VALUE, START_S and ramp must be numbers") from None
+        try:
+            return cls(match["factor"].lower(), value, start, ramp)
+        except ParameterError as exc:
+            raise ConfigError(f"--degrade {text!r}: {exc}") from None
+
+    def __str__(self) -> str:
+        ramp = f":ramp={self.ramp_s:g}" if self.ramp_s > 0 else ""
+        return f"{self.factor}={self.value:g}@{self.start_s:g}{ramp}"
+
+
+def gamma_schedule(events: Sequence[Degradation], factor: str, time_s: Any) -> np.ndarray:
+    """Value of ``factor`` (1 before any event) at the times ``time_s`` (array or float)."""
+    t = np.asarray(time_s, dtype=float)
+    mine = sorted((e for e in events if e.factor == factor), key=lambda e: e.start_s)
+    level = np.ones_like(t)
+    for i, event in enumerate(mine):
+        before = float(gamma_schedule(mine[:i], factor, event.start_s)) if i else 1.0
+        if event.ramp_s > 0.0:
+            fraction = np.clip((t - event.start_s) / event.ramp_s, 0.0, 1.0)
+        else:
+            fraction = (t >= event.start_s).astype(float)
+        level = np.where(t >= event.start_s, before + (event.value - before) * fraction, level)
+    return level
+
+
+_EFFECT_KINDS: dict[str, type] = {
+    "airspeed_cooling": AirspeedCooling,
+    "density_cooling": DensityCooling,
+    "sensor_lag": SensorLag,
+    "mixture_cooling": MixtureCooling,
+}
+
+
+def parse_effect(text: str) -> tuple[str, dict[str, float]]:
+    """Parse ``NAME`` or ``NAME:key=value,key=value`` into (name, params); ParameterError if bad."""
+    name, _, rest = text.strip().partition(":")
+    if name not in EFFECT_NAMES:
+        raise ParameterError(f"--effect {text!r}: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+    params: dict[str, float] = {}
+    for item in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise ParameterError(f"--effect {text!r}: expected key=value, got {item!r}")
+        try:
+            params[key.strip()] = float(value)
+        except ValueError:
+            raise ParameterError(f"--effect {text!r}: {key.strip()} must be a number, got {value!r}") from None
+    return name, params
+
+
+def parse_effects(specs: Iterable[str], base: Effects | None = None) -> Effects:
+    """Effects from CLI specs (see :func:`parse_effect`) on top of ``base``; ParameterError if bad."""
+    merged: dict[str, Any] = (base or Effects()).to_dict()
+    for spec in specs:
+        name, params = parse_effect(spec)
+        merged[name] = params
+    try:
+        return Effects.from_dict(merged, where="--effect")
+    except TypeError as exc:  # a dataclass rejecting a keyword never reaches here: from_dict checks keys
+        raise ParameterError(f"--effect: {exc}") from None
+
+
+def random_effects(seed: int, names: Sequence[str] = EFFECT_NAMES) -> Effects:
+    """The named effects with sizes drawn from plausible ranges (deterministic for ``seed``).
+
+    airspeed_cooling gain 0.01-0.03 /(m/s), floor 0.3-0.6; density_cooling exponent 0.4-0.8;
+    sensor_lag 4-20 s; mixture_cooling fraction 0.06-0.2 from onset 0.6-0.8.
+    """
+    rng = np.random.default_rng(seed)
+    draws: dict[str, Any] = {
+        "airspeed_cooling": lambda: AirspeedCooling(
+            gain_per_mps=float(rng.uniform(0.01, 0.03)), floor=float(rng.uniform(0.3, 0.6))
+        ),
+        "density_cooling": lambda: DensityCooling(exponent=float(rng.uniform(0.4, 0.8))),
+        "sensor_lag": lambda: SensorLag(time_constant_s=float(rng.uniform(4.0, 20.0))),
+        "mixture_cooling": lambda: MixtureCooling(
+            fraction=float(rng.uniform(0.06, 0.2)), onset=float(rng.uniform(0.6, 0.8))
+        ),
+    }
+    chosen: dict[str, Any] = {}
+    for name in names:
+        if name not in draws:
+            raise ParameterError(f"random_effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+        chosen[name] = draws[name]()
+    return Effects(**chosen)
+
+
+class StepBlock(NamedTuple):
+    """Truth and measurements of consecutive integration steps (one control period).
+
+    Arrays have one value per step, taken at the step's start time ``time_s``; ``first_step`` is the
+    global index of the first step (time_s = step index * dt_s). Truth: the inputs, ``cht_true_c``
+    (head temperature), ``probe_c`` (what the probe sees), ``gamma_q``/``gamma_d``. ``measured``: what
+    the ECU and the air-data computer report.
+    """
+
+    first_step: int
+    segment_index: int
+    time_s: np.ndarray
+    throttle_pct: np.ndarray
+    rpm: np.ndarray
+    altitude_m: np.ndarray
+    airspeed_mps: np.ndarray
+    oat_c: np.ndarray
+    vspeed_mps: np.ndarray
+    fuel_flow_lph: np.ndarray
+    cht_true_c: np.ndarray
+    probe_c: np.ndarray
+    gamma_q: np.ndarray
+    gamma_d: np.ndarray
+    measured: Measurements
+
+
+def _check_step(dt_s: float) -> int:
+    if not (isinstance(dt_s, int | float) and math.isfinite(dt_s) and 1e-4 <= dt_s <= CONTROL_PERIOD_S):
+        raise ParameterError(f"dt_s: expected a step in [0.0001, {CONTROL_PERIOD_S}] s, got {dt_s!r}")
+    return max(1, round(CONTROL_PERIOD_S / dt_s))
+
+
+def iter_steps(
+    mission: Mission,
+    params: ThermalParams | None = None,
+    *,
+    effects: Effects | None = None,
+    degradation: Sequence[Degradation] = (),
+    seed: int = 0,
+    dt_s: float = 0.02,
+    sensors: SensorModel | None = None,
+    max_duration_s: float | None = None,
+) -> Iterator[StepBlock]:
+    """Fly ``mission`` and yield one :class:`StepBlock` per control period until the mission ends.
+
+    ``params`` is the truth model (default the paper's Table A1); ``effects``, if given, replaces its
+    unmodelled effects. Deterministic for a seed: the pilot's random variations and the sensor noise
+    draw from two independent streams spawned from ``seed``.
+    """
+    params = params or paper_table_a1()
+    if effects is not None:
+        params = params.replace(effects=effects)
+    sensors = sensors or SensorModel()
+    steps_per_period = _check_step(dt_s)
+    coeffs = coefficients(params)
+    # sensor_step is linear in (probe, cht): its gain over one step is its value at (0, 1)
+    probe_gain = float(sensor_step(0.0, 1.0, coeffs, dt_s))
+    pilot_seq, sensor_seq = np.random.SeedSequence(seed).spawn(2)
+    pilot_rng = np.random.default_rng(pilot_seq)
+    sensor_rng = np.random.default_rng(sensor_seq)
+    pilot = Pilot(mission, params.cht_limit_c, pilot_rng)
+    atmosphere = mission.atmosphere
+    field = mission.field_elevation_m
+    state = AircraftState(time_s=0.0, altitude_m=field)
+    x_axis, y_axis = params.heat_axes
+
+    # Any: rk4_step is typed for floats or arrays; here it always gets and returns floats
+    cht: Any = float(mission.initial_cht_c if mission.initial_cht_c is not None else atmosphere.oat_c(field))
+    probe = cht
+    pade: Any = None
+    cht_measured = cht
+    step = 0
+    while max_duration_s is None or state.time_s < max_duration_s:
+        command = pilot.command(state, cht_measured)
+        if command is None:
+            return
+        kin, next_state = fly_period(state, command, steps_per_period, dt_s, field)
+        time_s = np.round((step + np.arange(steps_per_period)) * dt_s, 9)
+        rpm = propeller_rpm(kin.throttle_pct, kin.airspeed_mps)
+        oat = np.asarray(atmosphere.oat_c(kin.altitude_m), dtype=float)
+        fuel = fuel_flow_lph(kin.throttle_pct, rpm, kin.altitude_m, oat)
+        columns = {"throttle_pct": kin.throttle_pct, "rpm": rpm, "fuel_flow_lph": fuel}
+        heat_x, heat_y = columns[x_axis], columns[y_axis]
+        drive = compute_drive(InputSeries(heat_x, heat_y, kin.altitude_m, kin.airspeed_mps, oat), coeffs)
+        q, g, amb, cond, gain = (np.broadcast_to(v, (steps_per_period,)).tolist() for v in drive)
+        gq_arr = gamma_schedule(degradation, "gamma_q", time_s)
+        gd_arr = gamma_schedule(degradation, "gamma_d", time_s)
+        gq, gd = gq_arr.tolist(), gd_arr.tolist()
+        if pade is None:
+            pade = float(initial_pade_state(Drive(q[0], g[0], amb[0], cond[0], gain[0])))
+        cht_out = np.empty(steps_per_period)
+        probe_out = np.empty(steps_per_period)
+        for k in range(steps_per_period):
+            cht_out[k] = cht
+            probe_out[k] = probe
+            cht, pade = rk4_step(cht, pade, Drive(q[k], g[k], amb[k], cond[k], gain[k]), coeffs, dt_s, gq[k], gd[k])
+            probe = probe + probe_gain * (cht - probe)
+        if not math.isfinite(cht):
+            raise ParameterError(f"truth plant diverged at t = {state.time_s:.1f} s (dt_s {dt_s} too large?)")
+        measured = sensors.measure(
+            sensor_rng,
+            probe_c=probe_out,
+            throttle_pct=kin.throttle_pct,
+            rpm=rpm,
+            altitude_m=kin.altitude_m,
+            airspeed_mps=kin.airspeed_mps,
+            oat_c=oat,
+            vspeed_mps=kin.vspeed_mps,
+            fuel_flow_lph=fuel,
+        )
+        cht_measured = float(measured.cht_c[-1])
+        yield StepBlock(
+            first_step=step,
+            segment_index=pilot.index,
+            time_s=time_s,
+            throttle_pct=kin.throttle_pct,
+            rpm=rpm,
+            altitude_m=kin.altitude_m,
+            airspeed_mps=kin.airspeed_mps,
+            oat_c=oat,
+            vspeed_mps=kin.vspeed_mps,
+            fuel_flow_lph=fuel,
+            cht_true_c=cht_out,
+            probe_c=probe_out,
+            gamma_q=gq_arr,
+            gamma_d=gd_arr,
+            measured=measured,
+        )
+        step += steps_per_period
+        state = next_state
+
+
+#: FlightLog columns written by :func:`fly`: measured canonical + optional columns, then the truth.
+LOG_COLUMNS: tuple[str, ...] = (
+    "time_s",
+    "throttle_pct",
+    "rpm",
+    "altitude_m",
+    "airspeed_mps",
+    "oat_c",
+    "cht_c",
+    "fuel_flow_lph",
+    "vspeed_mps",
+    "cht_true_c",
+    "gamma_q",
+    "gamma_d",
+)
+
+
+def block_rows(block: StepBlock, every: int) -> dict[str, np.ndarray]:
+    """The samples of ``block`` whose global step index is a multiple of ``every``, as log columns."""
+    keep = np.nonzero((block.first_step + np.arange(block.time_s.size)) % every == 0)[0]
+    m = block.measured
+    return {
+        "time_s": block.time_s[keep],
+        "throttle_pct": m.throttle_pct[keep],
+        "rpm": m.rpm[keep],
+        "altitude_m": m.altitude_m[keep],
+        "airspeed_mps": m.airspeed_mps[keep],
+        "oat_c": m.oat_c[keep],
+        "cht_c": m.cht_c[keep],
+        "fuel_flow_lph": m.fuel_flow_lph[keep],
+        "vspeed_mps": m.vspeed_mps[keep],
+        "cht_true_c": block.cht_true_c[keep],
+        "gamma_q": block.gamma_q[keep],
+        "gamma_d": block.gamma_d[keep],
+    }
+
+
+def record_every(dt_s: float, record_dt_s: float) -> int:
+    """Steps between recorded samples; record_dt_s must be a whole multiple of dt_s."""
+    ratio = record_dt_s / dt_s
+    every = round(ratio)
+    if every < 1 or abs(ratio - every) > 1e-6 * max(1.0, ratio):
+        raise ParameterError(f"record_dt_s: expected a whole multiple of dt_s ({dt_s:g} s), got {record_dt_s!r}")
+    return int(every)
+
+
+def collect(blocks: Iterable[StepBlock], every: int, source: str) -> FlightLog:
+    """A FlightLog of the samples of ``blocks`` every ``every`` steps."""
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
+    for block in blocks:
+        for name, values in block_rows(block, every).items():
+            parts[name].append(values)
+    if not parts["time_s"]:
+        raise ConfigError(f"{source}: the mission produced no samples")
+    return FlightLog({name: np.concatenate(chunks) for name, chunks in parts.items()}, source=source)
+
+
+def fly(
+    mission: Mission,
+    params: ThermalParams | None = None,
+    *,
+    effects: Effects | None = None,
+    degradation: Sequence[Degradation] = (),
+    seed: int = 0,
+    dt_s: float = 0.02,
+    record_dt_s: float = 0.1,
+    sensors: SensorModel | None = None,
+    max_duration_s: float | None = None,
+) -> FlightLog:
+    """Fly ``mission`` through the truth plant and return the flight sampled every ``record_dt_s``.
+
+    Columns: the canonical ones as measured (time_s, throttle_pct, rpm, altitude_m, airspeed_mps,
+    oat_c, cht_c quantised), fuel_flow_lph and vspeed_mps (measured), and the truth for scoring:
+    cht_true_c (head temperature), gamma_q, gamma_d. Deterministic for a seed.
+    """
+    every = record_every(dt_s, record_dt_s)
+    blocks = iter_steps(
+        mission,
+        params,
+        effects=effects,
+        degradation=degradation,
+        seed=seed,
+        dt_s=dt_s,
+        sensors=sensors,
+        max_duration_s=max_duration_s,
+    )
+    return collect(blocks, every, source=f"virtual-ecu:{mission.name}:seed={seed}")

@@ -1,0 +1,129 @@
+"""Recorder of the virtual ECU: one flight to a canonical CSV and/or python-can logs, in one pass.
+
+Outputs are chosen by suffix: ``.csv`` (canonical flight CSV through
+:func:`ecu_monitor.flightlog.write_csv`, measured columns plus ``cht_true_c``, ``gamma_q``,
+``gamma_d``), ``.asc``, ``.blf`` or ``.log`` (candump) through ``can.Logger``. Every output of a call
+comes from the same flight (the same seed, the same frames). The flight is streamed: frames go to the
+log writers block by block and only the CSV's samples (every ``record_dt_s``) are kept in memory, so
+a 16 h flight records in constant memory for the CAN logs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.flightlog import FlightLog, write_csv
+from ecu_monitor.model import Effects, ThermalParams, paper_table_a1
+from virtual_bus.emitter import FrameEncoder
+from virtual_bus.missions import Mission
+from virtual_bus.plant import LOG_COLUMNS, Degradation, StepBlock, block_rows, iter_steps, record_every
+from virtual_bus.sensors import SensorModel
+
+__all__ = ["CAN_SUFFIXES", "OUTPUT_SUFFIXES", "RecordSummary", "check_outputs", "record"]
+
+#: Suffixes written as python-can logs, and every suffix the recorder accepts.
+CAN_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log")
+OUTPUT_SUFFIXES: tuple[str, ...] = (".csv", *CAN_SUFFIXES)
+
+
+@dataclass
+class RecordSummary:
+    """What a recording produced: flight duration (s), CHT peaks (degC), rows and frames per file."""
+
+    duration_s: float = 0.0
+    max_cht_c: float = -math.inf
+    max_cht_true_c: float = -math.inf
+    rows: int = 0
+    frames: int = 0
+    files: dict[str, str] = field(default_factory=dict)
+
+
+def check_outputs(outputs: Sequence[str | Path]) -> list[Path]:
+    """The output paths, checked: known suffixes, no duplicates, existing parent directories."""
+    if not outputs:
+        raise ConfigError("--out: give at least one output file (.csv, .asc, .blf or .log)")
+    paths = [Path(p) for p in outputs]
+    for path in paths:
+        if path.suffix.lower() not in OUTPUT_SUFFIXES:
+            raise ConfigError(
+                f"{path}: unknown output type {path.suffix or '(none)'!r} (known: {', '.join(OUTPUT_SUFFIXES)})"
+            )
+        if not path.parent.is_dir():
+            raise ConfigError(f"{path}: directory {path.parent} does not exist")
+    if len({p.resolve() for p in paths}) != len(paths):
+        raise ConfigError("--out: the same file is named twice")
+    return paths
+
+
+def record(
+    mission: Mission,
+    outputs: Sequence[str | Path],
+    params: ThermalParams | None = None,
+    *,
+    effects: Effects | None = None,
+    degradation: Sequence[Degradation] = (),
+    seed: int = 0,
+    dt_s: float = 0.02,
+    record_dt_s: float = 0.1,
+    sensors: SensorModel | None = None,
+    start_time_s: float = 0.0,
+    progress: Callable[[float], None] | None = None,
+) -> RecordSummary:
+    """Fly ``mission`` once and write every output; ``progress`` gets the mission time (s) per block."""
+    paths = check_outputs(outputs)
+    params = params or paper_table_a1()
+    every = record_every(dt_s, record_dt_s)
+    csv_paths = [p for p in paths if p.suffix.lower() == ".csv"]
+    can_paths = [p for p in paths if p.suffix.lower() in CAN_SUFFIXES]
+    encoder = FrameEncoder(cht_limit_c=params.cht_limit_c, start_time_s=start_time_s)
+    summary = RecordSummary()
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
+    writers: list[Any] = []
+    try:
+        for path in can_paths:
+            try:
+                writers.append(can.Logger(str(path)))
+            except OSError as exc:
+                raise ConfigError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        blocks = iter_steps(
+            mission, params, effects=effects, degradation=degradation, seed=seed, dt_s=dt_s, sensors=sensors
+        )
+        for block in blocks:
+            _take(block, every, parts, summary, bool(csv_paths))
+            if writers:
+                for msg in encoder.frames(block):
+                    for writer in writers:
+                        writer.on_message_received(msg)
+                    summary.frames += 1
+            if progress is not None:
+                progress(float(block.time_s[-1]))
+    finally:
+        for writer in writers:
+            writer.stop()
+    source = f"virtual-ecu:{mission.name}:seed={seed}"
+    if csv_paths:
+        log = FlightLog({name: np.concatenate(chunks) for name, chunks in parts.items()}, source=source)
+        summary.rows = len(log)
+        for path in csv_paths:
+            write_csv(log, path)
+            summary.files[str(path)] = f"{len(log)} rows"
+    for path in can_paths:
+        summary.files[str(path)] = f"{summary.frames} frames"
+    return summary
+
+
+def _take(block: StepBlock, every: int, parts: dict[str, list[np.ndarray]], summary: RecordSummary, keep: bool) -> None:
+    summary.duration_s = float(block.time_s[-1])
+    summary.max_cht_c = max(summary.max_cht_c, float(np.max(block.measured.cht_c)))
+    summary.max_cht_true_c = max(summary.max_cht_true_c, float(np.max(block.cht_true_c)))
+    if keep:
+        for name, values in block_rows(block, every).items():
+            parts[name].append(values)
