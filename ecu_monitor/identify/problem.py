@@ -1,0 +1,644 @@
+"""The identification problem: model inputs from a flight, open-loop simulation, errors, parameter space
+and the vectorised cost over a whole swarm.
+
+Scale degeneracy (why one scale parameter is fixed). The model's energy balance
+``C_w dT/dt = g Q - (T - T_e)/R_Ce - (T^4 - T_e^4)/(alpha R_e)`` is unchanged when C_w, the heat map Q,
+1/R_Ce and 1/(alpha R_e) are all multiplied by the same factor: a temperature record fixes their
+ratios, never their common scale. The default space therefore keeps ``alpha_r_e`` (the radiative
+term) fixed at the base model's value and frees C_w, R_Ce, tau_w and the heat map; freeing all four
+scale parameters at once is refused.
+
+Search coordinates. The optimiser does not search C_w and Q directly, because the data pin down
+products of them far better than the factors (the steady-state rise is ~Q R_Ce, the time constant
+~C_w R_Ce). With R_Ce free, the coordinates are ``r_ce`` (log), ``time_constant_s`` = C_w R_Ce (log)
+and ``heat_rise_c[i,j]`` = Q_ij R_Ce (degC): nearly orthogonal directions, bounded from the data's
+temperature rise. :meth:`ParameterSpace.to_params` maps them back to C_w (J/degC) and Q (W).
+
+Altitude exponents a, b: one flight hardly excites them (the g1000 README: a fit drives them to
+their bounds), so they are fixed at the base values by default; when freed they carry a Gaussian
+prior (penalty) centred on the base values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import FlightLogError, ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.model import Coefficients, HeatMap, InputSeries, ThermalParams, coefficients
+from ecu_monitor.model.compiled import simulate_compiled
+from ecu_monitor.model.effects import (
+    AirspeedCooling,
+    DensityCooling,
+    MixtureCooling,
+    SensorLag,
+)
+
+__all__ = [
+    "DEFAULT_FREE",
+    "IDENTIFICATION_DT_S",
+    "REFERENCE_DT_S",
+    "ErrorStats",
+    "FlightGrid",
+    "ParameterSpace",
+    "SwarmObjective",
+    "default_space",
+    "flight_errors",
+    "heat_map_breakpoints",
+    "model_inputs",
+    "prepare_flight",
+    "simulate_flight",
+    "visited_weight_s",
+]
+
+#: Integration step of the reference simulation (the paper's and the estimators' step), s.
+REFERENCE_DT_S = 0.02
+#: Integration step used inside identification, s; chosen by measurement (docs/results/identification.md).
+IDENTIFICATION_DT_S = 0.5
+#: Model free parameters by default (alpha_r_e anchors the scale, a and b are fixed: see module doc).
+DEFAULT_FREE: tuple[str, ...] = ("c_w", "r_ce", "tau_w", "heat_map")
+#: A heat-map breakpoint whose total bilinear weight over the training flights is below this many
+#: seconds of flight is "not visited": it is not identified and takes the value of the nearest visited
+#: one (its base value would be a guess, and even a few seconds of weight on a wrong guess bias the fit).
+MIN_VISIT_S = 20.0
+#: Prior penalty scale: one prior standard deviation costs as much as 1 degC^2 of mean squared error.
+PRIOR_SCALE_C = 1.0
+#: Percent errors are relative to the measured CHT in degC, floored at this value to avoid dividing by ~0.
+PCT_FLOOR_C = 1.0
+
+# effect parameter name -> (Coefficients field, lower, upper, log-scaled)
+_EFFECT_FIELDS: dict[str, tuple[str, float, float, bool]] = {
+    "effects.airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", -0.05, 0.1, False),
+    "effects.airspeed_cooling.reference_mps": ("airspeed_reference_mps", 1.0, 200.0, False),
+    "effects.airspeed_cooling.floor": ("airspeed_floor", 0.05, 1.0, False),
+    "effects.density_cooling.exponent": ("density_exponent", 0.0, 1.5, False),
+    "effects.density_cooling.reference_kg_m3": ("density_reference_kg_m3", 0.3, 1.6, False),
+    "effects.sensor_lag.time_constant_s": ("sensor_lag_s", 0.0, 60.0, False),
+    "effects.mixture_cooling.fraction": ("mixture_fraction", 0.0, 0.6, False),
+    "effects.mixture_cooling.onset": ("mixture_onset", 0.0, 0.95, False),
+}
+_EFFECT_TYPES: dict[str, type] = {
+    "airspeed_cooling": AirspeedCooling,
+    "density_cooling": DensityCooling,
+    "sensor_lag": SensorLag,
+    "mixture_cooling": MixtureCooling,
+}
+_SCALE_PARAMETERS = {"c_w", "r_ce", "alpha_r_e", "heat_map"}
+_KNOWN_FREE = {"c_w", "r_ce", "tau_w", "alpha_r_e", "a", "b", "heat_map", *_EFFECT_FIELDS}
+
+
+# --------------------------------------------------------------------------------------------------
+# Errors and open-loop simulation of one flight
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Model error on one flight: |simulated - measured| CHT.
+
+    mean_c, peak_c, rms_c: mean, largest and RMS absolute error, degC.
+    mean_pct, peak_pct: mean and largest error in percent of the measured CHT in degC (as the paper;
+    the measured value is floored at 1 degC).
+    """
+
+    mean_c: float
+    peak_c: float
+    rms_c: float
+    mean_pct: float
+    peak_pct: float
+
+    @classmethod
+    def from_series(cls, simulated_c: NDArray[np.float64], measured_c: NDArray[np.float64]) -> ErrorStats:
+        """Error statistics of a simulated against a measured CHT series (same samples)."""
+        error = np.abs(np.asarray(simulated_c, dtype=float) - np.asarray(measured_c, dtype=float))
+        if error.size == 0 or not np.all(np.isfinite(error)):
+            nan = math.nan
+            return cls(nan, nan, nan, nan, nan)
+        pct = 100.0 * error / np.maximum(np.abs(measured_c), PCT_FLOOR_C)
+        return cls(
+            mean_c=float(error.mean()),
+            peak_c=float(error.max()),
+            rms_c=float(np.sqrt(np.mean(error**2))),
+            mean_pct=float(pct.mean()),
+            peak_pct=float(pct.max()),
+        )
+
+
+def model_inputs(log: FlightLog, heat_axes: tuple[str, str]) -> InputSeries:
+    """The model inputs of a flight at its own sample times (heat-map axes, altitude, airspeed, OAT).
+
+    Raises FlightLogError naming the first missing column.
+    """
+    needed = (heat_axes[0], heat_axes[1], "altitude_m", "airspeed_mps", "oat_c")
+    for name in needed:
+        if not log.has(name):
+            role = "heat-map axis" if name in heat_axes else "model input"
+            raise FlightLogError(f"{log.source}: no column '{name}' ({role}; columns: {', '.join(log.names)})")
+    return InputSeries(*(np.asarray(log[name], dtype=float) for name in needed))
+
+
+def _measured(log: FlightLog) -> NDArray[np.float64]:
+    if not log.has("cht_c"):
+        raise FlightLogError(f"{log.source}: no column 'cht_c' (measured CHT; columns: {', '.join(log.names)})")
+    cht = np.asarray(log["cht_c"], dtype=float)
+    if not np.all(np.isfinite(cht)):
+        raise FlightLogError(f"{log.source}: column 'cht_c' holds blank or non-finite values")
+    return cht
+
+
+class FlightGrid(NamedTuple):
+    """A flight prepared for simulation on a uniform step: inputs held (zero-order hold) on the grid,
+    and where each measured sample falls between the recorded states."""
+
+    inputs: InputSeries  # on the uniform grid t0 + k dt, k < steps
+    dt_s: float
+    record_every: int  # states recorded every record_every steps
+    sample_row: NDArray[np.intp]  # per measured sample: recorded row just before it
+    sample_weight: NDArray[np.float64]  # linear interpolation weight towards the next row
+    measured_c: NDArray[np.float64]  # measured CHT at the log's sample times
+    initial_c: float  # initial CHT = the first measured sample
+    source: str
+
+    def sample(self, recorded: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Recorded states (rows, ...) interpolated at the measured sample times."""
+        w = self.sample_weight.reshape((-1,) + (1,) * (recorded.ndim - 1))
+        return (1.0 - w) * recorded[self.sample_row] + w * recorded[self.sample_row + 1]
+
+
+def prepare_flight(log: FlightLog, heat_axes: tuple[str, str], dt_s: float, record_period_s: float = 1.0) -> FlightGrid:
+    """Put a flight on a uniform grid of step ``dt_s`` (inputs held from the last sample at or before
+    each grid time), recording the state every ``record_period_s`` (rounded to a whole number of steps)."""
+    if not (math.isfinite(dt_s) and dt_s > 0.0):
+        raise ParameterError(f"integration step: expected a positive number of seconds, got {dt_s!r}")
+    if len(log) < 2:
+        raise FlightLogError(f"{log.source}: at least 2 samples are needed to identify or simulate")
+    series = model_inputs(log, heat_axes)
+    for name, values in zip(InputSeries._fields, series, strict=True):
+        if not np.all(np.isfinite(values)):
+            raise FlightLogError(f"{log.source}: model input '{name}' holds blank or non-finite values")
+    measured = _measured(log)
+    t = np.asarray(log.time_s, dtype=float)
+    span = float(t[-1] - t[0])
+    every = max(1, round(record_period_s / dt_s))
+    rows = max(1, math.ceil(span / (every * dt_s) - 1e-9))
+    steps = rows * every + 1
+    grid = t[0] + dt_s * np.arange(steps)
+    index = np.clip(np.searchsorted(t, grid + 1e-9 * dt_s, side="right") - 1, 0, t.size - 1)
+    held = InputSeries(*(np.ascontiguousarray(np.asarray(v)[index]) for v in series))
+    position = (t - t[0]) / (every * dt_s)
+    row = np.clip(np.floor(position).astype(np.intp), 0, rows - 1)
+    weight = np.clip(position - row, 0.0, 1.0)
+    return FlightGrid(held, float(dt_s), every, row, weight, measured, float(measured[0]), log.source)
+
+
+def _run_grid(grid: FlightGrid, coeffs: Coefficients) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Probe CHT at the measured samples: (N,) or (N, P), and the failure mask () or (P,)."""
+    run = simulate_compiled(grid.inputs, coeffs, grid.dt_s, grid.initial_c, record_every=grid.record_every)
+    return grid.sample(run.probe_c), run.failed
+
+
+def simulate_flight(params: ThermalParams, log: FlightLog, dt_s: float | None = None) -> NDArray[np.float64]:
+    """Open-loop model CHT (what the probe reads, degC) at the log's sample times.
+
+    Driven by the log's inputs held on a uniform step ``dt_s`` (default :data:`REFERENCE_DT_S`), RK4,
+    starting from the first measured CHT with the heat-path delay in steady state. NaN from the sample
+    where the trajectory stops being finite (reported by :func:`flight_errors` as NaN errors).
+    """
+    grid = prepare_flight(log, params.heat_axes, REFERENCE_DT_S if dt_s is None else dt_s)
+    probe, _ = _run_grid(grid, coefficients(params))
+    return probe
+
+
+def flight_errors(params: ThermalParams, log: FlightLog, dt_s: float | None = None) -> ErrorStats:
+    """Error statistics of the open-loop model against the log's measured CHT."""
+    return ErrorStats.from_series(simulate_flight(params, log, dt_s), _measured(log))
+
+
+# --------------------------------------------------------------------------------------------------
+# Heat-map grid from the data
+# --------------------------------------------------------------------------------------------------
+
+
+def heat_map_breakpoints(
+    flights: Sequence[FlightLog], heat_axes: tuple[str, str], grid: tuple[int, int]
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Breakpoints of an n x m heat map for a new axis pair, from the training data.
+
+    Each axis gets n (or m) breakpoints at the quantiles linspace(1 %, 99 %) of its pooled samples, so
+    every breakpoint sits where the engine actually ran (the 1 % tails are clamped, not extrapolated).
+    Where the quantiles collide (a mostly constant input) the breakpoints fall back to even spacing
+    between the 1 % and 99 % quantiles.
+    """
+    out = []
+    for axis, count in zip(heat_axes, grid, strict=True):
+        if count < 2:
+            raise ParameterError(f"heat-map grid: expected at least 2 breakpoints per axis, got {count}")
+        values = np.concatenate([np.asarray(model_inputs(f, heat_axes)[heat_axes.index(axis)]) for f in flights])
+        points = np.quantile(values, np.linspace(0.01, 0.99, count))
+        low, high = float(points[0]), float(points[-1])
+        if high - low <= 1e-9 * max(1.0, abs(high)):
+            raise ParameterError(f"heat-map axis '{axis}': the data hold one value only ({low:g}); choose another axis")
+        if np.any(np.diff(points) <= 1e-6 * (high - low)):
+            points = np.linspace(low, high, count)
+        out.append(tuple(float(round(p, 6)) for p in points))
+    return out[0], out[1]
+
+
+def visited_weight_s(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
+    """Time (s) each heat-map breakpoint carries over the flights: sum of its bilinear weight x sample interval."""
+    xb = np.asarray(heat_map.x_breakpoints)
+    yb = np.asarray(heat_map.y_breakpoints)
+    total = np.zeros(heat_map.shape)
+    for log in flights:
+        series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
+        t = np.asarray(log.time_s, dtype=float)
+        interval = np.diff(t, append=t[-1] + (float(np.median(np.diff(t))) if t.size > 1 else 1.0))
+        for ix, (bp, q) in enumerate(((xb, series.heat_x), (yb, series.heat_y))):
+            qc = np.clip(np.asarray(q, dtype=float), bp[0], bp[-1])
+            cell = np.clip(np.searchsorted(bp, qc, side="right") - 1, 0, bp.size - 2)
+            frac = (qc - bp[cell]) / (bp[cell + 1] - bp[cell])
+            if ix == 0:
+                xi, xf = cell, frac
+            else:
+                yi, yf = cell, frac
+        for di, wx in ((0, 1.0 - xf), (1, xf)):
+            for dj, wy in ((0, 1.0 - yf), (1, yf)):
+                np.add.at(total, (xi + di, yi + dj), wx * wy * interval)
+    return total
+
+
+# --------------------------------------------------------------------------------------------------
+# Parameter space
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ParameterSpace:
+    """The search space: coordinates, bounds, scaling and priors, over a base ThermalParams.
+
+    names: search coordinates (see the module doc): "r_ce", "time_constant_s" (= C_w R_Ce, s),
+        "c_w" (only when R_Ce is fixed), "tau_w", "alpha_r_e", "a", "b", "heat_rise_c[i,j]"
+        (= Q_ij R_Ce, degC) and effect parameters "effects.<effect>.<parameter>".
+    lower, upper: bounds of each coordinate (physical units of the coordinate).
+    log_scaled: True where the optimiser searches the logarithm (positive scale parameters).
+    prior_mean, prior_sigma: Gaussian prior of each coordinate (NaN sigma = none).
+    heat_cells: (i, j) of the heat-map values identified; the other (unvisited) cells copy the value
+        of the nearest identified cell when ``fill_unvisited`` (a new grid), else keep the base value.
+    """
+
+    base: ThermalParams
+    names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    log_scaled: tuple[bool, ...]
+    prior_mean: tuple[float, ...]
+    prior_sigma: tuple[float, ...]
+    heat_cells: tuple[tuple[int, int], ...] = ()
+    fill_unvisited: bool = False
+    _index: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        d = len(self.names)
+        for label in ("lower", "upper", "log_scaled", "prior_mean", "prior_sigma"):
+            if len(getattr(self, label)) != d:
+                raise ParameterError(f"parameter space: {label} has {len(getattr(self, label))} entries, expected {d}")
+        if d == 0:
+            raise ParameterError("parameter space: no free parameter")
+        if len(set(self.names)) != d:
+            raise ParameterError("parameter space: repeated coordinate names")
+        for name, lo, hi, logs in zip(self.names, self.lower, self.upper, self.log_scaled, strict=True):
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise ParameterError(f"parameter space: {name}: expected finite bounds lower < upper, got [{lo}, {hi}]")
+            if logs and lo <= 0.0:
+                raise ParameterError(f"parameter space: {name}: a log-scaled coordinate needs a positive lower bound")
+        self._index.update({name: k for k, name in enumerate(self.names)})
+
+    @property
+    def dimension(self) -> int:
+        """Number of search coordinates."""
+        return len(self.names)
+
+    # unit cube <-> coordinates ---------------------------------------------------------------------
+
+    def _edges(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        logs = np.asarray(self.log_scaled, dtype=bool)
+        lo = np.asarray(self.lower, dtype=float)
+        hi = np.asarray(self.upper, dtype=float)
+        return (
+            np.where(logs, np.log(np.where(logs, lo, 1.0)), lo),
+            np.where(logs, np.log(np.where(logs, hi, 1.0)), hi),
+            logs,
+        )
+
+    def from_unit(self, unit: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Coordinates from points of the unit cube (..., D) (log-scaled ones are log-uniform)."""
+        lo, hi, logs = self._edges()
+        raw = lo + np.clip(unit, 0.0, 1.0) * (hi - lo)
+        return np.where(logs, np.exp(raw), raw)
+
+    def to_unit(self, vector: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Points of the unit cube from coordinates (clipped to the bounds)."""
+        lo, hi, logs = self._edges()
+        v = np.clip(np.asarray(vector, dtype=float), self.lower, self.upper)
+        raw = np.where(logs, np.log(np.where(logs, v, 1.0)), v)
+        return (raw - lo) / (hi - lo)
+
+    # coordinates <-> parameters --------------------------------------------------------------------
+
+    def _column(self, matrix: NDArray[np.float64], name: str) -> NDArray[np.float64] | None:
+        k = self._index.get(name)
+        return None if k is None else matrix[:, k]
+
+    def coefficient_arrays(self, vectors: NDArray[np.float64]) -> Coefficients:
+        """Kernel coefficients of a swarm of coordinate vectors (P, D): arrays (P,), heat (P, n, m)."""
+        v = np.atleast_2d(np.asarray(vectors, dtype=float))
+        p = v.shape[0]
+        base = coefficients(self.base)
+        fields_: dict[str, Any] = {}
+        for name in Coefficients._fields:
+            if name in ("radiation_offset_c", "x_breakpoints", "y_breakpoints", "heat_values_w"):
+                continue
+            fields_[name] = np.full(p, float(getattr(base, name)))
+        r_ce = self._column(v, "r_ce")
+        if r_ce is not None:
+            fields_["r_ce"] = r_ce.copy()
+        tc = self._column(v, "time_constant_s")
+        if tc is not None:
+            fields_["c_w"] = tc / fields_["r_ce"]
+        c_w = self._column(v, "c_w")
+        if c_w is not None:
+            fields_["c_w"] = c_w.copy()
+        for name in ("tau_w", "a", "b"):
+            col = self._column(v, name)
+            if col is not None:
+                fields_[name] = col.copy()
+        alpha = self._column(v, "alpha_r_e")
+        if alpha is not None:
+            fields_["radiative_conductance"] = 1.0 / alpha
+        for name, (target, *_rest) in _EFFECT_FIELDS.items():
+            col = self._column(v, name)
+            if col is not None:
+                fields_[target] = col.copy()
+        heat = np.broadcast_to(self.base.heat_map.values_array(), (p, *self.base.heat_map.shape)).copy()
+        if self.heat_cells:
+            rises = np.stack([v[:, self._index[_cell_name(i, j)]] for i, j in self.heat_cells], axis=1)
+            values = rises / fields_["r_ce"][:, None]
+            for k, (i, j) in enumerate(self.heat_cells):
+                heat[:, i, j] = values[:, k]
+            if self.fill_unvisited:
+                for (i, j), source in _nearest_cells(self.base.heat_map.shape, self.heat_cells).items():
+                    heat[:, i, j] = heat[:, source[0], source[1]]
+        fields_["heat_values_w"] = heat
+        fields_["radiation_offset_c"] = base.radiation_offset_c
+        fields_["x_breakpoints"] = base.x_breakpoints
+        fields_["y_breakpoints"] = base.y_breakpoints
+        return Coefficients(**fields_)
+
+    def to_params(self, vector: NDArray[np.float64]) -> ThermalParams:
+        """The ThermalParams of one coordinate vector (raises ParameterError if outside physical ranges)."""
+        c = self.coefficient_arrays(np.asarray(vector, dtype=float)[None, :])
+        changes: dict[str, Any] = {
+            name: float(np.asarray(getattr(c, name))[0]) for name in ("c_w", "r_ce", "tau_w", "a", "b")
+        }
+        changes.update(
+            {
+                "heat_map": self.base.heat_map.with_values(np.maximum(c.heat_values_w[0], 0.0)),
+            }
+        )
+        if "alpha_r_e" in self._index:
+            changes["alpha_r_e"] = float(vector[self._index["alpha_r_e"]])
+        effects = self.base.effects
+        for name in _EFFECT_FIELDS:
+            if name in self._index:
+                effect, parameter = name.split(".")[1:]
+                current = getattr(effects, effect)
+                effects = effects.replace(
+                    effect,
+                    _EFFECT_TYPES[effect](**{**_effect_dict(current), parameter: float(vector[self._index[name]])}),
+                )
+        changes["effects"] = effects
+        return self.base.replace(**changes)
+
+    def from_params(self, params: ThermalParams) -> NDArray[np.float64]:
+        """The coordinate vector of a ThermalParams (same axes and breakpoints as the base), unclipped."""
+        if params.heat_map.shape != self.base.heat_map.shape:
+            raise ParameterError("from_params: heat map shape differs from the parameter space's")
+        values = params.heat_map.values_array()
+        out = np.empty(self.dimension)
+        for k, name in enumerate(self.names):
+            if name == "time_constant_s":
+                out[k] = params.c_w * params.r_ce
+            elif name.startswith("heat_rise_c["):
+                i, j = _parse_cell(name)
+                out[k] = values[i, j] * params.r_ce
+            elif name.startswith("effects."):
+                effect, parameter = name.split(".")[1:]
+                current = getattr(params.effects, effect)
+                if current is None:
+                    raise ParameterError(f"from_params: effect '{effect}' is off in the given model")
+                out[k] = float(getattr(current, parameter))
+            else:
+                out[k] = float(getattr(params, name))
+        return out
+
+    def prior_penalty(self, vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Prior penalty of each vector (P,), in degC^2 (added to the mean squared error)."""
+        sigma = np.asarray(self.prior_sigma, dtype=float)
+        has = np.isfinite(sigma) & (sigma > 0)
+        if not has.any():
+            return np.zeros(np.atleast_2d(vectors).shape[0])
+        mean = np.asarray(self.prior_mean, dtype=float)
+        z = (np.atleast_2d(vectors)[:, has] - mean[has]) / sigma[has]
+        return PRIOR_SCALE_C**2 * np.sum(z * z, axis=1)
+
+    def prior_residuals(self, vector: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Prior terms as residuals (degC), for least squares."""
+        sigma = np.asarray(self.prior_sigma, dtype=float)
+        has = np.isfinite(sigma) & (sigma > 0)
+        mean = np.asarray(self.prior_mean, dtype=float)
+        return PRIOR_SCALE_C * (np.asarray(vector)[has] - mean[has]) / sigma[has]
+
+
+def _cell_name(i: int, j: int) -> str:
+    return f"heat_rise_c[{i},{j}]"
+
+
+def _parse_cell(name: str) -> tuple[int, int]:
+    inner = name[name.index("[") + 1 : name.index("]")]
+    i, j = inner.split(",")
+    return int(i), int(j)
+
+
+def _effect_dict(effect: Any) -> dict[str, float]:
+    return {name: float(getattr(effect, name)) for name in effect.__dataclass_fields__}
+
+
+def _nearest_cells(shape: tuple[int, int], cells: Sequence[tuple[int, int]]) -> dict[tuple[int, int], tuple[int, int]]:
+    """For every cell not in ``cells``: the nearest one in ``cells`` (grid-index distance, ties by order)."""
+    chosen = set(cells)
+    out: dict[tuple[int, int], tuple[int, int]] = {}
+    for i in range(shape[0]):
+        for j in range(shape[1]):
+            if (i, j) not in chosen:
+                out[(i, j)] = min(cells, key=lambda c: (c[0] - i) ** 2 + (c[1] - j) ** 2)
+    return out
+
+
+def default_space(
+    flights: Sequence[FlightLog],
+    base: ThermalParams | None = None,
+    heat_axes: tuple[str, str] = ("throttle_pct", "rpm"),
+    grid: tuple[int, int] | None = None,
+    free: Sequence[str] = DEFAULT_FREE,
+    min_visit_s: float = MIN_VISIT_S,
+) -> ParameterSpace:
+    """The default search space for ``flights``.
+
+    Base: ``base`` or the paper's Table A1. The heat map keeps the base's breakpoints when the base has
+    the same axes and no ``grid`` is asked; otherwise an n x m grid (default 4 x 4) at the data's
+    quantiles (:func:`heat_map_breakpoints`), started flat at the median temperature rise. Bounds:
+    R_Ce within x30 of the base; time constant C_w R_Ce in [5, 3000] s; tau_w in [1, 120] s;
+    heat rise Q R_Ce in [0, 4 x the largest observed CHT - OAT]; alpha_r_e within x100; a, b in
+    [0, 4] with a N(base, 0.5) prior; effect parameters within their physical ranges.
+    Only breakpoints the flights visit (>= ``min_visit_s`` seconds of bilinear weight) are free.
+    """
+    from ecu_monitor.model import paper_table_a1
+
+    if not flights:
+        raise ParameterError("identification needs at least one flight")
+    unknown = [name for name in free if name not in _KNOWN_FREE]
+    if unknown:
+        raise ParameterError(
+            f"free parameter(s) {', '.join(unknown)}: unknown (known: {', '.join(sorted(_KNOWN_FREE))})"
+        )
+    if set(free) >= _SCALE_PARAMETERS:
+        raise ParameterError(
+            "c_w, r_ce, alpha_r_e and the heat map share one scale that temperature data cannot fix:"
+            " keep one of them fixed"
+        )
+    base = paper_table_a1() if base is None else base
+    rises = []
+    for log in flights:
+        series = model_inputs(log, heat_axes)
+        rises.append(_measured(log) - np.asarray(series.oat_c))
+    rise = np.concatenate(rises)
+    max_rise = max(20.0, float(np.quantile(rise, 0.99)))
+    fill = True
+    if grid is not None or base.heat_axes != tuple(heat_axes):
+        xb, yb = heat_map_breakpoints(flights, heat_axes, grid or (4, 4))
+        start_rise = max(5.0, float(np.median(rise)))
+        values = np.full((len(xb), len(yb)), start_rise / base.r_ce)
+        base = base.replace(heat_map=HeatMap(heat_axes[0], heat_axes[1], xb, yb, tuple(map(tuple, values))))
+    names: list[str] = []
+    lower: list[float] = []
+    upper: list[float] = []
+    logs: list[bool] = []
+    mean: list[float] = []
+    sigma: list[float] = []
+
+    def add(
+        name: str, lo: float, hi: float, log_scaled: bool, prior: tuple[float, float] = (math.nan, math.nan)
+    ) -> None:
+        names.append(name)
+        lower.append(float(lo))
+        upper.append(float(hi))
+        logs.append(log_scaled)
+        mean.append(prior[0])
+        sigma.append(prior[1])
+
+    free_set = set(free)
+    if "r_ce" in free_set:
+        add("r_ce", max(1e-4, base.r_ce / 30.0), min(100.0, base.r_ce * 30.0), True)
+        if "c_w" in free_set:
+            add("time_constant_s", 5.0, 3000.0, True)
+    elif "c_w" in free_set:
+        add("c_w", max(1.0, base.c_w / 30.0), min(1e6, base.c_w * 30.0), True)
+    if "tau_w" in free_set:
+        add("tau_w", 1.0, 120.0, True)
+    if "alpha_r_e" in free_set:
+        add("alpha_r_e", base.alpha_r_e / 100.0, base.alpha_r_e * 100.0, True)
+    for name in ("a", "b"):
+        if name in free_set:
+            add(name, 0.0, 4.0, False, (float(getattr(base, name)), 0.5))
+    for name in free:
+        if name.startswith("effects."):
+            effect = name.split(".")[1]
+            if getattr(base.effects, effect) is None:
+                raise ParameterError(f"free parameter {name}: the effect is off in the base model (switch it on first)")
+            _target, lo, hi, log_scaled = _EFFECT_FIELDS[name]
+            add(name, lo, hi, log_scaled)
+    cells: list[tuple[int, int]] = []
+    if "heat_map" in free_set:
+        weight = visited_weight_s(flights, base.heat_map)
+        cells = [(i, j) for i in range(weight.shape[0]) for j in range(weight.shape[1]) if weight[i, j] >= min_visit_s]
+        if not cells:
+            raise ParameterError(
+                f"heat map: no breakpoint is visited for {min_visit_s:g} s by the flights; choose a coarser grid"
+            )
+        for i, j in cells:
+            add(_cell_name(i, j), 0.0, 4.0 * max_rise, False)
+    return ParameterSpace(
+        base=base,
+        names=tuple(names),
+        lower=tuple(lower),
+        upper=tuple(upper),
+        log_scaled=tuple(logs),
+        prior_mean=tuple(mean),
+        prior_sigma=tuple(sigma),
+        heat_cells=tuple(cells),
+        fill_unvisited=fill,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# The swarm cost
+# --------------------------------------------------------------------------------------------------
+
+
+class SwarmObjective:
+    """Cost of a whole swarm at once: RMS of simulated (probe) minus measured CHT over all flights.
+
+    ``costs(unit)`` takes points of the unit cube (P, D) and returns the cost of each (P,), with the
+    prior penalty added inside the square root; a particle whose trajectory is not finite on any flight
+    gets +inf and is counted in ``failed``. ``evaluations`` counts particle simulations (one particle
+    over all flights = 1).
+    """
+
+    def __init__(self, flights: Sequence[FlightLog], space: ParameterSpace, dt_s: float, record_period_s: float = 1.0):
+        self.space = space
+        self.grids = [prepare_flight(log, space.base.heat_axes, dt_s, record_period_s) for log in flights]
+        self.samples = int(sum(g.measured_c.size for g in self.grids))
+        self.failed = 0
+        self.evaluations = 0
+
+    def residuals(self, unit: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """Simulated minus measured CHT (P, samples of all flights) and the failure mask (P,)."""
+        unit = np.atleast_2d(unit)
+        vectors = self.space.from_unit(unit)
+        coeffs = self.space.coefficient_arrays(vectors)
+        parts = []
+        failed = np.zeros(unit.shape[0], dtype=bool)
+        for grid in self.grids:
+            probe, bad = _run_grid(grid, coeffs)
+            parts.append(probe.T - grid.measured_c[None, :])
+            failed |= np.asarray(bad, dtype=bool)
+        residual = np.concatenate(parts, axis=1)
+        failed |= ~np.all(np.isfinite(residual), axis=1)
+        self.evaluations += unit.shape[0]
+        self.failed += int(failed.sum())
+        return residual, failed
+
+    def costs(self, unit: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Cost of each point (P,): sqrt(mean squared error + prior penalty), +inf for a failed particle."""
+        residual, failed = self.residuals(unit)
+        with np.errstate(invalid="ignore", over="ignore"):
+            mse = np.mean(residual * residual, axis=1)
+        cost = np.sqrt(mse + self.space.prior_penalty(self.space.from_unit(np.atleast_2d(unit))))
+        cost[failed] = np.inf
+        return cost
