@@ -226,3 +226,30 @@ def test_kill_9_at_random_moments_loses_no_finished_flight(tmp_path: Path) -> No
         statuses = {f.status for f in store.flights("UAV-ENG-KILL", include_running=True)}
         assert statuses <= {"finished", "recovered"}
         assert recorder.finished == []
+
+
+def _three_flights(state_dir: Path) -> None:
+    """Three 10-minute flights with gamma_Q rising 1.00 -> 1.05 -> 1.10 and CHT cycling 120 <-> 215 degC."""
+    with StateStore(state_dir) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        t = 0.0
+        for k in range(3):
+            gamma = 1.0 + 0.05 * k
+            t = _feed(recorder, t, 600.0, 5500.0, lambda s: 167.5 - 47.5 * math.cos(s / 60), lambda s, g=gamma: g)
+            t = _feed(recorder, t, 60.0, 0.0, lambda s: 60.0)
+            t += 3600.0
+
+
+def test_history_prints_the_trend_and_plots_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from ecu_monitor.cli import main
+
+    _three_flights(tmp_path)
+    out_png = tmp_path / "trend.png"
+    assert main(["history", "--state-dir", str(tmp_path), "--plot", str(out_png)]) == 0
+    text = capsys.readouterr().out
+    assert f"engine {SERIAL}: 3 flights, 0.50 h" in text
+    assert "trend: gamma_Q 1.100 (+30.0" in text  # +0.05 per flight of 1/6 h = +30 per 100 engine hours
+    assert out_png.stat().st_size > 10_000
+    assert main(["history", "--state-dir", str(tmp_path), "--engine", "NOPE"]) == 2
+    assert "no engine 'NOPE'" in capsys.readouterr().err
+    assert main(["history", "--state-dir", str(tmp_path / "missing")]) == 2

@@ -1,0 +1,353 @@
+"""The live service: a python-can Notifier feeding the pipeline, health frames back onto the bus.
+
+Three threads share one :class:`~ecu_monitor.service.pipeline.Pipeline` under one lock:
+
+* the Notifier's receive thread: each frame is stamped with the daemon's monotonic clock, fed to the
+  pipeline, and ``advance_to(now)`` runs at once, so a health frame that falls due is sent within the
+  same callback (the low-latency path);
+* the tick thread: every 20 ms ``advance_to(now)``, so the 50 Hz steps and the health frames go on when
+  the frames stop (that is how staleness gets reported);
+* the supervisor (the thread that calls :meth:`Daemon.run`): reopens a failed bus with backoff, feeds
+  the health rows to the flight recorder (SQLite writes stay off the frame path), pings the systemd
+  watchdog only while ``pipeline.steps_done`` grows, updates ``STATUS=`` and the log.
+
+Bus failures never end the process: a receive error (reported by the Notifier through
+``Listener.on_error``), a failed open, and every failed send count one bus error (shown in
+Health_Diag.BusErrors); a receive error, or ``SEND_FAILURES_TO_REOPEN`` sends failing in a row, closes
+the bus and reopens it after ``initial``, ``2*initial``, ... up to ``max`` seconds.
+
+:meth:`Daemon._guarded` holds the codebase's only broad ``except Exception``: whatever a frame or a tick
+raises is logged and counted (``daemon_errors``), and the daemon keeps running; the watchdog then
+decides, from the pipeline's progress, whether the process is still useful.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol, TypeVar
+
+import can
+
+from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate
+from ecu_monitor.service.persistence import FlightRecorder, FlightSample
+
+__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike"]
+
+_log = logging.getLogger(__name__)
+
+#: Consecutive failed sends after which the bus is considered gone and reopened.
+SEND_FAILURES_TO_REOPEN = 20
+#: Send timeout, s: a full transmit queue must not stall the receive path.
+_SEND_TIMEOUT_S = 0.01
+
+_T = TypeVar("_T")
+
+
+class PipelineLike(Protocol):
+    """What the daemon uses of :class:`~ecu_monitor.service.pipeline.Pipeline` (the service contract)."""
+
+    counters: dict[str, int]
+
+    def feed(self, msg: can.Message) -> None: ...
+
+    def advance_to(self, t_s: float) -> list[can.Message]: ...
+
+    def snapshot(self) -> Any: ...
+
+    def drain_rows(self) -> list[Any]: ...
+
+    @property
+    def steps_done(self) -> int: ...
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """Timing of the daemon's threads, s, and the bus reopen backoff, s."""
+
+    tick_s: float = 0.02  # the 50 Hz timer
+    supervise_s: float = 0.1  # supervisor period: reopen, persistence, watchdog
+    status_every_s: float = 10.0  # STATUS= and the INFO log line
+    backoff_initial_s: float = 0.5
+    backoff_max_s: float = 10.0
+    watchdog_period_s: float | None = None  # None: no watchdog (not under systemd's WatchdogSec)
+
+
+class _Listener(can.Listener):
+    """Hands frames and receive errors of the Notifier to the daemon."""
+
+    def __init__(self, daemon: Daemon) -> None:
+        self._daemon = daemon
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._daemon._guarded("frame", self._daemon._on_frame, msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self._daemon._on_receive_error(exc)
+
+
+class Daemon:
+    """The bus loop around one pipeline (see the module docstring).
+
+    ``open_bus`` opens (and reopens) the bus: the bus is passed in, the daemon never builds one from a
+    config itself. ``recorder`` (optional) receives one :class:`FlightSample` per health row;
+    ``rpm_of`` extracts the engine speed (rev/min, or None when stale) from a health row.
+    ``stop()`` is safe from a signal handler; :meth:`run` returns once everything is flushed.
+    """
+
+    def __init__(
+        self,
+        pipeline: PipelineLike,
+        open_bus: Callable[[], can.BusABC],
+        *,
+        settings: DaemonSettings | None = None,
+        notifier: SystemdNotifier | None = None,
+        recorder: FlightRecorder | None = None,
+        rpm_of: Callable[[Any], float | None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.pipeline = pipeline
+        self.settings = settings or DaemonSettings()
+        self._open_bus = open_bus
+        self._notifier = notifier or SystemdNotifier(address="")
+        self._recorder = recorder
+        self._rpm_of = rpm_of
+        self._clock = clock
+        self._wall_clock = wall_clock
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._bus_failed = threading.Event()
+        self._bus: can.BusABC | None = None
+        self._can_notifier: can.Notifier | None = None
+        self._tick_thread: threading.Thread | None = None
+        self._send_failures_in_row = 0
+        self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
+        self.counters: dict[str, int] = {
+            "frames_in": 0,
+            "health_sent": 0,
+            "health_dropped": 0,
+            "send_errors": 0,
+            "receive_errors": 0,
+            "open_errors": 0,
+            "bus_errors": 0,
+            "bus_opens": 0,
+            "daemon_errors": 0,
+            "watchdog_pings": 0,
+            "rows_recorded": 0,
+        }
+
+    # --- the one keep-alive handler ---------------------------------------------------------------
+
+    def _guarded(self, where: str, func: Callable[..., _T], *args: Any) -> _T | None:
+        """Run ``func``; anything it raises is logged with its traceback and counted, never propagated.
+
+        This is the only broad ``except Exception`` of ecu_monitor: the daemon must outlive any bug in a
+        frame's path or a tick. The watchdog still stops being fed if the pipeline stops progressing.
+        """
+        try:
+            return func(*args)
+        except Exception:  # noqa: BLE001 - the daemon's one keep-alive handler (module docstring)
+            with self._lock:
+                self.counters["daemon_errors"] += 1
+            _log.exception("unexpected error in %s path (kept running)", where)
+            return None
+
+    # --- frame path and tick ------------------------------------------------------------------------
+
+    def _on_frame(self, msg: can.Message) -> None:
+        now = self._clock()
+        msg.timestamp = now  # one clock for frames and steps: the daemon's monotonic time of reception
+        with self._lock:
+            self.counters["frames_in"] += 1
+            self.pipeline.feed(msg)
+            self._send_locked(self.pipeline.advance_to(now))
+
+    def _tick(self) -> None:
+        with self._lock:
+            self._send_locked(self.pipeline.advance_to(self._clock()))
+
+    def _tick_loop(self) -> None:
+        period = self.settings.tick_s
+        next_s = self._clock() + period
+        while not self._stop.wait(max(0.0, next_s - self._clock())):
+            self._guarded("tick", self._tick)
+            next_s += period
+            now = self._clock()
+            if next_s < now - period:  # fell behind (machine suspended, CPU starved): do not burst
+                next_s = now + period
+
+    def _send_locked(self, frames: list[can.Message]) -> None:
+        """Send health frames in order (the caller holds the lock, which keeps counters in sequence)."""
+        if not frames:
+            return
+        bus = self._bus
+        for frame in frames:
+            if bus is None or self._bus_failed.is_set():
+                self.counters["health_dropped"] += 1  # bus down: the failure was counted once already
+                continue
+            try:
+                bus.send(frame, timeout=_SEND_TIMEOUT_S)
+            except (can.CanError, OSError) as exc:
+                self._count_bus_error("send_errors")
+                self._send_failures_in_row += 1
+                if self._send_failures_in_row == 1 or self._send_failures_in_row % 100 == 0:
+                    _log.warning("health frame 0x%X not sent: %s", frame.arbitration_id, exc)
+                if self._send_failures_in_row >= SEND_FAILURES_TO_REOPEN:
+                    _log.error("%d sends failed in a row: reopening the bus", self._send_failures_in_row)
+                    self._bus_failed.set()
+            else:
+                self._send_failures_in_row = 0
+                self.counters["health_sent"] += 1
+
+    def _count_bus_error(self, counter: str) -> None:
+        """Count a failed bus operation (caller holds the lock); the pipeline reports the total."""
+        self.counters[counter] += 1
+        self.counters["bus_errors"] += 1
+        self.pipeline.counters["bus_errors"] = self.counters["bus_errors"]
+
+    def _on_receive_error(self, exc: Exception) -> None:
+        """The Notifier's receive thread hit an error: count it once, ask the supervisor to reopen."""
+        if self._bus_failed.is_set():
+            self._stop.wait(0.05)  # the Notifier retries at once: do not spin while the supervisor reopens
+            return
+        with self._lock:
+            self._count_bus_error("receive_errors")
+        _log.error("bus receive failed: %s; reopening", exc)
+        self._bus_failed.set()
+
+    # --- bus lifecycle --------------------------------------------------------------------------------
+
+    def _attach(self) -> bool:
+        """Open the bus and start its Notifier; False (counted) when the bus cannot be opened."""
+        try:
+            bus = self._open_bus()
+        except (can.CanError, OSError, ValueError) as exc:
+            with self._lock:
+                self._count_bus_error("open_errors")
+            _log.error("cannot open the bus: %s", exc)
+            return False
+        with self._lock:
+            self._bus = bus
+            self._send_failures_in_row = 0
+            self.counters["bus_opens"] += 1
+        self._bus_failed.clear()
+        self._can_notifier = can.Notifier(bus, [_Listener(self)], timeout=0.2)
+        _log.info("bus open: %s", bus.channel_info)
+        return True
+
+    def _detach(self) -> None:
+        """Stop the Notifier and shut the bus down (idempotent)."""
+        if self._can_notifier is not None:
+            self._can_notifier.stop(timeout=2.0)
+            self._can_notifier = None
+        with self._lock:
+            bus, self._bus = self._bus, None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError) as exc:
+                _log.warning("bus shutdown failed: %s", exc)
+
+    def _reopen_with_backoff(self, delay_s: float) -> float:
+        """Close the failed bus, wait ``delay_s`` and try once; returns the next delay."""
+        self._detach()
+        if self._stop.wait(delay_s):
+            return delay_s
+        if self._attach():
+            return self.settings.backoff_initial_s
+        return min(delay_s * 2.0, self.settings.backoff_max_s)
+
+    # --- supervisor -------------------------------------------------------------------------------
+
+    def _record(self) -> None:
+        if self._recorder is None:
+            with self._lock:
+                self.pipeline.drain_rows()
+            return
+        with self._lock:
+            rows = self.pipeline.drain_rows()
+            offset = self._wall_clock() - self._clock()
+        for row in rows:
+            rpm = self._rpm_of(row) if self._rpm_of is not None else None
+            cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
+            self._recorder.add(
+                FlightSample(
+                    time_s=row.time_s,
+                    wall_time_s=row.time_s + offset,
+                    rpm=rpm,
+                    cht_c=float(cht) if _finite(cht) else math.nan,
+                    gamma_q=float(row.gamma_q),
+                    gamma_d=float(row.gamma_d),
+                    state=str(row.state),
+                )
+            )
+        self.counters["rows_recorded"] += len(rows)
+
+    def _status_line(self) -> str:
+        with self._lock:
+            snap = self.pipeline.snapshot()
+            counters = dict(self.pipeline.counters)
+            mine = dict(self.counters)
+        stale = ",".join(snap.stale_inputs) if snap.stale_inputs else "none"
+        return (
+            f"state {snap.state}, CHT est {snap.cht_est_c:.1f} degC, gamma_Q {snap.gamma_q:.3f}, "
+            f"stale {stale}, frames {mine['frames_in']}, malformed {counters.get('malformed', 0)}, "
+            f"bus errors {mine['bus_errors']}, health sent {mine['health_sent']}"
+        )
+
+    def _supervise_once(self, now: float) -> None:
+        with self._lock:
+            steps = self.pipeline.steps_done
+        if self._watchdog.due(now, steps) and self._notifier.watchdog():
+            self.counters["watchdog_pings"] += 1
+        self._record()
+
+    def run(self) -> int:
+        """Run until :meth:`stop`; returns 0 after a clean stop (flight closed, bus shut down)."""
+        settings = self.settings
+        self._attach()
+        with self._lock:
+            self.pipeline.advance_to(self._clock())
+        self._tick_thread = threading.Thread(target=self._tick_loop, name="ecu-monitor tick", daemon=True)
+        self._tick_thread.start()
+        self._notifier.ready(status="running: " + self._status_line())
+        _log.info("running; watchdog period %s s", settings.watchdog_period_s)
+        delay_s = settings.backoff_initial_s
+        next_status_s = self._clock() + settings.status_every_s
+        while not self._stop.wait(settings.supervise_s):
+            if self._bus_failed.is_set() or self._bus is None:
+                delay_s = self._reopen_with_backoff(delay_s)
+            now = self._clock()
+            self._guarded("supervisor", self._supervise_once, now)
+            if now >= next_status_s:
+                next_status_s = now + settings.status_every_s
+                line = self._guarded("status", self._status_line)
+                if line:
+                    self._notifier.status(line)
+                    _log.info("%s", line)
+        return self._shutdown()
+
+    def _shutdown(self) -> int:
+        self._notifier.stopping(status="stopping: flushing state")
+        _log.info("stopping")
+        if self._tick_thread is not None:
+            self._tick_thread.join(timeout=2.0)
+        self._detach()
+        self._guarded("flush", self._record)
+        if self._recorder is not None:
+            self._guarded("flush", self._recorder.close)
+        _log.info("stopped: %s", ", ".join(f"{k} {v}" for k, v in self.counters.items()))
+        return 0
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (safe from a signal handler and from any thread)."""
+        self._stop.set()
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and math.isfinite(value)
