@@ -318,6 +318,8 @@ def test_frames_on_a_virtual_bus_reach_a_second_bus_with_correct_values_and_coun
     for msg in received:
         assert msg.data[7] == frame_checksum(msg.data)
         name, values = _decode(msg)
+        strict = load_engine_dbc().get_message_by_name(name).encode(values, strict=True)
+        assert strict == bytes(msg.data)  # every value in range: the non-strict encoding lost nothing
         k = int(np.searchsorted(times, msg.timestamp + 1e-9)) - 1
         if name == "ECU_Fast":
             assert values["EngineSpeed"] == pytest.approx(measured["rpm"][k], abs=0.125)
