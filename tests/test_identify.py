@@ -1,0 +1,277 @@
+"""ecu_monitor.identify: the PSO itself, the parameter space, the swarm cost and identification on a
+synthetic flight whose truth is known."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ecu_monitor.errors import FlightLogError, ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.identify import (
+    ErrorStats,
+    PsoSettings,
+    SwarmObjective,
+    constriction_factor,
+    default_space,
+    flight_errors,
+    heat_map_breakpoints,
+    identify,
+    minimise,
+    model_inputs,
+    simulate_flight,
+    visited_weight_s,
+)
+from ecu_monitor.model import InputSeries, coefficients, paper_table_a1
+from ecu_monitor.model.compiled import simulate_compiled
+
+
+def _synthetic_flight(
+    seed: int, duration_s: int = 1500, order: tuple[float, ...] = (30, 80, 55, 95, 40, 70, 20)
+) -> FlightLog:
+    """A flight of throttle steps (rpm following the throttle), CHT from the paper's model at 0.02 s,
+    sampled at 1 Hz with 0.3 degC noise and a 1 degC quantiser: the truth is paper_table_a1()."""
+    rng = np.random.default_rng(seed)
+    fine_dt = 0.02
+    t_fine = np.arange(0.0, duration_s + fine_dt / 2, fine_dt)
+    steps_per_level = round(duration_s / len(order)) * round(1.0 / fine_dt)  # levels change on whole seconds
+    level = np.minimum(np.arange(t_fine.size) // steps_per_level, len(order) - 1)
+    throttle = np.asarray(order, dtype=float)[level]
+    rpm = 2000.0 + 70.0 * throttle
+    altitude = 300.0 + 0.5 * t_fine
+    airspeed = np.full_like(t_fine, 23.0)
+    oat = 15.0 - 0.0065 * altitude
+    truth = paper_table_a1()
+    series = InputSeries(throttle, rpm, altitude, airspeed, oat)
+    cht = simulate_compiled(series, coefficients(truth), fine_dt, 60.0).probe_c
+    every = round(1.0 / fine_dt)
+    keep = slice(0, None, every)
+    measured = np.round(cht[keep] + 0.3 * rng.standard_normal(cht[keep].size))
+    return FlightLog(
+        {
+            "time_s": t_fine[keep],
+            "throttle_pct": throttle[keep],
+            "rpm": rpm[keep],
+            "altitude_m": altitude[keep],
+            "airspeed_mps": airspeed[keep],
+            "oat_c": oat[keep],
+            "cht_c": measured,
+            "cht_true_c": cht[keep],
+        },
+        source=f"synthetic-{seed}",
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# PSO on known functions
+# --------------------------------------------------------------------------------------------------
+
+
+def _shifted_sphere(points: np.ndarray) -> np.ndarray:
+    return np.sum((points - np.linspace(0.2, 0.8, points.shape[1])) ** 2, axis=1)
+
+
+def test_constriction_factor_is_clerc_value():
+    assert constriction_factor(2.05, 2.05) == pytest.approx(0.72984, abs=1e-5)
+
+
+@pytest.mark.parametrize("constriction", [True, False])
+def test_pso_finds_minimum_of_a_known_function(constriction: bool):
+    settings = PsoSettings(
+        particles=30,
+        iterations=150,
+        seed=3,
+        constriction=constriction,
+        cognitive=2.05 if constriction else 1.5,
+        social=2.05 if constriction else 1.5,
+    )
+    run = minimise(_shifted_sphere, 5, settings)
+    np.testing.assert_allclose(run.best_unit, np.linspace(0.2, 0.8, 5), atol=2e-3)
+    assert run.best_cost < 1e-5
+    assert run.evaluations == 30 * 151
+    assert run.failed == 0
+    assert len(run.history) == 151 and all(np.diff(run.history) <= 0)  # best never gets worse
+
+
+def test_pso_is_reproducible_for_a_seed_and_varies_with_it():
+    def rastrigin(points: np.ndarray) -> np.ndarray:
+        z = 10.0 * (points - 0.37)
+        return np.sum(z * z - 10.0 * np.cos(2 * math.pi * z) + 10.0, axis=1)
+
+    a = minimise(rastrigin, 4, PsoSettings(particles=20, iterations=60, seed=11))
+    b = minimise(rastrigin, 4, PsoSettings(particles=20, iterations=60, seed=11))
+    c = minimise(rastrigin, 4, PsoSettings(particles=20, iterations=60, seed=12))
+    assert a.history == b.history
+    np.testing.assert_array_equal(a.best_unit, b.best_unit)
+    assert a.history != c.history
+
+
+def test_pso_counts_failed_particles_and_never_picks_them():
+    def half_fails(points: np.ndarray) -> np.ndarray:
+        cost = _shifted_sphere(points)
+        return np.where(points[:, 0] < 0.5, np.nan, cost)  # the true minimum (x0 = 0.2) is in the failing half
+
+    run = minimise(half_fails, 3, PsoSettings(particles=20, iterations=40, seed=1))
+    assert run.failed > 0
+    assert math.isfinite(run.best_cost)
+    assert run.best_unit[0] >= 0.5
+    assert run.best_cost == pytest.approx(0.3**2, abs=1e-3)  # best feasible: x0 on the 0.5 edge
+
+
+def test_pso_restarts_on_stagnation():
+    run = minimise(
+        _shifted_sphere, 2, PsoSettings(particles=10, iterations=80, seed=0, stagnation_iterations=5, max_restarts=3)
+    )
+    assert run.restarts == 3
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"particles": 1},
+        {"iterations": -1},
+        {"constriction": True, "cognitive": 1.0, "social": 1.0},
+        {"dt_s": 0.0},
+        {"velocity_clamp": 2.0},
+    ],
+)
+def test_pso_settings_are_validated(kwargs):
+    with pytest.raises(ParameterError):
+        PsoSettings(**kwargs)
+
+
+# --------------------------------------------------------------------------------------------------
+# Problem: inputs, simulation, errors, space
+# --------------------------------------------------------------------------------------------------
+
+
+def test_model_inputs_names_the_missing_column():
+    log = _synthetic_flight(0, 300)
+    with pytest.raises(FlightLogError, match="fuel_flow_lph"):
+        model_inputs(log, ("fuel_flow_lph", "rpm"))
+
+
+def test_error_stats_by_hand():
+    e = ErrorStats.from_series(np.array([101.0, 99.0, 100.0, 104.0]), np.array([100.0, 100.0, 100.0, 100.0]))
+    assert (e.mean_c, e.peak_c, e.rms_c) == (1.5, 4.0, pytest.approx(math.sqrt(18 / 4)))
+    assert (e.mean_pct, e.peak_pct) == (pytest.approx(1.5), pytest.approx(4.0))
+
+
+def test_simulate_flight_matches_the_truth_and_steps_converge():
+    log = _synthetic_flight(0, 600)
+    truth = paper_table_a1()
+    fine = simulate_flight(truth, log)
+    np.testing.assert_allclose(fine, log["cht_true_c"], atol=0.02)  # same model, inputs held between samples
+    coarse = simulate_flight(truth, log, dt_s=0.5)
+    assert np.max(np.abs(coarse - fine)) < 0.01
+    assert flight_errors(truth, log).rms_c < 0.5  # quantiser + noise only
+
+
+def test_swarm_cost_equals_single_simulation_and_reports_failures():
+    log = _synthetic_flight(1, 600)
+    space = default_space([log])
+    objective = SwarmObjective([log], space, dt_s=0.5)
+    truth_unit = space.to_unit(space.from_params(paper_table_a1()))
+    rng = np.random.default_rng(0)
+    swarm = np.vstack([truth_unit, rng.random((5, space.dimension))])
+    costs = objective.costs(swarm)
+    for k in range(swarm.shape[0]):
+        params = space.to_params(space.from_unit(swarm[k]))
+        rms = math.sqrt(np.mean((simulate_flight(params, log, dt_s=0.5) - log["cht_c"]) ** 2))
+        assert costs[k] == pytest.approx(rms, rel=1e-9)
+    assert objective.evaluations == 6 and objective.failed == 0
+
+
+def test_space_round_trip_and_scale_degeneracy_refused():
+    log = _synthetic_flight(2, 600)
+    space = default_space([log])
+    truth = paper_table_a1()
+    vector = space.from_params(truth)
+    back = space.to_params(vector)
+    assert back.c_w == pytest.approx(truth.c_w) and back.r_ce == pytest.approx(truth.r_ce)
+    for i, j in space.heat_cells:
+        assert back.heat_map.values_array()[i, j] == pytest.approx(truth.heat_map.values_array()[i, j])
+    np.testing.assert_allclose(space.from_unit(space.to_unit(vector)), vector, rtol=1e-12)
+    with pytest.raises(ParameterError, match="scale"):
+        default_space([log], free=("c_w", "r_ce", "alpha_r_e", "heat_map"))
+    with pytest.raises(ParameterError, match="unknown"):
+        default_space([log], free=("c_w", "volume"))
+    with pytest.raises(ParameterError, match="effect is off"):
+        default_space([log], free=("c_w", "effects.sensor_lag.time_constant_s"))
+
+
+def test_altitude_exponents_get_a_prior_when_freed():
+    log = _synthetic_flight(2, 600)
+    space = default_space([log], free=("c_w", "r_ce", "a", "b"))
+    vector = space.from_params(paper_table_a1())
+    assert space.prior_penalty(vector[None, :])[0] == pytest.approx(0.0)
+    moved = vector.copy()
+    moved[space.names.index("a")] += 0.5  # one prior sigma
+    assert space.prior_penalty(moved[None, :])[0] == pytest.approx(1.0)
+
+
+def test_heat_map_grid_from_data_quantiles_and_visits():
+    log = _synthetic_flight(3, 700)
+    xb, yb = heat_map_breakpoints([log], ("throttle_pct", "rpm"), (3, 4))
+    assert len(xb) == 3 and len(yb) == 4
+    assert xb[0] >= 20.0 and xb[-1] <= 95.0
+    space = default_space([log], grid=(3, 3))
+    assert space.base.heat_map.x_breakpoints == heat_map_breakpoints([log], ("throttle_pct", "rpm"), (3, 3))[0]
+    weight = visited_weight_s([log], space.base.heat_map)
+    assert weight.sum() == pytest.approx(log.duration_s + 1.0)  # every sample carries its interval
+    with pytest.raises(ParameterError):
+        heat_map_breakpoints([log], ("throttle_pct", "rpm"), (1, 3))
+
+
+# --------------------------------------------------------------------------------------------------
+# Identification on a flight with a known truth
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def identified():
+    train = _synthetic_flight(10, 1500)
+    truth = paper_table_a1()
+    start = truth.replace(
+        c_w=900.0, r_ce=0.09, tau_w=15.0, heat_map=truth.heat_map.with_values(truth.heat_map.values_array() * 1.4)
+    )
+    result = identify([train], base=start, settings=PsoSettings(particles=32, iterations=60, seed=4))
+    return train, truth, result
+
+
+def test_identification_recovers_the_main_parameters(identified):
+    _train, truth, result = identified
+    p = result.params
+    assert p.c_w == pytest.approx(truth.c_w, rel=0.05)
+    assert p.r_ce == pytest.approx(truth.r_ce, rel=0.05)
+    weight = visited_weight_s([_train], truth.heat_map)
+    # throttle and rpm move together on this flight: only the breakpoints on the diagonal carry much
+    # weight; the off-diagonal ones are touched through interpolation only and stay poorly determined
+    well_visited = [(i, j) for i, j in result.space.heat_cells if weight[i, j] >= 200.0]
+    assert len(well_visited) >= 3
+    for i, j in well_visited:
+        assert p.heat_map.values_array()[i, j] == pytest.approx(truth.heat_map.values_array()[i, j], rel=0.10)
+    assert p.tau_w == pytest.approx(truth.tau_w, rel=0.15)
+    assert result.failed_particles == 0
+    assert result.evaluations > 32 * 61
+
+
+def test_identified_model_predicts_a_held_out_flight(identified):
+    _train, _truth, result = identified
+    held_out = _synthetic_flight(11, 1400, order=(20, 70, 40, 95, 55, 80, 30))  # same levels, other order
+    e = flight_errors(result.params, held_out)
+    assert e.mean_pct < 1.0 and e.peak_pct < 5.0
+    elsewhere = _synthetic_flight(12, 1200, order=(45, 85, 25, 60, 90, 35))  # between the trained levels
+    assert flight_errors(result.params, elsewhere).mean_pct < 2.0
+    assert result.train_errors[0].rms_c < 0.5
+    assert result.cost_history[-1] <= result.cost_history[0]
+
+
+def test_identification_counts_diverging_particles():
+    log = _synthetic_flight(5, 400, order=(40, 80))
+    result = identify([log], settings=PsoSettings(particles=16, iterations=5, seed=0, dt_s=5.0, polish=False))
+    assert result.failed_particles > 0  # RK4 at 5 s is unstable for a short heat-path delay tau_w
+    assert math.isfinite(result.cost_history[-1])
+    assert result.params.tau_w > 2.0 * 5.0 / 2.79  # the best particle is one whose RK4 is stable
