@@ -1,0 +1,123 @@
+"""``ecu-monitor identify`` and ``ecu-monitor simulate`` as a user runs them (in process, small swarms)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ecu_monitor.cli import main
+from ecu_monitor.flightlog import FlightLog, write_csv
+from ecu_monitor.identify import flight_errors
+from ecu_monitor.model import InputSeries, coefficients, load_model, paper_table_a1
+from ecu_monitor.model.compiled import simulate_compiled
+
+
+def _flight(seed: int, levels: tuple[float, ...], hold_s: int = 90, with_throttle: bool = True) -> FlightLog:
+    """Throttle steps, rpm following; CHT from the paper's model, 1 Hz, noise and 1 degC quantiser."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hold_s * len(levels), 1.0)
+    throttle = np.repeat(np.asarray(levels, dtype=float), hold_s)
+    rpm = 2000.0 + 70.0 * throttle
+    altitude = np.full_like(t, 500.0)
+    airspeed = np.full_like(t, 23.0)
+    oat = np.full_like(t, 12.0)
+    series = InputSeries(throttle, rpm, altitude, airspeed, oat)
+    cht = simulate_compiled(series, coefficients(paper_table_a1()), 1.0, 50.0).probe_c
+    columns = {
+        "time_s": t,
+        "rpm": rpm,
+        "altitude_m": altitude,
+        "airspeed_mps": airspeed,
+        "oat_c": oat,
+        "cht_c": np.round(cht + 0.3 * rng.standard_normal(t.size)),
+    }
+    if with_throttle:
+        columns["throttle_pct"] = throttle
+    else:
+        columns["fuel_flow_lph"] = 0.02 * throttle + 0.05
+    return FlightLog(columns, source=f"test-{seed}")
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    folder = tmp_path_factory.mktemp("identify-cli")
+    train, held_out = folder / "train.csv", folder / "held_out.csv"
+    write_csv(_flight(1, (30, 80, 50, 95, 40, 70)), train)
+    write_csv(_flight(2, (70, 40, 95, 50, 80, 30)), held_out)
+    return train, held_out
+
+
+def test_identify_then_simulate(flights, tmp_path, capsys):
+    train, held_out = flights
+    model = tmp_path / "model.yaml"
+    plots = tmp_path / "plots"
+    argv = ["identify", str(train), "--validate", str(held_out), "--out", str(model), "--particles", "16"]
+    argv += ["--iterations", "15", "--seed", "3", "--plots", str(plots), "--quiet"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "train" in out and "validate" in out and "RMS degC" in out
+    params = load_model(model)  # every other command reads it
+    assert params.heat_axes == ("throttle_pct", "rpm")
+    assert model.read_text().startswith("# Identified by:")
+    pngs = sorted(p.name for p in plots.glob("*.png"))
+    assert "cost.png" in pngs and "heat_map.png" in pngs and len(pngs) == 4
+
+    sim = tmp_path / "sim.csv"
+    assert main(["simulate", "--model", str(model), str(held_out), "--out", str(sim)]) == 0
+    printed = capsys.readouterr().out
+    assert "RMS" in printed and "peak" in printed
+    with sim.open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == ["time_s", "cht_meas_c", "cht_model_c", "error_c"]
+    errors = np.array([float(r["error_c"]) for r in rows])
+    model_c = np.array([float(r["cht_model_c"]) for r in rows])
+    meas_c = np.array([float(r["cht_meas_c"]) for r in rows])
+    np.testing.assert_allclose(errors, model_c - meas_c, atol=1e-9)
+    assert math.sqrt(np.mean(errors**2)) == pytest.approx(
+        flight_errors(params, _flight(2, (70, 40, 95, 50, 80, 30))).rms_c
+    )
+
+
+def test_identify_without_throttle_uses_fuel_flow_and_a_data_grid(tmp_path, capsys):
+    path = tmp_path / "no_throttle.csv"
+    write_csv(_flight(4, (30, 80, 50, 95), with_throttle=False), path)
+    model = tmp_path / "m.yaml"
+    argv = ["identify", str(path), "--out", str(model), "--grid", "3x3", "--particles", "8", "--iterations", "4"]
+    assert main([*argv, "--quiet", "--no-polish"]) == 0
+    params = load_model(model)
+    assert params.heat_axes == ("fuel_flow_lph", "rpm")
+    assert params.heat_map.shape == (3, 3)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--grid", "4by4"], "--grid"),
+        (["--heat-axes", "rpm"], "--heat-axes"),
+        (["--heat-axes", "egt_c,rpm"], "egt_c"),
+        (["--particles", "1"], "particles"),
+        (["--free", "c_w,volume"], "volume"),
+    ],
+)
+def test_identify_bad_options_exit_2(flights, tmp_path, capsys, extra, message):
+    train, _ = flights
+    assert main(["identify", str(train), "--out", str(tmp_path / "m.yaml"), "--quiet", *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not (tmp_path / "m.yaml").exists()
+
+
+def test_bad_csv_exits_2(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,rpm,cht_c\n0,abc,100\n1,5000,101\n")
+    assert main(["identify", str(bad), "--out", str(tmp_path / "m.yaml"), "--quiet"]) == 2
+    assert "bad.csv" in capsys.readouterr().err
+    assert main(["simulate", str(bad), "--out", str(tmp_path / "s.csv")]) == 2
+    assert "bad.csv" in capsys.readouterr().err
+    assert (
+        main(["simulate", "--model", str(tmp_path / "missing.yaml"), str(bad), "--out", str(tmp_path / "s.csv")]) == 2
+    )
