@@ -1,0 +1,424 @@
+"""The pipeline: CAN frames in, health frames out, on a fixed 50 Hz step (live and replay, one object).
+
+Data flow (DESIGN.md section 2)::
+
+    feed(msg) -> Decoder (bus/codec.py: checks, DBC decode, unit conversion) -> held inputs
+    advance_to(t) -> fixed steps t0 + k dt <= t -> supervise() -> estimator(s) -> detector
+                  -> health rows (10 Hz) and health frames at their configured rates
+
+Clock. The only clock is the one passed to :meth:`Pipeline.advance_to` (frame timestamps in replay,
+a monotonic clock live). A frame fed after ``advance_to(t)`` is stamped ``t`` and is seen by the steps
+after ``t`` (sample and hold). Steps fall at ``t0 + k dt`` where ``t0`` is the first ``advance_to``.
+A jump of the clock by more than :data:`MAX_CLOCK_GAP_S` restarts the schedule (counted).
+
+Supervision, every step (:func:`supervise`, a pure function of floats so the replay's batch path
+compiles the very same code with numba):
+
+* UNAVAILABLE until every input the model needs is fresh and a plausible CHT reading is held; then
+  the estimator starts from that reading;
+* INPUT_STALE while any input has been silent longer than its ``stale_after_s``: the estimator keeps
+  predicting on the model with the held inputs, no correction, so its variance grows; after
+  ``stale_predict_limit_s`` it stops (UNAVAILABLE) and restarts once the inputs are back;
+* SENSOR_FAULT while the CHT probe is reported open (ECU status), reads outside [min_c, max_c], or is
+  stuck (no change for ``stuck_after_s`` while the open-loop model swings by ``stuck_change_c``): the
+  filter runs open loop;
+* otherwise the detector's verdict on the model-deviation symptom (NOMINAL / SUSPECT / DEGRADED).
+
+The estimator is ``make_estimator(config.estimator_name)``; gamma_Q and gamma_D come from the
+isolation filter run beside it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import can
+
+from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation import CHTEstimator, make_estimator
+from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
+from ecu_monitor.model import InputSeries, ThermalParams
+from ecu_monitor.service.config import ServiceConfig
+
+__all__ = [
+    "ACTION_INITIALISE",
+    "ACTION_NONE",
+    "ACTION_PREDICT",
+    "ACTION_UPDATE",
+    "HEADROOM_NOT_LIMITED_S",
+    "MAX_CLOCK_GAP_S",
+    "MODEL_INPUTS",
+    "STATES",
+    "STATUS_INPUT",
+    "HealthSnapshot",
+    "Pipeline",
+    "SupervisorState",
+    "initial_supervisor",
+    "model_input_names",
+    "supervise",
+]
+
+#: DegradationState values of health.dbc, by code.
+STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
+_NOMINAL, _SUSPECT, _DEGRADED, _STALE, _FAULT, _UNAVAILABLE = range(6)
+#: Supervisor actions on the estimator at a step.
+ACTION_NONE, ACTION_INITIALISE, ACTION_PREDICT, ACTION_UPDATE = range(4)
+#: Value name of the optional ECU status signal (sensor open) in the decoder.
+STATUS_INPUT = "cht_sensor_status"
+#: The model inputs besides the heat-map axes (InputSeries order after the axes).
+MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
+#: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
+MAX_CLOCK_GAP_S = 600.0
+#: ThermalHeadroom meaning "not limited" (health.dbc).
+HEADROOM_NOT_LIMITED_S = 6000.0
+
+
+@dataclass(frozen=True)
+class HealthSnapshot:
+    """The service's view of the engine at one instant (one health-status period).
+
+    time_s: step time, s (the advance_to clock). cht_meas_c: last CHT reading held, degC (nan: none).
+    cht_est_c: estimate, degC (nan when UNAVAILABLE). deviation: model-deviation symptom, degC/s.
+    state: one of STATES. gamma_q, gamma_d: isolation estimates (nan when UNAVAILABLE). headroom_s:
+    time to the CHT limit at the present inputs, s (HEADROOM_NOT_LIMITED_S = not limited; nan when
+    UNAVAILABLE). stale_inputs: names of the stale inputs. sensor_fault: the CHT sensor is faulty.
+    """
+
+    time_s: float
+    cht_meas_c: float
+    cht_est_c: float
+    deviation: float
+    state: str
+    gamma_q: float
+    gamma_d: float
+    headroom_s: float
+    stale_inputs: tuple[str, ...]
+    sensor_fault: bool
+
+
+class SupervisorState(NamedTuple):
+    """What :func:`supervise` carries from one step to the next (floats and bools only)."""
+
+    running: bool  # the estimator is initialised
+    stale_since_s: float  # nan while no input is stale
+    changed_s: float  # time of the last change of a plausible CHT reading
+    last_reading_c: float
+    model_low_c: float  # open-loop model range since changed_s
+    model_high_c: float
+
+
+def initial_supervisor() -> SupervisorState:
+    """The supervisor before the first step."""
+    return SupervisorState(False, math.nan, math.nan, math.nan, math.nan, math.nan)
+
+
+def supervise(
+    sv: SupervisorState,
+    time_s: float,
+    any_stale: bool,
+    new_reading: bool,
+    reading_c: float,
+    reading_bad: bool,
+    model_c: float,
+    stale_limit_s: float,
+    stuck_after_s: float,
+    stuck_change_c: float,
+) -> tuple[SupervisorState, int, int]:
+    """One step of the supervision state machine: (new state, state code, estimator action).
+
+    reading_c: held CHT reading; reading_bad: it is implausible (open / out of range); model_c: the
+    open-loop model's CHT at this step (for the stuck test; equal to reading_c at initialisation).
+    Codes 0..2 mean "the detector decides" (returned as 0). Pure: the replay compiles it with numba.
+    """
+    if not sv.running:
+        if any_stale or reading_bad or math.isnan(reading_c):
+            return sv, _UNAVAILABLE, ACTION_NONE
+        start = SupervisorState(True, math.nan, time_s, reading_c, reading_c, reading_c)
+        return start, _NOMINAL, ACTION_INITIALISE
+    if any_stale:
+        since = time_s if math.isnan(sv.stale_since_s) else sv.stale_since_s
+        if time_s - since > stale_limit_s:
+            return initial_supervisor(), _UNAVAILABLE, ACTION_NONE
+        kept = SupervisorState(True, since, sv.changed_s, sv.last_reading_c, sv.model_low_c, sv.model_high_c)
+        return kept, _STALE, ACTION_PREDICT
+    changed_s = sv.changed_s
+    last = sv.last_reading_c
+    low = min(sv.model_low_c, model_c)
+    high = max(sv.model_high_c, model_c)
+    if new_reading and not reading_bad and reading_c != last:
+        changed_s = time_s
+        last = reading_c
+        low = model_c
+        high = model_c
+    out = SupervisorState(True, math.nan, changed_s, last, low, high)
+    stuck = time_s - changed_s >= stuck_after_s and high - low >= stuck_change_c
+    if reading_bad or stuck:
+        return out, _FAULT, ACTION_PREDICT
+    return out, _NOMINAL, ACTION_UPDATE if new_reading else ACTION_PREDICT
+
+
+def model_input_names(params: ThermalParams) -> tuple[str, ...]:
+    """Inputs the model reads, in InputSeries order: the two heat-map axes, altitude, airspeed, OAT."""
+    return (*params.heat_axes, *MODEL_INPUTS)
+
+
+class Pipeline:
+    """Frames -> fixed-step estimation -> health frames (the contract in docs/service.md).
+
+    Not thread-safe: the daemon guards it with a lock. ``counters`` (frames, ok, unknown_id,
+    malformed and its reasons, ignored, bus_errors, steps, health_frames, send_errors, clock_restarts)
+    may be incremented by the owner for events it sees (send_errors, bus_errors).
+    """
+
+    def __init__(self, config: ServiceConfig, params: ThermalParams) -> None:
+        self.config = config
+        self.params = params
+        self.model_inputs = model_input_names(params)
+        mapped = set(config.input_names)
+        missing = [name for name in (*self.model_inputs, "cht_c") if name not in mapped]
+        if missing:
+            raise ConfigError(
+                f"{config.source}: inputs: missing {', '.join(missing)} (the model reads "
+                f"{', '.join(self.model_inputs)} and the CHT)"
+            )
+        specs = [spec.signal_spec() for spec in config.inputs]
+        sf = config.sensor_fault
+        if sf.status_message is not None and sf.status_signal is not None:
+            specs.append(SignalSpec(STATUS_INPUT, sf.status_message, sf.status_signal, "raw"))
+        self.decoder = Decoder(config.dbc_paths, specs)
+        self.encoder = Encoder([config.health_dbc])
+        self.counters: dict[str, int] = self.decoder.counters
+        for key in ("bus_errors", "steps", "health_frames", "send_errors", "clock_restarts"):
+            self.counters[key] = 0
+        names = self.decoder.names
+        self._slot = {name: i for i, name in enumerate(names)}
+        self._stale_after = [config.input(n).stale_after_s if n in mapped else math.inf for n in names]
+        self._values = [math.nan] * len(names)
+        self._stamps = [math.nan] * len(names)
+        self._model_slots = [self._slot[n] for n in self.model_inputs]
+        self._cht_slot = self._slot["cht_c"]
+        self._status_slot = self._slot.get(STATUS_INPUT, -1)
+        self._input_slots = [(n, self._slot[n]) for n in INPUT_NAMES if n in mapped]
+        self._readings = 0  # valid CHT frames fed
+        self._readings_used = 0
+        self._dt = config.estimator.dt_s
+        self._origin: float | None = None
+        self._now = -math.inf
+        self._k = 0
+        self._periods = {h.message: round(1.0 / (h.rate_hz * self._dt)) for h in config.health}
+        self._frame_counters = dict.fromkeys(self._periods, 0)
+        self._status_period = self._periods["Health_Status"]
+        self._rows: list[HealthSnapshot] = []
+        self._sv = initial_supervisor()
+        self._estimator: CHTEstimator | None = None
+        self._reference: CHTEstimator | None = None
+        self._isolation: IsolationFilter | None = None
+        self._snapshot = self._empty_snapshot(math.nan)
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def steps_done(self) -> int:
+        """Fixed steps run since start (grows while the pipeline makes progress)."""
+        return self.counters["steps"]
+
+    def snapshot(self) -> HealthSnapshot:
+        """The latest health snapshot (updated every step)."""
+        return self._snapshot
+
+    def drain_rows(self) -> list[HealthSnapshot]:
+        """Snapshots of the health-status periods since the last call (oldest first)."""
+        rows, self._rows = self._rows, []
+        return rows
+
+    def feed(self, msg: can.Message) -> None:
+        """Take one received frame (never raises for any frame content)."""
+        if msg.is_error_frame:
+            self.counters["frames"] += 1
+            self.counters["bus_errors"] += 1
+            self.counters["ignored"] += 1
+            return
+        if msg.is_remote_frame:
+            self.counters["frames"] += 1
+            self.counters["ignored"] += 1
+            return
+        stamp = self._now if self._origin is not None else math.nan
+        data = msg.data if msg.data is not None else b""
+        decoded = self.decoder.decode(int(msg.arbitration_id), bool(msg.is_extended_id), data, stamp)
+        if decoded is None:
+            return
+        for slot, value in decoded:
+            self._values[slot] = value
+            self._stamps[slot] = stamp
+            if slot == self._cht_slot:
+                self._readings += 1
+
+    def advance_to(self, t_s: float) -> list[can.Message]:
+        """Run every fixed step at or before ``t_s`` (s); returns the health frames that fell due."""
+        if not math.isfinite(t_s):
+            return []
+        if self._origin is None or t_s - self._now > MAX_CLOCK_GAP_S:
+            if self._origin is not None:
+                self.counters["clock_restarts"] += 1
+                self._stop_estimation()
+            self._origin = float(t_s)
+            self._now = float(t_s)
+            self._k = 0
+            self._stamps = [t_s if math.isnan(s) else s for s in self._stamps]
+            return []
+        if t_s <= self._now:
+            return []
+        frames: list[can.Message] = []
+        while True:
+            step_time = self._origin + (self._k + 1) * self._dt
+            if step_time > t_s:
+                break
+            self._k += 1
+            self._step(step_time, frames)
+        self._now = float(t_s)
+        return frames
+
+    # ------------------------------------------------------------------ one step
+
+    def _stale(self, time_s: float) -> list[str]:
+        return [
+            name
+            for name, slot in self._input_slots
+            if math.isnan(self._stamps[slot]) or time_s - self._stamps[slot] > self._stale_after[slot]
+        ]
+
+    def _inputs(self) -> InputSeries:
+        v = self._values
+        s = self._model_slots
+        return InputSeries(v[s[0]], v[s[1]], v[s[2]], v[s[3]], v[s[4]])
+
+    def _reading_bad(self, reading: float) -> bool:
+        sf = self.config.sensor_fault
+        if not sf.min_c <= reading <= sf.max_c:
+            return True
+        if self._status_slot >= 0:
+            status = self._values[self._status_slot]
+            return not math.isnan(status) and int(status) in sf.open_values
+        return False
+
+    def _stop_estimation(self) -> None:
+        self._sv = initial_supervisor()
+        self._estimator = self._reference = self._isolation = None
+
+    def _step(self, time_s: float, frames: list[can.Message]) -> None:
+        self.counters["steps"] += 1
+        stale = self._stale(time_s)
+        needed = {*self.model_inputs, "cht_c"}
+        any_stale = any(name in needed for name in stale)
+        reading = self._values[self._cht_slot]
+        new_reading = self._readings > self._readings_used
+        self._readings_used = self._readings
+        reading_bad = not math.isnan(reading) and self._reading_bad(reading)
+        u = self._inputs()
+        model_c = reading
+        if self._sv.running and self._reference is not None:
+            model_c = self._reference.estimate(time_s, u, None).cht_c
+        cfg = self.config
+        sf = cfg.sensor_fault
+        self._sv, code, action = supervise(
+            self._sv,
+            time_s,
+            any_stale,
+            new_reading,
+            reading,
+            reading_bad,
+            model_c,
+            cfg.stale_predict_limit_s,
+            sf.stuck_after_s,
+            sf.stuck_change_c,
+        )
+        est_c = deviation = gamma_q = gamma_d = math.nan
+        if action == ACTION_NONE:
+            self._estimator = self._reference = self._isolation = None
+        elif action == ACTION_INITIALISE:
+            self._estimator = make_estimator(cfg.estimator_name, self.params, cfg.estimator)
+            self._reference = make_estimator("ekf", self.params, cfg.estimator)
+            self._isolation = IsolationFilter(self.params, IsolationSettings(dt_s=self._dt))
+            for filt in (self._estimator, self._reference, self._isolation):
+                filt.initialise(time_s, u, reading)
+            est_c, deviation = reading, 0.0
+            gamma_q, gamma_d = self._isolation.gamma_q, self._isolation.gamma_d
+        elif self._estimator is not None and self._isolation is not None:
+            z = reading if action == ACTION_UPDATE else None
+            estimate = self._estimator.estimate(time_s, u, z)
+            self._isolation.estimate(time_s, u, z)
+            est_c, deviation = estimate.cht_c, estimate.deviation
+            gamma_q, gamma_d = self._isolation.gamma_q, self._isolation.gamma_d
+        state = code  # detector verdict replaces NOMINAL below (ecu_monitor.estimation.detection)
+        headroom = math.nan if math.isnan(est_c) else HEADROOM_NOT_LIMITED_S
+        snap = HealthSnapshot(
+            time_s=time_s,
+            cht_meas_c=reading,
+            cht_est_c=est_c,
+            deviation=deviation,
+            state=STATES[state],
+            gamma_q=gamma_q,
+            gamma_d=gamma_d,
+            headroom_s=headroom,
+            stale_inputs=tuple(stale),
+            sensor_fault=code == _FAULT,
+        )
+        self._snapshot = snap
+        if self._k % self._status_period == 0:
+            self._rows.append(snap)
+        for message, period in self._periods.items():
+            if self._k % period == 0:
+                frame = self._health_frame(message, snap, state)
+                if frame is not None:
+                    frames.append(frame)
+
+    # ------------------------------------------------------------------ health frames
+
+    def _health_frame(self, message: str, snap: HealthSnapshot, code: int) -> can.Message | None:
+        values = self._health_values(message, snap, code)
+        counter = self._frame_counters[message]
+        self._frame_counters[message] = (counter + 1) % 16
+        data = self.encoder.encode(message, values, counter)
+        definition = self.encoder.message(message)
+        self.counters["health_frames"] += 1
+        return can.Message(
+            timestamp=snap.time_s,
+            arbitration_id=definition.frame_id,
+            is_extended_id=bool(definition.is_extended_frame),
+            data=data,
+        )
+
+    def _health_values(self, message: str, snap: HealthSnapshot, code: int) -> dict[str, float]:
+        def finite(value: float, fallback: float) -> float:
+            return value if math.isfinite(value) else fallback
+
+        if message == "Health_Status":
+            return {
+                "ChtEstimate": finite(snap.cht_est_c, -40.0),
+                "ModelDeviation": finite(snap.deviation, 0.0),
+                "DegradationState": code,
+            }
+        if message == "Health_Isolation":
+            limit = self.params.cht_limit_c
+            return {
+                "GammaQEstimate": finite(snap.gamma_q, 1.0),
+                "GammaDEstimate": finite(snap.gamma_d, 1.0),
+                "ThermalHeadroom": finite(snap.headroom_s, 0.0 if math.isnan(snap.cht_est_c) else 6000.0),
+                "ChtLimitMargin": finite(limit - snap.cht_est_c, 0.0),
+            }
+        bits = 0
+        for bit, name in enumerate(INPUT_NAMES):
+            if name in snap.stale_inputs:
+                bits |= 1 << bit
+        return {
+            "StaleInputs": bits,
+            "MalformedFrames": min(self.counters["malformed"], 65535),
+            "BusErrors": min(self.counters["bus_errors"], 255),
+        }
+
+    def _empty_snapshot(self, time_s: float) -> HealthSnapshot:
+        return HealthSnapshot(time_s, math.nan, math.nan, math.nan, STATES[_UNAVAILABLE], math.nan, math.nan,
+                              math.nan, tuple(n for n, _ in self._input_slots), False)  # fmt: skip

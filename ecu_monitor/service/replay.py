@@ -1,0 +1,432 @@
+"""Replay: the pipeline over a recorded log, as fast as the machine allows (batch path).
+
+:func:`replay_frames` gives the rows :meth:`Pipeline.drain_rows` would give for the loop
+
+    for msg in frames: pipeline.advance_to(msg.timestamp); pipeline.feed(msg)
+
+but on whole arrays: frames read into numpy arrays (:func:`read_frames`), decoded by id with numpy
+(:meth:`Decoder.decode_batch`, the same checks as the live decoder), the fixed-step inputs built by
+sample and hold with ``searchsorted``, the supervision state machine (:func:`~.pipeline.supervise`,
+the very function the live pipeline calls) compiled with numba, and the estimator, the open-loop
+reference model and the isolation filter run through the estimation layer's compiled trace runners
+over each stretch of steps the estimator runs. :func:`replay_live` is the same replay through the live
+object, frame by frame (the reference the tests compare with).
+
+A canonical flight CSV is replayed through the same path: :func:`frames_from_flight` turns its rows
+into the frames the ECU would have sent (each mapped message at its DBC cycle time, carrying the
+latest row, encoded with the config's DBC, counter and checksum).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+import os
+import types
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.bus.codec import INPUT_NAMES, Encoder, unit_conversion
+from ecu_monitor.errors import FlightLogError
+from ecu_monitor.estimation import run_estimator
+from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
+from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.model import ThermalParams
+from ecu_monitor.service import pipeline as _pipeline
+from ecu_monitor.service.config import ServiceConfig
+from ecu_monitor.service.pipeline import (
+    ACTION_INITIALISE,
+    ACTION_NONE,
+    ACTION_UPDATE,
+    HEADROOM_NOT_LIMITED_S,
+    MAX_CLOCK_GAP_S,
+    STATES,
+    STATUS_INPUT,
+    HealthSnapshot,
+    Pipeline,
+    model_input_names,
+)
+
+__all__ = [
+    "CAN_LOG_SUFFIXES",
+    "FrameArrays",
+    "ReplayResult",
+    "frames_from_flight",
+    "read_frames",
+    "replay_file",
+    "replay_frames",
+    "replay_live",
+]
+
+#: Log formats read through python-can.
+CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".trc")
+
+
+class FrameArrays(NamedTuple):
+    """Frames of a log as arrays (log order): time_s, id, extended, dlc, data (N, 8) uint8, ignored
+    (error and remote frames)."""
+
+    time_s: NDArray[np.float64]
+    arbitration_id: NDArray[np.int64]
+    is_extended: NDArray[np.bool_]
+    dlc: NDArray[np.int64]
+    data: NDArray[np.uint8]
+    ignored: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+    def messages(self) -> Iterable[can.Message]:
+        """The frames as can.Message objects (for the live path)."""
+        for i in range(len(self)):
+            n = int(self.dlc[i])
+            yield can.Message(
+                timestamp=float(self.time_s[i]),
+                arbitration_id=int(self.arbitration_id[i]),
+                is_extended_id=bool(self.is_extended[i]),
+                is_error_frame=bool(self.ignored[i]),
+                dlc=n,
+                data=self.data[i, : min(n, 8)].tobytes(),
+                check=False,
+            )
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """Rows of a replay (one per health-status period) and the frame counters."""
+
+    rows: list[HealthSnapshot]
+    counters: dict[str, int]
+
+
+def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
+    """Read a python-can log (.asc, .blf, .log, .trc) into arrays; FlightLogError if unreadable."""
+    src = str(path)
+    times: list[float] = []
+    ids: list[int] = []
+    ext: list[bool] = []
+    dlcs: list[int] = []
+    ignored: list[bool] = []
+    payload = bytearray()
+    try:
+        with can.LogReader(src) as reader:
+            for msg in reader:
+                times.append(msg.timestamp)
+                ids.append(msg.arbitration_id)
+                ext.append(msg.is_extended_id)
+                data = bytes(msg.data[:8])
+                dlcs.append(len(msg.data))
+                ignored.append(msg.is_error_frame or msg.is_remote_frame)
+                payload += data.ljust(8, b"\0")
+    except FileNotFoundError:
+        raise FlightLogError(f"{src}: no such file") from None
+    except OSError as exc:
+        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
+    except (ValueError, can.io.blf.BLFParseError) as exc:
+        raise FlightLogError(f"{src}: unreadable CAN log after {len(times)} frames: {exc}") from None
+    if not times:
+        raise FlightLogError(f"{src}: no frames")
+    return FrameArrays(
+        np.asarray(times, dtype=np.float64),
+        np.asarray(ids, dtype=np.int64),
+        np.asarray(ext, dtype=bool),
+        np.asarray(dlcs, dtype=np.int64),
+        np.frombuffer(bytes(payload), dtype=np.uint8).reshape(-1, 8).copy(),
+        np.asarray(ignored, dtype=bool),
+    )
+
+
+def frames_from_flight(log: FlightLog, config: ServiceConfig) -> FrameArrays:
+    """The frames the ECU would have sent for a flight log: every message the config's inputs use, at
+    its DBC cycle time (default 100 ms), carrying the latest row at or before the frame time
+    (converted from the canonical unit to the signal's unit), other signals 0, counter and checksum."""
+    encoder = Encoder(config.dbc_paths)
+    by_message: dict[str, list[tuple[str, str]]] = {}
+    for spec in config.inputs:
+        if not log.has(spec.name):
+            continue
+        by_message.setdefault(spec.message, []).append((spec.signal, spec.name))
+    missing = [spec.name for spec in config.inputs if not log.has(spec.name) and spec.name != "fuel_flow_lph"]
+    if missing:
+        raise FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}")
+    t = log.time_s
+    parts: list[tuple[NDArray[np.float64], int, int, bool, NDArray[np.uint8]]] = []
+    for order, (name, signals) in enumerate(by_message.items()):
+        message = encoder.message(name)
+        cycle_s = (message.cycle_time or 100) / 1000.0
+        count = math.floor((t[-1] - t[0]) / cycle_s + 1e-9) + 1
+        stamps = t[0] + cycle_s * np.arange(count)
+        rows = np.searchsorted(t, stamps + 1e-9, side="right") - 1
+        columns = {}
+        for signal, column in signals:
+            unit = unit_conversion(config.input(column).unit)
+            columns[signal] = (np.asarray(log[column], dtype=float)[rows] - unit.offset) / unit.scale
+        data = np.zeros((count, 8), dtype=np.uint8)
+        for i in range(count):
+            values = {s.name: 0.0 for s in message.signals}
+            values.update({signal: float(col[i]) for signal, col in columns.items()})
+            encoded = encoder.encode(name, values, i)
+            data[i, : len(encoded)] = np.frombuffer(encoded, dtype=np.uint8)
+        parts.append((stamps, order, int(message.frame_id), bool(message.is_extended_frame), data))
+    time_s = np.concatenate([p[0] for p in parts])
+    order_key = np.concatenate([np.full(p[0].size, p[1]) for p in parts])
+    sort = np.lexsort((order_key, time_s))
+    ids = np.concatenate([np.full(p[0].size, p[2]) for p in parts])
+    ext = np.concatenate([np.full(p[0].size, p[3]) for p in parts])
+    data = np.concatenate([p[4] for p in parts])
+    lengths = np.concatenate(
+        [np.full(p[0].size, encoder.message(n).length) for n, p in zip(by_message, parts, strict=True)]
+    )
+    return FrameArrays(time_s[sort], ids[sort].astype(np.int64), ext[sort], lengths[sort].astype(np.int64),
+                       data[sort], np.zeros(time_s.size, dtype=bool))  # fmt: skip
+
+
+def replay_live(config: ServiceConfig, params: ThermalParams, frames: Iterable[can.Message]) -> ReplayResult:
+    """The reference replay: the live pipeline fed frame by frame."""
+    pipeline = Pipeline(config, params)
+    rows: list[HealthSnapshot] = []
+    for msg in frames:
+        pipeline.advance_to(msg.timestamp)
+        pipeline.feed(msg)
+        rows.extend(pipeline.drain_rows())
+    return ReplayResult(rows, dict(pipeline.counters))
+
+
+# --------------------------------------------------------------------------------------------------
+# Batch path
+# --------------------------------------------------------------------------------------------------
+
+
+def _rebound(function: Callable[..., Any], **callees: Any) -> Callable[..., Any]:
+    """A copy of ``function`` whose global names ``callees`` point at other (compiled) functions."""
+    namespace = dict(function.__globals__)
+    namespace.update(callees)
+    return types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
+
+
+def _supervise_loop(
+    supervise: Any,
+    initial: Any,
+    times: NDArray[np.float64],
+    any_stale: NDArray[np.bool_],
+    new_reading: NDArray[np.bool_],
+    reading: NDArray[np.float64],
+    reading_bad: NDArray[np.bool_],
+    model_c: NDArray[np.float64],
+    stale_limit_s: float,
+    stuck_after_s: float,
+    stuck_change_c: float,
+    out_code: NDArray[np.int64],
+    out_action: NDArray[np.int64],
+) -> None:
+    sv = initial()
+    for k in range(times.shape[0]):
+        sv, code, action = supervise(
+            sv, times[k], any_stale[k], new_reading[k], reading[k], reading_bad[k], model_c[k],
+            stale_limit_s, stuck_after_s, stuck_change_c,
+        )  # fmt: skip
+        out_code[k] = code
+        out_action[k] = action
+
+
+@functools.cache
+def _compiled_supervisor() -> Callable[..., None]:
+    """:func:`_supervise_loop` over the pipeline's own :func:`supervise`, compiled with numba."""
+    import numba
+
+    initial = numba.njit(cache=False)(_rebound(_pipeline.initial_supervisor))
+    supervise = numba.njit(cache=False)(_rebound(_pipeline.supervise, initial_supervisor=initial))
+    loop = numba.njit(cache=False)(_supervise_loop)
+
+    def run(*args: Any) -> None:
+        loop(supervise, initial, *args)
+
+    return run
+
+
+class _Held(NamedTuple):
+    """An input sampled and held on the steps: value, stamp of the frame (nan: none), frames seen."""
+
+    value: NDArray[np.float64]
+    stamp: NDArray[np.float64]
+    frames_seen: NDArray[np.int64]
+
+
+def _hold(rows: NDArray[np.int64], values: NDArray[np.float64], stamps: NDArray[np.float64],
+          steps: NDArray[np.float64]) -> _Held:  # fmt: skip
+    """Latest valid frame stamped strictly before each step (a frame fed after advance_to(t) is stamped t)."""
+    frame_stamps = stamps[rows]
+    j = np.searchsorted(frame_stamps, steps, side="left") - 1
+    seen = j >= 0
+    jj = np.where(seen, j, 0)
+    value = np.where(seen, values[jj] if values.size else np.nan, np.nan)
+    stamp = np.where(seen, frame_stamps[jj] if frame_stamps.size else np.nan, np.nan)
+    return _Held(value, stamp, j + 1)
+
+
+def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArrays) -> ReplayResult:
+    """The batch replay of ``frames`` (see the module docstring); rows equal to :func:`replay_live`."""
+    probe = Pipeline(config, params)  # validates the config against the model, builds the decoder
+    decoder = probe.decoder
+    counters = dict(probe.counters)
+    n = len(frames)
+    if n == 0:
+        return ReplayResult([], counters)
+    stamps = np.maximum.accumulate(frames.time_s)
+    batch = decoder.decode_batch(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data, stamps,
+                                 frames.ignored)  # fmt: skip
+    for key, value in batch.counts.items():
+        counters[key] = counters.get(key, 0) + value
+    counters["bus_errors"] = int(np.count_nonzero(frames.ignored & _error_mask(frames)))
+    # schedule: a clock jump longer than MAX_CLOCK_GAP_S restarts it (as Pipeline.advance_to does)
+    restarts = np.flatnonzero(np.diff(stamps) > MAX_CLOCK_GAP_S) + 1
+    bounds = [0, *restarts.tolist(), n]
+    counters["clock_restarts"] = len(restarts)
+    rows: list[HealthSnapshot] = []
+    steps_total = 0
+    for a, b in itertools.pairwise(bounds):
+        seg_rows, steps = _replay_segment(config, params, probe, batch.values, stamps, a, b)
+        rows.extend(seg_rows)
+        steps_total += steps
+    counters["steps"] = steps_total
+    return ReplayResult(rows, counters)
+
+
+def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:
+    return frames.ignored  # error and remote frames are not told apart in FrameArrays
+
+
+def _replay_segment(
+    config: ServiceConfig,
+    params: ThermalParams,
+    probe: Pipeline,
+    values: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]],
+    stamps: NDArray[np.float64],
+    first: int,
+    end: int,
+) -> tuple[list[HealthSnapshot], int]:
+    dt = config.estimator.dt_s
+    origin = float(stamps[first])
+    last = float(stamps[end - 1])
+    count = max(0, math.floor((last - origin) / dt) + 2)
+    k = np.arange(1, count + 1, dtype=np.float64)
+    times = origin + k * dt  # the same float arithmetic as Pipeline.advance_to
+    times = times[times <= last]
+    n = times.size
+    if n == 0:
+        return [], 0
+    held: dict[str, _Held] = {}
+    for name, (rows, vals) in values.items():
+        inside = (rows >= first) & (rows < end)
+        held[name] = _hold(rows[inside], vals[inside], stamps, times)
+    mapped = [name for name in INPUT_NAMES if name in config.input_names]
+    stale = {
+        name: np.isnan(held[name].stamp) | (times - held[name].stamp > config.input(name).stale_after_s)
+        for name in mapped
+    }
+    needed = {*model_input_names(params), "cht_c"}
+    any_stale = np.zeros(n, dtype=bool)
+    for name in needed:
+        any_stale |= stale[name]
+    cht = held["cht_c"]
+    reading = cht.value
+    new_reading = np.diff(cht.frames_seen, prepend=0) > 0
+    sf = config.sensor_fault
+    with np.errstate(invalid="ignore"):
+        reading_bad = ~np.isnan(reading) & ((reading < sf.min_c) | (reading > sf.max_c))
+    if STATUS_INPUT in held:
+        status = held[STATUS_INPUT].value
+        is_open = np.zeros(n, dtype=bool)
+        for value in sf.open_values:
+            is_open |= status == value
+        reading_bad |= ~np.isnan(reading) & is_open
+    run = _compiled_supervisor()
+    code = np.empty(n, dtype=np.int64)
+    action = np.empty(n, dtype=np.int64)
+    args = (config.stale_predict_limit_s, sf.stuck_after_s, sf.stuck_change_c, code, action)
+    # pass 1: where the estimator runs (independent of the stuck test, which needs the open-loop model)
+    run(times, any_stale, new_reading, reading, reading_bad, reading, *args)
+    stretches = _stretches(action)
+    model_c = np.full(n, np.nan)
+    axes = model_input_names(params)
+    inputs = {name: held[name].value for name in axes}
+    for a, b in stretches:
+        z = np.full(b - a, np.nan)
+        z[0] = reading[a]
+        log = _stretch_log(times, inputs, z, a, b)
+        model_c[a:b] = run_estimator(log, params, "ekf", config.estimator).cht_est_c
+    # pass 2: with the open-loop model, the states and the estimator's actions
+    run(times, any_stale, new_reading, reading, reading_bad, np.where(np.isnan(model_c), reading, model_c), *args)
+    if _stretches(action) != stretches:  # the stuck test never starts or stops the estimator
+        raise RuntimeError("replay: supervision passes disagree on where the estimator runs")
+    est = np.full(n, np.nan)
+    deviation = np.full(n, np.nan)
+    gamma_q = np.full(n, np.nan)
+    gamma_d = np.full(n, np.nan)
+    for a, b in stretches:
+        z = np.where(action[a:b] == ACTION_UPDATE, reading[a:b], np.nan)
+        z[0] = reading[a]
+        log = _stretch_log(times, inputs, z, a, b)
+        trace = run_estimator(log, params, config.estimator_name, config.estimator)
+        est[a:b] = trace.cht_est_c
+        deviation[a:b] = trace.deviation
+        iso = run_isolation(log, params, IsolationSettings(dt_s=dt))
+        gamma_q[a:b] = iso.gamma_q
+        gamma_d[a:b] = iso.gamma_d
+    period = round(1.0 / (next(h.rate_hz for h in config.health if h.message == "Health_Status") * dt))
+    step_numbers = np.arange(1, n + 1)
+    out: list[HealthSnapshot] = []
+    for i in np.flatnonzero(step_numbers % period == 0):
+        stale_names = tuple(name for name in mapped if stale[name][i])
+        est_i = float(est[i])
+        out.append(
+            HealthSnapshot(
+                time_s=float(times[i]),
+                cht_meas_c=float(reading[i]),
+                cht_est_c=est_i,
+                deviation=float(deviation[i]),
+                state=STATES[int(code[i])],
+                gamma_q=float(gamma_q[i]),
+                gamma_d=float(gamma_d[i]),
+                headroom_s=math.nan if math.isnan(est_i) else HEADROOM_NOT_LIMITED_S,
+                stale_inputs=stale_names,
+                sensor_fault=int(code[i]) == STATES.index("SENSOR_FAULT"),
+            )
+        )
+    del probe
+    return out, n
+
+
+def _stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:
+    """[start, end) of each run of steps where the estimator runs (from an INITIALISE to before a NONE)."""
+    starts = np.flatnonzero(action == ACTION_INITIALISE)
+    stops = np.flatnonzero(action == ACTION_NONE)
+    out = []
+    for a in starts.tolist():
+        after = stops[stops > a]
+        out.append((a, int(after[0]) if after.size else action.size))
+    return out
+
+
+def _stretch_log(
+    times: NDArray[np.float64], inputs: dict[str, NDArray[np.float64]], z: NDArray[np.float64], a: int, b: int
+) -> FlightLog:
+    columns = {"time_s": times[a:b], **{name: col[a:b] for name, col in inputs.items()}, "cht_c": z}
+    return FlightLog(columns, source="replay")
+
+
+def replay_file(path: str | os.PathLike[str], config: ServiceConfig, params: ThermalParams) -> ReplayResult:
+    """Replay a python-can log or a canonical flight CSV through the batch path."""
+    suffix = Path(path).suffix.lower()
+    if suffix in CAN_LOG_SUFFIXES:
+        return replay_frames(config, params, read_frames(path))
+    if suffix == ".csv":
+        return replay_frames(config, params, frames_from_flight(load_flight(path), config))
+    raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
