@@ -1,0 +1,167 @@
+"""``ecu-monitor gap [--model M] --train A.csv --test B.csv --out DIR`` (and ``gap --blind N --out DIR``).
+
+Sim-to-real gap diagnosis: where the model departs from the test flight (segments, operating
+regions, correlations, spectrum, innovation whiteness), which candidate effect explains it (each
+refitted on the train flight only and scored on the test flight, with a block-bootstrap significance
+test) and how far the held-out error shrinks. Writes DIR/gap.json, DIR/report.md, PNG plots and
+DIR/model.yaml (the model with the winning effect, or the nominal model when unexplained).
+
+Without ``--model`` the nominal model is identified on the train flight (PSO, ``--heat-axes`` as for
+identify). ``--split-at S`` with ``--train`` alone splits one flight at S seconds: before = train,
+after = test. ``--blind N`` runs N generated blind cases on the virtual ECU instead and writes
+DIR/blind.json and DIR/blind.md (scores and confusion matrix).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from typing import Any
+
+from ecu_monitor.commands.identify import parse_heat_axes
+from ecu_monitor.errors import ConfigError, UserInputError
+from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, diagnose, write_report
+from ecu_monitor.identify import PsoSettings, identify, model_inputs
+from ecu_monitor.model import load_model
+
+__all__ = ["add_subparser"]
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register the ``gap`` subcommand."""
+    parser = subparsers.add_parser(
+        "gap",
+        help="sim-to-real gap diagnosis: where, which effect, how far it shrinks (gap.json, report, model.yaml)",
+        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--model", metavar="MODEL.yaml", help="nominal model (default: identified on --train)")
+    parser.add_argument("--train", metavar="A.csv", help="flight the candidate effects are refitted on")
+    parser.add_argument("--test", metavar="B.csv", help="held-out flight they are scored on")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    parser.add_argument(
+        "--heat-axes", metavar="COL,COL", help="heat-map axes when identifying (default throttle_pct,rpm)"
+    )
+    parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for foreign CSVs")
+    parser.add_argument("--split-at", type=float, metavar="S", help="with --train only: train before S s, test after")
+    parser.add_argument(
+        "--candidates", metavar="IDS", help=f"comma-separated candidate effects (default {','.join(CANDIDATE_IDS)})"
+    )
+    parser.add_argument("--blind", type=int, metavar="N", help="run N blind cases on the virtual ECU instead")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the blind cases (default 0)")
+    parser.add_argument("--duration", type=float, default=3600.0, metavar="S", help="blind-case flight length, s")
+    parser.set_defaults(func=_run)
+
+
+def _say(message: str) -> None:
+    print(f"gap: {message}", file=sys.stderr, flush=True)
+
+
+def _flights(args: argparse.Namespace) -> tuple[FlightLog, FlightLog]:
+    if not args.train:
+        raise UserInputError("gap: --train is required (or --blind N)")
+    train = load_flight(args.train, mapping=args.mapping)
+    if args.split_at is not None:
+        if args.test:
+            raise UserInputError("gap: give either --test or --split-at, not both")
+        t = train.time_s
+        if not t[0] + 60.0 < args.split_at < t[-1] - 60.0:
+            raise UserInputError(
+                f"--split-at {args.split_at:g}: expected a time at least 60 s inside the flight ({t[0]:g}-{t[-1]:g} s)"
+            )
+        return train.select(t[0], args.split_at), train.select(args.split_at, t[-1])
+    if not args.test:
+        raise UserInputError("gap: --test is required (or --split-at S to split the train flight)")
+    return train, load_flight(args.test, mapping=args.mapping)
+
+
+def _settings(args: argparse.Namespace) -> GapSettings:
+    if not args.candidates:
+        return GapSettings()
+    ids = tuple(c.strip() for c in args.candidates.split(",") if c.strip())
+    unknown = [c for c in ids if c not in CANDIDATE_IDS]
+    if unknown or not ids:
+        raise UserInputError(f"--candidates: unknown effect(s) {unknown or ids} (known: {', '.join(CANDIDATE_IDS)})")
+    return GapSettings(candidates=ids)
+
+
+def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
+    from ecu_monitor.gap.blind import blind_markdown, confusion_matrix, run_blind_cases, summary
+
+    if args.blind < 1:
+        raise UserInputError(f"--blind: expected a positive number of cases, got {args.blind}")
+    if args.duration < 600.0:
+        raise UserInputError(f"--duration: expected at least 600 s, got {args.duration:g}")
+    from pathlib import Path
+
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{out}: cannot create the output directory ({exc.strerror})") from None
+    started = time.perf_counter()
+
+    def progress(result: Any) -> None:
+        d = result.to_dict()
+        mark = "ok" if result.verdict_right else "WRONG"
+        _say(
+            f"case {d['index'] + 1}/{args.blind} {d['kind']}: expected {d['expected'] or 'null'},"
+            f" verdict {d['verdict'] or 'null'} {mark} ({time.perf_counter() - started:.0f} s)"
+        )
+
+    results = run_blind_cases(args.blind, args.seed, args.duration, settings, progress)
+    command = "ecu-monitor " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    doc = {
+        "seed": args.seed,
+        "duration_s": args.duration,
+        "summary": summary(results),
+        "confusion": confusion_matrix(results),
+        "cases": [r.to_dict() for r in results],
+    }
+    (out / "blind.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    (out / "blind.md").write_text(blind_markdown(results, command), encoding="utf-8")
+    right = sum(r.verdict_right for r in results)
+    print(f"blind cases: {right}/{len(results)} verdicts right; {out / 'blind.md'}")
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    settings = _settings(args)
+    if args.blind is not None:
+        return _run_blind(args, settings)
+    train, test = _flights(args)
+    if args.model:
+        nominal = load_model(args.model)
+    else:
+        axes = parse_heat_axes(args.heat_axes) if args.heat_axes else ("throttle_pct", "rpm")
+        model_inputs(train, axes)  # fail early, naming the missing column
+        model_inputs(test, axes)
+        _say(f"no --model: identifying the nominal model on {train.source} (PSO, heat axes {','.join(axes)})")
+        started = time.perf_counter()
+        nominal = identify([train], heat_axes=axes, settings=PsoSettings()).params
+        _say(f"identified in {time.perf_counter() - started:.1f} s")
+    if args.model and args.heat_axes and parse_heat_axes(args.heat_axes) != nominal.heat_axes:
+        raise UserInputError(f"--heat-axes {args.heat_axes}: the model's heat map is on {','.join(nominal.heat_axes)}")
+    started = time.perf_counter()
+    diag = diagnose(nominal, train, test, settings, progress=_say)
+    command = "ecu-monitor " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    doc = write_report(diag, args.out, command)
+    verdict = doc["verdict"]
+    base = doc["baseline"]
+    if verdict["effect"] is None:
+        print(
+            "unexplained: no effect improves the held-out flight significantly;"
+            f" test RMS {base['test_rms_c']:.2f} degC,"
+            f" mostly in {doc['where'][0]['segment']} ({100 * doc['where'][0]['share']:.0f} %)"
+        )
+    else:
+        print(
+            f"{verdict['label']}: held-out RMS {base['test_rms_c']:.2f} -> {verdict['test_rms_c']:.2f} degC"
+            f" (shrink {verdict['shrink_pct']:.0f} %), mostly in {verdict['segment']}"
+        )
+    print(f"wrote {args.out}/gap.json, report.md, model.yaml and plots ({time.perf_counter() - started:.1f} s)")
+    return 0

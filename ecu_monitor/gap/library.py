@@ -1,0 +1,166 @@
+"""The library of candidate effects the gap diagnosis tries, each mapped to ecu_monitor.model.effects.
+
+A candidate names one physical extension of the nominal model, the parameters refitted with it (its
+*free* parameters, with start values and bounds) and the parameters it fixes from the train flight
+(a reference airspeed or density, so that the nominal R_Ce keeps its meaning at the flight's typical
+condition). Every candidate, and the effect-free *control*, also re-tunes the same two nominal
+parameters, :data:`RETUNED_NOMINAL`: a factor on R_Ce and a factor on the whole heat map. That way a
+candidate wins only by what its own term adds, not by re-tuning the nominal model (the control gets
+the same re-tuning and is the yardstick of the significance test).
+
+Candidates:
+
+- ``airspeed_cooling``: conductance ``x max(floor, 1 + gain (v - v_ref))``; free gain_per_mps and
+  floor; v_ref = median airborne airspeed of the train flight.
+- ``density_cooling``: conductance ``x (rho/rho_ref)^exponent``; free exponent; rho_ref = median air
+  density of the train flight.
+- ``sensor_lag``: first-order probe lag; free time_constant_s.
+- ``mixture_cooling``: heat ``x (1 - fraction * clip((load - onset)/(1 - onset), 0, 1))`` with load
+  the first heat-map axis normalised over its breakpoints; free fraction and onset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ecu_monitor.errors import ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.model import (
+    AirspeedCooling,
+    DensityCooling,
+    Effects,
+    MixtureCooling,
+    SensorLag,
+    air_density_kg_m3,
+    isa_pressure_pa,
+)
+
+__all__ = [
+    "CANDIDATES",
+    "CANDIDATE_IDS",
+    "RETUNED_NOMINAL",
+    "Candidate",
+    "FreeParameter",
+    "candidate",
+    "effects_for",
+    "flight_references",
+]
+
+#: Nominal quantities re-tuned with every candidate (and the control): log-factors on R_Ce and on the
+#: heat map, bounded to +-0.5 (a factor 0.61-1.65).
+RETUNED_NOMINAL: tuple[str, ...] = ("r_ce_log_factor", "heat_log_factor")
+RETUNED_BOUNDS: tuple[float, float] = (-0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class FreeParameter:
+    """A parameter refitted with its candidate: start value, bounds and unit."""
+
+    name: str
+    start: float
+    low: float
+    high: float
+    unit: str
+
+    def __post_init__(self) -> None:
+        if not self.low <= self.start <= self.high:
+            raise ParameterError(f"{self.name}: start {self.start} outside [{self.low}, {self.high}]")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One library entry: the model effect it switches on and its free parameters."""
+
+    id: str
+    effect: str  # field of ecu_monitor.model.Effects
+    description: str
+    free: tuple[FreeParameter, ...]
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate(
+        "airspeed_cooling",
+        "airspeed_cooling",
+        "convective conductance grows with airspeed (floor on the ground)",
+        (
+            FreeParameter("gain_per_mps", 0.0, -0.05, 0.1, "1/(m/s)"),
+            FreeParameter("floor", 0.95, 0.1, 1.0, "-"),
+        ),
+    ),
+    Candidate(
+        "density_cooling",
+        "density_cooling",
+        "convective conductance scales with air density",
+        (FreeParameter("exponent", 0.0, -1.5, 2.5, "-"),),
+    ),
+    Candidate(
+        "sensor_lag",
+        "sensor_lag",
+        "first-order lag of the CHT probe",
+        (FreeParameter("time_constant_s", 1.0, 0.0, 120.0, "s"),),
+    ),
+    Candidate(
+        "mixture_cooling",
+        "mixture_cooling",
+        "less heat into the head at high load (power enrichment)",
+        (
+            FreeParameter("fraction", 0.02, 0.0, 0.6, "-"),
+            FreeParameter("onset", 0.6, 0.0, 0.95, "-"),
+        ),
+    ),
+)
+CANDIDATE_IDS: tuple[str, ...] = tuple(c.id for c in CANDIDATES)
+
+
+def candidate(candidate_id: str) -> Candidate:
+    """The library entry ``candidate_id``; ParameterError if unknown."""
+    for entry in CANDIDATES:
+        if entry.id == candidate_id:
+            return entry
+    raise ParameterError(f"gap candidate {candidate_id!r}: unknown (known: {', '.join(CANDIDATE_IDS)})")
+
+
+def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> dict[str, float]:
+    """Reference conditions of the train flight: median airborne airspeed (m/s), median density (kg/m^3)."""
+    airspeed = np.asarray(train["airspeed_mps"], dtype=float)
+    airborne = airspeed[airspeed >= ground_airspeed_mps]
+    reference_mps = float(np.median(airborne)) if airborne.size else 23.0
+    pressure = np.asarray(isa_pressure_pa(np.asarray(train["altitude_m"], dtype=float)))
+    density = np.asarray(air_density_kg_m3(pressure, np.asarray(train["oat_c"], dtype=float)))
+    return {
+        "reference_mps": float(np.clip(reference_mps, 1.0, 200.0)),
+        "reference_kg_m3": float(np.clip(np.median(density), 0.3, 1.6)),
+    }
+
+
+def _make(entry: Candidate, values: Mapping[str, float], references: Mapping[str, float]) -> Any:
+    if entry.effect == "airspeed_cooling":
+        return AirspeedCooling(
+            gain_per_mps=float(values["gain_per_mps"]),
+            reference_mps=float(references["reference_mps"]),
+            floor=float(np.clip(values["floor"], 0.05, 1.0)),
+        )
+    if entry.effect == "density_cooling":
+        return DensityCooling(exponent=float(values["exponent"]), reference_kg_m3=float(references["reference_kg_m3"]))
+    if entry.effect == "sensor_lag":
+        return SensorLag(time_constant_s=float(values["time_constant_s"]))
+    if entry.effect == "mixture_cooling":
+        return MixtureCooling(fraction=float(values["fraction"]), onset=float(values["onset"]))
+    raise ParameterError(f"gap candidate {entry.id!r}: no model effect {entry.effect!r}")
+
+
+def effects_for(
+    base: Effects,
+    entries: Sequence[Candidate],
+    values: Mapping[str, Mapping[str, float]],
+    references: Mapping[str, float],
+) -> Effects:
+    """``base`` with each candidate's effect switched on at ``values[candidate.id]``."""
+    effects = base
+    for entry in entries:
+        effects = effects.replace(entry.effect, _make(entry, values[entry.id], references))
+    return effects

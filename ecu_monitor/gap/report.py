@@ -1,0 +1,357 @@
+"""Outputs of a gap diagnosis: DIR/gap.json (DESIGN.md section 5), DIR/report.md, plots, DIR/model.yaml.
+
+gap.json holds the contract's four keys (baseline, where, effects, verdict) and, beside them, the
+other breakdowns (segments, regions, correlation, lag_signature, spectrum, innovation_whiteness),
+the control refit and the settings. In ``effects`` each entry's ``significant`` is the decision
+(bootstrap-significant AND material vs the control); ``p_value``, ``material`` and
+``shrink_vs_control_pct`` show the parts of it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis
+from ecu_monitor.gap.segments import SEGMENT_NAMES
+from ecu_monitor.model import save_model
+
+__all__ = ["PLOT_FILES", "gap_json", "write_report"]
+
+PLOT_FILES = ("residual_time.png", "residual_inputs.png", "spectrum.png", "before_after.png")
+_COLOURS = {"ground": "tab:brown", "climb": "tab:red", "cruise": "tab:blue", "descent": "tab:green"}
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe copy: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, bool | np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return _finite(float(obj))
+    return obj
+
+
+def _effect_entry(score: EffectScore) -> dict[str, Any]:
+    v = score.versus
+    return {
+        "id": score.label,
+        "test_rms_c": score.test_rms_c,
+        "test_peak_c": score.test_peak_c,
+        "shrink_pct": score.shrink_pct,
+        "significant": score.counts,
+        "params": score.fit.values,
+        "params_std": {k: {p: _finite(s) for p, s in d.items()} for k, d in score.fit.std.items()},
+        "nominal_factors": {k: _finite(x) for k, x in score.fit.nominal_factors.items()},
+        "train_rms_c": score.fit.train_rms_c,
+        "role": score.role,
+        "compared_with": "control" if score.role == "single" else "+".join(score.fit.ids[:1]),
+        "shrink_vs_reference_pct": v.shrink_pct if v else None,
+        "p_value": v.p_value if v else None,
+        "bootstrap_significant": v.significant if v else None,
+        "material": v.material if v else None,
+        "converged": score.fit.converged,
+        "failed_evaluations": score.fit.failed_evaluations,
+    }
+
+
+def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
+    """The gap.json document of a diagnosis (DESIGN.md section 5 plus extra keys beside)."""
+    base_test = diag.baseline_test_residual
+    base_train = diag.baseline_train_residual
+    winner = diag.winner
+    verdict: dict[str, Any] = {
+        "effect": winner.fit.ids[0] if winner is not None else None,
+        "shrink_pct": winner.shrink_pct if winner is not None else 0.0,
+        "effects": list(winner.fit.ids) if winner is not None else [],
+        "label": winner.label if winner is not None else "unexplained",
+        "segment": diag.winner_segment,
+        "test_rms_c": winner.test_rms_c if winner is not None else float(np.sqrt(np.mean(base_test**2))),
+        "test_peak_c": winner.test_peak_c if winner is not None else float(np.max(np.abs(base_test))),
+        "segment_gain_share": diag.segment_gain,
+    }
+    return _clean(
+        {
+            "baseline": {
+                "train_rms_c": float(np.sqrt(np.mean(base_train**2))),
+                "test_rms_c": float(np.sqrt(np.mean(base_test**2))),
+                "test_peak_c": float(np.max(np.abs(base_test))),
+                "train_peak_c": float(np.max(np.abs(base_train))),
+                "test_mean_c": float(np.mean(base_test)),
+            },
+            "where": [s.to_dict() for s in diag.where],
+            "effects": [_effect_entry(s) for s in diag.effects],
+            "verdict": verdict,
+            "control": _effect_entry(diag.control),
+            "segments": [
+                {"segment": s.name, "start_s": s.start_s, "stop_s": s.stop_s} for s in diag.segmentation.segments
+            ],
+            "regions": diag.regions,
+            "correlation": diag.correlation,
+            "lag_signature": diag.lag.to_dict(),
+            "spectrum": diag.spectrum.to_dict(),
+            "innovation_whiteness": diag.whiteness,
+            "references": diag.references,
+            "settings": {
+                "candidates": list(diag.settings.candidates),
+                "dt_s": diag.settings.refit.dt_s,
+                "block_s": diag.settings.significance.block_s,
+                "alpha": diag.settings.significance.alpha,
+                "min_shrink_pct": diag.settings.significance.min_shrink_pct,
+                "min_rms_drop_c": diag.settings.significance.min_rms_drop_c,
+            },
+            "flights": {"train": diag.train.log.source, "test": diag.test.log.source},
+        }
+    )
+
+
+def _segment_colours(diag: GapDiagnosis) -> list[str]:
+    return [_COLOURS[SEGMENT_NAMES[i]] for i in diag.segmentation.labels]
+
+
+def _legend(ax: Any, present: set[str]) -> None:
+    handles = [
+        plt.Line2D([], [], marker="o", linestyle="", color=_COLOURS[n], label=n) for n in SEGMENT_NAMES if n in present
+    ]
+    ax.legend(handles=handles, loc="best", fontsize=8)
+
+
+def _plot_residual_time(diag: GapDiagnosis, path: Path) -> None:
+    t = diag.test.log.time_s / 60.0
+    present = {SEGMENT_NAMES[i] for i in np.unique(diag.segmentation.labels)}
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True, height_ratios=(1.2, 1))
+    top.plot(t, diag.test.cht_c, color="black", lw=1.0, label="measured")
+    top.plot(t, diag.baseline_test_model_c, color="tab:orange", lw=1.0, label="nominal model (open loop)")
+    top.set_ylabel("CHT, degC")
+    top.legend(loc="best", fontsize=8)
+    top.set_title("Test flight: measured vs nominal model")
+    bottom.scatter(t, diag.baseline_test_residual, c=_segment_colours(diag), s=3)
+    bottom.axhline(0.0, color="grey", lw=0.7)
+    bottom.set_ylabel("residual (meas - model), degC")
+    bottom.set_xlabel("time, min")
+    _legend(bottom, present)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_residual_inputs(diag: GapDiagnosis, path: Path) -> None:
+    log = diag.test.log
+    names = [n for n in diag.correlation if n != "model_dTdt" and log.has(n)]
+    panels = [*names, "model_dTdt"]
+    cols = 3
+    rows = math.ceil(len(panels) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(12, 3.4 * rows), squeeze=False)
+    colours = _segment_colours(diag)
+    for ax, name in zip(axes.flat, panels, strict=False):
+        x = diag.model_rate_c_per_s if name == "model_dTdt" else np.asarray(log[name])
+        ax.scatter(x, diag.baseline_test_residual, c=colours, s=2)
+        ax.axhline(0.0, color="grey", lw=0.7)
+        label = "model dT/dt, degC/s" if name == "model_dTdt" else name
+        ax.set_xlabel(label)
+        ax.set_ylabel("residual, degC")
+        ax.set_title(f"r = {diag.correlation[name]:+.2f}", fontsize=9)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.axis("off")
+    _legend(axes.flat[0], {SEGMENT_NAMES[i] for i in np.unique(diag.segmentation.labels)})
+    fig.suptitle("Test-flight residual of the nominal model against each input")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _plot_spectrum(diag: GapDiagnosis, path: Path) -> None:
+    spec = diag.spectrum
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    f, p = spec.frequency_hz[1:], spec.power_c2_per_hz[1:]
+    ax.loglog(f, p, color="tab:purple", label="residual (nominal model)")
+    if diag.winner is not None:
+        from scipy import signal
+
+        n = diag.winner.test_residual.size
+        fw, pw = signal.welch(
+            diag.winner.test_residual, fs=1.0 / diag.test.dt_s, nperseg=int(min(1024, n)), detrend="linear"
+        )
+        ax.loglog(fw[1:], pw[1:], color="tab:green", label=f"residual with {diag.winner.label}")
+    for period in (600.0, 60.0):
+        ax.axvline(1.0 / period, color="grey", lw=0.6, ls=":")
+    ax.set_xlabel("frequency, Hz (dotted: 10 min and 1 min periods)")
+    ax.set_ylabel("PSD, degC^2/Hz")
+    ax.set_title(f"Residual spectrum (lag signature tau = {diag.lag.tau_s:.1f} s, r = {diag.lag.correlation:+.2f})")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _plot_before_after(diag: GapDiagnosis, path: Path) -> None:
+    t = diag.test.log.time_s / 60.0
+    after = diag.winner if diag.winner is not None else diag.control
+    label = after.label if diag.winner is not None else "control (R_Ce, heat re-tuned; not significant)"
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
+    top.plot(t, diag.test.cht_c, color="black", lw=1.0, label="measured")
+    top.plot(t, diag.baseline_test_model_c, color="tab:orange", lw=1.0, label="before: nominal")
+    top.plot(t, diag.test.cht_c - after.test_residual, color="tab:green", lw=1.0, label=f"after: {label}")
+    top.set_ylabel("CHT, degC")
+    top.legend(loc="best", fontsize=8)
+    top.set_title("Held-out test flight, before and after (model refitted on the train flight only)")
+    base_rms = float(np.sqrt(np.mean(diag.baseline_test_residual**2)))
+    bottom.plot(t, diag.baseline_test_residual, color="tab:orange", lw=0.8, label=f"before, RMS {base_rms:.2f} degC")
+    bottom.plot(t, after.test_residual, color="tab:green", lw=0.8, label=f"after, RMS {after.test_rms_c:.2f} degC")
+    bottom.axhline(0.0, color="grey", lw=0.7)
+    bottom.set_ylabel("residual, degC")
+    bottom.set_xlabel("time, min")
+    bottom.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}" if math.isfinite(value) else "inf"
+    return str(value)
+
+
+def _params_text(score: EffectScore) -> str:
+    parts = []
+    for cid, values in score.fit.values.items():
+        for name, value in values.items():
+            sigma = score.fit.std[cid][name]
+            parts.append(f"{name} = {_fmt(value)} +- {_fmt(sigma, 2)}")
+    f = score.fit.nominal_factors
+    parts.append(f"R_Ce x {f['r_ce_factor']:.3f}, heat x {f['heat_factor']:.3f}")
+    return "; ".join(parts)
+
+
+def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> str:
+    base = doc["baseline"]
+    verdict = doc["verdict"]
+    lines = ["# Sim-to-real gap diagnosis", ""]
+    lines.append(f"Train flight (refits): `{diag.train.log.source}`; test flight (held out): `{diag.test.log.source}`.")
+    if command:
+        lines += ["", f"Command: `{command}`"]
+    lines += ["", "## Verdict", ""]
+    if diag.winner is not None:
+        lines.append(
+            f"**{verdict['label']}** explains the gap: held-out RMS {base['test_rms_c']:.2f} -> "
+            f"{verdict['test_rms_c']:.2f} degC (shrink {verdict['shrink_pct']:.0f} %), "
+            f"peak {base['test_peak_c']:.1f} -> "
+            f"{verdict['test_peak_c']:.1f} degC. Most of the gain is in the **{verdict['segment']}** segment. "
+            f"Fitted: {_params_text(diag.winner)}. The improved model is in model.yaml."
+        )
+    else:
+        top = diag.where[0]
+        lines.append(
+            f"**Unexplained.** No candidate effect improves the held-out test flight significantly and materially "
+            f"over the re-tuned nominal model; none is named. The residual lies mostly in the **{top.segment}** "
+            f"segment ({100 * top.share:.0f} % of the squared error, RMS {top.rms_c:.2f} degC, mean "
+            f"{top.mean_c:+.2f} degC). model.yaml is the nominal model unchanged."
+        )
+    lines += [
+        "",
+        "## Baseline (nominal model, open loop)",
+        "",
+        "| flight | RMS, degC | peak, degC |",
+        "|---|---|---|",
+        f"| train | {base['train_rms_c']:.2f} | {base['train_peak_c']:.2f} |",
+        f"| test | {base['test_rms_c']:.2f} | {base['test_peak_c']:.2f} |",
+        "",
+        "## Where (test flight)",
+        "",
+        "| segment | share of squared error | RMS, degC | mean, degC | duration, s |",
+        "|---|---|---|---|---|",
+    ]
+    for s in diag.where:
+        lines.append(f"| {s.segment} | {s.share:.2f} | {s.rms_c:.2f} | {s.mean_c:+.2f} | {s.duration_s:.0f} |")
+    lines += ["", "Correlation of the residual with each input and with the model's dT/dt:", ""]
+    lines.append("| " + " | ".join(diag.correlation) + " |")
+    lines.append("|" + "---|" * len(diag.correlation))
+    lines.append("| " + " | ".join(f"{v:+.2f}" for v in diag.correlation.values()) + " |")
+    lines += ["", "By operating region (quantile bins of each input; RMS / mean residual, degC):", ""]
+    for name, rows in diag.regions.items():
+        cells = ", ".join(f"[{r['low']:.4g}, {r['high']:.4g}]: {r['rms_c']:.2f} / {r['mean_c']:+.2f}" for r in rows)
+        lines.append(f"- {name}: {cells}")
+    lag = diag.lag
+    bands = diag.spectrum.band_share
+    lines += [
+        "",
+        f"Lag signature: r(t) ~ -tau dT/dt gives tau = {lag.tau_s:.1f} s with correlation {lag.correlation:+.2f} "
+        f"({100 * lag.explained:.0f} % of the residual variance).",
+        "Spectrum: share of residual power with periods > 10 min "
+        f"{bands['period_over_600s']:.2f}, 1-10 min {bands['period_60_600s']:.2f}, "
+        f"< 1 min {bands['period_under_60s']:.2f}; dominant period "
+        f"{diag.spectrum.dominant_period_s:.0f} s.",
+    ]
+    w = diag.whiteness
+    if w.get("estimator"):
+        lines.append(
+            f"Innovations of the {w['estimator']} filter on the nominal model: Ljung-Box Q = {w['q']:.0f} over "
+            f"{w['lags']:.0f} lags (p = {w['p_value']:.2g}), lag-1 autocorrelation {w['acf1']:+.2f}, RMS "
+            f"{w['innovation_rms_c']:.2f} degC ({'white' if w['p_value'] > 0.05 else 'not white'})."
+        )
+    lines += [
+        "",
+        "## Candidate effects (refitted on the train flight, scored on the test flight)",
+        "",
+        f"Control (no effect, R_Ce and heat scale re-tuned): test RMS {diag.control.test_rms_c:.2f} degC. "
+        "A candidate counts when its held-out gain over its reference (the control for a single effect, the "
+        "single effect for a pair) is significant in a block bootstrap "
+        f"({diag.settings.significance.block_s:.0f} s blocks, family-wise alpha {diag.settings.significance.alpha}) "
+        f"and material (>= {diag.settings.significance.min_shrink_pct:.0f} % and "
+        f">= {diag.settings.significance.min_rms_drop_c} degC).",
+        "",
+        "| effect | test RMS, degC | peak, degC | shrink vs baseline | vs reference | p | counts"
+        " | parameters (+- 1 sigma) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for score in diag.effects:
+        v = score.versus
+        lines.append(
+            f"| {score.label} | {score.test_rms_c:.2f} | {score.test_peak_c:.1f} | {score.shrink_pct:+.0f} % | "
+            f"{(v.shrink_pct if v else 0.0):+.0f} % | {_fmt(v.p_value if v else None, 2)} | "
+            f"{'yes' if score.counts else 'no'} | {_params_text(score)} |"
+        )
+    lines += ["", "## Plots", ""]
+    for name in PLOT_FILES:
+        lines.append(f"![{name}]({name})")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(diag: GapDiagnosis, out_dir: str | Path, command: str | None = None) -> dict[str, Any]:
+    """Write gap.json, report.md, the plots and model.yaml into ``out_dir``; returns the gap.json dict."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{out}: cannot create the output directory ({exc.strerror})") from None
+    doc = gap_json(diag)
+    (out / "gap.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    _plot_residual_time(diag, out / PLOT_FILES[0])
+    _plot_residual_inputs(diag, out / PLOT_FILES[1])
+    _plot_spectrum(diag, out / PLOT_FILES[2])
+    _plot_before_after(diag, out / PLOT_FILES[3])
+    (out / "report.md").write_text(_markdown(diag, doc, command), encoding="utf-8")
+    label = diag.winner.label if diag.winner is not None else "none (unexplained): nominal model unchanged"
+    save_model(diag.model, out / "model.yaml", comment=f"ecu-monitor gap: winning effect {label}")
+    return doc
