@@ -275,3 +275,18 @@ def test_identification_counts_diverging_particles():
     assert result.failed_particles > 0  # RK4 at 5 s is unstable for a short heat-path delay tau_w
     assert math.isfinite(result.cost_history[-1])
     assert result.params.tau_w > 2.0 * 5.0 / 2.79  # the best particle is one whose RK4 is stable
+
+
+def test_effect_parameters_can_be_freed_by_name():
+    from ecu_monitor.model import Effects, SensorLag
+
+    log = _synthetic_flight(6, 600)
+    base = paper_table_a1().replace(effects=Effects(sensor_lag=SensorLag(8.0)))
+    space = default_space([log], base=base, free=("c_w", "r_ce", "heat_map", "effects.sensor_lag.time_constant_s"))
+    vector = space.from_params(base)
+    k = space.names.index("effects.sensor_lag.time_constant_s")
+    assert vector[k] == 8.0
+    vector[k] = 20.0
+    params = space.to_params(vector)
+    assert params.effects.sensor_lag == SensorLag(20.0)
+    np.testing.assert_array_equal(space.coefficient_arrays(vector[None, :]).sensor_lag_s, [20.0])
