@@ -7,7 +7,7 @@ carries the latest measurement at or before that time (sample and hold of the in
 Each frame has its rolling counter (+1 mod 16 per frame of that id) and its CRC-8 checksum in byte 7
 (:func:`ecu_monitor.bus.checksum.frame_checksum`). Values are encoded with cantools, strict, after
 clipping to the signal's DBC range (a real ECU saturates its outputs the same way); with every value
-inside its range, the encoding skips cantools' strict re-check (4x faster, the same bytes: tested).
+inside its range, the encoding skips cantools' strict re-check (~2.5x faster, the same bytes: tested).
 
 :class:`FrameEmitter` sends those frames onto any python-can ``BusABC`` passed in (it never opens a
 bus itself): as fast as possible by default, or paced to the wall clock (``realtime=True``, ``speed``

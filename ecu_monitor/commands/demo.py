@@ -50,6 +50,7 @@ def plot_flight(log: FlightLog, path: Path, cht_limit_c: float, title: str) -> N
     ax.plot(t_min, log["cht_c"], lw=0.6, color="tab:orange", label="CHT measured (1 degC sensor)")
     ax.plot(t_min, log["cht_true_c"], lw=1.0, color="black", label="CHT true")
     ax.axhline(cht_limit_c, color="tab:red", ls="--", lw=1.0, label=f"limit {cht_limit_c:.0f} degC")
+    ax.set_ylim(top=max(cht_limit_c, float(log["cht_true_c"].max())) + 8.0)
     ax.set_ylabel("CHT (degC)")
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title(title, fontsize=10)
