@@ -27,7 +27,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
@@ -95,7 +95,10 @@ class Daemon:
 
     ``open_bus`` opens (and reopens) the bus: the bus is passed in, the daemon never builds one from a
     config itself. ``recorder`` (optional) receives one :class:`FlightSample` per health row;
-    ``rpm_of`` extracts the engine speed (rev/min, or None when stale) from a health row.
+    ``engine_speed()`` (called under the pipeline lock) gives the engine speed held by the pipeline,
+    rev/min, or None when it is stale: the recorder finds flights from it. ``receive_ids`` (the
+    decoder's frame ids) become the bus's receive filter, so other traffic (kernel-filtered on
+    socketcan) and our own health frames never reach the pipeline lock.
     ``stop()`` is safe from a signal handler; :meth:`run` returns once everything is flushed.
     """
 
@@ -107,7 +110,8 @@ class Daemon:
         settings: DaemonSettings | None = None,
         notifier: SystemdNotifier | None = None,
         recorder: FlightRecorder | None = None,
-        rpm_of: Callable[[Any], float | None] | None = None,
+        engine_speed: Callable[[], float | None] | None = None,
+        receive_ids: Sequence[int] = (),
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
     ) -> None:
@@ -116,7 +120,8 @@ class Daemon:
         self._open_bus = open_bus
         self._notifier = notifier or SystemdNotifier(address="")
         self._recorder = recorder
-        self._rpm_of = rpm_of
+        self._engine_speed = engine_speed
+        self._filters: list[can.typechecking.CanFilter] = [{"can_id": i, "can_mask": 0x1FFFFFFF} for i in receive_ids]
         self._clock = clock
         self._wall_clock = wall_clock
         self._lock = threading.Lock()
@@ -205,10 +210,13 @@ class Daemon:
                 self.counters["health_sent"] += 1
 
     def _count_bus_error(self, counter: str) -> None:
-        """Count a failed bus operation (caller holds the lock); the pipeline reports the total."""
+        """Count a failed bus operation (caller holds the lock); Health_Diag.BusErrors reports the total."""
         self.counters[counter] += 1
         self.counters["bus_errors"] += 1
-        self.pipeline.counters["bus_errors"] = self.counters["bus_errors"]
+        pipeline_counters = self.pipeline.counters
+        pipeline_counters["bus_errors"] = pipeline_counters.get("bus_errors", 0) + 1
+        if counter == "send_errors":
+            pipeline_counters["send_errors"] = pipeline_counters.get("send_errors", 0) + 1
 
     def _on_receive_error(self, exc: Exception) -> None:
         """The Notifier's receive thread hit an error: count it once, ask the supervisor to reopen."""
@@ -231,6 +239,11 @@ class Daemon:
                 self._count_bus_error("open_errors")
             _log.error("cannot open the bus: %s", exc)
             return False
+        if self._filters:
+            try:
+                bus.set_filters(self._filters)
+            except (can.CanError, OSError, ValueError, NotImplementedError) as exc:
+                _log.warning("bus filters not set (%s): every frame goes through the pipeline's id check", exc)
         with self._lock:
             self._bus = bus
             self._send_failures_in_row = 0
@@ -271,9 +284,9 @@ class Daemon:
             return
         with self._lock:
             rows = self.pipeline.drain_rows()
+            rpm = self._engine_speed() if self._engine_speed is not None else None
             offset = self._wall_clock() - self._clock()
-        for row in rows:
-            rpm = self._rpm_of(row) if self._rpm_of is not None else None
+        for row in rows:  # the rows of the last supervisor period (0.1 s): the engine speed held now
             cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
             self._recorder.add(
                 FlightSample(

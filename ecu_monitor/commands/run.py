@@ -1,0 +1,190 @@
+"""``ecu-monitor run --config FILE``: the daemon (systemd Type=notify with watchdog, docs/service.md).
+
+Loads the config (any error: one line, exit 2), opens the flight database in ``state_dir``, opens the
+bus once to check the interface (an unknown interface or a missing driver is a config error, exit 2; a
+device that is not up yet is retried with backoff by the daemon), then runs until SIGTERM or SIGINT and
+exits 0 once the flight in progress is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import logging
+import math
+import os
+import signal
+import socket
+import sys
+from collections.abc import Callable
+from types import FrameType
+from typing import Any
+
+import can
+
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.service.config import ServiceConfig, load_config
+from ecu_monitor.service.daemon import Daemon, DaemonSettings
+from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
+from ecu_monitor.service.persistence import FlightRecorder, FlightRules, StateStore
+
+__all__ = ["add_subparser", "bus_opener", "engine_speed_of"]
+
+_log = logging.getLogger("ecu_monitor.run")
+
+#: syslog priorities journald reads from a ``<N>`` line prefix (sd-daemon(3)).
+_JOURNAL_PRIORITY = {"DEBUG": 7, "INFO": 6, "WARNING": 4, "ERROR": 3, "CRITICAL": 2}
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``run``."""
+    parser = subparsers.add_parser(
+        "run",
+        help="run the monitoring daemon on the configured CAN bus",
+        description="Run the daemon: decode the engine frames, run the estimator, broadcast health frames, "
+        "record flights in state_dir. systemd Type=notify (READY, STATUS, WATCHDOG) when NOTIFY_SOCKET is set.",
+    )
+    parser.add_argument("--config", required=True, metavar="FILE", help="service configuration YAML")
+    parser.add_argument(
+        "--min-flight-s",
+        type=float,
+        default=FlightRules.min_flight_s,
+        metavar="SECONDS",
+        help=f"shortest engine run recorded as a flight (default {FlightRules.min_flight_s:g})",
+    )
+    parser.set_defaults(func=_run)
+
+
+class _JournalFormatter(logging.Formatter):
+    """Prefix each line with its syslog priority so journald keeps the level (stderr under systemd)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"<{_JOURNAL_PRIORITY.get(record.levelname, 6)}>{super().format(record)}"
+
+
+def _log_to_journal() -> None:
+    if not os.environ.get("JOURNAL_STREAM"):
+        return
+    for handler in logging.getLogger().handlers:
+        handler.setFormatter(_JournalFormatter("%(name)s: %(message)s"))
+
+
+class _HalfOpenBusFilter(logging.Filter):
+    """Drops python-can's "was not properly shut down" warning for a bus whose constructor failed."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "not properly shut down" not in record.getMessage()
+
+
+def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
+    """A function that opens the configured bus (``can.Bus(**config.bus)``); checks the interface first.
+
+    The first open happens here: an unknown interface, a missing driver, bad options or an address that
+    does not resolve raise ConfigError; a device that is not there yet (OSError, CanInitializationError)
+    is left to the daemon's backoff.
+    """
+    options = dict(config.bus)
+    interface = options.get("interface")
+    if interface not in can.interfaces.VALID_INTERFACES:
+        known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+        raise ConfigError(f"{config.source}: bus.interface: unknown interface {interface!r} (known: {known})")
+
+    def open_bus() -> can.BusABC:
+        return can.Bus(**options)
+
+    first: can.BusABC | None = None
+    error: str | None = None
+    half_open = _HalfOpenBusFilter()
+    logging.getLogger("can.bus").addFilter(half_open)
+    try:
+        first = open_bus()
+    except (can.CanInterfaceNotImplementedError, TypeError, ValueError, socket.gaierror) as exc:
+        error = f"{config.source}: bus: cannot use {interface}:{options.get('channel')}: {exc}"
+    except (can.CanError, OSError) as exc:
+        _log.warning("bus %s:%s not available yet (%s); will retry", interface, options.get("channel"), exc)
+    finally:
+        gc.collect()  # a bus whose constructor failed is collected here, its "not shut down" warning dropped
+        logging.getLogger("can.bus").removeFilter(half_open)
+    if error is not None:
+        raise ConfigError(error)
+
+    def reopen() -> can.BusABC:
+        nonlocal first
+        if first is not None:
+            bus, first = first, None
+            return bus
+        return open_bus()
+
+    return reopen
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.service.pipeline import Pipeline  # the estimator stack: imported only when running
+
+    config = load_config(args.config)
+    params = config.load_params()
+    if not args.min_flight_s >= 0.0:
+        raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
+    _log_to_journal()
+    pipeline = Pipeline(config, params)
+    store = StateStore(config.state_dir)
+    recorder = FlightRecorder(
+        store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)
+    )
+    if recorder.recovered:
+        _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
+    open_bus = bus_opener(config)
+    settings = DaemonSettings(
+        backoff_initial_s=config.reopen_backoff.initial,
+        backoff_max_s=config.reopen_backoff.max,
+        watchdog_period_s=watchdog_period_s(),
+    )
+    with SystemdNotifier() as notifier:
+        daemon = Daemon(
+            pipeline,
+            open_bus,
+            settings=settings,
+            notifier=notifier,
+            recorder=recorder,
+            engine_speed=engine_speed_of(pipeline),
+            receive_ids=pipeline.decoder.frame_ids,
+        )
+
+        def on_signal(signum: int, _frame: FrameType | None) -> None:
+            _log.info("signal %s: stopping", signal.Signals(signum).name)
+            daemon.stop()
+
+        signal.signal(signal.SIGTERM, on_signal)
+        signal.signal(signal.SIGINT, on_signal)
+        _log.info(
+            "engine %s, bus %s:%s, state %s",
+            config.engine_serial,
+            config.bus.get("interface"),
+            config.bus.get("channel"),
+            store.path,
+        )
+        try:
+            code = daemon.run()
+        finally:
+            store.close()
+    sys.stdout.flush()
+    return code
+
+
+def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:
+    """The engine speed the pipeline holds, rev/min (None while stale or never received).
+
+    Reads the pipeline's sample-and-hold slot of input ``rpm`` (the decoder's value; no second decode).
+    """
+    names = tuple(pipeline.decoder.names)
+    if "rpm" not in names:
+        return lambda: None
+    slot = names.index("rpm")
+
+    def engine_speed() -> float | None:
+        if "rpm" in pipeline.snapshot().stale_inputs:
+            return None
+        value = float(pipeline._values[slot])
+        return value if math.isfinite(value) else None
+
+    return engine_speed

@@ -1,0 +1,409 @@
+"""The daemon as a user runs it: a separate process under a test NOTIFY_SOCKET, config errors, bus faults.
+
+Separate process: ``python -m ecu_monitor.cli run --config FILE`` with NOTIFY_SOCKET bound by the test
+(READY=1, STATUS=, WATCHDOG=1 at the WATCHDOG_USEC period, STOPPING=1 on SIGTERM, exit 0, database
+intact). In process, on python-can's ``virtual`` interface: a bus whose send raises (counted, not fatal,
+the bus is reopened), a bus whose receive fails (reopened with backoff, BusErrors in Health_Diag), an
+error raised inside the frame path (counted by the keep-alive handler, the daemon lives on).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, ClassVar
+
+import can
+import cantools
+import pytest
+import yaml
+
+from ecu_monitor.bus.checksum import frame_checksum
+from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.service.config import load_config
+from ecu_monitor.service.daemon import SEND_FAILURES_TO_REOPEN, Daemon, DaemonSettings
+from ecu_monitor.service.persistence import DATABASE_NAME
+from ecu_monitor.service.pipeline import Pipeline
+
+REPO = Path(__file__).resolve().parent.parent
+ENGINE_DBC = REPO / "dbc" / "engine.dbc"
+HEALTH_DBC = REPO / "dbc" / "health.dbc"
+HEALTH_IDS = {0x300: "Health_Status", 0x301: "Health_Isolation", 0x302: "Health_Diag"}
+
+
+def write_config(tmp_path: Path, bus: dict[str, Any], name: str = "service.yaml", **changes: Any) -> Path:
+    """configs/example.yaml with absolute DBC paths, the given bus and a state_dir under tmp_path."""
+    data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
+    data["dbc"] = [str(ENGINE_DBC)]
+    data["health_dbc"] = str(HEALTH_DBC)
+    data["bus"] = bus
+    data["state_dir"] = str(tmp_path / "state")
+    data["reopen_backoff_s"] = {"initial": 0.1, "max": 0.4}
+    data.update(changes)
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+class EcuSender:
+    """A steady engine on a bus: ECU_Fast at 50 Hz, ECU_Slow and AirData at 10 Hz, valid counters/CRC."""
+
+    VALUES: ClassVar[dict[str, dict[str, float]]] = {
+        "ECU_Fast": {"EngineSpeed": 5000.0, "ThrottlePos": 50.0, "FuelFlow": 0.5},
+        "ECU_Slow": {"CHT": 150.0, "OAT": 15.0, "EcuStatus": 0},
+        "AirData": {"PressureAltitude": 1000.0, "CalibratedAirspeed": 23.0, "VerticalSpeed": 0.0},
+    }
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self.encoder = Encoder([ENGINE_DBC])
+        self.counters = dict.fromkeys(self.VALUES, 0)
+        self.sent = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def frame(self, name: str) -> can.Message:
+        data = self.encoder.encode(name, self.VALUES[name], self.counters[name])
+        self.counters[name] += 1
+        return can.Message(arbitration_id=self.encoder.message(name).frame_id, is_extended_id=False, data=data)
+
+    def _loop(self) -> None:
+        k = 0
+        next_s = time.monotonic()
+        while not self._stop.is_set():
+            names = ["ECU_Fast"] + (["ECU_Slow", "AirData"] if k % 5 == 0 else [])
+            for name in names:
+                self.bus.send(self.frame(name))
+                self.sent += 1
+            k += 1
+            next_s += 0.02
+            self._stop.wait(max(0.0, next_s - time.monotonic()))
+
+    def __enter__(self) -> EcuSender:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+class HealthReader:
+    """Decodes and checks health frames: checksum, counter +1 mod 16 per id."""
+
+    def __init__(self) -> None:
+        self.db = cantools.database.load_file(str(HEALTH_DBC))
+        self.last_counter: dict[int, int] = {}
+        self.frames: dict[str, list[dict[str, Any]]] = {name: [] for name in HEALTH_IDS.values()}
+        self.counter_jumps = 0
+
+    def take(self, msg: can.Message) -> bool:
+        if msg.arbitration_id not in HEALTH_IDS:
+            return False
+        data = bytes(msg.data)
+        assert len(data) == 8
+        assert data[7] == frame_checksum(data), f"bad checksum on 0x{msg.arbitration_id:X}"
+        counter = data[6] & 0x0F
+        last = self.last_counter.get(msg.arbitration_id)
+        if last is not None and counter != (last + 1) % 16:
+            self.counter_jumps += 1
+        self.last_counter[msg.arbitration_id] = counter
+        name = HEALTH_IDS[msg.arbitration_id]
+        self.frames[name].append(self.db.decode_message(name, data, decode_choices=False))
+        return True
+
+
+def run_daemon_thread(daemon: Daemon) -> tuple[threading.Thread, list[int]]:
+    result: list[int] = []
+    thread = threading.Thread(target=lambda: result.append(daemon.run()), daemon=True)
+    thread.start()
+    return thread, result
+
+
+def stop_daemon(daemon: Daemon, thread: threading.Thread, result: list[int]) -> None:
+    daemon.stop()
+    thread.join(timeout=10)
+    assert not thread.is_alive(), "daemon did not stop within 10 s"
+    assert result == [0]
+
+
+def collect(bus: can.BusABC, reader: HealthReader, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        msg = bus.recv(0.05)
+        if msg is not None:
+            reader.take(msg)
+
+
+def _pipeline(tmp_path: Path, channel: str) -> Pipeline:
+    config = load_config(write_config(tmp_path, {"interface": "virtual", "channel": channel}))
+    return Pipeline(config, config.load_params())
+
+
+# --- in process: bus faults and the keep-alive handler ------------------------------------------------
+
+
+class FlakyBus(can.BusABC):
+    """A virtual bus whose send and/or receive can be made to fail (can.CanOperationError)."""
+
+    def __init__(self, channel: str, fail_send: Callable[[], bool], fail_recv: Callable[[], bool]) -> None:
+        self.inner = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.fail_send = fail_send
+        self.fail_recv = fail_recv
+        self.channel_info = f"flaky {channel}"
+        super().__init__(channel=channel)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.fail_send():
+            raise can.CanOperationError("send failed (test)")
+        self.inner.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.fail_recv():
+            time.sleep(0.01)
+            raise can.CanOperationError("receive failed (test)")
+        return self.inner.recv(timeout), False
+
+    def shutdown(self) -> None:
+        self.inner.shutdown()
+        super().shutdown()
+
+
+def test_send_failures_are_counted_not_fatal(tmp_path: Path) -> None:
+    channel = f"send-{uuid.uuid4().hex}"
+    failing = threading.Event()
+    failing.set()
+    opened: list[FlakyBus] = []
+
+    def open_bus() -> can.BusABC:
+        opened.append(FlakyBus(channel, failing.is_set, lambda: False))
+        return opened[-1]
+
+    pipeline = _pipeline(tmp_path, channel)
+    daemon = Daemon(pipeline, open_bus, settings=DaemonSettings(backoff_initial_s=0.05, backoff_max_s=0.2))
+    listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    thread, result = run_daemon_thread(daemon)
+    try:
+        time.sleep(3.0)  # ~13 health frames/s, every send raising
+        assert thread.is_alive()
+        assert daemon.counters["send_errors"] >= SEND_FAILURES_TO_REOPEN
+        assert len(opened) >= 2  # 20 failures in a row: the bus was reopened, the daemon lived on
+        assert pipeline.counters["send_errors"] == daemon.counters["send_errors"]
+        failing.clear()
+        reader = HealthReader()
+        collect(listener, reader, 2.5)
+        assert len(reader.frames["Health_Status"]) >= 15
+        diag = reader.frames["Health_Diag"]
+        assert diag and diag[-1]["BusErrors"] == min(daemon.counters["bus_errors"], 255) > 0
+    finally:
+        stop_daemon(daemon, thread, result)
+        listener.shutdown()
+
+
+def test_receive_failure_reopens_the_bus_with_backoff(tmp_path: Path) -> None:
+    channel = f"recv-{uuid.uuid4().hex}"
+    opens: list[float] = []
+
+    def open_bus() -> can.BusABC:
+        opens.append(time.monotonic())
+        if len(opens) in (2, 3):
+            raise can.CanInitializationError("device gone (test)")  # the bus comes back on the 4th open
+        started = time.monotonic()
+        first = len(opens) == 1
+        return FlakyBus(channel, lambda: False, lambda: first and time.monotonic() - started > 1.0)
+
+    pipeline = _pipeline(tmp_path, channel)
+    daemon = Daemon(pipeline, open_bus, settings=DaemonSettings(backoff_initial_s=0.2, backoff_max_s=0.4))
+    listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    sender_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    thread, result = run_daemon_thread(daemon)
+    try:
+        with EcuSender(sender_bus):
+            time.sleep(3.5)
+            assert thread.is_alive()
+            assert len(opens) == 4
+            # first retry after 0.2 s, then doubled to the 0.4 s maximum (plus up to one 0.1 s supervisor period)
+            assert opens[2] - opens[1] == pytest.approx(0.45, abs=0.1)
+            assert opens[3] - opens[2] == pytest.approx(0.45, abs=0.1)
+            assert daemon.counters["receive_errors"] == 1
+            assert daemon.counters["open_errors"] == 2
+            reader = HealthReader()
+            collect(listener, reader, 1.5)
+        status = reader.frames["Health_Status"]
+        assert len(status) >= 10
+        assert reader.frames["Health_Diag"][-1]["BusErrors"] >= 3
+        assert daemon.counters["frames_in"] > 100  # frames flow again on the reopened bus
+    finally:
+        stop_daemon(daemon, thread, result)
+        listener.shutdown()
+        sender_bus.shutdown()
+
+
+def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(tmp_path: Path) -> None:
+    channel = f"keepalive-{uuid.uuid4().hex}"
+    pipeline = _pipeline(tmp_path, channel)
+    real_feed = pipeline.feed
+    calls = {"n": 0}
+
+    def buggy_feed(msg: can.Message) -> None:
+        calls["n"] += 1
+        if calls["n"] % 10 == 0:
+            raise RuntimeError("a bug in the pipeline (test)")
+        real_feed(msg)
+
+    pipeline.feed = buggy_feed  # type: ignore[method-assign]
+    daemon = Daemon(pipeline, lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False))
+    sender_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    thread, result = run_daemon_thread(daemon)
+    try:
+        with EcuSender(sender_bus):
+            time.sleep(2.0)
+        assert thread.is_alive()
+        assert daemon.counters["daemon_errors"] == calls["n"] // 10 > 5
+        assert pipeline.snapshot().state == "NOMINAL"  # the good frames kept the estimator running
+    finally:
+        stop_daemon(daemon, thread, result)
+        sender_bus.shutdown()
+
+
+# --- separate process: sd_notify, watchdog, SIGTERM ---------------------------------------------------
+
+
+@pytest.fixture
+def notify_socket() -> Iterator[tuple[socket.socket, str]]:
+    """A unix datagram socket in the abstract namespace, as systemd binds it; yields (socket, NOTIFY_SOCKET)."""
+    name = f"@ecu-monitor-test-{uuid.uuid4().hex}"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(b"\0" + name[1:].encode())
+    sock.settimeout(0.2)
+    try:
+        yield sock, name
+    finally:
+        sock.close()
+
+
+def read_notifications(sock: socket.socket, until: Callable[[list[str]], bool], timeout_s: float) -> list[str]:
+    messages: list[str] = []
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and not until(messages):
+        try:
+            messages.append(sock.recv(4096).decode())
+        except TimeoutError:
+            continue
+    return messages
+
+
+def kill(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+def test_ready_watchdog_and_sigterm(tmp_path: Path, notify_socket: tuple[socket.socket, str]) -> None:
+    sock, name = notify_socket
+    config = write_config(tmp_path, {"interface": "virtual", "channel": "idle"})
+    env = {**os.environ, "NOTIFY_SOCKET": name, "WATCHDOG_USEC": "400000", "PYTHONUNBUFFERED": "1"}
+    env.pop("WATCHDOG_PID", None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ecu_monitor.cli", "run", "--config", str(config)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        messages = read_notifications(sock, lambda m: sum("WATCHDOG=1" in x for x in m) >= 5, timeout_s=20)
+        ready = [m for m in messages if "READY=1" in m]
+        assert ready, f"no READY=1 in {messages}"
+        assert any(line.startswith("STATUS=running") for line in ready[0].splitlines())
+        pings = [i for i, m in enumerate(messages) if m == "WATCHDOG=1"]
+        assert len(pings) >= 5 and pings[0] > messages.index(ready[0])
+        proc.send_signal(signal.SIGTERM)
+        stopping = read_notifications(sock, lambda m: any("STOPPING=1" in x for x in m), timeout_s=10)
+        assert any("STOPPING=1" in m for m in stopping)
+        _, stderr = proc.communicate(timeout=15)
+    finally:
+        kill(proc)
+    assert proc.returncode == 0, stderr
+    assert "signal SIGTERM: stopping" in stderr
+    assert "Traceback" not in stderr
+    conn = sqlite3.connect(tmp_path / "state" / DATABASE_NAME)
+    try:
+        assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert conn.execute("SELECT serial FROM engines").fetchall() == [("UAV-ENG-0001",)]
+    finally:
+        conn.close()
+
+
+def _bad_configs(tmp_path: Path) -> dict[str, tuple[Path, str]]:
+    """Config files with one mistake each -> (path, a word the one-line error must contain)."""
+    bus = {"interface": "virtual", "channel": "bad"}
+    cases: dict[str, tuple[Path, str]] = {}
+    cases["missing file"] = (tmp_path / "nope.yaml", "no such config file")
+    bad_yaml = tmp_path / "bad_yaml.yaml"
+    bad_yaml.write_text("engine: {serial: [unclosed\n")
+    cases["not yaml"] = (bad_yaml, "not valid YAML")
+    cases["unknown top key"] = (write_config(tmp_path, bus, "k.yaml", colour="red"), "colour")
+    cases["unknown interface"] = (write_config(tmp_path, {"interface": "nocan", "channel": "x"}, "i.yaml"), "nocan")
+    cases["missing channel"] = (write_config(tmp_path, {"interface": "virtual"}, "c.yaml"), "bus.channel")
+    inputs = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())["inputs"]
+    wrong_signal = {**inputs, "rpm": {"signal": "ECU_Fast.Nope", "unit": "rpm", "stale_after_s": 0.5}}
+    cases["unknown signal"] = (write_config(tmp_path, bus, "s.yaml", inputs=wrong_signal), "Nope")
+    wrong_unit = {**inputs, "oat_c": {"signal": "ECU_Slow.OAT", "unit": "furlong", "stale_after_s": 2}}
+    cases["bad unit"] = (write_config(tmp_path, bus, "u.yaml", inputs=wrong_unit), "inputs.oat_c.unit")
+    no_cht = {k: v for k, v in inputs.items() if k != "cht_c"}
+    cases["missing input"] = (write_config(tmp_path, bus, "m.yaml", inputs=no_cht), "cht_c")
+    cases["bad rate"] = (
+        write_config(tmp_path, bus, "r.yaml", health={"Health_Status": {"rate_hz": 7}}),
+        "Health_Status.rate_hz",
+    )
+    cases["missing model file"] = (write_config(tmp_path, bus, "mm.yaml", model="missing.yaml"), "model")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    cases["unusable state_dir"] = (write_config(tmp_path, bus, "sd.yaml", state_dir=str(blocker / "db")), "state_dir")
+    cases["udp bad group"] = (
+        write_config(tmp_path, {"interface": "udp_multicast", "channel": "not-an-address"}, "g.yaml"),
+        "bus",
+    )
+    return cases
+
+
+BAD_CONFIGS = (
+    "missing file",
+    "not yaml",
+    "unknown top key",
+    "unknown interface",
+    "missing channel",
+    "unknown signal",
+    "bad unit",
+    "missing input",
+    "bad rate",
+    "missing model file",
+    "unusable state_dir",
+    "udp bad group",
+)
+
+
+@pytest.mark.parametrize("label", BAD_CONFIGS)
+def test_every_config_error_exits_2_with_one_line(tmp_path: Path, label: str) -> None:
+    path, word = _bad_configs(tmp_path)[label]
+    proc = subprocess.run(
+        [sys.executable, "-m", "ecu_monitor.cli", "run", "--config", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=25,
+    )
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("ecu-monitor: error: ")
+    assert word in lines[0]
