@@ -150,7 +150,7 @@ def unit_conversion(unit: str, quantity: str | None = None) -> Unit:
     conv = UNITS[unit]
     if quantity is not None and conv.quantity != quantity:
         fitting = ", ".join(name for name, u in UNITS.items() if u.quantity == quantity)
-        raise ValueError(f"unit {unit!r} is a {conv.quantity}, expected one of: {fitting}")
+        raise ValueError(f"unit {unit!r} is not a {quantity} unit (expected one of: {fitting})")
     return conv
 
 

@@ -1,0 +1,229 @@
+"""bus/codec.py: decode/encode round trips, golden frames, every malformed reason counted, batch == live."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cantools
+import numpy as np
+import pytest
+
+from ecu_monitor.bus.checksum import frame_checksum
+from ecu_monitor.bus.codec import (
+    GASOLINE_DENSITY_KG_PER_L,
+    MALFORMED_REASONS,
+    Decoder,
+    Encoder,
+    SignalSpec,
+    unit_conversion,
+)
+from ecu_monitor.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+ENGINE_DBC = ROOT / "dbc" / "engine.dbc"
+HEALTH_DBC = ROOT / "dbc" / "health.dbc"
+RUSEFI_DBC = ROOT / "dbc" / "third_party" / "rusEFI_CAN_verbose.dbc"
+
+SPECS = [
+    SignalSpec("rpm", "ECU_Fast", "EngineSpeed", "rpm"),
+    SignalSpec("throttle_pct", "ECU_Fast", "ThrottlePos", "pct"),
+    SignalSpec("cht_c", "ECU_Slow", "CHT", "degC"),
+    SignalSpec("oat_c", "ECU_Slow", "OAT", "degC"),
+    SignalSpec("status", "ECU_Slow", "EcuStatus", "raw"),
+    SignalSpec("altitude_m", "AirData", "PressureAltitude", "m"),
+    SignalSpec("airspeed_mps", "AirData", "CalibratedAirspeed", "mps"),
+]
+
+
+def _decoder() -> Decoder:
+    return Decoder([ENGINE_DBC], SPECS)
+
+
+def _named(decoder: Decoder, result: list[tuple[int, float]] | None) -> dict[str, float]:
+    assert result is not None
+    return {decoder.names[i]: v for i, v in result}
+
+
+def _fast(counter: int, rpm: float = 5200.25, throttle: float = 63.5) -> bytes:
+    return Encoder([ENGINE_DBC]).encode("ECU_Fast", {"EngineSpeed": rpm, "ThrottlePos": throttle, "FuelFlow": 21.37},
+                                        counter)  # fmt: skip
+
+
+def test_golden_frames_of_docs_dbc_md_decode() -> None:
+    dec = _decoder()
+    fast = _named(dec, dec.decode(0x100, False, bytes.fromhex("4151ce18590809cc"), 0.0))
+    assert fast == {"rpm": 5200.25, "throttle_pct": pytest.approx(63.5)}
+    slow = _named(dec, dec.decode(0x101, False, bytes.fromhex("de0885ff01000fa9"), 0.1))
+    assert slow["cht_c"] == pytest.approx(187.0) and slow["oat_c"] == pytest.approx(-12.3) and slow["status"] == 1
+    assert dec.counters["ok"] == 2 and dec.counters["malformed"] == 0
+
+
+def test_encoder_reproduces_golden_frame_and_round_trips() -> None:
+    enc = Encoder([ENGINE_DBC])
+    assert _fast(9).hex() == "4151ce18590809cc"
+    data = enc.encode("AirData", {"PressureAltitude": 812.5, "CalibratedAirspeed": 23.45, "VerticalSpeed": -1.5}, 20)
+    assert data[6] == 20 % 16 and data[7] == frame_checksum(data)
+    dec = _decoder()
+    values = _named(dec, dec.decode(0x200, False, data, 0.0))
+    assert values["altitude_m"] == 812.5 and values["airspeed_mps"] == pytest.approx(23.45)
+
+
+def test_encoder_clamps_to_dbc_range_and_refuses_nan() -> None:
+    enc = Encoder([HEALTH_DBC])
+    data = enc.encode("Health_Status", {"ChtEstimate": 999.0, "ModelDeviation": -99.0, "DegradationState": 2}, 3)
+    db: Any = cantools.database.load_file(str(HEALTH_DBC))
+    decoded = db.decode_message(0x300, data)
+    assert decoded["ChtEstimate"] == pytest.approx(400.0) and decoded["ModelDeviation"] == pytest.approx(-32.768)
+    with pytest.raises(ValueError, match="NaN"):
+        enc.encode("Health_Status", {"ChtEstimate": math.nan, "ModelDeviation": 0.0, "DegradationState": 0}, 0)
+
+
+def test_every_malformed_reason_is_counted_and_dropped() -> None:
+    dec = _decoder()
+    assert dec.decode(0x100, False, _fast(0), 0.00) is not None
+    assert dec.decode(0x7FF, False, bytes(8), 0.01) is None  # unknown id
+    assert dec.decode(0x100, False, _fast(1)[:7], 0.02) is None  # bad DLC
+    corrupt = bytearray(_fast(1))
+    corrupt[0] ^= 0x01
+    assert dec.decode(0x100, False, bytes(corrupt), 0.03) is None  # bad checksum
+    assert dec.decode(0x100, False, _fast(7), 0.04) is None  # counter jumped 0 -> 7
+    assert dec.decode(0x100, False, _fast(8), 0.05) is not None  # back in step after the jump
+    assert dec.decode(0x100, False, _fast(8), 0.06) is None  # frozen counter
+    assert dec.decode(0x100, False, _fast(10), 0.07) is not None  # one lost frame is tolerated
+    raw = bytearray(_fast(11))
+    raw[2:4] = (10001).to_bytes(2, "little")  # throttle 100.01 % > DBC max 100
+    raw[7] = frame_checksum(raw)
+    assert dec.decode(0x100, False, bytes(raw), 0.08) is None
+    c = dec.counters
+    assert (c["unknown_id"], c["bad_dlc"], c["bad_checksum"], c["bad_counter"], c["out_of_range"]) == (1, 1, 1, 2, 1)
+    assert c["malformed"] == sum(c[r] for r in MALFORMED_REASONS) == 5
+    assert c["ok"] == 3 and c["frames"] == 9
+
+
+def test_counter_resynchronises_after_a_silence() -> None:
+    dec = _decoder()
+    assert dec.decode(0x100, False, _fast(3), 0.0) is not None
+    assert dec.decode(0x100, False, _fast(9), 0.5) is None  # jump within the window
+    assert dec.decode(0x100, False, _fast(2), 2.0) is not None  # after > 1 s of silence any counter is taken
+
+
+def test_not_finite_float_signal_is_malformed(tmp_path: Path) -> None:
+    dbc = tmp_path / "float.dbc"
+    dbc.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: A\n\n'
+        'BO_ 16 F: 8 A\n SG_ Temp : 0|32@1- (1,0) [-100|400] "degC" A\n SIG_VALTYPE_ 16 Temp : 1;\n',
+        encoding="utf-8",
+    )
+    dec = Decoder([dbc], [SignalSpec("cht_c", "F", "Temp", "degC")])
+    nan = np.array([math.nan], dtype="<f4").tobytes() + bytes(4)
+    ok = np.array([123.5], dtype="<f4").tobytes() + bytes(4)
+    assert dec.decode(16, False, nan, 0.0) is None and dec.counters["not_finite"] == 1
+    assert _named(dec, dec.decode(16, False, ok, 0.1)) == {"cht_c": 123.5}
+    batch = dec.decode_batch(np.array([16, 16]), np.zeros(2, bool), np.array([8, 8]),
+                             np.frombuffer(nan + ok, np.uint8).reshape(2, 8), np.array([0.0, 0.1]))  # fmt: skip
+    assert batch.counts["not_finite"] == 1 and batch.values["cht_c"][1].tolist() == [123.5]
+
+
+def test_units_convert_once_rusefi_fuel_flow_in_grams_per_second() -> None:
+    dec = Decoder([RUSEFI_DBC], [SignalSpec("fuel_flow_lph", "BASE6", "FuelFlow", "g_per_s_gasoline")])
+    db: Any = cantools.database.load_file(str(RUSEFI_DBC))
+    data = db.encode_message("BASE6", {"FuelUsed": 0, "FuelFlow": 1.0, "FuelTrim1": 0, "FuelTrim2": 0})
+    (value,) = _named(dec, dec.decode(518, False, data, 0.0)).values()
+    assert value == pytest.approx(3.6 / GASOLINE_DENSITY_KG_PER_L)  # 1 g/s = 3.6 kg/h = 4.86 L/h
+    assert unit_conversion("degF").scale * 212 + unit_conversion("degF").offset == pytest.approx(100.0)
+    with pytest.raises(ValueError, match="temperature"):
+        unit_conversion("rpm", "temperature")
+
+
+def test_two_used_messages_on_one_id_is_a_config_error() -> None:
+    specs = [SignalSpec("x", "BASE0", "WarningCounter"), SignalSpec("altitude_m", "AirData", "PressureAltitude", "m")]
+    with pytest.raises(ConfigError, match="share frame id 0x200"):
+        Decoder([RUSEFI_DBC, ENGINE_DBC], specs)
+    with pytest.raises(ConfigError, match="no message 'Nope'"):
+        Decoder([ENGINE_DBC], [SignalSpec("x", "Nope", "Y")])
+
+
+def _random_frames(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+    """A mix of good frames and every kind of bad one, in time order."""
+    enc = Encoder([ENGINE_DBC])
+    ids, dlcs, rows, times = [], [], [], []
+    counters = {0x100: 0, 0x101: 0, 0x200: 0}
+    t = 0.0
+    for _ in range(n):
+        t += float(rng.uniform(0.0, 0.05)) if rng.random() > 0.01 else 1.5
+        kind = rng.integers(0, 10)
+        fid = int(rng.choice([0x100, 0x101, 0x200, 0x123]))
+        if fid == 0x100:
+            values = {"EngineSpeed": rng.uniform(0, 9000), "ThrottlePos": rng.uniform(0, 100), "FuelFlow": 3.0}
+            data = bytearray(enc.encode("ECU_Fast", values, counters[fid]))
+        elif fid == 0x101:
+            values = {"CHT": rng.uniform(-40, 400), "OAT": rng.uniform(-60, 80), "EcuStatus": int(rng.integers(0, 4))}
+            data = bytearray(enc.encode("ECU_Slow", values, counters[fid]))
+        elif fid == 0x200:
+            values = {"PressureAltitude": rng.uniform(-500, 5000), "CalibratedAirspeed": rng.uniform(0, 60),
+                      "VerticalSpeed": 0.0}  # fmt: skip
+            data = bytearray(enc.encode("AirData", values, counters[fid]))
+        else:
+            data = bytearray(rng.integers(0, 256, 8, dtype=np.uint8).tobytes())
+        if fid in counters:
+            counters[fid] += 1 if kind != 1 else int(rng.integers(3, 14))
+        dlc = 8
+        if kind == 2:
+            dlc = int(rng.integers(0, 8))
+        elif kind == 3:
+            data[int(rng.integers(0, 7))] ^= 0x10
+        elif kind == 4:  # out of range with a valid checksum
+            data[0:2] = b"\xff\xff"
+            data[7] = frame_checksum(data)
+        ids.append(fid)
+        dlcs.append(dlc)
+        rows.append(bytes(data[:dlc]).ljust(8, b"\0"))
+        times.append(t)
+    payload = np.frombuffer(b"".join(rows), dtype=np.uint8).reshape(n, 8)
+    return np.array(ids), np.zeros(n, bool), np.array(dlcs), payload, np.array(times)
+
+
+def test_batch_decode_equals_frame_by_frame() -> None:
+    rng = np.random.default_rng(7)
+    ids, ext, dlc, data, times = _random_frames(rng, 3000)
+    live = _decoder()
+    per_frame: dict[str, list[tuple[int, float]]] = {name: [] for name in live.names}
+    for i in range(ids.size):
+        result = live.decode(int(ids[i]), False, data[i, : dlc[i]].tobytes(), float(times[i]))
+        for slot, value in result or []:
+            per_frame[live.names[slot]].append((i, value))
+    batch = _decoder().decode_batch(ids, ext, dlc, data, times)
+    for name in live.names:
+        rows, values = batch.values[name]
+        assert rows.tolist() == [i for i, _ in per_frame[name]]
+        assert values.tolist() == [v for _, v in per_frame[name]]  # the same float arithmetic: exactly equal
+    for key in ("ok", "unknown_id", "malformed", *MALFORMED_REASONS):
+        assert batch.counts[key] == live.counters[key], key
+    assert live.counters["malformed"] > 300 and all(live.counters[r] for r in MALFORMED_REASONS if r != "decode_error"
+                                                    and r != "not_finite")  # fmt: skip
+
+
+def test_batch_bit_extraction_matches_cantools_for_big_endian_and_signed(tmp_path: Path) -> None:
+    dbc = tmp_path / "mixed.dbc"
+    dbc.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: A\n\nBO_ 32 M: 8 A\n'
+        ' SG_ Be16 : 7|16@0+ (0.5,-10) [-10|32757] "" A\n'
+        ' SG_ BeS12 : 27|12@0- (1,0) [-2048|2047] "" A\n'
+        ' SG_ LeS7 : 41|7@1- (2,1) [-127|127] "" A\n'
+        ' SG_ Le3 : 61|3@1+ (1,0) [0|7] "" A\n',
+        encoding="utf-8",
+    )
+    names = ("Be16", "BeS12", "LeS7", "Le3")
+    dec = Decoder([dbc], [SignalSpec(n, "M", n) for n in names])
+    rng = np.random.default_rng(3)
+    data = rng.integers(0, 256, (500, 8), dtype=np.uint8)
+    batch = dec.decode_batch(np.full(500, 32), np.zeros(500, bool), np.full(500, 8), data, np.arange(500.0))
+    db: Any = cantools.database.load_file(str(dbc))
+    message = db.get_message_by_name("M")
+    expected: list[Any] = [message.decode(row.tobytes(), decode_choices=False) for row in data]
+    for name in names:
+        rows, values = batch.values[name]
+        assert rows.size == 500
+        assert np.allclose(values, [e[name] for e in expected[: rows.size]], rtol=0, atol=1e-9)

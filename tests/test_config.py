@@ -1,0 +1,172 @@
+"""service/config.py: the shipped configs load; every error path is a ConfigError naming file and key."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.service.config import load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "configs" / "example.yaml"
+RUSEFI = ROOT / "configs" / "rusefi.yaml"
+
+
+def _base() -> dict[str, Any]:
+    data = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
+    data["dbc"] = [str(ROOT / "dbc" / "engine.dbc")]
+    data["health_dbc"] = str(ROOT / "dbc" / "health.dbc")
+    return data
+
+
+def test_example_config_loads_with_every_input_and_default_rates() -> None:
+    config = load_config(EXAMPLE)
+    assert config.engine_serial == "UAV-ENG-0001"
+    assert set(config.input_names) == {"rpm", "throttle_pct", "fuel_flow_lph", "cht_c", "oat_c", "altitude_m",
+                                       "airspeed_mps"}  # fmt: skip
+    assert config.input("rpm").message == "ECU_Fast" and config.input("rpm").stale_after_s == 0.5
+    assert {h.message: h.rate_hz for h in config.health} == {"Health_Status": 10, "Health_Isolation": 2,
+                                                             "Health_Diag": 1}  # fmt: skip
+    assert config.dbc_paths == (ROOT / "configs" / ".." / "dbc" / "engine.dbc",)
+    assert config.estimator_name == "cbekf-au" and config.estimator.dt_s == 0.02
+    assert config.sensor_fault.open_values == (3,) and config.sensor_fault.status_signal == "EcuStatus"
+    assert config.bus["interface"] == "virtual" and config.load_params().heat_axes == ("throttle_pct", "rpm")
+
+
+def test_rusefi_config_maps_a_third_party_dbc() -> None:
+    config = load_config(RUSEFI)
+    assert config.input("cht_c").signal == "AUX1Temp" and config.input("fuel_flow_lph").unit == "g_per_s_gasoline"
+    assert config.input("altitude_m").message == "AirData"
+
+
+def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
+    keys = path.split(".")
+
+    def edit(data: dict[str, Any]) -> None:
+        node = data
+        for key in keys[:-1]:
+            node = node[key]
+        node[keys[-1]] = value
+
+    return edit
+
+
+def _drop(path: str) -> Callable[[dict[str, Any]], None]:
+    keys = path.split(".")
+
+    def edit(data: dict[str, Any]) -> None:
+        node = data
+        for key in keys[:-1]:
+            node = node[key]
+        del node[keys[-1]]
+
+    return edit
+
+
+ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
+    ("missing key", _drop("engine.serial"), "engine.serial: missing"),
+    ("missing section", _drop("inputs"), "inputs: missing"),
+    ("missing required input", _drop("inputs.oat_c"), "inputs.oat_c: missing"),
+    ("unknown top key", _set("colour", "red"), "unknown key 'colour'"),
+    (
+        "unknown input",
+        _set("inputs.egt_c", {"signal": "ECU_Slow.CHT", "unit": "degC", "stale_after_s": 1}),
+        "unknown key 'egt_c'",
+    ),
+    ("wrong type", _set("inputs.rpm.stale_after_s", "fast"), "inputs.rpm.stale_after_s: expected a number"),
+    ("not positive", _set("inputs.rpm.stale_after_s", 0), "inputs.rpm.stale_after_s: expected a number > 0"),
+    ("wrong type bool", _set("stale_predict_limit_s", True), "stale_predict_limit_s: expected a number"),
+    ("section not a mapping", _set("bus", ["virtual"]), "bus: expected a mapping"),
+    (
+        "unknown signal",
+        _set("inputs.rpm.signal", "ECU_Fast.Nope"),
+        "inputs.rpm.signal: message 'ECU_Fast' has no signal 'Nope'",
+    ),
+    (
+        "unknown message",
+        _set("inputs.rpm.signal", "ECU_Turbo.EngineSpeed"),
+        "inputs.rpm.signal: no message 'ECU_Turbo'",
+    ),
+    ("bad signal ref", _set("inputs.rpm.signal", "EngineSpeed"), "inputs.rpm.signal: expected 'Message.Signal'"),
+    ("unknown unit", _set("inputs.rpm.unit", "rps"), "inputs.rpm.unit: unknown unit 'rps'"),
+    ("unit of wrong quantity", _set("inputs.cht_c.unit", "rpm"), "inputs.cht_c.unit: unit 'rpm' is not a temperature"),
+    ("missing dbc file", _set("dbc", ["/nonexistent/engine.dbc"]), "dbc[0]: /nonexistent/engine.dbc: no such DBC file"),
+    ("empty dbc list", _set("dbc", []), "dbc: expected a DBC file path or a non-empty list"),
+    (
+        "bad health message",
+        _set("health.Health_Extra", {"rate_hz": 1}),
+        "health.Health_Extra: unknown key 'Health_Extra'",
+    ),
+    ("rate off the step", _set("health.Health_Isolation.rate_hz", 3), "health.Health_Isolation.rate_hz: period"),
+    ("estimator name", _set("estimator.name", "kalman9000"), "estimator.name: unknown estimator 'kalman9000'"),
+    ("estimator field", _set("estimator.gain", 3), "estimator.gain: unknown key 'gain'"),
+    ("estimator value", _set("estimator.dt_s", -1), "estimator.dt_s: expected a positive number"),
+    ("model file", _set("model", "missing-model.yaml"), "model: no such model file"),
+    ("backoff", _set("reopen_backoff_s.max", 0.1), "reopen_backoff_s.max: expected a number >= 0.5"),
+    ("status without values", _drop("sensor_fault.open_values"), "sensor_fault.open_values: missing"),
+    ("sensor range", _set("sensor_fault.max_c", -50), "sensor_fault.max_c: expected a number > -40"),
+    ("status signal", _set("sensor_fault.status_signal", "ECU_Slow.Status"), "sensor_fault.status_signal: message"),
+]
+
+
+@pytest.mark.parametrize(("case", "edit", "expected"), ERRORS, ids=[e[0] for e in ERRORS])
+def test_every_error_names_file_and_key(tmp_path: Path, case: str, edit: Callable[..., None], expected: str) -> None:
+    data = copy.deepcopy(_base())
+    edit(data)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: "), message
+    assert expected in message, message
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (None, "no such config file"),
+        (b"engine: {serial: [unclosed\n", "not valid YAML at line"),
+        (b"- just\n- a list\n", "top level: expected a mapping, got a list"),
+        (b"\xff\xfe\x00garbage", "cannot read config file (not UTF-8 text)"),
+        (b"", "top level: expected a mapping, got nothing"),
+    ],
+    ids=["missing", "bad-yaml", "list", "binary", "empty"],
+)
+def test_bad_files(tmp_path: Path, content: bytes | None, expected: str) -> None:
+    path = tmp_path / "bad.yaml"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value).startswith(str(path)) and expected in str(info.value)
+
+
+def test_relative_paths_resolve_against_the_config_file(tmp_path: Path) -> None:
+    data = _base()
+    (tmp_path / "dbc").mkdir()
+    (tmp_path / "dbc" / "mine.dbc").write_bytes((ROOT / "dbc" / "engine.dbc").read_bytes())
+    data["dbc"] = "dbc/mine.dbc"
+    data["state_dir"] = "state"
+    path = tmp_path / "svc.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    config = load_config(path)
+    assert config.dbc_paths == (tmp_path / "dbc" / "mine.dbc",) and config.state_dir == tmp_path / "state"
+
+
+def test_broken_model_file_names_config_and_key(tmp_path: Path) -> None:
+    (tmp_path / "model.yaml").write_text("c_w: -3\n", encoding="utf-8")
+    data = _base()
+    data["model"] = "model.yaml"
+    path = tmp_path / "svc.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    config = load_config(path)
+    with pytest.raises(ConfigError, match=r"svc\.yaml: model: .*model\.yaml: c_w"):
+        config.load_params()
