@@ -29,6 +29,8 @@ from virtual_bus.missions import (
     Cruise,
     GroundRun,
     Mission,
+    StepClimb,
+    Variation,
     list_missions,
     load_mission,
     mission_from_dict,
@@ -202,6 +204,30 @@ def test_step_climb_keeps_cht_below_the_limit_and_a_plain_climb_does_not():
     )
     log = fly(Mission(mission.name, plain, atmosphere=mission.atmosphere), max_duration_s=1500.0)
     assert log["cht_true_c"].max() > params.cht_limit_c
+
+
+def test_a_step_climb_that_cannot_cool_is_abandoned_and_the_mission_ends(caplog: pytest.LogCaptureFixture):
+    hot = Mission(
+        "hot",
+        (
+            GroundRun(duration_s=10.0),
+            Climb(target_altitude_m=300.0, step_climb=StepClimb(cht_margin_c=40.0, level_throttle_pct=90.0)),
+            Cruise(duration_s=60.0),
+        ),
+    )
+    log = fly(hot, record_dt_s=1.0)
+    assert "abandoned" in caplog.text
+    assert log.duration_s < 10.0 + 4.0 * 100.0 + 1800.0 + 120.0
+    assert log["altitude_m"].max() < 290.0  # never got there: levelled off the whole time
+
+
+def test_variations_apply_in_a_first_segment_cruise():
+    sine = Mission(
+        "sine",
+        (Cruise(duration_s=200.0, throttle_pct=50.0, throttle_variation=Variation("sine", 10.0, 100.0)),),
+    )
+    throttle = fly(sine, record_dt_s=1.0)["throttle_pct"]
+    assert throttle[30:].max() > 57.0 and throttle[30:].min() < 43.0
 
 
 def _held_cruise(duration_s: float) -> Mission:

@@ -16,6 +16,7 @@ step-climb decision uses the *measured* CHT, as an autopilot would.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -28,6 +29,10 @@ from virtual_bus.missions import Climb, Cruise, Descent, GroundRun, Landing, Mis
 __all__ = [
     "AIRSPEED_TAU_S",
     "ALTITUDE_GAIN_PER_S",
+    "ARRIVAL_TOLERANCE_M",
+    "CLIMB_THROTTLE_PER_MPS",
+    "CLIMB_TIMEOUT_EXTRA_S",
+    "CLIMB_TIMEOUT_FACTOR",
     "CONTROL_PERIOD_S",
     "THROTTLE_TAU_S",
     "VSPEED_TAU_S",
@@ -40,6 +45,8 @@ __all__ = [
     "propeller_rpm",
 ]
 
+_log = logging.getLogger(__name__)
+
 #: The pilot decides once per control period, s.
 CONTROL_PERIOD_S = 1.0
 THROTTLE_TAU_S = 1.0
@@ -51,6 +58,10 @@ ALTITUDE_GAIN_PER_S = 0.1
 CLIMB_THROTTLE_PER_MPS = 8.0
 #: Altitude within which a climb or descent counts as arrived, m.
 ARRIVAL_TOLERANCE_M = 2.0
+#: A climb (step-climb plateaus included) is abandoned, with a warning, after
+#: CLIMB_TIMEOUT_FACTOR x its nominal duration + CLIMB_TIMEOUT_EXTRA_S: a mission always ends.
+CLIMB_TIMEOUT_FACTOR = 4.0
+CLIMB_TIMEOUT_EXTRA_S = 1800.0
 
 
 def propeller_rpm(throttle_pct: np.ndarray | float, airspeed_mps: np.ndarray | float) -> np.ndarray:
@@ -199,6 +210,7 @@ class Pilot:
         self._touchdown_s: float | None = None
         self._throttle_var = _VariationState(None, rng)
         self._speed_var = _VariationState(None, rng)
+        self._enter(0, AircraftState(time_s=0.0, altitude_m=mission.field_elevation_m))
 
     @property
     def segment(self) -> Segment | None:
@@ -259,6 +271,15 @@ class Pilot:
 
     def _climb(self, seg: Climb, state: AircraftState, cht_c: float) -> Command | None:
         if abs(state.altitude_m - seg.target_altitude_m) <= ARRIVAL_TOLERANCE_M:
+            return None
+        nominal_s = abs(seg.target_altitude_m - self._entry_altitude_m) / seg.climb_rate_mps
+        if state.time_s - self.segment_start_s > CLIMB_TIMEOUT_FACTOR * nominal_s + CLIMB_TIMEOUT_EXTRA_S:
+            _log.warning(
+                "climb to %.0f m abandoned at %.0f m after %.0f s (the step-climb could not cool the engine)",
+                seg.target_altitude_m,
+                state.altitude_m,
+                state.time_s - self.segment_start_s,
+            )
             return None
         step = seg.step_climb
         if step is not None:
