@@ -23,12 +23,14 @@ import yaml
 from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec, load_dbc, unit_conversion
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
+from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
 
 __all__ = [
     "HEALTH_MESSAGES",
     "MODEL_PRESETS",
     "REQUIRED_INPUTS",
+    "SYMPTOMS",
     "Backoff",
     "HealthRate",
     "InputSpec",
@@ -44,6 +46,9 @@ REQUIRED_INPUTS: tuple[str, ...] = ("cht_c", "oat_c", "altitude_m", "airspeed_mp
 HEALTH_MESSAGES: Mapping[str, float] = MappingProxyType(
     {"Health_Status": 10.0, "Health_Isolation": 2.0, "Health_Diag": 1.0}
 )
+#: Model-deviation symptoms the detector may watch: the configured estimator's (the paper's Delta_k / dt)
+#: or the isolation filter's f(T, gamma_Q, gamma_D) - f(T, 1, 1); both degC/s.
+SYMPTOMS: tuple[str, ...] = ("estimator", "isolation")
 #: Built-in model presets accepted by ``model:`` instead of a file.
 MODEL_PRESETS = MappingProxyType({"paper_table_a1": paper_table_a1})
 
@@ -129,7 +134,8 @@ class ServiceConfig:
     model: str
     estimator_name: str
     estimator: EstimatorSettings
-    detector: Mapping[str, Any]
+    detector: DetectorSettings
+    detector_symptom: str
     stale_predict_limit_s: float
     state_dir: Path
     sensor_fault: SensorFaultSettings = field(default_factory=SensorFaultSettings)
@@ -299,10 +305,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
             raise top.error(f"no such model file {model_path} (or a preset: {', '.join(MODEL_PRESETS)})", "model")
         model = str(model_path)
 
-    detector = top.child("detector", None, {})
-    for key in detector.data:
-        if not isinstance(key, str):
-            raise detector.error(f"keys must be strings, got {key!r}")
+    detector, symptom = _detector(top)
 
     return ServiceConfig(
         source=source,
@@ -316,7 +319,8 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         model=model,
         estimator_name=estimator_name,
         estimator=estimator,
-        detector=MappingProxyType(dict(detector.data)),
+        detector=detector,
+        detector_symptom=symptom,
         stale_predict_limit_s=top.number("stale_predict_limit_s", 30.0, low=0.0),
         state_dir=top.path_value("state_dir", "/var/lib/ecu-monitor"),
         sensor_fault=sensor,
@@ -419,6 +423,25 @@ def _estimator(top: _Node) -> tuple[str, EstimatorSettings]:
     except ConfigError as exc:
         raise ConfigError(f"{top.src}: {exc}") from None
     return name, settings
+
+
+def _detector(top: _Node) -> tuple[DetectorSettings, str]:
+    node = top.child("detector", None, {})
+    symptom = node.raw("symptom", "estimator")
+    if symptom not in SYMPTOMS:
+        raise node.error(f"expected one of {', '.join(SYMPTOMS)}, got {_kind(symptom)}", "symptom")
+    known = {f.name for f in dataclasses.fields(DetectorSettings)}
+    kwargs = {}
+    for key, value in node.data.items():
+        if key == "symptom":
+            continue
+        if key not in known:
+            raise node.error(f"unknown key '{key}' (known: symptom, {', '.join(sorted(known))})", key)
+        kwargs[key] = value
+    try:
+        return DetectorSettings(**kwargs), symptom
+    except ConfigError as exc:
+        raise ConfigError(f"{top.src}: {exc}") from None
 
 
 def _sensor_fault(node: _Node, databases: list[tuple[Path, Any]]) -> SensorFaultSettings:

@@ -25,7 +25,11 @@ compiles the very same code with numba):
 * otherwise the detector's verdict on the model-deviation symptom (NOMINAL / SUSPECT / DEGRADED).
 
 The estimator is ``make_estimator(config.estimator_name)``; gamma_Q and gamma_D come from the
-isolation filter run beside it.
+isolation filter run beside it; the detector (:class:`~ecu_monitor.estimation.detection.Detector`, a
+CUSUM) watches the configured symptom from the first initialisation on, fed NaN (skipped) on steps
+that are not NOMINAL-able, so its blocks stay on the clock; its DEGRADED verdict latches. The thermal
+headroom (:func:`~ecu_monitor.estimation.headroom.thermal_headroom`, heat path taken in steady state
+at the held inputs) is computed every Health_Isolation period and held in between.
 """
 
 from __future__ import annotations
@@ -39,8 +43,10 @@ import can
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import CHTEstimator, make_estimator
+from ecu_monitor.estimation.detection import Detector
+from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
-from ecu_monitor.model import InputSeries, ThermalParams
+from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.service.config import ServiceConfig
 
 __all__ = [
@@ -72,8 +78,8 @@ STATUS_INPUT = "cht_sensor_status"
 MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 #: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
 MAX_CLOCK_GAP_S = 600.0
-#: ThermalHeadroom meaning "not limited" (health.dbc).
-HEADROOM_NOT_LIMITED_S = 6000.0
+#: ThermalHeadroom meaning "not limited" (health.dbc; the headroom module's cap).
+HEADROOM_NOT_LIMITED_S = DEFAULT_CAP_S
 
 
 @dataclass(frozen=True)
@@ -216,6 +222,11 @@ class Pipeline:
         self._estimator: CHTEstimator | None = None
         self._reference: CHTEstimator | None = None
         self._isolation: IsolationFilter | None = None
+        self._coeffs = coefficients(params)
+        self._detector = Detector(config.detector)
+        self._detector_started = False
+        self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
+        self._headroom_s = math.nan
         self._snapshot = self._empty_snapshot(math.nan)
 
     # ------------------------------------------------------------------ public API
@@ -305,8 +316,12 @@ class Pipeline:
         return False
 
     def _stop_estimation(self) -> None:
+        """After a clock restart: estimation and detection start afresh."""
         self._sv = initial_supervisor()
         self._estimator = self._reference = self._isolation = None
+        self._detector = Detector(self.config.detector)
+        self._detector_started = False
+        self._headroom_s = math.nan
 
     def _step(self, time_s: float, frames: list[can.Message]) -> None:
         self.counters["steps"] += 1
@@ -335,7 +350,7 @@ class Pipeline:
             sf.stuck_after_s,
             sf.stuck_change_c,
         )
-        est_c = deviation = gamma_q = gamma_d = math.nan
+        est_c = deviation = gamma_q = gamma_d = iso_deviation = math.nan
         if action == ACTION_NONE:
             self._estimator = self._reference = self._isolation = None
         elif action == ACTION_INITIALISE:
@@ -344,16 +359,29 @@ class Pipeline:
             self._isolation = IsolationFilter(self.params, IsolationSettings(dt_s=self._dt))
             for filt in (self._estimator, self._reference, self._isolation):
                 filt.initialise(time_s, u, reading)
-            est_c, deviation = reading, 0.0
+            est_c, deviation, iso_deviation = reading, 0.0, 0.0
             gamma_q, gamma_d = self._isolation.gamma_q, self._isolation.gamma_d
+            self._headroom_s = math.nan
+            self._detector_started = True
         elif self._estimator is not None and self._isolation is not None:
             z = reading if action == ACTION_UPDATE else None
             estimate = self._estimator.estimate(time_s, u, z)
-            self._isolation.estimate(time_s, u, z)
+            iso_deviation = self._isolation.estimate(time_s, u, z).deviation
             est_c, deviation = estimate.cht_c, estimate.deviation
             gamma_q, gamma_d = self._isolation.gamma_q, self._isolation.gamma_d
-        state = code  # detector verdict replaces NOMINAL below (ecu_monitor.estimation.detection)
-        headroom = math.nan if math.isnan(est_c) else HEADROOM_NOT_LIMITED_S
+        state = code
+        if self._detector_started:
+            symptom = deviation if cfg.detector_symptom == "estimator" else iso_deviation
+            verdict = self._detector.update(time_s, symptom if code == _NOMINAL else math.nan)
+            if code == _NOMINAL:
+                state = STATES.index(verdict.state)
+        if action == ACTION_NONE:
+            self._headroom_s = math.nan
+        elif self._k % self._headroom_period == 0:
+            self._headroom_s = thermal_headroom(
+                est_c, None, u, self.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=self._coeffs
+            ).time_to_limit_s
+        headroom = self._headroom_s
         snap = HealthSnapshot(
             time_s=time_s,
             cht_meas_c=reading,

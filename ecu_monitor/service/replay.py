@@ -36,9 +36,10 @@ from numpy.typing import NDArray
 from ecu_monitor.bus.codec import INPUT_NAMES, Encoder, unit_conversion
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation import run_estimator
+from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.flightlog import FlightLog, load_flight
-from ecu_monitor.model import ThermalParams
+from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
 from ecu_monitor.service import pipeline as _pipeline
 from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.pipeline import (
@@ -59,6 +60,7 @@ __all__ = [
     "FrameArrays",
     "ReplayResult",
     "frames_from_flight",
+    "headroom_batch",
     "read_frames",
     "replay_file",
     "replay_frames",
@@ -370,6 +372,7 @@ def _replay_segment(
     deviation = np.full(n, np.nan)
     gamma_q = np.full(n, np.nan)
     gamma_d = np.full(n, np.nan)
+    iso_dev = np.full(n, np.nan)
     for a, b in stretches:
         z = np.where(action[a:b] == ACTION_UPDATE, reading[a:b], np.nan)
         z[0] = reading[a]
@@ -380,28 +383,168 @@ def _replay_segment(
         iso = run_isolation(log, params, IsolationSettings(dt_s=dt))
         gamma_q[a:b] = iso.gamma_q
         gamma_d[a:b] = iso.gamma_d
-    period = round(1.0 / (next(h.rate_hz for h in config.health if h.message == "Health_Status") * dt))
+        iso_dev[a:b] = iso.deviation
+    periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     step_numbers = np.arange(1, n + 1)
+    symptom = deviation if config.detector_symptom == "estimator" else iso_dev
+    state = _detect(config, times, code, symptom, stretches)
+    headroom = _headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
+                         periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
+    fault = STATES.index("SENSOR_FAULT")
     out: list[HealthSnapshot] = []
-    for i in np.flatnonzero(step_numbers % period == 0):
-        stale_names = tuple(name for name in mapped if stale[name][i])
-        est_i = float(est[i])
+    for i in np.flatnonzero(step_numbers % periods["Health_Status"] == 0).tolist():
         out.append(
             HealthSnapshot(
                 time_s=float(times[i]),
                 cht_meas_c=float(reading[i]),
-                cht_est_c=est_i,
+                cht_est_c=float(est[i]),
                 deviation=float(deviation[i]),
-                state=STATES[int(code[i])],
+                state=STATES[int(state[i])],
                 gamma_q=float(gamma_q[i]),
                 gamma_d=float(gamma_d[i]),
-                headroom_s=math.nan if math.isnan(est_i) else HEADROOM_NOT_LIMITED_S,
-                stale_inputs=stale_names,
-                sensor_fault=int(code[i]) == STATES.index("SENSOR_FAULT"),
+                headroom_s=float(headroom[i]),
+                stale_inputs=tuple(name for name in mapped if stale[name][i]),
+                sensor_fault=int(code[i]) == fault,
             )
         )
-    del probe
     return out, n
+
+
+def _detect(
+    config: ServiceConfig,
+    times: NDArray[np.float64],
+    code: NDArray[np.int64],
+    symptom: NDArray[np.float64],
+    stretches: list[tuple[int, int]],
+) -> NDArray[np.int64]:
+    """Final state codes: the detector's verdict where the supervisor says NOMINAL.
+
+    Equal to the live pipeline's per-step Detector.update (started at the first initialisation, fed
+    NaN off NOMINAL steps): the symptom is averaged here over the very blocks Detector forms (a
+    block closes at the first step at or after its end, that step included), and each block mean is
+    fed to a real Detector once, at its closing step (the mean of one sample is itself).
+    """
+    state = code.copy()
+    if not stretches:
+        return state
+    s = config.detector
+    first = stretches[0][0]
+    t0 = float(times[first])
+    fed = np.where(code == 0, symptom, np.nan)
+    fed[:first] = np.nan
+    begin = t0 + s.warmup_s
+    n = times.size
+    count = math.floor((float(times[-1]) - begin) / s.block_s) + 2 if times[-1] >= begin else 0
+    if count <= 0:
+        return state
+    ends = np.cumsum(np.concatenate(([begin + s.block_s], np.full(count - 1, s.block_s))))
+    closes = np.searchsorted(times, ends - 1e-9, side="left")
+    closes = closes[closes < n]
+    start = int(np.searchsorted(times, begin, side="left"))
+    start = max(start, first)
+    finite = np.isfinite(fed)
+    values = np.where(finite, fed, 0.0)
+    ccount = np.concatenate(([0], np.cumsum(finite)))
+    detector = Detector(s)
+    detector.update(t0, math.nan)
+    verdicts = np.zeros(n, dtype=np.int64)
+    previous = start - 1
+    for close in closes.tolist():
+        lo = max(previous + 1, start)
+        k = int(ccount[close + 1] - ccount[lo])
+        mean = float(np.sum(values[lo : close + 1]) / k) if k else math.nan
+        out = detector.update(float(times[close]), mean)
+        verdicts[close:] = STATES.index(out.state)
+        previous = close
+    nominal = code == 0
+    state[nominal] = verdicts[nominal]
+    return state
+
+
+def _headroom(
+    params: ThermalParams,
+    times: NDArray[np.float64],
+    inputs: dict[str, NDArray[np.float64]],
+    est: NDArray[np.float64],
+    gamma_q: NDArray[np.float64],
+    gamma_d: NDArray[np.float64],
+    action: NDArray[np.int64],
+    step_numbers: NDArray[np.int64],
+    period: int,
+) -> NDArray[np.float64]:
+    """Headroom held between its computations every ``period`` steps while the estimator runs (nan
+    otherwise), as the live pipeline does; computed with :func:`headroom_batch`."""
+    n = times.size
+    running = action != ACTION_NONE
+    due = running & (step_numbers % period == 0)
+    idx = np.flatnonzero(due)
+    axes = list(inputs)
+    computed = headroom_batch(
+        params, InputSeries(*(inputs[name][idx] for name in axes)), est[idx], gamma_q[idx], gamma_d[idx]
+    )
+    # hold: last computation since the last (re)initialisation, nan after a stop or before the first
+    value = np.full(n, np.nan)
+    value[idx] = computed
+    marker = np.full(n, -1, dtype=np.int64)
+    marker[idx] = idx
+    resets = np.flatnonzero((action == ACTION_INITIALISE) & ~due)
+    marker[resets] = resets  # an initialisation clears the held value (value there is nan)
+    stops = np.flatnonzero(~running)
+    marker[stops] = stops
+    np.maximum.accumulate(marker, out=marker)
+    return np.where(marker >= 0, value[np.maximum(marker, 0)], np.nan)
+
+
+def headroom_batch(
+    params: ThermalParams,
+    inputs: InputSeries,
+    cht_c: NDArray[np.float64],
+    gamma_q: NDArray[np.float64],
+    gamma_d: NDArray[np.float64],
+    *,
+    cap_s: float = HEADROOM_NOT_LIMITED_S,
+    step_s: float = 2.0,
+) -> NDArray[np.float64]:
+    """:func:`ecu_monitor.estimation.headroom.thermal_headroom` (heat path in steady state) on arrays:
+    the same steady-state test and the same RK4 march with linear interpolation of the crossing, all
+    rows at once (the model functions broadcast)."""
+    m = np.asarray(cht_c).size
+    if m == 0:
+        return np.zeros(0)
+    coeffs = coefficients(params)
+    limit = params.cht_limit_c
+    d = compute_drive(inputs, coeffs)
+    columns = [np.broadcast_to(np.asarray(v, dtype=float), (m,)).copy() for v in d]
+    drive = Drive(*columns)
+    steady_fn: Any = steady_state_cht  # broadcasts over arrays of gammas
+    steady = np.asarray(steady_fn(drive, coeffs, gamma_q, gamma_d), dtype=float)
+    margin = limit - cht_c
+    out = np.where(margin <= 0.0, 0.0, cap_s)
+    active = np.flatnonzero((margin > 0.0) & (steady >= limit))
+    temp = cht_c[active].astype(float)
+    pade = 2.0 * columns[0][active]
+    sub = Drive(*(v[active] for v in columns))
+    gq, gd = gamma_q[active], gamma_d[active]
+    elapsed = 0.0
+    while active.size and elapsed < cap_s:
+        stepped, stepped_pade = rk4_step(temp, pade, sub, coeffs, step_s, gq, gd)
+        new_temp = np.asarray(stepped, dtype=float)
+        pade = np.asarray(stepped_pade, dtype=float)
+        hit = new_temp >= limit
+        if np.any(hit):
+            rising = new_temp[hit] > temp[hit]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                fraction = np.where(rising, (limit - temp[hit]) / (new_temp[hit] - temp[hit]), 1.0)
+            crossing = elapsed + fraction * step_s
+            out[active[hit]] = np.where(crossing <= cap_s, crossing, cap_s)
+            keep = ~hit
+            active, temp, pade = active[keep], new_temp[keep], pade[keep]
+            sub = Drive(*(np.asarray(v)[keep] for v in sub))
+            gq, gd = gq[keep], gd[keep]
+        else:
+            temp = new_temp
+        elapsed += step_s
+    return out
 
 
 def _stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:
