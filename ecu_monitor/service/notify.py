@@ -7,8 +7,10 @@ timeout; ``WATCHDOG_PID``, when set, names the process that must ping. systemd r
 the timeout.
 
 Outside systemd (no ``NOTIFY_SOCKET``) every call is a no-op that returns False, so the daemon runs the
-same way from a terminal. A failed send is logged and counted, never fatal: the notify channel going away
-must not take the engine monitor down with it (systemd then restarts us on the watchdog, which is right).
+same way from a terminal. Sends never block (a unix datagram queue holds only ~10 unread messages; a
+receiver that stops reading would otherwise stall the caller), and a failed send is logged and counted,
+never fatal: the notify channel going away must not take the engine monitor down with it (systemd then
+restarts us on the watchdog, which is right).
 
 ``WatchdogGate`` implements the rule "WATCHDOG=1 only while the pipeline makes progress": a ping is due
 when the ping period has passed AND the progress counter grew since the last ping.
@@ -70,6 +72,7 @@ class SystemdNotifier:
         self._sock: socket.socket | None = None
         if self.address is not None:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+            self._sock.setblocking(False)  # a receiver that stops reading must never stall the daemon
 
     @property
     def enabled(self) -> bool:
