@@ -208,6 +208,7 @@ class Pipeline:
         self._cht_slot = self._slot["cht_c"]
         self._status_slot = self._slot.get(STATUS_INPUT, -1)
         self._input_slots = [(n, self._slot[n]) for n in INPUT_NAMES if n in mapped]
+        self._early: set[int] = set()  # slots fed before the first advance_to
         self._readings = 0  # valid CHT frames fed
         self._readings_used = 0
         self._dt = config.estimator.dt_s
@@ -264,6 +265,8 @@ class Pipeline:
         for slot, value in decoded:
             self._values[slot] = value
             self._stamps[slot] = stamp
+            if self._origin is None:
+                self._early.add(slot)
             if slot == self._cht_slot:
                 self._readings += 1
 
@@ -278,7 +281,9 @@ class Pipeline:
             self._origin = float(t_s)
             self._now = float(t_s)
             self._k = 0
-            self._stamps = [t_s if math.isnan(s) else s for s in self._stamps]
+            for slot in self._early:  # frames fed before the clock started count as fed at its start
+                self._stamps[slot] = float(t_s)
+            self._early.clear()
             return []
         if t_s <= self._now:
             return []
@@ -375,7 +380,7 @@ class Pipeline:
             verdict = self._detector.update(time_s, symptom if code == _NOMINAL else math.nan)
             if code == _NOMINAL:
                 state = STATES.index(verdict.state)
-        if action == ACTION_NONE:
+        if action == ACTION_NONE or not (math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)):
             self._headroom_s = math.nan
         elif self._k % self._headroom_period == 0:
             self._headroom_s = thermal_headroom(
