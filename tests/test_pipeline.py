@@ -7,7 +7,7 @@ import copy
 import math
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import can
 import cantools
@@ -43,7 +43,7 @@ def _config(**changes: Any) -> ServiceConfig:
 class SteadyEcu:
     """Frames of engine.dbc at their DBC rates for held values (counters and checksums right)."""
 
-    CYCLES = {"ECU_Fast": 0.02, "ECU_Slow": 0.1, "AirData": 0.1}
+    CYCLES: ClassVar[dict[str, float]] = {"ECU_Fast": 0.02, "ECU_Slow": 0.1, "AirData": 0.1}
 
     def __init__(self, **values: float) -> None:
         self.encoder = Encoder([ENGINE_DBC])
