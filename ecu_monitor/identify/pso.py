@@ -36,6 +36,10 @@ __all__ = ["PsoRun", "PsoSettings", "constriction_factor", "minimise"]
 class PsoSettings:
     """PSO settings (dimensionless unless stated).
 
+    The defaults (inertia 0.9 -> 0.4, c1 = c2 = 1.5, velocity clamp 0.25, restarts after 25 stagnant
+    iterations) gave the lowest PSO-alone cost of the variants measured in docs/results/identification.md;
+    Clerc's constriction (constriction=True, c1 = c2 = 2.05) came close.
+
     particles, iterations: swarm size and number of swarm evaluations after the initial one.
     inertia: (start, end) inertia weight, linearly interpolated (used when constriction is off).
     cognitive, social: c1, c2 acceleration coefficients.
@@ -51,9 +55,9 @@ class PsoSettings:
     particles: int = 48
     iterations: int = 120
     inertia: tuple[float, float] = (0.9, 0.4)
-    cognitive: float = 2.05
-    social: float = 2.05
-    constriction: bool = True
+    cognitive: float = 1.5
+    social: float = 1.5
+    constriction: bool = False
     velocity_clamp: float | None = 0.25
     stagnation_iterations: int = 25
     stagnation_tolerance: float = 1e-4
