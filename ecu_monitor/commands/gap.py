@@ -25,6 +25,7 @@ from ecu_monitor.commands.identify import parse_heat_axes
 from ecu_monitor.errors import ConfigError, UserInputError
 from ecu_monitor.flightlog import FlightLog, load_flight
 from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, diagnose, write_report
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS
 from ecu_monitor.identify import PsoSettings, identify, model_inputs
 from ecu_monitor.model import load_model
 
@@ -49,7 +50,10 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for foreign CSVs")
     parser.add_argument("--split-at", type=float, metavar="S", help="with --train only: train before S s, test after")
     parser.add_argument(
-        "--candidates", metavar="IDS", help=f"comma-separated candidate effects (default {','.join(CANDIDATE_IDS)})"
+        "--candidates",
+        metavar="IDS",
+        help=f"comma-separated candidate effects (default {','.join(DEFAULT_CANDIDATE_IDS)};"
+        f" known: {','.join(CANDIDATE_IDS)})",
     )
     parser.add_argument("--blind", type=int, metavar="N", help="run N blind cases on the virtual ECU instead")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the blind cases (default 0)")

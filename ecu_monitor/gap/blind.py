@@ -9,8 +9,10 @@ map x U(0.95, 1.05) overall and x (1 + N(0, 0.015)) per cell.
 
 Case kinds (cycled, so any n holds every kind): ``single`` (one library effect at a random size drawn
 by :func:`virtual_bus.plant.random_effects`), ``none``, ``out_of_library`` (a cooling door that sticks
-part-shut mid-flight: gamma_D ramps to U(1.12, 1.3) over 60-300 s from a random time in the middle
-third of each flight), and ``pair`` (two library effects).
+part-shut mid-flight: gamma_D ramps to U(1.12, 1.3) over 60-300 s, from a random time in the middle
+third of the test flight and, independently drawn, from a random time between 15 % and 85 % of the
+train flight: a worn actuator that sticks on every flight, not at the same moment), and ``pair``
+(two library effects).
 
 Scoring rule (fixed before the runs): a library effect counts as *present* when its RMS contribution
 on the test flight (truth with minus truth without the effect, same inputs, open loop) is at least
@@ -30,7 +32,7 @@ import numpy as np
 
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnose import GapDiagnosis, GapSettings, diagnose
-from ecu_monitor.gap.library import CANDIDATE_IDS
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS as CANDIDATE_IDS
 from ecu_monitor.gap.refit import prepare_flight
 from ecu_monitor.gap.segments import SEGMENT_NAMES, segment_flight
 from ecu_monitor.model import Effects, ThermalParams, coefficients, paper_table_a1
@@ -126,6 +128,18 @@ class BlindResult:
             "segment_right": self.segment_right,
             "baseline_test_rms_c": float(np.sqrt(np.mean(self.diagnosis.baseline_test_residual**2))),
             "shrink_pct": self.shrink_pct,
+            "control_test_rms_c": self.diagnosis.control.test_rms_c,
+            "tried": [
+                {
+                    "id": e.label,
+                    "role": e.role,
+                    "test_rms_c": e.test_rms_c,
+                    "shrink_vs_reference_pct": e.versus.shrink_pct if e.versus else None,
+                    "p_value": e.versus.p_value if e.versus else None,
+                    "counts": e.counts,
+                }
+                for e in self.diagnosis.effects
+            ],
         }
 
 
@@ -143,8 +157,9 @@ def perturbed_nominal(truth: ThermalParams, rng: np.random.Generator) -> Thermal
     )
 
 
-def _door(rng: np.random.Generator, duration_s: float, value: float) -> tuple[Degradation, ...]:
-    start = float(rng.uniform(duration_s / 3.0, 2.0 * duration_s / 3.0))
+def _door(rng: np.random.Generator, start_s: tuple[float, float]) -> tuple[Degradation, ...]:
+    value = float(rng.uniform(1.12, 1.3))
+    start = float(rng.uniform(*start_s))
     return (Degradation("gamma_d", value, start, float(rng.uniform(60.0, 300.0))),)
 
 
@@ -198,9 +213,9 @@ def blind_case(index: int, seed: int, duration_s: float = 3600.0, record_dt_s: f
     effects = random_effects(effect_seed, names) if names else Effects()
     truth = paper_table_a1()
     train_mission, test_mission = (int(v) for v in rng.integers(0, 10**6, size=2))
-    door_value = float(rng.uniform(1.12, 1.3))
-    train_door = _door(rng, duration_s, door_value) if kind == "out_of_library" else ()
-    test_door = _door(rng, duration_s, door_value) if kind == "out_of_library" else ()
+    door = kind == "out_of_library"
+    train_door = _door(rng, (0.15 * duration_s, 0.85 * duration_s)) if door else ()
+    test_door = _door(rng, (duration_s / 3.0, 2.0 * duration_s / 3.0)) if door else ()
     common: dict[str, Any] = {"effects": effects, "dt_s": 0.02, "record_dt_s": record_dt_s}
     train = fly(random_mission(train_mission, duration_s), truth, degradation=train_door, seed=train_mission, **common)
     test = fly(random_mission(test_mission, duration_s), truth, degradation=test_door, seed=test_mission, **common)

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,7 +24,7 @@ import numpy as np
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.library import CANDIDATE_IDS, candidate, flight_references
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, flight_references
 from ecu_monitor.gap.localise import (
     LagSignature,
     SegmentShare,
@@ -47,14 +48,20 @@ Progress = Callable[[str], None]
 
 @dataclass(frozen=True)
 class GapSettings:
-    """Settings of the diagnosis: candidates tried, refit, significance, segmentation, pairs."""
+    """Settings of the diagnosis: candidates tried, refit, significance, segmentation, pairs.
 
-    candidates: tuple[str, ...] = CANDIDATE_IDS
+    Pairs are tried when the best single effect leaves a test RMS above ``pair_threshold_c`` (degC);
+    a pair must beat the single effect by ``pair_min_shrink_pct`` (a higher bar than a single effect
+    against the control: the second effect of a pair is fitted to what the first one leaves, small
+    structured remainders such as a slightly wrong nominal altitude exponent included)."""
+
+    candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
     refit: RefitSettings = field(default_factory=RefitSettings)
     significance: SignificanceSettings = field(default_factory=SignificanceSettings)
     segments: SegmentSettings = field(default_factory=SegmentSettings)
     try_pairs: bool = True
     pair_threshold_c: float = 1.0
+    pair_min_shrink_pct: float = 30.0
     whiteness_estimator: str | None = "cbekf-au"
 
     def __post_init__(self) -> None:
@@ -132,7 +139,7 @@ def _score(
     role: str,
     reference: np.ndarray | None,
     n_tests: int,
-    settings: GapSettings,
+    significance: SignificanceSettings,
 ) -> EffectScore:
     model = simulate_probe([fit.params], test, engine)[:, 0]
     residual = test.cht_c - model
@@ -142,7 +149,7 @@ def _score(
     rms = _rms(residual)
     versus = None
     if reference is not None:
-        versus = improvement_test(reference, residual, test.dt_s, n_tests, settings.significance)
+        versus = improvement_test(reference, residual, test.dt_s, n_tests, significance)
     return EffectScore(
         fit=fit,
         test_residual=residual,
@@ -214,23 +221,26 @@ def diagnose(
 
     say("refit: control (nominal with R_Ce and heat scale re-tuned on the train flight)")
     control_fit = refit(nominal, train, [], references, settings.refit)
-    control = _score(control_fit, test, baseline_rms, engine, "control", None, 1, settings)
+    control = _score(control_fit, test, baseline_rms, engine, "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
     singles: list[EffectScore] = []
     for cid in settings.candidates:
         say(f"refit: {cid}")
         fit = refit(nominal, train, [candidate(cid)], references, settings.refit)
-        singles.append(_score(fit, test, baseline_rms, engine, "single", control.test_residual, n_tests, settings))
+        singles.append(
+            _score(fit, test, baseline_rms, engine, "single", control.test_residual, n_tests, settings.significance)
+        )
     counting = [s for s in singles if s.counts]
     winner = min(counting, key=lambda s: s.test_rms_c) if counting else None
     pairs: list[EffectScore] = []
     if winner is not None and settings.try_pairs and winner.test_rms_c > settings.pair_threshold_c:
         first = winner.fit.ids[0]
         others = [cid for cid in settings.candidates if cid != first]
+        pair_test = dataclasses.replace(settings.significance, min_shrink_pct=settings.pair_min_shrink_pct)
         for cid in others:
             say(f"refit: pair {first}+{cid}")
             fit = refit(nominal, train, [candidate(first), candidate(cid)], references, settings.refit)
-            pairs.append(_score(fit, test, baseline_rms, engine, "pair", winner.test_residual, len(others), settings))
+            pairs.append(_score(fit, test, baseline_rms, engine, "pair", winner.test_residual, len(others), pair_test))
         better = [p for p in pairs if p.counts]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)

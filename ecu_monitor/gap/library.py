@@ -17,6 +17,14 @@ Candidates:
 - ``sensor_lag``: first-order probe lag; free time_constant_s.
 - ``mixture_cooling``: heat ``x (1 - fraction * clip((load - onset)/(1 - onset), 0, 1))`` with load
   the first heat-map axis normalised over its breakpoints; free fraction and onset.
+
+Added for real data (not in the default set, :data:`DEFAULT_CANDIDATE_IDS`; ask for it with
+``--candidates``):
+
+- ``heat_altitude_scaling``: re-fits the nominal altitude exponents a and b of
+  ``g(z) = (p/p_SL)^a (T_SL/T_e)^b`` (no new term: the model's own parameters, started from the
+  nominal values). It is the candidate for a heat map on fuel flow, where the fuel flow already
+  carries the charge density and the paper's throttle-based exponents (a 1.55, b 2) double-count it.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ from ecu_monitor.model import (
 __all__ = [
     "CANDIDATES",
     "CANDIDATE_IDS",
+    "DEFAULT_CANDIDATE_IDS",
     "RETUNED_NOMINAL",
     "Candidate",
     "FreeParameter",
@@ -73,10 +82,12 @@ class FreeParameter:
 
 @dataclass(frozen=True)
 class Candidate:
-    """One library entry: the model effect it switches on and its free parameters."""
+    """One library entry: the model effect it switches on (``effect``, a field of
+    ecu_monitor.model.Effects) and its free parameters; or, with ``effect`` = "nominal", nominal
+    ThermalParams fields re-fitted from their nominal values (``FreeParameter.start`` is then unused)."""
 
     id: str
-    effect: str  # field of ecu_monitor.model.Effects
+    effect: str
     description: str
     free: tuple[FreeParameter, ...]
 
@@ -112,8 +123,24 @@ CANDIDATES: tuple[Candidate, ...] = (
             FreeParameter("onset", 0.6, 0.0, 0.95, "-"),
         ),
     ),
+    Candidate(
+        "heat_altitude_scaling",
+        "nominal",
+        "altitude exponents a, b of the heat into the head re-fitted (heat map on fuel flow)",
+        (
+            FreeParameter("a", 1.55, -1.0, 4.0, "-"),
+            FreeParameter("b", 2.0, -2.0, 4.0, "-"),
+        ),
+    ),
 )
 CANDIDATE_IDS: tuple[str, ...] = tuple(c.id for c in CANDIDATES)
+#: The candidates tried by default: the four of DESIGN.md section 5.
+DEFAULT_CANDIDATE_IDS: tuple[str, ...] = (
+    "airspeed_cooling",
+    "density_cooling",
+    "sensor_lag",
+    "mixture_cooling",
+)
 
 
 def candidate(candidate_id: str) -> Candidate:
@@ -162,5 +189,7 @@ def effects_for(
     """``base`` with each candidate's effect switched on at ``values[candidate.id]``."""
     effects = base
     for entry in entries:
+        if entry.effect == "nominal":
+            continue
         effects = effects.replace(entry.effect, _make(entry, values[entry.id], references))
     return effects

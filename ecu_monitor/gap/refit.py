@@ -136,7 +136,12 @@ class _Problem:
         self.names = [(e.id, p.name) for e in self.entries for p in e.free]
         self.low = np.array([p.low for e in self.entries for p in e.free] + [RETUNED_BOUNDS[0]] * 2)
         self.high = np.array([p.high for e in self.entries for p in e.free] + [RETUNED_BOUNDS[1]] * 2)
-        self.start = np.array([p.start for e in self.entries for p in e.free] + [0.0, 0.0])
+        starts = [
+            float(np.clip(getattr(nominal, p.name), p.low, p.high)) if e.effect == "nominal" else p.start
+            for e in self.entries
+            for p in e.free
+        ]
+        self.start = np.array([*starts, 0.0, 0.0])
         self.steps = 1e-3 * (self.high - self.low)
         self.evaluations = 0
         self.failed = 0
@@ -150,8 +155,11 @@ class _Problem:
 
     def params(self, x: np.ndarray) -> ThermalParams:
         r_log, h_log = float(x[-2]), float(x[-1])
-        effects = effects_for(self.nominal.effects, self.entries, self.values(x), self.references)
+        values = self.values(x)
+        effects = effects_for(self.nominal.effects, self.entries, values, self.references)
+        nominal_fields = {k: v for e in self.entries if e.effect == "nominal" for k, v in values[e.id].items()}
         return self.nominal.replace(
+            **nominal_fields,
             r_ce=self.nominal.r_ce * math.exp(r_log),
             heat_map=self.nominal.heat_map.with_values(self.heat_values * math.exp(h_log)),
             effects=effects,

@@ -1,0 +1,155 @@
+"""Gap diagnosis: segmentation, significance test, localisation, refit, blind cases and gap.json schema."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ecu_monitor.errors import ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
+from ecu_monitor.gap.blind import CASE_KINDS, blind_case, run_blind_case
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, flight_references
+from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
+from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
+from ecu_monitor.model import SensorLag, load_model, paper_table_a1
+from virtual_bus.missions import random_mission
+from virtual_bus.plant import fly
+
+BLIND_SEED = 1
+BLIND_DURATION_S = 1500.0
+
+
+def _profile_log() -> FlightLog:
+    """Ground 200 s, climb 400 s at 3 m/s, cruise 600 s, descent 300 s at -4 m/s, ground 100 s."""
+    t = np.arange(0.0, 1600.0, 1.0)
+    vs = np.select([t < 200, t < 600, t < 1200, t < 1500], [0.0, 3.0, 0.0, -4.0], 0.0)
+    altitude = 100.0 + np.cumsum(vs)
+    airspeed = np.where((t < 200) | (t >= 1500), 0.0, 23.0)
+    n = t.size
+    return FlightLog(
+        {
+            "time_s": t,
+            "throttle_pct": np.full(n, 50.0),
+            "rpm": np.full(n, 6000.0),
+            "altitude_m": altitude,
+            "airspeed_mps": airspeed,
+            "oat_c": np.full(n, 15.0),
+            "cht_c": np.full(n, 100.0),
+            "vspeed_mps": vs,
+        }
+    )
+
+
+def test_segments_follow_the_profile_and_merge_short_runs() -> None:
+    log = _profile_log()
+    seg = segment_flight(log)
+    assert [s.name for s in seg.segments] == ["ground", "climb", "cruise", "descent", "ground"]
+    assert abs(seg.segments[1].start_s - 200.0) <= 15.0
+    assert abs(seg.segments[3].start_s - 1200.0) <= 15.0
+    # a 20 s burst of climb inside the cruise is not a segment of its own
+    vs = np.asarray(log["vspeed_mps"]).copy()
+    vs[800:820] = 3.0
+    seg2 = segment_flight(log.with_columns(vspeed_mps=vs))
+    assert [s.name for s in seg2.segments] == ["ground", "climb", "cruise", "descent", "ground"]
+
+
+def test_segment_shares_sum_to_one_and_sort_descending() -> None:
+    log = _profile_log()
+    seg = segment_flight(log)
+    residual = np.where(seg.mask("climb"), 3.0, 0.5)
+    shares = segment_breakdown(residual, seg, 1.0)
+    assert shares[0].segment == "climb"
+    assert sum(s.share for s in shares) == pytest.approx(1.0)
+    assert [s.share for s in shares] == sorted((s.share for s in shares), reverse=True)
+
+
+def test_improvement_test_separates_real_gain_from_noise() -> None:
+    rng = np.random.default_rng(0)
+    base = np.cumsum(rng.normal(0.0, 0.1, 3600))  # autocorrelated residual
+    same = base + rng.normal(0.0, 0.05, base.size)
+    null = improvement_test(base, same, 1.0, n_tests=4)
+    assert not null.counts
+    better = improvement_test(base, 0.3 * base, 1.0, n_tests=4)
+    assert better.significant and better.material and better.shrink_pct == pytest.approx(70.0)
+    with pytest.raises(ParameterError):
+        improvement_test(base, base[:-1], 1.0)
+
+
+def test_ljung_box_and_lag_signature() -> None:
+    rng = np.random.default_rng(1)
+    white = rng.normal(size=2000)
+    walk = np.cumsum(white)
+    assert ljung_box(white)["p_value"] > 0.01
+    assert ljung_box(walk)["p_value"] < 1e-6
+    rate = np.sin(np.linspace(0.0, 20.0, 2000))
+    lag = lag_signature(-8.0 * rate + 0.01 * white, rate)
+    assert lag.tau_s == pytest.approx(8.0, rel=0.01) and lag.correlation > 0.99
+
+
+def test_refit_recovers_a_sensor_lag_on_the_train_flight() -> None:
+    truth = paper_table_a1().replace(effects=paper_table_a1().effects.replace("sensor_lag", SensorLag(12.0)))
+    log = fly(random_mission(5, 1200.0), truth, seed=5, record_dt_s=1.0)
+    flight = prepare_flight(log, truth.heat_axes, 0.5)
+    fit = refit(paper_table_a1(), flight, [candidate("sensor_lag")], flight_references(log))
+    tau = fit.values["sensor_lag"]["time_constant_s"]
+    assert tau == pytest.approx(12.0, abs=2.0)
+    assert 0.0 < fit.std["sensor_lag"]["time_constant_s"] < 5.0
+    control = refit(paper_table_a1(), flight, [], flight_references(log))
+    assert fit.train_rms_c < 0.7 * control.train_rms_c
+    probe = simulate_probe([fit.params, control.params], flight)
+    assert probe.shape == (len(log), 2) and np.all(np.isfinite(probe))
+
+
+def test_gap_settings_reject_unknown_candidates() -> None:
+    with pytest.raises(ParameterError):
+        GapSettings(candidates=("no_such_effect",))
+
+
+# One blind case of each kind on short flights, fixed seeds: the diagnosis is not told what is on.
+_CASES = {kind_index: CASE_KINDS[kind_index] for kind_index in (0, 1, 2, 3, 4, 5)}
+
+
+@pytest.mark.parametrize("index", sorted(_CASES), ids=[f"{i}-{k}" for i, k in sorted(_CASES.items())])
+def test_blind_case_verdict(index: int) -> None:
+    case = blind_case(index, BLIND_SEED, BLIND_DURATION_S)
+    if case.kind == "single":
+        assert case.expected, f"case {index}: effect below the size rule, pick another seed"
+    result = run_blind_case(case, GapSettings(whiteness_estimator=None))
+    assert result.verdict_right, (case.kind, case.expected, result.verdict)
+    if case.expected:
+        assert result.shrink_pct is not None and result.shrink_pct >= 50.0
+    else:
+        assert result.diagnosis.model == case.nominal  # unexplained: the model is not changed
+
+
+def test_gap_json_schema_and_outputs(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    case = blind_case(3, BLIND_SEED, BLIND_DURATION_S)  # sensor lag
+    diag = diagnose(case.nominal, case.train, case.test)
+    doc = write_report(diag, tmp_path / "out")
+    assert doc == json.loads((tmp_path / "out" / "gap.json").read_text())
+    assert {"baseline", "where", "effects", "verdict"} <= set(doc)
+    assert set(doc["baseline"]) >= {"train_rms_c", "test_rms_c", "test_peak_c"}
+    shares = [w["share"] for w in doc["where"]]
+    assert sum(shares) == pytest.approx(1.0)
+    assert shares == sorted(shares, reverse=True)
+    assert {w["segment"] for w in doc["where"]} <= {"ground", "climb", "cruise", "descent"}
+    rms = [e["test_rms_c"] for e in doc["effects"]]
+    assert rms == sorted(rms)
+    assert {e["id"] for e in doc["effects"]} >= set(DEFAULT_CANDIDATE_IDS)
+    for entry in doc["effects"]:
+        assert {"id", "test_rms_c", "shrink_pct", "significant", "params"} <= set(entry)
+        assert isinstance(entry["significant"], bool)
+    assert doc["verdict"]["effect"] == "sensor_lag"
+    assert doc["verdict"]["shrink_pct"] > 50.0
+    assert doc == gap_json(diag)
+    model = load_model(tmp_path / "out" / "model.yaml")
+    assert model.effects.sensor_lag is not None
+    assert model.effects.sensor_lag.time_constant_s == pytest.approx(
+        case.effects.sensor_lag.time_constant_s if case.effects.sensor_lag else 0.0, rel=0.3
+    )
+    for name in ("report.md", "residual_time.png", "residual_inputs.png", "spectrum.png", "before_after.png"):
+        assert (tmp_path / "out" / name).stat().st_size > 0
+    assert "sensor_lag" in (tmp_path / "out" / "report.md").read_text()

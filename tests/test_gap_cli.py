@@ -1,0 +1,94 @@
+"""``ecu-monitor gap`` end to end on small CSVs, and its one-line errors (exit 2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from ecu_monitor.cli import main
+from ecu_monitor.flightlog import write_csv
+from ecu_monitor.gap.blind import blind_case
+from ecu_monitor.model import load_model, save_model
+
+SEED = 1
+DURATION_S = 1500.0
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Train/test CSVs of a blind sensor-lag case and the case's (perturbed) nominal model."""
+    case = blind_case(3, SEED, DURATION_S)
+    root = tmp_path_factory.mktemp("gapcli")
+    write_csv(case.train, root / "train.csv")
+    write_csv(case.test, root / "test.csv")
+    save_model(case.nominal, root / "nominal.yaml")
+    (root / "bad.yaml").write_text("c_w: -3\n", encoding="utf-8")
+    return {
+        "train": root / "train.csv",
+        "test": root / "test.csv",
+        "model": root / "nominal.yaml",
+        "bad": root / "bad.yaml",
+        "root": root,
+    }
+
+
+def test_gap_cli_writes_gap_json_report_and_model(flights: dict[str, Path], capsys: pytest.CaptureFixture) -> None:
+    out = flights["root"] / "out"
+    code = main(
+        [
+            "gap",
+            "--model",
+            str(flights["model"]),
+            "--train",
+            str(flights["train"]),
+            "--test",
+            str(flights["test"]),
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    captured = capsys.readouterr()
+    assert "sensor_lag" in captured.out
+    assert "gap: refit: sensor_lag" in captured.err  # progress on stderr
+    doc = json.loads((out / "gap.json").read_text())
+    assert doc["verdict"]["effect"] == "sensor_lag"
+    assert [e["test_rms_c"] for e in doc["effects"]] == sorted(e["test_rms_c"] for e in doc["effects"])
+    model = load_model(out / "model.yaml")
+    assert model.effects.sensor_lag is not None
+    assert (out / "report.md").read_text().startswith("# Sim-to-real gap diagnosis")
+    for name in ("residual_time.png", "residual_inputs.png", "spectrum.png", "before_after.png"):
+        assert (out / name).stat().st_size > 10_000
+
+
+def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
+    out = flights["root"] / "split"
+    args = ["gap", "--model", str(flights["model"]), "--train", str(flights["test"]), "--split-at", "700"]
+    assert main([*args, "--candidates", "sensor_lag", "--out", str(out)]) == 0
+    doc = json.loads((out / "gap.json").read_text())
+    assert [e["id"] for e in doc["effects"]] == ["sensor_lag"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--test", "missing.csv"], "missing.csv"),
+        ([], "--test is required"),
+        (["--test", "{test}", "--candidates", "warp_drive"], "warp_drive"),
+        (["--test", "{test}", "--model", "{bad}"], "c_w"),
+        (["--test", "{test}", "--heat-axes", "rpm"], "--heat-axes"),
+        (["--split-at", "5"], "--split-at"),
+    ],
+)
+def test_gap_cli_bad_input_exits_2(
+    flights: dict[str, Path], capsys: pytest.CaptureFixture, extra: list[str], message: str
+) -> None:
+    args = ["gap", "--train", str(flights["train"]), "--out", str(flights["root"] / "bad-out")]
+    if "--model" not in extra:
+        args += ["--model", str(flights["model"])]
+    filled = [a.format(test=flights["test"], bad=flights["bad"]) for a in extra]
+    assert main(args + filled) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
