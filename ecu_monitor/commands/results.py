@@ -655,6 +655,8 @@ this run: `{better}`.
    every flicker (the "settle" metric then never drops below 0.5 degC for long), while boundary
    resets land on the edge, next to the truth. When the truth settles mid-level, midpoint resets are
    the better guess. The RMS table above weighs both situations over flights at several throttles.
+   In a steady state both are less accurate than the plain CBEKF (gamma_Q = 1.0 row): after a reset
+   the sigmoid update pins the estimate near the level edge (docs/estimators.md).
 """
 
 

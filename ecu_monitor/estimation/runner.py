@@ -16,10 +16,13 @@ other layers) run step by step through their ``estimate()``.
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
+import sys
 import types
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -210,14 +213,28 @@ def trace_loop(
         out_reset[k] = did_reset
 
 
-def _rebound(function: Callable[..., Any], **callees: Any) -> Callable[..., Any]:
-    """A copy of ``function`` whose global names ``callees`` point at other (compiled) functions."""
+def _rebound(function: Callable[..., Any], tag: str, **callees: Any) -> Callable[..., Any]:
+    """A copy of ``function`` whose global names ``callees`` point at other (compiled) functions.
+
+    ``tag`` is appended to the qualified name, which numba uses to name its on-disk cache: numba
+    checks only the caller's own source file for staleness, not its callees' (a cached loop embeds
+    the machine code of everything it calls), so the tag carries a fingerprint of every source file
+    involved and any edit to any of them gets a fresh cache entry.
+    """
     namespace = dict(function.__globals__)
     namespace.update(callees)
     clone = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
     clone.__module__ = function.__module__
-    clone.__qualname__ = function.__qualname__
+    clone.__qualname__ = f"{function.__qualname__}_{tag}"
     return clone
+
+
+def _sources_fingerprint() -> str:
+    """Short hash of the source files the compiled loop is built from."""
+    digest = hashlib.sha256()
+    for module in (_thermal, _quantiser, _ekf_module, sys.modules[__name__]):
+        digest.update(Path(str(module.__file__)).read_bytes())
+    return digest.hexdigest()[:12]
 
 
 @functools.cache
@@ -225,8 +242,10 @@ def _compiled_loop() -> Callable[..., None]:
     """numba-compile :func:`trace_loop` and everything it calls, from their own source (cached on disk)."""
     import numba  # imported on first use: the live service never needs it
 
+    tag = _sources_fingerprint()
+
     def jit(function: Callable[..., Any], **callees: Any) -> Any:
-        return numba.njit(cache=True, nogil=True)(_rebound(function, **callees))
+        return numba.njit(cache=True, nogil=True)(_rebound(function, tag, **callees))
 
     derivatives = jit(_thermal.derivatives)
     rk4_step = jit(_thermal.rk4_step, derivatives=derivatives)
