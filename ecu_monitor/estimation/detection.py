@@ -1,0 +1,333 @@
+"""Degradation detection with a stated false-alarm rate: a one-sided CUSUM on the model-deviation symptom.
+
+Both degradations heat the head (gamma_Q > 1 puts more heat in, gamma_D > 1 takes less out), so the
+test is one-sided on heat-up. The symptom s(t) (degC/s, the change of the state derivative the
+estimator attributes to the degradation) is first averaged over blocks of ``block_s`` seconds (this
+filters the 50 Hz symptom and its quantisation spikes), then::
+
+    S_n = max(0, S_(n-1) + (mean_n - b_(n-1) - k) * block_s)     (statistic in degC for a degC/s symptom)
+
+b is the symptom's nominal baseline: 0 (``baseline_s`` = 0, the plain test), or an exponential moving
+average of the block means with time constant ``baseline_s`` that adapts only while S = 0 (frozen as
+soon as the test sees a rise, so a step or a ramp stays visible). The baseline absorbs the slowly
+varying offset that the residual model error puts on the symptom at each operating point; the test
+then looks for a change of the symptom, which is what a degradation onset is.
+
+k (``reference``) is the drift allowance: about half the symptom of the smallest degradation to
+detect; h (``threshold``) is set from nominal flights by :func:`calibrate_threshold` for a target
+false-alarm rate. The state is SUSPECT once S >= suspect_fraction * h and DEGRADED once S >= h; the
+DEGRADED state latches (the first alarm time is kept) until :meth:`Detector.reset`. Nothing
+accumulates during the first ``warmup_s`` seconds (engine start: the model's transient from a cold
+start is not a degradation).
+
+Calibration (docs/detection_isolation.md): the CUSUM is run without alarms over N nominal flight
+hours; the maximum of the statistic in each whole hour is an extreme value, so a Gumbel law is fitted
+to the hourly maxima (method of moments); the threshold with a rate r of false alarms per 100 flight
+hours is the Gumbel quantile at 1 - r/100, and never below the empirical bound (``margin`` times the
+largest hourly maximum seen when the calibration set is shorter than 100/r hours).
+:func:`count_alarms` scores it on a separate set of nominal flights.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import ConfigError
+
+__all__ = [
+    "STATES",
+    "Detector",
+    "DetectorOutput",
+    "DetectorSettings",
+    "ThresholdCalibration",
+    "block_means",
+    "calibrate_threshold",
+    "count_alarms",
+    "cusum_path",
+    "hourly_maxima",
+]
+
+#: Detector states, in order of severity.
+STATES = ("NOMINAL", "SUSPECT", "DEGRADED")
+State = Literal["NOMINAL", "SUSPECT", "DEGRADED"]
+_EULER_GAMMA = 0.5772156649015329
+
+
+@dataclass(frozen=True)
+class DetectorSettings:
+    """CUSUM settings (validated).
+
+    threshold: h, alarm level of the statistic (symptom unit x s; degC for a degC/s symptom).
+    reference: k, drift allowance subtracted from each block mean (symptom unit).
+    warmup_s: hold-off after the first sample during which nothing accumulates, s.
+    suspect_fraction: SUSPECT from suspect_fraction * threshold, in (0, 1).
+    block_s: averaging block of the symptom before the test, s.
+    baseline_s: time constant of the adaptive baseline subtracted from the symptom, s (0 = none).
+    """
+
+    threshold: float = 6.0
+    reference: float = 0.05
+    warmup_s: float = 300.0
+    suspect_fraction: float = 0.5
+    block_s: float = 1.0
+    baseline_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("threshold", "reference", "warmup_s", "suspect_fraction", "block_s", "baseline_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ConfigError(f"detector.{name}: expected a finite number, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.threshold <= 0.0 or self.block_s <= 0.0 or self.warmup_s < 0.0 or self.baseline_s < 0.0:
+            raise ConfigError("detector: threshold and block_s must be > 0, warmup_s and baseline_s >= 0")
+        if 0.0 < self.baseline_s < self.block_s:
+            raise ConfigError("detector.baseline_s: expected 0 (off) or at least block_s")
+        if not 0.0 < self.suspect_fraction < 1.0:
+            raise ConfigError(f"detector.suspect_fraction: expected a value in (0, 1), got {self.suspect_fraction!r}")
+
+
+@dataclass(frozen=True)
+class DetectorOutput:
+    """State after one update: state, CUSUM statistic S (symptom unit x s), time of the first alarm
+    (s; nan while none)."""
+
+    state: State
+    statistic: float
+    alarm_time_s: float
+
+
+class Detector:
+    """Live one-sided CUSUM: call :meth:`update` with every estimator step's symptom.
+
+    Samples are averaged over blocks [start + warmup + i block_s, ... + block_s) (a block closes at the
+    first sample at or after its end, the same blocks as :func:`block_means`); the statistic moves
+    once per closed block. Non-finite symptoms are skipped.
+    """
+
+    def __init__(self, settings: DetectorSettings) -> None:
+        self.settings = settings
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to NOMINAL with S = 0 (e.g. after maintenance); the warm-up starts again."""
+        self._start_s: float | None = None
+        self._block_end_s = math.nan
+        self._sum = 0.0
+        self._count = 0
+        self._statistic = 0.0
+        self._baseline = math.nan
+        self._alarm_time_s = math.nan
+
+    @property
+    def statistic(self) -> float:
+        """Current CUSUM statistic."""
+        return self._statistic
+
+    def _output(self) -> DetectorOutput:
+        s = self.settings
+        if not math.isnan(self._alarm_time_s):
+            state: State = "DEGRADED"
+        elif self._statistic >= s.suspect_fraction * s.threshold:
+            state = "SUSPECT"
+        else:
+            state = "NOMINAL"
+        return DetectorOutput(state, self._statistic, self._alarm_time_s)
+
+    def update(self, t_s: float, deviation: float) -> DetectorOutput:
+        """Feed one symptom sample at time t_s (s); returns the detector's state."""
+        s = self.settings
+        if self._start_s is None:
+            self._start_s = t_s
+            self._block_end_s = t_s + s.warmup_s + s.block_s
+        if t_s < self._start_s + s.warmup_s:
+            return self._output()
+        if t_s >= self._block_end_s - 1e-9:  # this sample opens a new block: close the previous one
+            if self._count:
+                mean = self._sum / self._count
+                self._statistic, self._baseline = _cusum_step(
+                    self._statistic, self._baseline, mean, s.reference, s.block_s, s.baseline_s
+                )
+                if self._statistic >= s.threshold and math.isnan(self._alarm_time_s):
+                    self._alarm_time_s = t_s
+            self._sum = 0.0
+            self._count = 0
+            self._block_end_s += s.block_s * (math.floor((t_s - self._block_end_s) / s.block_s + 1e-9) + 1.0)
+        if math.isfinite(deviation):
+            self._sum += deviation
+            self._count += 1
+        return self._output()
+
+
+# --------------------------------------------------------------------------------------------------
+# Whole flights (vectorised / compiled), calibration and scoring
+# --------------------------------------------------------------------------------------------------
+
+
+def block_means(
+    time_s: NDArray[np.float64], symptom: NDArray[np.float64], settings: DetectorSettings
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(block end times s, block means) of a symptom over a flight, after the warm-up: the blocks
+    :class:`Detector` forms (samples in [start + warmup + i*block_s, ... + block_s); empty blocks nan)."""
+    t = np.asarray(time_s, dtype=float)
+    x = np.asarray(symptom, dtype=float)
+    begin = t[0] + settings.warmup_s
+    keep = (t >= begin) & np.isfinite(x)
+    n_blocks = math.floor((t[-1] - begin) / settings.block_s + 1e-9) if t[-1] > begin else 0
+    if n_blocks < 1:
+        return np.empty(0), np.empty(0)
+    index = np.floor((t[keep] - begin) / settings.block_s + 1e-9).astype(np.int64)
+    inside = index < n_blocks
+    sums = np.bincount(index[inside], weights=x[keep][inside], minlength=n_blocks)
+    counts = np.bincount(index[inside], minlength=n_blocks)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    ends = begin + settings.block_s * (np.arange(n_blocks) + 1.0)
+    return ends, means
+
+
+@numba.njit(cache=True)
+def _cusum_step(statistic: float, baseline: float, mean: float, k: float, block_s: float, baseline_s: float) -> tuple[
+    float, float]:  # fmt: skip
+    """One CUSUM update with a block mean: (new statistic, new baseline). baseline nan = not started."""
+    if baseline_s <= 0.0:
+        return max(0.0, statistic + (mean - k) * block_s), 0.0
+    if math.isnan(baseline):
+        return 0.0, mean  # the first block only starts the baseline
+    new_statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
+    if new_statistic == 0.0:
+        baseline += (block_s / baseline_s) * (mean - baseline)
+    return new_statistic, baseline
+
+
+@numba.njit(cache=True)
+def _cusum(means: NDArray[np.float64], k: float, h: float, block_s: float, baseline_s: float, restart: bool) -> tuple[
+    NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
+    stat = np.empty(means.shape[0])
+    alarms = np.empty(means.shape[0], dtype=np.int64)
+    n_alarms = 0
+    s = 0.0
+    baseline = np.nan
+    for i in range(means.shape[0]):
+        m = means[i]
+        if not np.isnan(m):
+            s, baseline = _cusum_step(s, baseline, m, k, block_s, baseline_s)
+        stat[i] = s
+        if s >= h:
+            alarms[n_alarms] = i
+            n_alarms += 1
+            if restart:
+                s = 0.0
+            else:
+                h = np.inf
+    return stat, alarms[:n_alarms]
+
+
+def cusum_path(
+    time_s: NDArray[np.float64], symptom: NDArray[np.float64], settings: DetectorSettings, *, restart: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The CUSUM over a whole flight: (block end times s, statistic after each block, alarm times s).
+
+    restart=False: the statistic is never reset (as the latched live detector; one alarm at most).
+    restart=True: after each alarm the statistic restarts from 0 (to count false alarms over long
+    nominal flights: each crossing is one false alarm).
+    """
+    ends, means = block_means(time_s, symptom, settings)
+    if ends.size == 0:
+        return ends, means, np.empty(0)
+    stat, alarm_index = _cusum(
+        means, settings.reference, settings.threshold, settings.block_s, settings.baseline_s, restart
+    )
+    return ends, stat, ends[alarm_index]
+
+
+def count_alarms(
+    flights: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]], settings: DetectorSettings
+) -> tuple[int, float]:
+    """(false alarms, flight hours) of the detector over nominal flights given as (time_s, symptom)."""
+    alarms = 0
+    hours = 0.0
+    for time_s, symptom in flights:
+        _, _, alarm_times = cusum_path(time_s, symptom, settings, restart=True)
+        alarms += int(alarm_times.size)
+        hours += float(time_s[-1] - time_s[0]) / 3600.0
+    return alarms, hours
+
+
+@dataclass(frozen=True)
+class ThresholdCalibration:
+    """Result of :func:`calibrate_threshold`.
+
+    threshold: the calibrated h. gumbel_threshold: the Gumbel quantile alone. empirical_max: the
+    empirical bound (margin x largest hourly maximum, or the empirical quantile, see
+    calibrate_threshold). gumbel_location, gumbel_scale: the fitted law of the hourly maxima.
+    hours: number of whole nominal hours used. target_per_100h: the rate asked for.
+    """
+
+    threshold: float
+    gumbel_threshold: float
+    empirical_max: float
+    gumbel_location: float
+    gumbel_scale: float
+    hours: int
+    target_per_100h: float
+
+
+def hourly_maxima(statistics: Sequence[NDArray[np.float64]], sample_period_s: float) -> NDArray[np.float64]:
+    """Maximum of each whole hour of each statistic path (paths sampled every sample_period_s)."""
+    per_hour = round(3600.0 / sample_period_s)
+    out: list[float] = []
+    for path in statistics:
+        values = np.asarray(path, dtype=float)
+        whole = values.size // per_hour
+        if whole:
+            out.extend(values[: whole * per_hour].reshape(whole, per_hour).max(axis=1).tolist())
+    return np.asarray(out)
+
+
+def calibrate_threshold(
+    nominal_statistics: Sequence[NDArray[np.float64]],
+    target_false_alarms_per_100h: float = 1.0,
+    *,
+    sample_period_s: float = 1.0,
+    margin: float = 1.1,
+) -> ThresholdCalibration:
+    """Threshold h giving about ``target_false_alarms_per_100h`` false alarms per 100 flight hours.
+
+    ``nominal_statistics``: CUSUM paths (no alarms, no restart) of nominal flights sampled every
+    ``sample_period_s`` (the block length). Each whole hour contributes its maximum; a Gumbel law
+    (method of moments: scale = std sqrt(6)/pi, location = mean - 0.5772 scale) is fitted to these
+    maxima and h is its quantile at 1 - rate/100 per hour, raised to ``margin`` x the largest
+    observed hourly maximum if that is higher (the fit must not undercut what was seen).
+    """
+    if not 0.0 < target_false_alarms_per_100h < 100.0:
+        raise ConfigError(
+            f"target_false_alarms_per_100h: expected a rate in (0, 100), got {target_false_alarms_per_100h!r}"
+        )
+    maxima = hourly_maxima(nominal_statistics, sample_period_s)
+    if maxima.size < 2:
+        raise ConfigError(f"calibrate_threshold: need at least 2 whole nominal flight hours, got {maxima.size}")
+    scale = float(np.std(maxima, ddof=1)) * math.sqrt(6.0) / math.pi
+    location = float(np.mean(maxima)) - _EULER_GAMMA * scale
+    p_hour = target_false_alarms_per_100h / 100.0
+    gumbel = location - scale * math.log(-math.log(1.0 - p_hour))
+    if p_hour * maxima.size < 1.0:  # fewer hours than one expected alarm: stay above all we saw
+        empirical = margin * float(np.max(maxima))
+    else:  # enough hours to see the rate: the empirical quantile of the hourly maxima
+        empirical = float(np.quantile(maxima, 1.0 - p_hour))
+    threshold = max(gumbel, empirical, 1e-9)
+    return ThresholdCalibration(
+        threshold=threshold,
+        gumbel_threshold=gumbel,
+        empirical_max=empirical,
+        gumbel_location=location,
+        gumbel_scale=scale,
+        hours=int(maxima.size),
+        target_per_100h=float(target_false_alarms_per_100h),
+    )

@@ -1,0 +1,82 @@
+"""Thermal headroom against the model integrated at the estimator step with held full throttle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ecu_monitor.errors import EstimationError
+from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
+from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1
+from ecu_monitor.model.compiled import simulate_compiled
+
+FULL_THROTTLE = InputSeries(100.0, 9030.0, 300.0, 23.0, 13.0)
+
+
+def _truth_time_to_limit(start_c: float, gamma_q: float, limit_c: float) -> float:
+    """Time (s) for the model at dt 0.02 s with held full throttle to reach limit_c from start_c."""
+    params = paper_table_a1()
+    n = 150_000  # 3000 s
+    inputs = InputSeries(*(np.full(n, v) for v in FULL_THROTTLE))
+    run = simulate_compiled(inputs, coefficients(params), 0.02, start_c, gamma_q)
+    over = np.nonzero(run.cht_c >= limit_c)[0]
+    assert over.size, "the truth never reaches the limit in this set-up"
+    return float(over[0] * 0.02)
+
+
+@pytest.mark.parametrize(("start_c", "gamma_q"), [(110.0, 1.0), (90.0, 1.2), (140.0, 1.1)])
+def test_time_to_limit_matches_the_model_integrated_finely(start_c: float, gamma_q: float) -> None:
+    params = paper_table_a1()
+    actual = _truth_time_to_limit(start_c, gamma_q, params.cht_limit_c)
+    room = thermal_headroom(start_c, None, FULL_THROTTLE, params, gamma_q=gamma_q)
+    assert room.limited
+    assert room.time_to_limit_s == pytest.approx(actual, rel=0.01, abs=1.0)
+    assert room.margin_c == pytest.approx(params.cht_limit_c - start_c)
+    assert room.steady_state_cht_c > params.cht_limit_c
+
+
+def test_not_limited_below_steady_state_and_zero_above_the_limit() -> None:
+    params = paper_table_a1()
+    cruise = InputSeries(50.0, 6050.0, 1000.0, 23.0, 8.5)
+    room = thermal_headroom(95.0, None, cruise, params)
+    assert not room.limited
+    assert room.time_to_limit_s == DEFAULT_CAP_S
+    drive = compute_drive(cruise, coefficients(params))
+    assert float(drive.q_sl0_w) > 0.0
+    assert room.steady_state_cht_c < params.cht_limit_c
+    hot = thermal_headroom(params.cht_limit_c + 1.0, None, FULL_THROTTLE, params)
+    assert hot.time_to_limit_s == 0.0 and hot.limited and hot.margin_c == pytest.approx(-1.0)
+    # a degradation shortens the headroom
+    nominal = thermal_headroom(120.0, None, FULL_THROTTLE, params)
+    degraded = thermal_headroom(120.0, None, FULL_THROTTLE, params, gamma_d=1.2)
+    assert degraded.time_to_limit_s < nominal.time_to_limit_s
+    capped = thermal_headroom(100.0, None, FULL_THROTTLE, params, cap_s=10.0)
+    assert capped.time_to_limit_s == 10.0 and not capped.limited
+    with pytest.raises(EstimationError):
+        thermal_headroom(float("nan"), None, FULL_THROTTLE, params)
+
+
+def test_time_to_limit_matches_the_virtual_ecu_truth_plant() -> None:
+    from virtual_bus.missions import Climb, Cruise, GroundRun, Mission, Takeoff
+    from virtual_bus.plant import fly
+
+    params = paper_table_a1()
+    mission = Mission(
+        name="full-throttle",
+        segments=(
+            GroundRun(duration_s=60.0),
+            Takeoff(),
+            Climb(target_altitude_m=300.0, throttle_pct=60.0),
+            Cruise(duration_s=1500.0, throttle_pct=100.0, airspeed_mps=23.0),
+        ),
+    )
+    log = fly(mission, params, seed=4)
+    t = log.time_s
+    high = np.nonzero((log["throttle_pct"] > 95.0) & (t > 150.0))[0]  # after the take-off's full power
+    k = int(high[0]) + 50  # 5 s into the full-throttle leg
+    crossing = float(t[np.nonzero(log["cht_true_c"] >= params.cht_limit_c)[0][0]])
+    u = InputSeries(*(float(log[c][k]) for c in ("throttle_pct", "rpm", "altitude_m", "airspeed_mps", "oat_c")))
+    room = thermal_headroom(float(log["cht_true_c"][k]), None, u, params)
+    actual = crossing - float(t[k])
+    assert actual > 20.0
+    assert room.time_to_limit_s == pytest.approx(actual, rel=0.05, abs=5.0)
