@@ -1,118 +1,95 @@
-"""``ecu-monitor replay FLIGHT --model model.yaml [--estimator NAME] --out health.csv``.
+"""``ecu-monitor replay LOG [--model M] [--config C] [--estimator NAME] --out health.csv``.
 
-Runs an estimator over a recorded flight (a canonical CSV, or any log :func:`load_flight` reads) as
-fast as the machine allows, on the filter's fixed step (0.02 s), and writes one row per input sample:
-``time_s, cht_meas_c, cht_est_c, deviation, state, variance, innovation, nis, reset``
-(deviation = model-deviation symptom Delta/dt in degC/s; state is NOMINAL until the detector is
-wired in; innovation and nis are empty where no reading fell on the step). Prints one summary line.
-Without ``--model`` the paper's Table A1 preset is used.
+Runs the service's pipeline (the object the daemon runs live) over a recorded log as fast as the
+machine allows: python-can logs (.asc, .blf, .log, .trc) are decoded through the config's DBC mapping;
+a canonical flight CSV is turned into the frames the ECU would have sent (each mapped message at its
+DBC rate) and goes through the same path. Writes one row per health-status period (100 ms):
+``time_s, cht_meas_c, cht_est_c, deviation, state, gamma_q, gamma_d, headroom_s, stale_inputs,
+sensor_fault`` (deviation = the model-deviation symptom, degC/s; state = the Health_Status verdict).
+Prints one summary line. Defaults: config configs/example.yaml, the model it names (or --model), its
+estimator (or --estimator). ``--live`` feeds the frames one by one through the live path instead of
+the batch path (same rows, slower; for checking).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import math
+import collections
 import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation import ESTIMATORS
+from ecu_monitor.flightlog import load_flight
+from ecu_monitor.model import load_model
+from ecu_monitor.service.config import load_config
+from ecu_monitor.service.replay import (
+    CAN_LOG_SUFFIXES,
+    ReplayResult,
+    frames_from_flight,
+    read_frames,
+    replay_frames,
+    replay_live,
+    write_health_csv,
+)
 
-from ecu_monitor.errors import UserInputError
-from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings, run_estimator
-from ecu_monitor.estimation.runner import EstimateTrace, sample_indices
-from ecu_monitor.flightlog import FlightLog, load_flight
-from ecu_monitor.model import load_model, paper_table_a1
+__all__ = ["DEFAULT_CONFIG", "add_subparser"]
 
-__all__ = ["HEALTH_COLUMNS", "add_subparser", "write_health_csv"]
-
-#: Columns of health.csv, in order.
-HEALTH_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "state", "variance", "innovation", "nis", "reset")
+#: The configuration used when --config is not given (the repository's example for dbc/).
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "example.yaml"
 
 
 def add_subparser(subparsers: Any) -> None:
     """Register the ``replay`` subcommand."""
     parser = subparsers.add_parser(
         "replay",
-        help="run an estimator over a recorded flight log and write health.csv",
+        help="run the service pipeline over a recorded log (.asc/.blf/.log/.trc or canonical CSV) -> health.csv",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    parser.add_argument("flight", metavar="FLIGHT", help="flight log: canonical .csv (or .asc/.blf/.log/.trc)")
-    parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the paper's Table A1)")
+    parser.add_argument("log", metavar="LOG", help="flight log: .asc/.blf/.log/.trc CAN log or canonical .csv")
+    parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the config's model)")
+    parser.add_argument("--config", metavar="CONFIG.yaml", help=f"service config (default: {DEFAULT_CONFIG.name})")
     parser.add_argument(
-        "--estimator",
-        default="cbekf-au",
-        metavar="NAME",
-        help=f"estimator: {', '.join(sorted(ESTIMATORS))} (default cbekf-au)",
+        "--estimator", metavar="NAME", help=f"estimator: {', '.join(sorted(ESTIMATORS))} (default: the config's)"
     )
     parser.add_argument("--out", required=True, metavar="HEALTH.csv", help="output CSV")
+    parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
     parser.set_defaults(func=_run)
 
 
-def _fmt(value: float) -> str:
-    return "" if not math.isfinite(value) else f"{value:.10g}"
-
-
-def write_health_csv(trace: EstimateTrace, path: str | Path, states: list[str] | None = None) -> None:
-    """Write a (decimated) trace as health.csv; ``states`` defaults to NOMINAL on every row."""
-    rows = len(trace)
-    labels = states if states is not None else ["NOMINAL"] * rows
-    try:
-        with open(path, "w", newline="", encoding="utf-8") as handle:
-            writer = csv.writer(handle)
-            writer.writerow(HEALTH_COLUMNS)
-            for k in range(rows):
-                writer.writerow(
-                    (
-                        _fmt(float(trace.time_s[k])),
-                        _fmt(float(trace.cht_meas_c[k])),
-                        _fmt(float(trace.cht_est_c[k])),
-                        _fmt(float(trace.deviation[k])),
-                        labels[k],
-                        _fmt(float(trace.variance[k])),
-                        _fmt(float(trace.innovation[k])),
-                        _fmt(float(trace.nis[k])),
-                        int(bool(trace.reset[k])),
-                    )
-                )
-    except OSError as exc:
-        raise UserInputError(f"{path}: cannot write ({exc.strerror})") from None
-
-
-def replay_log(log: FlightLog, params: Any, estimator: str, settings: EstimatorSettings) -> EstimateTrace:
-    """Run ``estimator`` over ``log`` and return the trace at the log's own sample times."""
-    trace = run_estimator(log, params, estimator, settings)
-    steps = sample_indices(log.time_s, float(log.time_s[0]), settings.dt_s, len(trace))
-    decimated = trace.take(steps)
-    # report each row at the log's time stamp; the values are those of the step the reading fell on
-    return EstimateTrace(
-        decimated.estimator,
-        np.asarray(log.time_s, dtype=float),
-        np.asarray(log["cht_c"], dtype=float),
-        decimated.cht_est_c,
-        decimated.deviation,
-        decimated.variance,
-        decimated.innovation,
-        decimated.nis,
-        decimated.reset,
-        decimated.measured,
-    )
-
-
 def _run(args: argparse.Namespace) -> int:
-    params = load_model(args.model) if args.model else paper_table_a1()
-    settings = EstimatorSettings()
-    log = load_flight(args.flight)
     started = time.perf_counter()
-    health = replay_log(log, params, args.estimator, settings)
-    elapsed = time.perf_counter() - started
-    write_health_csv(health, args.out)
-    error = health.cht_est_c - health.cht_meas_c
-    rms = float(np.sqrt(np.mean(error * error)))
-    print(
-        f"{args.out}: {len(health)} rows, {args.estimator} over {log.duration_s:.1f} s of flight in {elapsed:.2f} s;"
-        f" estimate - reading RMS {rms:.2f} degC; deviation mean {float(np.mean(health.deviation)):.3f},"
-        f" max |.| {float(np.max(np.abs(health.deviation))):.3f} degC/s; {int(np.sum(health.reset))} reset(s)"
+    config = load_config(args.config or DEFAULT_CONFIG)
+    if args.estimator is not None:
+        if args.estimator not in ESTIMATORS:
+            raise ConfigError(
+                f"--estimator: unknown estimator {args.estimator!r} (known: {', '.join(sorted(ESTIMATORS))})"
+            )
+        config = config.replace(estimator_name=args.estimator)
+    params = load_model(args.model) if args.model else config.load_params()
+    path = Path(args.log)
+    if path.suffix.lower() in CAN_LOG_SUFFIXES:
+        frames = read_frames(path)
+    else:
+        frames = frames_from_flight(load_flight(path), config)
+    result: ReplayResult = (
+        replay_live(config, params, frames.messages()) if args.live else replay_frames(config, params, frames)
     )
+    rows = write_health_csv(result.rows, args.out)
+    print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
     return 0
+
+
+def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
+    c = result.counters
+    states = collections.Counter(r.state for r in result.rows)
+    span = result.rows[-1].time_s - result.rows[0].time_s if result.rows else 0.0
+    alarm = next((r.time_s for r in result.rows if r.state == "DEGRADED"), None)
+    detected = f", DEGRADED from t={alarm - result.rows[0].time_s:.1f} s" if alarm is not None else ""
+    share = ", ".join(f"{name} {count}" for name, count in states.most_common())
+    return (
+        f"{out}: {rows} rows, {span:.1f} s of {log.name} ({estimator}); frames {c['frames']} "
+        f"(ok {c['ok']}, malformed {c['malformed']}, unknown id {c['unknown_id']}); states: {share}{detected}; "
+        f"{wall_s:.1f} s"
+    )

@@ -7,8 +7,8 @@ Data flow (DESIGN.md section 2)::
                   -> health rows (10 Hz) and health frames at their configured rates
 
 Clock. The only clock is the one passed to :meth:`Pipeline.advance_to` (frame timestamps in replay,
-a monotonic clock live). A frame fed after ``advance_to(t)`` is stamped ``t`` and is seen by the steps
-after ``t`` (sample and hold). Steps fall at ``t0 + k dt`` where ``t0`` is the first ``advance_to``.
+a monotonic clock live), rounded to the microsecond (:func:`clock_tick`). A frame fed after
+``advance_to(t)`` is stamped ``t`` and is seen by the steps after ``t`` (sample and hold). Steps fall at ``t0 + k dt`` where ``t0`` is the first ``advance_to``.
 A jump of the clock by more than :data:`MAX_CLOCK_GAP_S` restarts the schedule (counted).
 
 Supervision, every step (:func:`supervise`, a pure function of floats so the replay's batch path
@@ -56,12 +56,14 @@ __all__ = [
     "ACTION_UPDATE",
     "HEADROOM_NOT_LIMITED_S",
     "MAX_CLOCK_GAP_S",
+    "MAX_CLOCK_S",
     "MODEL_INPUTS",
     "STATES",
     "STATUS_INPUT",
     "HealthSnapshot",
     "Pipeline",
     "SupervisorState",
+    "clock_tick",
     "initial_supervisor",
     "model_input_names",
     "supervise",
@@ -78,6 +80,16 @@ STATUS_INPUT = "cht_sensor_status"
 MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 #: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
 MAX_CLOCK_GAP_S = 600.0
+#: Clock readings beyond this magnitude (s) are ignored as corrupt.
+MAX_CLOCK_S = 1e12
+
+
+def clock_tick(t_s: float) -> float:
+    """A clock reading rounded to the microsecond (frame stamps and step times alike), so that a frame
+    stamped on a step instant compares equal to it whatever the log format's time resolution."""
+    return math.floor(t_s * 1e6 + 0.5) / 1e6
+
+
 #: ThermalHeadroom meaning "not limited" (health.dbc; the headroom module's cap).
 HEADROOM_NOT_LIMITED_S = DEFAULT_CAP_S
 
@@ -272,8 +284,9 @@ class Pipeline:
 
     def advance_to(self, t_s: float) -> list[can.Message]:
         """Run every fixed step at or before ``t_s`` (s); returns the health frames that fell due."""
-        if not math.isfinite(t_s):
+        if not (math.isfinite(t_s) and abs(t_s) < MAX_CLOCK_S):
             return []
+        t_s = clock_tick(t_s)
         if self._origin is None or t_s - self._now > MAX_CLOCK_GAP_S:
             if self._origin is not None:
                 self.counters["clock_restarts"] += 1
@@ -289,7 +302,7 @@ class Pipeline:
             return []
         frames: list[can.Message] = []
         while True:
-            step_time = self._origin + (self._k + 1) * self._dt
+            step_time = clock_tick(self._origin + (self._k + 1) * self._dt)
             if step_time > t_s:
                 break
             self._k += 1

@@ -19,6 +19,7 @@ latest row, encoded with the config's DBC, counter and checksum).
 
 from __future__ import annotations
 
+import csv
 import functools
 import itertools
 import math
@@ -48,6 +49,7 @@ from ecu_monitor.service.pipeline import (
     ACTION_UPDATE,
     HEADROOM_NOT_LIMITED_S,
     MAX_CLOCK_GAP_S,
+    MAX_CLOCK_S,
     STATES,
     STATUS_INPUT,
     HealthSnapshot,
@@ -57,6 +59,7 @@ from ecu_monitor.service.pipeline import (
 
 __all__ = [
     "CAN_LOG_SUFFIXES",
+    "HEALTH_COLUMNS",
     "FrameArrays",
     "ReplayResult",
     "frames_from_flight",
@@ -65,10 +68,25 @@ __all__ = [
     "replay_file",
     "replay_frames",
     "replay_live",
+    "write_health_csv",
 ]
 
 #: Log formats read through python-can.
 CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".trc")
+#: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
+#: names joined by "+", sensor_fault as 0/1; empty cells for nan.
+HEALTH_COLUMNS: tuple[str, ...] = (
+    "time_s",
+    "cht_meas_c",
+    "cht_est_c",
+    "deviation",
+    "state",
+    "gamma_q",
+    "gamma_d",
+    "headroom_s",
+    "stale_inputs",
+    "sensor_fault",
+)
 
 
 class FrameArrays(NamedTuple):
@@ -281,7 +299,12 @@ def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArr
     n = len(frames)
     if n == 0:
         return ReplayResult([], counters)
-    stamps = np.maximum.accumulate(frames.time_s)
+    clock = np.where(np.isfinite(frames.time_s) & (np.abs(frames.time_s) < MAX_CLOCK_S), frames.time_s, -np.inf)
+    stamps = np.maximum.accumulate(np.floor(clock * 1e6 + 0.5) / 1e6)  # clock_tick, as advance_to
+    started = np.isfinite(stamps)
+    if not started.any():
+        return ReplayResult([], counters)
+    stamps[~started] = stamps[started][0]  # frames before the clock starts count at its start
     batch = decoder.decode_batch(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data, stamps,
                                  frames.ignored)  # fmt: skip
     for key, value in batch.counts.items():
@@ -319,7 +342,7 @@ def _replay_segment(
     last = float(stamps[end - 1])
     count = max(0, math.floor((last - origin) / dt) + 2)
     k = np.arange(1, count + 1, dtype=np.float64)
-    times = origin + k * dt  # the same float arithmetic as Pipeline.advance_to
+    times = np.floor((origin + k * dt) * 1e6 + 0.5) / 1e6  # the same float arithmetic as Pipeline.advance_to
     times = times[times <= last]
     n = times.size
     if n == 0:
@@ -420,42 +443,41 @@ def _detect(
     """Final state codes: the detector's verdict where the supervisor says NOMINAL.
 
     Equal to the live pipeline's per-step Detector.update (started at the first initialisation, fed
-    NaN off NOMINAL steps): the symptom is averaged here over the very blocks Detector forms (a
-    block closes at the first step at or after its end, that step included), and each block mean is
-    fed to a real Detector once, at its closing step (the mean of one sample is itself).
+    NaN off NOMINAL steps): the symptom is averaged here over the very blocks Detector forms (block
+    m holds the steps from the one that closed block m-1 up to the step before the first at or after
+    its end), and a real Detector gets one sample per block, the block's mean, at the block's first
+    step (the mean of one sample is itself), so its CUSUM runs exactly as live, once per block.
     """
     state = code.copy()
     if not stretches:
         return state
     s = config.detector
+    n = times.size
     first = stretches[0][0]
     t0 = float(times[first])
+    begin = t0 + s.warmup_s
+    if float(times[-1]) < begin:
+        return state
     fed = np.where(code == 0, symptom, np.nan)
     fed[:first] = np.nan
-    begin = t0 + s.warmup_s
-    n = times.size
-    count = math.floor((float(times[-1]) - begin) / s.block_s) + 2 if times[-1] >= begin else 0
-    if count <= 0:
-        return state
+    count = math.floor((float(times[-1]) - begin) / s.block_s) + 2
     ends = np.cumsum(np.concatenate(([begin + s.block_s], np.full(count - 1, s.block_s))))
     closes = np.searchsorted(times, ends - 1e-9, side="left")
     closes = closes[closes < n]
-    start = int(np.searchsorted(times, begin, side="left"))
-    start = max(start, first)
+    start = max(int(np.searchsorted(times, begin, side="left")), first)
+    bounds = [start, *closes.tolist(), n]
     finite = np.isfinite(fed)
     values = np.where(finite, fed, 0.0)
-    ccount = np.concatenate(([0], np.cumsum(finite)))
     detector = Detector(s)
     detector.update(t0, math.nan)
     verdicts = np.zeros(n, dtype=np.int64)
-    previous = start - 1
-    for close in closes.tolist():
-        lo = max(previous + 1, start)
-        k = int(ccount[close + 1] - ccount[lo])
-        mean = float(np.sum(values[lo : close + 1]) / k) if k else math.nan
-        out = detector.update(float(times[close]), mean)
-        verdicts[close:] = STATES.index(out.state)
-        previous = close
+    for lo, hi in itertools.pairwise(bounds):
+        if hi <= lo:
+            continue
+        k = int(np.count_nonzero(finite[lo:hi]))
+        mean = float(np.sum(values[lo:hi]) / k) if k else math.nan
+        out = detector.update(float(times[lo]), mean)
+        verdicts[lo:] = STATES.index(out.state)
     nominal = code == 0
     state[nominal] = verdicts[nominal]
     return state
@@ -573,3 +595,35 @@ def replay_file(path: str | os.PathLike[str], config: ServiceConfig, params: The
     if suffix == ".csv":
         return replay_frames(config, params, frames_from_flight(load_flight(path), config))
     raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
+
+
+def _cell(value: float) -> str:
+    return f"{value:.10g}" if math.isfinite(value) else ""
+
+
+def write_health_csv(rows: Iterable[HealthSnapshot], path: str | os.PathLike[str]) -> int:
+    """Write health.csv (:data:`HEALTH_COLUMNS`); returns the number of rows. FlightLogError if unwritable."""
+    count = 0
+    try:
+        with open(path, "w", newline="", encoding="utf-8") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(HEALTH_COLUMNS)
+            for r in rows:
+                writer.writerow(
+                    (
+                        _cell(r.time_s),
+                        _cell(r.cht_meas_c),
+                        _cell(r.cht_est_c),
+                        _cell(r.deviation),
+                        r.state,
+                        _cell(r.gamma_q),
+                        _cell(r.gamma_d),
+                        _cell(r.headroom_s),
+                        "+".join(r.stale_inputs),
+                        int(r.sensor_fault),
+                    )
+                )
+                count += 1
+    except OSError as exc:
+        raise FlightLogError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    return count
