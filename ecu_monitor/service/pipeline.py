@@ -8,8 +8,9 @@ Data flow (DESIGN.md section 2)::
 
 Clock. The only clock is the one passed to :meth:`Pipeline.advance_to` (frame timestamps in replay,
 a monotonic clock live), rounded to the microsecond (:func:`clock_tick`). A frame fed after
-``advance_to(t)`` is stamped ``t`` and is seen by the steps after ``t`` (sample and hold). Steps fall at ``t0 + k dt`` where ``t0`` is the first ``advance_to``.
-A jump of the clock by more than :data:`MAX_CLOCK_GAP_S` restarts the schedule (counted).
+``advance_to(t)`` is stamped ``t`` and is seen by the steps after ``t`` (sample and hold). Steps fall
+at ``t0 + k dt`` where ``t0`` is the first ``advance_to``. A jump of the clock by more than
+:data:`MAX_CLOCK_GAP_S` restarts the schedule (counted).
 
 Supervision, every step (:func:`supervise`, a pure function of floats so the replay's batch path
 compiles the very same code with numba):
