@@ -13,6 +13,7 @@ from ecu_monitor.estimation import (
     ESTIMATORS,
     EstimatorSettings,
     ThermalEKF,
+    deviation_update,
     make_estimator,
     predict,
     register_estimator,
@@ -340,3 +341,42 @@ def test_drive_of_estimator_equals_model_drive():
     assert isinstance(d, Drive)
     assert all(isinstance(v, float) for v in d)
     assert np.allclose(d, [float(v) for v in ref], rtol=0, atol=0)
+
+
+# --- properties ----------------------------------------------------------------------------------
+
+
+def test_sensor_model_is_monotonic_and_within_half_a_step():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=300, deadline=None)
+    @given(st.floats(-50.0, 400.0), st.floats(1e-6, 0.2), st.sampled_from([0.5, 1.0, 2.0]))
+    def check(x, step, c):
+        assert sensor_model(x + step, 100.0, 0.5, c) >= sensor_model(x, 100.0, 0.5, c) - 1e-9
+        assert abs(sensor_model(x, 100.0, 0.5, c) - x) <= 0.5 * c + 1e-9
+        assert sensor_slope(x, 100.0, 0.5, c) >= 0.0
+
+    check()
+
+
+def test_deviation_is_exact_for_an_ideal_sensor():
+    """Readings equal to the truth (no quantisation, no noise): Delta converges to the exact one-step
+    model deviation of the degraded plant, f_degraded(x) - f_nominal(x)."""
+    drive = scalar_drive(CRUISE, COEFFS)
+    w = float(initial_pade_state(drive))
+    truth = 118.0
+    delta = 0.0
+    settings = EstimatorSettings()
+    for _ in range(round(200.0 / DT)):  # 10 tau_Delta
+        nxt = rk4_step(truth, w, drive, COEFFS, DT, 1.3)[0]
+        reference = rk4_step(truth, w, drive, COEFFS, DT)[0]
+        delta = deviation_update(delta, reference, nxt, 1.0, DT, settings.deviation_time_s)
+        truth = nxt
+    expected = rk4_step(truth, w, drive, COEFFS, DT, 1.3)[0] - rk4_step(truth, w, drive, COEFFS, DT)[0]
+    assert delta == pytest.approx(expected, rel=1e-3)
+    # spreading a gap of n steps gives the same filter output as n single steps of equal deviation
+    one_by_one = 0.0
+    for _ in range(5):
+        one_by_one = deviation_update(one_by_one, 0.0, 0.01, 1.0, DT, 20.0)
+    assert deviation_update(0.0, 0.0, 0.05, 5.0, DT, 20.0) == pytest.approx(one_by_one, rel=1e-12)
