@@ -1,0 +1,177 @@
+"""service/replay.py and ``ecu-monitor replay``: the batch path equals the live pipeline; the virtual
+ECU's .blf log and its canonical CSV give the same health.csv; bad input exits 2 with one line."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from ecu_monitor.cli import main
+from ecu_monitor.model import InputSeries, paper_table_a1
+from ecu_monitor.service.config import load_config
+from ecu_monitor.service.replay import (
+    FrameArrays,
+    headroom_batch,
+    read_frames,
+    replay_file,
+    replay_frames,
+    replay_live,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+NUMERIC = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+
+SHORT_MISSION = {
+    "name": "short",
+    "segments": [
+        {"kind": "ground_run", "duration_s": 40, "throttle_pct": 35},
+        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
+         "climb_rate_mps": 3},
+        {"kind": "climb", "target_altitude_m": 450, "climb_rate_mps": 3, "throttle_pct": 90, "airspeed_mps": 21},
+        {"kind": "cruise", "duration_s": 120, "airspeed_mps": 23, "throttle_pct": 55},
+    ],
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A ~5 min virtual-ECU flight with gamma_Q = 1.2 from 150 s, recorded at once as .blf, .asc and CSV,
+    and a config whose detector warms up for 60 s (the default 300 s is longer than the flight)."""
+    from virtual_bus.missions import mission_from_dict
+    from virtual_bus.plant import Degradation
+    from virtual_bus.recorder import record
+
+    root = tmp_path_factory.mktemp("flight")
+    paths = {suffix: root / f"flight.{suffix}" for suffix in ("blf", "asc", "csv")}
+    record(mission_from_dict(SHORT_MISSION), list(paths.values()), paper_table_a1(),
+           degradation=[Degradation.parse("gamma_q=1.2@150")], seed=11)  # fmt: skip
+    data = yaml.safe_load((ROOT / "configs" / "example.yaml").read_text(encoding="utf-8"))
+    data["dbc"] = [str(ROOT / "dbc" / "engine.dbc")]
+    data["health_dbc"] = str(ROOT / "dbc" / "health.dbc")
+    data["detector"] = {"symptom": "estimator", "warmup_s": 60.0}
+    paths["config"] = root / "service.yaml"
+    paths["config"].write_text(yaml.safe_dump(data), encoding="utf-8")
+    return paths
+
+
+def _columns(rows: list[Any]) -> dict[str, np.ndarray]:
+    return {name: np.array([getattr(r, name) for r in rows], dtype=float) for name in ("time_s", *NUMERIC)}
+
+
+def test_batch_replay_equals_the_live_pipeline_frame_by_frame(flight: dict[str, Path]) -> None:
+    config = load_config(flight["config"])
+    params = config.load_params()
+    frames = read_frames(flight["blf"])
+    # a little garbage on top: frames of unknown ids, a bad checksum, a wrong DLC
+    garbage = FrameArrays(
+        time_s=np.array([10.001, 20.001, 30.001]),
+        arbitration_id=np.array([0x7E0, 0x100, 0x101]),
+        is_extended=np.zeros(3, dtype=bool),
+        dlc=np.array([8, 8, 5]),
+        data=np.full((3, 8), 0x55, dtype=np.uint8),
+        ignored=np.zeros(3, dtype=bool),
+    )
+    merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(frames, garbage, strict=True)))
+    order = np.argsort(merged.time_s, kind="stable")
+    merged = FrameArrays(*(a[order] for a in merged))
+    batch = replay_frames(config, params, merged)
+    live = replay_live(config, params, merged.messages())
+    assert len(batch.rows) == len(live.rows) > 2500
+    for key in ("frames", "ok", "unknown_id", "malformed", "bad_checksum", "bad_dlc", "steps"):
+        assert batch.counters[key] == live.counters[key], key
+    assert batch.counters["unknown_id"] == 1 and batch.counters["malformed"] == 2
+    b, v = _columns(batch.rows), _columns(live.rows)
+    assert np.array_equal(b["time_s"], v["time_s"])
+    for name in NUMERIC:
+        assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
+        assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name  # compiled vs Python floats
+    assert [r.state for r in batch.rows] == [r.state for r in live.rows]
+    assert [r.stale_inputs for r in batch.rows] == [r.stale_inputs for r in live.rows]
+    states = [r.state for r in batch.rows]
+    assert "DEGRADED" in states and all(r.state == "NOMINAL" for r in batch.rows if r.time_s < 150.0)
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _num(rows: list[dict[str, str]], name: str) -> np.ndarray:
+    return np.array([float(r[name]) if r[name] else math.nan for r in rows])
+
+
+def test_blf_and_its_canonical_csv_give_the_same_health_csv(flight: dict[str, Path], tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    outputs = {}
+    for kind in ("blf", "csv", "asc"):
+        out = tmp_path / f"health-{kind}.csv"
+        assert main(["replay", str(flight[kind]), "--config", str(flight["config"]), "--out", str(out)]) == 0
+        summary = capsys.readouterr().out.strip().splitlines()
+        assert len(summary) == 1 and "rows" in summary[0] and "DEGRADED from" in summary[0]
+        outputs[kind] = _read_csv(out)
+    blf, flight_csv, asc = outputs["blf"], outputs["csv"], outputs["asc"]
+    assert list(blf[0]) == ["time_s", "cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d",
+                            "headroom_s", "stale_inputs", "sensor_fault"]  # fmt: skip
+    assert asc == blf  # two log formats of the same frames: identical
+    assert len(flight_csv) == len(blf)
+    assert np.array_equal(_num(flight_csv, "time_s"), _num(blf, "time_s"))
+    # the CSV holds the same CHT readings (10 Hz) but the fast inputs only every 100 ms (the .blf: 50 Hz)
+    assert np.array_equal(_num(flight_csv, "cht_meas_c"), _num(blf, "cht_meas_c"))
+    est = np.abs(_num(flight_csv, "cht_est_c") - _num(blf, "cht_est_c"))
+    assert np.nanmax(est) < 0.5 and np.nanmean(est) < 0.02
+    for name, tol in (("gamma_q", 0.01), ("gamma_d", 0.01), ("deviation", 0.02)):
+        assert np.nanmax(np.abs(_num(flight_csv, name) - _num(blf, name))) < tol, name
+    same = np.mean([a["state"] == b["state"] for a, b in zip(flight_csv, blf, strict=True)])
+    assert same > 0.995
+
+    def alarm(rows: list[dict[str, str]]) -> float:
+        return next(float(r["time_s"]) for r in rows if r["state"] == "DEGRADED")
+
+    assert abs(alarm(flight_csv) - alarm(blf)) <= 1.0 and 150.0 < alarm(blf) < 210.0
+
+
+def test_replay_of_a_csv_runs_the_same_path(flight: dict[str, Path]) -> None:
+    config = load_config(flight["config"])
+    result = replay_file(flight["csv"], config, config.load_params())
+    assert result.counters["malformed"] == 0 and result.counters["ok"] == result.counters["frames"]
+    assert {r.state for r in result.rows[:100]} == {"NOMINAL"}
+
+
+def test_headroom_batch_equals_the_scalar_function() -> None:
+    from ecu_monitor.estimation.headroom import thermal_headroom
+
+    params = paper_table_a1()
+    rng = np.random.default_rng(2)
+    n = 60
+    inputs = InputSeries(rng.uniform(20, 100, n), rng.uniform(3000, 9000, n), rng.uniform(0, 3000, n),
+                         rng.uniform(15, 30, n), rng.uniform(-10, 30, n))  # fmt: skip
+    cht = rng.uniform(90, 160, n)
+    gq, gd = rng.uniform(0.9, 1.4, n), rng.uniform(0.9, 1.3, n)
+    batch = headroom_batch(params, inputs, cht, gq, gd)
+    scalar = [
+        thermal_headroom(float(cht[i]), None, InputSeries(*(float(v[i]) for v in inputs)), params,
+                         gamma_q=float(gq[i]), gamma_d=float(gd[i])).time_to_limit_s
+        for i in range(n)
+    ]  # fmt: skip
+    assert np.allclose(batch, scalar, rtol=0, atol=1e-6)
+    assert 0 < np.count_nonzero((np.array(scalar) > 0) & (np.array(scalar) < 6000)) < n  # some limited, some not
+
+
+def test_replay_bad_config_exits_2_with_one_line(flight: dict[str, Path], tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(flight["config"].read_text(encoding="utf-8").replace("unit: rpm", "unit: rps"), encoding="utf-8")
+    code = main(["replay", str(flight["csv"]), "--config", str(bad), "--out", str(tmp_path / "h.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "bad.yaml" in err[0] and "inputs.rpm.unit" in err[0]
+    missing = tmp_path / "absent.blf"
+    assert main(["replay", str(missing), "--config", str(flight["config"]), "--out", str(tmp_path / "h.csv")]) == 2
+    assert "absent.blf" in capsys.readouterr().err
+    code = main(["replay", str(flight["csv"]), "--estimator", "nope", "--out", str(tmp_path / "h.csv")])
+    assert code == 2 and "known: " in capsys.readouterr().err
