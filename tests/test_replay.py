@@ -77,9 +77,9 @@ def test_batch_replay_equals_the_live_pipeline_frame_by_frame(flight: dict[str, 
         data=np.full((3, 8), 0x55, dtype=np.uint8),
         ignored=np.zeros(3, dtype=bool),
     )
-    merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(frames, garbage, strict=True)))
-    order = np.argsort(merged.time_s, kind="stable")
-    merged = FrameArrays(*(a[order] for a in merged))
+    parts: list[Any] = [np.concatenate([a, b]) for a, b in zip(frames, garbage, strict=True)]
+    order = np.argsort(parts[0], kind="stable")
+    merged = FrameArrays(*[a[order] for a in parts])
     batch = replay_frames(config, params, merged)
     live = replay_live(config, params, merged.messages())
     assert len(batch.rows) == len(live.rows) > 2500
@@ -155,7 +155,7 @@ def test_headroom_batch_equals_the_scalar_function() -> None:
     gq, gd = rng.uniform(0.9, 1.4, n), rng.uniform(0.9, 1.3, n)
     batch = headroom_batch(params, inputs, cht, gq, gd)
     scalar = [
-        thermal_headroom(float(cht[i]), None, InputSeries(*(float(v[i]) for v in inputs)), params,
+        thermal_headroom(float(cht[i]), None, InputSeries(*(float(np.asarray(v)[i]) for v in inputs)), params,
                          gamma_q=float(gq[i]), gamma_d=float(gd[i])).time_to_limit_s
         for i in range(n)
     ]  # fmt: skip
