@@ -192,3 +192,23 @@ def test_params_are_frozen_and_validated():
         params.c_w = 1.0  # type: ignore[misc]
     with pytest.raises(ParameterError):
         params.replace(tau_w=0.0)
+
+
+def test_scalar_drive_path_equals_numpy_path():
+    params = paper_table_a1().replace(
+        effects=Effects(
+            airspeed_cooling=AirspeedCooling(),
+            density_cooling=DensityCooling(),
+            mixture_cooling=MixtureCooling(0.2, 0.5),
+        )
+    )
+    c = coefficients(params)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        values = (rng.uniform(-10, 110), rng.uniform(1000, 10000), rng.uniform(-300, 5000), rng.uniform(-2, 40))
+        oat = rng.uniform(-30, 45)
+        scalar = compute_drive(InputSeries(*values, oat), c)  # floats: the math-module path
+        vector = compute_drive(InputSeries(*(np.array([v]) for v in values), np.array([oat])), c)
+        assert isinstance(scalar.q_sl0_w, float)
+        for got, want in zip(scalar, vector, strict=True):
+            assert got == pytest.approx(float(np.asarray(want)[0]), rel=1e-12, abs=1e-12)

@@ -10,7 +10,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = [
+    "ISA_PRESSURE_EXPONENT",
     "KELVIN_OFFSET",
+    "LAPSE_RATE_K_PER_M",
     "SEA_LEVEL_DENSITY_KG_M3",
     "SEA_LEVEL_PRESSURE_PA",
     "SEA_LEVEL_TEMPERATURE_K",
@@ -22,16 +24,16 @@ KELVIN_OFFSET = 273.15
 SEA_LEVEL_PRESSURE_PA = 101_325.0
 SEA_LEVEL_TEMPERATURE_K = 288.15
 SEA_LEVEL_DENSITY_KG_M3 = 1.225
-_LAPSE_RATE_K_PER_M = 0.0065
+LAPSE_RATE_K_PER_M = 0.0065
 _GAS_CONSTANT_AIR = 287.053  # J/(kg K)
 _GRAVITY = 9.80665
-_EXPONENT = _GRAVITY / (_GAS_CONSTANT_AIR * _LAPSE_RATE_K_PER_M)  # ~5.2559
+ISA_PRESSURE_EXPONENT = _GRAVITY / (_GAS_CONSTANT_AIR * LAPSE_RATE_K_PER_M)  # ~5.2559
 
 
 def isa_pressure_pa(altitude_m: ArrayLike) -> np.ndarray | float:
     """ISA static pressure (Pa) at a pressure altitude (m), troposphere (valid up to 11 km)."""
-    ratio = 1.0 - _LAPSE_RATE_K_PER_M * np.asarray(altitude_m, dtype=float) / SEA_LEVEL_TEMPERATURE_K
-    result = SEA_LEVEL_PRESSURE_PA * np.maximum(ratio, 1e-6) ** _EXPONENT
+    ratio = 1.0 - LAPSE_RATE_K_PER_M * np.asarray(altitude_m, dtype=float) / SEA_LEVEL_TEMPERATURE_K
+    result = SEA_LEVEL_PRESSURE_PA * np.maximum(ratio, 1e-6) ** ISA_PRESSURE_EXPONENT
     return float(result) if np.ndim(result) == 0 else result
 
 
