@@ -175,3 +175,26 @@ def test_replay_bad_config_exits_2_with_one_line(flight: dict[str, Path], tmp_pa
     assert "absent.blf" in capsys.readouterr().err
     code = main(["replay", str(flight["csv"]), "--estimator", "nope", "--out", str(tmp_path / "h.csv")])
     assert code == 2 and "known: " in capsys.readouterr().err
+
+
+def test_fast_blf_reader_equals_python_can(flight: dict[str, Path], tmp_path: Path) -> None:
+    from ecu_monitor.service.replay import read_blf_arrays
+
+    fast = read_blf_arrays(flight["blf"])
+    assert fast is not None
+    import can
+
+    with can.LogReader(str(flight["blf"])) as reader:
+        messages = list(reader)
+    assert len(fast) == len(messages) > 10000
+    assert np.allclose(fast.time_s, [m.timestamp for m in messages], rtol=0, atol=1e-6)
+    assert fast.arbitration_id.tolist() == [m.arbitration_id for m in messages]
+    assert [bytes(row[:n]) for row, n in zip(fast.data, fast.dlc, strict=True)] == [bytes(m.data) for m in messages]
+    # a log with an error frame is not all classic frames: python-can's reader takes over
+    mixed = tmp_path / "mixed.blf"
+    with can.Logger(str(mixed)) as writer:
+        writer.on_message_received(can.Message(timestamp=1.0, arbitration_id=0x100, data=bytes(8)))
+        writer.on_message_received(can.Message(timestamp=1.1, is_error_frame=True))
+    assert read_blf_arrays(mixed) is None
+    frames = read_frames(mixed)
+    assert len(frames) == 2 and frames.ignored.tolist() == [False, True]

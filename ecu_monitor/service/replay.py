@@ -24,6 +24,7 @@ import functools
 import itertools
 import math
 import os
+import struct
 import types
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -127,8 +128,17 @@ class ReplayResult:
 
 
 def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
-    """Read a python-can log (.asc, .blf, .log, .trc) into arrays; FlightLogError if unreadable."""
+    """Read a python-can log (.asc, .blf, .log, .trc) into arrays; FlightLogError if unreadable.
+
+    A .blf holding only classic CAN frames (the usual case, and every log the virtual ECU writes) is
+    read by :func:`read_blf_arrays` straight into arrays (no Message objects, about 4x faster);
+    anything else goes through python-can's readers.
+    """
     src = str(path)
+    if src.lower().endswith(".blf"):
+        fast = read_blf_arrays(src)
+        if fast is not None:
+            return fast
     times: list[float] = []
     ids: list[int] = []
     ext: list[bool] = []
@@ -160,6 +170,105 @@ def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
         np.asarray(dlcs, dtype=np.int64),
         np.frombuffer(bytes(payload), dtype=np.uint8).reshape(-1, 8).copy(),
         np.asarray(ignored, dtype=bool),
+    )
+
+
+_BLF_RECORD = np.dtype(
+    [
+        ("signature", "S4"),
+        ("header_size", "<u2"),
+        ("header_version", "<u2"),
+        ("object_size", "<u4"),
+        ("object_type", "<u4"),
+        ("flags", "<u4"),
+        ("client", "<u2"),
+        ("object_version", "<u2"),
+        ("timestamp", "<u8"),
+        ("channel", "<u2"),
+        ("msg_flags", "u1"),
+        ("dlc", "u1"),
+        ("can_id", "<u4"),
+        ("data", "u1", (8,)),
+    ]
+)  # a CAN_MESSAGE object (type 1) with a version-1 header: 48 bytes
+
+
+def read_blf_arrays(path: str | os.PathLike[str]) -> FrameArrays | None:
+    """Frames of a .blf as arrays without building Message objects, or None if the file holds anything
+    but classic CAN messages with version-1 headers (then use python-can's reader).
+
+    Same layout and timestamps as python-can's BLFReader (start time of the file header plus the
+    object's timestamp, 10 us or 1 ns units); containers are inflated with zlib and the concatenated
+    objects are viewed as one structured array (48 bytes each).
+    """
+    import zlib
+
+    from can.io import blf
+
+    src = str(path)
+    try:
+        with open(src, "rb") as handle:
+            header_bytes = handle.read(blf.FILE_HEADER_STRUCT.size)
+            if len(header_bytes) < blf.FILE_HEADER_STRUCT.size:
+                return None
+            header = blf.FILE_HEADER_STRUCT.unpack(header_bytes)
+            if header[0] != b"LOGG":
+                return None
+            start = blf.systemtime_to_timestamp(header[14:22])
+            handle.read(header[1] - blf.FILE_HEADER_STRUCT.size)
+            chunks: list[bytes] = []
+            base = blf.OBJ_HEADER_BASE_STRUCT
+            while True:
+                head = handle.read(base.size)
+                if not head:
+                    break
+                if len(head) < base.size:
+                    return None
+                signature, _, _, size, kind = base.unpack(head)
+                if signature != b"LOBJ" or size < base.size:
+                    return None
+                body = handle.read(size - base.size)
+                handle.read(size % 4)
+                if kind != blf.LOG_CONTAINER:
+                    return None
+                method, _ = blf.LOG_CONTAINER_STRUCT.unpack_from(body)
+                payload = body[blf.LOG_CONTAINER_STRUCT.size :]
+                if method == blf.ZLIB_DEFLATE:
+                    chunks.append(zlib.decompress(payload))
+                elif method == blf.NO_COMPRESSION:
+                    chunks.append(payload)
+                else:
+                    return None
+    except FileNotFoundError:
+        raise FlightLogError(f"{src}: no such file") from None
+    except OSError as exc:
+        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
+    except (zlib.error, struct.error, ValueError):
+        return None
+    raw = b"".join(chunks)
+    if not raw or len(raw) % _BLF_RECORD.itemsize:
+        return None
+    rec = np.frombuffer(raw, dtype=_BLF_RECORD)
+    if not (
+        np.all(rec["signature"] == b"LOBJ")
+        and np.all(rec["object_size"] == _BLF_RECORD.itemsize)
+        and np.all(rec["object_type"] == blf.CAN_MESSAGE)
+        and np.all(rec["header_version"] == 1)
+    ):
+        return None
+    factor = np.where(rec["flags"] == blf.TIME_TEN_MICS, 1e-5, 1e-9)
+    time_s = rec["timestamp"].astype(np.float64) * factor + start
+    dlc = np.minimum(rec["dlc"].astype(np.int64), 8)
+    data = rec["data"].copy()
+    data[np.arange(8)[None, :] >= dlc[:, None]] = 0
+    can_id = rec["can_id"].astype(np.int64)
+    return FrameArrays(
+        time_s,
+        can_id & 0x1FFFFFFF,
+        (can_id & blf.CAN_MSG_EXT) != 0,
+        dlc,
+        data,
+        (rec["msg_flags"] & blf.REMOTE_FLAG) != 0,
     )
 
 
