@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -125,7 +126,7 @@ def test_blind_case_verdict(index: int) -> None:
         assert result.diagnosis.model == case.nominal  # unexplained: the model is not changed
 
 
-def test_gap_json_schema_and_outputs(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_gap_json_schema_and_outputs(tmp_path: Path) -> None:
     case = blind_case(3, BLIND_SEED, BLIND_DURATION_S)  # sensor lag
     diag = diagnose(case.nominal, case.train, case.test)
     doc = write_report(diag, tmp_path / "out")

@@ -7,8 +7,10 @@ test) and how far the held-out error shrinks. Writes DIR/gap.json, DIR/report.md
 DIR/model.yaml (the model with the winning effect, or the nominal model when unexplained).
 
 Without ``--model`` the nominal model is identified on the train flight (PSO, ``--heat-axes`` as for
-identify). ``--split-at S`` with ``--train`` alone splits one flight at S seconds: before = train,
-after = test. ``--blind N`` runs N generated blind cases on the virtual ECU instead and writes
+identify) and each candidate is then re-identified jointly with the whole model (``--refit
+reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
+with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
+with ``--train`` alone splits one flight at S seconds: before = train, after = test. ``--blind N`` runs N generated blind cases on the virtual ECU instead and writes
 DIR/blind.json and DIR/blind.md (scores and confusion matrix).
 """
 
@@ -55,6 +57,12 @@ def add_subparser(subparsers: Any) -> None:
         help=f"comma-separated candidate effects (default {','.join(DEFAULT_CANDIDATE_IDS)};"
         f" known: {','.join(CANDIDATE_IDS)})",
     )
+    parser.add_argument(
+        "--refit",
+        choices=("local", "reidentify"),
+        help="local: refit effect + R_Ce/heat factors from the nominal model (default with --model);"
+        " reidentify: PSO re-identification of the whole model jointly with each effect (default without --model)",
+    )
     parser.add_argument("--blind", type=int, metavar="N", help="run N blind cases on the virtual ECU instead")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the blind cases (default 0)")
     parser.add_argument("--duration", type=float, default=3600.0, metavar="S", help="blind-case flight length, s")
@@ -84,13 +92,14 @@ def _flights(args: argparse.Namespace) -> tuple[FlightLog, FlightLog]:
 
 
 def _settings(args: argparse.Namespace) -> GapSettings:
+    mode = args.refit or ("local" if args.model or args.blind is not None else "reidentify")
     if not args.candidates:
-        return GapSettings()
+        return GapSettings(refit_mode=mode)
     ids = tuple(c.strip() for c in args.candidates.split(",") if c.strip())
     unknown = [c for c in ids if c not in CANDIDATE_IDS]
     if unknown or not ids:
         raise UserInputError(f"--candidates: unknown effect(s) {unknown or ids} (known: {', '.join(CANDIDATE_IDS)})")
-    return GapSettings(candidates=ids)
+    return GapSettings(candidates=ids, refit_mode=mode)
 
 
 def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:

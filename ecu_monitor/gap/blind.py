@@ -126,6 +126,7 @@ class BlindResult:
             "verdict_right": self.verdict_right,
             "segment": self.segment,
             "segment_right": self.segment_right,
+            "where_top_segment": self.diagnosis.where[0].segment,
             "baseline_test_rms_c": float(np.sqrt(np.mean(self.diagnosis.baseline_test_residual**2))),
             "shrink_pct": self.shrink_pct,
             "control_test_rms_c": self.diagnosis.control.test_rms_c,

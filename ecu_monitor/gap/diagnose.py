@@ -24,21 +24,31 @@ import numpy as np
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, flight_references
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, Candidate, candidate, flight_references
 from ecu_monitor.gap.localise import (
     LagSignature,
     SegmentShare,
     Spectrum,
     correlations,
+    heat_map_coverage,
     lag_signature,
     ljung_box,
     region_breakdown,
     residual_spectrum,
     segment_breakdown,
 )
-from ecu_monitor.gap.refit import FitResult, PreparedFlight, RefitSettings, prepare_flight, refit, simulate_probe
+from ecu_monitor.gap.refit import (
+    FitResult,
+    PreparedFlight,
+    RefitSettings,
+    prepare_flight,
+    refit,
+    reidentify,
+    simulate_probe,
+)
 from ecu_monitor.gap.segments import SEGMENT_NAMES, Segmentation, SegmentSettings, segment_flight
 from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings, improvement_test
+from ecu_monitor.identify import PsoSettings
 from ecu_monitor.model import ThermalParams
 
 __all__ = ["EffectScore", "GapDiagnosis", "GapSettings", "diagnose"]
@@ -49,6 +59,11 @@ Progress = Callable[[str], None]
 @dataclass(frozen=True)
 class GapSettings:
     """Settings of the diagnosis: candidates tried, refit, significance, segmentation, pairs.
+
+    refit_mode "local" (default) refits the candidate's parameters and two nominal factors from the
+    nominal model (:func:`ecu_monitor.gap.refit.refit`); "reidentify" re-identifies the whole nominal
+    model jointly with them (:func:`ecu_monitor.gap.refit.reidentify`, PSO with ``pso``), the choice
+    when the nominal model was identified on the train flight itself.
 
     Pairs are tried when the best single effect leaves a test RMS above ``pair_threshold_c`` (degC);
     a pair must beat the single effect by ``pair_min_shrink_pct`` (a higher bar than a single effect
@@ -63,12 +78,16 @@ class GapSettings:
     pair_threshold_c: float = 1.0
     pair_min_shrink_pct: float = 30.0
     whiteness_estimator: str | None = "cbekf-au"
+    refit_mode: str = "local"
+    pso: PsoSettings = field(default_factory=PsoSettings)
 
     def __post_init__(self) -> None:
         for cid in self.candidates:
             candidate(cid)  # raises ParameterError if unknown
         if not self.candidates:
             raise ParameterError("gap: at least one candidate effect is needed")
+        if self.refit_mode not in ("local", "reidentify"):
+            raise ParameterError(f"gap refit mode: expected 'local' or 'reidentify', got {self.refit_mode!r}")
 
 
 @dataclass(frozen=True)
@@ -112,6 +131,7 @@ class GapDiagnosis:
     lag: LagSignature
     spectrum: Spectrum
     whiteness: dict[str, Any]
+    coverage: dict[str, float]
     control: EffectScore
     effects: list[EffectScore]  # every single and pair tried, sorted by test RMS
     winner: EffectScore | None
@@ -218,15 +238,22 @@ def diagnose(
     lag = lag_signature(base_test, rate)
     spectrum = residual_spectrum(base_test, test.dt_s)
     whiteness = _whiteness(nominal, test_log, settings.whiteness_estimator)
+    hm = nominal.heat_map
+    coverage = heat_map_coverage(base_test, train_log, test_log, axes, hm.x_breakpoints, hm.y_breakpoints)
+
+    def fit_candidates(entries: list[Candidate]) -> FitResult:
+        if settings.refit_mode == "reidentify":
+            return reidentify(nominal, train, entries, references, settings.refit, settings.pso)
+        return refit(nominal, train, entries, references, settings.refit)
 
     say("refit: control (nominal with R_Ce and heat scale re-tuned on the train flight)")
-    control_fit = refit(nominal, train, [], references, settings.refit)
+    control_fit = fit_candidates([])
     control = _score(control_fit, test, baseline_rms, engine, "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
     singles: list[EffectScore] = []
     for cid in settings.candidates:
         say(f"refit: {cid}")
-        fit = refit(nominal, train, [candidate(cid)], references, settings.refit)
+        fit = fit_candidates([candidate(cid)])
         singles.append(
             _score(fit, test, baseline_rms, engine, "single", control.test_residual, n_tests, settings.significance)
         )
@@ -239,7 +266,7 @@ def diagnose(
         pair_test = dataclasses.replace(settings.significance, min_shrink_pct=settings.pair_min_shrink_pct)
         for cid in others:
             say(f"refit: pair {first}+{cid}")
-            fit = refit(nominal, train, [candidate(first), candidate(cid)], references, settings.refit)
+            fit = fit_candidates([candidate(first), candidate(cid)])
             pairs.append(_score(fit, test, baseline_rms, engine, "pair", winner.test_residual, len(others), pair_test))
         better = [p for p in pairs if p.counts]
         if better:
@@ -269,6 +296,7 @@ def diagnose(
         lag=lag,
         spectrum=spectrum,
         whiteness=whiteness,
+        coverage=coverage,
         control=control,
         effects=effects,
         winner=winner,

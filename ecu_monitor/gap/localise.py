@@ -6,7 +6,9 @@
 - the lag signature: a probe (or heat-path) lag the model lacks leaves ``r(t) ~ -tau dT/dt``, so the
   least-squares tau of that regression and its correlation say whether a lag is plausible;
 - the spectrum (Welch) and the share of residual power by band of period;
-- whiteness (Ljung-Box) of a sequence such as the filtered innovations.
+- whiteness (Ljung-Box) of a sequence such as the filtered innovations;
+- heat-map coverage: the share of the test residual in cells of the heat map the train flight never
+  visited (there the identified map is an extrapolation, whatever effect is added).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ __all__ = [
     "SegmentShare",
     "Spectrum",
     "correlations",
+    "heat_map_coverage",
     "lag_signature",
     "ljung_box",
     "region_breakdown",
@@ -193,3 +196,42 @@ def ljung_box(values: np.ndarray, lags: int = 20) -> dict[str, float]:
     acf = np.array([float(x[k:] @ x[:-k]) / denom for k in range(1, lags + 1)])
     q = float(n * (n + 2) * np.sum(acf**2 / (n - np.arange(1, lags + 1))))
     return {"q": q, "p_value": float(stats.chi2.sf(q, lags)), "lags": float(lags), "acf1": float(acf[0])}
+
+
+def _cells(x: np.ndarray, y: np.ndarray, xb: np.ndarray, yb: np.ndarray) -> np.ndarray:
+    i = np.clip(np.searchsorted(xb, x, side="right") - 1, 0, xb.size - 2)
+    j = np.clip(np.searchsorted(yb, y, side="right") - 1, 0, yb.size - 2)
+    return i * (yb.size - 1) + j
+
+
+def heat_map_coverage(
+    residual: np.ndarray,
+    train: FlightLog,
+    test: FlightLog,
+    axes: tuple[str, str],
+    x_breakpoints: Sequence[float],
+    y_breakpoints: Sequence[float],
+    min_visit_s: float = 30.0,
+) -> dict[str, float]:
+    """How much of the test residual lies in heat-map cells the train flight never visited.
+
+    A cell (between adjacent breakpoints of the two heat axes; outside the grid counts as the edge
+    cell) is *visited* when the train flight spends at least ``min_visit_s`` in it. A gap that sits
+    mostly in unvisited cells is a coverage problem of the identification, not a missing effect.
+    """
+    xb = np.asarray(x_breakpoints, dtype=float)
+    yb = np.asarray(y_breakpoints, dtype=float)
+    dt_train = float(np.median(np.diff(train.time_s)))
+    train_cells = _cells(np.asarray(train[axes[0]]), np.asarray(train[axes[1]]), xb, yb)
+    counts = np.bincount(train_cells, minlength=(xb.size - 1) * (yb.size - 1)) * dt_train
+    test_cells = _cells(np.asarray(test[axes[0]]), np.asarray(test[axes[1]]), xb, yb)
+    unvisited = counts[test_cells] < min_visit_s
+    r = np.asarray(residual, dtype=float)
+    total = float(np.sum(r**2)) or 1.0
+    return {
+        "unvisited_time_share": float(np.mean(unvisited)),
+        "unvisited_error_share": float(np.sum(r[unvisited] ** 2)) / total,
+        "unvisited_rms_c": float(np.sqrt(np.mean(r[unvisited] ** 2))) if np.any(unvisited) else 0.0,
+        "visited_rms_c": float(np.sqrt(np.mean(r[~unvisited] ** 2))) if np.any(~unvisited) else 0.0,
+        "min_visit_s": float(min_visit_s),
+    }

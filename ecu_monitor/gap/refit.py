@@ -15,6 +15,7 @@ spread several-fold.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -25,8 +26,8 @@ from scipy.optimize import least_squares
 
 from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.library import RETUNED_BOUNDS, RETUNED_NOMINAL, Candidate, effects_for
-from ecu_monitor.identify import IDENTIFICATION_DT_S, FlightGrid
+from ecu_monitor.gap.library import RETUNED_BOUNDS, RETUNED_NOMINAL, Candidate, FreeParameter, effects_for
+from ecu_monitor.identify import DEFAULT_FREE, IDENTIFICATION_DT_S, FlightGrid, PsoSettings, default_space, identify
 from ecu_monitor.identify import prepare_flight as prepare_grid
 from ecu_monitor.model import ThermalParams, coefficients, simulate, stack_coefficients
 from ecu_monitor.model.compiled import simulate_compiled
@@ -37,6 +38,7 @@ __all__ = [
     "RefitSettings",
     "prepare_flight",
     "refit",
+    "reidentify",
     "simulate_probe",
 ]
 
@@ -136,16 +138,22 @@ class _Problem:
         self.names = [(e.id, p.name) for e in self.entries for p in e.free]
         self.low = np.array([p.low for e in self.entries for p in e.free] + [RETUNED_BOUNDS[0]] * 2)
         self.high = np.array([p.high for e in self.entries for p in e.free] + [RETUNED_BOUNDS[1]] * 2)
-        starts = [
-            float(np.clip(getattr(nominal, p.name), p.low, p.high)) if e.effect == "nominal" else p.start
-            for e in self.entries
-            for p in e.free
-        ]
+        starts = [self._start(e, p) for e in self.entries for p in e.free]
         self.start = np.array([*starts, 0.0, 0.0])
         self.steps = 1e-3 * (self.high - self.low)
         self.evaluations = 0
         self.failed = 0
         self.heat_values = nominal.heat_map.values_array()
+
+    def _start(self, entry: Candidate, free: FreeParameter) -> float:
+        """Warm start: the nominal model's own value when it has one (a nominal field, or an effect the
+        nominal model already has on), else the library's start value."""
+        if entry.effect == "nominal":
+            value = float(getattr(self.nominal, free.name))
+        else:
+            current = getattr(self.nominal.effects, entry.effect)
+            value = float(getattr(current, free.name)) if current is not None else free.start
+        return float(np.clip(value, free.low, free.high))
 
     def values(self, x: np.ndarray) -> dict[str, dict[str, float]]:
         out: dict[str, dict[str, float]] = {e.id: {} for e in self.entries}
@@ -253,3 +261,35 @@ def refit(
         converged=bool(result.success),
         extra={"retuned": list(RETUNED_NOMINAL)},
     )
+
+
+def reidentify(
+    nominal: ThermalParams,
+    train: PreparedFlight,
+    entries: Sequence[Candidate],
+    references: Mapping[str, float],
+    settings: RefitSettings | None = None,
+    pso: PsoSettings | None = None,
+) -> FitResult:
+    """Re-identify the whole nominal model (PSO, :func:`ecu_monitor.identify.identify`: C_w, R_Ce, tau_w,
+    the visited heat map) jointly with the candidates' free parameters on the train flight, then
+    polish and estimate the uncertainty with :func:`refit` from there.
+
+    This is the refit to use when the nominal model was itself identified on the train flight: its
+    heat map has then absorbed whatever part of an effect the operating point can mimic (a hot ground
+    run becomes "more heat at low fuel flow"), and only a joint fit can give it back to the effect.
+    The control is the same identification with no candidate (same PSO seed).
+    """
+    settings = settings or RefitSettings()
+    pso = pso or PsoSettings()
+    start = {e.id: {p.name: p.start for p in e.free} for e in entries if e.effect != "nominal"}
+    effect_entries = [e for e in entries if e.effect != "nominal"]
+    base = nominal.replace(effects=effects_for(nominal.effects, effect_entries, start, references))
+    free = list(DEFAULT_FREE)
+    for e in entries:
+        for p in e.free:
+            free.append(p.name if e.effect == "nominal" else f"effects.{e.effect}.{p.name}")
+    space = default_space([train.log], base=base, heat_axes=nominal.heat_axes, free=free)
+    identified = identify([train.log], space=space, settings=pso).params
+    fit = refit(identified, train, entries, references, settings)
+    return dataclasses.replace(fit, extra={**fit.extra, "refit": "reidentify", "pso_evaluations": pso.particles})

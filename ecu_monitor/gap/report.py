@@ -109,6 +109,7 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
             "lag_signature": diag.lag.to_dict(),
             "spectrum": diag.spectrum.to_dict(),
             "innovation_whiteness": diag.whiteness,
+            "heat_map_coverage": diag.coverage,
             "references": diag.references,
             "settings": {
                 "candidates": list(diag.settings.candidates),
@@ -310,6 +311,13 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
             f"{w['lags']:.0f} lags (p = {w['p_value']:.2g}), lag-1 autocorrelation {w['acf1']:+.2f}, RMS "
             f"{w['innovation_rms_c']:.2f} degC ({'white' if w['p_value'] > 0.05 else 'not white'})."
         )
+    cov = diag.coverage
+    lines.append(
+        f"Heat-map coverage: {100 * cov['unvisited_time_share']:.0f} % of the test flight is in heat-map cells the "
+        f"train flight never visited (< {cov['min_visit_s']:.0f} s); they hold "
+        f"{100 * cov['unvisited_error_share']:.0f} % of the squared residual (RMS {cov['unvisited_rms_c']:.2f} degC "
+        f"there, {cov['visited_rms_c']:.2f} degC in visited cells)."
+    )
     lines += [
         "",
         "## Candidate effects (refitted on the train flight, scored on the test flight)",
