@@ -10,8 +10,9 @@ Without ``--model`` the nominal model is identified on the train flight (PSO, ``
 identify) and each candidate is then re-identified jointly with the whole model (``--refit
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
-with ``--train`` alone splits one flight at S seconds: before = train, after = test. ``--blind N`` runs N generated blind cases on the virtual ECU instead and writes
-DIR/blind.json and DIR/blind.md (scores and confusion matrix).
+with ``--train`` alone splits one flight at S seconds: before = train, after = test. ``--blind N``
+runs N generated blind cases on the virtual ECU instead and writes DIR/blind.json and DIR/blind.md
+(scores and confusion matrix).
 """
 
 from __future__ import annotations
