@@ -16,6 +16,13 @@ Bus failures never end the process: a receive error (reported by the Notifier th
 Health_Diag.BusErrors); a receive error, or ``SEND_FAILURES_TO_REOPEN`` sends failing in a row, closes
 the bus and reopens it after ``initial``, ``2*initial``, ... up to ``max`` seconds.
 
+Garbage collection: after importing numba, cantools and numpy the process holds ~150,000 tracked
+objects, and a full (generation 2) collection scanning them all stalled every thread for 100-350 ms
+here, longer than a health period and long enough to overflow a socket's receive queue. The daemon
+collects once before READY and moves the start-up heap into the permanent generation (``gc.freeze``),
+and freezes again when the estimator has run its first steps (its compiled code is loaded then), so
+the collector only ever scans what the service allocates while it runs (measured in docs/service.md).
+
 :meth:`Daemon._guarded` holds the codebase's only broad ``except Exception``: whatever a frame or a tick
 raises is logged and counted (``daemon_errors``), and the daemon keeps running; the watchdog then
 decides, from the pipeline's progress, whether the process is still useful.
@@ -23,6 +30,7 @@ decides, from the pipeline's progress, whether the process is still useful.
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import threading
@@ -131,6 +139,7 @@ class Daemon:
         self._can_notifier: can.Notifier | None = None
         self._tick_thread: threading.Thread | None = None
         self._send_failures_in_row = 0
+        self._heap_frozen_running = False
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
         self.counters: dict[str, int] = {
             "frames_in": 0,
@@ -316,8 +325,12 @@ class Daemon:
     def _supervise_once(self, now: float) -> None:
         with self._lock:
             steps = self.pipeline.steps_done
+            estimating = _finite(self.pipeline.snapshot().cht_est_c)
         if self._watchdog.due(now, steps) and self._notifier.watchdog():
             self.counters["watchdog_pings"] += 1
+        if estimating and not self._heap_frozen_running:
+            gc.freeze()  # the estimator's first steps loaded its compiled code: keep it out of collections too
+            self._heap_frozen_running = True
         self._record()
 
     def run(self) -> int:
@@ -326,6 +339,8 @@ class Daemon:
         self._attach()
         with self._lock:
             self.pipeline.advance_to(self._clock())
+        gc.collect()  # once, before READY: then the start-up heap leaves the collector's sight (gc.freeze)
+        gc.freeze()
         self._tick_thread = threading.Thread(target=self._tick_loop, name="ecu-monitor tick", daemon=True)
         self._tick_thread.start()
         self._notifier.ready(status="running: " + self._status_line())
@@ -354,6 +369,7 @@ class Daemon:
         self._guarded("flush", self._record)
         if self._recorder is not None:
             self._guarded("flush", self._recorder.close)
+        gc.unfreeze()  # back to normal collection for whoever runs on in this process (tests, benchmarks)
         _log.info("stopped: %s", ", ".join(f"{k} {v}" for k, v in self.counters.items()))
         return 0
 
