@@ -55,6 +55,7 @@ __all__ = [
     "ACTION_NONE",
     "ACTION_PREDICT",
     "ACTION_UPDATE",
+    "FILTER_PERIOD_S",
     "HEADROOM_NOT_LIMITED_S",
     "MAX_CLOCK_GAP_S",
     "MAX_CLOCK_S",
@@ -65,6 +66,7 @@ __all__ = [
     "Pipeline",
     "SupervisorState",
     "clock_tick",
+    "filter_period_steps",
     "initial_supervisor",
     "model_input_names",
     "supervise",
@@ -81,6 +83,18 @@ STATUS_INPUT = "cht_sensor_status"
 MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 #: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
 MAX_CLOCK_GAP_S = 600.0
+#: The filters (estimator, isolation filter, open-loop reference) are called every this many seconds
+#: with the inputs held at that instant; each call integrates the elapsed steps of dt_s (0.02 s) on the
+#: model and applies the latest CHT reading (the CHT frame comes every 100 ms). The supervision,
+#: staleness and detector run every step.
+FILTER_PERIOD_S = 0.1
+
+
+def filter_period_steps(dt_s: float) -> int:
+    """Steps of dt_s between two filter calls (at least 1)."""
+    return max(1, round(FILTER_PERIOD_S / dt_s))
+
+
 #: Clock readings beyond this magnitude (s) are ignored as corrupt.
 MAX_CLOCK_S = 1e12
 
@@ -179,6 +193,20 @@ def supervise(
     return out, _NOMINAL, ACTION_UPDATE if new_reading else ACTION_PREDICT
 
 
+class _Held(NamedTuple):
+    """Filter outputs held between filter calls (every FILTER_PERIOD_S)."""
+
+    cht_est_c: float
+    deviation: float
+    gamma_q: float
+    gamma_d: float
+    iso_deviation: float
+    model_c: float  # open-loop reference model, degC
+
+
+_NO_ESTIMATE = _Held(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan)
+
+
 def model_input_names(params: ThermalParams) -> tuple[str, ...]:
     """Inputs the model reads, in InputSeries order: the two heat-map axes, altitude, airspeed, OAT."""
     return (*params.heat_axes, *MODEL_INPUTS)
@@ -241,6 +269,10 @@ class Pipeline:
         self._detector_started = False
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
         self._headroom_s = math.nan
+        self._filter_period = filter_period_steps(self._dt)
+        self._anchor = 0
+        self._pending_reading = False
+        self._held = _NO_ESTIMATE
         self._snapshot = self._empty_snapshot(math.nan)
 
     # ------------------------------------------------------------------ public API
@@ -336,6 +368,7 @@ class Pipeline:
 
     def _stop_estimation(self) -> None:
         """After a clock restart: estimation and detection start afresh."""
+        self._held = _NO_ESTIMATE
         self._sv = initial_supervisor()
         self._estimator = self._reference = self._isolation = None
         self._detector = Detector(self.config.detector)
@@ -352,9 +385,10 @@ class Pipeline:
         self._readings_used = self._readings
         reading_bad = not math.isnan(reading) and self._reading_bad(reading)
         u = self._inputs()
-        model_c = reading
-        if self._sv.running and self._reference is not None:
-            model_c = self._reference.estimate(time_s, u, None).cht_c
+        call = self._sv.running and (self._k - self._anchor) % self._filter_period == 0
+        if call and self._reference is not None:
+            self._held = self._held._replace(model_c=self._reference.estimate(time_s, u, None).cht_c)
+        model_c = self._held.model_c if self._sv.running else reading
         cfg = self.config
         sf = cfg.sensor_fault
         self._sv, code, action = supervise(
@@ -369,25 +403,30 @@ class Pipeline:
             sf.stuck_after_s,
             sf.stuck_change_c,
         )
-        est_c = deviation = gamma_q = gamma_d = iso_deviation = math.nan
+        self._pending_reading = self._pending_reading or new_reading
         if action == ACTION_NONE:
             self._estimator = self._reference = self._isolation = None
+            self._held = _NO_ESTIMATE
         elif action == ACTION_INITIALISE:
             self._estimator = make_estimator(cfg.estimator_name, self.params, cfg.estimator)
             self._reference = make_estimator("ekf", self.params, cfg.estimator)
             self._isolation = IsolationFilter(self.params, IsolationSettings(dt_s=self._dt))
             for filt in (self._estimator, self._reference, self._isolation):
                 filt.initialise(time_s, u, reading)
-            est_c, deviation, iso_deviation = reading, 0.0, 0.0
-            gamma_q, gamma_d = self._isolation.gamma_q, self._isolation.gamma_d
+            self._held = _Held(reading, 0.0, self._isolation.gamma_q, self._isolation.gamma_d, 0.0, reading)
+            self._anchor = self._k
+            self._pending_reading = False
             self._headroom_s = math.nan
             self._detector_started = True
-        elif self._estimator is not None and self._isolation is not None:
-            z = reading if action == ACTION_UPDATE else None
+        elif call and self._estimator is not None and self._isolation is not None:
+            z = reading if self._pending_reading and code == _NOMINAL else None
+            self._pending_reading = False
             estimate = self._estimator.estimate(time_s, u, z)
             iso_deviation = self._isolation.estimate(time_s, u, z).deviation
-            est_c, deviation = estimate.cht_c, estimate.deviation
-            gamma_q, gamma_d = self._isolation.gamma_q, self._isolation.gamma_d
+            iso = self._isolation
+            self._held = _Held(estimate.cht_c, estimate.deviation, iso.gamma_q, iso.gamma_d, iso_deviation,
+                               self._held.model_c)  # fmt: skip
+        est_c, deviation, gamma_q, gamma_d, iso_deviation, _ = self._held
         state = code
         if self._detector_started:
             symptom = deviation if cfg.detector_symptom == "estimator" else iso_deviation

@@ -47,7 +47,6 @@ from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.pipeline import (
     ACTION_INITIALISE,
     ACTION_NONE,
-    ACTION_UPDATE,
     HEADROOM_NOT_LIMITED_S,
     MAX_CLOCK_GAP_S,
     MAX_CLOCK_S,
@@ -55,6 +54,7 @@ from ecu_monitor.service.pipeline import (
     STATUS_INPUT,
     HealthSnapshot,
     Pipeline,
+    filter_period_steps,
     model_input_names,
 )
 
@@ -488,14 +488,18 @@ def _replay_segment(
     # pass 1: where the estimator runs (independent of the stuck test, which needs the open-loop model)
     run(times, any_stale, new_reading, reading, reading_bad, reading, *args)
     stretches = _stretches(action)
+    period = filter_period_steps(dt)
+    inputs = {name: held[name].value for name in model_input_names(params)}
     model_c = np.full(n, np.nan)
-    axes = model_input_names(params)
-    inputs = {name: held[name].value for name in axes}
+    calls: list[np.ndarray] = []  # for each stretch: the filter call step of every step (held outputs)
     for a, b in stretches:
+        call = a + period * ((np.arange(a, b) - a) // period)
+        calls.append(call)
         z = np.full(b - a, np.nan)
         z[0] = reading[a]
-        log = _stretch_log(times, inputs, z, a, b)
-        model_c[a:b] = run_estimator(log, params, "ekf", config.estimator).cht_est_c
+        log = _stretch_log(times, {k: v[call] for k, v in inputs.items()}, z, a, b)
+        reference = run_estimator(log, params, "ekf", config.estimator).cht_est_c
+        model_c[a:b] = reference[call - a]
     # pass 2: with the open-loop model, the states and the estimator's actions
     run(times, any_stale, new_reading, reading, reading_bad, np.where(np.isnan(model_c), reading, model_c), *args)
     if _stretches(action) != stretches:  # the stuck test never starts or stops the estimator
@@ -505,17 +509,22 @@ def _replay_segment(
     gamma_q = np.full(n, np.nan)
     gamma_d = np.full(n, np.nan)
     iso_dev = np.full(n, np.nan)
-    for a, b in stretches:
-        z = np.where(action[a:b] == ACTION_UPDATE, reading[a:b], np.nan)
+    arrivals = np.concatenate(([0], np.cumsum(new_reading)))  # readings arrived in steps [0, j)
+    for (a, b), call in zip(stretches, calls, strict=True):
+        steps = np.arange(a, b)
+        is_call = (call == steps) & (steps > a)
+        window = arrivals[steps + 1] - arrivals[np.maximum(steps + 1 - period, a + 1)] > 0
+        use = is_call & window & (code[a:b] == 0)
+        z = np.where(use, reading[a:b], np.nan)
         z[0] = reading[a]
-        log = _stretch_log(times, inputs, z, a, b)
+        log = _stretch_log(times, {k: v[call] for k, v in inputs.items()}, z, a, b)
         trace = run_estimator(log, params, config.estimator_name, config.estimator)
-        est[a:b] = trace.cht_est_c
-        deviation[a:b] = trace.deviation
+        est[a:b] = trace.cht_est_c[call - a]
+        deviation[a:b] = trace.deviation[call - a]
         iso = run_isolation(log, params, IsolationSettings(dt_s=dt))
-        gamma_q[a:b] = iso.gamma_q
-        gamma_d[a:b] = iso.gamma_d
-        iso_dev[a:b] = iso.deviation
+        gamma_q[a:b] = iso.gamma_q[call - a]
+        gamma_d[a:b] = iso.gamma_d[call - a]
+        iso_dev[a:b] = iso.deviation[call - a]
     periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     step_numbers = np.arange(1, n + 1)
     symptom = deviation if config.detector_symptom == "estimator" else iso_dev
