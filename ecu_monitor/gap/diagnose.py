@@ -194,6 +194,23 @@ def _whiteness(nominal: ThermalParams, test_log: FlightLog, estimator: str | Non
     return result
 
 
+def _second_acts(
+    pair: EffectScore, nominal: ThermalParams, test: PreparedFlight, engine: str, settings: GapSettings
+) -> bool:
+    """True when the pair's second effect changes its test prediction by at least min_rms_drop_c RMS
+    (switched off with every other fitted value kept): a pair whose gain comes from a better fit of
+    the first effect's own parameters does not name a second effect."""
+    entry = candidate(pair.fit.ids[1])
+    params = pair.fit.params
+    if entry.effect == "nominal":
+        without = params.replace(**{p.name: getattr(nominal, p.name) for p in entry.free})
+    else:
+        without = params.replace(effects=params.effects.replace(entry.effect, None))
+    both = simulate_probe([params, without], test, engine)
+    change = float(np.sqrt(np.mean((both[:, 0] - both[:, 1]) ** 2)))
+    return change >= settings.significance.min_rms_drop_c
+
+
 def _segment_gain(reference: np.ndarray, improved: np.ndarray, segmentation: Segmentation) -> dict[str, float]:
     gain = reference**2 - improved**2
     total = float(np.sum(np.clip(gain, 0.0, None))) or 1.0
@@ -268,7 +285,7 @@ def diagnose(
             say(f"refit: pair {first}+{cid}")
             fit = fit_candidates([candidate(first), candidate(cid)])
             pairs.append(_score(fit, test, baseline_rms, engine, "pair", winner.test_residual, len(others), pair_test))
-        better = [p for p in pairs if p.counts]
+        better = [p for p in pairs if p.counts and _second_acts(p, nominal, test, engine, settings)]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)
     effects = sorted(singles + pairs, key=lambda s: s.test_rms_c)

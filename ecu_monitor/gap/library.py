@@ -67,17 +67,20 @@ RETUNED_BOUNDS: tuple[float, float] = (-0.5, 0.5)
 
 @dataclass(frozen=True)
 class FreeParameter:
-    """A parameter refitted with its candidate: start value, bounds and unit."""
+    """A parameter refitted with its candidate: start value, bounds, unit, and further start values
+    (``restarts``) for a cost with local minima (the refit keeps the best train fit over all starts)."""
 
     name: str
     start: float
     low: float
     high: float
     unit: str
+    restarts: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        if not self.low <= self.start <= self.high:
-            raise ParameterError(f"{self.name}: start {self.start} outside [{self.low}, {self.high}]")
+        for value in (self.start, *self.restarts):
+            if not self.low <= value <= self.high:
+                raise ParameterError(f"{self.name}: start {value} outside [{self.low}, {self.high}]")
 
 
 @dataclass(frozen=True)
@@ -99,7 +102,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "convective conductance grows with airspeed (floor on the ground)",
         (
             FreeParameter("gain_per_mps", 0.0, -0.05, 0.1, "1/(m/s)"),
-            FreeParameter("floor", 0.95, 0.1, 1.0, "-"),
+            FreeParameter("floor", 0.95, 0.1, 1.0, "-", restarts=(0.4,)),
         ),
     ),
     Candidate(
@@ -112,7 +115,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "sensor_lag",
         "sensor_lag",
         "first-order lag of the CHT probe",
-        (FreeParameter("time_constant_s", 1.0, 0.0, 120.0, "s"),),
+        (FreeParameter("time_constant_s", 1.0, 0.0, 120.0, "s", restarts=(15.0,)),),
     ),
     Candidate(
         "mixture_cooling",
@@ -120,7 +123,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "less heat into the head at high load (power enrichment)",
         (
             FreeParameter("fraction", 0.02, 0.0, 0.6, "-"),
-            FreeParameter("onset", 0.6, 0.0, 0.95, "-"),
+            FreeParameter("onset", 0.6, 0.0, 0.95, "-", restarts=(0.3, 0.85)),
         ),
     ),
     Candidate(

@@ -155,6 +155,20 @@ class _Problem:
             value = float(getattr(current, free.name)) if current is not None else free.start
         return float(np.clip(value, free.low, free.high))
 
+    def starts(self) -> list[np.ndarray]:
+        """The warm start, then one start per alternative value of each parameter with restarts."""
+        out = [self.start]
+        k = 0
+        for e in self.entries:
+            for p in e.free:
+                for value in p.restarts:
+                    if not np.isclose(value, self.start[k]):
+                        alternative = self.start.copy()
+                        alternative[k] = value
+                        out.append(alternative)
+                k += 1
+        return out
+
     def values(self, x: np.ndarray) -> dict[str, dict[str, float]]:
         out: dict[str, dict[str, float]] = {e.id: {} for e in self.entries}
         for (cid, name), value in zip(self.names, x[: len(self.names)], strict=True):
@@ -226,17 +240,23 @@ def refit(
     """Refit ``entries`` (empty: the control) plus the re-tuned nominal factors on ``train``."""
     settings = settings or RefitSettings()
     problem = _Problem(nominal, entries, references, train, settings.engine)
-    result = least_squares(
-        problem.fun,
-        problem.start,
-        jac=problem.jac,
-        bounds=(problem.low, problem.high),
-        method="trf",
-        x_scale="jac",
-        max_nfev=settings.max_evaluations,
-        xtol=1e-6,
-        ftol=1e-8,
-    )
+    result = None
+    for start in problem.starts():
+        attempt = least_squares(
+            problem.fun,
+            start,
+            jac=problem.jac,
+            bounds=(problem.low, problem.high),
+            method="trf",
+            x_scale="jac",
+            max_nfev=settings.max_evaluations,
+            xtol=1e-6,
+            ftol=1e-8,
+        )
+        if result is None or attempt.cost < result.cost:
+            result = attempt
+    if result is None:  # starts() always yields the warm start
+        raise ParameterError("refit: no start point")
     x = np.asarray(result.x, dtype=float)
     residual = np.asarray(result.fun, dtype=float)
     std = _uncertainty(np.asarray(result.jac, dtype=float), residual, x.size)
