@@ -28,6 +28,7 @@ from scipy.optimize import differential_evolution
 
 from ecu_monitor.flightlog import FlightLog, load_flight
 from ecu_monitor.identify import (
+    DEFAULT_FREE,
     ErrorStats,
     ParameterSpace,
     PsoSettings,
@@ -41,7 +42,7 @@ from ecu_monitor.identify import (
     visited_weight_s,
 )
 from ecu_monitor.identify.report import plot_cost, plot_flight, plot_heat_map
-from ecu_monitor.model import ThermalParams, coefficients, paper_table_a1, simulate
+from ecu_monitor.model import AirspeedCooling, Effects, ThermalParams, coefficients, paper_table_a1, simulate
 
 G1000 = Path("/work/shared/data/g1000/log_110701_131851_KGFK.csv")
 REPO = Path(__file__).resolve().parents[1]
@@ -391,6 +392,27 @@ def study_g1000(seed: int, plots: Path | None) -> None:
         print(f"plots -> {plots}")
 
 
+def study_g1000_effects(seed: int) -> None:
+    """Half splits again, with the airspeed-cooling effect switched on and its gain and floor freed."""
+    first, second = g1000_halves()
+    axes = ("fuel_flow_lph", "rpm")
+    effect = AirspeedCooling(gain_per_mps=0.01, reference_mps=50.0, floor=0.3)
+    base = paper_table_a1().replace(effects=Effects(airspeed_cooling=effect))
+    free = (*DEFAULT_FREE, "effects.airspeed_cooling.gain_per_mps", "effects.airspeed_cooling.floor")
+    print("| split | model | train RMS degC | held-out mean/peak/RMS degC, mean/peak % | gain 1/(m/s) | floor |")
+    print("|---|---|---|---|---|---|")
+    for label, train, test in (("first -> second half", first, second), ("second -> first half", second, first)):
+        for name, space in (
+            ("nominal", default_space([train], heat_axes=axes)),
+            ("+ airspeed_cooling", default_space([train], base=base, heat_axes=axes, free=free)),
+        ):
+            r = identify([train], space=space, settings=PsoSettings(seed=seed))
+            air = r.params.effects.airspeed_cooling
+            extra = f"{air.gain_per_mps:.4f} | {air.floor:.3f}" if air else "- | -"
+            held = fmt_errors(flight_errors(r.params, test))
+            print(f"| {label} | {name} | {r.train_errors[0].rms_c:.2f} | {held} | {extra} |")
+
+
 def study_virtual_plots(seed: int, plots: Path) -> None:
     train, held_out, truth = virtual_flights()
     result = identify([train], base=wrong_start(truth), settings=PsoSettings(seed=seed))
@@ -418,7 +440,9 @@ def study_virtual_plots(seed: int, plots: Path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--study", choices=("main", "dt", "variants", "g1000", "virtual-plots"), default="main")
+    parser.add_argument(
+        "--study", choices=("main", "dt", "variants", "g1000", "g1000-effects", "virtual-plots"), default="main"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--seeds", type=int, default=5, help="seeds for --study variants")
     parser.add_argument("--data", choices=("virtual", "g1000"), default="virtual", help="for --study variants")
@@ -432,6 +456,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         study_variants(args.seeds, args.data)
     elif args.study == "g1000":
         study_g1000(args.seed, args.plots)
+    elif args.study == "g1000-effects":
+        study_g1000_effects(args.seed)
     else:
         study_virtual_plots(args.seed, args.plots or REPO / "docs/results/identification")
 

@@ -105,7 +105,7 @@ def plot_heat_map(params: ThermalParams, identified: NDArray[np.bool_], path: st
     fig, ax = plt.subplots(figsize=(7, 4.5))
     colours = plt.cm.viridis(np.linspace(0.0, 0.9, len(hm.x_breakpoints)))
     for i, x in enumerate(hm.x_breakpoints):
-        ax.plot(hm.y_breakpoints, values[i], color=colours[i], lw=1.2, label=f"{hm.x_axis} = {x:g}")
+        ax.plot(hm.y_breakpoints, values[i], color=colours[i], lw=1.2, label=f"{hm.x_axis} = {x:.3g}")
         seen = np.asarray(identified[i], dtype=bool)
         ax.scatter(np.asarray(hm.y_breakpoints)[seen], values[i][seen], color=colours[i], s=30, zorder=3)
         ax.scatter(
