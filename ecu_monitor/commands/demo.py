@@ -1,77 +1,93 @@
-"""``ecu-monitor demo [--out DIR] [--seed N] [--inject-at S] [--gamma-q G]``: a first demo of the virtual ECU.
+"""``ecu-monitor demo [--out DIR] [--seed N] [--inject-at S] [--gamma-q G] [--mission NAME]``: the main job.
 
-Flies the default step-climb mission (virtual_bus/missions/default.yaml) through the truth plant with
-a heat-input degradation gamma_Q = 1.2 injected mid-flight (t = 1800 s, during the climb), faster
-than real time, with a progress line on stderr, and writes DIR/flight.csv (canonical columns plus the
-truth: cht_true_c, gamma_q, gamma_d) and DIR/flight.png (CHT measured and true against the limit,
-throttle, altitude, degradation factors). It does not run the monitoring service yet: the full
-service demo (DESIGN.md section 4) replaces this module when the service lands.
+The virtual ECU flies the default step-climb mission (virtual_bus/missions/default.yaml) through its
+truth plant with a heat-input degradation gamma_Q = 1.2 injected mid-flight (t = 1800 s), and sends
+its frames (engine.dbc: ECU_Fast 50 Hz, ECU_Slow and AirData 10 Hz) onto an in-process python-can
+``virtual`` bus. The service listens on a second Bus instance of the same channel through a
+python-can Notifier: each frame goes into the service pipeline (configs/example.yaml), and the health
+frames that fall due (health.dbc) go back onto the bus, where the ECU side counts them as the
+autopilot would. The virtual clock runs as fast as the machine allows (mission time is carried in the
+frame timestamps); a progress line shows mission time, CHT measured and estimated and the health
+state; the detection time is printed at the end.
+
+Writes into DIR (default demo-out): flight.csv (the virtual ECU's canonical log with the truth:
+cht_true_c, gamma_q, gamma_d), health.csv (the service's rows, 10 Hz), and the plots cht.png (CHT
+measured / estimated / true), detection.png (deviation symptom and detector state), gammas.png
+(gamma_Q and gamma_D estimates against the truth) and headroom.png (time to the CHT limit).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import can
+import numpy as np
+
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import FlightLog, write_csv
-from ecu_monitor.model import paper_table_a1
+from ecu_monitor.service.config import load_config
+from ecu_monitor.service.pipeline import STATES, HealthSnapshot, Pipeline
+from ecu_monitor.service.replay import write_health_csv
 
-__all__ = ["add_subparser", "plot_flight"]
+__all__ = ["DEFAULT_CONFIG", "ServiceListener", "add_subparser", "plot_report"]
+
+#: The service configuration of the demo (the repository's example for dbc/; its bus is replaced).
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "example.yaml"
+#: Frames the ECU side may run ahead of the service before it waits (bounds the bus queue).
+_MAX_BACKLOG = 2000
 
 
 def add_subparser(subparsers: Any) -> None:
     """Register the ``demo`` subcommand."""
     parser = subparsers.add_parser(
         "demo",
-        help="fly the default mission on the virtual ECU with a degradation injected; write a CSV and a plot",
+        help="virtual ECU + the service on an in-process virtual CAN bus, gamma_Q = 1.2 injected mid-flight",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
     parser.add_argument("--out", default="demo-out", metavar="DIR", help="output directory (default demo-out)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the pilot's variations and the sensor noise")
     parser.add_argument("--inject-at", type=float, default=1800.0, metavar="S", help="injection time, s (1800)")
     parser.add_argument("--gamma-q", type=float, default=1.2, metavar="G", help="injected gamma_Q (default 1.2)")
+    parser.add_argument("--mission", default="default", metavar="NAME", help="mission name or YAML file")
     parser.set_defaults(func=_run)
 
 
-def plot_flight(log: FlightLog, path: Path, cht_limit_c: float, title: str) -> None:
-    """Four stacked panels over time (min): CHT measured/true with the limit, throttle, altitude, gammas."""
-    import matplotlib
+class ServiceListener(can.Listener):
+    """The service side of the demo: pipeline.advance_to + feed per frame, health frames sent back."""
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    def __init__(self, pipeline: Pipeline, bus: can.BusABC) -> None:
+        self.pipeline = pipeline
+        self.bus = bus
+        self.lock = threading.Lock()
+        self.rows: list[HealthSnapshot] = []
+        self.processed = 0
+        self.errors: list[str] = []
 
-    t_min = log.time_s / 60.0
-    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=True, height_ratios=(3, 1.3, 1.3, 1))
-    ax = axes[0]
-    ax.plot(t_min, log["cht_c"], lw=0.6, color="tab:orange", label="CHT measured (1 degC sensor)")
-    ax.plot(t_min, log["cht_true_c"], lw=1.0, color="black", label="CHT true")
-    ax.axhline(cht_limit_c, color="tab:red", ls="--", lw=1.0, label=f"limit {cht_limit_c:.0f} degC")
-    ax.set_ylim(top=max(cht_limit_c, float(log["cht_true_c"].max())) + 8.0)
-    ax.set_ylabel("CHT (degC)")
-    ax.legend(loc="lower right", fontsize=8)
-    ax.set_title(title, fontsize=10)
-    axes[1].plot(t_min, log["throttle_pct"], lw=0.6, color="tab:blue")
-    axes[1].set_ylabel("throttle (%)")
-    axes[1].set_ylim(0, 105)
-    axes[2].plot(t_min, log["altitude_m"], lw=0.8, color="tab:green")
-    axes[2].set_ylabel("altitude (m)")
-    axes[3].plot(t_min, log["gamma_q"], lw=1.2, label="gamma_Q (heat in)")
-    axes[3].plot(t_min, log["gamma_d"], lw=1.2, ls="--", label="gamma_D (dissipation)")
-    axes[3].set_ylabel("degradation")
-    axes[3].legend(loc="upper left", fontsize=8)
-    axes[3].set_xlabel("mission time (min)")
-    for a in axes:
-        a.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    def on_message_received(self, msg: can.Message) -> None:
+        with self.lock:
+            due = self.pipeline.advance_to(msg.timestamp)
+            self.pipeline.feed(msg)
+            self.rows.extend(self.pipeline.drain_rows())
+            self.processed += 1
+        for frame in due:
+            try:
+                self.bus.send(frame)
+            except can.CanError:
+                self.pipeline.counters["send_errors"] += 1
+
+    def on_error(self, exc: Exception) -> None:
+        self.errors.append(f"{type(exc).__name__}: {exc}")
 
 
 def _run(args: argparse.Namespace) -> int:
+    from virtual_bus.emitter import FrameEncoder
     from virtual_bus.missions import load_mission
     from virtual_bus.plant import Degradation, collect, iter_steps, record_every
 
@@ -80,37 +96,176 @@ def _run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
-    mission = load_mission("default")
-    params = paper_table_a1()
+    mission = load_mission(args.mission)
+    config = load_config(DEFAULT_CONFIG)
+    params = config.load_params()
     injection = Degradation("gamma_q", args.gamma_q, args.inject_at)
-    start = time.perf_counter()
+    pipeline = Pipeline(config, params)
+    channel = f"ecu-monitor-demo-{os.getpid()}"
+    ecu_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    service_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    listener = ServiceListener(pipeline, service_bus)
+    notifier = can.Notifier(service_bus, [listener], timeout=0.1)
+    encoder = FrameEncoder(cht_limit_c=params.cht_limit_c)
     tty = sys.stderr.isatty()
-    last = [0.0]
+    started = time.perf_counter()
+    counts = {"sent": 0, "health_back": 0}
+    last_line = [0.0]
 
-    def progress(blocks: Any) -> Any:
-        for block in blocks:
-            now = time.perf_counter()
-            if now - last[0] >= (0.5 if tty else 5.0):
-                last[0] = now
-                t = float(block.time_s[-1])
-                cht, gamma_q = block.measured.cht_c[-1], block.gamma_q[-1]
-                line = f"demo: flying {mission.name}: t = {t:5.0f} s, CHT {cht:.0f} degC, gamma_Q {gamma_q:.2f}"
-                print(f"\r{line}" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+    def progress(t_mission: float) -> None:
+        now = time.perf_counter()
+        if now - last_line[0] < (0.5 if tty else 10.0):
+            return
+        last_line[0] = now
+        with listener.lock:
+            snap = pipeline.snapshot()
+        line = (f"demo: t = {t_mission:6.0f} s  CHT measured {snap.cht_meas_c:5.1f}  estimated {snap.cht_est_c:6.2f}"
+                f" degC  state {snap.state:<12s} gamma_Q {snap.gamma_q:4.2f}")  # fmt: skip
+        print(f"\r{line}" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+
+    def fly() -> Iterator[Any]:
+        for block in iter_steps(mission, params, degradation=(injection,), seed=args.seed):
+            for msg in encoder.frames(block):
+                while counts["sent"] - listener.processed > _MAX_BACKLOG:
+                    time.sleep(0.0005)
+                ecu_bus.send(msg)
+                counts["sent"] += 1
+            while ecu_bus.recv(timeout=0.0) is not None:  # health frames, as the autopilot sees them
+                counts["health_back"] += 1
+            progress(float(block.time_s[-1]))
             yield block
 
-    blocks = iter_steps(mission, params, degradation=(injection,), seed=args.seed)
-    log = collect(progress(blocks), record_every(0.02, 0.1), source=f"demo:{mission.name}:seed={args.seed}")
+    try:
+        log: FlightLog = collect(fly(), record_every(0.02, 0.1), source=f"demo:{mission.name}:seed={args.seed}")
+        deadline = time.perf_counter() + 30.0
+        while listener.processed < counts["sent"] and time.perf_counter() < deadline:
+            time.sleep(0.01)
+    finally:
+        notifier.stop()
+        while ecu_bus.recv(timeout=0.05) is not None:
+            counts["health_back"] += 1
+        ecu_bus.shutdown()
+        service_bus.shutdown()
+    wall = time.perf_counter() - started
     if tty:
         print(file=sys.stderr)
-    csv_path, png_path = out / "flight.csv", out / "flight.png"
-    write_csv(log, csv_path)
-    title = f"virtual ECU, mission {mission.name}, {injection} (seed {args.seed})"
-    plot_flight(log, png_path, params.cht_limit_c, title)
-    cht_true = log["cht_true_c"]
+    rows = listener.rows
+    write_csv(log, out / "flight.csv")
+    write_health_csv(rows, out / "health.csv")
+    detected = _first(rows, "DEGRADED")
+    suspect = _first(rows, "SUSPECT")
+    plot_report(log, rows, out, params.cht_limit_c, args.inject_at, args.gamma_q, detected)
+    c = pipeline.counters
     print(
-        f"flew {log.duration_s / 60.0:.1f} min of mission {mission.name} in {time.perf_counter() - start:.1f} s;"
-        f" injected {injection}; max CHT {log['cht_c'].max():.0f} degC measured, {cht_true.max():.1f} degC true"
-        f" (limit {params.cht_limit_c:.0f})"
+        f"flew {log.duration_s / 60.0:.1f} min of mission {mission.name} in {wall:.1f} s "
+        f"({log.duration_s / wall:.0f}x real time); {counts['sent']} frames over the virtual bus, "
+        f"{c['ok']} decoded, {c['malformed']} malformed, {counts['health_back']} health frames back"
     )
-    print(f"wrote {csv_path} ({len(log)} rows) and {png_path}")
+    if detected is None:
+        print(
+            f"gamma_Q = {args.gamma_q:g} injected at t = {args.inject_at:.0f} s: NOT detected by the end of the flight"
+        )
+    else:
+        lead = f" (SUSPECT from t = {suspect:.1f} s)" if suspect is not None else ""
+        print(
+            f"gamma_Q = {args.gamma_q:g} injected at t = {args.inject_at:.0f} s: DEGRADED at t = {detected:.1f} s, "
+            f"detected after {detected - args.inject_at:.1f} s{lead}; gamma_Q estimate at the end "
+            f"{rows[-1].gamma_q:.3f}"
+        )
+    if listener.errors:
+        print(f"bus errors in the service listener: {len(listener.errors)} (first: {listener.errors[0]})")
+    print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows), cht.png, detection.png, gammas.png, headroom.png")
     return 0
+
+
+def _first(rows: list[HealthSnapshot], state: str) -> float | None:
+    return next((r.time_s for r in rows if r.state == state), None)
+
+
+def plot_report(
+    log: FlightLog,
+    rows: list[HealthSnapshot],
+    out: Path,
+    cht_limit_c: float,
+    inject_at_s: float,
+    gamma_q: float,
+    detected_s: float | None,
+) -> None:
+    """The four demo plots (time in minutes): cht.png, detection.png, gammas.png, headroom.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t_log = log.time_s / 60.0
+    t = np.array([r.time_s for r in rows]) / 60.0
+
+    def column(name: str) -> np.ndarray:
+        return np.array([getattr(r, name) for r in rows], dtype=float)
+
+    def marks(ax: Any) -> None:
+        ax.axvline(inject_at_s / 60.0, color="tab:purple", ls=":", lw=1.2, label=f"gamma_Q = {gamma_q:g} injected")
+        if detected_s is not None:
+            ax.axvline(detected_s / 60.0, color="tab:red", ls="-.", lw=1.2, label="DEGRADED")
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("mission time (min)")
+
+    fig, ax = plt.subplots(figsize=(11, 5))
+    ax.plot(t_log, log["cht_c"], lw=0.6, color="tab:orange", label="CHT measured (1 degC sensor)")
+    ax.plot(t_log, log["cht_true_c"], lw=1.4, color="black", label="CHT true")
+    ax.plot(t, column("cht_est_c"), lw=0.9, color="tab:blue", ls="--", label="CHT estimated (service)")
+    ax.axhline(cht_limit_c, color="tab:red", ls="--", lw=1.0, label=f"limit {cht_limit_c:.0f} degC")
+    ax.set_ylim(top=max(cht_limit_c, float(np.max(log["cht_c"]))) + 8.0)
+    ax.set_ylabel("CHT (degC)")
+    ax.set_title("Cylinder head temperature: virtual ECU truth, its sensor, and the service's estimate")
+    marks(ax)
+    ax.legend(loc="lower center", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "cht.png", dpi=110)
+    plt.close(fig)
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 6), sharex=True, height_ratios=(2, 1))
+    ax1.plot(t, column("deviation"), lw=0.7, color="tab:blue", label="model-deviation symptom (Health_Status)")
+    ax1.axhline(0.0, color="grey", lw=0.6)
+    ax1.set_ylabel("deviation (degC/s)")
+    ax1.set_title("Detection: the CBEKF model-deviation symptom and the detector's verdict")
+    marks(ax1)
+    ax1.set_xlabel("")
+    ax1.legend(loc="upper left", fontsize=8)
+    codes = np.array([STATES.index(r.state) for r in rows])
+    ax2.step(t, codes, where="post", color="tab:red", lw=1.0)
+    ax2.set_yticks(range(len(STATES)), STATES, fontsize=7)
+    ax2.set_ylim(-0.5, len(STATES) - 0.5)
+    ax2.set_ylabel("state")
+    marks(ax2)
+    fig.tight_layout()
+    fig.savefig(out / "detection.png", dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    ax.plot(t, column("gamma_q"), lw=1.0, color="tab:blue", label="gamma_Q estimate (heat in)")
+    ax.plot(t, column("gamma_d"), lw=1.0, color="tab:green", label="gamma_D estimate (dissipation)")
+    ax.plot(t_log, log["gamma_q"], lw=1.4, color="tab:blue", ls=":", label="gamma_Q true")
+    ax.plot(t_log, log["gamma_d"], lw=1.4, color="tab:green", ls=":", label="gamma_D true")
+    ax.set_ylabel("degradation factor")
+    ax.set_title("Isolation: gamma_Q and gamma_D estimated online (Health_Isolation) against the truth")
+    marks(ax)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "gammas.png", dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    headroom = column("headroom_s")
+    ax.plot(t, np.where(headroom >= 6000.0, np.nan, headroom), lw=1.0, color="tab:red",
+            label="time to the CHT limit at the present power")  # fmt: skip
+    limited = headroom < 6000.0
+    ax.fill_between(t, 0, 1, where=~limited & np.isfinite(headroom), color="tab:green", alpha=0.12,
+                    transform=ax.get_xaxis_transform(), label="not limited (steady state below the limit)")  # fmt: skip
+    ax.set_ylabel("thermal headroom (s)")
+    ax.set_title("Thermal headroom (Health_Isolation.ThermalHeadroom)")
+    marks(ax)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "headroom.png", dpi=110)
+    plt.close(fig)
