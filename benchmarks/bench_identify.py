@@ -119,22 +119,26 @@ def study_main(seed: int) -> None:
     base = wrong_start(truth)
     settings = PsoSettings(seed=seed)
     print(
-        f"train: {train.source}, {train.duration_s / 60:.1f} min; held out: {held_out.source}, {held_out.duration_s / 60:.1f} min"
+        f"train: {train.source}, {train.duration_s / 60:.1f} min; held out: {held_out.source},"
+        f" {held_out.duration_s / 60:.1f} min"
     )
     result = identify([train], base=base, settings=settings)
     budget = result.evaluations
     pso_only = settings.particles * (settings.iterations + 1)
     space = result.space
     print(
-        f"\nPSO (defaults: {settings.particles} particles x {settings.iterations} iterations, dt {settings.dt_s} s, polish)"
+        f"\nPSO (defaults: {settings.particles} particles x {settings.iterations} iterations,"
+        f" dt {settings.dt_s} s, polish)"
     )
     print(
-        f"| optimiser | wall time s | particle simulations | train cost degC | held-out mean/peak/RMS degC, mean/peak % |"
+        "| optimiser | wall time s | particle simulations | train cost degC | held-out mean/peak/RMS"
+        " degC, mean/peak % |"
     )
     print("|---|---|---|---|---|")
     held = flight_errors(result.params, held_out)
     print(
-        f"| PSO + polish | {result.elapsed_s:.2f} | {budget} | {result.best_cost:.4f} (PSO alone {result.pso_cost:.4f}) | {fmt_errors(held)} |"
+        f"| PSO + polish | {result.elapsed_s:.2f} | {budget} | {result.best_cost:.4f} (PSO"
+        f" alone {result.pso_cost:.4f}) | {fmt_errors(held)} |"
     )
     # DE at the same budget of simulations, same polish afterwards
     objective = SwarmObjective([train], space, settings.dt_s)
@@ -145,13 +149,15 @@ def study_main(seed: int) -> None:
     de_total = de_time + time.perf_counter() - t0
     de_params = space.to_params(space.from_unit(pol_unit))
     print(
-        f"| DE + same polish | {de_total:.2f} | {objective.evaluations} (DE {de_evals}) | {pol_cost:.4f} (DE alone {de_cost:.4f}) | {fmt_errors(flight_errors(de_params, held_out))} |"
+        f"| DE + same polish | {de_total:.2f} | {objective.evaluations} (DE {de_evals}) | {pol_cost:.4f}"
+        f" (DE alone {de_cost:.4f}) | {fmt_errors(flight_errors(de_params, held_out))} |"
     )
     rec = recovery(result.params, truth, space, train)
     print(f"\nrecovery (PSO + polish): c_w {rec['c_w']:+.2f} %, r_ce {rec['r_ce']:+.2f} %, tau_w {rec['tau_w']:+.2f} %")
     q50, q95 = rec["q_at_points"]
     print(
-        f"heat map Q_SL0 at the train flight's operating points (every sample): |error| median {q50:.2f} %, 95th percentile {q95:.2f} %"
+        f"heat map Q_SL0 at the train flight's operating points (every sample): |error| median"
+        f" {q50:.2f} %, 95th percentile {q95:.2f} %"
     )
     print("| heat-map breakpoint (i, j) | weight in train flight, s | error % |")
     print("|---|---|---|")
@@ -179,15 +185,18 @@ def study_main(seed: int) -> None:
     loop_s = per_particle * settings.particles
     steps = int(np.size(grid.inputs.heat_x))
     print(
-        f"\ncost of one swarm evaluation ({settings.particles} particles, {steps} steps of {settings.dt_s} s = 1 h flight):"
+        f"\ncost of one swarm evaluation ({settings.particles} particles, {steps} steps of"
+        f" {settings.dt_s} s = 1 h flight):"
     )
     print("| method | s per swarm evaluation | ratio |")
     print("|---|---|---|")
     print(
-        f"| numpy ecu_monitor.model.simulate, particle by particle (measured on {loop_particles}, x{settings.particles}) | {loop_s:.2f} | 1 |"
+        f"| numpy ecu_monitor.model.simulate, particle by particle (measured on {loop_particles},"
+        f" x{settings.particles}) | {loop_s:.2f} | 1 |"
     )
     print(
-        f"| compiled swarm (simulate_compiled, whole swarm in one call) + cost | {swarm_s:.4f} | x{loop_s / swarm_s:.0f} |"
+        f"| compiled swarm (simulate_compiled, whole swarm in one call) + cost | {swarm_s:.4f}"
+        f" | x{loop_s / swarm_s:.0f} |"
     )
     fine = prepare_flight(train, space.base.heat_axes, 0.02)
     t0 = time.perf_counter()
@@ -210,14 +219,16 @@ def study_dt(seed: int) -> None:
     for dt in (0.1, 0.25, 0.5, 1.0, 2.0):
         print(f"  dt {dt:>4}: max |diff| {np.max(np.abs(simulate_flight(truth, train, dt) - reference)):.2e} degC")
     print(
-        "\n| dt s | identification s | failed | train cost at dt | train RMS at 0.02 | held-out mean/peak/RMS degC, mean/peak % | c_w | r_ce | tau_w |"
+        "\n| dt s | identification s | failed | train cost at dt | train RMS at 0.02 | held-out"
+        " mean/peak/RMS degC, mean/peak % | c_w | r_ce | tau_w |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for dt in (0.02, 0.1, 0.25, 0.5, 1.0, 2.0):
         result = identify([train], base=base, settings=PsoSettings(seed=seed, dt_s=dt))
         p = result.params
         print(
-            f"| {dt} | {result.elapsed_s:.1f} | {result.failed_particles} | {result.best_cost:.4f} | {result.train_errors[0].rms_c:.4f} |"
+            f"| {dt} | {result.elapsed_s:.1f} | {result.failed_particles} | {result.best_cost:.4f}"
+            f" | {result.train_errors[0].rms_c:.4f} |"
             f" {fmt_errors(flight_errors(p, held_out))} | {p.c_w:.1f} | {p.r_ce:.4f} | {p.tau_w:.2f} |"
         )
 
@@ -264,10 +275,12 @@ def study_variants(seeds: int, data: str) -> None:
         base = wrong_start(truth)
         space = default_space([train], base=base)
     print(
-        f"{space.dimension} coordinates; median over seeds 0..{seeds - 1}; 48 particles x 120 iterations (5808 simulations)"
+        f"{space.dimension} coordinates; median over seeds 0..{seeds - 1}; 48 particles x 120"
+        f" iterations (5808 simulations)"
     )
     print(
-        "| optimiser | cost alone (median, worst) | after polish (median, worst) | held-out RMS after polish (median) | s (median) |"
+        "| optimiser | cost alone (median, worst) | after polish (median, worst) | held-out"
+        " RMS after polish (median) | s (median) |"
     )
     print("|---|---|---|---|---|")
     for label, changes in VARIANTS.items():
@@ -280,7 +293,9 @@ def study_variants(seeds: int, data: str) -> None:
             held.append(flight_errors(r.params, held_out).rms_c)
             secs.append(r.elapsed_s)
         print(
-            f"| PSO {label} | {statistics.median(alone):.4f}, {max(alone):.4f} | {statistics.median(final):.4f}, {max(final):.4f} | {statistics.median(held):.4f} | {statistics.median(secs):.1f} |"
+            f"| PSO {label} | {statistics.median(alone):.4f}, {max(alone):.4f} | {statistics.median(final):.4f},"
+            f" {max(final):.4f} | {statistics.median(held):.4f} | {statistics.median(secs):.1f}"
+            f" |"
         )
     alone, final, held, secs = [], [], [], []
     settings = PsoSettings()
@@ -296,13 +311,14 @@ def study_variants(seeds: int, data: str) -> None:
         held.append(flight_errors(space.to_params(space.from_unit(pol_unit)), held_out).rms_c)
         secs.append(seconds + time.perf_counter() - t0)
     print(
-        f"| scipy differential_evolution, same budget | {statistics.median(alone):.4f}, {max(alone):.4f} | {statistics.median(final):.4f}, {max(final):.4f} | {statistics.median(held):.4f} | {statistics.median(secs):.1f} |"
+        f"| scipy differential_evolution, same budget | {statistics.median(alone):.4f}, {max(alone):.4f}"
+        f" | {statistics.median(final):.4f}, {max(final):.4f} | {statistics.median(held):.4f}"
+        f" | {statistics.median(secs):.1f} |"
     )
     objective = SwarmObjective([train], space, settings.dt_s)
     unit, cost = polish(objective, space.to_unit(space.from_params(space.base)), 200)
-    print(
-        f"| least squares alone from the wrong start (200 evaluations) | - | {cost:.4f} | {flight_errors(space.to_params(space.from_unit(unit)), held_out).rms_c:.4f} | - |"
-    )
+    held_rms = flight_errors(space.to_params(space.from_unit(unit)), held_out).rms_c
+    print(f"| least squares alone from the wrong start (200 evaluations) | - | {cost:.4f} | {held_rms:.4f} | - |")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -318,7 +334,8 @@ def study_g1000(seed: int, plots: Path | None) -> None:
     mid = 0.5 * (t[0] + t[-1])
     first, second = log.select(t[0], mid), log.select(mid, t[-1])
     print(
-        f"{G1000.name}: {len(log)} samples, {log.duration_s / 60:.1f} min; heat map {axes[0]} x {axes[1]} 4x4 from the train data"
+        f"{G1000.name}: {len(log)} samples, {log.duration_s / 60:.1f} min; heat map {axes[0]}"
+        f" x {axes[1]} 4x4 from the train data"
     )
     print("| split | train | held out | train RMS degC | held-out mean/peak/RMS degC, mean/peak % | s | failed |")
     print("|---|---|---|---|---|---|---|")
@@ -330,7 +347,9 @@ def study_g1000(seed: int, plots: Path | None) -> None:
         r = identify(train, heat_axes=axes, settings=settings)
         results[label] = (r, train, test)
         print(
-            f"| {label} | {train[0].duration_s / 60:.0f} min | {test.duration_s / 60:.0f} min | {r.train_errors[0].rms_c:.2f} | {fmt_errors(flight_errors(r.params, test))} | {r.elapsed_s:.1f} | {r.failed_particles} |"
+            f"| {label} | {train[0].duration_s / 60:.0f} min | {test.duration_s / 60:.0f} min |"
+            f" {r.train_errors[0].rms_c:.2f} | {fmt_errors(flight_errors(r.params, test))} | {r.elapsed_s:.1f}"
+            f" | {r.failed_particles} |"
         )
     edges = np.linspace(t[0], t[-1], 5)
     blocks = [log.select(edges[k], edges[k + 1] - 1e-6 if k < 3 else edges[k + 1]) for k in range(4)]
@@ -342,16 +361,22 @@ def study_g1000(seed: int, plots: Path | None) -> None:
         held_stats.append(e)
         rms_train = math.sqrt(np.mean([x.rms_c**2 for x in r.train_errors]))
         print(
-            f"| leave block {k + 1} of 4 out | 3 blocks | {blocks[k].duration_s / 60:.0f} min (from {blocks[k].time_s[0] / 60:.0f} min) | {rms_train:.2f} | {fmt_errors(e)} | {r.elapsed_s:.1f} | {r.failed_particles} |"
+            f"| leave block {k + 1} of 4 out | 3 blocks | {blocks[k].duration_s / 60:.0f} min (from"
+            f" {blocks[k].time_s[0] / 60:.0f} min) | {rms_train:.2f} | {fmt_errors(e)} | {r.elapsed_s:.1f}"
+            f" | {r.failed_particles} |"
         )
     whole = identify([log], heat_axes=axes, settings=settings)
     p = whole.params
     print(
-        f"| whole flight (train error only) | {log.duration_s / 60:.0f} min | - | {whole.train_errors[0].rms_c:.2f} | train: {fmt_errors(whole.train_errors[0])} | {whole.elapsed_s:.1f} | {whole.failed_particles} |"
+        f"| whole flight (train error only) | {log.duration_s / 60:.0f} min | - | {whole.train_errors[0].rms_c:.2f}"
+        f" | train: {fmt_errors(whole.train_errors[0])} | {whole.elapsed_s:.1f} | {whole.failed_particles}"
+        f" |"
     )
     print(
-        f"\nwhole-flight model: c_w {p.c_w:.0f} J/degC, r_ce {p.r_ce:.4f} degC/W, C_w R_Ce {p.c_w * p.r_ce:.0f} s, tau_w {p.tau_w:.1f} s,"
-        f" {len(whole.space.heat_cells)}/16 breakpoints visited; x {p.heat_map.x_breakpoints}; y {p.heat_map.y_breakpoints}"
+        f"\nwhole-flight model: c_w {p.c_w:.0f} J/degC, r_ce {p.r_ce:.4f} degC/W, C_w R_Ce"
+        f" {p.c_w * p.r_ce:.0f} s, tau_w {p.tau_w:.1f} s,"
+        f" {len(whole.space.heat_cells)}/16 breakpoints visited; x {p.heat_map.x_breakpoints};"
+        f" y {p.heat_map.y_breakpoints}"
     )
     print(np.round(p.heat_map.values_array()))
     if plots is not None:
