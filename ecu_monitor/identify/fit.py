@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.problem import (
+    DEFAULT_FREE,
     ErrorStats,
     ParameterSpace,
     SwarmObjective,
@@ -112,19 +113,23 @@ def identify(
     space: ParameterSpace | None = None,
     settings: PsoSettings | None = None,
     progress: Callable[[int, float, float], None] | None = None,
+    free: Sequence[str] = DEFAULT_FREE,
+    grid: tuple[int, int] | None = None,
 ) -> IdentificationResult:
     """Identify the thermal model on one or more flights (see the module doc).
 
     base: starting/fixed values (default: the paper's Table A1); space: the search space (default:
     :func:`default_space` of the flights, the base and heat_axes); settings: default PsoSettings().
-    The base model's coordinates are placed as one particle of the initial swarm.
+    The base model's coordinates are placed as one particle of the initial swarm. free and grid
+    (see :func:`default_space`) apply only when no space is given.
     """
     if not flights:
         raise ParameterError("identification needs at least one flight")
     settings = PsoSettings() if settings is None else settings
     started = time.perf_counter()
     if space is None:
-        space = default_space(flights, base=base, heat_axes=tuple(heat_axes))  # type: ignore[arg-type]
+        axes = (heat_axes[0], heat_axes[1])
+        space = default_space(flights, base=base, heat_axes=axes, grid=grid, free=free)
     objective = SwarmObjective(flights, space, settings.dt_s)
     initial = space.to_unit(space.from_params(space.base))[None, :]
     run = minimise(objective.costs, space.dimension, settings, initial=initial, progress=progress)

@@ -301,7 +301,7 @@ class ParameterSpace:
     prior_sigma: tuple[float, ...]
     heat_cells: tuple[tuple[int, int], ...] = ()
     fill_unvisited: bool = False
-    _index: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
+    _index: dict[str, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         d = len(self.names)
@@ -317,7 +317,7 @@ class ParameterSpace:
                 raise ParameterError(f"parameter space: {name}: expected finite bounds lower < upper, got [{lo}, {hi}]")
             if logs and lo <= 0.0:
                 raise ParameterError(f"parameter space: {name}: a log-scaled coordinate needs a positive lower bound")
-        self._index.update({name: k for k, name in enumerate(self.names)})
+        object.__setattr__(self, "_index", {name: k for k, name in enumerate(self.names)})
 
     @property
     def dimension(self) -> int:
