@@ -316,3 +316,35 @@ def test_random_payloads_with_valid_checksum_never_raise(payloads: list[tuple[in
     pipeline.advance_to(0.01 * len(payloads) + 1.0)
     c = pipeline.counters
     assert c["ok"] + c["malformed"] == len(payloads)
+
+
+# --------------------------------------------------------------------------------------------------
+# The demo command, on a short mission
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_demo_command_on_a_short_mission(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from ecu_monitor.cli import main
+
+    mission = tmp_path / "short.yaml"
+    mission.write_text(
+        yaml.safe_dump(
+            {
+                "name": "short",
+                "segments": [
+                    {"kind": "ground_run", "duration_s": 30, "throttle_pct": 40},
+                    {"kind": "cruise", "duration_s": 150, "airspeed_mps": 23, "throttle_pct": 60},
+                ],
+            }
+        ),
+        encoding="utf-8",
+    )
+    out = tmp_path / "demo-out"
+    assert main(["demo", "--mission", str(mission), "--inject-at", "60", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "frames over the virtual bus" in printed and "0 malformed" in printed and "injected at t = 60 s" in printed
+    for name in ("flight.csv", "health.csv", "cht.png", "detection.png", "gammas.png", "headroom.png"):
+        assert (out / name).stat().st_size > 1000, name
+    rows = (out / "health.csv").read_text(encoding="utf-8").splitlines()
+    assert rows[0].startswith("time_s,cht_meas_c,cht_est_c,deviation,state") and len(rows) > 1500

@@ -104,6 +104,17 @@ class FrameArrays(NamedTuple):
     def __len__(self) -> int:
         return int(self.time_s.size)
 
+    def take(self, index: Any) -> FrameArrays:
+        """The frames at ``index`` (a slice, a boolean mask or indices)."""
+        return FrameArrays(
+            self.time_s[index],
+            self.arbitration_id[index],
+            self.is_extended[index],
+            self.dlc[index],
+            self.data[index],
+            self.ignored[index],
+        )
+
     def messages(self) -> Iterable[can.Message]:
         """The frames as can.Message objects (for the live path)."""
         for i in range(len(self)):

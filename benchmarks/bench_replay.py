@@ -1,0 +1,192 @@
+"""Replay benchmark (issue 5 item 8): a 16-hour .blf through the full pipeline against a naive baseline.
+
+    .venv/bin/python benchmarks/bench_replay.py [--log PATH] [--baseline-minutes 30]
+
+The log (50 Hz ECU_Fast, 10 Hz ECU_Slow and AirData: about 4.0 M frames) is made once by the virtual
+ECU's recorder (a 16 h random mission, gamma_Q = 1.15 from 30000 s) into $ECU_MONITOR_BENCH_DIR or
+/tmp/ecu-monitor-bench, never into the repository. Measured in one run:
+
+* read only: python-can's LogReader over the whole file (Message objects, nothing else), and the
+  service's array reader (:func:`ecu_monitor.service.replay.read_frames`);
+* full pipeline: ``replay_file`` (read, decode with every check, fixed-step inputs, supervision,
+  estimator, open-loop reference, isolation filter, detector, headroom) plus writing health.csv;
+* naive baseline: python-can LogReader, cantools ``decode_message`` per frame, and a filterpy
+  ``ExtendedKalmanFilter`` stepped every 20 ms on the model (RK4 prediction, sigmoid sensor update on
+  each CHT frame), over the first ``--baseline-minutes`` of the same log; its cost per second of log
+  is scaled to the whole log (it would take several minutes to run it all).
+
+Prints a table and the ratio baseline / pipeline. The numba kernels are compiled (or loaded from the
+cache) on a short warm-up replay first and that time is reported apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HOURS = 16.0
+
+
+def bench_dir() -> Path:
+    """Where the generated log lives (not the repository)."""
+    return Path(os.environ.get("ECU_MONITOR_BENCH_DIR", Path(tempfile.gettempdir()) / "ecu-monitor-bench"))
+
+
+def ensure_log(path: Path) -> None:
+    """Record the 16 h flight once with the virtual ECU."""
+    if path.exists():
+        return
+    from ecu_monitor.model import paper_table_a1
+    from virtual_bus.missions import random_mission
+    from virtual_bus.plant import Degradation
+    from virtual_bus.recorder import record
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    print(f"recording {HOURS:g} h flight to {path} (once) ...", flush=True)
+    partial = path.with_suffix(".part.blf")
+    record(random_mission(7, duration_s=HOURS * 3600.0), [partial], paper_table_a1(),
+           degradation=[Degradation.parse("gamma_q=1.15@30000")], seed=7)  # fmt: skip
+    partial.rename(path)
+    print(f"  recorded in {time.perf_counter() - started:.0f} s", flush=True)
+
+
+def naive_baseline(path: Path, minutes: float) -> tuple[float, float, int, int]:
+    """(wall s, log seconds covered, frames, steps) of the naive replay over the first minutes."""
+    import can
+    import cantools
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    from ecu_monitor.estimation.quantiser import sensor_model, sensor_slope
+    from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1, rk4_step
+
+    root = Path(__file__).resolve().parents[1]
+    db: Any = cantools.database.load_file(str(root / "dbc" / "engine.dbc"))
+    coeffs = coefficients(paper_table_a1())
+    signals = {"EngineSpeed": "rpm", "ThrottlePos": "throttle_pct", "CHT": "cht_c", "OAT": "oat_c",
+               "PressureAltitude": "altitude_m", "CalibratedAirspeed": "airspeed_mps"}  # fmt: skip
+    held: dict[str, float] = {}
+    dt = 0.02
+    ekf = ExtendedKalmanFilter(dim_x=1, dim_z=1)
+    ekf.Q = np.array([[1e-4]])
+    ekf.R = np.array([[1.0 / 12.0 + 0.04]])
+    state: dict[str, Any] = {"w": None, "next": None, "new_z": False}
+
+    def slope(v: np.ndarray) -> np.ndarray:
+        return np.array([[sensor_slope(float(v[0, 0]), 100.0, 0.5, 1.0)]])
+
+    def level(v: np.ndarray) -> np.ndarray:
+        return np.array([[sensor_model(float(v[0, 0]), 100.0, 0.5, 1.0)]])
+
+    def drive() -> Any:
+        return compute_drive(InputSeries(held["throttle_pct"], held["rpm"], held["altitude_m"], held["airspeed_mps"],
+                                         held["oat_c"]), coeffs)  # fmt: skip
+
+    frames = steps = 0
+    first = last = math.nan
+    started = time.perf_counter()
+    with can.LogReader(str(path)) as reader:
+        for msg in reader:
+            if math.isnan(first):
+                first = msg.timestamp
+            if msg.timestamp - first > minutes * 60.0:
+                break
+            last = msg.timestamp
+            while state["next"] is not None and state["next"] <= msg.timestamp:
+                d = drive()
+                x = float(ekf.x[0, 0])
+                x_next, w_next = rk4_step(x, state["w"], d, coeffs, dt)
+                x_eps, _ = rk4_step(x + 1e-6, state["w"], d, coeffs, dt)
+                ekf.F = np.array([[(float(x_eps) - float(x_next)) / 1e-6]])
+                ekf.x = np.array([[float(x_next)]])
+                ekf.P = ekf.F @ ekf.P @ ekf.F.T + ekf.Q
+                state["w"] = float(w_next)
+                if state["new_z"]:
+                    ekf.update(np.array([[held["cht_c"]]]), slope, level)
+                    state["new_z"] = False
+                state["next"] += dt
+                steps += 1
+            frames += 1
+            try:
+                decoded = db.decode_message(msg.arbitration_id, msg.data)
+            except (KeyError, ValueError, cantools.database.DecodeError):
+                continue
+            for signal, value in decoded.items():
+                if signal in signals:
+                    held[signals[signal]] = float(value)
+                    if signal == "CHT":
+                        state["new_z"] = True
+            if state["next"] is None and len(held) == len(signals):
+                ekf.x = np.array([[held["cht_c"]]])
+                state["w"] = 2.0 * float(drive().q_sl0_w)
+                state["next"] = msg.timestamp + dt
+    return time.perf_counter() - started, last - first, frames, steps
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--log", type=Path, default=bench_dir() / "flight16h.blf")
+    parser.add_argument("--baseline-minutes", type=float, default=30.0)
+    args = parser.parse_args()
+    ensure_log(args.log)
+
+    import can
+
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.replay import read_frames, replay_file, replay_frames, write_health_csv
+
+    root = Path(__file__).resolve().parents[1]
+    config = load_config(root / "configs" / "example.yaml")
+    params = config.load_params()
+
+    started = time.perf_counter()
+    frames = read_frames(args.log)
+    t_read_arrays = time.perf_counter() - started
+    span = float(frames.time_s[-1] - frames.time_s[0])
+    warm = slice(0, 30000)
+    started = time.perf_counter()
+    replay_frames(config, params, frames.take(warm))
+    t_compile = time.perf_counter() - started
+    del frames
+
+    started = time.perf_counter()
+    count = 0
+    with can.LogReader(str(args.log)) as reader:
+        for _ in reader:
+            count += 1
+    t_read_pycan = time.perf_counter() - started
+
+    out = bench_dir() / "health16h.csv"
+    started = time.perf_counter()
+    result = replay_file(args.log, config, params)
+    rows = write_health_csv(result.rows, out)
+    t_full = time.perf_counter() - started
+
+    t_naive, covered, naive_frames, naive_steps = naive_baseline(args.log, args.baseline_minutes)
+    t_naive_full = t_naive * span / covered
+
+    alarm = next((r.time_s for r in result.rows if r.state == "DEGRADED"), math.nan)
+    t0 = result.rows[0].time_s if result.rows else 0.0
+    print(f"log: {args.log} ({args.log.stat().st_size / 1e6:.0f} MB), {count} frames, {span / 3600:.2f} h")
+    print(f"{'operation':58s} {'wall s':>8s}")
+    print(f"{'python-can LogReader, read only (Message objects)':58s} {t_read_pycan:8.2f}")
+    print(f"{'service read_frames (arrays)':58s} {t_read_arrays:8.2f}")
+    print(f"{'numba compile / cache load (warm-up, once per process)':58s} {t_compile:8.2f}")
+    print(f"{'full pipeline: read + decode + steps + estimators + detector + csv':58s} {t_full:8.2f}")
+    print(f"{'naive baseline, measured over ' + f'{covered / 60:.0f} min ({naive_frames} frames)':58s} {t_naive:8.2f}")
+    print(f"{'naive baseline scaled to the whole log':58s} {t_naive_full:8.2f}")
+    print(f"ratio naive / pipeline: {t_naive_full / t_full:.1f}x; pipeline {span / t_full:.0f}x faster than real time")
+    print(f"pipeline: {result.counters['steps']} steps, {rows} health rows, malformed {result.counters['malformed']}, "
+          f"DEGRADED from t = {alarm - t0:.0f} s (gamma_Q 1.15 injected at 30000 s)")  # fmt: skip
+    print(f"naive baseline: {naive_steps} filter steps, {t_naive / max(naive_steps, 1) * 1e6:.0f} us per step")
+
+
+if __name__ == "__main__":
+    main()
