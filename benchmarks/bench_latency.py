@@ -1,6 +1,6 @@
 """Live latency: ECU frame -> the health frame it causes, p50/p99, with 4,000 frames/s of other traffic.
 
-    .venv/bin/python benchmarks/bench_latency.py [--seconds 30] [--traffic 4000]
+    .venv/bin/python benchmarks/bench_latency.py [--seconds 30] [--traffic 4000] [--gc-study]
     sudo .venv/bin/python benchmarks/bench_latency.py --netns [--seconds 30] [--nice -10]   # across processes
 
 In one process (default), on python-can's ``virtual`` interface (three bus objects on one channel):
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import gc
 import json
 import os
 import random
@@ -156,11 +157,33 @@ def _stats(name: str, sent_at: list[float], got: list[tuple[float, int]]) -> dic
     return {"case": name, "p50_us": p50, "p99_us": p99, "max_us": worst, "samples": len(latencies_us)}
 
 
-def run_case(name: str, seconds: float, traffic_hz: float, with_pipeline: bool) -> dict[str, Any]:
+class GcPauses:
+    """Longest pause and count of the cyclic collector's runs per generation (gc.callbacks)."""
+
+    def __init__(self) -> None:
+        self.pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
+        self._start = 0.0
+
+    def __call__(self, phase: str, info: dict[str, Any]) -> None:
+        if phase == "start":
+            self._start = time.perf_counter()
+        else:
+            self.pauses[info["generation"]].append((time.perf_counter() - self._start) * 1e3)
+
+    def summary(self) -> str:
+        return ", ".join(
+            f"gen{g} {len(p)} runs, longest {max(p):.1f} ms" if p else f"gen{g} 0 runs" for g, p in self.pauses.items()
+        )
+
+
+def run_case(
+    name: str, seconds: float, traffic_hz: float, with_pipeline: bool, freeze_heap: bool = True
+) -> dict[str, Any]:
     """One measurement: the daemon (with_pipeline) or the bare echo listener under the same traffic."""
     channel = f"bench-{uuid.uuid4().hex}"
-    ecu_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-    traffic_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    # one sending bus for the ECU and the traffic threads: a virtual bus queues every frame the others
+    # send, so a second never-read bus would pile up 4,000 frames/s on this process's heap
+    ecu_bus = traffic_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     rx_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     rx_bus.set_filters([{"can_id": i, "can_mask": 0x7FF} for i in HEALTH_IDS])
     sent_at: list[float] = []
@@ -179,11 +202,12 @@ def run_case(name: str, seconds: float, traffic_hz: float, with_pipeline: bool) 
         daemon = Daemon(
             pipeline,
             lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False),
-            settings=DaemonSettings(tick_s=3600.0),
+            settings=DaemonSettings(tick_s=3600.0, freeze_heap=freeze_heap),
             receive_ids=pipeline.decoder.frame_ids,
         )
         daemon_thread = threading.Thread(target=daemon.run, daemon=True)
         daemon_thread.start()
+        time.sleep(1.0)  # past the daemon's start-up collection
     else:
         echo_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         echo_bus.set_filters([{"can_id": i, "can_mask": 0x7FF} for i in (0x100, 0x101, 0x200)])
@@ -197,6 +221,8 @@ def run_case(name: str, seconds: float, traffic_hz: float, with_pipeline: bool) 
 
         echo_notifier = can.Notifier(echo_bus, [echo], timeout=0.2)
     time.sleep(0.5)
+    gc_pauses = GcPauses()
+    gc.callbacks.append(gc_pauses)
     per_burst = max(1, round(traffic_hz * 0.0025))
     traffic = Periodic(0.0025, _traffic_sender(traffic_bus, per_burst, counts, seed=4000))
     ecu = Periodic(0.02, _ecu_sender(ecu_bus, sent_at, counts))
@@ -208,6 +234,7 @@ def run_case(name: str, seconds: float, traffic_hz: float, with_pipeline: bool) 
     traffic.stop_event.set()
     traffic.join()
     time.sleep(0.5)
+    gc.callbacks.remove(gc_pauses)
     stop_rx.set()
     receiver.join()
     if daemon is not None:
@@ -219,7 +246,7 @@ def run_case(name: str, seconds: float, traffic_hz: float, with_pipeline: bool) 
         echo_notifier.stop()
         echo_bus.shutdown()
         frames_in, health_sent = echo_in[0], echo_sent[0]
-    for bus in (ecu_bus, traffic_bus, rx_bus):
+    for bus in (ecu_bus, rx_bus):
         bus.shutdown()
     return {
         **_stats(name, sent_at, got),
@@ -228,6 +255,7 @@ def run_case(name: str, seconds: float, traffic_hz: float, with_pipeline: bool) 
         "out_sent": health_sent,
         "out_received": len(got),
         "traffic_hz": counts["traffic"] / seconds,
+        "gc": gc_pauses.summary(),
     }
 
 
@@ -392,6 +420,9 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any]) -> None
         f"\nratio daemon / baseline: p50 {daemon['p50_us'] / baseline['p50_us']:.2f}x, "
         f"p99 {daemon['p99_us'] / baseline['p99_us']:.2f}x"
     )
+    for row in (baseline, daemon):
+        if "gc" in row:
+            print(f"{row['case']}: garbage collections in the process during the run: {row['gc']}")
     lost = daemon["ecu_sent"] - daemon["ecu_in"] + daemon["out_sent"] - daemon["out_received"]
     print(f"frames lost: {lost}; target p99 < 2000 us: {'met' if daemon['p99_us'] < 2000 else 'NOT met'}\n")
 
@@ -404,6 +435,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=30.0)
     parser.add_argument("--traffic", type=float, default=4000.0, help="other frames per second")
     parser.add_argument("--netns", action="store_true", help="across processes on udp_multicast in a netns")
+    parser.add_argument("--gc-study", action="store_true", help="also run the daemon without gc.freeze")
     parser.add_argument("--nice", type=int, default=0, help="with --netns: run the daemon and the echo at this nice")
     args = parser.parse_args()
     if args.netns:
@@ -414,6 +446,11 @@ def main() -> None:
         daemon = run_case("daemon + pipeline", args.seconds, args.traffic, with_pipeline=True)
         title = f"virtual interface, one process, {args.seconds:g} s per case"
     report(f"{title}, other traffic {daemon['traffic_hz']:.0f} frames/s", baseline, daemon)
+    if args.gc_study and not args.netns:
+        unfrozen = run_case(
+            "daemon, heap not frozen", args.seconds, args.traffic, with_pipeline=True, freeze_heap=False
+        )
+        report("same, without gc.freeze (DaemonSettings.freeze_heap=False)", baseline, unfrozen)
 
 
 if __name__ == "__main__":

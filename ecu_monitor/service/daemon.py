@@ -83,6 +83,7 @@ class DaemonSettings:
     backoff_initial_s: float = 0.5
     backoff_max_s: float = 10.0
     watchdog_period_s: float | None = None  # None: no watchdog (not under systemd's WatchdogSec)
+    freeze_heap: bool = True  # gc.freeze() the start-up heap (module docstring, "Garbage collection")
 
 
 class _Listener(can.Listener):
@@ -328,7 +329,7 @@ class Daemon:
             estimating = _finite(self.pipeline.snapshot().cht_est_c)
         if self._watchdog.due(now, steps) and self._notifier.watchdog():
             self.counters["watchdog_pings"] += 1
-        if estimating and not self._heap_frozen_running:
+        if estimating and self.settings.freeze_heap and not self._heap_frozen_running:
             gc.freeze()  # the estimator's first steps loaded its compiled code: keep it out of collections too
             self._heap_frozen_running = True
         self._record()
@@ -339,8 +340,9 @@ class Daemon:
         self._attach()
         with self._lock:
             self.pipeline.advance_to(self._clock())
-        gc.collect()  # once, before READY: then the start-up heap leaves the collector's sight (gc.freeze)
-        gc.freeze()
+        if settings.freeze_heap:
+            gc.collect()  # once, before READY: then the start-up heap leaves the collector's sight
+            gc.freeze()
         self._tick_thread = threading.Thread(target=self._tick_loop, name="ecu-monitor tick", daemon=True)
         self._tick_thread.start()
         self._notifier.ready(status="running: " + self._status_line())
@@ -369,7 +371,8 @@ class Daemon:
         self._guarded("flush", self._record)
         if self._recorder is not None:
             self._guarded("flush", self._recorder.close)
-        gc.unfreeze()  # back to normal collection for whoever runs on in this process (tests, benchmarks)
+        if self.settings.freeze_heap:
+            gc.unfreeze()  # back to normal collection for whoever runs on in this process (tests, benchmarks)
         _log.info("stopped: %s", ", ".join(f"{k} {v}" for k, v in self.counters.items()))
         return 0
 
