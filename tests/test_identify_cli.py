@@ -121,3 +121,13 @@ def test_bad_csv_exits_2(tmp_path, capsys):
     assert (
         main(["simulate", "--model", str(tmp_path / "missing.yaml"), str(bad), "--out", str(tmp_path / "s.csv")]) == 2
     )
+
+
+def test_unwritable_outputs_exit_2_before_identifying(flights, tmp_path, capsys):
+    train, _ = flights
+    assert main(["identify", str(train), "--out", str(tmp_path / "no" / "m.yaml"), "--quiet"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["identify", str(train), "--out", str(tmp_path / "m.yaml"), "--plots", str(blocker), "--quiet"]) == 2
+    assert "plot directory" in capsys.readouterr().err

@@ -126,7 +126,12 @@ def _settings(args: argparse.Namespace) -> PsoSettings:
 
 
 def _run(args: argparse.Namespace) -> int:
-    settings = _settings(args)  # validate the numbers before the (slow) loading
+    settings = _settings(args)  # validate the numbers and the output places before the (slow) work
+    out = Path(args.out)
+    if not out.parent.is_dir():
+        raise UserInputError(f"{out}: the directory {out.parent} does not exist")
+    if args.plots:
+        _make_dir(Path(args.plots))
     flights = _load(args.flights, args.mapping)
     validation = _load(args.validate, args.mapping)
     axes = _choose_axes(args.heat_axes, flights)
@@ -171,7 +176,10 @@ def _run(args: argparse.Namespace) -> int:
             ),
         ]
     )
-    save_model(params, args.out, comment=comment)
+    try:
+        save_model(params, out, comment=comment)
+    except OSError as exc:
+        raise UserInputError(f"{out}: cannot write the model ({exc.strerror})") from None
     print(error_table(rows))
     print(summary)
     print(
@@ -184,6 +192,13 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _make_dir(directory: Path) -> None:
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserInputError(f"{directory}: cannot create the plot directory ({exc.strerror})") from None
+
+
 def _plots(
     directory: Path,
     result: Any,
@@ -191,10 +206,6 @@ def _plots(
     validation: list[FlightLog],
     rows: list[tuple[str, str, ErrorStats]],
 ) -> None:
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserInputError(f"{directory}: cannot create the plot directory ({exc.strerror})") from None
     params = result.params
     for k, (log, (role, name, errors)) in enumerate(zip([*flights, *validation], rows, strict=True)):
         path = directory / f"cht_{role}_{k + 1}_{Path(name).stem}.png"
