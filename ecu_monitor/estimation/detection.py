@@ -8,10 +8,10 @@ filters the 50 Hz symptom and its quantisation spikes), then::
     S_n = max(0, S_(n-1) + (mean_n - b_(n-1) - k) * block_s)     (statistic in degC for a degC/s symptom)
 
 b is the symptom's nominal baseline: 0 (``baseline_s`` = 0, the plain test), or an exponential moving
-average of the block means with time constant ``baseline_s`` that adapts only while S = 0 (frozen as
-soon as the test sees a rise, so a step or a ramp stays visible). The baseline absorbs the slowly
-varying offset that the residual model error puts on the symptom at each operating point; the test
-then looks for a change of the symptom, which is what a degradation onset is.
+average of the block means with time constant ``baseline_s`` (the mean up to the previous block). The
+baseline absorbs the slowly varying offset that the residual model error puts on the symptom at each
+operating point; the test then looks for a *change* of the symptom, which is what a degradation
+onset is. The price: a degradation that creeps in more slowly than ``baseline_s`` is absorbed too.
 
 k (``reference``) is the drift allowance: about half the symptom of the smallest degradation to
 detect; h (``threshold``) is set from nominal flights by :func:`calibrate_threshold` for a target
@@ -201,9 +201,7 @@ def _cusum_step(statistic: float, baseline: float, mean: float, k: float, block_
     if math.isnan(baseline):
         return 0.0, mean  # the first block only starts the baseline
     new_statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
-    if new_statistic == 0.0:
-        baseline += (block_s / baseline_s) * (mean - baseline)
-    return new_statistic, baseline
+    return new_statistic, baseline + (block_s / baseline_s) * (mean - baseline)
 
 
 @numba.njit(cache=True)
