@@ -48,13 +48,13 @@ G1000 = Path("/work/shared/data/g1000/log_110701_131851_KGFK.csv")
 REPO = Path(__file__).resolve().parents[1]
 
 
-def virtual_flights() -> tuple[FlightLog, FlightLog, ThermalParams]:
-    """Train and held-out virtual-ECU flights (about 1 h each) and the truth."""
+def virtual_flights(record_dt_s: float = 1.0) -> tuple[FlightLog, FlightLog, ThermalParams]:
+    """Train (logged every record_dt_s) and held-out (1 Hz) virtual-ECU flights, about 1 h each, and the truth."""
     from virtual_bus.missions import random_mission
     from virtual_bus.plant import fly
 
     truth = paper_table_a1()
-    train = fly(random_mission(1), truth, seed=1, record_dt_s=1.0)
+    train = fly(random_mission(1), truth, seed=1, record_dt_s=record_dt_s)
     held_out = fly(random_mission(2), truth, seed=2, record_dt_s=1.0)
     return train, held_out, truth
 
@@ -114,8 +114,8 @@ def run_de(objective: SwarmObjective, budget: int, particles: int, seed: int) ->
 # --------------------------------------------------------------------------------------------------
 
 
-def study_main(seed: int) -> None:
-    train, held_out, truth = virtual_flights()
+def study_main(seed: int, record_dt_s: float) -> None:
+    train, held_out, truth = virtual_flights(record_dt_s)
     base = wrong_start(truth)
     settings = PsoSettings(seed=seed)
     print(
@@ -469,12 +469,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--study", choices=("main", "dt", "variants", "g1000", "g1000-effects", "virtual-plots"), default="main"
     )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--record-dt", type=float, default=1.0, help="logging interval of the train flight, s (main)")
     parser.add_argument("--seeds", type=int, default=5, help="seeds for --study variants")
     parser.add_argument("--data", choices=("virtual", "g1000"), default="virtual", help="for --study variants")
     parser.add_argument("--plots", type=Path, help="directory for PNGs (g1000, virtual-plots)")
     args = parser.parse_args(argv)
     if args.study == "main":
-        study_main(args.seed)
+        study_main(args.seed, args.record_dt)
     elif args.study == "dt":
         study_dt(args.seed)
     elif args.study == "variants":
