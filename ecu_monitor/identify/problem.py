@@ -289,7 +289,7 @@ class ParameterSpace:
     log_scaled: True where the optimiser searches the logarithm (positive scale parameters).
     prior_mean, prior_sigma: Gaussian prior of each coordinate (NaN sigma = none).
     heat_cells: (i, j) of the heat-map values identified; the other (unvisited) cells copy the value
-        of the nearest identified cell when ``fill_unvisited`` (a new grid), else keep the base value.
+        of the nearest identified cell when ``fill_unvisited`` (as default_space sets), else keep the base value.
     """
 
     base: ThermalParams
