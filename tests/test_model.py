@@ -212,3 +212,8 @@ def test_scalar_drive_path_equals_numpy_path():
         assert isinstance(scalar.q_sl0_w, float)
         for got, want in zip(scalar, vector, strict=True):
             assert got == pytest.approx(float(np.asarray(want)[0]), rel=1e-12, abs=1e-12)
+
+
+def test_save_model_to_unwritable_place_is_a_one_line_error(tmp_path):
+    with pytest.raises(ConfigError, match="cannot write model file"):
+        save_model(paper_table_a1(), tmp_path / "missing-dir" / "model.yaml")

@@ -196,4 +196,7 @@ def save_model(params: ThermalParams, path: str | Path, comment: str | None = No
     """Write model.yaml (loads back to an equal ThermalParams)."""
     path = Path(path)
     header = "".join(f"# {line}\n" for line in (comment or "").splitlines())
-    path.write_text(header + yaml.safe_dump(params.to_dict(), sort_keys=False), encoding="utf-8")
+    try:
+        path.write_text(header + yaml.safe_dump(params.to_dict(), sort_keys=False), encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write model file ({exc.strerror})") from None
