@@ -19,11 +19,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS
 from ecu_monitor.flightlog import load_flight
 from ecu_monitor.model import load_model
 from ecu_monitor.service.config import load_config
+from ecu_monitor.service.pipeline import STATES
 from ecu_monitor.service.replay import (
     CAN_LOG_SUFFIXES,
     ReplayResult,
@@ -31,7 +34,6 @@ from ecu_monitor.service.replay import (
     read_frames,
     replay_frames,
     replay_live,
-    write_health_csv,
 )
 
 __all__ = ["DEFAULT_CONFIG", "add_subparser"]
@@ -76,18 +78,20 @@ def _run(args: argparse.Namespace) -> int:
     result: ReplayResult = (
         replay_live(config, params, frames.messages()) if args.live else replay_frames(config, params, frames)
     )
-    rows = write_health_csv(result.rows, args.out)
+    rows = result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
     return 0
 
 
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
     c = result.counters
-    states = collections.Counter(r.state for r in result.rows)
-    span = result.rows[-1].time_s - result.rows[0].time_s if result.rows else 0.0
-    alarm = next((r.time_s for r in result.rows if r.state == "DEGRADED"), None)
-    detected = f", DEGRADED from t={alarm - result.rows[0].time_s:.1f} s" if alarm is not None else ""
-    share = ", ".join(f"{name} {count}" for name, count in states.most_common())
+    time_s = result.columns["time_s"]
+    codes = result.columns["state"]
+    span = float(time_s[-1] - time_s[0]) if rows else 0.0
+    counts = collections.Counter(STATES[code] for code in codes.tolist())
+    degraded = np.flatnonzero(codes == STATES.index("DEGRADED"))
+    detected = f", DEGRADED from t={time_s[degraded[0]] - time_s[0]:.1f} s" if degraded.size else ""
+    share = ", ".join(f"{name} {count}" for name, count in counts.most_common())
     return (
         f"{out}: {rows} rows, {span:.1f} s of {log.name} ({estimator}); frames {c['frames']} "
         f"(ok {c['ok']}, malformed {c['malformed']}, unknown id {c['unknown_id']}); states: {share}{detected}; "

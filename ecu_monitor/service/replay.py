@@ -19,7 +19,6 @@ latest row, encoded with the config's DBC, counter and checksum).
 
 from __future__ import annotations
 
-import csv
 import functools
 import itertools
 import math
@@ -132,10 +131,60 @@ class FrameArrays(NamedTuple):
 
 @dataclass(frozen=True)
 class ReplayResult:
-    """Rows of a replay (one per health-status period) and the frame counters."""
+    """A replay's rows (one per health-status period) as columns, and the frame counters.
 
-    rows: list[HealthSnapshot]
+    columns: time_s, cht_meas_c, cht_est_c, deviation, gamma_q, gamma_d, headroom_s (float arrays),
+    state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool).
+    """
+
+    columns: dict[str, NDArray[Any]]
     counters: dict[str, int]
+
+    def __len__(self) -> int:
+        return int(self.columns["time_s"].size)
+
+    @functools.cached_property
+    def rows(self) -> list[HealthSnapshot]:
+        """The rows as HealthSnapshot objects (what Pipeline.drain_rows gives)."""
+        c = self.columns
+        names = _stale_names()
+        floats = [c[k].tolist() for k in _FLOAT_COLUMNS]
+        return [
+            HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault)
+            for t, meas, est, dev, gq, gd, head, state, stale, fault in zip(
+                *floats, c["state"].tolist(), c["stale"].tolist(), c["sensor_fault"].tolist(), strict=True
+            )
+        ]
+
+    def write_csv(self, path: str | os.PathLike[str]) -> int:
+        """Write health.csv (as :func:`write_health_csv`, from the columns at once); returns the row count."""
+        c = self.columns
+        names = ["+".join(n) for n in _stale_names()]
+        cells = [[f"{v:.10g}" for v in c[k].tolist()] for k in _FLOAT_COLUMNS]
+        state = [STATES[v] for v in c["state"].tolist()]
+        stale = [names[v] for v in c["stale"].tolist()]
+        fault = [str(int(v)) for v in c["sensor_fault"].tolist()]
+        t, meas, est, dev, gq, gd, head = cells
+        lines = [",".join(HEALTH_COLUMNS)]
+        lines += [",".join(row) for row in zip(t, meas, est, dev, state, gq, gd, head, stale, fault, strict=True)]
+        return _write_lines(lines, path)
+
+
+#: Float columns of ReplayResult.columns, in health.csv order.
+_FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+
+
+@functools.cache
+def _stale_names() -> tuple[tuple[str, ...], ...]:
+    """Stale input names of every StaleInputs bit field value."""
+    return tuple(tuple(n for i, n in enumerate(INPUT_NAMES) if bits >> i & 1) for bits in range(1 << len(INPUT_NAMES)))
+
+
+def _empty_columns() -> dict[str, NDArray[Any]]:
+    columns: dict[str, NDArray[Any]] = {k: np.zeros(0) for k in _FLOAT_COLUMNS}
+    columns.update(state=np.zeros(0, dtype=np.int64), stale=np.zeros(0, dtype=np.int64),
+                   sensor_fault=np.zeros(0, dtype=bool))  # fmt: skip
+    return columns
 
 
 def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
@@ -336,7 +385,19 @@ def replay_live(config: ServiceConfig, params: ThermalParams, frames: Iterable[c
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
         rows.extend(pipeline.drain_rows())
-    return ReplayResult(rows, dict(pipeline.counters))
+    return ReplayResult(_rows_to_columns(rows), dict(pipeline.counters))
+
+
+def _rows_to_columns(rows: list[HealthSnapshot]) -> dict[str, NDArray[Any]]:
+    if not rows:
+        return _empty_columns()
+    columns: dict[str, NDArray[Any]] = {k: np.array([getattr(r, k) for r in rows], dtype=float) for k in _FLOAT_COLUMNS}
+    columns["state"] = np.array([STATES.index(r.state) for r in rows], dtype=np.int64)
+    columns["stale"] = np.array(
+        [sum(1 << i for i, n in enumerate(INPUT_NAMES) if n in r.stale_inputs) for r in rows], dtype=np.int64
+    )
+    columns["sensor_fault"] = np.array([r.sensor_fault for r in rows], dtype=bool)
+    return columns
 
 
 # --------------------------------------------------------------------------------------------------
@@ -418,12 +479,12 @@ def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArr
     counters = dict(probe.counters)
     n = len(frames)
     if n == 0:
-        return ReplayResult([], counters)
+        return ReplayResult(_empty_columns(), counters)
     clock = np.where(np.isfinite(frames.time_s) & (np.abs(frames.time_s) < MAX_CLOCK_S), frames.time_s, -np.inf)
     stamps = np.maximum.accumulate(np.floor(clock * 1e6 + 0.5) / 1e6)  # clock_tick, as advance_to
     started = np.isfinite(stamps)
     if not started.any():
-        return ReplayResult([], counters)
+        return ReplayResult(_empty_columns(), counters)
     stamps[~started] = stamps[started][0]  # frames before the clock starts count at its start
     batch = decoder.decode_batch(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data, stamps,
                                  frames.ignored)  # fmt: skip
@@ -434,14 +495,15 @@ def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArr
     restarts = np.flatnonzero(np.diff(stamps) > MAX_CLOCK_GAP_S) + 1
     bounds = [0, *restarts.tolist(), n]
     counters["clock_restarts"] = len(restarts)
-    rows: list[HealthSnapshot] = []
+    parts: list[dict[str, NDArray[Any]]] = []
     steps_total = 0
     for a, b in itertools.pairwise(bounds):
-        seg_rows, steps = _replay_segment(config, params, probe, batch.values, stamps, a, b)
-        rows.extend(seg_rows)
+        seg_columns, steps = _replay_segment(config, params, probe, batch.values, stamps, a, b)
+        parts.append(seg_columns)
         steps_total += steps
     counters["steps"] = steps_total
-    return ReplayResult(rows, counters)
+    columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else _empty_columns()
+    return ReplayResult(columns, counters)
 
 
 def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:
@@ -456,7 +518,7 @@ def _replay_segment(
     stamps: NDArray[np.float64],
     first: int,
     end: int,
-) -> tuple[list[HealthSnapshot], int]:
+) -> tuple[dict[str, NDArray[Any]], int]:
     dt = config.estimator.dt_s
     origin = float(stamps[first])
     last = float(stamps[end - 1])
@@ -466,7 +528,7 @@ def _replay_segment(
     times = times[times <= last]
     n = times.size
     if n == 0:
-        return [], 0
+        return _empty_columns(), 0
     held: dict[str, _Held] = {}
     for name, (rows, vals) in values.items():
         inside = (rows >= first) & (rows < end)
@@ -542,23 +604,22 @@ def _replay_segment(
     state = _detect(config, times, code, symptom, stretches)
     headroom = _headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
                          periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
-    fault = STATES.index("SENSOR_FAULT")
-    out: list[HealthSnapshot] = []
-    for i in np.flatnonzero(step_numbers % periods["Health_Status"] == 0).tolist():
-        out.append(
-            HealthSnapshot(
-                time_s=float(times[i]),
-                cht_meas_c=float(reading[i]),
-                cht_est_c=float(est[i]),
-                deviation=float(deviation[i]),
-                state=STATES[int(state[i])],
-                gamma_q=float(gamma_q[i]),
-                gamma_d=float(gamma_d[i]),
-                headroom_s=float(headroom[i]),
-                stale_inputs=tuple(name for name in mapped if stale[name][i]),
-                sensor_fault=int(code[i]) == fault,
-            )
-        )
+    rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
+    bits = np.zeros(n, dtype=np.int64)
+    for name in mapped:
+        bits |= stale[name].astype(np.int64) << INPUT_NAMES.index(name)
+    out = {
+        "time_s": times[rows],
+        "cht_meas_c": reading[rows],
+        "cht_est_c": est[rows],
+        "deviation": deviation[rows],
+        "gamma_q": gamma_q[rows],
+        "gamma_d": gamma_d[rows],
+        "headroom_s": headroom[rows],
+        "state": state[rows].astype(np.int64),
+        "stale": bits[rows],
+        "sensor_fault": code[rows] == STATES.index("SENSOR_FAULT"),
+    }
     return out, n
 
 
@@ -594,19 +655,21 @@ def _detect(
     closes = np.searchsorted(times, ends - 1e-9, side="left")
     closes = closes[closes < n]
     start = max(int(np.searchsorted(times, begin, side="left")), first)
-    bounds = [start, *closes.tolist(), n]
+    starts = np.array([start, *closes.tolist()], dtype=np.int64)
+    starts = starts[np.concatenate(([True], np.diff(starts) > 0))]  # blocks with at least one step
+    starts = starts[starts < n]
     finite = np.isfinite(fed)
-    values = np.where(finite, fed, 0.0)
+    sums = np.add.reduceat(np.where(finite, fed, 0.0), starts)
+    counts = np.add.reduceat(finite.astype(np.int64), starts)
     detector = Detector(s)
     detector.update(t0, math.nan)
+    block_state = np.empty(starts.size, dtype=np.int64)
+    for i, (lo, total, k) in enumerate(zip(starts.tolist(), sums.tolist(), counts.tolist(), strict=True)):
+        out = detector.update(float(times[lo]), total / k if k else math.nan)
+        block_state[i] = STATES.index(out.state)
     verdicts = np.zeros(n, dtype=np.int64)
-    for lo, hi in itertools.pairwise(bounds):
-        if hi <= lo:
-            continue
-        k = int(np.count_nonzero(finite[lo:hi]))
-        mean = float(np.sum(values[lo:hi]) / k) if k else math.nan
-        out = detector.update(float(times[lo]), mean)
-        verdicts[lo:] = STATES.index(out.state)
+    which = np.searchsorted(starts, np.arange(n), side="right") - 1
+    verdicts[which >= 0] = block_state[which[which >= 0]]
     nominal = code == 0
     state[nominal] = verdicts[nominal]
     return state
@@ -726,33 +789,23 @@ def replay_file(path: str | os.PathLike[str], config: ServiceConfig, params: The
     raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
 
 
-def _cell(value: float) -> str:
-    return f"{value:.10g}" if math.isfinite(value) else ""
-
-
 def write_health_csv(rows: Iterable[HealthSnapshot], path: str | os.PathLike[str]) -> int:
-    """Write health.csv (:data:`HEALTH_COLUMNS`); returns the number of rows. FlightLogError if unwritable."""
-    count = 0
+    """Write health.csv (:data:`HEALTH_COLUMNS`, nan as an empty cell); returns the number of rows.
+    FlightLogError if the file cannot be written."""
+    lines = [",".join(HEALTH_COLUMNS)]
+    for r in rows:
+        lines.append(
+            f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
+            f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)}"
+        )
+    return _write_lines(lines, path)
+
+
+def _write_lines(lines: list[str], path: str | os.PathLike[str]) -> int:
+    text = "\n".join(lines).replace(",nan", ",").replace(",-inf", ",").replace(",inf", ",") + "\n"
     try:
         with open(path, "w", newline="", encoding="utf-8") as handle:
-            writer = csv.writer(handle)
-            writer.writerow(HEALTH_COLUMNS)
-            for r in rows:
-                writer.writerow(
-                    (
-                        _cell(r.time_s),
-                        _cell(r.cht_meas_c),
-                        _cell(r.cht_est_c),
-                        _cell(r.deviation),
-                        r.state,
-                        _cell(r.gamma_q),
-                        _cell(r.gamma_d),
-                        _cell(r.headroom_s),
-                        "+".join(r.stale_inputs),
-                        int(r.sensor_fault),
-                    )
-                )
-                count += 1
+            handle.write(text)
     except OSError as exc:
         raise FlightLogError(f"{path}: cannot write ({exc.strerror or exc})") from None
-    return count
+    return len(lines) - 1
