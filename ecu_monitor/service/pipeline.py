@@ -84,9 +84,10 @@ MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 #: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
 MAX_CLOCK_GAP_S = 600.0
 #: The filters (estimator, isolation filter, open-loop reference) are called every this many seconds
-#: with the inputs held at that instant; each call integrates the elapsed steps of dt_s (0.02 s) on the
-#: model and applies the latest CHT reading (the CHT frame comes every 100 ms). The supervision,
-#: staleness and detector run every step.
+#: (on the steps k with k % period == 0, the 10 Hz Health_Status instants, and at initialisation) with
+#: the inputs held at that instant; each call integrates the elapsed steps of dt_s (0.02 s) on the
+#: model and applies the latest CHT reading if one arrived since the last call (the CHT frame comes
+#: every 100 ms). The supervision, staleness and detector run every step.
 FILTER_PERIOD_S = 0.1
 
 
@@ -270,7 +271,6 @@ class Pipeline:
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
         self._headroom_s = math.nan
         self._filter_period = filter_period_steps(self._dt)
-        self._anchor = 0
         self._pending_reading = False
         self._held = _NO_ESTIMATE
         self._snapshot = self._empty_snapshot(math.nan)
@@ -385,7 +385,7 @@ class Pipeline:
         self._readings_used = self._readings
         reading_bad = not math.isnan(reading) and self._reading_bad(reading)
         u = self._inputs()
-        call = self._sv.running and (self._k - self._anchor) % self._filter_period == 0
+        call = self._sv.running and self._k % self._filter_period == 0
         if call and self._reference is not None:
             self._held = self._held._replace(model_c=self._reference.estimate(time_s, u, None).cht_c)
         model_c = self._held.model_c if self._sv.running else reading
@@ -414,7 +414,6 @@ class Pipeline:
             for filt in (self._estimator, self._reference, self._isolation):
                 filt.initialise(time_s, u, reading)
             self._held = _Held(reading, 0.0, self._isolation.gamma_q, self._isolation.gamma_d, 0.0, reading)
-            self._anchor = self._k
             self._pending_reading = False
             self._headroom_s = math.nan
             self._detector_started = True

@@ -566,7 +566,8 @@ def _replay_segment(
     model_c = np.full(n, np.nan)
     calls: list[np.ndarray] = []  # for each stretch: the filter call step of every step (held outputs)
     for a, b in stretches:
-        call = a + period * ((np.arange(a, b) - a) // period)
+        # filter calls on the steps k (1-based) with k % period == 0, and at the initialisation
+        call = np.maximum(a, period * ((np.arange(a, b) + 1) // period) - 1)
         calls.append(call)
         z = np.full(b - a, np.nan)
         z[0] = reading[a]
@@ -586,7 +587,7 @@ def _replay_segment(
     for (a, b), call in zip(stretches, calls, strict=True):
         steps = np.arange(a, b)
         is_call = (call == steps) & (steps > a)
-        window = arrivals[steps + 1] - arrivals[np.maximum(steps + 1 - period, a + 1)] > 0
+        window = arrivals[steps + 1] - arrivals[np.maximum(steps - period, a) + 1] > 0
         use = is_call & window & (code[a:b] == 0)
         z = np.where(use, reading[a:b], np.nan)
         z[0] = reading[a]
