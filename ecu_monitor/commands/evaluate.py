@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -40,6 +41,11 @@ def add_subparser(subparsers: Any) -> None:
         type=float,
         default=10.0,
         help="hours of nominal flights with full-size effects (default 10)",
+    )
+    parser.add_argument(
+        "--flights-cache",
+        metavar="FILE",
+        help="pickle of the simulated flights: loaded if it exists (skips the simulation), else written",
     )
     parser.set_defaults(func=_run)
 
@@ -78,14 +84,21 @@ def _run(args: argparse.Namespace) -> int:
         full_size_hours=args.full_size_hours,
     )
     started = time.monotonic()
-    with tqdm(total=1, desc="flights", unit="flight", file=sys.stderr) as bar:
+    cache = Path(args.flights_cache) if args.flights_cache else None
+    if cache is not None and cache.exists():
+        results = _load(cache)
+    else:
+        with tqdm(total=1, desc="flights", unit="flight", file=sys.stderr) as bar:
 
-        def progress(done: int, total: int) -> None:
-            bar.total = total
-            bar.n = done
-            bar.refresh()
+            def progress(done: int, total: int) -> None:
+                bar.total = total
+                bar.n = done
+                bar.refresh()
 
-        results = run_campaign(config, progress=progress)
+            results = run_campaign(config, progress=progress)
+        if cache is not None:
+            with cache.open("wb") as handle:
+                pickle.dump(results, handle)
     campaign = score(config, results)
     checks = headroom_check()
     command = (
@@ -100,3 +113,12 @@ def _run(args: argparse.Namespace) -> int:
         f" {alarms} false alarms in {hours:.1f} nominal h"
     )
     return 0
+
+
+def _load(path: Path) -> Any:
+    """Flights pickled by an earlier run of this command (a file this command wrote: trusted)."""
+    try:
+        with path.open("rb") as handle:
+            return pickle.load(handle)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
+        raise ConfigError(f"{path}: cannot read the flights cache ({exc})") from None

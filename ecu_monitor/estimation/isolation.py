@@ -17,7 +17,11 @@ quantisation variance c^2/12 plus the probe's noise, inflated because the quanti
 correlated in time (``measurement_var``). The sigmoid staircase of the scalar filters is *not* used:
 its slope is zero except at the level edges, which starves the gammas of information; the sensor's
 dither noise makes the rounded reading unbiased on average, which the linear update exploits.
-Gammas are clipped to [gamma_min, gamma_max] after each update.
+Gammas are clipped to [gamma_min, gamma_max] after each update; gamma_min = 1 by default, the
+paper's definition (a degradation only adds heat or removes dissipation). This projection matters on
+real data: the residual model error otherwise drives the split apart (gamma_Q < 1 with gamma_D > 1 at
+an unchanged product); measured on eight degraded flights, it halves that drift before onset and cuts
+the 90th percentile of the isolation error from 0.16 to 0.10 (docs/detection_isolation.md).
 
 Observability (docs/detection_isolation.md): in a steady state only the product gamma_Q gamma_D is
 seen (D(T) = gamma_Q gamma_D H Q). gamma_D also stretches the thermal time constant (C_w gamma_D /
@@ -85,7 +89,7 @@ class IsolationSettings:
     measurement_var: float = 2.0
     initial_cht_var: float = 1.0
     initial_gamma_var: float = 1e-4
-    gamma_min: float = 0.5
+    gamma_min: float = 1.0
     gamma_max: float = 3.0
 
     def __post_init__(self) -> None:
