@@ -135,3 +135,43 @@ def test_settings_are_validated() -> None:
         DetectorSettings(suspect_fraction=1.5)
     with pytest.raises(ConfigError):
         DetectorSettings(baseline_s=0.5, block_s=1.0)
+
+
+def test_evaluation_plan_and_one_simulated_flight() -> None:
+    from ecu_monitor.estimation.evaluation import (
+        SYMPTOMS,
+        EvaluationConfig,
+        FlightCase,
+        plan_cases,
+        residual_effects,
+        simulate_case,
+    )
+    from ecu_monitor.model import paper_table_a1
+
+    config = EvaluationConfig(hours=3.0, degraded_seeds=1, full_size_hours=1.0)
+    cases = plan_cases(config)
+    assert cases == plan_cases(config)  # deterministic
+    for role in ("calibration", "scoring", "full_size"):
+        hours = sum(c.duration_s for c in cases if c.role == role) / HOUR
+        assert hours >= (1.0 if role == "full_size" else 3.0)
+    seeds = [c.seed for c in cases]
+    assert len(seeds) == len(set(seeds))  # disjoint sets
+    assert residual_effects(5) == residual_effects(5)
+    case = FlightCase("degraded", 123, 1200.0, "gamma_d", 1.3, 650.0)
+    result = simulate_case(case, paper_table_a1(), config)
+    assert set(result.symptoms) == set(SYMPTOMS)
+    n = result.time_s.size
+    assert n > 1000 and all(v.size == n for v in result.symptoms.values())
+    after = result.time_s > case.onset_s + 200.0
+    before = (result.time_s > 400.0) & (result.time_s < case.onset_s)
+    # the degradation raises the symptom and the gamma_D estimate
+    assert np.mean(result.symptoms["cbekf"][after]) > np.mean(result.symptoms["cbekf"][before]) + 0.03
+    assert np.mean(result.gamma_d[after]) > np.mean(result.gamma_d[before]) + 0.05
+    assert all(math.isfinite(v) and v < 3.0 for v in result.cht_rms_c.values())
+
+
+def test_evaluate_command_rejects_bad_arguments() -> None:
+    from ecu_monitor.cli import main
+
+    assert main(["evaluate", "--hours", "0"]) == 2
+    assert main(["evaluate", "--target", "150"]) == 2
