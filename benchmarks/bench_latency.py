@@ -259,6 +259,47 @@ def run_case(
     }
 
 
+def full_collection_ms() -> tuple[float, float, int]:
+    """A full gc.collect() in a process holding the daemon's modules and a running pipeline, ms:
+    (heap as is, after gc.freeze() and 20 s more of pipeline steps, objects tracked before the freeze)."""
+    pipeline_cost(steps=500)
+    tracked = len(gc.get_objects())
+    started = time.perf_counter()
+    gc.collect()
+    plain_ms = (time.perf_counter() - started) * 1e3
+    gc.freeze()
+    pipeline_cost(steps=1000)
+    started = time.perf_counter()
+    gc.collect()
+    frozen_ms = (time.perf_counter() - started) * 1e3
+    gc.unfreeze()
+    return plain_ms, frozen_ms, tracked
+
+
+def pipeline_cost(steps: int = 3000) -> tuple[float, float]:
+    """p50, p99 (us) of feed + advance_to for the frames whose step emits health frames, no bus, no threads."""
+    config = _config("unused")
+    pipeline = Pipeline(config, config.load_params())
+    encoder = Encoder([REPO / "dbc" / "engine.dbc"])
+    counters = dict.fromkeys(ECU_VALUES, 0)
+    t = 0.0
+    pipeline.advance_to(t)
+    costs = []
+    for k in range(steps):
+        t += 0.02
+        for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
+            data = encoder.encode(name, ECU_VALUES[name], counters[name])
+            counters[name] += 1
+            msg = can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data)
+            started = time.perf_counter()
+            pipeline.feed(msg)
+            frames = pipeline.advance_to(t)
+            if frames:
+                costs.append((time.perf_counter() - started) * 1e6)
+    p50, p99, _ = _percentiles(costs[50:])  # after the estimator's start
+    return p50, p99
+
+
 # --- across processes, udp_multicast in a network namespace -------------------------------------------
 
 GROUP = "239.74.163.2"
@@ -350,6 +391,22 @@ def measure_inner(port: int, seconds: float, name: str) -> None:
     print(json.dumps({**_stats(name, sent_at, got), "ecu_sent": counts["ecu"], "out_received": len(got)}))
 
 
+def _socket_drops(ns: str, pid: int) -> int:
+    """Datagrams the kernel dropped on the UDP sockets of process ``pid`` (full receive queue)."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        target = os.readlink(fd)
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    table = subprocess.run(["ip", "netns", "exec", ns, "cat", "/proc/net/udp"], capture_output=True, text=True)
+    drops = 0
+    for line in table.stdout.splitlines()[1:]:
+        fields = line.split()
+        if fields[9] in inodes:
+            drops += int(fields[-1])
+    return drops
+
+
 def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str, Any]]:
     """Both cases across processes inside a fresh network namespace; returns their statistics."""
     if os.geteuid() != 0 or shutil.which("ip") is None:
@@ -389,6 +446,7 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
             time.sleep(1.0)
             inner = start([sys.executable, __file__, "--inner", str(port), str(seconds), name])
             out, _ = inner.communicate(timeout=seconds + 60)
+            peer_drops = _socket_drops(ns, peer.pid)
             traffic.kill()
             traffic.wait(timeout=10)
             peer.send_signal(signal.SIGTERM)
@@ -396,6 +454,7 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
             peer_counts = json.loads(peer_out.strip().splitlines()[-1])
             row = json.loads(out.strip().splitlines()[-1])
             row.update(ecu_in=peer_counts["in"], out_sent=peer_counts["out"], traffic_hz=per_burst / 0.0025)
+            row["socket_drops"] = peer_drops
             rows.append(row)
     finally:
         for proc in procs:
@@ -421,6 +480,8 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any]) -> None
         f"p99 {daemon['p99_us'] / baseline['p99_us']:.2f}x"
     )
     for row in (baseline, daemon):
+        if "socket_drops" in row:
+            print(f"{row['case']}: {row['socket_drops']} datagrams dropped by the kernel on its socket (queue full)")
         if "gc" in row:
             print(f"{row['case']}: garbage collections in the process during the run: {row['gc']}")
     lost = daemon["ecu_sent"] - daemon["ecu_in"] + daemon["out_sent"] - daemon["out_received"]
@@ -445,8 +506,15 @@ def main() -> None:
         baseline = run_case("bare Notifier echo (baseline)", args.seconds, args.traffic, with_pipeline=False)
         daemon = run_case("daemon + pipeline", args.seconds, args.traffic, with_pipeline=True)
         title = f"virtual interface, one process, {args.seconds:g} s per case"
+        cost_p50, cost_p99 = pipeline_cost()
+        print(
+            f"pipeline alone, feed + advance_to of a frame whose step emits health frames: "
+            f"p50 {cost_p50:.0f} us, p99 {cost_p99:.0f} us\n"
+        )
     report(f"{title}, other traffic {daemon['traffic_hz']:.0f} frames/s", baseline, daemon)
     if args.gc_study and not args.netns:
+        plain_ms, frozen_ms, tracked = full_collection_ms()
+        print(f"full gc.collect(), {tracked} objects tracked: {plain_ms:.1f} ms; after gc.freeze(): {frozen_ms:.2f} ms")
         unfrozen = run_case(
             "daemon, heap not frozen", args.seconds, args.traffic, with_pipeline=True, freeze_heap=False
         )
