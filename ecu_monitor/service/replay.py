@@ -41,6 +41,7 @@ from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.flightlog import FlightLog, load_flight
 from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
+from ecu_monitor.model.compiled import simulate_compiled
 from ecu_monitor.service import pipeline as _pipeline
 from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.pipeline import (
@@ -460,16 +461,15 @@ class _Held(NamedTuple):
     frames_seen: NDArray[np.int64]
 
 
-def _hold(rows: NDArray[np.int64], values: NDArray[np.float64], stamps: NDArray[np.float64],
-          steps: NDArray[np.float64]) -> _Held:  # fmt: skip
-    """Latest valid frame stamped strictly before each step (a frame fed after advance_to(t) is stamped t)."""
-    frame_stamps = stamps[rows]
-    j = np.searchsorted(frame_stamps, steps, side="left") - 1
+def _hold(frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64]) -> _Held:
+    """Values held at each step from ``j`` (index of the latest valid frame stamped strictly before the
+    step, -1: none yet; a frame fed after advance_to(t) is stamped t)."""
+    if not values.size:
+        nothing = np.full(j.size, np.nan)
+        return _Held(nothing, nothing, j + 1)
+    jj = np.maximum(j, 0)
     seen = j >= 0
-    jj = np.where(seen, j, 0)
-    value = np.where(seen, values[jj] if values.size else np.nan, np.nan)
-    stamp = np.where(seen, frame_stamps[jj] if frame_stamps.size else np.nan, np.nan)
-    return _Held(value, stamp, j + 1)
+    return _Held(np.where(seen, values[jj], np.nan), np.where(seen, frame_stamps[jj], np.nan), j + 1)
 
 
 def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArrays) -> ReplayResult:
@@ -530,9 +530,16 @@ def _replay_segment(
     if n == 0:
         return _empty_columns(), 0
     held: dict[str, _Held] = {}
+    message_of = {spec.name: spec.message for spec in config.inputs}
+    message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
+    latest: dict[str, NDArray[np.int64]] = {}  # per message: the latest frame before each step
     for name, (rows, vals) in values.items():
         inside = (rows >= first) & (rows < end)
-        held[name] = _hold(rows[inside], vals[inside], stamps, times)
+        frame_stamps = stamps[rows[inside]]
+        message = message_of[name]
+        if message not in latest:
+            latest[message] = np.searchsorted(frame_stamps, times, side="left") - 1
+        held[name] = _hold(frame_stamps, vals[inside], latest[message])
     mapped = [name for name in INPUT_NAMES if name in config.input_names]
     stale = {
         name: np.isnan(held[name].stamp) | (times - held[name].stamp > config.input(name).stale_after_s)
@@ -569,10 +576,9 @@ def _replay_segment(
         # filter calls on the steps k (1-based) with k % period == 0, and at the initialisation
         call = np.maximum(a, period * ((np.arange(a, b) + 1) // period) - 1)
         calls.append(call)
-        z = np.full(b - a, np.nan)
-        z[0] = reading[a]
-        log = _stretch_log(times, {k: v[call] for k, v in inputs.items()}, z, a, b)
-        reference = run_estimator(log, params, "ekf", config.estimator).cht_est_c
+        # the open-loop reference: the nominal model from the first reading, the filters' inputs
+        series = InputSeries(*(inputs[name][call] for name in inputs))
+        reference = simulate_compiled(series, coefficients(params), dt, float(reading[a])).cht_c
         model_c[a:b] = reference[call - a]
     # pass 2: with the open-loop model, the states and the estimator's actions
     run(times, any_stale, new_reading, reading, reading_bad, np.where(np.isnan(model_c), reading, model_c), *args)
@@ -731,11 +737,18 @@ def headroom_batch(
     d = compute_drive(inputs, coeffs)
     columns = [np.broadcast_to(np.asarray(v, dtype=float), (m,)).copy() for v in d]
     drive = Drive(*columns)
-    steady_fn: Any = steady_state_cht  # broadcasts over arrays of gammas
-    steady = np.asarray(steady_fn(drive, coeffs, gamma_q, gamma_d), dtype=float)
     margin = limit - cht_c
     out = np.where(margin <= 0.0, 0.0, cap_s)
-    active = np.flatnonzero((margin > 0.0) & (steady >= limit))
+    # the steady state lies below the convective-only solution (radiation only takes heat out): where
+    # that bound is below the limit the answer is "not limited" without Newton's iterations
+    heat = gamma_q * gamma_d * drive.heat_gain * drive.altitude_gain * drive.q_sl0_w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = drive.ambient_c + heat / drive.conductance_w_per_c
+    need = np.flatnonzero((margin > 0.0) & ~((heat >= 0.0) & (bound < limit)))
+    steady_fn: Any = steady_state_cht  # broadcasts over arrays of gammas
+    sub_drive = Drive(*(v[need] for v in columns))
+    steady = np.asarray(steady_fn(sub_drive, coeffs, gamma_q[need], gamma_d[need]), dtype=float)
+    active = need[steady >= limit]
     temp = cht_c[active].astype(float)
     pade = 2.0 * columns[0][active]
     sub = Drive(*(v[active] for v in columns))
