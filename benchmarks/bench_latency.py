@@ -53,6 +53,7 @@ import can
 import yaml
 
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.commands.run import warm_up_estimators
 from ecu_monitor.service.config import parse_config
 from ecu_monitor.service.daemon import Daemon, DaemonSettings
 from ecu_monitor.service.pipeline import Pipeline
@@ -199,6 +200,7 @@ def run_case(
     if with_pipeline:
         config = _config(channel)
         pipeline = Pipeline(config, config.load_params())
+        warm_up_estimators(config, pipeline.params)  # as `ecu-monitor run` does before READY
         daemon = Daemon(
             pipeline,
             lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False),
@@ -310,8 +312,10 @@ _DAEMON = textwrap.dedent(
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.daemon import Daemon, DaemonSettings
     from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.commands.run import warm_up_estimators
     config = load_config(sys.argv[1])
     pipeline = Pipeline(config, config.load_params())
+    warm_up_estimators(config, pipeline.params)
     daemon = Daemon(pipeline, lambda: can.Bus(**dict(config.bus)), settings=DaemonSettings(tick_s=3600.0),
                     receive_ids=pipeline.decoder.frame_ids)
     signal.signal(signal.SIGTERM, lambda *args: daemon.stop())
