@@ -9,6 +9,8 @@ model (as in the blind cases), then:
 * the whole diagnosis with every library candidate (``CANDIDATE_IDS``, the opt-in one included):
   baseline, localisation (incl. the CBEKF-AU innovations), control, every single refit, pairs,
   significance tests; plus writing gap.json, report.md, four plots and model.yaml;
+* the command's path without ``--model``: PSO identification of the nominal model on the train
+  flight, then the diagnosis with every candidate re-identified jointly with the model (PSO each);
 * the baseline measured in the same run: ONE single-effect refit (sensor_lag) with the plain numpy
   model loop (``RefitSettings(engine="numpy")``) against the same refit with the compiled swarm
   simulator, reported as a ratio.
@@ -28,6 +30,7 @@ from ecu_monitor.gap import GapSettings, diagnose, write_report
 from ecu_monitor.gap.blind import perturbed_nominal
 from ecu_monitor.gap.library import CANDIDATE_IDS, candidate, flight_references
 from ecu_monitor.gap.refit import RefitSettings, prepare_flight, refit
+from ecu_monitor.identify import identify
 from ecu_monitor.model import AirspeedCooling, Effects, SensorLag, paper_table_a1
 from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
@@ -65,6 +68,18 @@ def main() -> None:
     print(f"diagnosis, {len(CANDIDATE_IDS)} candidates, {fits} refits (control + singles + pairs): {diagnose_s:.1f} s")
     print(f"report (gap.json, report.md, 4 plots, model.yaml): {report_s:.1f} s")
     print(f"total: {diagnose_s + report_s:.1f} s; verdict {diag.winner.label if diag.winner else 'unexplained'}")
+
+    started = time.perf_counter()
+    nominal_identified = identify([train], heat_axes=nominal.heat_axes).params
+    identify_s = time.perf_counter() - started
+    started = time.perf_counter()
+    diag_pso = diagnose(nominal_identified, train, test, GapSettings(candidates=CANDIDATE_IDS, refit_mode="reidentify"))
+    reidentify_s = time.perf_counter() - started
+    print(
+        f"without --model: identify nominal {identify_s:.1f} s + diagnosis with PSO re-identification per candidate"
+        f" {reidentify_s:.1f} s = {identify_s + reidentify_s:.1f} s;"
+        f" verdict {diag_pso.winner.label if diag_pso.winner else 'unexplained'}"
+    )
 
     refs = flight_references(train)
     timings = {}
