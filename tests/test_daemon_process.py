@@ -31,6 +31,7 @@ from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.daemon import SEND_FAILURES_TO_REOPEN, Daemon, DaemonSettings
+from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate, watchdog_period_s
 from ecu_monitor.service.persistence import DATABASE_NAME
 from ecu_monitor.service.pipeline import Pipeline
 
@@ -273,6 +274,47 @@ def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(tmp_path: Path)
     finally:
         stop_daemon(daemon, thread, result)
         sender_bus.shutdown()
+
+
+# --- sd_notify pieces ----------------------------------------------------------------------------------
+
+
+def test_watchdog_pings_only_while_progress_grows() -> None:
+    gate = WatchdogGate(period_s=1.0)
+    assert gate.due(0.0, progress=10)
+    assert not gate.due(0.5, progress=20)  # too early
+    assert gate.due(1.0, progress=20)
+    assert not gate.due(2.0, progress=20)  # no progress since the last ping: no ping, however long
+    assert not gate.due(9.0, progress=20)
+    assert gate.due(9.1, progress=21)
+    assert not WatchdogGate(period_s=None).due(100.0, progress=1)
+
+
+def test_watchdog_period_from_the_environment() -> None:
+    assert watchdog_period_s({"WATCHDOG_USEC": "10000000"}) == 5.0
+    assert watchdog_period_s({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": str(os.getpid())}) == 5.0
+    assert watchdog_period_s({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": "1"}) is None  # another process's
+    assert watchdog_period_s({"WATCHDOG_USEC": "soon"}) is None
+    assert watchdog_period_s({}) is None
+
+
+def test_notifier_path_socket_and_no_socket(tmp_path: Path) -> None:
+    path = tmp_path / "notify"
+    receiver = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    receiver.bind(str(path))
+    receiver.settimeout(1.0)
+    try:
+        with SystemdNotifier(address=str(path)) as notifier:
+            assert notifier.ready(status="up  and\nrunning")
+            assert receiver.recv(4096) == b"READY=1\nSTATUS=up and running"
+            for _ in range(50):  # nobody reads: the queue fills, sends fail and are counted, never block
+                notifier.watchdog()
+            assert notifier.send_errors > 0
+        with SystemdNotifier(address="") as silent:
+            assert not silent.enabled
+            assert not silent.ready()
+    finally:
+        receiver.close()
 
 
 # --- separate process: sd_notify, watchdog, SIGTERM ---------------------------------------------------

@@ -313,6 +313,14 @@ def test_health_frames_over_multicast_then_sigterm_keeps_the_flight(setup: Setup
     assert (status_text, reason) == ("finished", "service_stop")
     assert duration_s > 5.0
     assert max_cht > 20.0
+    history = subprocess.run(
+        [sys.executable, "-m", "ecu_monitor.cli", "history", "--config", str(setup.config)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert history.returncode == 0, history.stderr
+    assert "engine UAV-ENG-0001: 1 flights" in history.stdout
 
 
 def test_emulator_killed_mid_flight_inputs_reported_stale_daemon_stays_up(setup: Setup) -> None:
