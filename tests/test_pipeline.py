@@ -348,3 +348,36 @@ def test_demo_command_on_a_short_mission(tmp_path: Path, capsys: pytest.CaptureF
         assert (out / name).stat().st_size > 1000, name
     rows = (out / "health.csv").read_text(encoding="utf-8").splitlines()
     assert rows[0].startswith("time_s,cht_meas_c,cht_est_c,deviation,state") and len(rows) > 1500
+
+
+def test_rusefi_config_runs_the_pipeline_on_third_party_frames() -> None:
+    """configs/rusefi.yaml: rusEFI broadcast frames (no counter/checksum) + our AirData -> estimates."""
+    from ecu_monitor.service.config import load_config
+
+    config = load_config(ROOT / "configs" / "rusefi.yaml")
+    pipeline = Pipeline(config, paper_table_a1())
+    rus: Any = cantools.database.load_file(str(ROOT / "dbc" / "third_party" / "rusEFI_CAN_verbose.dbc"))
+    air = Encoder([ENGINE_DBC])
+    cht = round(SteadyEcu(rpm=6000.0, throttle_pct=50.0, oat_c=15.0).steady_cht())
+
+    def zeros(name: str, **values: float) -> bytes:
+        message = rus.get_message_by_name(name)
+        return bytes(message.encode({**{s.name: 0 for s in message.signals}, **values}, strict=False))
+
+    frames = []
+    for k in range(200):  # 20 s at 10 Hz
+        t = 0.1 * k
+        frames += [
+            can.Message(timestamp=t, arbitration_id=513, is_extended_id=False, data=zeros("BASE1", RPM=6000)),
+            can.Message(timestamp=t, arbitration_id=514, is_extended_id=False, data=zeros("BASE2", TPS1=50.0)),
+            can.Message(timestamp=t, arbitration_id=515, is_extended_id=False,
+                        data=zeros("BASE3", AUX1Temp=cht, IntakeTemp=15, CoolantTemp=0, MCUTemp=0)),
+            can.Message(timestamp=t, arbitration_id=518, is_extended_id=False, data=zeros("BASE6", FuelFlow=0.5)),
+            can.Message(timestamp=t, arbitration_id=0x200, is_extended_id=False,
+                        data=air.encode("AirData", {"PressureAltitude": 1000.0, "CalibratedAirspeed": 23.0,
+                                                    "VerticalSpeed": 0.0}, k)),
+        ]  # fmt: skip
+    _run(pipeline, iter(frames))
+    snap = pipeline.snapshot()
+    assert pipeline.counters["malformed"] == 0 and pipeline.counters["ok"] == len(frames)
+    assert snap.state == "NOMINAL" and snap.stale_inputs == () and abs(snap.cht_est_c - cht) < 1.0
