@@ -102,7 +102,7 @@ class HealthReader:
     """Decodes and checks health frames: checksum, counter +1 mod 16 per id."""
 
     def __init__(self) -> None:
-        self.db = cantools.database.load_file(str(HEALTH_DBC))
+        self.db: Any = cantools.database.load_file(str(HEALTH_DBC))
         self.last_counter: dict[int, int] = {}
         self.frames: dict[str, list[dict[str, Any]]] = {name: [] for name in HEALTH_IDS.values()}
         self.counter_jumps = 0

@@ -187,7 +187,7 @@ class Setup:
         data["bus"] = {"interface": "udp_multicast", "channel": GROUP, "port": self.port}
         data["state_dir"] = str(ns.tmp / "state")
         self.config.write_text(yaml.safe_dump(data, sort_keys=False))
-        self.db = cantools.database.load_file(str(HEALTH_DBC))
+        self.db: Any = cantools.database.load_file(str(HEALTH_DBC))
         self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.notify_path = str(ns.tmp / "notify.sock")  # a path socket: reachable from inside the namespace
         self.notify.bind(self.notify_path)

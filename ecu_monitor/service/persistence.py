@@ -22,8 +22,9 @@ Durability (the database must survive ``kill -9`` and a power cut at any moment)
 
 The CHT history is not stored sample by sample: an online hysteresis filter keeps only its turning
 points (reversals) of at least ``cycle_hysteresis_c`` (5 degC by default: the sensor is quantised to
-1 degC and noisy, so smaller wiggles are noise, not thermal cycles). Rainflow over the reversal points gives the same cycles as over the full history
-for every cycle larger than the hysteresis, in bounded memory for a 16-hour flight.
+1 degC and noisy, so smaller wiggles are noise, not thermal cycles). Rainflow over these points counts
+the cycles larger than the hysteresis as over the full history (tested against rainflow on the clean
+signal), in bounded memory for a 16-hour flight.
 """
 
 from __future__ import annotations
