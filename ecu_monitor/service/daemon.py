@@ -141,6 +141,7 @@ class Daemon:
         self._tick_thread: threading.Thread | None = None
         self._send_failures_in_row = 0
         self._heap_frozen_running = False
+        self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
         self.counters: dict[str, int] = {
             "frames_in": 0,
@@ -159,17 +160,21 @@ class Daemon:
     # --- the one keep-alive handler ---------------------------------------------------------------
 
     def _guarded(self, where: str, func: Callable[..., _T], *args: Any) -> _T | None:
-        """Run ``func``; anything it raises is logged with its traceback and counted, never propagated.
+        """Run ``func``; anything it raises is counted and logged with its traceback, never propagated.
 
         This is the only broad ``except Exception`` of ecu_monitor: the daemon must outlive any bug in a
         frame's path or a tick. The watchdog still stops being fed if the pipeline stops progressing.
+        A fault that repeats (a full disk under the database, a frame that always trips a bug) is logged
+        on its 1st, 10th, 100th, ... occurrence per path, so it cannot flood the journal.
         """
         try:
             return func(*args)
         except Exception:  # noqa: BLE001 - the daemon's one keep-alive handler (module docstring)
             with self._lock:
                 self.counters["daemon_errors"] += 1
-            _log.exception("unexpected error in %s path (kept running)", where)
+                seen = self._errors_by_path[where] = self._errors_by_path.get(where, 0) + 1
+            if seen == 10 ** (len(str(seen)) - 1):
+                _log.exception("unexpected error in the %s path, occurrence %d (kept running)", where, seen)
             return None
 
     # --- frame path and tick ------------------------------------------------------------------------
