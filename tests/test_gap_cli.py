@@ -69,6 +69,9 @@ def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
     assert main([*args, "--candidates", "sensor_lag", "--out", str(out)]) == 0
     doc = json.loads((out / "gap.json").read_text())
     assert [e["id"] for e in doc["effects"]] == ["sensor_lag"]
+    assert main([*args, "--test-first", "--candidates", "sensor_lag", "--out", str(out / "reverse")]) == 0
+    reverse = json.loads((out / "reverse" / "gap.json").read_text())
+    assert reverse["baseline"]["test_rms_c"] != doc["baseline"]["test_rms_c"]
 
 
 @pytest.mark.parametrize(
@@ -80,6 +83,7 @@ def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
         (["--test", "{test}", "--model", "{bad}"], "c_w"),
         (["--test", "{test}", "--heat-axes", "rpm"], "--heat-axes"),
         (["--split-at", "5"], "--split-at"),
+        (["--test", "{test}", "--test-first"], "--test-first"),
     ],
 )
 def test_gap_cli_bad_input_exits_2(

@@ -10,7 +10,8 @@ Without ``--model`` the nominal model is identified on the train flight (PSO, ``
 identify) and each candidate is then re-identified jointly with the whole model (``--refit
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
-with ``--train`` alone splits one flight at S seconds: before = train, after = test. ``--blind N``
+with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
+the other way round). ``--blind N``
 runs N generated blind cases on the virtual ECU instead and writes DIR/blind.json and DIR/blind.md
 (scores and confusion matrix).
 """
@@ -52,6 +53,7 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for foreign CSVs")
     parser.add_argument("--split-at", type=float, metavar="S", help="with --train only: train before S s, test after")
+    parser.add_argument("--test-first", action="store_true", help="with --split-at: test before S s, train after")
     parser.add_argument(
         "--candidates",
         metavar="IDS",
@@ -77,6 +79,8 @@ def _say(message: str) -> None:
 def _flights(args: argparse.Namespace) -> tuple[FlightLog, FlightLog]:
     if not args.train:
         raise UserInputError("gap: --train is required (or --blind N)")
+    if args.test_first and args.split_at is None:
+        raise UserInputError("gap: --test-first needs --split-at S")
     train = load_flight(args.train, mapping=args.mapping)
     if args.split_at is not None:
         if args.test:
@@ -86,7 +90,8 @@ def _flights(args: argparse.Namespace) -> tuple[FlightLog, FlightLog]:
             raise UserInputError(
                 f"--split-at {args.split_at:g}: expected a time at least 60 s inside the flight ({t[0]:g}-{t[-1]:g} s)"
             )
-        return train.select(t[0], args.split_at), train.select(args.split_at, t[-1])
+        before, after = train.select(t[0], args.split_at), train.select(args.split_at, t[-1])
+        return (after, before) if args.test_first else (before, after)
     if not args.test:
         raise UserInputError("gap: --test is required (or --split-at S to split the train flight)")
     return train, load_flight(args.test, mapping=args.mapping)
