@@ -601,10 +601,16 @@ def _replay_segment(
         trace = run_estimator(log, params, config.estimator_name, config.estimator)
         est[a:b] = trace.cht_est_c[call - a]
         deviation[a:b] = trace.deviation[call - a]
-        iso = run_isolation(log, params, IsolationSettings(dt_s=dt))
-        gamma_q[a:b] = iso.gamma_q[call - a]
-        gamma_d[a:b] = iso.gamma_d[call - a]
-        iso_dev[a:b] = iso.deviation[call - a]
+        # the isolation filter on the call steps only: each row integrates the steps since the previous
+        # call (run_isolation's sub-steps) with that call's inputs, as the live filter does
+        at_calls = np.unique(call)
+        at_inputs = {k: v[at_calls] for k, v in inputs.items()}
+        calls_log = FlightLog({"time_s": times[at_calls], **at_inputs, "cht_c": z[at_calls - a]}, source="replay")
+        iso = run_isolation(calls_log, params, IsolationSettings(dt_s=dt))
+        which = np.searchsorted(at_calls, call)
+        gamma_q[a:b] = iso.gamma_q[which]
+        gamma_d[a:b] = iso.gamma_d[which]
+        iso_dev[a:b] = iso.deviation[which]
     periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     step_numbers = np.arange(1, n + 1)
     symptom = deviation if config.detector_symptom == "estimator" else iso_dev
