@@ -4,7 +4,9 @@ gap.json holds the contract's four keys (baseline, where, effects, verdict) and,
 other breakdowns (segments, regions, correlation, lag_signature, spectrum, innovation_whiteness),
 the control refit and the settings. In ``effects`` each entry's ``significant`` is the decision
 (bootstrap-significant AND material vs the control); ``p_value``, ``material`` and
-``shrink_vs_control_pct`` show the parts of it.
+``shrink_vs_reference_pct`` show the parts of it. A pair's id is "first+second"; ``verdict.effect``
+is then the first (the best single effect) and ``verdict.effects`` lists both; every effect's
+``params`` is ``{effect id: {parameter: value}}`` with ``params_std`` beside it.
 """
 
 from __future__ import annotations
