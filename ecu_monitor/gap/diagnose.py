@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ecu_monitor.errors import ParameterError
+from ecu_monitor.estimation import run_estimator
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, Candidate, candidate, flight_references
 from ecu_monitor.gap.localise import (
@@ -163,8 +164,7 @@ def _score(
 ) -> EffectScore:
     model = simulate_probe([fit.params], test, engine)[:, 0]
     residual = test.cht_c - model
-    finite = np.all(np.isfinite(residual))
-    if not finite:
+    if not np.all(np.isfinite(residual)):  # a diverged run scores 1000 degC where it failed: it never counts
         residual = np.where(np.isfinite(residual), residual, 1e3)
     rms = _rms(residual)
     versus = None
@@ -184,8 +184,6 @@ def _score(
 def _whiteness(nominal: ThermalParams, test_log: FlightLog, estimator: str | None) -> dict[str, Any]:
     if estimator is None:
         return {"estimator": None}
-    from ecu_monitor.estimation import run_estimator  # the estimation layer sits below gap
-
     trace = run_estimator(test_log, nominal, estimator)
     innovation = np.asarray(trace.innovation, dtype=float)
     innovation = innovation[np.isfinite(innovation)]  # one per CHT reading

@@ -312,4 +312,7 @@ def reidentify(
     space = default_space([train.log], base=base, heat_axes=nominal.heat_axes, free=free)
     identified = identify([train.log], space=space, settings=pso).params
     fit = refit(identified, train, entries, references, settings)
-    return dataclasses.replace(fit, extra={**fit.extra, "refit": "reidentify", "pso_evaluations": pso.particles})
+    return dataclasses.replace(
+        fit,
+        extra={**fit.extra, "refit": "reidentify", "pso_particles": pso.particles, "pso_iterations": pso.iterations},
+    )

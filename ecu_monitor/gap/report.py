@@ -115,6 +115,9 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
             "references": diag.references,
             "settings": {
                 "candidates": list(diag.settings.candidates),
+                "refit_mode": diag.settings.refit_mode,
+                "pair_threshold_c": diag.settings.pair_threshold_c,
+                "pair_min_shrink_pct": diag.settings.pair_min_shrink_pct,
                 "dt_s": diag.settings.refit.dt_s,
                 "block_s": diag.settings.significance.block_s,
                 "alpha": diag.settings.significance.alpha,
