@@ -11,9 +11,8 @@ identify) and each candidate is then re-identified jointly with the whole model 
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
 with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
-the other way round). ``--blind N``
-runs N generated blind cases on the virtual ECU instead and writes DIR/blind.json and DIR/blind.md
-(scores and confusion matrix).
+the other way round). ``--blind N`` runs N generated blind cases on the virtual ECU instead and
+writes DIR/blind.json and DIR/blind.md (scores and confusion matrix).
 """
 
 from __future__ import annotations
