@@ -15,25 +15,44 @@ from collections.abc import Sequence
 
 from ecu_monitor.errors import EcuMonitorError, UserInputError
 
-__all__ = ["COMMAND_MODULES", "build_parser", "main"]
+__all__ = ["COMMANDS", "COMMAND_MODULES", "build_parser", "main"]
 
-#: Subcommand modules, in the order ``--help`` lists them (imported lazily, one table, no if-chains).
-COMMAND_MODULES: tuple[str, ...] = (
-    "demo",
-    "run",
-    "replay",
-    "simulate",
-    "identify",
-    "gap",
-    "history",
-    "import_log",
-    "results",
-    "evaluate",
-)
+#: Subcommand name -> module in ecu_monitor.commands, in the order ``--help`` lists them. Modules are
+#: imported lazily (one table, no if-chains): a run imports only its own subcommand's module, so a
+#: config error or ``--help`` of one command does not pay for scipy and numba in all the others.
+COMMANDS: dict[str, str] = {
+    "demo": "demo",
+    "run": "run",
+    "replay": "replay",
+    "simulate": "simulate",
+    "identify": "identify",
+    "gap": "gap",
+    "history": "history",
+    "import": "import_log",
+    "results": "results",
+    "evaluate": "evaluate",
+}
+COMMAND_MODULES: tuple[str, ...] = tuple(COMMANDS.values())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the top-level parser with every available subcommand registered."""
+def _requested_command(argv: Sequence[str]) -> str | None:
+    """The subcommand named on the command line (skipping the global options), if any."""
+    skip_next = False
+    for arg in argv:
+        if skip_next:
+            skip_next = False
+            continue
+        if arg == "--log-level":
+            skip_next = True
+            continue
+        if arg.startswith("-"):
+            continue
+        return arg
+    return None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with every subcommand registered (or just ``only``, when it is known)."""
     parser = argparse.ArgumentParser(
         prog="ecu-monitor",
         description="Model-based thermal health monitoring of a UAV piston engine on CAN.",
@@ -41,21 +60,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on error")
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING or ERROR")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"ecu_monitor.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"ecu_monitor.commands.{name}":
-                raise
-            continue  # subcommand not built yet
+    names = [only] if only in COMMANDS else list(COMMANDS)
+    for name in names:
+        module = importlib.import_module(f"ecu_monitor.commands.{COMMANDS[name]}")
         module.add_subparser(subparsers)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``ecu-monitor``; returns the process exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(only=_requested_command(arguments))
+    args = parser.parse_args(arguments)
     logging.basicConfig(
         level=getattr(logging, str(args.log_level).upper(), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

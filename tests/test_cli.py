@@ -1,0 +1,47 @@
+"""The ecu-monitor dispatcher: every subcommand registers, errors exit 2 with one line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from ecu_monitor.cli import COMMANDS, build_parser, main
+
+
+def test_every_subcommand_registers():
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if a.dest == "command")
+    assert set(subparsers.choices) == set(COMMANDS)  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_each_subcommand_builds_alone(name):
+    parser = build_parser(only=name)
+    subparsers = next(a for a in parser._actions if a.dest == "command")
+    assert list(subparsers.choices) == [name]  # type: ignore[union-attr]
+
+
+def test_no_command_prints_help_and_exits_2(capsys):
+    assert main([]) == 2
+    assert "COMMAND" in capsys.readouterr().out
+
+
+def test_unknown_command_exits_2_with_one_line():
+    result = subprocess.run(
+        [sys.executable, "-m", "ecu_monitor.cli", "warp-drive"], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 2
+    assert "invalid choice" in result.stderr
+
+
+def test_user_input_error_is_one_line_exit_2(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "ecu_monitor.cli", "simulate", "--model", str(tmp_path / "none.yaml"),
+         str(tmp_path / "none.csv"), "--out", str(tmp_path / "sim.csv")],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("ecu-monitor: error:")
