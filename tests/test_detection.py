@@ -29,7 +29,7 @@ def _ar1(rng: np.random.Generator, n: int, sigma: float, phi: float) -> np.ndarr
 def test_cusum_detects_a_step_and_not_noise_at_the_calibrated_threshold() -> None:
     rng = np.random.default_rng(1)
     rate = 10.0  # Hz
-    base = DetectorSettings(threshold=1e300, reference=0.04, warmup_s=60.0, block_s=1.0)
+    base = DetectorSettings(threshold=1e300, reference=0.04, warmup_s=60.0, block_s=1.0, baseline_s=0.0)
     # 30 nominal hours of correlated noise (std 0.03 degC/s, 20 s correlation) to calibrate on
     cal_paths = []
     for _ in range(10):
@@ -38,7 +38,7 @@ def test_cusum_detects_a_step_and_not_noise_at_the_calibrated_threshold() -> Non
         cal_paths.append(cusum_path(t, _ar1(rng, n, 0.03, math.exp(-1.0 / (rate * 20.0))), base)[1])
     cal = calibrate_threshold(cal_paths, 1.0)
     assert cal.hours == 30
-    detector = DetectorSettings(threshold=cal.threshold, reference=0.04, warmup_s=60.0, block_s=1.0)
+    detector = DetectorSettings(threshold=cal.threshold, reference=0.04, warmup_s=60.0, block_s=1.0, baseline_s=0.0)
     # fresh noise: almost no alarm in 30 h. A threshold for 1 per 100 h fitted on 30 h is itself uncertain
     # (on this noise, repeated 30 h calibrations score 0-5 per 100 h), so allow up to 3 here (10 per 100 h)
     fresh = []
@@ -62,8 +62,10 @@ def test_live_detector_equals_the_vectorised_path() -> None:
     rng = np.random.default_rng(2)
     t = np.arange(0.0, 1500.0, 0.1)
     x = 0.02 * rng.standard_normal(t.size) + np.where(t > 900.0, 0.15, 0.0)
-    for baseline_s in (0.0, 200.0):
-        settings = DetectorSettings(threshold=5.0, reference=0.05, warmup_s=100.0, block_s=1.0, baseline_s=baseline_s)
+    for baseline_s, delay_s in ((0.0, 0.0), (200.0, 0.0), (200.0, 30.0)):
+        settings = DetectorSettings(
+            threshold=5.0, reference=0.05, warmup_s=100.0, block_s=1.0, baseline_s=baseline_s, baseline_delay_s=delay_s
+        )
         ends, stat, alarms = cusum_path(t, x, settings)
         det = Detector(settings)
         live_stats = []
@@ -86,8 +88,9 @@ def test_live_detector_equals_the_vectorised_path() -> None:
 def test_baseline_absorbs_a_constant_offset_but_not_a_step() -> None:
     t = np.arange(0.0, 4000.0, 1.0)
     offset = np.full(t.size, 0.2)  # a steady model error: the plain test alarms, the baseline test does not
-    plain = DetectorSettings(threshold=10.0, reference=0.05, warmup_s=0.0)
-    adaptive = DetectorSettings(threshold=10.0, reference=0.05, warmup_s=0.0, baseline_s=300.0)
+    plain = DetectorSettings(threshold=10.0, reference=0.05, warmup_s=0.0, baseline_s=0.0)
+    adaptive = DetectorSettings(threshold=10.0, reference=0.05, warmup_s=0.0, baseline_s=300.0, baseline_delay_s=0.0)
+    delayed = DetectorSettings(threshold=10.0, reference=0.05, warmup_s=0.0, baseline_s=300.0, baseline_delay_s=60.0)
     assert cusum_path(t, offset, plain)[2].size == 1
     assert cusum_path(t, offset, adaptive)[2].size == 0
     step = offset + np.where(t >= 2000.0, 0.15, 0.0)
@@ -96,6 +99,11 @@ def test_baseline_absorbs_a_constant_offset_but_not_a_step() -> None:
     # the excess over the adapting baseline decays as 0.15 exp(-t/300): S(t) = 45 (1 - e^(-t/300)) - 0.05 t
     # reaches h = 10 at t = 145 s
     assert alarm[0] - 2000.0 == pytest.approx(145.0, abs=5.0)
+    # with a 60 s delay line the whole step counts for 60 s (S = 6), then decays: h reached at ~105 s
+    assert cusum_path(t, offset, delayed)[2].size == 0
+    alarm = cusum_path(t, step, delayed)[2]
+    assert alarm.size == 1
+    assert alarm[0] - 2000.0 == pytest.approx(105.0, abs=5.0)
 
 
 def test_calibration_gives_the_intended_rate_on_synthetic_data() -> None:

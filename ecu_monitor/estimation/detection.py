@@ -8,10 +8,13 @@ filters the 50 Hz symptom and its quantisation spikes), then::
     S_n = max(0, S_(n-1) + (mean_n - b_(n-1) - k) * block_s)     (statistic in degC for a degC/s symptom)
 
 b is the symptom's nominal baseline: 0 (``baseline_s`` = 0, the plain test), or an exponential moving
-average of the block means with time constant ``baseline_s`` (the mean up to the previous block). The
-baseline absorbs the slowly varying offset that the residual model error puts on the symptom at each
-operating point; the test then looks for a *change* of the symptom, which is what a degradation
-onset is. The price: a degradation that creeps in more slowly than ``baseline_s`` is absorbed too.
+average, time constant ``baseline_s``, of the block means older than ``baseline_delay_s`` (a delay
+line: a step stays fully visible to the test for that long before the baseline starts to follow it).
+The baseline absorbs the slowly varying offset that the residual model error puts on the symptom at
+each operating point; the test then looks for a *change* of the symptom, which is what a degradation
+onset is. The price: a degradation that creeps in more slowly than ``baseline_s`` is absorbed too,
+and one present from engine start is part of the baseline (the plain test, or the gamma estimates
+over flights, must catch those).
 
 k (``reference``) is the drift allowance: about half the symptom of the smallest degradation to
 detect; h (``threshold``) is set from nominal flights by :func:`calibrate_threshold` for a target
@@ -31,6 +34,7 @@ largest hourly maximum seen when the calibration set is shorter than 100/r hours
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -70,17 +74,25 @@ class DetectorSettings:
     suspect_fraction: SUSPECT from suspect_fraction * threshold, in (0, 1).
     block_s: averaging block of the symptom before the test, s.
     baseline_s: time constant of the adaptive baseline subtracted from the symptom, s (0 = none).
+    baseline_delay_s: age of the newest block mean the baseline may use, s (0 = up to the previous block).
+
+    The defaults are the variant kept by ``ecu-monitor evaluate`` for the CBEKF's model deviation on the
+    paper's Table A1 model (docs/results/detection.md: h calibrated on 53 nominal flight hours for 1
+    false alarm per 100 h); a monitor running another model must recalibrate h on its own nominal
+    flights (:func:`calibrate_threshold`).
     """
 
-    threshold: float = 6.0
+    threshold: float = 7.77
     reference: float = 0.05
-    warmup_s: float = 300.0
+    warmup_s: float = 600.0
     suspect_fraction: float = 0.5
     block_s: float = 1.0
-    baseline_s: float = 0.0
+    baseline_s: float = 120.0
+    baseline_delay_s: float = 60.0
 
     def __post_init__(self) -> None:
-        for name in ("threshold", "reference", "warmup_s", "suspect_fraction", "block_s", "baseline_s"):
+        names = ("threshold", "reference", "warmup_s", "suspect_fraction", "block_s", "baseline_s", "baseline_delay_s")
+        for name in names:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                 raise ConfigError(f"detector.{name}: expected a finite number, got {value!r}")
@@ -89,8 +101,15 @@ class DetectorSettings:
             raise ConfigError("detector: threshold and block_s must be > 0, warmup_s and baseline_s >= 0")
         if 0.0 < self.baseline_s < self.block_s:
             raise ConfigError("detector.baseline_s: expected 0 (off) or at least block_s")
+        if not 0.0 <= self.baseline_delay_s <= 3600.0:
+            raise ConfigError(f"detector.baseline_delay_s: expected 0-3600 s, got {self.baseline_delay_s!r}")
         if not 0.0 < self.suspect_fraction < 1.0:
             raise ConfigError(f"detector.suspect_fraction: expected a value in (0, 1), got {self.suspect_fraction!r}")
+
+    @property
+    def delay_blocks(self) -> int:
+        """The baseline delay in blocks."""
+        return round(self.baseline_delay_s / self.block_s)
 
 
 @dataclass(frozen=True)
@@ -123,6 +142,7 @@ class Detector:
         self._count = 0
         self._statistic = 0.0
         self._baseline = math.nan
+        self._recent: deque[float] = deque()  # block means not yet old enough for the baseline
         self._alarm_time_s = math.nan
 
     @property
@@ -148,17 +168,20 @@ class Detector:
             self._block_end_s = t_s + s.warmup_s + s.block_s
         if t_s < self._start_s + s.warmup_s:
             return self._output()
-        if t_s >= self._block_end_s - 1e-9:  # this sample opens a new block: close the previous one
-            if self._count:
-                mean = self._sum / self._count
+        if t_s >= self._block_end_s - 1e-9:  # this sample opens a new block: close the previous one(s)
+            closed = math.floor((t_s - self._block_end_s) / s.block_s + 1e-9) + 1
+            means = [self._sum / self._count if self._count else math.nan] + [math.nan] * (closed - 1)
+            for mean in means:  # blocks without a sample (a gap) count as empty, as in block_means
+                self._recent.append(mean)
+                lagged = self._recent.popleft() if len(self._recent) > s.delay_blocks else math.nan
                 self._statistic, self._baseline = _cusum_step(
-                    self._statistic, self._baseline, mean, s.reference, s.block_s, s.baseline_s
+                    self._statistic, self._baseline, mean, lagged, s.reference, s.block_s, s.baseline_s
                 )
                 if self._statistic >= s.threshold and math.isnan(self._alarm_time_s):
                     self._alarm_time_s = t_s
             self._sum = 0.0
             self._count = 0
-            self._block_end_s += s.block_s * (math.floor((t_s - self._block_end_s) / s.block_s + 1e-9) + 1.0)
+            self._block_end_s += s.block_s * closed
         if math.isfinite(deviation):
             self._sum += deviation
             self._count += 1
@@ -193,29 +216,33 @@ def block_means(
 
 
 @numba.njit(cache=True)
-def _cusum_step(statistic: float, baseline: float, mean: float, k: float, block_s: float, baseline_s: float) -> tuple[
-    float, float]:  # fmt: skip
-    """One CUSUM update with a block mean: (new statistic, new baseline). baseline nan = not started."""
+def _cusum_step(statistic: float, baseline: float, mean: float, lagged: float, k: float, block_s: float,
+                baseline_s: float) -> tuple[float, float]:  # fmt: skip
+    """One CUSUM update: (new statistic, new baseline). mean: this block's mean (nan = empty block);
+    lagged: the block mean leaving the delay line now, which enters the baseline after the test
+    (nan = none); baseline nan = not started yet (the statistic stays 0 until it has a value)."""
     if baseline_s <= 0.0:
+        if math.isnan(mean):
+            return statistic, 0.0
         return max(0.0, statistic + (mean - k) * block_s), 0.0
-    if math.isnan(baseline):
-        return 0.0, mean  # the first block only starts the baseline
-    new_statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
-    return new_statistic, baseline + (block_s / baseline_s) * (mean - baseline)
+    if not math.isnan(mean) and not math.isnan(baseline):
+        statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
+    if not math.isnan(lagged):
+        baseline = lagged if math.isnan(baseline) else baseline + (block_s / baseline_s) * (lagged - baseline)
+    return statistic, baseline
 
 
 @numba.njit(cache=True)
-def _cusum(means: NDArray[np.float64], k: float, h: float, block_s: float, baseline_s: float, restart: bool) -> tuple[
-    NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
+def _cusum(means: NDArray[np.float64], k: float, h: float, block_s: float, baseline_s: float, delay: int,
+           restart: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
     stat = np.empty(means.shape[0])
     alarms = np.empty(means.shape[0], dtype=np.int64)
     n_alarms = 0
     s = 0.0
     baseline = np.nan
     for i in range(means.shape[0]):
-        m = means[i]
-        if not np.isnan(m):
-            s, baseline = _cusum_step(s, baseline, m, k, block_s, baseline_s)
+        lagged = means[i - delay] if i >= delay else np.nan
+        s, baseline = _cusum_step(s, baseline, means[i], lagged, k, block_s, baseline_s)
         stat[i] = s
         if s >= h:
             alarms[n_alarms] = i
@@ -240,7 +267,13 @@ def cusum_path(
     if ends.size == 0:
         return ends, means, np.empty(0)
     stat, alarm_index = _cusum(
-        means, settings.reference, settings.threshold, settings.block_s, settings.baseline_s, restart
+        means,
+        settings.reference,
+        settings.threshold,
+        settings.block_s,
+        settings.baseline_s,
+        settings.delay_blocks,
+        restart,
     )
     return ends, stat, ends[alarm_index]
 
