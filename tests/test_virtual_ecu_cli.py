@@ -137,12 +137,20 @@ def test_run_with_interface_options_and_realtime(tiny_mission: Path, make_bus: A
 
 @pytest.mark.slow
 def test_demo_writes_csv_and_plot(tmp_path: Path, capsys: Any):
+    """The demo as a user runs it, on a short mission to keep the suite fast (the default mission is
+    the same code path, ~70 min of flight)."""
     from ecu_monitor.cli import main as ecu_main
 
     out = tmp_path / "demo"
-    assert ecu_main(["demo", "--out", str(out), "--seed", "1", "--inject-at", "600"]) == 0
+    args = ["demo", "--out", str(out), "--seed", "1", "--mission", "short_hop", "--inject-at", "300"]
+    assert ecu_main(args) == 0
     log = read_csv(out / "flight.csv")
     assert log["gamma_q"][0] == 1.0 and log["gamma_q"][-1] == pytest.approx(1.2)
-    png = (out / "flight.png").read_bytes()
-    assert png.startswith(b"\x89PNG") and len(png) > 20_000
+    for name in ("cht.png", "detection.png", "gammas.png", "headroom.png"):
+        png = (out / name).read_bytes()
+        assert png.startswith(b"\x89PNG") and len(png) > 20_000, name
+    health = (out / "health.csv").read_text().splitlines()
+    assert health[0].startswith("time_s") and len(health) > 1000
+    printed = capsys.readouterr().out
+    assert "DEGRADED" in printed and "detected after" in printed
     assert "wrote" in capsys.readouterr().out
