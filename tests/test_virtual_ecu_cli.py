@@ -142,7 +142,7 @@ def test_demo_writes_csv_and_plot(tmp_path: Path, capsys: Any):
     from ecu_monitor.cli import main as ecu_main
 
     out = tmp_path / "demo"
-    args = ["demo", "--out", str(out), "--seed", "1", "--mission", "short_hop", "--inject-at", "300"]
+    args = ["demo", "--out", str(out), "--seed", "1", "--mission", "short_hop", "--inject-at", "700"]
     assert ecu_main(args) == 0
     log = read_csv(out / "flight.csv")
     assert log["gamma_q"][0] == 1.0 and log["gamma_q"][-1] == pytest.approx(1.2)
