@@ -16,12 +16,12 @@ Bus failures never end the process: a receive error (reported by the Notifier th
 Health_Diag.BusErrors); a receive error, or ``SEND_FAILURES_TO_REOPEN`` sends failing in a row, closes
 the bus and reopens it after ``initial``, ``2*initial``, ... up to ``max`` seconds.
 
-Garbage collection: after importing numba, cantools and numpy the process holds ~150,000 tracked
-objects, and a full (generation 2) collection scanning them all stalled every thread for 100-350 ms
+Garbage collection: after importing numba, cantools and numpy the process holds ~120,000 tracked
+objects, and a full (generation 2) collection scanning them all stalled every thread for 50-350 ms
 here, longer than a health period and long enough to overflow a socket's receive queue. The daemon
 collects once before READY and moves the start-up heap into the permanent generation (``gc.freeze``),
 and freezes again when the estimator has run its first steps (its compiled code is loaded then), so
-the collector only ever scans what the service allocates while it runs (measured in docs/service.md).
+the collector only ever scans what the service allocates while it runs (docs/service.md, "Daemon").
 
 :meth:`Daemon._guarded` holds the codebase's only broad ``except Exception``: whatever a frame or a tick
 raises is logged and counted (``daemon_errors``), and the daemon keeps running; the watchdog then
