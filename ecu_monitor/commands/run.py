@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import gc
 import logging
-import math
 import os
 import signal
 import socket
@@ -213,17 +212,10 @@ def _run(args: argparse.Namespace) -> int:
 def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:
     """The engine speed the pipeline holds, rev/min (None while stale or never received).
 
-    Reads the pipeline's sample-and-hold slot of input ``rpm`` (the decoder's value; no second decode).
+    Reads the pipeline's sample-and-hold value of input ``rpm`` (the decoder's value; no second decode).
     """
-    names = tuple(pipeline.decoder.names)
-    if "rpm" not in names:
-        return lambda: None
-    slot = names.index("rpm")
 
     def engine_speed() -> float | None:
-        if "rpm" in pipeline.snapshot().stale_inputs:
-            return None
-        value = float(pipeline._values[slot])
-        return value if math.isfinite(value) else None
+        return pipeline.held_input("rpm")
 
     return engine_speed

@@ -286,6 +286,14 @@ class Pipeline:
         """The latest health snapshot (updated every step)."""
         return self._snapshot
 
+    def held_input(self, name: str) -> float | None:
+        """The held (sample-and-hold) value of a mapped input, or None if never seen, stale or unmapped."""
+        slot = self._slot.get(name)
+        if slot is None or name in self._snapshot.stale_inputs:
+            return None
+        value = float(self._values[slot])
+        return value if math.isfinite(value) else None
+
     def drain_rows(self) -> list[HealthSnapshot]:
         """Snapshots of the health-status periods since the last call (oldest first)."""
         rows, self._rows = self._rows, []
