@@ -96,3 +96,13 @@ def test_gap_cli_bad_input_exits_2(
     assert main(args + filled) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
+
+
+def test_gap_cli_without_model_identifies_then_reidentifies(flights: dict[str, Path]) -> None:
+    out = flights["root"] / "no-model"
+    args = ["gap", "--train", str(flights["train"]), "--test", str(flights["test"]), "--out", str(out)]
+    assert main([*args, "--candidates", "sensor_lag,airspeed_cooling"]) == 0
+    doc = json.loads((out / "gap.json").read_text())
+    assert doc["settings"]["refit_mode"] == "reidentify"
+    assert doc["verdict"]["effect"] == "sensor_lag"
+    assert load_model(out / "model.yaml").effects.sensor_lag is not None
