@@ -183,3 +183,32 @@ def test_evaluate_command_rejects_bad_arguments() -> None:
 
     assert main(["evaluate", "--hours", "0"]) == 2
     assert main(["evaluate", "--target", "150"]) == 2
+
+
+def test_steady_gate_holds_the_test_after_a_throttle_change_and_on_the_ground() -> None:
+    from ecu_monitor.estimation.detection import GateSettings, SteadyGate, steady_mask
+
+    t = np.arange(0.0, 1000.0, 0.5)
+    throttle = np.where(t < 400.0, 50.0, 90.0) + 0.2 * np.sin(t)
+    airspeed = np.where(t < 50.0, 0.0, 23.0)
+    settings = GateSettings(throttle_change_pct=10.0, window_s=120.0, min_airspeed_mps=10.0)
+    mask = steady_mask(t, throttle, airspeed, settings)
+    assert not mask[t < 50.0].any()  # on the ground
+    assert mask[(t > 60.0) & (t < 400.0)].all()
+    assert not mask[(t >= 400.0) & (t < 519.0)].any()  # within 120 s of the 40 % step
+    assert mask[t > 521.0].all()
+    gate = SteadyGate(settings)
+    assert [gate.update(float(a), float(b), float(c)) for a, b, c in zip(t, throttle, airspeed, strict=True)] == list(
+        mask
+    )
+    # a symptom excursion right after the power change does not count; the same after the hold does
+    symptom = np.where((t >= 400.0) & (t < 500.0), 0.3, 0.0)
+    detector = DetectorSettings(threshold=5.0, reference=0.05, warmup_s=0.0, baseline_s=0.0)
+    assert cusum_path(t, symptom, detector)[2].size == 1
+    assert cusum_path(t, symptom, detector, steady=mask)[2].size == 0
+    live = Detector(detector)
+    for ti, xi, si in zip(t, symptom, mask, strict=True):
+        out = live.update(float(ti), float(xi), bool(si))
+    assert out.state == "NOMINAL"
+    late = np.where((t >= 600.0) & (t < 700.0), 0.3, 0.0)
+    assert cusum_path(t, late, detector, steady=mask)[2].size == 1

@@ -37,7 +37,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numba
 import numpy as np
@@ -50,12 +50,15 @@ __all__ = [
     "Detector",
     "DetectorOutput",
     "DetectorSettings",
+    "GateSettings",
+    "SteadyGate",
     "ThresholdCalibration",
     "block_means",
     "calibrate_threshold",
     "count_alarms",
     "cusum_path",
     "hourly_maxima",
+    "steady_mask",
 ]
 
 #: Detector states, in order of severity.
@@ -143,6 +146,7 @@ class Detector:
         self._statistic = 0.0
         self._baseline = math.nan
         self._recent: deque[float] = deque()  # block means not yet old enough for the baseline
+        self._steady = True  # every sample of the current block was steady
         self._alarm_time_s = math.nan
 
     @property
@@ -160,8 +164,9 @@ class Detector:
             state = "NOMINAL"
         return DetectorOutput(state, self._statistic, self._alarm_time_s)
 
-    def update(self, t_s: float, deviation: float) -> DetectorOutput:
-        """Feed one symptom sample at time t_s (s); returns the detector's state."""
+    def update(self, t_s: float, deviation: float, steady: bool = True) -> DetectorOutput:
+        """Feed one symptom sample at time t_s (s); returns the detector's state. steady False (from
+        :class:`SteadyGate`) marks a transient of the inputs: the block holds the statistic."""
         s = self.settings
         if self._start_s is None:
             self._start_s = t_s
@@ -175,8 +180,10 @@ class Detector:
                 self._recent.append(mean)
                 lagged = self._recent.popleft() if len(self._recent) > s.delay_blocks else math.nan
                 self._statistic, self._baseline = _cusum_step(
-                    self._statistic, self._baseline, mean, lagged, s.reference, s.block_s, s.baseline_s
-                )
+                    self._statistic, self._baseline, mean, lagged, s.reference, s.block_s, s.baseline_s,
+                    self._steady or math.isnan(mean),
+                )  # fmt: skip
+                self._steady = True
                 if self._statistic >= s.threshold and math.isnan(self._alarm_time_s):
                     self._alarm_time_s = t_s
             self._sum = 0.0
@@ -185,6 +192,7 @@ class Detector:
         if math.isfinite(deviation):
             self._sum += deviation
             self._count += 1
+        self._steady = self._steady and bool(steady)
         return self._output()
 
 
@@ -217,15 +225,16 @@ def block_means(
 
 @numba.njit(cache=True)
 def _cusum_step(statistic: float, baseline: float, mean: float, lagged: float, k: float, block_s: float,
-                baseline_s: float) -> tuple[float, float]:  # fmt: skip
+                baseline_s: float, steady: bool) -> tuple[float, float]:  # fmt: skip
     """One CUSUM update: (new statistic, new baseline). mean: this block's mean (nan = empty block);
     lagged: the block mean leaving the delay line now, which enters the baseline after the test
-    (nan = none); baseline nan = not started yet (the statistic stays 0 until it has a value)."""
+    (nan = none); baseline nan = not started yet (the statistic stays 0 until it has a value).
+    steady False: the statistic is held (a transient of the inputs), the baseline still learns."""
     if baseline_s <= 0.0:
-        if math.isnan(mean):
+        if math.isnan(mean) or not steady:
             return statistic, 0.0
         return max(0.0, statistic + (mean - k) * block_s), 0.0
-    if not math.isnan(mean) and not math.isnan(baseline):
+    if steady and not math.isnan(mean) and not math.isnan(baseline):
         statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
     if not math.isnan(lagged):
         baseline = lagged if math.isnan(baseline) else baseline + (block_s / baseline_s) * (lagged - baseline)
@@ -233,8 +242,8 @@ def _cusum_step(statistic: float, baseline: float, mean: float, lagged: float, k
 
 
 @numba.njit(cache=True)
-def _cusum(means: NDArray[np.float64], k: float, h: float, block_s: float, baseline_s: float, delay: int,
-           restart: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
+def _cusum(means: NDArray[np.float64], steady: NDArray[np.bool_], k: float, h: float, block_s: float,
+           baseline_s: float, delay: int, restart: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
     stat = np.empty(means.shape[0])
     alarms = np.empty(means.shape[0], dtype=np.int64)
     n_alarms = 0
@@ -242,7 +251,7 @@ def _cusum(means: NDArray[np.float64], k: float, h: float, block_s: float, basel
     baseline = np.nan
     for i in range(means.shape[0]):
         lagged = means[i - delay] if i >= delay else np.nan
-        s, baseline = _cusum_step(s, baseline, means[i], lagged, k, block_s, baseline_s)
+        s, baseline = _cusum_step(s, baseline, means[i], lagged, k, block_s, baseline_s, steady[i])
         stat[i] = s
         if s >= h:
             alarms[n_alarms] = i
@@ -255,19 +264,31 @@ def _cusum(means: NDArray[np.float64], k: float, h: float, block_s: float, basel
 
 
 def cusum_path(
-    time_s: NDArray[np.float64], symptom: NDArray[np.float64], settings: DetectorSettings, *, restart: bool = False
+    time_s: NDArray[np.float64],
+    symptom: NDArray[np.float64],
+    settings: DetectorSettings,
+    *,
+    restart: bool = False,
+    steady: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The CUSUM over a whole flight: (block end times s, statistic after each block, alarm times s).
 
     restart=False: the statistic is never reset (as the latched live detector; one alarm at most).
     restart=True: after each alarm the statistic restarts from 0 (to count false alarms over long
-    nominal flights: each crossing is one false alarm).
+    nominal flights: each crossing is one false alarm). steady: per-sample flag (same length as
+    time_s, e.g. from :func:`steady_mask`); a block with any unsteady sample holds the statistic.
     """
     ends, means = block_means(time_s, symptom, settings)
     if ends.size == 0:
         return ends, means, np.empty(0)
+    if steady is None:
+        block_steady = np.ones(ends.size, dtype=np.bool_)
+    else:
+        _, fraction = block_means(time_s, np.asarray(steady, dtype=float), settings)
+        block_steady = ~(fraction < 1.0)  # nan (no sample) counts as steady: nothing to hold
     stat, alarm_index = _cusum(
         means,
+        block_steady,
         settings.reference,
         settings.threshold,
         settings.block_s,
@@ -278,14 +299,15 @@ def cusum_path(
     return ends, stat, ends[alarm_index]
 
 
-def count_alarms(
-    flights: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]], settings: DetectorSettings
-) -> tuple[int, float]:
-    """(false alarms, flight hours) of the detector over nominal flights given as (time_s, symptom)."""
+def count_alarms(flights: Sequence[tuple[NDArray[Any], ...]], settings: DetectorSettings) -> tuple[int, float]:
+    """(false alarms, flight hours) of the detector over nominal flights given as (time_s, symptom)
+    or (time_s, symptom, steady)."""
     alarms = 0
     hours = 0.0
-    for time_s, symptom in flights:
-        _, _, alarm_times = cusum_path(time_s, symptom, settings, restart=True)
+    for flight in flights:
+        time_s, symptom = flight[0], flight[1]
+        steady = np.asarray(flight[2], dtype=np.bool_) if len(flight) > 2 else None
+        _, _, alarm_times = cusum_path(time_s, symptom, settings, restart=True, steady=steady)
         alarms += int(alarm_times.size)
         hours += float(time_s[-1] - time_s[0]) / 3600.0
     return alarms, hours
@@ -361,4 +383,69 @@ def calibrate_threshold(
         gumbel_scale=scale,
         hours=int(maxima.size),
         target_per_100h=float(target_false_alarms_per_100h),
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# Steady-operation gate
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GateSettings:
+    """When the test may accumulate: not within ``window_s`` of a throttle change larger than
+    ``throttle_change_pct`` (range of the throttle over the trailing window, %-points), and not below
+    ``min_airspeed_mps`` (on the ground). The largest nominal excursions of the symptom follow large
+    power changes (probe lag, mixture and airspeed effects the model lacks) and the ground idle."""
+
+    throttle_change_pct: float = 10.0
+    window_s: float = 120.0
+    min_airspeed_mps: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("throttle_change_pct", "window_s", "min_airspeed_mps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+                raise ConfigError(f"gate.{name}: expected a number >= 0, got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+
+class SteadyGate:
+    """Live form of :func:`steady_mask`: ``update(t_s, throttle_pct, airspeed_mps) -> steady``.
+
+    Keeps monotonic queues of the throttle over the trailing window (amortised O(1) per sample)."""
+
+    def __init__(self, settings: GateSettings) -> None:
+        self.settings = settings
+        self._max: deque[tuple[float, float]] = deque()
+        self._min: deque[tuple[float, float]] = deque()
+
+    def update(self, t_s: float, throttle_pct: float, airspeed_mps: float) -> bool:
+        """True when the inputs have been steady over the window and the aircraft is flying."""
+        g = self.settings
+        while self._max and self._max[-1][1] <= throttle_pct:
+            self._max.pop()
+        self._max.append((t_s, throttle_pct))
+        while self._min and self._min[-1][1] >= throttle_pct:
+            self._min.pop()
+        self._min.append((t_s, throttle_pct))
+        while self._max[0][0] < t_s - g.window_s:
+            self._max.popleft()
+        while self._min[0][0] < t_s - g.window_s:
+            self._min.popleft()
+        spread = self._max[0][1] - self._min[0][1]
+        return bool(spread <= g.throttle_change_pct and airspeed_mps >= g.min_airspeed_mps)
+
+
+def steady_mask(
+    time_s: NDArray[np.float64],
+    throttle_pct: NDArray[np.float64],
+    airspeed_mps: NDArray[np.float64],
+    settings: GateSettings,
+) -> NDArray[np.bool_]:
+    """Per-sample steady flag over a flight (what :class:`SteadyGate` returns sample by sample)."""
+    gate = SteadyGate(settings)
+    return np.array(
+        [gate.update(float(t), float(x), float(v)) for t, x, v in zip(time_s, throttle_pct, airspeed_mps, strict=True)],
+        dtype=np.bool_,
     )
