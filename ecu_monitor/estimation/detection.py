@@ -350,14 +350,20 @@ def calibrate_threshold(
     *,
     sample_period_s: float = 1.0,
     margin: float = 1.1,
+    minimum: float = 1.0,
 ) -> ThresholdCalibration:
     """Threshold h giving about ``target_false_alarms_per_100h`` false alarms per 100 flight hours.
 
     ``nominal_statistics``: CUSUM paths (no alarms, no restart) of nominal flights sampled every
     ``sample_period_s`` (the block length). Each whole hour contributes its maximum; a Gumbel law
     (method of moments: scale = std sqrt(6)/pi, location = mean - 0.5772 scale) is fitted to these
-    maxima and h is its quantile at 1 - rate/100 per hour, raised to ``margin`` x the largest
-    observed hourly maximum if that is higher (the fit must not undercut what was seen).
+    maxima and h is its quantile at 1 - rate/100 per hour, raised to the empirical bound if that is
+    higher (the fit must not undercut what was seen): ``margin`` x the largest hourly maximum when the
+    set holds fewer hours than one expected alarm (100 / rate), else the empirical 1 - rate/100
+    quantile of the hourly maxima. ``minimum`` (1 degC for a degC/s symptom: 0.1 degC/s of excess for
+    10 s) keeps h away from 0 when the nominal statistic almost never leaves 0 (a gated test): the
+    calibration set then carries no information about the tail, and h ~ 0 would alarm on any single
+    block above the allowance.
     """
     if not 0.0 < target_false_alarms_per_100h < 100.0:
         raise ConfigError(
@@ -374,7 +380,7 @@ def calibrate_threshold(
         empirical = margin * float(np.max(maxima))
     else:  # enough hours to see the rate: the empirical quantile of the hourly maxima
         empirical = float(np.quantile(maxima, 1.0 - p_hour))
-    threshold = max(gumbel, empirical, 1e-9)
+    threshold = max(gumbel, empirical, minimum)
     return ThresholdCalibration(
         threshold=threshold,
         gumbel_threshold=gumbel,
