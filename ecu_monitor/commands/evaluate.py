@@ -86,7 +86,8 @@ def _run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     cache = Path(args.flights_cache) if args.flights_cache else None
     if cache is not None and cache.exists():
-        results = _load(cache)
+        results, simulated_s = _load(cache)
+        started -= simulated_s  # report the time the simulation took when it ran
     else:
         with tqdm(total=1, desc="flights", unit="flight", file=sys.stderr) as bar:
 
@@ -98,7 +99,7 @@ def _run(args: argparse.Namespace) -> int:
             results = run_campaign(config, progress=progress)
         if cache is not None:
             with cache.open("wb") as handle:
-                pickle.dump(results, handle)
+                pickle.dump((results, time.monotonic() - started), handle)
     campaign = score(config, results)
     checks = headroom_check()
     command = (
