@@ -301,7 +301,11 @@ def sensor_step(probe_c: Real, cht_c: Real, coeffs: Coefficients, dt_s: float) -
 def steady_state_cht(
     drive: Drive, coeffs: Coefficients, gamma_q: float = 1.0, gamma_d: float = 1.0, iterations: int = 60
 ) -> Real:
-    """CHT (degC) where heat in equals heat out for a held drive (Newton on the balance)."""
+    """CHT (degC) where heat in equals heat out for a held drive (Newton on the balance).
+
+    Starts from the convective-only solution (an upper bound: the balance is convex, so Newton falls
+    monotonically) and stops once every step is below 1e-9 degC, at most ``iterations`` steps.
+    """
     heat = gamma_q * gamma_d * np.asarray(drive.heat_gain) * drive.altitude_gain * drive.q_sl0_w
     g_conv = np.asarray(drive.conductance_w_per_c, dtype=float)
     off = coeffs.radiation_offset_c
@@ -311,7 +315,10 @@ def steady_state_cht(
         t_k = temp + off
         residual = g_conv * (temp - drive.ambient_c) + coeffs.radiative_conductance * (t_k**4 - e_k**4) - heat
         slope = g_conv + 4.0 * coeffs.radiative_conductance * t_k**3
-        temp = temp - residual / slope
+        change = residual / slope
+        temp = temp - change
+        if not np.any(np.abs(change) > 1e-9):
+            break
     return float(temp) if np.ndim(temp) == 0 else temp
 
 
