@@ -380,3 +380,26 @@ def test_deviation_is_exact_for_an_ideal_sensor():
     for _ in range(5):
         one_by_one = deviation_update(one_by_one, 0.0, 0.01, 1.0, DT, 20.0)
     assert deviation_update(0.0, 0.0, 0.05, 5.0, DT, 20.0) == pytest.approx(one_by_one, rel=1e-12)
+
+
+def test_live_filter_compiled_equals_python():
+    """ThermalEKF's compiled hot loop (numba twin of filter_steps) gives the Python result."""
+    from ecu_monitor.estimation import EstimatorSettings, ThermalEKF
+    from ecu_monitor.model import InputSeries, paper_table_a1
+
+    params = paper_table_a1()
+    settings = EstimatorSettings()
+    filters = [
+        ThermalEKF(params, settings, name="cbekf-au", use_deviation=True, reset="boundary", compiled=flag)
+        for flag in (True, False)
+    ]
+    u = InputSeries(60.0, 6500.0, 800.0, 23.0, 12.0)
+    for f in filters:
+        f.initialise(0.0, u, 100.0)
+    for k in range(1, 400):
+        z = float(round(100.0 + 0.03 * k))
+        t = 0.1 * k  # five 20 ms steps per call, the reading on the last
+        fast, slow = (f.estimate(t, u, z if k % 2 else None) for f in filters)
+        assert fast.cht_c == pytest.approx(slow.cht_c, abs=1e-9)
+        assert fast.deviation == pytest.approx(slow.deviation, abs=1e-12)
+        assert fast.reset == slow.reset

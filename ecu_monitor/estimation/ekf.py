@@ -40,6 +40,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from ecu_monitor.errors import ConfigError, EstimationError
 from ecu_monitor.estimation.quantiser import level_of, reset_value, sensor_model, sensor_slope
 from ecu_monitor.model import (
@@ -272,6 +274,34 @@ def filter_step(
     return new_state, corrected.innovation, nis, did_reset
 
 
+def filter_steps(
+    state: FilterState,
+    drive: Drive,
+    z: float,
+    measured: bool,
+    coeffs: Coefficients,
+    dt: float,
+    Q: float,
+    R: float,
+    a: float,
+    b: float,
+    c: float,
+    tau: float,
+    use_deviation: bool,
+    reset_code: int,
+    steps: int,
+) -> tuple[FilterState, float, float, bool]:
+    """``steps`` fixed steps of :func:`filter_step` with the drive held, the reading on the last one."""
+    innovation = math.nan
+    nis = math.nan
+    did_reset = False
+    for k in range(steps):
+        state, innovation, nis, did_reset = filter_step(
+            state, drive, z, measured and k == steps - 1, coeffs, dt, Q, R, a, b, c, tau, use_deviation, reset_code
+        )
+    return state, innovation, nis, did_reset
+
+
 class ThermalEKF:
     """Stateful shell over :func:`filter_step`: EKF, CBEKF or CBEKF-AU on a given model.
 
@@ -290,6 +320,7 @@ class ThermalEKF:
         name: str,
         use_deviation: bool,
         reset: str = "none",
+        compiled: bool = True,
     ) -> None:
         if reset not in RESET_MODES:
             raise ConfigError(f"estimator reset: expected one of {', '.join(RESET_MODES)}, got {reset!r}")
@@ -299,6 +330,9 @@ class ThermalEKF:
         self.use_deviation = use_deviation
         self.reset_mode = reset
         self._coeffs = coefficients(params)
+        self.compiled = compiled
+        self._compiled_coeffs = scalar_coefficients(self._coeffs)
+        self._steps: Any = None  # filter_steps, or its numba twin (loaded on first use)
         self._state: FilterState | None = None
         self._drive: Drive | None = None
         self._time_s = 0.0
@@ -342,27 +376,25 @@ class ThermalEKF:
         drive = self._drive
         if drive is None:  # set together with the state
             raise EstimationError(f"{self.name}: estimate() called before initialise()")
-        code = _RESET_CODES[self.reset_mode]
-        innovation = nis = math.nan
-        did_reset = False
-        for k in range(steps):
-            last = k == steps - 1
-            state, innovation, nis, did_reset = filter_step(
-                state,
-                drive,
-                z,
-                measured and last,
-                self._coeffs,
-                s.dt_s,
-                s.process_var,
-                s.measurement_var,
-                s.sigmoid_a,
-                s.sigmoid_b,
-                s.quantum_c,
-                s.deviation_time_s,
-                self.use_deviation,
-                code,
-            )
+        if self._steps is None:
+            self._steps = _live_steps(self.compiled)
+        state, innovation, nis, did_reset = self._steps(
+            state,
+            drive,
+            z,
+            measured,
+            self._compiled_coeffs if self.compiled else self._coeffs,
+            s.dt_s,
+            s.process_var,
+            s.measurement_var,
+            s.sigmoid_a,
+            s.sigmoid_b,
+            s.quantum_c,
+            s.deviation_time_s,
+            self.use_deviation,
+            _RESET_CODES[self.reset_mode],
+            steps,
+        )
         self._state = state
         self._drive = scalar_drive(u, self._coeffs)
         self._time_s = float(t_s)
@@ -377,3 +409,21 @@ class ThermalEKF:
             reset=did_reset,
             measured=measured,
         )
+
+
+def scalar_coefficients(coeffs: Coefficients) -> Coefficients:
+    """Coefficients with every scalar field a Python float (one numba type for every model)."""
+    fields: dict[str, Any] = {
+        name: float(value) if np.ndim(value) == 0 else np.ascontiguousarray(value, dtype=np.float64)
+        for name, value in coeffs._asdict().items()
+    }
+    return Coefficients(**fields)
+
+
+def _live_steps(compiled: bool) -> Any:
+    """:func:`filter_steps`, or its numba twin built by the runner from this very source."""
+    if not compiled:
+        return filter_steps
+    from ecu_monitor.estimation.runner import compiled_filter_steps  # the runner imports this module
+
+    return compiled_filter_steps()

@@ -59,7 +59,7 @@ def quantise(x_c: float, c: float) -> float:
 
 def level_of(z_c: float, c: float) -> float:
     """Index of the quantisation level of a reading (a float holding an integer)."""
-    return math.floor(z_c / c + 0.5)
+    return float(math.floor(z_c / c + 0.5))
 
 
 def reset_value(level_new: float, level_old: float, c: float, boundary: bool) -> float:

@@ -37,6 +37,7 @@ from ecu_monitor.estimation.ekf import (
     FilterState,
     ThermalEKF,
     filter_step,
+    scalar_coefficients,
 )
 from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.estimation.registry import make_estimator
@@ -237,9 +238,21 @@ def _sources_fingerprint() -> str:
     return digest.hexdigest()[:12]
 
 
-@functools.cache
 def _compiled_loop() -> Callable[..., None]:
     """numba-compile :func:`trace_loop` and everything it calls, from their own source (cached on disk)."""
+    loop: Callable[..., None] = _compiled()["loop"]
+    return loop
+
+
+def compiled_filter_steps() -> Callable[..., Any]:
+    """The numba twin of :func:`ecu_monitor.estimation.ekf.filter_steps` (the live filter's hot loop)."""
+    steps: Callable[..., Any] = _compiled()["steps"]
+    return steps
+
+
+@functools.cache
+def _compiled() -> dict[str, Callable[..., Any]]:
+    """numba-compile the filter functions, from their own source (cached on disk)."""
     import numba  # imported on first use: the live service never needs it
 
     tag = _sources_fingerprint()
@@ -266,23 +279,16 @@ def _compiled_loop() -> Callable[..., None]:
         level_of=level_of,
         reset_value=reset_value,
     )
-    loop: Callable[..., None] = jit(trace_loop, filter_step=step, level_of=level_of)
-    return loop
-
-
-def _scalar_coefficients(coeffs: Coefficients) -> Coefficients:
-    """Coefficients with every scalar field a Python float (one numba type for every model)."""
-    fields: dict[str, Any] = {
-        name: float(value) if np.ndim(value) == 0 else np.ascontiguousarray(value, dtype=np.float64)
-        for name, value in coeffs._asdict().items()
+    return {
+        "loop": jit(trace_loop, filter_step=step, level_of=level_of),
+        "steps": jit(_ekf_module.filter_steps, filter_step=step),
     }
-    return Coefficients(**fields)
 
 
 def _run_compiled(
     flight: FixedStepFlight, params: ThermalParams, settings: EstimatorSettings, estimator: ThermalEKF, compiled: bool
 ) -> EstimateTrace:
-    coeffs = _scalar_coefficients(coefficients(params))
+    coeffs = scalar_coefficients(coefficients(params))
     drive = compute_drive(flight.inputs, coeffs)
     n = flight.time_s.size
     arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
