@@ -26,7 +26,7 @@ from ecu_monitor.estimation import ESTIMATORS
 from ecu_monitor.flightlog import load_flight
 from ecu_monitor.model import load_model
 from ecu_monitor.service.config import load_config
-from ecu_monitor.service.pipeline import STATES
+from ecu_monitor.service.pipeline import STATES, model_input_names
 from ecu_monitor.service.replay import (
     CAN_LOG_SUFFIXES,
     ReplayResult,
@@ -74,7 +74,7 @@ def _run(args: argparse.Namespace) -> int:
     if path.suffix.lower() in CAN_LOG_SUFFIXES:
         frames = read_frames(path)
     else:
-        frames = frames_from_flight(load_flight(path), config)
+        frames = frames_from_flight(load_flight(path), config, (*model_input_names(params), "cht_c"))
     result: ReplayResult = (
         replay_live(config, params, frames.messages()) if args.live else replay_frames(config, params, frames)
     )

@@ -333,17 +333,22 @@ def read_blf_arrays(path: str | os.PathLike[str]) -> FrameArrays | None:
     )
 
 
-def frames_from_flight(log: FlightLog, config: ServiceConfig) -> FrameArrays:
+def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable[str] | None = None) -> FrameArrays:
     """The frames the ECU would have sent for a flight log: every message the config's inputs use, at
     its DBC cycle time (default 100 ms), carrying the latest row at or before the frame time
-    (converted from the canonical unit to the signal's unit), other signals 0, counter and checksum."""
+    (converted from the canonical unit to the signal's unit), other signals 0, counter and checksum.
+
+    ``required``: the columns the log must hold (default: every mapped input but fuel flow); a mapped
+    input the log lacks and the model does not need (throttle for a fuel-flow heat map) stays unsent.
+    """
     encoder = Encoder(config.dbc_paths)
     by_message: dict[str, list[tuple[str, str]]] = {}
     for spec in config.inputs:
         if not log.has(spec.name):
             continue
         by_message.setdefault(spec.message, []).append((spec.signal, spec.name))
-    missing = [spec.name for spec in config.inputs if not log.has(spec.name) and spec.name != "fuel_flow_lph"]
+    needed = set(required) if required is not None else {s.name for s in config.inputs} - {"fuel_flow_lph"}
+    missing = [spec.name for spec in config.inputs if not log.has(spec.name) and spec.name in needed]
     if missing:
         raise FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}")
     t = log.time_s
@@ -805,7 +810,8 @@ def replay_file(path: str | os.PathLike[str], config: ServiceConfig, params: The
     if suffix in CAN_LOG_SUFFIXES:
         return replay_frames(config, params, read_frames(path))
     if suffix == ".csv":
-        return replay_frames(config, params, frames_from_flight(load_flight(path), config))
+        needed = (*model_input_names(params), "cht_c")
+        return replay_frames(config, params, frames_from_flight(load_flight(path), config, needed))
     raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
 
 
