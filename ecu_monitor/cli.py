@@ -13,7 +13,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from ecu_monitor.errors import EcuMonitorError, UserInputError
+from ecu_monitor.errors import run_command
 
 __all__ = ["COMMANDS", "COMMAND_MODULES", "build_parser", "main"]
 
@@ -80,21 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except UserInputError as exc:
-        if args.debug:
-            raise
-        print(f"ecu-monitor: error: {exc}", file=sys.stderr)
-        return 2
-    except EcuMonitorError as exc:
-        if args.debug:
-            raise
-        print(f"ecu-monitor: internal error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("ecu-monitor: interrupted", file=sys.stderr)
-        return 130
+    return run_command("ecu-monitor", lambda: args.func(args), debug=args.debug)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,9 @@ exits 2. Any other ``EcuMonitorError`` is an internal failure (exit 1).
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable
+
 __all__ = [
     "BusError",
     "ConfigError",
@@ -15,6 +18,7 @@ __all__ = [
     "FlightLogError",
     "ParameterError",
     "UserInputError",
+    "run_command",
 ]
 
 
@@ -44,3 +48,27 @@ class BusError(EcuMonitorError):
 
 class EstimationError(EcuMonitorError):
     """An estimator was used wrongly (for example, estimate() before initialise())."""
+
+
+def run_command(prog: str, command: Callable[[], int | None], debug: bool = False) -> int:
+    """Run one CLI command and turn our errors into the contract's exit codes.
+
+    UserInputError -> its one-line message, exit 2; any other EcuMonitorError -> one line, exit 1;
+    Ctrl-C -> 130. With ``debug`` the exception propagates (traceback). Shared by ``ecu-monitor`` and
+    ``virtual-ecu``.
+    """
+    try:
+        return int(command() or 0)
+    except UserInputError as exc:
+        if debug:
+            raise
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except EcuMonitorError as exc:
+        if debug:
+            raise
+        print(f"{prog}: internal error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130

@@ -19,7 +19,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from ecu_monitor.errors import ConfigError, EcuMonitorError, UserInputError
+from ecu_monitor.errors import ConfigError, run_command
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
 from virtual_bus.busconfig import BusConfig, load_bus_config, open_bus
 from virtual_bus.emitter import EmitStats, FrameEmitter, FrameEncoder
@@ -214,21 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if func is None:
         parser.print_help()
         return 2
-    try:
-        return int(func(args) or 0)
-    except UserInputError as exc:
-        if args.debug:
-            raise
-        print(f"virtual-ecu: error: {exc}", file=sys.stderr)
-        return 2
-    except EcuMonitorError as exc:
-        if args.debug:
-            raise
-        print(f"virtual-ecu: internal error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("virtual-ecu: interrupted", file=sys.stderr)
-        return 130
+    return run_command("virtual-ecu", lambda: func(args), debug=args.debug)
 
 
 if __name__ == "__main__":
