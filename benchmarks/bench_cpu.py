@@ -19,16 +19,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import subprocess
 import sys
-import tempfile
 import textwrap
 import time
-import uuid
 from pathlib import Path
 
-import yaml
+from netns import multicast_namespace
 
 REPO = Path(__file__).resolve().parent.parent
 GROUP = "239.74.163.2"
@@ -55,52 +52,38 @@ def main() -> None:
     parser.add_argument("--warmup", type=float, default=10.0)
     parser.add_argument("--seconds", type=float, default=20.0)
     args = parser.parse_args()
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        sys.exit("bench_cpu needs root and iproute2 (ip netns) to keep multicast inside a namespace")
-    ns = f"ecu-bench-{uuid.uuid4().hex[:8]}"
-    tmp = Path(tempfile.mkdtemp(prefix="ecu-bench-"))
     port = 43000 + os.getpid() % 1000
-    data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
-    data["dbc"] = [str(REPO / "dbc" / "engine.dbc")]
-    data["health_dbc"] = str(REPO / "dbc" / "health.dbc")
-    data["bus"] = {"interface": "udp_multicast", "channel": GROUP, "port": port}
-    data["state_dir"] = str(tmp / "state")
-    config = tmp / "service.yaml"
-    config.write_text(yaml.safe_dump(data, sort_keys=False))
     procs: dict[str, subprocess.Popen[bytes]] = {}
-    try:
-        subprocess.run(["ip", "netns", "add", ns], check=True)
-        subprocess.run(["ip", "-n", ns, "link", "set", "lo", "up"], check=True)
-        subprocess.run(["ip", "-n", ns, "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
+    with multicast_namespace(GROUP, port, "bench_cpu") as space:
+        ns, config = space.name, space.config
+        try:
 
-        def start(name: str, argv: list[str]) -> None:
-            procs[name] = subprocess.Popen(
-                ["ip", "netns", "exec", ns, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-            )
+            def start(name: str, argv: list[str]) -> None:
+                procs[name] = subprocess.Popen(
+                    ["ip", "netns", "exec", ns, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+                )
 
-        python = sys.executable
-        start("daemon (ecu-monitor run)", [python, "-m", "ecu_monitor.cli", "run", "--config", str(config)])
-        start("baseline: idle Notifier", [python, "-c", _IDLE_NOTIFIER, GROUP, str(port)])
-        time.sleep(3.0)
-        start("virtual ECU (emitter)", [python, "-m", "virtual_bus.cli", "run", "--config", str(config),
-                                        "--mission", "default", "--realtime"])  # fmt: skip
-        time.sleep(args.warmup)
-        for name, proc in procs.items():
-            if proc.poll() is not None:
-                sys.exit(f"{name} exited early with {proc.returncode}")
-        before = {name: cpu_seconds(proc.pid) for name, proc in procs.items()}
-        start_s = time.monotonic()
-        time.sleep(args.seconds)
-        wall = time.monotonic() - start_s
-        after = {name: cpu_seconds(proc.pid) for name, proc in procs.items()}
-        load = os.getloadavg()[0]
-    finally:
-        for proc in procs.values():
-            if proc.poll() is None:
-                proc.kill()
-            proc.wait(timeout=10)
-        subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
-        shutil.rmtree(tmp, ignore_errors=True)
+            python = sys.executable
+            start("daemon (ecu-monitor run)", [python, "-m", "ecu_monitor.cli", "run", "--config", str(config)])
+            start("baseline: idle Notifier", [python, "-c", _IDLE_NOTIFIER, GROUP, str(port)])
+            time.sleep(3.0)
+            start("virtual ECU (emitter)", [python, "-m", "virtual_bus.cli", "run", "--config", str(config),
+                                            "--mission", "default", "--realtime"])  # fmt: skip
+            time.sleep(args.warmup)
+            for name, proc in procs.items():
+                if proc.poll() is not None:
+                    sys.exit(f"{name} exited early with {proc.returncode}")
+            before = {name: cpu_seconds(proc.pid) for name, proc in procs.items()}
+            start_s = time.monotonic()
+            time.sleep(args.seconds)
+            wall = time.monotonic() - start_s
+            after = {name: cpu_seconds(proc.pid) for name, proc in procs.items()}
+            load = os.getloadavg()[0]
+        finally:
+            for proc in procs.values():
+                if proc.poll() is None:
+                    proc.kill()
+                proc.wait(timeout=10)
     usage = {name: (after[name] - before[name]) / wall * 100.0 for name in before}
     print(f"udp_multicast in a network namespace, {wall:.1f} s after {args.warmup:g} s warm-up, load {load:.1f}\n")
     print("| process | CPU, % of one core |")

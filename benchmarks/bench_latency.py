@@ -35,12 +35,10 @@ import gc
 import json
 import os
 import random
-import shutil
 import signal
 import statistics
 import subprocess
 import sys
-import tempfile
 import textwrap
 import threading
 import time
@@ -51,6 +49,7 @@ from typing import Any
 
 import can
 import yaml
+from netns import multicast_namespace
 
 from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.commands.run import warm_up_estimators
@@ -447,18 +446,7 @@ def _socket_drops(ns: str, pid: int) -> int:
 
 def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str, Any]]:
     """Both cases across processes inside a fresh network namespace; returns their statistics."""
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        sys.exit("--netns needs root and iproute2 (ip netns) to keep multicast inside a namespace")
-    ns = f"ecu-bench-{uuid.uuid4().hex[:8]}"
-    tmp = Path(tempfile.mkdtemp(prefix="ecu-bench-"))
     port = 44000 + os.getpid() % 1000
-    data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
-    data["dbc"] = [str(REPO / "dbc" / "engine.dbc")]
-    data["health_dbc"] = str(REPO / "dbc" / "health.dbc")
-    data["bus"] = {"interface": "udp_multicast", "channel": GROUP, "port": port}
-    data["state_dir"] = str(tmp / "state")
-    config = tmp / "service.yaml"
-    config.write_text(yaml.safe_dump(data, sort_keys=False))
     rows = []
     procs: list[subprocess.Popen[str]] = []
 
@@ -467,40 +455,37 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
         procs.append(proc)
         return proc
 
-    try:
-        subprocess.run(["ip", "netns", "add", ns], check=True)
-        subprocess.run(["ip", "-n", ns, "link", "set", "lo", "up"], check=True)
-        subprocess.run(["ip", "-n", ns, "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
-        per_burst = round(traffic_hz * 0.0025)  # 0: no other traffic
-        for name, argv in (
-            ("bare Notifier echo (baseline), separate process", [sys.executable, "-c", _ECHO, GROUP, str(port)]),
-            ("daemon + pipeline, separate process", [sys.executable, "-c", _DAEMON, str(config)]),
-        ):
-            peer = start(["nice", "-n", str(nice), *argv] if nice else argv)
-            assert peer.stdout is not None
-            if peer.stdout.readline().strip() != "ready":
-                sys.exit(f"{name}: did not start")
-            traffic = start([sys.executable, "-c", _TRAFFIC, GROUP, str(port), str(per_burst)])
-            time.sleep(1.0)
-            inner = start([sys.executable, __file__, "--inner", str(port), str(seconds), name])
-            out, _ = inner.communicate(timeout=seconds + 60)
-            peer_drops = _socket_drops(ns, peer.pid)
-            traffic.kill()
-            traffic.wait(timeout=10)
-            peer.send_signal(signal.SIGTERM)
-            peer_out, _ = peer.communicate(timeout=30)
-            peer_counts = json.loads(peer_out.strip().splitlines()[-1])
-            row = json.loads(out.strip().splitlines()[-1])
-            row.update(ecu_in=peer_counts["in"], out_sent=peer_counts["out"], traffic_hz=per_burst / 0.0025)
-            row["socket_drops"] = peer_drops
-            rows.append(row)
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(timeout=10)
-        subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
-        shutil.rmtree(tmp, ignore_errors=True)
+    with multicast_namespace(GROUP, port, "--netns") as space:
+        ns, config = space.name, space.config
+        try:
+            per_burst = round(traffic_hz * 0.0025)  # 0: no other traffic
+            for name, argv in (
+                ("bare Notifier echo (baseline), separate process", [sys.executable, "-c", _ECHO, GROUP, str(port)]),
+                ("daemon + pipeline, separate process", [sys.executable, "-c", _DAEMON, str(config)]),
+            ):
+                peer = start(["nice", "-n", str(nice), *argv] if nice else argv)
+                assert peer.stdout is not None
+                if peer.stdout.readline().strip() != "ready":
+                    sys.exit(f"{name}: did not start")
+                traffic = start([sys.executable, "-c", _TRAFFIC, GROUP, str(port), str(per_burst)])
+                time.sleep(1.0)
+                inner = start([sys.executable, __file__, "--inner", str(port), str(seconds), name])
+                out, _ = inner.communicate(timeout=seconds + 60)
+                peer_drops = _socket_drops(ns, peer.pid)
+                traffic.kill()
+                traffic.wait(timeout=10)
+                peer.send_signal(signal.SIGTERM)
+                peer_out, _ = peer.communicate(timeout=30)
+                peer_counts = json.loads(peer_out.strip().splitlines()[-1])
+                row = json.loads(out.strip().splitlines()[-1])
+                row.update(ecu_in=peer_counts["in"], out_sent=peer_counts["out"], traffic_hz=per_burst / 0.0025)
+                row["socket_drops"] = peer_drops
+                rows.append(row)
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait(timeout=10)
     return rows
 
 
