@@ -52,7 +52,6 @@ import yaml
 from netns import multicast_namespace
 
 from ecu_monitor.bus.codec import Encoder
-from ecu_monitor.commands.run import warm_up_estimators
 from ecu_monitor.service.config import parse_config
 from ecu_monitor.service.daemon import Daemon, DaemonSettings
 from ecu_monitor.service.pipeline import Pipeline
@@ -227,7 +226,6 @@ def run_case(
     if with_pipeline:
         config = _config(channel)
         pipeline = Pipeline(config, config.load_params())
-        warm_up_estimators(config, pipeline.params)  # as `ecu-monitor run` does before READY
         daemon = PhaseTimedDaemon(
             pipeline,
             lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False),
@@ -345,10 +343,8 @@ _DAEMON = textwrap.dedent(
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.daemon import Daemon, DaemonSettings
     from ecu_monitor.service.pipeline import Pipeline
-    from ecu_monitor.commands.run import warm_up_estimators
-    config = load_config(sys.argv[1])
+        config = load_config(sys.argv[1])
     pipeline = Pipeline(config, config.load_params())
-    warm_up_estimators(config, pipeline.params)
     daemon = Daemon(pipeline, lambda: can.Bus(**dict(config.bus)), settings=DaemonSettings(tick_s=3600.0),
                     receive_ids=pipeline.decoder.frame_ids)
     signal.signal(signal.SIGTERM, lambda *args: daemon.stop())

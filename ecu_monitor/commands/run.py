@@ -15,7 +15,6 @@ import os
 import signal
 import socket
 import sys
-import time
 from collections.abc import Callable
 from types import FrameType
 from typing import Any
@@ -28,7 +27,7 @@ from ecu_monitor.service.daemon import Daemon, DaemonSettings
 from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
 from ecu_monitor.service.persistence import FlightRecorder, FlightRules, StateStore
 
-__all__ = ["add_subparser", "bus_opener", "engine_speed_of", "warm_up_estimators"]
+__all__ = ["add_subparser", "bus_opener", "engine_speed_of"]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -118,43 +117,6 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
     return reopen
 
 
-def warm_up_estimators(config: ServiceConfig, params: Any) -> float:
-    """Run the pipeline's filters once on made-up steady inputs, before READY; returns the seconds it took.
-
-    Their first call loads numba-compiled code (about 1 s here); without this the first in-flight step
-    would stall the frame path that long. Mirrors what Pipeline does when the estimator starts.
-    """
-    from ecu_monitor.estimation import make_estimator
-    from ecu_monitor.estimation.detection import Detector
-    from ecu_monitor.estimation.headroom import thermal_headroom
-    from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
-    from ecu_monitor.model import InputSeries
-
-    started = time.perf_counter()
-    heat = params.heat_map
-    u = InputSeries(
-        float(sum(heat.x_breakpoints) / len(heat.x_breakpoints)),
-        float(sum(heat.y_breakpoints) / len(heat.y_breakpoints)),
-        500.0,
-        20.0,
-        15.0,
-    )
-    dt = config.estimator.dt_s
-    filters = [
-        make_estimator(config.estimator_name, params, config.estimator),
-        make_estimator("ekf", params, config.estimator),
-        IsolationFilter(params, IsolationSettings(dt_s=dt)),
-    ]
-    detector = Detector(config.detector)
-    for filt in filters:
-        filt.initialise(0.0, u, 100.0)
-        for k, z in enumerate((100.0, None, 101.0), start=1):
-            estimate = filt.estimate(k * dt, u, z)
-            detector.update(k * dt, estimate.deviation)
-    thermal_headroom(100.0, None, u, params, gamma_q=1.0, gamma_d=1.0)
-    return time.perf_counter() - started
-
-
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.service.pipeline import Pipeline  # the estimator stack: imported only when running
 
@@ -171,7 +133,6 @@ def _run(args: argparse.Namespace) -> int:
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
     open_bus = bus_opener(config)
-    _log.info("estimators warmed up in %.2f s", warm_up_estimators(config, params))
     settings = DaemonSettings(
         backoff_initial_s=config.reopen_backoff.initial,
         backoff_max_s=config.reopen_backoff.max,

@@ -69,6 +69,8 @@ class PipelineLike(Protocol):
 
     def drain_rows(self) -> list[Any]: ...
 
+    def warm_up(self) -> float: ...
+
     @property
     def steps_done(self) -> int: ...
 
@@ -342,6 +344,8 @@ class Daemon:
     def run(self) -> int:
         """Run until :meth:`stop`; returns 0 after a clean stop (flight closed, bus shut down)."""
         settings = self.settings
+        # compiled code loaded before the bus opens: the first frames must not wait for numba
+        _log.info("estimators warmed up in %.2f s", self.pipeline.warm_up())
         self._attach()
         with self._lock:
             self.pipeline.advance_to(self._clock())

@@ -36,6 +36,7 @@ at the held inputs) is computed every Health_Isolation period and held in betwee
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -293,6 +294,36 @@ class Pipeline:
             return None
         value = float(self._values[slot])
         return value if math.isfinite(value) else None
+
+    def warm_up(self) -> float:
+        """Load (or, on a fresh install, compile: ~3 s) the estimators' numba code; returns the seconds taken.
+
+        Runs the filters, the detector and the headroom on a throwaway mid-map operating point; the
+        pipeline's own state is untouched. The daemon calls it before it opens the bus: otherwise the
+        first CHT frame would hold the frame path for the whole load.
+        """
+        started = time.perf_counter()
+        heat_map = self.params.heat_map
+        u = InputSeries(
+            heat_map.x_breakpoints[len(heat_map.x_breakpoints) // 2],
+            heat_map.y_breakpoints[len(heat_map.y_breakpoints) // 2],
+            1000.0,
+            20.0,
+            15.0,
+        )
+        filters: list[CHTEstimator | IsolationFilter] = [
+            make_estimator(self.config.estimator_name, self.params, self.config.estimator),
+            make_estimator("ekf", self.params, self.config.estimator),
+            IsolationFilter(self.params, IsolationSettings(dt_s=self._dt)),
+        ]
+        detector = Detector(self.config.detector)
+        step_s = self._dt * self._filter_period
+        for filt in filters:
+            filt.initialise(0.0, u, 100.0)
+            for k, reading_c in enumerate((100.0, None, 101.0), start=1):
+                detector.update(k * step_s, filt.estimate(k * step_s, u, reading_c).deviation)
+        thermal_headroom(100.0, None, u, self.params, coeffs=self._coeffs)
+        return time.perf_counter() - started
 
     def drain_rows(self) -> list[HealthSnapshot]:
         """Snapshots of the health-status periods since the last call (oldest first)."""
