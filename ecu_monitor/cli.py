@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "import": "import_log",
     "results": "results",
     "evaluate": "evaluate",
+    "calibrate": "calibrate",
 }
 COMMAND_MODULES: tuple[str, ...] = tuple(COMMANDS.values())
 

@@ -136,10 +136,13 @@ class ReplayResult:
 
     columns: time_s, cht_meas_c, cht_est_c, deviation, gamma_q, gamma_d, headroom_s (float arrays),
     state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool).
+    detector_feed (batch path only): per clock segment whose estimator started, what the detector was
+    fed: (step times s from its start, symptom per step, nan where the supervisor was not NOMINAL).
     """
 
     columns: dict[str, NDArray[Any]]
     counters: dict[str, int]
+    detector_feed: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)
@@ -501,14 +504,16 @@ def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArr
     bounds = [0, *restarts.tolist(), n]
     counters["clock_restarts"] = len(restarts)
     parts: list[dict[str, NDArray[Any]]] = []
+    feeds: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
     steps_total = 0
     for a, b in itertools.pairwise(bounds):
-        seg_columns, steps = _replay_segment(config, params, probe, batch.values, stamps, a, b)
+        seg_columns, steps, feed = _replay_segment(config, params, probe, batch.values, stamps, a, b)
         parts.append(seg_columns)
+        feeds.extend([feed] if feed is not None else [])
         steps_total += steps
     counters["steps"] = steps_total
     columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else _empty_columns()
-    return ReplayResult(columns, counters)
+    return ReplayResult(columns, counters, tuple(feeds))
 
 
 def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:
@@ -523,7 +528,7 @@ def _replay_segment(
     stamps: NDArray[np.float64],
     first: int,
     end: int,
-) -> tuple[dict[str, NDArray[Any]], int]:
+) -> tuple[dict[str, NDArray[Any]], int, tuple[NDArray[np.float64], NDArray[np.float64]] | None]:
     dt = config.estimator.dt_s
     origin = float(stamps[first])
     last = float(stamps[end - 1])
@@ -533,7 +538,7 @@ def _replay_segment(
     times = times[times <= last]
     n = times.size
     if n == 0:
-        return _empty_columns(), 0
+        return _empty_columns(), 0, None
     held: dict[str, _Held] = {}
     message_of = {spec.name: spec.message for spec in config.inputs}
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
@@ -620,6 +625,8 @@ def _replay_segment(
     step_numbers = np.arange(1, n + 1)
     symptom = deviation if config.detector_symptom == "estimator" else iso_dev
     state = _detect(config, times, code, symptom, stretches)
+    first, fed = _detector_feed(code, symptom, stretches)
+    feed = (times[first:], fed[first:]) if stretches else None
     headroom = _headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
                          periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
     rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
@@ -638,7 +645,18 @@ def _replay_segment(
         "stale": bits[rows],
         "sensor_fault": code[rows] == STATES.index("SENSOR_FAULT"),
     }
-    return out, n
+    return out, n, feed
+
+
+def _detector_feed(
+    code: NDArray[np.int64], symptom: NDArray[np.float64], stretches: list[tuple[int, int]]
+) -> tuple[int, NDArray[np.float64]]:
+    """(step of the first initialisation, where the detector starts; the symptom it is fed per step:
+    nan before that step and wherever the supervisor is not NOMINAL)."""
+    first = stretches[0][0] if stretches else code.size
+    fed = np.where(code == 0, symptom, np.nan)
+    fed[:first] = np.nan
+    return first, fed
 
 
 def _detect(
@@ -661,13 +679,11 @@ def _detect(
         return state
     s = config.detector
     n = times.size
-    first = stretches[0][0]
+    first, fed = _detector_feed(code, symptom, stretches)
     t0 = float(times[first])
     begin = t0 + s.warmup_s
     if float(times[-1]) < begin:
         return state
-    fed = np.where(code == 0, symptom, np.nan)
-    fed[:first] = np.nan
     count = math.floor((float(times[-1]) - begin) / s.block_s) + 2
     ends = np.cumsum(np.concatenate(([begin + s.block_s], np.full(count - 1, s.block_s))))
     closes = np.searchsorted(times, ends - 1e-9, side="left")

@@ -1,0 +1,176 @@
+"""``ecu-monitor calibrate FLIGHT [FLIGHT ...] [--config C] [--model M] [--rate 1] [--out detector.yaml]``.
+
+Calibrates the detector's threshold h on your own NOMINAL flights (healthy engine): each flight is
+replayed through the service's pipeline (as ``ecu-monitor replay``: same estimator, symptom, warm-up
+and baseline), the CUSUM statistic is run without alarms, and a Gumbel law fitted to its hourly
+maxima gives h for --rate false alarms per 100 flight hours (never below 1.1 x the largest hourly
+maximum seen when the flights hold fewer hours than one expected alarm). Needs at least 2 whole hours
+of statistic (after each flight's warm-up).
+
+Prints per flight: hours, largest statistic, alarms the current threshold would raise; then the new
+threshold. Writes --out: a ``detector:`` YAML fragment to merge into the service config, or with
+--write-config a full copy of the config with the threshold replaced (the input config is never
+overwritten). --plot draws the statistic of each flight with both thresholds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
+from ecu_monitor.model import load_model
+from ecu_monitor.service.config import load_config
+
+__all__ = ["DEFAULT_OUT", "add_subparser"]
+
+#: The fragment written when --out is not given (in the current folder).
+DEFAULT_OUT = "detector.yaml"
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register the ``calibrate`` subcommand."""
+    parser = subparsers.add_parser(
+        "calibrate",
+        help="calibrate the detector threshold on your own nominal flights -> detector.yaml",
+        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+    )
+    parser.add_argument("flights", nargs="+", metavar="FLIGHT", help="nominal flight: canonical .csv or CAN log")
+    parser.add_argument(
+        "--config", metavar="CONFIG.yaml", help="service config (default: configs/example.yaml, as replay)"
+    )
+    parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the config's model)")
+    parser.add_argument(
+        "--rate", type=float, default=1.0, help="false alarms per 100 flight hours to calibrate for (default 1)"
+    )
+    parser.add_argument("--out", metavar="FILE.yaml", help=f"output YAML (default: ./{DEFAULT_OUT})")
+    parser.add_argument(
+        "--write-config",
+        action="store_true",
+        help="write a full copy of the config with the new threshold to --out (required then) instead of a fragment",
+    )
+    parser.add_argument("--plot", metavar="P.png", help="plot the statistic of each flight with both thresholds")
+    parser.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.commands.replay import DEFAULT_CONFIG
+
+    config_path = Path(args.config) if args.config else DEFAULT_CONFIG
+    out = _check(args, config_path)
+    config = load_config(config_path)
+    params = load_model(args.model) if args.model else config.load_params()
+    missing = [p for p in args.flights if not Path(p).is_file()]
+    if missing:
+        raise FlightLogError(f"{missing[0]}: no such file")
+
+    from tqdm import tqdm
+
+    from ecu_monitor.service.calibration import (
+        calibrate_flights,
+        config_copy_yaml,
+        detector_fragment_yaml,
+        flight_statistic,
+    )
+
+    flights = []
+    for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr):
+        flights.append(flight_statistic(path, config, params))
+    for line in _table(flights, config.detector.threshold, config.detector.block_s):
+        print(line)
+    result = calibrate_flights(flights, args.rate, config.detector)
+    sources = [str(Path(p).resolve()) for p in args.flights]
+    if args.write_config:
+        text = config_copy_yaml(config_path, result, args.rate, sources, args.model)
+    else:
+        text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources)
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    c = result.calibration
+    print(
+        f"threshold h = {c.threshold:.3f} for {args.rate:g} false alarm(s) per 100 h"
+        f" (current {config.detector.threshold:g}); method: {result.method}"
+    )
+    print(
+        f"  Gumbel quantile {c.gumbel_threshold:.3f} (location {c.gumbel_location:.3f}, scale {c.gumbel_scale:.3f}),"
+        f" empirical bound {c.empirical_max:.3f}, {c.hours} whole hours of statistic"
+    )
+    if c.hours * args.rate / 100.0 < 1.0:
+        print(
+            f"  {c.hours} whole hours is fewer than the {100.0 / args.rate:g} h of one expected alarm: the rate cannot"
+            f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest hourly"
+            f" maximum ({c.empirical_max:.3f})"
+        )
+    print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
+    if args.plot:
+        _plot(flights, config.detector.threshold, c.threshold, Path(args.plot))
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _check(args: argparse.Namespace, config_path: Path) -> Path:
+    """Validate the options before any work; returns the output path."""
+    if not 0.0 < args.rate < 100.0:  # also rejects nan
+        raise ParameterError(f"--rate: expected false alarms per 100 h in (0, 100), got {args.rate!r}")
+    if args.write_config and not args.out:
+        raise ParameterError(
+            "--write-config: name the new config file with --out (the input config is never overwritten)"
+        )
+    out = Path(args.out) if args.out else Path(DEFAULT_OUT)
+    if args.write_config and out.resolve() == config_path.resolve():
+        raise ParameterError(f"--out: {out} is the input config; write the copy to a new file")
+    if out.parent != Path("") and not out.parent.is_dir():
+        raise ParameterError(f"--out: no such folder {out.parent}")
+    if args.plot and Path(args.plot).parent != Path("") and not Path(args.plot).parent.is_dir():
+        raise ParameterError(f"--plot: no such folder {Path(args.plot).parent}")
+    return out
+
+
+def _table(flights: list[Any], threshold: float, block_s: float) -> list[str]:
+    """Per flight: name, hours, whole hours of statistic, max statistic, alarms at the current threshold."""
+    width = max([len("flight"), *(len(f.name) for f in flights)])
+    head = f"alarms at h={threshold:g}"
+    lines = [f"{'flight':<{width}}  {'hours':>6}  {'whole h':>7}  {'max stat':>8}  {head:>15}  first alarm"]
+    for f in flights:
+        first = f"t={f.alarm_times_s[0] - f.start_s:.1f} s" if f.alarm_times_s.size else "-"
+        lines.append(
+            f"{f.name:<{width}}  {f.hours:6.2f}  {f.whole_hours(block_s):7d}  {f.max_statistic:8.3f}"
+            f"  {f.alarm_times_s.size:15d}  {first}"
+        )
+    total_alarms = sum(f.alarm_times_s.size for f in flights)
+    hours = sum(f.hours for f in flights)
+    whole = sum(f.whole_hours(block_s) for f in flights)
+    peak = max(f.max_statistic for f in flights)
+    lines.append(f"{'total':<{width}}  {hours:6.2f}  {whole:7d}  {peak:8.3f}  {total_alarms:15d}")
+    return lines
+
+
+def _plot(flights: list[Any], current: float, calibrated: float, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 5))
+    for f in flights:
+        for i, (ends, stat) in enumerate(f.paths):
+            ax.plot((ends - f.start_s) / 60.0, stat, lw=0.8, label=f.name if i == 0 else None)
+    ax.axhline(current, color="tab:red", ls="--", lw=1.2, label=f"current h = {current:g}")
+    ax.axhline(calibrated, color="black", ls="-", lw=1.2, label=f"calibrated h = {calibrated:.2f}")
+    ax.set_xlabel("time since the start of the flight (min)")
+    ax.set_ylabel("CUSUM statistic (degC)")
+    ax.set_title("detector statistic on the nominal flights (no alarm, no restart)")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=120)
+    except OSError as exc:
+        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
