@@ -76,7 +76,7 @@ def _run(args: argparse.Namespace) -> int:
     )
 
     flights = []
-    for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr):
+    for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
         flights.append(flight_statistic(path, config, params))
     for line in _table(flights, config.detector.threshold, config.detector.block_s):
         print(line)
