@@ -164,7 +164,8 @@ def _plot(flights: list[Any], current: float, calibrated: float, path: Path) -> 
     ax.set_xlabel("time since the start of the flight (min)")
     ax.set_ylabel("CUSUM statistic (degC)")
     ax.set_title("detector statistic on the nominal flights (no alarm, no restart)")
-    ax.set_ylim(bottom=0.0)
+    peak = max([current, calibrated, *(f.max_statistic for f in flights)])
+    ax.set_ylim(0.0, 1.35 * peak)  # room for the legend above the lines
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()

@@ -231,7 +231,7 @@ def config_copy_yaml(
     detector["threshold"] = _rounded(result.calibration.threshold)
     data["detector"] = detector
     header = _header(result, rate_per_100h, sources)
-    header.insert(1, f"# copy of {src.resolve()} with detector.threshold replaced (comments of the original not kept)")
+    header.append(f"# copy of {src.resolve()} with detector.threshold replaced (comments of the original not kept)")
     return "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
 
 
