@@ -192,6 +192,19 @@ def test_missing_file_exits_2(tmp_path, capsys):
     assert "none.csv: no such file" in line
 
 
+def test_unreadable_flights_exit_2(tmp_path, capsys):
+    garbage_blf = tmp_path / "garbage.blf"
+    garbage_blf.write_bytes(b"LOGG" + bytes(range(200)))
+    assert "garbage.blf" in _one_line_exit_2([str(garbage_blf), "--out", str(tmp_path / "x.yaml")], capsys)
+    text_csv = tmp_path / "text.csv"
+    text_csv.write_text("time_s,rpm\nfoo,bar\n")
+    assert "text.csv" in _one_line_exit_2([str(text_csv), "--out", str(tmp_path / "x.yaml")], capsys)
+    assert "not a file" in _one_line_exit_2([str(tmp_path), "--out", str(tmp_path / "x.yaml")], capsys)
+    other = tmp_path / "flight.txt"
+    other.write_text("not a log\n")
+    assert "unknown log format" in _one_line_exit_2([str(other), "--out", str(tmp_path / "x.yaml")], capsys)
+
+
 def test_csv_without_the_models_inputs_exits_2(nominal, tmp_path, capsys):
     folder, _ = nominal
     lines = (folder / "short.csv").read_text().splitlines()

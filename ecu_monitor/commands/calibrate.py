@@ -62,9 +62,9 @@ def _run(args: argparse.Namespace) -> int:
     out = _check(args, config_path)
     config = load_config(config_path)
     params = load_model(args.model) if args.model else config.load_params()
-    missing = [p for p in args.flights if not Path(p).is_file()]
-    if missing:
-        raise FlightLogError(f"{missing[0]}: no such file")
+    for flight in args.flights:
+        if not Path(flight).is_file():
+            raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")
 
     from tqdm import tqdm
 
