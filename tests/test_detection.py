@@ -130,6 +130,20 @@ def test_calibration_on_few_hours_stays_above_what_was_seen() -> None:
     paths = [np.linspace(0.0, 3.0, 7200), np.linspace(0.0, 1.0, 7200)]
     cal = calibrate_threshold(paths, 1.0, margin=1.2)
     assert cal.threshold >= 1.2 * 3.0 - 1e-9
+    # flights whose statistic peaks in the last part-hour (landing): h stays above that peak too
+    landing = [np.concatenate([np.zeros(3600), np.linspace(0.0, 6.0, 1200)]) for _ in range(3)]
+    cal = calibrate_threshold(landing, 1.0)
+    assert cal.hours == 3
+    assert cal.threshold >= 1.1 * 6.0 - 1e-9
+
+
+def test_enough_hours_use_the_part_hours_in_the_empirical_quantile() -> None:
+    # 400 flights of 1 h 20 min, flat in the whole hour, 5.0 in the last 20 min of 16 of them
+    paths = [np.concatenate([np.full(3600, 0.5), np.full(1200, 5.0 if i < 16 else 0.5)]) for i in range(400)]
+    assert hourly_maxima(paths, 1.0).max() == 0.5
+    assert hourly_maxima(paths, 1.0, part_hours=True).size == 800
+    cal = calibrate_threshold(paths, 1.5)  # 16 of 800 maxima (2 %) above the 98.5 % quantile
+    assert cal.threshold == pytest.approx(5.0)
     with pytest.raises(ConfigError):
         calibrate_threshold([np.zeros(100)], 1.0)
     with pytest.raises(ConfigError):

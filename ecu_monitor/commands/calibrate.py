@@ -3,8 +3,8 @@
 Calibrates the detector's threshold h on your own NOMINAL flights (healthy engine): each flight is
 replayed through the service's pipeline (as ``ecu-monitor replay``: same estimator, symptom, warm-up
 and baseline), the CUSUM statistic is run without alarms, and a Gumbel law fitted to its hourly
-maxima gives h for --rate false alarms per 100 flight hours (never below 1.1 x the largest hourly
-maximum seen when the flights hold fewer hours than one expected alarm). Needs at least 2 whole hours
+maxima gives h for --rate false alarms per 100 flight hours (never below 1.1 x the largest statistic
+seen, landings included, when the flights hold fewer hours than one expected alarm). Needs at least 2 whole hours
 of statistic (after each flight's warm-up).
 
 Prints per flight: hours, largest statistic, alarms the current threshold would raise; then the new
@@ -102,8 +102,8 @@ def _run(args: argparse.Namespace) -> int:
     if c.hours * args.rate / 100.0 < 1.0:
         print(
             f"  {c.hours} whole hours is fewer than the {100.0 / args.rate:g} h of one expected alarm: the rate cannot"
-            f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest hourly"
-            f" maximum ({c.empirical_max:.3f})"
+            f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest statistic"
+            f" seen ({c.empirical_max:.3f})"
         )
     print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
     if args.plot:

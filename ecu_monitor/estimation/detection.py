@@ -27,7 +27,8 @@ Calibration (docs/detection_isolation.md): the CUSUM is run without alarms over 
 hours; the maximum of the statistic in each whole hour is an extreme value, so a Gumbel law is fitted
 to the hourly maxima (method of moments); the threshold with a rate r of false alarms per 100 flight
 hours is the Gumbel quantile at 1 - r/100, and never below the empirical bound (``margin`` times the
-largest hourly maximum seen when the calibration set is shorter than 100/r hours).
+largest statistic seen, part-hours at the end of flights included, when the calibration set is
+shorter than 100/r hours).
 :func:`count_alarms` scores it on a separate set of nominal flights.
 """
 
@@ -318,7 +319,7 @@ class ThresholdCalibration:
     """Result of :func:`calibrate_threshold`.
 
     threshold: the calibrated h. gumbel_threshold: the Gumbel quantile alone. empirical_max: the
-    empirical bound (margin x largest hourly maximum, or the empirical quantile, see
+    empirical bound (margin x the largest value seen, or the empirical quantile, see
     calibrate_threshold). gumbel_location, gumbel_scale: the fitted law of the hourly maxima.
     hours: number of whole nominal hours used. target_per_100h: the rate asked for.
     """
@@ -332,8 +333,11 @@ class ThresholdCalibration:
     target_per_100h: float
 
 
-def hourly_maxima(statistics: Sequence[NDArray[np.float64]], sample_period_s: float) -> NDArray[np.float64]:
-    """Maximum of each whole hour of each statistic path (paths sampled every sample_period_s)."""
+def hourly_maxima(
+    statistics: Sequence[NDArray[np.float64]], sample_period_s: float, *, part_hours: bool = False
+) -> NDArray[np.float64]:
+    """Maximum of each whole hour of each statistic path (paths sampled every sample_period_s);
+    ``part_hours``: also the maximum of each path's trailing part-hour."""
     per_hour = round(3600.0 / sample_period_s)
     out: list[float] = []
     for path in statistics:
@@ -341,6 +345,8 @@ def hourly_maxima(statistics: Sequence[NDArray[np.float64]], sample_period_s: fl
         whole = values.size // per_hour
         if whole:
             out.extend(values[: whole * per_hour].reshape(whole, per_hour).max(axis=1).tolist())
+        if part_hours and values.size > whole * per_hour:
+            out.append(float(values[whole * per_hour :].max()))
     return np.asarray(out)
 
 
@@ -358,12 +364,15 @@ def calibrate_threshold(
     ``sample_period_s`` (the block length). Each whole hour contributes its maximum; a Gumbel law
     (method of moments: scale = std sqrt(6)/pi, location = mean - 0.5772 scale) is fitted to these
     maxima and h is its quantile at 1 - rate/100 per hour, raised to the empirical bound if that is
-    higher (the fit must not undercut what was seen): ``margin`` x the largest hourly maximum when the
-    set holds fewer hours than one expected alarm (100 / rate), else the empirical 1 - rate/100
-    quantile of the hourly maxima. ``minimum`` (1 degC for a degC/s symptom: 0.1 degC/s of excess for
-    10 s) keeps h away from 0 when the nominal statistic almost never leaves 0 (a gated test): the
-    calibration set then carries no information about the tail, and h ~ 0 would alarm on any single
-    block above the allowance.
+    higher (the fit must not undercut what was seen): ``margin`` x the largest value of any path when
+    the set holds fewer hours than one expected alarm (100 / rate), else the empirical 1 - rate/100
+    quantile of the hourly maxima with each path's trailing part-hour as one more maximum. The
+    part-hours count for the empirical bound, not for the Gumbel law of whole-hour maxima: a flight
+    ends with descent, landing and taxi, where the nominal statistic often peaks, and a bound that
+    dropped them would set h below what the calibration flights themselves reach. ``minimum`` (1 degC
+    for a degC/s symptom: 0.1 degC/s of excess for 10 s) keeps h away from 0 when the nominal
+    statistic almost never leaves 0 (a gated test): the calibration set then carries no information
+    about the tail, and h ~ 0 would alarm on any single block above the allowance.
     """
     if not 0.0 < target_false_alarms_per_100h < 100.0:
         raise ConfigError(
@@ -377,9 +386,11 @@ def calibrate_threshold(
     p_hour = target_false_alarms_per_100h / 100.0
     gumbel = location - scale * math.log(-math.log(1.0 - p_hour))
     if p_hour * maxima.size < 1.0:  # fewer hours than one expected alarm: stay above all we saw
-        empirical = margin * float(np.max(maxima))
-    else:  # enough hours to see the rate: the empirical quantile of the hourly maxima
-        empirical = float(np.quantile(maxima, 1.0 - p_hour))
+        empirical = margin * max(float(np.max(path)) for path in nominal_statistics if len(path))
+    else:  # enough hours to see the rate: the empirical quantile of the hourly (and part-hour) maxima
+        empirical = float(
+            np.quantile(hourly_maxima(nominal_statistics, sample_period_s, part_hours=True), 1.0 - p_hour)
+        )
     threshold = max(gumbel, empirical, minimum)
     return ThresholdCalibration(
         threshold=threshold,

@@ -153,7 +153,7 @@ def calibration_method(calibration: ThresholdCalibration, minimum: float = 1.0) 
         return "Gumbel quantile of the hourly maxima"
     if c.threshold == c.empirical_max:
         if c.hours * c.target_per_100h / 100.0 < 1.0:
-            return "empirical bound: 1.1 x the largest hourly maximum (fewer hours than one expected alarm)"
+            return "empirical bound: 1.1 x the largest statistic seen (fewer hours than one expected alarm)"
         return f"empirical {1.0 - c.target_per_100h / 100.0:.4g} quantile of the hourly maxima"
     return f"floor of {minimum:g} (the statistic barely leaves 0 on these flights)"
 
@@ -174,7 +174,7 @@ def _header(result: CalibrationResult, rate_per_100h: float, sources: Sequence[s
     if c.hours * rate_per_100h / 100.0 < 1.0:
         lines.append(
             f"# fewer than {100.0 / rate_per_100h:g} hours (one expected alarm): the rate is not demonstrated;"
-            " the threshold is kept at or above 1.1 x the largest hourly maximum seen"
+            " the threshold is kept at or above 1.1 x the largest statistic seen on them"
         )
     return lines
 
