@@ -624,8 +624,8 @@ def _replay_segment(
     periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     step_numbers = np.arange(1, n + 1)
     symptom = deviation if config.detector_symptom == "estimator" else iso_dev
-    state = _detect(config, times, code, symptom, stretches)
     first, fed = _detector_feed(code, symptom, stretches)
+    state = _detect(config, times, code, first, fed, stretches)
     feed = (times[first:], fed[first:]) if stretches else None
     headroom = _headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
                          periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
@@ -663,10 +663,13 @@ def _detect(
     config: ServiceConfig,
     times: NDArray[np.float64],
     code: NDArray[np.int64],
-    symptom: NDArray[np.float64],
+    first: int,
+    fed: NDArray[np.float64],
     stretches: list[tuple[int, int]],
 ) -> NDArray[np.int64]:
     """Final state codes: the detector's verdict where the supervisor says NOMINAL.
+
+    ``first``, ``fed``: from :func:`_detector_feed` (where the detector starts, what it is fed).
 
     Equal to the live pipeline's per-step Detector.update (started at the first initialisation, fed
     NaN off NOMINAL steps): the symptom is averaged here over the very blocks Detector forms (block
@@ -679,7 +682,6 @@ def _detect(
         return state
     s = config.detector
     n = times.size
-    first, fed = _detector_feed(code, symptom, stretches)
     t0 = float(times[first])
     begin = t0 + s.warmup_s
     if float(times[-1]) < begin:
