@@ -27,11 +27,11 @@ import time
 import numpy as np
 
 from ecu_monitor.gap import GapSettings, diagnose, write_report
-from ecu_monitor.gap.blind import perturbed_nominal
 from ecu_monitor.gap.library import CANDIDATE_IDS, candidate, flight_references
 from ecu_monitor.gap.refit import RefitSettings, prepare_flight, refit
 from ecu_monitor.identify import identify
 from ecu_monitor.model import AirspeedCooling, Effects, SensorLag, paper_table_a1
+from ecu_monitor.research.blind import perturbed_nominal
 from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
 

@@ -20,9 +20,9 @@ import yaml
 from ecu_monitor.cli import main
 from ecu_monitor.commands.replay import DEFAULT_CONFIG
 from ecu_monitor.estimation.detection import calibrate_threshold, cusum_path
-from ecu_monitor.estimation.evaluation import residual_effects
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import paper_table_a1, save_model
+from ecu_monitor.research.evaluation import residual_effects
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.pipeline import STATES
 from ecu_monitor.service.replay import frames_from_flight, read_frames, replay_file

@@ -160,7 +160,8 @@ def test_settings_are_validated() -> None:
 
 
 def test_evaluation_plan_and_one_simulated_flight() -> None:
-    from ecu_monitor.estimation.evaluation import (
+    from ecu_monitor.model import paper_table_a1
+    from ecu_monitor.research.evaluation import (
         SYMPTOMS,
         EvaluationConfig,
         FlightCase,
@@ -168,7 +169,6 @@ def test_evaluation_plan_and_one_simulated_flight() -> None:
         residual_effects,
         simulate_case,
     )
-    from ecu_monitor.model import paper_table_a1
 
     config = EvaluationConfig(hours=3.0, degraded_seeds=1, full_size_hours=1.0)
     cases = plan_cases(config)

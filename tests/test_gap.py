@@ -11,11 +11,11 @@ import pytest
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
-from ecu_monitor.gap.blind import CASE_KINDS, blind_case, run_blind_case
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
 from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
 from ecu_monitor.model import SensorLag, load_model, paper_table_a1
+from ecu_monitor.research.blind import CASE_KINDS, blind_case, run_blind_case
 from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
 

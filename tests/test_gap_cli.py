@@ -9,8 +9,8 @@ import pytest
 
 from ecu_monitor.cli import main
 from ecu_monitor.flightlog import write_csv
-from ecu_monitor.gap.blind import blind_case
 from ecu_monitor.model import load_model, save_model
+from ecu_monitor.research.blind import blind_case
 
 SEED = 1
 DURATION_S = 1500.0

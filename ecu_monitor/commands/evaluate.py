@@ -3,7 +3,7 @@
 Simulates nominal and degraded flights with the virtual ECU and measures degradation detection
 (false alarms per 100 flight hours, detection delay), isolation of gamma_Q vs gamma_D, the CBEKF-AU
 reset (midpoint vs boundary) and the thermal headroom against the truth plant; writes
-OUT/detection.md and plots under OUT/detection/ (ecu_monitor.estimation.evaluation).
+OUT/detection.md and plots under OUT/detection/ (ecu_monitor.research.evaluation).
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def _run(args: argparse.Namespace) -> int:
     _check(args)
     from tqdm import tqdm
 
-    from ecu_monitor.estimation.evaluation import (
+    from ecu_monitor.research.evaluation import (
         EvaluationConfig,
         headroom_check,
         run_campaign,

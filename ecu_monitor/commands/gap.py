@@ -108,7 +108,7 @@ def _settings(args: argparse.Namespace) -> GapSettings:
 
 
 def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
-    from ecu_monitor.gap.blind import blind_markdown, confusion_matrix, run_blind_cases, summary
+    from ecu_monitor.research.blind import blind_markdown, confusion_matrix, run_blind_cases, summary
 
     if args.blind < 1:
         raise UserInputError(f"--blind: expected a positive number of cases, got {args.blind}")

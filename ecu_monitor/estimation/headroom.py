@@ -9,7 +9,7 @@ state monotonically (first-order wall, all-pass first-order delay), so when the 
 below the limit the answer is "not limited" (``cap_s``) without integrating.
 
 Used by the service (Health_Isolation.ThermalHeadroom, ChtLimitMargin) and checked against the truth
-plant in :mod:`ecu_monitor.estimation.evaluation`.
+plant in :mod:`ecu_monitor.research.evaluation`.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ it, and how far the held-out error shrinks once it is added.
 
 Start with :func:`diagnose` (nominal model + train and test flights -> :class:`GapDiagnosis`) and
 :func:`write_report` (gap.json, report.md, plots, model.yaml); the blind cases are in
-:mod:`ecu_monitor.gap.blind`.
+:mod:`ecu_monitor.research.blind`.
 """
 
 from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis, GapSettings, diagnose

@@ -47,7 +47,7 @@ __all__ = [
 
 #: calibrate_threshold needs at least this many whole hours of statistic.
 MIN_WHOLE_HOURS = 2
-#: The threshold of the "no alarm" CUSUM run for calibration (as estimation.evaluation.score).
+#: The threshold of the "no alarm" CUSUM run for calibration (as research.evaluation.score).
 UNBOUNDED_THRESHOLD = 1e300
 
 
