@@ -15,19 +15,24 @@ import numpy as np
 import pytest
 
 from ecu_monitor.bus.checksum import frame_checksum
-from ecu_monitor.errors import ConfigError, FlightLogError
+from ecu_monitor.errors import ConfigError, FlightLogError, UserInputError
 from ecu_monitor.flightlog import (
     CANONICAL_COLUMNS,
     DEFAULT_ENGINE_DBC,
     DEFAULT_SIGNAL_MAP,
     MAPPINGS_DIR,
     FlightLog,
+    cht_peak,
+    cylinder_columns,
+    describe_cht,
+    detect_layout,
     import_can_log,
     import_mapped_csv,
     load_flight,
     load_mapping,
     read_csv,
     resolve_mapping,
+    seconds_above,
     write_csv,
 )
 
@@ -314,13 +319,14 @@ def test_g1000_import() -> None:
     for name in CANONICAL_COLUMNS[2:]:
         assert log.has(name)
     assert 6100 < len(log) < 6250 and 6300 < log.duration_s < 6400  # ~105 min with skipped seconds
-    assert log.time_s[0] == 0.0 and np.all(np.diff(log.time_s) >= 1.0)
+    assert log.time_s[0] == 0.0 and log.time_s[1] == 0.5  # the second logged twice at the start: both rows kept
     assert log["airspeed_mps"].min() == 0.0  # slightly negative IAS clipped
     cht = log["cht_c"]
     assert 30 < cht[0] < 45 and 150 < cht.max() < 200  # engine warming from a cold start, cruise ~170 degC
     assert 1000 < log["altitude_m"].max() < 1200  # climb to 3,500 ft
     notes = " | ".join(log.notes)
-    assert "truncated last row" in notes and "repeated timestamp" in notes and "clipped to 0" in notes
+    assert "truncated last row" in notes and "share a whole-second stamp" in notes and "clipped to 0" in notes
+    assert cylinder_columns(log, "cht") == ["cht1_c", "cht2_c", "cht3_c", "cht4_c"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -485,3 +491,248 @@ def test_trailing_comma_column_is_dropped(tmp_path: Path) -> None:
     text = "\n".join([HEADER + ",", *(row + "," for row in _good(3))]) + "\n"
     log = read_csv(_write(tmp_path, text))
     assert log.names == CANONICAL_COLUMNS and len(log) == 3
+
+
+# --------------------------------------------------------------------------------------------------
+# Real exports: layouts, firmware versions, engines and cylinders
+# --------------------------------------------------------------------------------------------------
+
+REAL_DIR = G1000_CSV.parents[1] / "real"
+
+G1000_UNITS = "#yyy-mm-dd, hh:mm:ss, hh:mm, ft, deg C, kt, gph, rpm, {cht}, {cht}, deg F, deg F, deg F, fpm"
+G1000_NAMES = "  Lcl Date, Lcl Time, UTCOfst, {alt}, OAT, IAS, " + (
+    "E1 FFlow, E1 RPM, E1 CHT1, E1 CHT2, E1 EGT1, E1 EGT2, E1 OilT, VSpd"
+)
+
+
+def _g1000(
+    tmp_path: Path,
+    rows: list[tuple[str, str, str]],
+    *,
+    date_style: str = "iso",
+    alt: str = "AltB",
+    cht_unit: str = "deg F",
+    trailing: str = "",
+) -> Path:
+    """A small G1000 export: rows of (time, altitude ft, 'CHT1 CHT2' degF) on 2023-04-24 (or 2023/4/24)."""
+    date = "2023-04-24" if date_style == "iso" else "2023/4/24"
+    header = '#airframe_info, log_version="1.01", airframe_name="Cessna 172S", system_id="25BA2E6F4"'
+    if date_style != "iso":
+        header += ', flightstream_header="25BA2E6F4_20000101_000000", ,,,,,,'
+    lines = [header, G1000_UNITS.format(cht=cht_unit) + trailing, G1000_NAMES.format(alt=alt) + trailing]
+    for clock, altitude, chts in rows:
+        c1, c2 = chts.split()
+        lines.append(
+            f"{date}, {clock}, +08:00, {altitude}, 15.0, 60.0, 10.0, 2400, {c1}, {c2}, 1300, 1400, 180, 0{trailing}"
+        )
+    path = tmp_path / f"g1000_{date_style}_{alt}.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _degc(f: float) -> float:
+    return (f - 32.0) * 5.0 / 9.0
+
+
+GOOD_ROWS = [
+    ("10:00:00", "1000", "300 320"),
+    ("10:00:01", "1010", "302 322"),
+    ("10:00:01", "1020", "304 324"),  # a second logged twice: spread over that second
+    ("10:00:03", "", "306 326"),  # a skipped second; blank altitude (interpolated)
+    ("10:00:04", "1040", "308 328"),
+]
+
+
+@pytest.mark.parametrize(("date_style", "alt"), [("iso", "AltB"), ("slash", "AltInd")])
+def test_g1000_firmware_versions_import_alike(date_style: str, alt: str, tmp_path: Path) -> None:
+    path = _g1000(tmp_path, GOOD_ROWS, date_style=date_style, alt=alt, trailing=", ," if alt == "AltInd" else "")
+    for log in (load_flight(path), load_flight(path, mapping="g1000")):  # recognised, or named
+        assert log.time_s.tolist() == [0.0, 1.0, 1.5, 3.0, 4.0]
+        feet = [1000, 1010, 1020, 1020 + 20 * 1.5 / 2.5, 1040]  # the blank at 3 s interpolated in time
+        assert log["altitude_m"].tolist() == pytest.approx([0.3048 * f for f in feet])
+        assert log["airspeed_mps"][0] == pytest.approx(60 * 1852 / 3600)
+        assert log["fuel_flow_lph"][0] == pytest.approx(37.85411784)
+        assert log["cht1_c"].tolist() == pytest.approx([_degc(f) for f in (300, 302, 304, 306, 308)])
+        assert log["cht2_c"].tolist() == pytest.approx([_degc(f) for f in (320, 322, 324, 326, 328)])
+        assert log["cht_c"].tolist() == pytest.approx([_degc(f) for f in (310, 312, 314, 316, 318)])  # the mean
+        assert log["egt_c"][0] == pytest.approx(_degc(1350)) and log["egt_max_c"][0] == pytest.approx(_degc(1400))
+        assert log["oil_temp_c"][0] == pytest.approx(_degc(180))
+        assert describe_cht(log) == "mean of cylinders 1, 2"
+        notes = " | ".join(log.notes)
+        assert "1 row(s) share a whole-second stamp" in notes and "'altitude_m': 1 blank field(s) interpolated" in notes
+
+
+def test_cht_choice_mean_hottest_or_one(tmp_path: Path) -> None:
+    rows = [("10:00:00", "1000", "300 320"), ("10:00:01", "1000", "340 320"), ("10:00:02", "1000", "350 310")]
+    path = _g1000(tmp_path, rows)
+    hottest = load_flight(path, cht="hottest")
+    assert hottest["cht_c"].tolist() == pytest.approx([_degc(320), _degc(340), _degc(350)])
+    assert describe_cht(hottest) == "hottest of cylinders 1, 2 (per row)"
+    second = load_flight(path, cht="2")
+    assert second["cht_c"].tolist() == pytest.approx([_degc(320)] * 2 + [_degc(310)])
+    assert describe_cht(second) == "cylinder 2 of 1, 2"
+    with pytest.raises(FlightLogError, match=r"cylinder 3 chosen for cht_c, the log has cylinder\(s\) 1, 2"):
+        load_flight(path, cht=3)
+    with pytest.raises(UserInputError, match=r"CHT choice 'coolest': expected mean, hottest or a cylinder number"):
+        load_flight(path, cht="coolest")
+    peak = cht_peak(second)
+    assert (peak.cylinder, peak.column, peak.time_s) == (1, "cht1_c", 2.0)
+    assert peak.value_c == pytest.approx(_degc(350))
+    assert seconds_above(second, _degc(330)) == 1.0  # 340 F at 1 s (interval 1-2 s); 350 F is the last sample
+    # per-cylinder columns survive the canonical CSV, and the choice can be remade from it
+    out = tmp_path / "flight.csv"
+    write_csv(second, out)
+    again = read_csv(out)
+    assert again.names[: len(CANONICAL_COLUMNS) - 1] == CANONICAL_COLUMNS[:1] + CANONICAL_COLUMNS[2:]
+    assert describe_cht(again) == "cylinder 2 of 1, 2"
+    assert describe_cht(load_flight(out, cht="mean")) == "mean of cylinders 1, 2"
+
+
+def test_units_row_of_the_file_wins(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    path = _g1000(tmp_path, [("10:00:00", "1000", "150 160"), ("10:00:01", "1000", "151 161")], cht_unit="deg C")
+    log = load_flight(path)
+    assert log["cht1_c"].tolist() == [150.0, 151.0] and log["cht_c"][0] == 155.0
+    assert "column 'E1 CHT1': the file's units row says 'deg C': read as degC, not the mapping's degF" in log.notes
+    wrong = _g1000(tmp_path, [("10:00:00", "1000", "150 160")], cht_unit="kt")
+    with pytest.raises(FlightLogError, match=r"row 2, column 'E1 CHT1': unit 'kt' is a speed unit, 'cht1_c' needs"):
+        load_flight(wrong)
+
+
+NGAFID_NAMES = "AltAGL,AltB,E1 CHT1,E1 EGT1,E1 EGT2,E1 FFlow,E1 MAP,E1 RPM,{twin}IAS,OAT,VSpd"
+NGAFID_TWIN = "E2 CHT1,E2 EGT1,E2 EGT2,E2 FFlow,E2 MAP,E2 RPM,"
+
+
+def _ngafid(tmp_path: Path, *, time: bool, units: bool, twin: bool) -> Path:
+    names = NGAFID_NAMES.format(twin=NGAFID_TWIN if twin else "")
+    lines = [("Time," if time else "") + names]
+    if units:
+        unit_text = "ft,ft,deg F,deg F,deg F,gph,inch,rpm," + ("deg F,deg F,deg F,gph,inch,rpm," if twin else "")
+        lines.append(("s," if time else "") + unit_text + "kt,deg C,fpm")
+    for k in range(4):
+        cht = "NaN" if k == 2 else str(350 + k)
+        e2 = f"{300 + k},1200,1250,8.0,20.0,2300," if twin else ""
+        row = f"10,{2000 + 10 * k},{cht},1300,1320,10.0,25.0,2500,{e2}90,12.5,100"
+        lines.append((f"{10 + 2 * k}," if time else "") + row)
+    path = tmp_path / f"ngafid_time{int(time)}_units{int(units)}_twin{int(twin)}.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(("time", "units"), [(True, False), (False, True), (True, True)])
+def test_ngafid_processed_layout(time: bool, units: bool, tmp_path: Path) -> None:
+    log = load_flight(_ngafid(tmp_path, time=time, units=units, twin=False))
+    assert log.time_s.tolist() == ([0.0, 2.0, 4.0, 6.0] if time else [0.0, 1.0, 2.0, 3.0])
+    assert log["altitude_m"].tolist() == pytest.approx([0.3048 * (2000 + 10 * k) for k in range(4)])
+    expected_f = [350.0, 351.0, (351.0 + 353.0) / 2 if time else 352.0, 353.0]  # NaN interpolated in time
+    assert log["cht_c"].tolist() == pytest.approx([_degc(f) for f in expected_f])
+    assert log["manifold_pressure_kpa"][0] == pytest.approx(25.0 * 3.386389)
+    assert log["oat_c"][0] == 12.5 and log["egt_c"][0] == pytest.approx(_degc(1310))
+    assert describe_cht(log) == "cylinder 1 (the only one)"
+    assert any("no column 'Time'" in n for n in log.notes) is not time
+
+
+def test_twin_engine_is_the_users_choice(tmp_path: Path) -> None:
+    path = _ngafid(tmp_path, time=True, units=True, twin=True)
+    with pytest.raises(FlightLogError, match=r"2 engines \('E1 RPM', 'E2 RPM'\): choose one with --engine N"):
+        load_flight(path)
+    first, second = load_flight(path, engine=1), load_flight(path, engine=2)
+    assert first["rpm"][0] == 2500 and second["rpm"][0] == 2300
+    assert first["cht_c"][0] == pytest.approx(_degc(350)) and second["cht_c"][0] == pytest.approx(_degc(300))
+    assert second["fuel_flow_lph"][0] == pytest.approx(8.0 * 3.785411784)
+    with pytest.raises(FlightLogError, match=r"no engine 3 in the file \(engines: 1, 2\)"):
+        load_flight(path, engine=3)
+    single = _g1000(tmp_path, GOOD_ROWS)
+    with pytest.raises(FlightLogError, match=r"no engine 2 in the file \(engines: 1\)"):
+        load_flight(single, engine=2)
+
+
+def test_unknown_layout_says_why_no_layout_fits(tmp_path: Path) -> None:
+    path = _write(tmp_path, "Clock,Height,Temp\n1,2,3\n", "other.csv")
+    with pytest.raises(FlightLogError) as info:
+        load_flight(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: not a canonical flight CSV (no column 'time_s') and no known layout fits")
+    assert "g1000: no column 'Lcl Date'" in message and "ngafid_processed: no column 'AltB' or 'AltInd'" in message
+    assert "--mapping FILE" in message and "\n" not in message
+
+
+def test_detect_layout(tmp_path: Path) -> None:
+    assert detect_layout(DATA / "flight_small.csv") is None  # canonical
+    assert detect_layout(_g1000(tmp_path, GOOD_ROWS)) == MAPPINGS_DIR / "g1000.yaml"
+    assert detect_layout(_ngafid(tmp_path, time=False, units=True, twin=True)) == MAPPINGS_DIR / "ngafid_processed.yaml"
+
+
+BAD_CYLINDER_MAPPINGS = {
+    "no placeholder": (
+        'cht: {column: "E{engine} CHT{n}"',
+        'cht: {column: "E{engine} CHT1"',
+        r"cylinder number placeholder",
+    ),
+    "cht_c mapped too": ("columns:\n", 'columns:\n  cht_c: {column: "E1 CHT1", unit: degF}\n', r"cht_c is made from"),
+    "optional canonical": (
+        '{column: "IAS", unit: kt}',
+        '{column: "IAS", unit: kt, optional: true}',
+        r"cannot be optional",
+    ),
+    "units row inside data": ("units_row: 2", "units_row: 5", r"key 'units_row': expected a line above the header"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CYLINDER_MAPPINGS))
+def test_bad_cylinder_mapping_names_key(case: str, tmp_path: Path) -> None:
+    old, new, pattern = BAD_CYLINDER_MAPPINGS[case]
+    text = (MAPPINGS_DIR / "g1000.yaml").read_text()
+    assert old in text
+    mapping = _write(tmp_path, text.replace(old, new, 1), "bad.yaml")
+    with pytest.raises(ConfigError, match=pattern) as info:
+        load_mapping(mapping)
+    assert str(info.value).startswith(f"{mapping}: ")
+
+
+def test_cli_import_several_files_one_line_per_bad_file(tmp_path: Path) -> None:
+    good = _g1000(tmp_path, GOOD_ROWS)
+    twin = _ngafid(tmp_path, time=True, units=False, twin=True)
+    bad = _write(tmp_path, "Clock,Height\n1,2\n", "other.csv")
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    result = _cli(
+        "--log-level", "ERROR", "import", good, twin, bad, "--out-dir", out_dir, "--cht", "hottest", cwd=tmp_path
+    )
+    assert result.returncode == 2
+    errors = result.stderr.strip().splitlines()
+    assert len(errors) == 2
+    assert f"{twin}: 2 engines" in errors[0] and f"{bad}: not a canonical flight CSV" in errors[1]
+    assert result.stdout.count("\n") == 1 and "cht_c = hottest of cylinders 1, 2 (per row)" in result.stdout
+    assert read_csv(out_dir / good.name).has("cht2_c")
+    result = _cli("--log-level", "ERROR", "import", twin, "--engine", "2", "--out", tmp_path / "e2.csv", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "cht_c = cylinder 1 (the only one)" in result.stdout
+
+
+# README durations of the given flights (minutes); every given export must import.
+REAL_FLIGHTS = {
+    "ngafid_c172s_n550nd_20170504_1559.csv": 106,
+    "ngafid_c172s_n550nd_20170504_1836.csv": 96,
+    "ngafid_c172s_n550nd_20170505_0835.csv": 110,
+    "ngafid_c172s_n550nd_20170509_1456.csv": 82,
+    "cafuc_c172s_25BA_20230424_circuits.csv": 60,
+    "cafuc_c172r_2D87_20230425_circuits.csv": 52,
+    "ngafid_pa44_flight_17270.csv": 90,
+}
+
+
+@pytest.mark.skipif(not REAL_DIR.exists(), reason=f"shared real flight data not found at {REAL_DIR}")
+@pytest.mark.parametrize("name", sorted(REAL_FLIGHTS))
+def test_every_given_real_export_imports(name: str) -> None:
+    twin = "pa44" in name
+    log = load_flight(REAL_DIR / name, engine=1 if twin else None)
+    assert abs(log.duration_s / 60.0 - REAL_FLIGHTS[name]) < 1.0
+    assert np.all(np.diff(log.time_s) > 0.0) and np.median(np.diff(log.time_s)) == 1.0
+    chts = cylinder_columns(log, "cht")
+    assert len(chts) == (1 if twin else 4) and len(cylinder_columns(log, "egt")) == 4
+    stack = np.vstack([log[c] for c in chts])
+    assert np.all(log["cht_c"] >= stack.min(axis=0)) and np.all(log["cht_c"] <= stack.max(axis=0))
+    for column in ("rpm", "fuel_flow_lph", "altitude_m", "airspeed_mps", "oat_c", "egt_c", "oil_temp_c"):
+        assert np.all(np.isfinite(log[column])), column
+    assert 60.0 < np.median(log["cht_c"]) < 250.0  # degC, not degF
+    assert log.has("manifold_pressure_kpa") is twin
