@@ -87,13 +87,14 @@ otherwise the shipped mappings (``g1000``: Garmin G1000 exports of every firmwar
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as _dt
 import logging
 import math
 import os
 import re
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -410,6 +411,19 @@ class FlightLog:
 # --------------------------------------------------------------------------------------------------
 
 
+@contextlib.contextmanager
+def _reading(src: str) -> Iterator[None]:
+    """Turn the errors of opening, reading and decoding a text file into one-line FlightLogErrors."""
+    try:
+        yield
+    except FileNotFoundError:
+        raise FlightLogError(f"{src}: no such file") from None
+    except UnicodeDecodeError as exc:
+        raise FlightLogError(f"{src}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
+    except OSError as exc:
+        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from exc
+
+
 class _Table(NamedTuple):
     header: list[str]
     rows: list[tuple[int, list[str]]]  # (1-based file line, fields as in the file, padding kept)
@@ -428,7 +442,7 @@ def _read_table(
     src = str(path)
     before: dict[int, list[str]] = {}
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
+        with _reading(src), path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.reader(fh, delimiter=delimiter)
             header: list[str] | None = None
             rows: list[tuple[int, list[str]]] = []
@@ -449,12 +463,6 @@ def _read_table(
                 if len(fields) > width and not "".join(fields[width:]).strip():
                     del fields[width:]
                 rows.append((line, fields))  # fields keep their padding: readers strip what they use
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise FlightLogError(f"{src}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
     except csv.Error as exc:
         raise FlightLogError(f"{src}: row {reader.line_num}: malformed CSV: {exc}") from exc
     if header is None or not any(header):
@@ -1211,15 +1219,8 @@ def detect_layout(path: str | os.PathLike[str]) -> Path | None:
     mappings = [load_mapping(p) for p in sorted(MAPPINGS_DIR.glob("*.yaml"))]
     depth = max([1, *(m.header_row for m in mappings)])
     delimiters = {m.delimiter for m in mappings} | {","}
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            head = [fh.readline() for _ in range(depth)]
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise FlightLogError(f"{src}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
+    with _reading(src), path.open(newline="", encoding="utf-8-sig") as fh:
+        head = [fh.readline() for _ in range(depth)]
     if not head[0].strip():
         raise FlightLogError(f"{src}: empty file, expected a header row")
     split = {d: [[f.strip() for f in next(csv.reader([line], delimiter=d), [])] for line in head] for d in delimiters}
