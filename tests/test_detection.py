@@ -226,3 +226,30 @@ def test_steady_gate_holds_the_test_after_a_throttle_change_and_on_the_ground() 
     assert out.state == "NOMINAL"
     late = np.where((t >= 600.0) & (t < 700.0), 0.3, 0.0)
     assert cusum_path(t, late, detector, steady=mask)[2].size == 1
+
+
+def test_overlay_degradation_follows_the_first_order_rise_of_cht_minus_oat() -> None:
+    from ecu_monitor.errors import ParameterError
+    from ecu_monitor.estimation.detection import overlay_degradation
+
+    t = np.arange(0.0, 3000.0, 1.0) + 500.0  # a clock that does not start at 0
+    cht = 150.0 + 20.0 * np.sin(t / 300.0)
+    oat = np.full(t.size, 10.0)
+    cht[5] = np.nan  # a missing reading before the onset stays missing
+    out = overlay_degradation(t, cht, oat, onset_s=1500.0, gain=0.2, time_constant_s=240.0)
+    before = t < 1500.0
+    np.testing.assert_array_equal(out[before], cht[before])  # untouched before the onset (nan included)
+    after = ~before
+    expected = cht[after] + 0.2 * (cht[after] - oat[after]) * (1.0 - np.exp(-(t[after] - 1500.0) / 240.0))
+    np.testing.assert_allclose(out[after], expected, rtol=0, atol=1e-12)
+    # one time constant after the onset: 63 % of the final rise; long after: (CHT - OAT) x 1.2
+    i = int(np.searchsorted(t, 1740.0))
+    assert out[i] - cht[i] == pytest.approx(0.2 * (cht[i] - 10.0) * (1.0 - math.exp(-1.0)), rel=1e-9)
+    assert (out[-1] - 10.0) / (cht[-1] - 10.0) == pytest.approx(1.2, abs=1e-3)
+    assert np.all(np.isnan(out) == np.isnan(cht))
+    with pytest.raises(ParameterError, match="gain"):
+        overlay_degradation(t, cht, oat, onset_s=1500.0, gain=-0.1)
+    with pytest.raises(ParameterError, match="time_constant_s"):
+        overlay_degradation(t, cht, oat, onset_s=1500.0, gain=0.1, time_constant_s=0.0)
+    with pytest.raises(ParameterError, match="one length"):
+        overlay_degradation(t, cht[:-1], oat, onset_s=1500.0, gain=0.1)

@@ -44,7 +44,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.errors import ConfigError
+from ecu_monitor.errors import ConfigError, ParameterError
 
 __all__ = [
     "STATES",
@@ -59,6 +59,7 @@ __all__ = [
     "count_alarms",
     "cusum_path",
     "hourly_maxima",
+    "overlay_degradation",
     "steady_mask",
 ]
 
@@ -401,6 +402,45 @@ def calibrate_threshold(
         hours=int(maxima.size),
         target_per_100h=float(target_false_alarms_per_100h),
     )
+
+
+# --------------------------------------------------------------------------------------------------
+# A degradation overlaid on a recorded nominal flight (for testing the detector on real engines)
+# --------------------------------------------------------------------------------------------------
+
+
+def overlay_degradation(
+    time_s: NDArray[np.float64],
+    cht_c: NDArray[np.float64],
+    oat_c: NDArray[np.float64],
+    onset_s: float,
+    gain: float,
+    time_constant_s: float = 240.0,
+) -> NDArray[np.float64]:
+    """The CHT of a nominal flight with a heat-up degradation overlaid from ``onset_s`` (s, the clock of
+    ``time_s``): ``cht + gain (cht - oat)(1 - exp(-(t - onset)/time_constant_s))`` for t >= onset, the
+    recorded CHT before. ``gain`` 0.1 and 0.2 give at steady state the rise of (CHT - OAT) that
+    gamma_Q = 1.1 and 1.2 give; the first-order approach (time constant about 240 s) is that of the
+    head's response. Non-finite readings stay as they are. ParameterError on bad arguments.
+    """
+    t = np.asarray(time_s, dtype=float)
+    cht = np.asarray(cht_c, dtype=float)
+    oat = np.asarray(oat_c, dtype=float)
+    if t.shape != cht.shape or t.shape != oat.shape or t.ndim != 1:
+        raise ParameterError(f"overlay_degradation: time, CHT and OAT must be 1-D of one length, got {t.shape},"
+                             f" {cht.shape}, {oat.shape}")  # fmt: skip
+    for name, value, low in (
+        ("onset_s", onset_s, -math.inf),
+        ("gain", gain, 0.0),
+        ("time_constant_s", time_constant_s, 0.0),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < low:
+            raise ParameterError(f"overlay_degradation: {name} must be a finite number >= {low}, got {value!r}")
+    if time_constant_s <= 0.0:
+        raise ParameterError(f"overlay_degradation: time_constant_s must be > 0, got {time_constant_s!r}")
+    elapsed = np.maximum(t - onset_s, 0.0)
+    rise = gain * (cht - oat) * -np.expm1(-elapsed / time_constant_s)
+    return np.where(t >= onset_s, cht + rise, cht)
 
 
 # --------------------------------------------------------------------------------------------------

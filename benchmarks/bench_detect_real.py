@@ -1,0 +1,226 @@
+"""The detector on a real engine: leave-one-flight-out over nominal flights with degradations overlaid.
+
+    nice -n 10 .venv/bin/python benchmarks/bench_detect_real.py FLIGHT.csv FLIGHT.csv ... \\
+        [--mapping g1000] [--heat-axes fuel_flow_lph,rpm] [--onset-every 900] [--jobs 2] [--json OUT.json]
+
+For each flight in turn (the held-out flight), as a user commissioning the monitor would:
+
+1. ``ecu-monitor identify`` on the other flights (``--heat-axes``) -> model.yaml;
+2. the detector threshold calibrated on the other flights through the service's replay path
+   (``service.calibration.flight_statistic`` + ``calibrate_flights``, what ``ecu-monitor calibrate`` runs);
+3. the held-out flight replayed nominal (any crossing of h = a false DEGRADED), and with a degradation
+   overlaid (``detection.overlay_degradation``: CHT + k (CHT - OAT)(1 - exp(-(t - t0)/240 s))) for
+   k = 0.2 and 0.1 at onsets t0 every ``--onset-every`` s from the end of the warm-up to 600 s before
+   the end of the flight; detected = the statistic crosses h at or after t0 (targets: k = 0.2 within
+   300 s, k = 0.1 within 600 s).
+
+The replays run the service's batch path on the frames the ECU would have sent for each flight
+(``frames_from_flight`` + ``replay_frames``); the detector's input (``ReplayResult.detector_feed``) is
+kept, so the CUSUM of each detector variant (``--variant baseline_s:delay_s:reference``; the config's
+detector first) is evaluated on the same feeds, each with its own calibrated threshold. Inputs may be
+canonical CSVs or foreign CSVs with ``--mapping`` (e.g. raw G1000 exports). Work files go to a temporary
+folder. Prints one table per variant; ``--json`` keeps every delay.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+LIMITS = {0.2: 300.0, 0.1: 600.0}  # overlay gain -> detection target, s
+UNBOUNDED = 1e300
+#: --effects: start value of the parameter each effect frees (listed first; the others keep their defaults)
+EFFECT_STARTS = {"airspeed_cooling": {"gain_per_mps": 0.01}, "density_cooling": {"exponent": 0.3}}
+
+
+def _feeds(args: tuple[str, str, str, list[tuple[float, float]]]) -> list[Any]:
+    """Replay one flight nominal (onset nan) and with each overlay; returns the detector feeds.
+
+    The frames of the nominal flight are built once; an overlay re-encodes only the message that
+    carries the CHT (with every signal it holds, from the overlaid log) and merges it back in time
+    order, so each overlay costs one replay and one message's encoding instead of all of them."""
+    flight, model, config_path, overlays = args
+    from ecu_monitor.estimation.detection import overlay_degradation
+    from ecu_monitor.flightlog import FlightLog, load_flight
+    from ecu_monitor.model import load_model
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.pipeline import model_input_names
+    from ecu_monitor.service.replay import FrameArrays, frames_from_flight, replay_frames
+
+    config = load_config(config_path)
+    params = load_model(model)
+    log = load_flight(flight)
+    needed = (*model_input_names(params), "cht_c")
+    nominal = frames_from_flight(log, config, needed)
+    cht_message = config.input("cht_c").message
+    with_cht = [spec.name for spec in config.inputs if spec.message == cht_message and log.has(spec.name)]
+    cht_id = frames_from_flight(FlightLog({"time_s": log.time_s[:2], "cht_c": log["cht_c"][:2]}), config, ["cht_c"])
+    others = nominal.take(nominal.arbitration_id != int(cht_id.arbitration_id[0]))
+    out = []
+    for onset, gain in overlays:
+        frames = nominal
+        if math.isfinite(onset):
+            t = log.time_s
+            cht = overlay_degradation(t, log["cht_c"], log["oat_c"], t[0] + onset, gain)
+            part = FlightLog({"time_s": t, **{n: (cht if n == "cht_c" else log[n]) for n in with_cht}})
+            patched = frames_from_flight(part, config, ["cht_c"])
+            merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(others, patched, strict=True)))
+            frames = merged.take(np.argsort(merged.time_s, kind="stable"))
+        result = replay_frames(config, params, frames)
+        out.append((onset, gain, float(log.time_s[0]), result.detector_feed))
+    return out
+
+
+def _identify(train: list[str], held_out: Path, model: Path, options: list[str]) -> None:
+    """``ecu-monitor identify`` (skipped when ``model`` exists); prints its error table."""
+    if model.exists():
+        return
+    cmd = [sys.executable, "-m", "ecu_monitor.cli", "identify", *train, "--validate", str(held_out)]
+    cmd += ["--out", str(model), "--quiet", *options]
+    shown = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+    rows = [line for line in shown.splitlines() if line.startswith(("train", "validate"))]
+    print(f"{model.name}:", *rows, sep="\n  ")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("flights", nargs="+", help="nominal flights of one engine (at least 3)")
+    parser.add_argument("--mapping", help="mapping for foreign CSVs (e.g. g1000)")
+    parser.add_argument("--heat-axes", default="fuel_flow_lph,rpm")
+    parser.add_argument(
+        "--effects",
+        help="identify with these effects on and free, e.g. airspeed_cooling,density_cooling (what gap finds)",
+    )
+    parser.add_argument(
+        "--identify-args", default="", help='more options for ecu-monitor identify, e.g. "--base B.yaml --free ..."'
+    )
+    parser.add_argument("--config", default=str(Path(__file__).resolve().parents[1] / "configs" / "example.yaml"))
+    parser.add_argument("--onset-every", type=float, default=900.0, help="spacing of the overlay onsets, s")
+    parser.add_argument("--variant", action="append", default=[], help="baseline_s:delay_s:reference (repeatable)")
+    parser.add_argument("--rate", type=float, default=1.0, help="false alarms per 100 h for the calibration")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--json", help="write every delay here")
+    parser.add_argument(
+        "--work", help="folder for the work files (default: a new temporary folder); models found there are reused"
+    )
+    args = parser.parse_args(argv)
+
+    from ecu_monitor.estimation.detection import calibrate_threshold, cusum_path
+    from ecu_monitor.flightlog import import_mapped_csv, load_flight, resolve_mapping, write_csv
+    from ecu_monitor.identify import DEFAULT_FREE
+    from ecu_monitor.model import Effects, load_model, save_model
+    from ecu_monitor.service.config import load_config
+
+    config = load_config(args.config)
+    variants = [("config", config.detector)]
+    for text in args.variant:
+        b, d, k = (float(v) for v in text.split(":"))
+        variants.append((text, dataclasses.replace(config.detector, baseline_s=b, baseline_delay_s=d, reference=k)))
+    started = time.perf_counter()
+    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="bench-detect-real-"))
+    work.mkdir(parents=True, exist_ok=True)
+    flights = []
+    for path in args.flights:
+        log = import_mapped_csv(path, resolve_mapping(args.mapping)) if args.mapping else load_flight(path)
+        canonical = work / (Path(path).stem + ".csv")
+        write_csv(log, canonical)
+        flights.append(canonical)
+    n = len(flights)
+    if n < 3:
+        parser.error("need at least 3 flights (2 to calibrate on, 1 held out)")
+    extra = shlex.split(args.identify_args)
+    models = []
+    for i in range(n):
+        train = [str(f) for j, f in enumerate(flights) if j != i]
+        model = work / f"model_without_{i}.yaml"
+        _identify(train, flights[i], model, [*extra, "--heat-axes", args.heat_axes])
+        if args.effects:  # second pass: the nominal model with the effects on, refitted with them free
+            names = args.effects.split(",")
+            base = work / f"base_with_effects_{i}.yaml"
+            nominal = load_model(model)
+            starts = {name: EFFECT_STARTS[name] for name in names}
+            effects = Effects.from_dict({**nominal.effects.to_dict(), **starts})
+            save_model(dataclasses.replace(nominal, effects=effects), base, "bench_detect_real: start with effects")
+            free = [*DEFAULT_FREE, *(f"effects.{name}.{next(iter(EFFECT_STARTS[name]))}" for name in names)]
+            model = work / f"model_effects_without_{i}.yaml"
+            _identify(train, flights[i], model, [*extra, "--base", str(base), "--free", ",".join(free)])
+        models.append(model)
+    # jobs: per held-out i, the training flights nominal and the held-out flight nominal + overlays
+    jobs = []
+    for i in range(n):
+        for j in range(n):
+            if j == i:
+                duration = load_flight(flights[i]).duration_s
+                warm = max(v.warmup_s for _, v in variants)
+                onsets = np.arange(warm, duration - 600.0 + 1e-9, args.onset_every)
+                overlays = [(math.nan, 0.0)] + [(float(t0), k) for t0 in onsets for k in LIMITS]
+            else:
+                overlays = [(math.nan, 0.0)]
+            jobs.append((i, j, (str(flights[j]), str(models[i]), args.config, overlays)))
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        results = list(pool.map(_feeds, [job[2] for job in jobs]))
+    feeds = {(i, j): r for (i, j, _), r in zip(jobs, results, strict=True)}
+    report: dict[str, Any] = {}
+    for name, settings in variants:
+        unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
+        print(f"\nvariant {name}: baseline_s {settings.baseline_s:g}, delay {settings.baseline_delay_s:g} s,"
+              f" reference {settings.reference:g}, warm-up {settings.warmup_s:g} s")  # fmt: skip
+        print(f"{'held-out flight':<40} {'h':>8}  {'nominal':>18}  {'k=0.2 <=300 s':>14}  {'k=0.1 <=600 s':>14}")
+        totals = {"false": 0, 0.2: [0, 0], 0.1: [0, 0]}
+        per_flight = []
+        for i in range(n):
+            paths = [
+                cusum_path(t, x, unbounded)[1]
+                for j in range(n)
+                if j != i
+                for _, _, _, feed in feeds[(i, j)]
+                for t, x in feed
+            ]
+            h = calibrate_threshold(paths, args.rate, sample_period_s=settings.block_s).threshold
+            tuned = dataclasses.replace(settings, threshold=h)
+            entry: dict[str, Any] = {"flight": flights[i].name, "threshold": h, "delays": {}}
+            for onset, gain, start, feed in feeds[(i, i)]:
+                alarms = [a - start for t, x in feed for a in cusum_path(t, x, tuned)[2]]
+                if not math.isfinite(onset):
+                    entry["false_alarm_s"] = alarms[0] if alarms else None
+                    continue
+                after = [a for a in alarms if a >= onset]
+                before = any(a < onset for a in alarms)
+                delay = (after[0] - onset) if after and not before else (math.nan if before else math.inf)
+                entry["delays"].setdefault(str(gain), []).append((onset, delay))
+            false = entry["false_alarm_s"]
+            totals["false"] += false is not None
+            cells = []
+            for gain, limit in LIMITS.items():
+                delays = np.array([d for _, d in entry["delays"].get(str(gain), [])], dtype=float)
+                hit = int(np.sum(delays <= limit))
+                totals[gain][0] += hit
+                totals[gain][1] += delays.size
+                med = np.median(delays[np.isfinite(delays)]) if np.isfinite(delays).any() else math.inf
+                cells.append(f"{hit:>3}/{delays.size:<3} med {med:5.0f}")
+            nominal = f"DEGRADED t={false:.0f} s" if false is not None else "no alarm"
+            print(f"{flights[i].name:<40} {h:8.2f}  {nominal:>18}  {cells[0]:>14}  {cells[1]:>14}")
+            per_flight.append(entry)
+        print(f"{'total':<40} {'':>8}  {totals['false']:>3} false DEGRADED    "
+              f"{totals[0.2][0]:>3}/{totals[0.2][1]:<10} {totals[0.1][0]:>3}/{totals[0.1][1]}")  # fmt: skip
+        report[name] = {"settings": dataclasses.asdict(settings), "flights": per_flight}
+    print(f"\n{len(jobs)} replay jobs, {time.perf_counter() - started:.0f} s; work files in {work}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1, default=float), encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
