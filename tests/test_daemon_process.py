@@ -482,7 +482,7 @@ from ecu_monitor.service.daemon import Daemon
 from pathlib import Path
 
 def compiled():
-    return [len(compiled_filter_steps().signatures), len(isolation._predict.signatures)]
+    return [len(compiled_filter_steps().signatures), len(isolation.compiled_kernels().predict.signatures)]
 
 pipeline = _pipeline(Path(sys.argv[2]), "warm-up")
 seen = []

@@ -155,7 +155,7 @@ def test_headroom_batch_equals_the_scalar_function() -> None:
     gq, gd = rng.uniform(0.9, 1.4, n), rng.uniform(0.9, 1.3, n)
     batch = headroom_batch(params, inputs, cht, gq, gd)
     scalar = [
-        thermal_headroom(float(cht[i]), None, InputSeries(*(float(np.asarray(v)[i]) for v in inputs)), params,
+        thermal_headroom(float(cht[i]), None, inputs.at(i), params,
                          gamma_q=float(gq[i]), gamma_d=float(gd[i])).time_to_limit_s
         for i in range(n)
     ]  # fmt: skip

@@ -180,7 +180,11 @@ def parse_effects(specs: Iterable[str], base: Effects | None = None) -> Effects:
         raise ParameterError(f"--effect: {exc}") from None
 
 
-def random_effects(seed: int, names: Sequence[str] = EFFECT_NAMES) -> Effects:
+#: The effects the virtual plant draws (mixture_index needs a logged EGT or fuel flow it does not model).
+PLANT_EFFECTS: tuple[str, ...] = ("airspeed_cooling", "density_cooling", "sensor_lag", "mixture_cooling")
+
+
+def random_effects(seed: int, names: Sequence[str] = PLANT_EFFECTS) -> Effects:
     """The named effects with sizes drawn from plausible ranges (deterministic for ``seed``).
 
     airspeed_cooling gain 0.01-0.03 /(m/s), floor 0.3-0.6; density_cooling exponent 0.4-0.8;
@@ -200,7 +204,7 @@ def random_effects(seed: int, names: Sequence[str] = EFFECT_NAMES) -> Effects:
     chosen: dict[str, Any] = {}
     for name in names:
         if name not in draws:
-            raise ParameterError(f"random_effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+            raise ParameterError(f"random_effects: cannot draw effect {name!r} (drawn: {', '.join(PLANT_EFFECTS)})")
         chosen[name] = draws[name]()
     return Effects(**chosen)
 

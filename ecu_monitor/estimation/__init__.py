@@ -28,9 +28,6 @@ from ecu_monitor.estimation.registry import (
 )
 from ecu_monitor.estimation.runner import EstimateTrace, FixedStepFlight, fixed_step_flight, run_estimator
 
-# Registers "cbekf-iso" (the gamma_Q / gamma_D isolation filter) whenever the package loads.
-from ecu_monitor.estimation import isolation as _isolation  # noqa: F401  isort: skip
-
 __all__ = [
     "ESTIMATORS",
     "RESET_MODES",

@@ -30,19 +30,23 @@ The conventional EKF uses Delta_k = 0. CBEKF-AU re-initialises x (and P = R) whe
 changes level: to the new interval's midpoint (the paper) or to the boundary just crossed (ours).
 
 The functions :func:`predict`, :func:`update`, :func:`deviation_update` and :func:`filter_step` are
-pure and use only scalar arithmetic, so :mod:`.runner` compiles these very functions with numba for
-long flights: one source of truth, tested equal to the classes.
+pure and use only scalar arithmetic, so :func:`compiled_filter` compiles these very functions with numba
+(with the model's own compiled equations): the live filter (:class:`ThermalEKF`, ``compiled=True``,
+the default) and the whole-flight runner (:mod:`.runner`) run them; ``compiled=False`` runs the same
+functions as plain Python (the reference in the tests).
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import sys
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any, NamedTuple
 
-import numpy as np
-
 from ecu_monitor.errors import ConfigError, EstimationError
+from ecu_monitor.estimation import quantiser as _quantiser
 from ecu_monitor.estimation.quantiser import level_of, reset_value, sensor_model, sensor_slope
 from ecu_monitor.model import (
     Coefficients,
@@ -53,7 +57,10 @@ from ecu_monitor.model import (
     compute_drive,
     initial_pade_state,
     rk4_step,
+    scalar_coefficients,
 )
+from ecu_monitor.model import thermal as _thermal
+from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
 
 __all__ = [
     "COMPLEX_STEP",
@@ -64,6 +71,7 @@ __all__ = [
     "FilterState",
     "Prediction",
     "ThermalEKF",
+    "compiled_filter",
     "deviation_update",
     "filter_step",
     "predict",
@@ -411,19 +419,38 @@ class ThermalEKF:
         )
 
 
-def scalar_coefficients(coeffs: Coefficients) -> Coefficients:
-    """Coefficients with every scalar field a Python float (one numba type for every model)."""
-    fields: dict[str, Any] = {
-        name: float(value) if np.ndim(value) == 0 else np.ascontiguousarray(value, dtype=np.float64)
-        for name, value in coeffs._asdict().items()
-    }
-    return Coefficients(**fields)
-
-
 def _live_steps(compiled: bool) -> Any:
-    """:func:`filter_steps`, or its numba twin built by the runner from this very source."""
-    if not compiled:
-        return filter_steps
-    from ecu_monitor.estimation.runner import compiled_filter_steps  # the runner imports this module
+    """:func:`filter_steps`, or its numba twin (:func:`compiled_filter`)."""
+    return compiled_filter().steps if compiled else filter_steps
 
-    return compiled_filter_steps()
+
+@functools.cache
+def compiled_filter() -> SimpleNamespace:
+    """numba twins of :func:`filter_step` and :func:`filter_steps`, compiled from this very source with
+    the model's compiled equations (ecu_monitor.model.kernels; cached on disk). The live filter and the
+    whole-flight runner both use them."""
+    tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, sys.modules[__name__])])
+
+    def compile_(function: Any, **callees: Any) -> Any:
+        return jit(function, tag, **callees)
+
+    equations = compiled_equations(False)
+    rk4_step_ = compile_(_thermal.rk4_step, _rk4=equations.rk4)
+    sigmoid = compile_(_quantiser.sigmoid)
+    sensor_model_ = compile_(_quantiser.sensor_model, sigmoid=sigmoid)
+    sensor_slope_ = compile_(_quantiser.sensor_slope, sigmoid=sigmoid)
+    level_of_ = compile_(_quantiser.level_of)
+    reset_value_ = compile_(_quantiser.reset_value)
+    predict_ = compile_(predict, rk4_step=rk4_step_)
+    update_ = compile_(update, sensor_model=sensor_model_, sensor_slope=sensor_slope_)
+    deviation_update_ = compile_(deviation_update)
+    step = compile_(
+        filter_step,
+        predict=predict_,
+        rk4_step=rk4_step_,
+        update=update_,
+        deviation_update=deviation_update_,
+        level_of=level_of_,
+        reset_value=reset_value_,
+    )
+    return SimpleNamespace(step=step, steps=compile_(filter_steps, filter_step=step), level_of=level_of_)

@@ -27,28 +27,34 @@ Observability (docs/detection_isolation.md): in a steady state only the product 
 seen (D(T) = gamma_Q gamma_D H Q). gamma_D also stretches the thermal time constant (C_w gamma_D /
 D'(T)); the two separate only through transients: climbs, throttle and altitude changes.
 
-The estimator is registered as ``cbekf-iso``. Its :class:`Estimate` ``deviation`` is the model
-deviation the gamma estimates explain, f(T, gamma_Q, gamma_D) - f(T, 1, 1) in degC/s: the same
-symptom (change of the state derivative caused by the degradation) as the CBEKF's Delta_k / dt.
+The estimator is ``cbekf-iso`` in the registry's table (:mod:`.registry`). Its :class:`Estimate`
+``deviation`` is the model deviation the gamma estimates explain, f(T, gamma_Q, gamma_D) - f(T, 1, 1)
+in degC/s: the same symptom (change of the state derivative caused by the degradation) as the CBEKF's Delta_k / dt.
 
-:func:`run_isolation` runs a whole flight through the same step function compiled with numba.
+:func:`run_isolation` runs a whole flight through the same step function. The step calls the model's
+own ``derivatives`` and ``rk4`` (:mod:`ecu_monitor.model.equations`); the Jacobian entries are their
+complex-step derivatives (exact to rounding, no hand-derived formula). Both the live filter and the
+flight runner run the step compiled with numba (compiled on first use, cached on disk).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import ConfigError, EstimationError
 from ecu_monitor.estimation.ekf import Estimate, scalar_drive
-from ecu_monitor.estimation.registry import register_estimator
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, compute_drive
+from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, scalar_coefficients
+from ecu_monitor.model.compiled import compute_drive_compiled
+from ecu_monitor.model.inputs import flight_inputs
+from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
 
 __all__ = [
     "ESTIMATOR_NAME",
@@ -60,7 +66,7 @@ __all__ = [
     "run_isolation",
 ]
 
-#: Name under which the isolation filter is registered with the estimator registry.
+#: Name of the isolation filter in the estimator registry.
 ESTIMATOR_NAME = "cbekf-iso"
 
 # Layout of the filter's state vector (one float64 array, so numba and Python share the step).
@@ -128,48 +134,32 @@ class IsolationSettings:
 
 
 # --------------------------------------------------------------------------------------------------
-# The compiled core: one step on a state vector (shared by the live filter and the flight runner)
+# The core: one step on a state vector (shared by the live filter and the flight runner), compiled
+# with the model's own equations (ecu_monitor.model.equations: derivatives, rk4)
 # --------------------------------------------------------------------------------------------------
 
-
-@numba.njit(cache=True, nogil=True)
-def _slope(t: float, w: float, gq: float, gd: float, q0: float, hg: float, g: float, te: float,
-           rad: float, off: float, inv_c: float) -> float:  # fmt: skip
-    """dT/dt of the model (degC/s)."""
-    tk = t + off
-    ek = te + off
-    dissipated = g * (t - te) + rad * (tk * tk * tk * tk - ek * ek * ek * ek)
-    return (gq * hg * (w - q0) - dissipated / gd) * inv_c
+#: Imaginary step of the complex-step derivatives of the Jacobian (exact to rounding).
+_COMPLEX_STEP = 1e-30
 
 
-@numba.njit(cache=True, nogil=True)
-def _predict(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float, rad: float, off: float,
-             inv_c: float, kw: float, cfg: NDArray[np.float64]) -> None:  # fmt: skip
-    """One prediction step of dt (RK4 on T and w, gammas held) and the covariance propagation."""
+def _predict(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float, model: NDArray[np.float64],
+             cfg: NDArray[np.float64]) -> None:  # fmt: skip
+    """One prediction step of dt (RK4 on T and w, gammas held) and the covariance propagation.
+
+    model: (C_w, tau_w, 1/(alpha R_e), radiation offset). The Jacobian A = d(dT/dt)/d(T, gamma_Q,
+    gamma_D) at the start of the step is the complex-step derivative of the model's own derivatives.
+    """
     dt = cfg[_S_DT]
     t = s[_T]
     gq = s[_GQ]
     gd = s[_GD]
     w = s[_W]
-    # Jacobian at the start of the step (first-order transition I + A dt)
-    tk = t + off
-    ek = te + off
-    dissipated = g * (t - te) + rad * (tk * tk * tk * tk - ek * ek * ek * ek)
-    d_prime = g + 4.0 * rad * tk * tk * tk
-    a_tt = -d_prime / gd * inv_c
-    a_tq = hg * (w - q0) * inv_c
-    a_td = dissipated / (gd * gd) * inv_c
-    # RK4 of (T, w)
-    k1 = _slope(t, w, gq, gd, q0, hg, g, te, rad, off, inv_c)
-    m1 = kw * (2.0 * q0 - w)
-    k2 = _slope(t + 0.5 * dt * k1, w + 0.5 * dt * m1, gq, gd, q0, hg, g, te, rad, off, inv_c)
-    m2 = kw * (2.0 * q0 - (w + 0.5 * dt * m1))
-    k3 = _slope(t + 0.5 * dt * k2, w + 0.5 * dt * m2, gq, gd, q0, hg, g, te, rad, off, inv_c)
-    m3 = kw * (2.0 * q0 - (w + 0.5 * dt * m2))
-    k4 = _slope(t + dt * k3, w + dt * m3, gq, gd, q0, hg, g, te, rad, off, inv_c)
-    m4 = kw * (2.0 * q0 - (w + dt * m3))
-    s[_T] = t + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    s[_W] = w + dt / 6.0 * (m1 + 2.0 * m2 + 2.0 * m3 + m4)
+    c_w, tau, rad, off = model[0], model[1], model[2], model[3]
+    h = _COMPLEX_STEP
+    a_tt = derivatives(complex(t, h), w, q0, hg, te, g, c_w, tau, rad, off, gq, gd)[0].imag / h
+    a_tq = derivatives(t, w, q0, hg, te, g, c_w, tau, rad, off, complex(gq, h), gd)[0].imag / h
+    a_td = derivatives(t, w, q0, hg, te, g, c_w, tau, rad, off, gq, complex(gd, h))[0].imag / h
+    s[_T], s[_W] = rk4(t, w, q0, hg, te, g, c_w, tau, rad, off, gq, gd, dt)
     # P <- F P F^T + Qc dt with F = [[1 + a_tt dt, a_tq dt, a_td dt], [0, 1, 0], [0, 0, 1]]
     f0 = 1.0 + a_tt * dt
     f1 = a_tq * dt
@@ -189,7 +179,6 @@ def _predict(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float, 
     s[_P + 8] = p22 + cfg[_S_QD] * dt
 
 
-@numba.njit(cache=True, nogil=True)
 def _correct(s: NDArray[np.float64], z: float, cfg: NDArray[np.float64]) -> tuple[float, float]:
     """Linear update with h(x) = T (Joseph form); returns (innovation degC, NIS)."""
     r = cfg[_S_R]
@@ -215,18 +204,16 @@ def _correct(s: NDArray[np.float64], z: float, cfg: NDArray[np.float64]) -> tupl
     return innovation, innovation * innovation / s_var
 
 
-@numba.njit(cache=True, nogil=True)
-def _deviation(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float, rad: float, off: float,
-               inv_c: float) -> float:  # fmt: skip
+def _deviation(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float,
+               model: NDArray[np.float64]) -> float:  # fmt: skip
     """f(T, gamma_Q, gamma_D) - f(T, 1, 1): the state-derivative change the gammas explain, degC/s."""
     t = s[_T]
     w = s[_W]
-    return _slope(t, w, s[_GQ], s[_GD], q0, hg, g, te, rad, off, inv_c) - _slope(
-        t, w, 1.0, 1.0, q0, hg, g, te, rad, off, inv_c
-    )
+    c_w, tau, rad, off = model[0], model[1], model[2], model[3]
+    with_gammas = derivatives(t, w, q0, hg, te, g, c_w, tau, rad, off, s[_GQ], s[_GD])[0]
+    return with_gammas - derivatives(t, w, q0, hg, te, g, c_w, tau, rad, off, 1.0, 1.0)[0]
 
 
-@numba.njit(cache=True, nogil=True)
 def _run(
     q0: NDArray[np.float64],
     hg: NDArray[np.float64],
@@ -234,10 +221,7 @@ def _run(
     te: NDArray[np.float64],
     z: NDArray[np.float64],
     substeps: NDArray[np.int64],
-    rad: float,
-    off: float,
-    inv_c: float,
-    kw: float,
+    model: NDArray[np.float64],
     cfg: NDArray[np.float64],
     s: NDArray[np.float64],
     out: NDArray[np.float64],
@@ -255,14 +239,14 @@ def _run(
     out[0, 6] = s[_P + 5]
     out[0, 7] = np.nan
     out[0, 8] = np.nan
-    out[0, 9] = _deviation(s, q0[0], hg[0], g[0], te[0], rad, off, inv_c)
+    out[0, 9] = deviation(s, q0[0], hg[0], g[0], te[0], model)
     for k in range(1, n):
         for _ in range(substeps[k]):
-            _predict(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], rad, off, inv_c, kw, cfg)
+            predict(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model, cfg)
         innovation = np.nan
         nis = np.nan
         if not np.isnan(z[k]):
-            innovation, nis = _correct(s, z[k], cfg)
+            innovation, nis = correct(s, z[k], cfg)
         out[k, 0] = s[_T]
         out[k, 1] = s[_GQ]
         out[k, 2] = s[_GD]
@@ -272,7 +256,23 @@ def _run(
         out[k, 6] = s[_P + 5]
         out[k, 7] = innovation
         out[k, 8] = nis
-        out[k, 9] = _deviation(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], rad, off, inv_c)
+        out[k, 9] = deviation(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model)
+
+
+# Names the core calls; compiled_kernels() binds them to compiled functions.
+derivatives = rk4 = predict = correct = deviation = None
+
+
+@functools.cache
+def compiled_kernels() -> SimpleNamespace:
+    """The filter's core compiled by numba with the model's compiled equations (cached on disk)."""
+    equations = compiled_equations(False)
+    tag = fingerprint([__file__])
+    predict_ = jit(_predict, tag, derivatives=equations.derivatives, rk4=equations.rk4)
+    correct_ = jit(_correct, tag)
+    deviation_ = jit(_deviation, tag, derivatives=equations.derivatives)
+    run = jit(_run, tag, predict=predict_, correct=correct_, deviation=deviation_)
+    return SimpleNamespace(predict=predict_, correct=correct_, deviation=deviation_, run=run)
 
 
 def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> NDArray[np.float64]:
@@ -287,13 +287,10 @@ def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> 
     return s
 
 
-def _constants(coeffs: Coefficients) -> tuple[float, float, float, float]:
-    """(1/(alpha R_e), radiation offset, 1/C_w, 2/tau_w) of a single parameter set."""
-    return (
-        float(coeffs.radiative_conductance),
-        float(coeffs.radiation_offset_c),
-        1.0 / float(coeffs.c_w),
-        2.0 / float(coeffs.tau_w),
+def _model_vector(coeffs: Coefficients) -> NDArray[np.float64]:
+    """(C_w, tau_w, 1/(alpha R_e), radiation offset) of a single parameter set, as the core reads them."""
+    return np.array(
+        [float(coeffs.c_w), float(coeffs.tau_w), float(coeffs.radiative_conductance), float(coeffs.radiation_offset_c)]
     )
 
 
@@ -316,7 +313,8 @@ class IsolationFilter:
         self.params = params
         self.settings = settings or IsolationSettings()
         self._coeffs = coefficients(params)
-        self._constants = _constants(self._coeffs)
+        self._model = _model_vector(self._coeffs)
+        self._kernels: SimpleNamespace | None = None  # compiled on first use
         self._cfg = self.settings.vector()
         self._state: NDArray[np.float64] | None = None
         self._drive: Drive | None = None
@@ -371,18 +369,20 @@ class IsolationFilter:
                 f"{self.name}: time must advance by at least one step of {self.settings.dt_s} s"
                 f" (from {self._time_s} to {t_s})"
             )
-        rad, off, inv_c, kw = self._constants
+        if self._kernels is None:
+            self._kernels = compiled_kernels()
+        kernels = self._kernels
         q0 = float(drive.q_sl0_w)
         hg = float(drive.heat_gain) * float(drive.altitude_gain)
         g = float(drive.conductance_w_per_c)
         te = float(drive.ambient_c)
         for _ in range(steps):
-            _predict(s, q0, hg, g, te, rad, off, inv_c, kw, self._cfg)
+            kernels.predict(s, q0, hg, g, te, self._model, self._cfg)
         measured = z_cht_c is not None and math.isfinite(z_cht_c)
         innovation = nis = math.nan
         if measured and z_cht_c is not None:
-            innovation, nis = _correct(s, float(z_cht_c), self._cfg)
-        deviation = float(_deviation(s, q0, hg, g, te, rad, off, inv_c))
+            innovation, nis = kernels.correct(s, float(z_cht_c), self._cfg)
+        deviation = float(kernels.deviation(s, q0, hg, g, te, self._model))
         self._drive = scalar_drive(u, self._coeffs)
         self._time_s = float(t_s)
         return Estimate(
@@ -431,9 +431,7 @@ class IsolationTrace(NamedTuple):
 
 def flight_drive(log: FlightLog, params: ThermalParams) -> dict[str, NDArray[np.float64]]:
     """The model's drive at every sample of a flight log: Drive field name -> array of length N."""
-    x_axis, y_axis = params.heat_axes
-    inputs = InputSeries(log[x_axis], log[y_axis], log["altitude_m"], log["airspeed_mps"], log["oat_c"])
-    drive = compute_drive(inputs, coefficients(params))
+    drive = compute_drive_compiled(flight_inputs(log, params), scalar_coefficients(coefficients(params)))
     n = len(log)
     return {
         name: np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), (n,)))
@@ -454,16 +452,11 @@ def run_isolation(
     drive = flight_drive(log, params)
     substeps = np.zeros(len(log), dtype=np.int64)
     substeps[1:] = np.maximum(1, np.round(np.diff(time_s) / settings.dt_s)).astype(np.int64)
-    coeffs = coefficients(params)
-    rad, off, inv_c, kw = _constants(coeffs)
     state = _initial_state(float(z[0]), 2.0 * float(drive["q_sl0_w"][0]), settings)
     out = np.empty((len(log), 10))
     hg = np.ascontiguousarray(drive["heat_gain"] * drive["altitude_gain"])
-    _run(
-        drive["q_sl0_w"], hg, drive["conductance_w_per_c"], drive["ambient_c"], z, substeps, rad, off, inv_c, kw,
-        settings.vector(), state, out,
+    compiled_kernels().run(
+        drive["q_sl0_w"], hg, drive["conductance_w_per_c"], drive["ambient_c"], z, substeps,
+        _model_vector(coefficients(params)), settings.vector(), state, out,
     )  # fmt: skip
     return IsolationTrace(time_s.copy(), *(out[:, i].copy() for i in range(10)))
-
-
-register_estimator(ESTIMATOR_NAME, make_isolation_filter)

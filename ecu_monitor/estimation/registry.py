@@ -1,8 +1,9 @@
-"""The estimator contract and the registry of estimators by name (one table, no if-chains).
+"""The estimator contract and the registry of estimators by name: one explicit table.
 
-Built in: "ekf" (conventional, Delta = 0), "cbekf" (with the model deviation), "cbekf-au" (CBEKF with
-automatic reset, ``EstimatorSettings.reset`` chooses midpoint or boundary). Other layers add theirs
-with :func:`register_estimator` (for example an isolating CBEKF).
+"ekf" (conventional, Delta = 0), "cbekf" (with the model deviation), "cbekf-au" (CBEKF with automatic
+reset, ``EstimatorSettings.reset`` chooses midpoint or boundary) and "cbekf-iso" (the gamma_Q /
+gamma_D isolation filter of :mod:`.isolation`). Every estimator is in :data:`ESTIMATORS` below; no
+module adds itself on import. :func:`register_estimator` exists for callers that add their own.
 """
 
 from __future__ import annotations
@@ -12,6 +13,8 @@ from typing import Protocol, runtime_checkable
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation.ekf import Estimate, EstimatorSettings, ThermalEKF
+from ecu_monitor.estimation.isolation import ESTIMATOR_NAME as ISOLATION_NAME
+from ecu_monitor.estimation.isolation import make_isolation_filter
 from ecu_monitor.model import InputSeries, ThermalParams
 
 __all__ = [
@@ -58,6 +61,7 @@ ESTIMATORS: dict[str, EstimatorFactory] = {
     "ekf": _ekf,
     "cbekf": _cbekf,
     "cbekf-au": _cbekf_au,
+    ISOLATION_NAME: make_isolation_filter,
 }
 
 

@@ -1,28 +1,30 @@
 """Run an estimator over a whole flight log (replay, results, benchmarks): the fast path.
 
-:func:`run_estimator` puts the log on the filter's fixed step (inputs interpolated linearly, each CHT
-reading applied at the first step at or after its time stamp, no reading in between), computes the
-model's drive for every step at once (:func:`ecu_monitor.model.compute_drive` on arrays), and runs the
-scalar filter loop compiled with numba.
+:func:`run_estimator` puts the log on the filter's fixed step (the model's inputs read by
+:func:`ecu_monitor.model.flight_inputs` and interpolated linearly, each CHT reading applied at the
+first step at or after its time stamp, no reading in between), computes the model's drive for every
+step at once (:func:`ecu_monitor.model.compiled.compute_drive_compiled`, equal bit for bit to the
+live filter's per-step drive), and runs the scalar filter loop compiled with numba.
 
 One source of truth: the compiled loop is :func:`trace_loop` below calling
-:func:`ecu_monitor.estimation.ekf.filter_step`, which calls the model's own ``rk4_step`` and
-``derivatives``; :func:`_compiled_loop` hands numba those very functions, each re-bound so that its
-callees are the compiled twins (no equation is written twice). ``trace_loop`` also runs as plain
-Python (the reference in the tests). Estimators that are not a :class:`ThermalEKF` (registered by
-other layers) run step by step through their ``estimate()``.
+:func:`ecu_monitor.estimation.ekf.filter_step`, which calls the model's own ``rk4_step``; numba gets
+those very functions, each re-bound so that its callees are the compiled twins (no equation is written
+twice; :mod:`ecu_monitor.model.kernels`). ``trace_loop`` also runs as plain Python (the reference in
+the tests). Estimators that are not a :class:`ThermalEKF` (the isolation filter) run step by step
+through their ``estimate()``, itself compiled.
+
+numba is loaded on the live path too: :class:`ThermalEKF` and the isolation filter step through the
+same compiled functions (the daemon compiles or loads them from the disk cache before it opens the
+bus, ``Pipeline.warm_up``).
 """
 
 from __future__ import annotations
 
 import functools
-import hashlib
 import math
 import sys
-import types
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,14 +38,18 @@ from ecu_monitor.estimation.ekf import (
     EstimatorSettings,
     FilterState,
     ThermalEKF,
+    compiled_filter,
     filter_step,
     scalar_coefficients,
 )
 from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.estimation.registry import make_estimator
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, compute_drive
+from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients
 from ecu_monitor.model import thermal as _thermal
+from ecu_monitor.model.compiled import compute_drive_compiled
+from ecu_monitor.model.inputs import AMBIENT_COLUMNS, flight_inputs, input_columns
+from ecu_monitor.model.kernels import fingerprint, jit
 
 __all__ = [
     "INPUT_COLUMNS",
@@ -55,8 +61,8 @@ __all__ = [
     "trace_loop",
 ]
 
-#: Flight columns the model needs besides the heat map's two axes.
-INPUT_COLUMNS = ("altitude_m", "airspeed_mps", "oat_c")
+#: Flight columns the model needs besides the heat map's two axes (and the mixture index's, if any).
+INPUT_COLUMNS = AMBIENT_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -128,27 +134,19 @@ def sample_indices(sample_times_s: NDArray[np.float64], t0_s: float, dt_s: float
 
 def fixed_step_flight(log: FlightLog, params: ThermalParams, dt_s: float) -> FixedStepFlight:
     """Resample a flight log onto the fixed step (raises FlightLogError naming a missing column)."""
-    needed = (*params.heat_axes, *INPUT_COLUMNS, "cht_c")
-    missing = [name for name in needed if not log.has(name)]
+    missing = [name for name in (*input_columns(params), "cht_c") if not log.has(name)]
     if missing:
         raise FlightLogError(
             f"{log.source}: missing column(s) {', '.join(missing)} needed by the model"
             f" (columns: {', '.join(log.names)})"
         )
+    at_samples = flight_inputs(log, params)
     t = log.time_s
     n = math.floor((t[-1] - t[0]) / dt_s + 1e-9) + 1
     if n < 2:
         raise FlightLogError(f"{log.source}: the log spans {t[-1] - t[0]:g} s, shorter than one step of {dt_s} s")
     grid = t[0] + dt_s * np.arange(n, dtype=np.float64)
-
-    def column(name: str) -> NDArray[np.float64]:
-        values = np.asarray(log[name], dtype=float)
-        if not np.all(np.isfinite(values)):
-            raise FlightLogError(f"{log.source}: column '{name}' holds non-finite values")
-        return np.interp(grid, t, values)
-
-    x_axis, y_axis = params.heat_axes
-    inputs = InputSeries(column(x_axis), column(y_axis), column("altitude_m"), column("airspeed_mps"), column("oat_c"))
+    inputs = InputSeries(*(np.interp(grid, t, values) for values in at_samples))
     readings = np.asarray(log["cht_c"], dtype=float)
     steps = sample_indices(t, float(t[0]), dt_s, n)
     z = np.full(n, np.nan)
@@ -214,82 +212,26 @@ def trace_loop(
         out_reset[k] = did_reset
 
 
-def _rebound(function: Callable[..., Any], tag: str, **callees: Any) -> Callable[..., Any]:
-    """A copy of ``function`` whose global names ``callees`` point at other (compiled) functions.
-
-    ``tag`` is appended to the qualified name, which numba uses to name its on-disk cache: numba
-    checks only the caller's own source file for staleness, not its callees' (a cached loop embeds
-    the machine code of everything it calls), so the tag carries a fingerprint of every source file
-    involved and any edit to any of them gets a fresh cache entry.
-    """
-    namespace = dict(function.__globals__)
-    namespace.update(callees)
-    clone = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
-    clone.__module__ = function.__module__
-    clone.__qualname__ = f"{function.__qualname__}_{tag}"
-    return clone
-
-
-def _sources_fingerprint() -> str:
-    """Short hash of the source files the compiled loop is built from."""
-    digest = hashlib.sha256()
-    for module in (_thermal, _quantiser, _ekf_module, sys.modules[__name__]):
-        digest.update(Path(str(module.__file__)).read_bytes())
-    return digest.hexdigest()[:12]
-
-
+@functools.cache
 def _compiled_loop() -> Callable[..., None]:
-    """numba-compile :func:`trace_loop` and everything it calls, from their own source (cached on disk)."""
-    loop: Callable[..., None] = _compiled()["loop"]
+    """numba twin of :func:`trace_loop`, calling the compiled filter step (cached on disk)."""
+    filter_ = compiled_filter()
+    tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, _ekf_module, sys.modules[__name__])])
+    loop: Callable[..., None] = jit(trace_loop, tag, filter_step=filter_.step, level_of=filter_.level_of)
     return loop
 
 
 def compiled_filter_steps() -> Callable[..., Any]:
     """The numba twin of :func:`ecu_monitor.estimation.ekf.filter_steps` (the live filter's hot loop)."""
-    steps: Callable[..., Any] = _compiled()["steps"]
+    steps: Callable[..., Any] = compiled_filter().steps
     return steps
-
-
-@functools.cache
-def _compiled() -> dict[str, Callable[..., Any]]:
-    """numba-compile the filter functions, from their own source (cached on disk)."""
-    import numba  # imported on first use: the live service never needs it
-
-    tag = _sources_fingerprint()
-
-    def jit(function: Callable[..., Any], **callees: Any) -> Any:
-        return numba.njit(cache=True, nogil=True)(_rebound(function, tag, **callees))
-
-    derivatives = jit(_thermal.derivatives)
-    rk4_step = jit(_thermal.rk4_step, derivatives=derivatives)
-    sigmoid = jit(_quantiser.sigmoid)
-    sensor_model = jit(_quantiser.sensor_model, sigmoid=sigmoid)
-    sensor_slope = jit(_quantiser.sensor_slope, sigmoid=sigmoid)
-    level_of = jit(_quantiser.level_of)
-    reset_value = jit(_quantiser.reset_value)
-    predict = jit(_ekf_module.predict, rk4_step=rk4_step)
-    update = jit(_ekf_module.update, sensor_model=sensor_model, sensor_slope=sensor_slope)
-    deviation_update = jit(_ekf_module.deviation_update)
-    step = jit(
-        _ekf_module.filter_step,
-        predict=predict,
-        rk4_step=rk4_step,
-        update=update,
-        deviation_update=deviation_update,
-        level_of=level_of,
-        reset_value=reset_value,
-    )
-    return {
-        "loop": jit(trace_loop, filter_step=step, level_of=level_of),
-        "steps": jit(_ekf_module.filter_steps, filter_step=step),
-    }
 
 
 def _run_compiled(
     flight: FixedStepFlight, params: ThermalParams, settings: EstimatorSettings, estimator: ThermalEKF, compiled: bool
 ) -> EstimateTrace:
     coeffs = scalar_coefficients(coefficients(params))
-    drive = compute_drive(flight.inputs, coeffs)
+    drive = compute_drive_compiled(flight.inputs, coeffs)
     n = flight.time_s.size
     arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
     out_x, out_P, out_delta, out_innovation, out_nis = (np.empty(n) for _ in range(5))

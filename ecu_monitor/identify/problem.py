@@ -33,12 +33,8 @@ from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import Coefficients, HeatMap, InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.compiled import simulate_compiled
-from ecu_monitor.model.effects import (
-    AirspeedCooling,
-    DensityCooling,
-    MixtureCooling,
-    SensorLag,
-)
+from ecu_monitor.model.effects import EFFECT_TYPES, MixtureIndex
+from ecu_monitor.model.inputs import read_inputs
 
 __all__ = [
     "DEFAULT_FREE",
@@ -82,13 +78,11 @@ _EFFECT_FIELDS: dict[str, tuple[str, float, float, bool]] = {
     "effects.sensor_lag.time_constant_s": ("sensor_lag_s", 0.0, 60.0, False),
     "effects.mixture_cooling.fraction": ("mixture_fraction", 0.0, 0.6, False),
     "effects.mixture_cooling.onset": ("mixture_onset", 0.0, 0.95, False),
+    "effects.airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0, 60.0, False),
+    "effects.mixture_index.gain": ("mixture_gain", -0.01, 0.01, False),  # per degC of EGT; H4b: per source
+    "effects.mixture_index.reference": ("mixture_reference", 0.0, 1200.0, False),
 }
-_EFFECT_TYPES: dict[str, type] = {
-    "airspeed_cooling": AirspeedCooling,
-    "density_cooling": DensityCooling,
-    "sensor_lag": SensorLag,
-    "mixture_cooling": MixtureCooling,
-}
+_EFFECT_TYPES: dict[str, type] = EFFECT_TYPES
 _SCALE_PARAMETERS = {"c_w", "r_ce", "alpha_r_e", "heat_map"}
 _KNOWN_FREE = {"c_w", "r_ce", "tau_w", "alpha_r_e", "a", "b", "heat_map", *_EFFECT_FIELDS}
 
@@ -130,17 +124,12 @@ class ErrorStats:
         )
 
 
-def model_inputs(log: FlightLog, heat_axes: tuple[str, str]) -> InputSeries:
-    """The model inputs of a flight at its own sample times (heat-map axes, altitude, airspeed, OAT).
+def model_inputs(log: FlightLog, heat_axes: tuple[str, str], mixture: MixtureIndex | None = None) -> InputSeries:
+    """The model inputs of a flight at its own sample times (:func:`ecu_monitor.model.inputs.read_inputs`).
 
-    Raises FlightLogError naming the first missing column.
+    Raises FlightLogError naming the first missing or non-finite column.
     """
-    needed = (heat_axes[0], heat_axes[1], "altitude_m", "airspeed_mps", "oat_c")
-    for name in needed:
-        if not log.has(name):
-            role = "heat-map axis" if name in heat_axes else "model input"
-            raise FlightLogError(f"{log.source}: no column '{name}' ({role}; columns: {', '.join(log.names)})")
-    return InputSeries(*(np.asarray(log[name], dtype=float) for name in needed))
+    return read_inputs(log, heat_axes, mixture)
 
 
 def _measured(log: FlightLog) -> NDArray[np.float64]:
@@ -179,9 +168,6 @@ def prepare_flight(log: FlightLog, heat_axes: tuple[str, str], dt_s: float, reco
     if len(log) < 2:
         raise FlightLogError(f"{log.source}: at least 2 samples are needed to identify or simulate")
     series = model_inputs(log, heat_axes)
-    for name, values in zip(InputSeries._fields, series, strict=True):
-        if not np.all(np.isfinite(values)):
-            raise FlightLogError(f"{log.source}: model input '{name}' holds blank or non-finite values")
     measured = _measured(log)
     t = np.asarray(log.time_s, dtype=float)
     span = float(t[-1] - t[0])
@@ -475,8 +461,8 @@ def _parse_cell(name: str) -> tuple[int, int]:
     return int(i), int(j)
 
 
-def _effect_dict(effect: Any) -> dict[str, float]:
-    return {name: float(getattr(effect, name)) for name in effect.__dataclass_fields__}
+def _effect_dict(effect: Any) -> dict[str, Any]:
+    return {name: getattr(effect, name) for name in effect.__dataclass_fields__}
 
 
 def _nearest_cells(shape: tuple[int, int], cells: Sequence[tuple[int, int]]) -> dict[tuple[int, int], tuple[int, int]]:

@@ -1,20 +1,26 @@
 """Thermal model of the cylinder head: pure functions of (state, inputs, params); imports nothing above.
 
-Start with :class:`ThermalParams` (model.yaml), :func:`coefficients` and :func:`rk4_step`.
+Start with :class:`ThermalParams` (model.yaml), :func:`flight_inputs`, :func:`coefficients` and
+:func:`rk4_step`. The equations are written once, in :mod:`.equations` (docs/model.md).
 """
 
 from ecu_monitor.model.atmosphere import air_density_kg_m3, isa_pressure_pa
 from ecu_monitor.model.effects import (
     EFFECT_NAMES,
+    EFFECT_TYPES,
+    MIXTURE_SOURCES,
     AirspeedCooling,
     DensityCooling,
     Effects,
     MixtureCooling,
+    MixtureIndex,
     SensorLag,
 )
 from ecu_monitor.model.heatmap import HeatMap, bilinear, reference_heat_map
-from ecu_monitor.model.params import ThermalParams, load_model, paper_table_a1, save_model
+from ecu_monitor.model.inputs import AMBIENT_COLUMNS, flight_inputs, input_columns
+from ecu_monitor.model.params import NOMINAL_TERMS, ThermalParams, load_model, paper_table_a1, save_model
 from ecu_monitor.model.thermal import (
+    EFFECT_COEFFICIENTS,
     STATE_NAMES,
     Coefficients,
     Drive,
@@ -24,6 +30,7 @@ from ecu_monitor.model.thermal import (
     derivatives,
     initial_pade_state,
     rk4_step,
+    scalar_coefficients,
     sensor_step,
     simulate,
     stack_coefficients,
@@ -31,7 +38,12 @@ from ecu_monitor.model.thermal import (
 )
 
 __all__ = [
+    "AMBIENT_COLUMNS",
+    "EFFECT_COEFFICIENTS",
     "EFFECT_NAMES",
+    "EFFECT_TYPES",
+    "MIXTURE_SOURCES",
+    "NOMINAL_TERMS",
     "STATE_NAMES",
     "AirspeedCooling",
     "Coefficients",
@@ -41,6 +53,7 @@ __all__ = [
     "HeatMap",
     "InputSeries",
     "MixtureCooling",
+    "MixtureIndex",
     "SensorLag",
     "ThermalParams",
     "air_density_kg_m3",
@@ -48,13 +61,16 @@ __all__ = [
     "coefficients",
     "compute_drive",
     "derivatives",
+    "flight_inputs",
     "initial_pade_state",
+    "input_columns",
     "isa_pressure_pa",
     "load_model",
     "paper_table_a1",
     "reference_heat_map",
     "rk4_step",
     "save_model",
+    "scalar_coefficients",
     "sensor_step",
     "simulate",
     "stack_coefficients",

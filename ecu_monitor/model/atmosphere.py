@@ -1,7 +1,7 @@
 """International Standard Atmosphere (troposphere) and air density.
 
 Pressure comes from the ISA at the pressure altitude; temperature is the measured outside air
-temperature (OAT), never the ISA one (DESIGN.md section 6).
+temperature (OAT), never the ISA one (docs/model.md).
 """
 
 from __future__ import annotations

@@ -1,9 +1,11 @@
 """Compiled (numba) twin of :func:`ecu_monitor.model.thermal.simulate` for long flights and swarms.
 
-Same equations as thermal.py (tested equal to it): RK4 on (T, w) with inputs held over each step, the
-probe lag applied exactly after each step. The loop runs time outer, particles inner over contiguous
-per-particle arrays, so numba vectorises it (about a few ns per particle-step here). Used by PSO
-identification (a whole swarm per call), the gap diagnosis (many refits) and long replays.
+The kernel below is only a loop: time outer, particles inner over contiguous per-particle arrays (so
+numba vectorises the RK4 across particles). Every equation it runs (the drive with its effects, the
+heat balance, RK4, the probe lag) is a compiled twin of :mod:`ecu_monitor.model.equations`
+(:func:`ecu_monitor.model.kernels.compiled_equations`), so it equals :func:`thermal.simulate` to
+round-off (tested). Used by PSO identification (a whole swarm per call), the gap diagnosis (many
+refits) and long replays.
 
 Failures are reported, never hidden: a particle whose trajectory leaves the finite range is flagged
 in the returned ``failed`` mask and its trajectory is NaN from then on.
@@ -11,40 +13,19 @@ in the returned ``failed`` mask and its trajectory is NaN from then on.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import functools
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.model.atmosphere import (
-    KELVIN_OFFSET,
-    SEA_LEVEL_PRESSURE_PA,
-    SEA_LEVEL_TEMPERATURE_K,
-    air_density_kg_m3,
-    isa_pressure_pa,
-)
-from ecu_monitor.model.thermal import Coefficients, InputSeries
+from ecu_monitor.model import equations as _eq
+from ecu_monitor.model.equations import C_W, PARAMETER_FIELDS, RADIATIVE, SENSOR_LAG, TAU_W, Coefficients
+from ecu_monitor.model.kernels import SWARM_FASTMATH, compiled_equations, fingerprint, jit
+from ecu_monitor.model.thermal import Drive, InputSeries
 
-__all__ = ["CompiledRun", "simulate_compiled"]
-
-# Column order of the per-particle coefficient matrix handed to the kernel.
-_COLUMNS = (
-    "c_w",
-    "r_ce",
-    "radiative_conductance",
-    "tau_w",
-    "a",
-    "b",
-    "airspeed_gain_per_mps",
-    "airspeed_reference_mps",
-    "airspeed_floor",
-    "density_exponent",
-    "density_reference_kg_m3",
-    "sensor_lag_s",
-    "mixture_fraction",
-    "mixture_onset",
-)
+__all__ = ["CompiledRun", "compute_drive_compiled", "simulate_compiled"]
 
 
 class CompiledRun(NamedTuple):
@@ -55,16 +36,16 @@ class CompiledRun(NamedTuple):
     failed: NDArray[np.bool_]  # () or (P,): trajectory became non-finite
 
 
-@numba.njit(cache=True, fastmath=False, nogil=True)
-def _kernel(
+def _swarm_kernel(
     heat_x: NDArray[np.float64],
     heat_y: NDArray[np.float64],
     log_pressure_ratio: NDArray[np.float64],
     log_temperature_ratio: NDArray[np.float64],
-    oat_c: NDArray[np.float64],
-    airspeed: NDArray[np.float64],
     log_density: NDArray[np.float64],
+    airspeed: NDArray[np.float64],
     load: NDArray[np.float64],
+    mixture: NDArray[np.float64],
+    ambient: NDArray[np.float64],
     gamma_q: NDArray[np.float64],
     gamma_d: NDArray[np.float64],
     changed: NDArray[np.bool_],
@@ -72,48 +53,108 @@ def _kernel(
     yb: NDArray[np.float64],
     theta: NDArray[np.float64],
     heat: NDArray[np.float64],
-    rad_offset: float,
+    offset: float,
     dt: float,
     t0: NDArray[np.float64],
     record_every: int,
     out_cht: NDArray[np.float64],
     out_probe: NDArray[np.float64],
 ) -> None:
+    """Every particle over every step: the drive where an input changed, then RK4 and the probe lag.
+
+    theta: (len(PARAMETER_FIELDS), P) coefficients; heat (P, n, m). Row r of out_* is the state
+    after r * record_every steps.
+    """
     n_steps = heat_x.shape[0]
     n_particles = theta.shape[1]
-    c_w = theta[0]
-    r_ce = theta[1]
-    rad = theta[2]
-    tau = theta[3]
-    a_exp = theta[4]
-    b_exp = theta[5]
-    k_air = theta[6]
-    v_ref = theta[7]
-    floor = theta[8]
-    n_rho = theta[9]
-    log_rho_ref = np.log(theta[10])
-    lag = theta[11]
-    mix_f = theta[12]
-    mix_on = theta[13]
-    lag_alpha = np.empty(n_particles)
+    c_w = theta[C_W].copy()
+    tau = theta[TAU_W].copy()
+    rad = theta[RADIATIVE].copy()
+    fraction = np.empty(n_particles)
     for p in range(n_particles):
-        lag_alpha[p] = 1.0 if lag[p] <= 0.0 else -np.expm1(-dt / lag[p])
-    inv_c = 1.0 / c_w
-    kw = 2.0 / tau
+        fraction[p] = lag_fraction(theta[SENSOR_LAG, p], dt)
     temp = t0.copy()
-    pade = np.empty(n_particles)
     probe = t0.copy()
+    pade = np.empty(n_particles)
     q0 = np.empty(n_particles)
-    gain_heat = np.empty(n_particles)
+    gain = np.empty(n_particles)
     cond = np.empty(n_particles)
     nx = xb.shape[0]
     ny = yb.shape[0]
     for k in range(n_steps):
-        if not changed[k]:
-            _rk4_particles(temp, pade, probe, q0, gain_heat, cond, rad, inv_c, kw, lag_alpha, oat_c[k],
-                           rad_offset, gamma_d[k], dt, k, record_every, out_cht, out_probe)  # fmt: skip
-            continue
-        # shared cell of the heat map for this step
+        if changed[k]:
+            # the heat-map cell shared by every particle at this step
+            x = min(max(heat_x[k], xb[0]), xb[nx - 1])
+            y = min(max(heat_y[k], yb[0]), yb[ny - 1])
+            i = 0
+            while i < nx - 2 and x >= xb[i + 1]:
+                i += 1
+            j = 0
+            while j < ny - 2 and y >= yb[j + 1]:
+                j += 1
+            fx = (x - xb[i]) / (xb[i + 1] - xb[i])
+            fy = (y - yb[j]) / (yb[j + 1] - yb[j])
+            for p in range(n_particles):
+                q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
+                altitude_gain, heat_factor, conductance = drive(
+                    log_pressure_ratio[k], log_temperature_ratio[k], log_density[k], airspeed[k], load[k],
+                    mixture[k], theta[:, p],
+                )  # fmt: skip
+                gain[p] = altitude_gain * heat_factor
+                cond[p] = conductance
+                if k == 0:
+                    pade[p] = 2.0 * q0[p]
+        if k % record_every == 0:
+            row = k // record_every
+            out_cht[row, :] = temp
+            out_probe[row, :] = probe
+        particles_step(temp, pade, probe, q0, gain, cond, c_w, tau, rad, fraction, ambient[k], offset, gamma_q[k],
+                       gamma_d[k], dt)  # fmt: skip
+
+
+def _particles_step(
+    temp: NDArray[np.float64],
+    pade: NDArray[np.float64],
+    probe: NDArray[np.float64],
+    q0: NDArray[np.float64],
+    gain: NDArray[np.float64],
+    cond: NDArray[np.float64],
+    c_w: NDArray[np.float64],
+    tau: NDArray[np.float64],
+    rad: NDArray[np.float64],
+    fraction: NDArray[np.float64],
+    ambient: float,
+    offset: float,
+    gamma_q: float,
+    gamma_d: float,
+    dt: float,
+) -> None:
+    """One RK4 step and probe-lag step of every particle with the drive held (the hot loop)."""
+    for p in range(temp.shape[0]):
+        t, w = rk4(temp[p], pade[p], q0[p], gain[p], ambient, cond[p], c_w[p], tau[p], rad[p], offset, gamma_q,
+                   gamma_d, dt)  # fmt: skip
+        temp[p] = t
+        pade[p] = w
+        probe[p] = probe_step(probe[p], t, fraction[p])
+
+
+def _drive_kernel(
+    heat_x: NDArray[np.float64],
+    heat_y: NDArray[np.float64],
+    altitude_m: NDArray[np.float64],
+    airspeed_mps: NDArray[np.float64],
+    oat_c: NDArray[np.float64],
+    mixture: NDArray[np.float64],
+    coeffs: Any,
+    out: NDArray[np.float64],
+) -> None:
+    """The drive of one parameter set at every step (rows of out: q_sl0, g(z), heat factor, G)."""
+    xb = coeffs.x_breakpoints
+    yb = coeffs.y_breakpoints
+    v = coeffs.heat_values_w
+    nx = xb.shape[0]
+    ny = yb.shape[0]
+    for k in range(heat_x.shape[0]):
         x = min(max(heat_x[k], xb[0]), xb[nx - 1])
         y = min(max(heat_y[k], yb[0]), yb[ny - 1])
         i = 0
@@ -124,73 +165,62 @@ def _kernel(
             j += 1
         fx = (x - xb[i]) / (xb[i + 1] - xb[i])
         fy = (y - yb[j]) / (yb[j + 1] - yb[j])
-        w00 = (1.0 - fx) * (1.0 - fy)
-        w01 = (1.0 - fx) * fy
-        w10 = fx * (1.0 - fy)
-        w11 = fx * fy
-        e_c = oat_c[k]
-        for p in range(n_particles):
-            q0[p] = (
-                w00 * heat[p, i, j] + w01 * heat[p, i, j + 1] + w10 * heat[p, i + 1, j] + w11 * heat[p, i + 1, j + 1]
-            )
-            g_alt = np.exp(a_exp[p] * log_pressure_ratio[k] + b_exp[p] * log_temperature_ratio[k])
-            onset = mix_on[p]
-            enrich = min(max((load[k] - onset) / (1.0 - onset), 0.0), 1.0)
-            gain_heat[p] = gamma_q[k] * (1.0 - mix_f[p] * enrich) * g_alt
-            g_air = max(floor[p], 1.0 + k_air[p] * (airspeed[k] - v_ref[p]))
-            g_rho = np.exp(n_rho[p] * (log_density[k] - log_rho_ref[p]))
-            cond[p] = g_air * g_rho / r_ce[p]
-            if k == 0:
-                pade[p] = 2.0 * q0[p]
-        _rk4_particles(temp, pade, probe, q0, gain_heat, cond, rad, inv_c, kw, lag_alpha, e_c,
-                       rad_offset, gamma_d[k], dt, k, record_every, out_cht, out_probe)  # fmt: skip
+        out[0, k] = blend(v[i, j], v[i, j + 1], v[i + 1, j], v[i + 1, j + 1], fx, fy)
+        lpr, ltr, lrho, air, load = conditions(heat_x[k], altitude_m[k], airspeed_mps[k], oat_c[k], xb[0], xb[nx - 1])
+        out[1, k], out[2, k], out[3, k] = drive(lpr, ltr, lrho, air, load, mixture[k], coeffs)
 
 
-@numba.njit(cache=True, fastmath=True, nogil=True)
-def _rk4_particles(temp, pade, probe, q0, gain_heat, cond, rad, inv_c, kw, lag_alpha, e_c,
-                   rad_offset, gamma_d, dt, k, record_every, out_cht, out_probe):  # fmt: skip
-    """One RK4 step of every particle with the drive held (the hot loop; numba vectorises it)."""
-    e_k = e_c + rad_offset
-    e4 = e_k * e_k * e_k * e_k
-    inv_gd = 1.0 / gamma_d
-    record = k % record_every == 0
-    row = k // record_every
-    if record:
-        out_cht[row, :] = temp
-        out_probe[row, :] = probe
-    for p in range(temp.shape[0]):
-        tq = temp[p]
-        wq = pade[p]
-        u = q0[p]
-        gh = gain_heat[p]
-        gc = cond[p]
-        rp = rad[p]
-        # stage 1
-        tk = tq + rad_offset
-        d1t = (gh * (wq - u) - inv_gd * (gc * (tq - e_c) + rp * (tk * tk * tk * tk - e4))) * inv_c[p]
-        d1w = kw[p] * (2.0 * u - wq)
-        # stage 2
-        t2 = tq + 0.5 * dt * d1t
-        w2 = wq + 0.5 * dt * d1w
-        tk = t2 + rad_offset
-        d2t = (gh * (w2 - u) - inv_gd * (gc * (t2 - e_c) + rp * (tk * tk * tk * tk - e4))) * inv_c[p]
-        d2w = kw[p] * (2.0 * u - w2)
-        # stage 3
-        t3 = tq + 0.5 * dt * d2t
-        w3 = wq + 0.5 * dt * d2w
-        tk = t3 + rad_offset
-        d3t = (gh * (w3 - u) - inv_gd * (gc * (t3 - e_c) + rp * (tk * tk * tk * tk - e4))) * inv_c[p]
-        d3w = kw[p] * (2.0 * u - w3)
-        # stage 4
-        t4 = tq + dt * d3t
-        w4 = wq + dt * d3w
-        tk = t4 + rad_offset
-        d4t = (gh * (w4 - u) - inv_gd * (gc * (t4 - e_c) + rp * (tk * tk * tk * tk - e4))) * inv_c[p]
-        d4w = kw[p] * (2.0 * u - w4)
-        tn = tq + dt / 6.0 * (d1t + 2.0 * d2t + 2.0 * d3t + d4t)
-        temp[p] = tn
-        pade[p] = wq + dt / 6.0 * (d1w + 2.0 * d2w + 2.0 * d3w + d4w)
-        probe[p] = probe[p] + lag_alpha[p] * (tn - probe[p])
+# Names the kernels call; _kernel() and _drive() bind them to the compiled equations.
+blend = drive = rk4 = lag_fraction = probe_step = conditions = particles_step = None
+
+
+@functools.cache
+def _kernel() -> Callable[..., None]:
+    """The swarm kernel compiled with the equations' numba twins (cached on disk)."""
+    eq = compiled_equations(SWARM_FASTMATH)
+    tag = fingerprint([__file__])
+    step = jit(_particles_step, tag, fastmath=set(SWARM_FASTMATH), rk4=eq.rk4, probe_step=eq.probe_step)
+    return jit(
+        _swarm_kernel,
+        tag,
+        fastmath=set(SWARM_FASTMATH),
+        particles_step=step,
+        blend=eq.blend,
+        drive=eq.drive,
+        rk4=eq.rk4,
+        lag_fraction=eq.lag_fraction,
+        probe_step=eq.probe_step,
+    )
+
+
+@functools.cache
+def _drive() -> Callable[..., None]:
+    """The drive kernel compiled with the exact (IEEE) equations: equal bit for bit to the scalar path."""
+    eq = compiled_equations(False)
+    return jit(_drive_kernel, fingerprint([__file__]), blend=eq.blend, conditions=eq.conditions, drive=eq.drive)
+
+
+def compute_drive_compiled(inputs: InputSeries, coeffs: Coefficients) -> Drive:
+    """:func:`ecu_monitor.model.compute_drive` of one parameter set over N steps, compiled.
+
+    Each step equals the scalar path of ``compute_drive`` bit for bit (same equations, same math
+    library), so a filter run over a whole flight matches the live filter stepping through it.
+    ``coeffs`` must hold floats (``ecu_monitor.estimation.ekf.scalar_coefficients``).
+    """
+    n = int(np.size(inputs.heat_x))
+    hx, hy, alt, air, oat, mix = (
+        np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (n,))) for v in inputs
+    )
+    out = np.empty((4, n))
+    kernel: Any = _drive()
+    kernel(hx, hy, alt, air, oat, mix, coeffs, out)
+    return Drive(out[0], out[1], oat, out[3], out[2])
+
+
+def _same(values: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """values[k] == values[k-1] for k >= 1, NaN equal to NaN."""
+    a, b = values[1:], values[:-1]
+    return (a == b) | (np.isnan(a) & np.isnan(b))
 
 
 def simulate_compiled(
@@ -210,18 +240,16 @@ def simulate_compiled(
     n = int(np.size(inputs.heat_x))
     if n < 1:
         raise ValueError("simulate_compiled: empty input series")
-    hx, hy, alt, air, oat = (np.ascontiguousarray(np.asarray(v, dtype=float).reshape(n)) for v in inputs)
-    pressure = np.asarray(isa_pressure_pa(alt), dtype=float)
-    log_pr = np.log(pressure / SEA_LEVEL_PRESSURE_PA)
-    log_tr = np.log(SEA_LEVEL_TEMPERATURE_K / (oat + KELVIN_OFFSET))
-    log_rho = np.log(np.asarray(air_density_kg_m3(pressure, oat), dtype=float))
+    hx, hy, alt, air, oat, mix = (
+        np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (n,))) for v in inputs
+    )
     xb = np.ascontiguousarray(coeffs.x_breakpoints, dtype=float)
     yb = np.ascontiguousarray(coeffs.y_breakpoints, dtype=float)
-    load = np.clip((hx - xb[0]) / (xb[-1] - xb[0]), 0.0, 1.0)
+    conditions = [np.ascontiguousarray(v) for v in _eq.conditions(hx, alt, air, oat, float(xb[0]), float(xb[-1]))]
     swarm = np.ndim(coeffs.c_w) > 0
     n_particles = int(np.size(coeffs.c_w)) if swarm else 1
-    theta = np.empty((len(_COLUMNS), n_particles))
-    for row, name in enumerate(_COLUMNS):
+    theta = np.empty((len(PARAMETER_FIELDS), n_particles))
+    for row, name in enumerate(PARAMETER_FIELDS):
         theta[row] = np.broadcast_to(np.asarray(getattr(coeffs, name), dtype=float), (n_particles,))
     heat = np.ascontiguousarray(
         np.broadcast_to(np.asarray(coeffs.heat_values_w, dtype=float), (n_particles, xb.size, yb.size))
@@ -229,17 +257,18 @@ def simulate_compiled(
     t0 = np.ascontiguousarray(np.broadcast_to(np.asarray(initial_cht_c, dtype=float), (n_particles,)))
     g_q = np.ascontiguousarray(np.broadcast_to(np.asarray(gamma_q, dtype=float), (n,)))
     g_d = np.ascontiguousarray(np.broadcast_to(np.asarray(gamma_d, dtype=float), (n,)))
-    drive_inputs = np.stack([hx, hy, log_pr, log_tr, oat, air, g_q])
     changed = np.ones(n, dtype=np.bool_)
-    changed[1:] = np.any(drive_inputs[:, 1:] != drive_inputs[:, :-1], axis=0)
+    for values in (hx, hy, alt, air, oat, mix):
+        changed[1:] &= _same(values)
+    changed[1:] = ~changed[1:]
     n_rec = (n + record_every - 1) // record_every
     out_cht = np.empty((n_rec, n_particles))
     out_probe = np.empty((n_rec, n_particles))
+    kernel: Any = _kernel()
     with np.errstate(all="ignore"):
-        _kernel(
-            hx, hy, log_pr, log_tr, oat, np.maximum(air, 0.0), log_rho, load, g_q, g_d, changed, xb, yb,
-            np.ascontiguousarray(theta), heat, float(coeffs.radiation_offset_c), float(dt_s), t0,
-            int(record_every), out_cht, out_probe,
+        kernel(
+            hx, hy, *conditions, mix, oat, g_q, g_d, changed, xb, yb, theta, heat, float(coeffs.radiation_offset_c),
+            float(dt_s), t0, int(record_every), out_cht, out_probe,
         )  # fmt: skip
     bad = ~np.isfinite(out_probe) | (np.abs(out_probe) > 5000.0)
     failed: NDArray[np.bool_] = np.asarray(bad.any(axis=0))

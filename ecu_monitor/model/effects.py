@@ -1,13 +1,15 @@
-"""Unmodelled-effect extensions of the nominal CHT model (DESIGN.md section 5).
+"""Unmodelled-effect extensions of the nominal CHT model (docs/model.md).
 
 The paper's model has no airspeed, no density and no probe dynamics in its dissipation; real engines
 do. Each effect here is a named, parameterised physical term. It can be switched on in the virtual
 ECU's truth plant (to make a realistic sim-to-real gap) and, once the gap diagnosis finds it, in the
 identified model. An effect that is ``None`` in :class:`Effects` is off and the model is the paper's.
 
-- ``airspeed_cooling``: the convective conductance 1/R_Ce grows with calibrated airspeed,
-  ``G = (1/R_Ce) * max(floor, 1 + gain_per_mps * (v - reference_mps))``. At the reference speed
-  (cruise) the nominal R_Ce holds; on the ground only the propeller slipstream cools.
+- ``airspeed_cooling``: the convective conductance 1/R_Ce grows with the speed of the air over the
+  fins. On the ground the propeller still blows air through the cowling, so the cooling flow never
+  drops below the propeller wash: ``v_eff = max(v, prop_wash_mps)``, and
+  ``G = (1/R_Ce) * max(floor, 1 + gain_per_mps * (v_eff - reference_mps))``. At the reference speed
+  (cruise) the nominal R_Ce holds; ``floor`` only keeps G positive for a steep gain.
 - ``density_cooling``: forced convection scales with air density,
   ``G *= (rho / reference_kg_m3) ** exponent`` with rho from ISA pressure and the measured OAT
   (h ~ (rho v)^0.8 for a turbulent flow over fins, so exponent ~0.5-0.8).
@@ -16,6 +18,16 @@ identified model. An effect that is ``None`` in :class:`Effects` is off and the 
 - ``mixture_cooling``: power enrichment at high load puts less heat into the head. With
   ``load`` the first heat-map axis normalised to 0..1 over its breakpoints,
   ``Q *= 1 - fraction * clip((load - onset) / (1 - onset), 0, 1)``.
+- ``mixture_index``: the heat into the head follows the mixture, read from a logged lean/rich index
+  (``source``: the exhaust gas temperature ``egt_c``, or the fuel per revolution
+  ``fuel_per_rev`` = fuel_flow_lph / rpm in mL/rev): ``Q *= exp(gain * (index - reference))``, smooth,
+  positive, and ``1 + gain * (index - reference)`` near the reference. Where the index is not logged
+  (NaN) the factor is 1.
+
+Adding an effect: a frozen dataclass here (validated fields, a docstring with units), an entry in
+:data:`EFFECT_TYPES` and a field in :class:`Effects`; its coefficients in
+:func:`ecu_monitor.model.thermal.coefficients` and its term in the drive equations of
+:mod:`ecu_monitor.model.equations` (docs/model.md).
 """
 
 from __future__ import annotations
@@ -28,10 +40,13 @@ from ecu_monitor.errors import ParameterError
 
 __all__ = [
     "EFFECT_NAMES",
+    "EFFECT_TYPES",
+    "MIXTURE_SOURCES",
     "AirspeedCooling",
     "DensityCooling",
     "Effects",
     "MixtureCooling",
+    "MixtureIndex",
     "SensorLag",
 ]
 
@@ -41,23 +56,40 @@ def _check_range(effect: str, name: str, value: float, low: float, high: float) 
         raise ParameterError(f"effects.{effect}.{name}: expected a number in [{low}, {high}], got {value!r}")
 
 
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool):
+        raise ParameterError(f"{where}: expected a number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{where}: expected a number, got {value!r}") from None
+
+
+def _plain(value: Any) -> Any:
+    return value if isinstance(value, str) else float(value)
+
+
 @dataclass(frozen=True)
 class AirspeedCooling:
-    """Convective conductance grows linearly with calibrated airspeed.
+    """Convective conductance grows linearly with the cooling air speed max(airspeed, prop wash).
 
     gain_per_mps: relative conductance change per m/s (1/(m/s)), typically 0.005-0.03.
     reference_mps: airspeed at which the nominal R_Ce holds (m/s), the cruise speed.
-    floor: smallest conductance multiplier (propeller slipstream on the ground), 0.05-1.
+    floor: smallest conductance multiplier (a guard that keeps G positive), 0.05-1.
+    prop_wash_mps: speed of the propeller wash through the cowling on the ground (m/s), 0-60; the
+        cooling air never flows slower. 0 (the default) means airspeed alone.
     """
 
     gain_per_mps: float = 0.015
     reference_mps: float = 23.0
     floor: float = 0.4
+    prop_wash_mps: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("airspeed_cooling", "gain_per_mps", self.gain_per_mps, -0.2, 0.2)
         _check_range("airspeed_cooling", "reference_mps", self.reference_mps, 1.0, 200.0)
         _check_range("airspeed_cooling", "floor", self.floor, 0.05, 1.0)
+        _check_range("airspeed_cooling", "prop_wash_mps", self.prop_wash_mps, 0.0, 60.0)
 
 
 @dataclass(frozen=True)
@@ -100,13 +132,48 @@ class MixtureCooling:
         _check_range("mixture_cooling", "onset", self.onset, 0.0, 0.95)
 
 
-_EFFECT_TYPES: dict[str, type] = {
+#: Lean/rich indices the mixture_index effect can read -> (unit, accepted range of the reference, the
+#: index's typical swing over a flight; |gain| x swing <= 3 keeps the factor within e^-3..e^3).
+MIXTURE_SOURCES: dict[str, tuple[str, float, float, float]] = {
+    "egt_c": ("degC", 0.0, 1200.0, 300.0),  # exhaust gas temperature
+    "fuel_per_rev": ("mL/rev", 0.0, 5.0, 0.3),  # fuel_flow_lph / rpm, in mL per revolution
+}
+
+
+@dataclass(frozen=True)
+class MixtureIndex:
+    """Heat into the head follows a logged lean/rich index: Q *= exp(gain * (index - reference)).
+
+    source: the index, one of :data:`MIXTURE_SOURCES`: "egt_c" (degC) or "fuel_per_rev" (mL/rev).
+    gain: relative change of the heat per unit of the index (1/degC or rev/mL); a richer mixture
+        (lower EGT, more fuel per revolution) cools the head.
+    reference: index value at which the nominal heat map holds (degC or mL/rev).
+    """
+
+    source: str = "egt_c"
+    gain: float = 0.001
+    reference: float = 650.0
+
+    def __post_init__(self) -> None:
+        if self.source not in MIXTURE_SOURCES:
+            raise ParameterError(
+                f"effects.mixture_index.source: expected one of {', '.join(MIXTURE_SOURCES)}, got {self.source!r}"
+            )
+        unit, low, high, swing = MIXTURE_SOURCES[self.source]
+        reach = 3.0 / swing
+        _check_range("mixture_index", "gain", self.gain, -reach, reach)
+        _check_range("mixture_index", f"reference ({unit})", self.reference, low, high)
+
+
+#: Effect name -> its parameter class (the one list of effects).
+EFFECT_TYPES: dict[str, type] = {
     "airspeed_cooling": AirspeedCooling,
     "density_cooling": DensityCooling,
     "sensor_lag": SensorLag,
     "mixture_cooling": MixtureCooling,
+    "mixture_index": MixtureIndex,
 }
-EFFECT_NAMES: tuple[str, ...] = tuple(_EFFECT_TYPES)
+EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)
 
 
 @dataclass(frozen=True)
@@ -117,9 +184,10 @@ class Effects:
     density_cooling: DensityCooling | None = None
     sensor_lag: SensorLag | None = None
     mixture_cooling: MixtureCooling | None = None
+    mixture_index: MixtureIndex | None = None
 
     def __post_init__(self) -> None:
-        for name, kind in _EFFECT_TYPES.items():
+        for name, kind in EFFECT_TYPES.items():
             value = getattr(self, name)
             if value is not None and not isinstance(value, kind):
                 raise ParameterError(f"effects.{name}: expected {kind.__name__} or None")
@@ -129,12 +197,12 @@ class Effects:
         """Names of the effects that are on."""
         return tuple(name for name in EFFECT_NAMES if getattr(self, name) is not None)
 
-    def to_dict(self) -> dict[str, dict[str, float]]:
-        """Plain dict of the active effects (for YAML)."""
-        out: dict[str, dict[str, float]] = {}
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Plain dict of the active effects (for YAML): numbers as floats, choices as strings."""
+        out: dict[str, dict[str, Any]] = {}
         for name in self.active:
             value = getattr(self, name)
-            out[name] = {f.name: float(getattr(value, f.name)) for f in fields(value)}
+            out[name] = {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
         return out
 
     @classmethod
@@ -146,7 +214,7 @@ class Effects:
             raise ParameterError(f"{where}: expected a mapping of effect name -> parameters")
         kwargs: dict[str, Any] = {}
         for name, params in data.items():
-            kind = _EFFECT_TYPES.get(name)
+            kind = EFFECT_TYPES.get(name)
             if kind is None:
                 raise ParameterError(f"{where}.{name}: unknown effect (known: {', '.join(EFFECT_NAMES)})")
             params = params or {}
@@ -156,12 +224,21 @@ class Effects:
             for key in params:
                 if key not in known:
                     raise ParameterError(f"{where}.{name}.{key}: unknown parameter (known: {sorted(known)})")
-            kwargs[name] = kind(**{k: float(v) for k, v in params.items()})
+            choices = {f.name for f in fields(kind) if f.type in ("str", str)}
+            values: dict[str, Any] = {}
+            for key, value in params.items():
+                if key in choices:
+                    if not isinstance(value, str):
+                        raise ParameterError(f"{where}.{name}.{key}: expected a name, got {value!r}")
+                    values[key] = value
+                else:
+                    values[key] = _number(value, f"{where}.{name}.{key}")
+            kwargs[name] = kind(**values)
         return cls(**kwargs)
 
     def replace(self, name: str, value: Any) -> Effects:
         """A copy with one effect switched on (an effect object) or off (None)."""
-        if name not in _EFFECT_TYPES:
+        if name not in EFFECT_TYPES:
             raise ParameterError(f"effects.{name}: unknown effect")
         current = {n: getattr(self, n) for n in EFFECT_NAMES}
         current[name] = value

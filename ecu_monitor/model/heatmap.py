@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ecu_monitor.errors import ParameterError
+from ecu_monitor.model.equations import blend
 
 __all__ = ["HeatMap", "bilinear", "reference_heat_map"]
 
@@ -99,11 +100,7 @@ def bilinear(
     """
     i, fx = _cell(x_breakpoints, x)
     j, fy = _cell(y_breakpoints, y)
-    v00 = values[..., i, j]
-    v10 = values[..., i + 1, j]
-    v01 = values[..., i, j + 1]
-    v11 = values[..., i + 1, j + 1]
-    return (1 - fx) * ((1 - fy) * v00 + fy * v01) + fx * ((1 - fy) * v10 + fy * v11)
+    return blend(values[..., i, j], values[..., i, j + 1], values[..., i + 1, j], values[..., i + 1, j + 1], fx, fy)
 
 
 # The reference engine: 29 cc single-cylinder air-cooled 2-stroke, 0.4-1.9 kW shaft power over

@@ -1,9 +1,9 @@
 """The thermal model's parameters: a frozen, validated object that round-trips through model.yaml.
 
-Symbols follow the paper (notes.md, Eq. 2, 10-12, 18); units are in each field's comment.
+Symbols follow the paper (Eq. 2, 10-12, 18; docs/model.md); units are in each field's comment.
 ``paper_table_a1()`` is the paper's identified values (Table A1) with the reference engine's heat
 map: the default model everywhere. Note its radiative term uses degC inside T^4 (the only reading
-under which 8.1e5 makes physical sense, see notes.md); a model identified here states its own
+under which 8.1e5 makes physical sense, docs/model.md); a model identified here states its own
 convention in ``radiation_in_kelvin``.
 """
 
@@ -23,6 +23,7 @@ from ecu_monitor.model.heatmap import HeatMap, reference_heat_map
 
 __all__ = [
     "MODEL_KIND",
+    "NOMINAL_TERMS",
     "ThermalParams",
     "load_model",
     "paper_table_a1",
@@ -30,6 +31,10 @@ __all__ = [
 ]
 
 MODEL_KIND = "cht-0d-single-zone"
+#: Terms of the paper's own model that a model may switch off (``ThermalParams.terms_off``):
+#: "altitude_scaling" makes g(z) = 1 (a and b unused: a heat map driven by measured fuel flow already
+#: carries altitude); "radiation" drops the T^4 term (alpha_r_e unused).
+NOMINAL_TERMS: tuple[str, ...] = ("altitude_scaling", "radiation")
 _SCALARS: dict[str, tuple[float, float]] = {
     # name: (lowest, highest) accepted
     "c_w": (1.0, 1e6),
@@ -56,6 +61,8 @@ class ThermalParams:
     heat_map: sea-level heat into the wall Q_SL0 on n x m breakpoints, W.
     effects: unmodelled-effect extensions switched on in this model (none in the paper's).
     cht_limit_c: CHT limit of the engine for headroom and the step-climb, degC.
+    terms_off: terms of the paper's model switched off (names from :data:`NOMINAL_TERMS`), so that
+        identification can test whether a term belongs on an engine; () is the paper's model.
     """
 
     c_w: float = 570.0
@@ -68,6 +75,7 @@ class ThermalParams:
     heat_map: HeatMap = field(default_factory=reference_heat_map)
     effects: Effects = field(default_factory=Effects)
     cht_limit_c: float = 150.0
+    terms_off: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name, (low, high) in _SCALARS.items():
@@ -83,6 +91,18 @@ class ThermalParams:
             raise ParameterError("heat_map: expected a HeatMap")
         if not isinstance(self.effects, Effects):
             raise ParameterError("effects: expected an Effects")
+        if isinstance(self.terms_off, str) or not isinstance(self.terms_off, tuple | list):
+            raise ParameterError(f"terms_off: expected a list of term names, got {self.terms_off!r}")
+        for term in self.terms_off:
+            if term not in NOMINAL_TERMS:
+                raise ParameterError(f"terms_off: unknown term {term!r} (known: {', '.join(NOMINAL_TERMS)})")
+        object.__setattr__(self, "terms_off", tuple(t for t in NOMINAL_TERMS if t in self.terms_off))
+
+    def term_on(self, term: str) -> bool:
+        """Whether a term of the paper's model (one of :data:`NOMINAL_TERMS`) is in this model."""
+        if term not in NOMINAL_TERMS:
+            raise ParameterError(f"terms_off: unknown term {term!r} (known: {', '.join(NOMINAL_TERMS)})")
+        return term not in self.terms_off
 
     @property
     def heat_axes(self) -> tuple[str, str]:
@@ -115,6 +135,7 @@ class ThermalParams:
                 "values_w": [[float(v) for v in row] for row in hm.values_w],
             },
             "effects": self.effects.to_dict(),
+            **({"terms_off": list(self.terms_off)} if self.terms_off else {}),
         }
 
     @classmethod
@@ -138,6 +159,11 @@ class ThermalParams:
         if "heat_map" in data:
             kwargs["heat_map"] = _heat_map(data["heat_map"])
         kwargs["effects"] = Effects.from_dict(data.get("effects"))
+        if "terms_off" in data:
+            terms = data["terms_off"] or []
+            if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
+                raise ParameterError(f"terms_off: expected a list of term names, got {data['terms_off']!r}")
+            kwargs["terms_off"] = tuple(terms)
         return cls(**kwargs)
 
 

@@ -1,42 +1,40 @@
-"""The 0D single-zone CHT model as pure functions of (state, inputs, coefficients).
+"""The 0D single-zone CHT model as functions of (state, inputs, coefficients): the numpy reference.
 
     C_w dT/dt = gamma_Q * h_mix * g(z) * Q_SL  -  (1/gamma_D) * [ G (T - T_e) + (T^4 - T_e^4)/(alpha R_e) ]
-    w' = (2/tau_w) (2 Q_SL0 - w),   Q_SL = w - Q_SL0          (first-order Pade delay, notes.md)
+    w' = (2/tau_w) (2 Q_SL0 - w),   Q_SL = w - Q_SL0          (first-order Pade delay, docs/model.md)
     g(z) = (p(z)/p_SL)^a (T_SL/T_e)^b                        (ISA pressure, measured OAT)
-    G = (1/R_Ce) * airspeed gain * density gain                (both 1 in the paper's model)
+    G = (1/R_Ce) * airspeed factor * density factor          (both 1 in the paper's model)
+
+The equations themselves are written once, in :mod:`ecu_monitor.model.equations`; this module puts
+them in the shapes callers use: :func:`coefficients` (ThermalParams -> numbers), :func:`compute_drive`
+(inputs -> drive), :func:`rk4_step`, :func:`simulate` (the reference open-loop run).
 
 States (declared once):
     T  cylinder-head temperature, degC
     w  internal state of the Pade delay, W (steady state: w = 2 Q_SL0)
     T_probe  probe temperature, degC (only with the sensor_lag effect; otherwise the probe reads T)
-Inputs (flight columns): the two heat-map axes (default throttle_pct, rpm), altitude_m,
-    airspeed_mps, oat_c.
+Inputs (:class:`InputSeries`; :func:`ecu_monitor.model.inputs.flight_inputs` reads them from a flight
+log): the two heat-map axes (default throttle_pct, rpm), altitude_m, airspeed_mps, oat_c and the
+optional mixture index of the mixture_index effect.
 
-Everything here is plain arithmetic on floats or numpy arrays, so the same functions run for one
-parameter set (floats: the live estimator), for a swarm (arrays of shape (P,): PSO) and over a whole
-flight at once (arrays of shape (N,): diagnostics). Inputs are held constant over a step (zero-order
-hold); the step is RK4.
+The same functions run for one parameter set (floats: one step of the live filter, on the math
+module), for a swarm (arrays of shape (P,)) and over a whole flight at once (arrays of shape (N,)).
+Inputs are held constant over a step (zero-order hold); the step is RK4.
 """
 
 from __future__ import annotations
 
 import bisect
+import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.model.atmosphere import (
-    ISA_PRESSURE_EXPONENT,
-    KELVIN_OFFSET,
-    LAPSE_RATE_K_PER_M,
-    SEA_LEVEL_DENSITY_KG_M3,
-    SEA_LEVEL_PRESSURE_PA,
-    SEA_LEVEL_TEMPERATURE_K,
-    air_density_kg_m3,
-    isa_pressure_pa,
-)
+from ecu_monitor.model import equations as _eq
+from ecu_monitor.model.atmosphere import KELVIN_OFFSET, SEA_LEVEL_DENSITY_KG_M3
+from ecu_monitor.model.equations import Coefficients
 from ecu_monitor.model.heatmap import bilinear
 from ecu_monitor.model.params import ThermalParams
 
@@ -44,6 +42,7 @@ from ecu_monitor.model.params import ThermalParams
 Real = float | NDArray[np.float64]
 
 __all__ = [
+    "EFFECT_COEFFICIENTS",
     "STATE_NAMES",
     "Coefficients",
     "Drive",
@@ -54,6 +53,7 @@ __all__ = [
     "derivatives",
     "initial_pade_state",
     "rk4_step",
+    "scalar_coefficients",
     "sensor_step",
     "simulate",
     "stack_coefficients",
@@ -61,33 +61,6 @@ __all__ = [
 ]
 
 STATE_NAMES = ("cht_c", "pade_w", "probe_c")
-
-
-class Coefficients(NamedTuple):
-    """Numeric form of ThermalParams for the kernels: each field a float or an array (P,) for a swarm.
-
-    heat_values_w has shape (n, m) or (P, n, m); breakpoints are shared by all particles.
-    Effects that are off take their neutral value (gain 0, exponent 0, lag 0, fraction 0).
-    """
-
-    c_w: Real  # J/degC
-    r_ce: Real  # degC/W
-    radiative_conductance: Real  # 1/(alpha R_e), W/deg^4
-    radiation_offset_c: float  # 273.15 when T^4 is in Kelvin, 0 for the paper's preset
-    tau_w: Real  # s
-    a: Real
-    b: Real
-    heat_values_w: np.ndarray  # (n, m) or (P, n, m), W
-    x_breakpoints: np.ndarray
-    y_breakpoints: np.ndarray
-    airspeed_gain_per_mps: Real  # 1/(m/s)
-    airspeed_reference_mps: Real
-    airspeed_floor: Real
-    density_exponent: Real
-    density_reference_kg_m3: Real
-    sensor_lag_s: Real  # s, 0 = no lag
-    mixture_fraction: Real
-    mixture_onset: Real
 
 
 class Drive(NamedTuple):
@@ -101,39 +74,73 @@ class Drive(NamedTuple):
 
 
 class InputSeries(NamedTuple):
-    """Model inputs over time (arrays of length N, or floats for one step)."""
+    """Model inputs over time (arrays of length N, or floats for one step).
+
+    mixture_index is the lean/rich index the mixture_index effect reads (EGT degC or fuel per
+    revolution mL/rev, as the effect's ``source`` says); NaN (the default) means not logged: the
+    effect's factor is then 1. Build these from a flight log with
+    :func:`ecu_monitor.model.inputs.flight_inputs`.
+    """
 
     heat_x: Real  # first heat-map axis (e.g. throttle_pct)
     heat_y: Real  # second heat-map axis (e.g. rpm)
-    altitude_m: Real
-    airspeed_mps: Real
-    oat_c: Real
+    altitude_m: Real  # pressure altitude, m
+    airspeed_mps: Real  # calibrated airspeed, m/s
+    oat_c: Real  # outside air temperature, degC
+    mixture_index: Real = math.nan  # lean/rich index of the mixture_index effect (NaN: not logged)
+
+    def at(self, k: int) -> InputSeries:
+        """The inputs of step ``k`` as floats (a field given as one number holds for every step)."""
+        return InputSeries(*(float(v) if np.ndim(v) == 0 else float(np.asarray(v)[k]) for v in self))
+
+
+#: "effect.parameter" -> (Coefficients field, its neutral value while the effect is off).
+EFFECT_COEFFICIENTS: dict[str, tuple[str, float]] = {
+    "airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", 0.0),
+    "airspeed_cooling.reference_mps": ("airspeed_reference_mps", 23.0),
+    "airspeed_cooling.floor": ("airspeed_floor", 1.0),
+    "airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0),
+    "density_cooling.exponent": ("density_exponent", 0.0),
+    "density_cooling.reference_kg_m3": ("density_reference_kg_m3", SEA_LEVEL_DENSITY_KG_M3),
+    "sensor_lag.time_constant_s": ("sensor_lag_s", 0.0),
+    "mixture_cooling.fraction": ("mixture_fraction", 0.0),
+    "mixture_cooling.onset": ("mixture_onset", 0.7),
+    "mixture_index.gain": ("mixture_gain", 0.0),
+    "mixture_index.reference": ("mixture_reference", 0.0),
+}
 
 
 def coefficients(params: ThermalParams) -> Coefficients:
-    """Kernel coefficients of one parameter set."""
-    fx = params.effects
-    air, dens, lag, mix = fx.airspeed_cooling, fx.density_cooling, fx.sensor_lag, fx.mixture_cooling
+    """Kernel coefficients of one parameter set (terms switched off and effects off are neutral)."""
+    fields: dict[str, Any] = {}
+    for key, (name, neutral) in EFFECT_COEFFICIENTS.items():
+        effect, parameter = key.split(".")
+        value = getattr(params.effects, effect)
+        fields[name] = float(getattr(value, parameter)) if value is not None else neutral
+    altitude_on = params.term_on("altitude_scaling")
     return Coefficients(
         c_w=params.c_w,
         r_ce=params.r_ce,
-        radiative_conductance=1.0 / params.alpha_r_e,
-        radiation_offset_c=KELVIN_OFFSET if params.radiation_in_kelvin else 0.0,
+        radiative_conductance=1.0 / params.alpha_r_e if params.term_on("radiation") else 0.0,
         tau_w=params.tau_w,
-        a=params.a,
-        b=params.b,
+        a=params.a if altitude_on else 0.0,
+        b=params.b if altitude_on else 0.0,
+        radiation_offset_c=KELVIN_OFFSET if params.radiation_in_kelvin else 0.0,
         heat_values_w=params.heat_map.values_array(),
         x_breakpoints=np.asarray(params.heat_map.x_breakpoints, dtype=float),
         y_breakpoints=np.asarray(params.heat_map.y_breakpoints, dtype=float),
-        airspeed_gain_per_mps=air.gain_per_mps if air else 0.0,
-        airspeed_reference_mps=air.reference_mps if air else 23.0,
-        airspeed_floor=air.floor if air else 1.0,
-        density_exponent=dens.exponent if dens else 0.0,
-        density_reference_kg_m3=dens.reference_kg_m3 if dens else SEA_LEVEL_DENSITY_KG_M3,
-        sensor_lag_s=lag.time_constant_s if lag else 0.0,
-        mixture_fraction=mix.fraction if mix else 0.0,
-        mixture_onset=mix.onset if mix else 0.7,
+        **fields,
     )
+
+
+def scalar_coefficients(coeffs: Coefficients) -> Coefficients:
+    """Coefficients of one parameter set with every scalar field a Python float and every array
+    contiguous float64 (one numba type for every model)."""
+    fields: dict[str, Any] = {
+        name: float(value) if np.ndim(value) == 0 else np.ascontiguousarray(value, dtype=np.float64)
+        for name, value in coeffs._asdict().items()
+    }
+    return Coefficients(**fields)
 
 
 def stack_coefficients(params: Sequence[ThermalParams]) -> Coefficients:
@@ -158,37 +165,28 @@ def stack_coefficients(params: Sequence[ThermalParams]) -> Coefficients:
 
 
 def compute_drive(inputs: InputSeries, coeffs: Coefficients) -> Drive:
-    """Drive quantities from the inputs: heat map, altitude scaling and the effects' gains.
+    """Drive quantities from the inputs: heat map, altitude scaling and the effects' factors.
 
-    One step of one parameter set (all floats) takes a plain-float path (~10x cheaper than numpy on
-    scalars: the live filter calls this every 20 ms); anything else is broadcast with numpy.
+    One step of one parameter set (all floats) runs the equations on the math module (~10x cheaper
+    than numpy on scalars); anything else is broadcast with numpy. Same functions either way.
     """
     if _is_scalar_case(inputs, coeffs):
         return _compute_drive_scalar(inputs, coeffs)
-    q_sl0 = bilinear(coeffs.heat_values_w, coeffs.x_breakpoints, coeffs.y_breakpoints, inputs.heat_x, inputs.heat_y)
+    xb = coeffs.x_breakpoints
+    q_sl0 = bilinear(coeffs.heat_values_w, xb, coeffs.y_breakpoints, inputs.heat_x, inputs.heat_y)
     oat_c = np.asarray(inputs.oat_c, dtype=float)
-    pressure = np.asarray(isa_pressure_pa(inputs.altitude_m))
-    oat_k = oat_c + KELVIN_OFFSET
-    altitude_gain = (pressure / SEA_LEVEL_PRESSURE_PA) ** coeffs.a * (SEA_LEVEL_TEMPERATURE_K / oat_k) ** coeffs.b
-    airspeed = np.maximum(np.asarray(inputs.airspeed_mps, dtype=float), 0.0)
-    airspeed_gain = np.maximum(
-        coeffs.airspeed_floor,
-        1.0 + coeffs.airspeed_gain_per_mps * (airspeed - coeffs.airspeed_reference_mps),
+    conditions = _eq.conditions(
+        np.asarray(inputs.heat_x, dtype=float),
+        np.asarray(inputs.altitude_m, dtype=float),
+        np.asarray(inputs.airspeed_mps, dtype=float),
+        oat_c,
+        float(xb[0]),
+        float(xb[-1]),
     )
-    density = air_density_kg_m3(pressure, oat_c)
-    density_gain = (density / coeffs.density_reference_kg_m3) ** coeffs.density_exponent
-    span = coeffs.x_breakpoints[-1] - coeffs.x_breakpoints[0]
-    load = np.clip((np.asarray(inputs.heat_x, dtype=float) - coeffs.x_breakpoints[0]) / span, 0.0, 1.0)
-    onset = np.asarray(coeffs.mixture_onset, dtype=float)
-    enrichment = np.clip((load - onset) / (1.0 - onset), 0.0, 1.0)
-    heat_gain = 1.0 - coeffs.mixture_fraction * enrichment
-    return Drive(
-        q_sl0_w=q_sl0,
-        altitude_gain=altitude_gain,
-        ambient_c=oat_c,
-        conductance_w_per_c=airspeed_gain * density_gain / coeffs.r_ce,
-        heat_gain=heat_gain,
+    altitude_gain, heat_gain, conductance = _eq.drive(
+        *conditions, np.asarray(inputs.mixture_index, dtype=float), coeffs
     )
+    return Drive(q_sl0, altitude_gain, oat_c, conductance, heat_gain)
 
 
 _SCALAR_TYPES = (float, int, np.floating, np.integer)
@@ -212,34 +210,18 @@ def _cell_scalar(breakpoints: NDArray[np.float64], q: float) -> tuple[int, float
 
 
 def _compute_drive_scalar(inputs: InputSeries, coeffs: Coefficients) -> Drive:
-    """compute_drive for floats with the math module (same formulas; tested equal)."""
-    heat_x, heat_y, altitude_m, airspeed_mps, oat_c = (float(v) for v in inputs)
+    """compute_drive for floats: the same equations bound to the math module."""
+    heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index = (float(v) for v in inputs)
     c: Any = coeffs
     i, fx = _cell_scalar(c.x_breakpoints, heat_x)
     j, fy = _cell_scalar(c.y_breakpoints, heat_y)
     v = c.heat_values_w
-    q_sl0 = (1 - fx) * ((1 - fy) * v[i, j] + fy * v[i, j + 1]) + fx * ((1 - fy) * v[i + 1, j] + fy * v[i + 1, j + 1])
-    ratio = max(1.0 - LAPSE_RATE_K_PER_M * altitude_m / SEA_LEVEL_TEMPERATURE_K, 1e-6)
-    pressure_ratio = ratio**ISA_PRESSURE_EXPONENT
-    oat_k = oat_c + KELVIN_OFFSET
-    altitude_gain = pressure_ratio**c.a * (SEA_LEVEL_TEMPERATURE_K / oat_k) ** c.b
-    airspeed_gain = max(
-        c.airspeed_floor, 1.0 + c.airspeed_gain_per_mps * (max(airspeed_mps, 0.0) - c.airspeed_reference_mps)
+    q_sl0 = _eq.SCALAR.blend(float(v[i, j]), float(v[i, j + 1]), float(v[i + 1, j]), float(v[i + 1, j + 1]), fx, fy)
+    conditions = _eq.SCALAR.conditions(
+        heat_x, altitude_m, airspeed_mps, oat_c, float(c.x_breakpoints[0]), float(c.x_breakpoints[-1])
     )
-    density_gain = 1.0
-    if c.density_exponent != 0.0:
-        density = float(air_density_kg_m3(SEA_LEVEL_PRESSURE_PA * pressure_ratio, oat_c))
-        density_gain = (density / c.density_reference_kg_m3) ** c.density_exponent
-    x_low, x_high = float(c.x_breakpoints[0]), float(c.x_breakpoints[-1])
-    load = min(max((heat_x - x_low) / (x_high - x_low), 0.0), 1.0)
-    enrichment = min(max((load - c.mixture_onset) / (1.0 - c.mixture_onset), 0.0), 1.0)
-    return Drive(
-        q_sl0_w=float(q_sl0),
-        altitude_gain=float(altitude_gain),
-        ambient_c=oat_c,
-        conductance_w_per_c=float(airspeed_gain * density_gain / c.r_ce),
-        heat_gain=float(1.0 - c.mixture_fraction * enrichment),
-    )
+    altitude_gain, heat_gain, conductance = _eq.SCALAR.drive(*conditions, mixture_index, c)
+    return Drive(float(q_sl0), float(altitude_gain), oat_c, float(conductance), float(heat_gain))
 
 
 def initial_pade_state(drive: Drive) -> Real:
@@ -256,16 +238,11 @@ def derivatives(
     gamma_d: Real = 1.0,
 ) -> tuple[Real, Real]:
     """(dT/dt in degC/s, dw/dt in W/s) of the model (Eq. 18 with the Pade delay)."""
-    q_sl = pade_w - drive.q_sl0_w
-    heat_in = gamma_q * drive.heat_gain * drive.altitude_gain * q_sl
-    t_k = cht_c + coeffs.radiation_offset_c
-    e_k = drive.ambient_c + coeffs.radiation_offset_c
-    dissipated = drive.conductance_w_per_c * (cht_c - drive.ambient_c) + coeffs.radiative_conductance * (
-        t_k * t_k * t_k * t_k - e_k * e_k * e_k * e_k
-    )
-    d_cht = (heat_in - dissipated / gamma_d) / coeffs.c_w
-    d_pade = (2.0 / coeffs.tau_w) * (2.0 * drive.q_sl0_w - pade_w)
-    return d_cht, d_pade
+    return _derivatives(
+        cht_c, pade_w, drive.q_sl0_w, drive.heat_gain * drive.altitude_gain, drive.ambient_c,
+        drive.conductance_w_per_c, coeffs.c_w, coeffs.tau_w, coeffs.radiative_conductance,
+        coeffs.radiation_offset_c, gamma_q, gamma_d,
+    )  # fmt: skip
 
 
 def rk4_step(
@@ -278,23 +255,22 @@ def rk4_step(
     gamma_d: Real = 1.0,
 ) -> tuple[Real, Real]:
     """One RK4 step of (T, w) over dt_s seconds with the drive held constant."""
-    k1t, k1w = derivatives(cht_c, pade_w, drive, coeffs, gamma_q, gamma_d)
-    h = 0.5 * dt_s
-    k2t, k2w = derivatives(cht_c + h * k1t, pade_w + h * k1w, drive, coeffs, gamma_q, gamma_d)
-    k3t, k3w = derivatives(cht_c + h * k2t, pade_w + h * k2w, drive, coeffs, gamma_q, gamma_d)
-    k4t, k4w = derivatives(cht_c + dt_s * k3t, pade_w + dt_s * k3w, drive, coeffs, gamma_q, gamma_d)
-    sixth = dt_s / 6.0
-    return (
-        cht_c + sixth * (k1t + 2.0 * k2t + 2.0 * k3t + k4t),
-        pade_w + sixth * (k1w + 2.0 * k2w + 2.0 * k3w + k4w),
-    )
+    return _rk4(
+        cht_c, pade_w, drive.q_sl0_w, drive.heat_gain * drive.altitude_gain, drive.ambient_c,
+        drive.conductance_w_per_c, coeffs.c_w, coeffs.tau_w, coeffs.radiative_conductance,
+        coeffs.radiation_offset_c, gamma_q, gamma_d, dt_s,
+    )  # fmt: skip
+
+
+# The callees of derivatives() and rk4_step(); the compiled twins re-bind these names.
+_derivatives = _eq.derivatives
+_rk4 = _eq.rk4
 
 
 def sensor_step(probe_c: Real, cht_c: Real, coeffs: Coefficients, dt_s: float) -> Real:
     """Probe temperature after dt_s (exact first-order lag towards cht_c); no lag -> cht_c."""
-    lag = np.asarray(coeffs.sensor_lag_s, dtype=float)
-    alpha = np.where(lag > 0.0, -np.expm1(-dt_s / np.maximum(lag, 1e-12)), 1.0)
-    result = probe_c + alpha * (np.asarray(cht_c) - probe_c)
+    fraction = _eq.lag_fraction(np.asarray(coeffs.sensor_lag_s, dtype=float), dt_s)
+    result = _eq.probe_step(probe_c, np.asarray(cht_c), fraction)
     return float(result) if np.ndim(result) == 0 else result
 
 
@@ -308,18 +284,21 @@ def steady_state_cht(
     """
     heat = gamma_q * gamma_d * np.asarray(drive.heat_gain) * drive.altitude_gain * drive.q_sl0_w
     g_conv = np.asarray(drive.conductance_w_per_c, dtype=float)
-    off = coeffs.radiation_offset_c
-    e_k = np.asarray(drive.ambient_c) + off
-    temp = np.asarray(drive.ambient_c) + heat / g_conv  # convective-only solution, an upper bound
+    ambient = np.asarray(drive.ambient_c, dtype=float)
+    temp = ambient + heat / g_conv  # convective-only solution, an upper bound
     for _ in range(iterations):
-        t_k = temp + off
-        residual = g_conv * (temp - drive.ambient_c) + coeffs.radiative_conductance * (t_k**4 - e_k**4) - heat
-        slope = g_conv + 4.0 * coeffs.radiative_conductance * t_k**3
-        change = residual / slope
+        # the balance's residual and its slope (complex step: exact, and no second formula)
+        lost = _eq.dissipation(
+            temp + 1j * _COMPLEX_STEP, ambient, g_conv, coeffs.radiative_conductance, coeffs.radiation_offset_c
+        )
+        change = (lost.real - heat) / (lost.imag / _COMPLEX_STEP)
         temp = temp - change
         if not np.any(np.abs(change) > 1e-9):
             break
     return float(temp) if np.ndim(temp) == 0 else temp
+
+
+_COMPLEX_STEP = 1e-30
 
 
 def simulate(
@@ -338,14 +317,14 @@ def simulate(
     identification uses a compiled kernel with the same equations.
     """
     n = int(np.size(inputs.heat_x))
-    series = InputSeries(*(np.asarray(v, dtype=float).reshape(n) for v in inputs))
+    series = InputSeries(*(np.broadcast_to(np.asarray(v, dtype=float), (n,)) for v in inputs))
     swarm = np.ndim(coeffs.c_w) > 0
     per_time = coeffs
     if swarm:  # per-particle fields (P,) -> (P, 1) so the drive broadcasts to (P, N)
         columns: dict[str, Any] = {
             name: np.asarray(getattr(coeffs, name), dtype=float)[:, None]
             for name in Coefficients._fields
-            if name not in ("radiation_offset_c", "heat_values_w", "x_breakpoints", "y_breakpoints")
+            if name in _eq.PARAMETER_FIELDS
         }
         per_time = coeffs._replace(**columns)
     drive_all = Drive(*(np.asarray(v, dtype=float) for v in compute_drive(series, per_time)))

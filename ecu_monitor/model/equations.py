@@ -1,0 +1,317 @@
+"""The model's equations, written once: the drive (heat map, g(z), effects) and the heat balance.
+
+    C_w dT/dt = gamma_Q * H * (w - Q_SL0)  -  (1/gamma_D) * [ G (T - T_e) + (T^4 - T_e^4)/(alpha R_e) ]
+    w' = (2/tau_w) (2 Q_SL0 - w)                     (first-order Pade delay of the heat path)
+    H = g(z) * effects' heat factors,   g(z) = (p/p_SL)^a (T_SL/T_e)^b
+    G = (1/R_Ce) * effects' conductance factors
+
+Every function here is plain arithmetic on its arguments plus the primitives ``exp``, ``log``,
+``expm1``, ``maximum``, ``minimum`` and ``finite_or`` (numpy's by default). So the same code runs
+on numpy arrays (a whole flight, a swarm: :mod:`.thermal`), on Python floats with the primitives
+re-bound to the ``math`` module (:data:`SCALAR`, the live filter), and compiled by numba with the
+same re-binding (:func:`ecu_monitor.model.kernels.compiled_equations`: the swarm kernel, the filter
+loops, the isolation filter). Nothing else in the code base writes these equations; a test runs every
+kernel against :func:`ecu_monitor.model.thermal.simulate` with every effect on.
+
+Per-parameter-set coefficients travel as one indexable row ``coef`` (a :class:`Coefficients`, or a
+row of the swarm kernel's matrix) read with the index constants below (``coef[C_W]``), so a new
+coefficient needs no change to any kernel's argument list.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ecu_monitor.model.atmosphere import (
+    ISA_PRESSURE_EXPONENT,
+    KELVIN_OFFSET,
+    LAPSE_RATE_K_PER_M,
+    SEA_LEVEL_PRESSURE_PA,
+    SEA_LEVEL_TEMPERATURE_K,
+)
+
+__all__ = [
+    "PARAMETER_FIELDS",
+    "SCALAR",
+    "Coefficients",
+    "bind",
+    "blend",
+    "conditions",
+    "derivatives",
+    "dissipation",
+    "drive",
+    "lag_fraction",
+    "probe_step",
+    "rk4",
+]
+
+# numpy primitives; bind() swaps them (the names below are what the equations call).
+exp = np.exp
+log = np.log
+expm1 = np.expm1
+maximum = np.maximum
+minimum = np.minimum
+
+
+def finite_or(value: Any, default: Any) -> Any:
+    """value where it is finite, else default (numpy form)."""
+    return np.where(np.isfinite(value), value, default)
+
+
+def _finite_or_scalar(value: float, default: float) -> float:
+    """value if it is finite, else default (scalar form, also compiled by numba)."""
+    return value if math.isfinite(value) else default
+
+
+_AIR_GAS_CONSTANT = 287.053  # J/(kg K), as atmosphere.air_density_kg_m3
+_LOG_DENSITY_OFFSET = math.log(SEA_LEVEL_PRESSURE_PA / _AIR_GAS_CONSTANT)
+
+
+class Coefficients(NamedTuple):
+    """Numeric form of ThermalParams for the kernels: each field a float or an array (P,) for a swarm.
+
+    The per-parameter-set fields come first (:data:`PARAMETER_FIELDS`, read by index in the
+    equations); then the radiation convention, the heat map and its breakpoints (shared by a swarm;
+    heat_values_w has shape (n, m) or (P, n, m)). Effects that are off take their neutral values.
+    """
+
+    c_w: Any  # J/degC
+    r_ce: Any  # degC/W
+    radiative_conductance: Any  # 1/(alpha R_e), W/deg^4 (0: radiation off)
+    tau_w: Any  # s
+    a: Any  # altitude-scaling exponents of g(z) (0, 0: g off)
+    b: Any
+    airspeed_gain_per_mps: Any  # 1/(m/s)
+    airspeed_reference_mps: Any  # m/s
+    airspeed_floor: Any  # smallest conductance factor
+    airspeed_prop_wash_mps: Any  # m/s, the cooling flow on the ground
+    density_exponent: Any
+    density_reference_kg_m3: Any
+    sensor_lag_s: Any  # s, 0 = no lag
+    mixture_fraction: Any  # mixture_cooling
+    mixture_onset: Any
+    mixture_gain: Any  # mixture_index, 1/(index unit)
+    mixture_reference: Any  # index unit
+    radiation_offset_c: float  # 273.15 when T^4 is in Kelvin, 0 for the paper's preset
+    heat_values_w: Any  # (n, m) or (P, n, m), W
+    x_breakpoints: Any
+    y_breakpoints: Any
+
+
+#: The per-parameter-set fields of :class:`Coefficients`, in order (a swarm kernel's matrix rows).
+PARAMETER_FIELDS: tuple[str, ...] = Coefficients._fields[: Coefficients._fields.index("radiation_offset_c")]
+C_W = PARAMETER_FIELDS.index("c_w")
+R_CE = PARAMETER_FIELDS.index("r_ce")
+RADIATIVE = PARAMETER_FIELDS.index("radiative_conductance")
+TAU_W = PARAMETER_FIELDS.index("tau_w")
+A = PARAMETER_FIELDS.index("a")
+B = PARAMETER_FIELDS.index("b")
+AIR_GAIN = PARAMETER_FIELDS.index("airspeed_gain_per_mps")
+AIR_REFERENCE = PARAMETER_FIELDS.index("airspeed_reference_mps")
+AIR_FLOOR = PARAMETER_FIELDS.index("airspeed_floor")
+AIR_WASH = PARAMETER_FIELDS.index("airspeed_prop_wash_mps")
+DENSITY_EXPONENT = PARAMETER_FIELDS.index("density_exponent")
+DENSITY_REFERENCE = PARAMETER_FIELDS.index("density_reference_kg_m3")
+SENSOR_LAG = PARAMETER_FIELDS.index("sensor_lag_s")
+MIX_FRACTION = PARAMETER_FIELDS.index("mixture_fraction")
+MIX_ONSET = PARAMETER_FIELDS.index("mixture_onset")
+MIX_GAIN = PARAMETER_FIELDS.index("mixture_gain")
+MIX_REFERENCE = PARAMETER_FIELDS.index("mixture_reference")
+
+
+# --------------------------------------------------------------------------------------------------
+# Drive: what the inputs do to the heat in and the conductance (held over a step)
+# --------------------------------------------------------------------------------------------------
+
+
+def conditions(heat_x: Any, altitude_m: Any, airspeed_mps: Any, oat_c: Any, x_low: float, x_high: float) -> tuple:
+    """Per-time quantities shared by every parameter set.
+
+    Returns (log p/p_SL (ISA at the pressure altitude), log T_SL/T_e (measured OAT), log air density
+    (kg/m^3), airspeed clipped at 0 (m/s), load: the first heat-map axis normalised to 0..1 over its
+    breakpoints [x_low, x_high]).
+    """
+    ratio = maximum(1.0 - LAPSE_RATE_K_PER_M * altitude_m / SEA_LEVEL_TEMPERATURE_K, 1e-6)
+    log_pressure_ratio = ISA_PRESSURE_EXPONENT * log(ratio)
+    oat_k = oat_c + KELVIN_OFFSET
+    log_temperature_ratio = log(SEA_LEVEL_TEMPERATURE_K / oat_k)
+    log_density = _LOG_DENSITY_OFFSET + log_pressure_ratio - log(oat_k)
+    load = minimum(maximum((heat_x - x_low) / (x_high - x_low), 0.0), 1.0)
+    return log_pressure_ratio, log_temperature_ratio, log_density, maximum(airspeed_mps, 0.0), load
+
+
+def blend(v00: Any, v01: Any, v10: Any, v11: Any, fx: Any, fy: Any) -> Any:
+    """Bilinear blend of a heat-map cell's corners at fractional position (fx, fy)."""
+    return (1.0 - fx) * ((1.0 - fy) * v00 + fy * v01) + fx * ((1.0 - fy) * v10 + fy * v11)
+
+
+def drive(
+    log_pressure_ratio: Any,
+    log_temperature_ratio: Any,
+    log_density: Any,
+    airspeed_mps: Any,
+    load: Any,
+    mixture_index: Any,
+    coef: Any,
+) -> tuple[Any, Any, Any]:
+    """(altitude gain g(z), heat factor of the effects, conductance G in W/degC) of one parameter set.
+
+    The effects (docs/model.md): airspeed_cooling and density_cooling scale G; mixture_cooling and
+    mixture_index scale the heat in. Neutral coefficients (an effect off) give factors of exactly 1.
+    """
+    altitude_gain = exp(coef[A] * log_pressure_ratio + coef[B] * log_temperature_ratio)
+    # airspeed_cooling: the cooling flow is at least the propeller wash
+    cooling_speed = maximum(airspeed_mps, coef[AIR_WASH])
+    airspeed_factor = maximum(coef[AIR_FLOOR], 1.0 + coef[AIR_GAIN] * (cooling_speed - coef[AIR_REFERENCE]))
+    # density_cooling
+    density_factor = exp(coef[DENSITY_EXPONENT] * (log_density - log(coef[DENSITY_REFERENCE])))
+    # mixture_cooling: power enrichment at high load
+    onset = coef[MIX_ONSET]
+    enrichment = minimum(maximum((load - onset) / (1.0 - onset), 0.0), 1.0)
+    # mixture_index: a logged lean/rich index (not logged: NaN, factor 1)
+    mixture = exp(coef[MIX_GAIN] * (finite_or(mixture_index, coef[MIX_REFERENCE]) - coef[MIX_REFERENCE]))
+    heat_factor = (1.0 - coef[MIX_FRACTION] * enrichment) * mixture
+    return altitude_gain, heat_factor, airspeed_factor * density_factor / coef[R_CE]
+
+
+# --------------------------------------------------------------------------------------------------
+# Heat balance and its RK4 step
+# --------------------------------------------------------------------------------------------------
+
+
+def dissipation(cht_c: Any, ambient_c: Any, conductance: Any, radiative_conductance: Any, offset_c: float) -> Any:
+    """Heat leaving the head, W: convection G (T - T_e) plus radiation (T^4 - T_e^4)/(alpha R_e)
+    (temperatures shifted by offset_c inside T^4: 273.15 for Kelvin, 0 for the paper's degC)."""
+    t = cht_c + offset_c
+    e = ambient_c + offset_c
+    return conductance * (cht_c - ambient_c) + radiative_conductance * (t * t * t * t - e * e * e * e)
+
+
+def derivatives(
+    cht_c: Any,
+    pade_w: Any,
+    q_sl0_w: Any,
+    heat_gain: Any,
+    ambient_c: Any,
+    conductance: Any,
+    c_w: Any,
+    tau_w: Any,
+    radiative_conductance: Any,
+    offset_c: float,
+    gamma_q: Any,
+    gamma_d: Any,
+) -> tuple[Any, Any]:
+    """(dT/dt degC/s, dw/dt W/s); heat_gain = g(z) x the effects' heat factor."""
+    heat_in = gamma_q * heat_gain * (pade_w - q_sl0_w)
+    lost = dissipation(cht_c, ambient_c, conductance, radiative_conductance, offset_c)
+    # written with reciprocals so that a compiled RK4 computes each once per step, not per stage
+    return (heat_in - lost * (1.0 / gamma_d)) * (1.0 / c_w), (2.0 / tau_w) * (2.0 * q_sl0_w - pade_w)
+
+
+def rk4(
+    cht_c: Any,
+    pade_w: Any,
+    q_sl0_w: Any,
+    heat_gain: Any,
+    ambient_c: Any,
+    conductance: Any,
+    c_w: Any,
+    tau_w: Any,
+    radiative_conductance: Any,
+    offset_c: float,
+    gamma_q: Any,
+    gamma_d: Any,
+    dt_s: float,
+) -> tuple[Any, Any]:
+    """One RK4 step of (T, w) over dt_s with the drive held."""
+    k1t, k1w = derivatives(cht_c, pade_w, q_sl0_w, heat_gain, ambient_c, conductance, c_w, tau_w,
+                           radiative_conductance, offset_c, gamma_q, gamma_d)  # fmt: skip
+    h = 0.5 * dt_s
+    k2t, k2w = derivatives(cht_c + h * k1t, pade_w + h * k1w, q_sl0_w, heat_gain, ambient_c, conductance, c_w,
+                           tau_w, radiative_conductance, offset_c, gamma_q, gamma_d)  # fmt: skip
+    k3t, k3w = derivatives(cht_c + h * k2t, pade_w + h * k2w, q_sl0_w, heat_gain, ambient_c, conductance, c_w,
+                           tau_w, radiative_conductance, offset_c, gamma_q, gamma_d)  # fmt: skip
+    k4t, k4w = derivatives(cht_c + dt_s * k3t, pade_w + dt_s * k3w, q_sl0_w, heat_gain, ambient_c, conductance, c_w,
+                           tau_w, radiative_conductance, offset_c, gamma_q, gamma_d)  # fmt: skip
+    sixth = dt_s / 6.0
+    return (
+        cht_c + sixth * (k1t + 2.0 * k2t + 2.0 * k3t + k4t),
+        pade_w + sixth * (k1w + 2.0 * k2w + 2.0 * k3w + k4w),
+    )
+
+
+def lag_fraction(lag_s: Any, dt_s: float) -> Any:
+    """Fraction of the gap the probe closes in dt_s (exact first-order lag); lag 0 gives exactly 1."""
+    return -expm1(-dt_s / maximum(lag_s, 1e-300))
+
+
+def probe_step(probe_c: Any, cht_c: Any, fraction: Any) -> Any:
+    """Probe temperature after one step, given :func:`lag_fraction`."""
+    return probe_c + fraction * (cht_c - probe_c)
+
+
+# --------------------------------------------------------------------------------------------------
+# Re-binding: the same functions on other primitives
+# --------------------------------------------------------------------------------------------------
+
+#: Names of the equation functions (re-bound together so they call each other's twins).
+FUNCTIONS: tuple[str, ...] = (
+    "conditions",
+    "blend",
+    "drive",
+    "dissipation",
+    "derivatives",
+    "rk4",
+    "lag_fraction",
+    "probe_step",
+)
+#: The math-module primitives (floats; numba compiles these).
+SCALAR_PRIMITIVES: dict[str, Any] = {
+    "exp": math.exp,
+    "log": math.log,
+    "expm1": math.expm1,
+    "maximum": max,
+    "minimum": min,
+    "finite_or": _finite_or_scalar,
+}
+
+
+def bind(
+    primitives: dict[str, Any], wrap: Callable[[str, Callable[..., Any]], Any] | None = None
+) -> types.SimpleNamespace:
+    """Copies of the equation functions that call ``primitives`` and each other's copies.
+
+    ``wrap(name, function)`` may turn each copy into something else (numba.njit); it runs after all
+    copies share their new namespace, so a wrapped copy calls the wrapped others. Primitives that
+    are Python functions are copied and wrapped too (the originals are never changed).
+    """
+    namespace = dict(globals())
+    copies: dict[str, Any] = {}
+    for name, value in primitives.items():
+        copies[name] = _copy(value, namespace) if isinstance(value, types.FunctionType) else value
+    for name in FUNCTIONS:
+        copies[name] = _copy(globals()[name], namespace)
+    if wrap is not None:
+        copies = {
+            name: wrap(name, value) if isinstance(value, types.FunctionType) else value
+            for name, value in copies.items()
+        }
+    namespace.update(copies)
+    return types.SimpleNamespace(**{name: copies[name] for name in FUNCTIONS})
+
+
+def _copy(function: types.FunctionType, namespace: dict[str, Any]) -> types.FunctionType:
+    clone = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
+    clone.__module__ = function.__module__
+    clone.__qualname__ = function.__qualname__
+    clone.__doc__ = function.__doc__
+    return clone
+
+
+#: The equations on Python floats (math module): the scalar path of the live filter.
+SCALAR = bind(SCALAR_PRIMITIVES)

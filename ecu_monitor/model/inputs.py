@@ -1,0 +1,101 @@
+"""The one mapping from a flight log to the model's inputs: which columns the model reads, and how.
+
+:func:`input_columns` names the flight columns a model needs (its heat-map axes, altitude, airspeed,
+OAT, and the columns of its mixture index when the mixture_index effect is on); :func:`flight_inputs`
+reads them from a log into an :class:`~ecu_monitor.model.thermal.InputSeries` at the log's own sample
+times. Identification, the gap diagnosis, the estimators' runner and replay all call these, so a
+model reads the same inputs everywhere; putting them on a simulation step (held or interpolated) is
+the caller's choice.
+
+The log is anything with ``has(name)``, ``log[name]``, ``names`` and ``source`` (a
+:class:`ecu_monitor.flightlog.FlightLog`); the model layer does not import the flight-log module.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import FlightLogError
+from ecu_monitor.model.effects import MixtureIndex
+from ecu_monitor.model.params import ThermalParams
+from ecu_monitor.model.thermal import InputSeries
+
+__all__ = ["AMBIENT_COLUMNS", "ColumnSource", "flight_inputs", "input_columns", "mixture_index", "read_inputs"]
+
+#: Flight columns every model reads besides its heat-map axes (InputSeries order).
+AMBIENT_COLUMNS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
+#: Columns each mixture-index source is computed from.
+_MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
+    "egt_c": ("egt_c",),
+    "fuel_per_rev": ("fuel_flow_lph", "rpm"),
+}
+#: Below this engine speed (rpm) the fuel per revolution is taken at this speed (engine stopped).
+_MIN_RPM = 100.0
+
+
+class ColumnSource(Protocol):
+    """What :func:`flight_inputs` reads: a flight log's named columns."""
+
+    source: str
+
+    def has(self, name: str) -> bool: ...
+
+    def __getitem__(self, name: str) -> Any: ...
+
+    @property
+    def names(self) -> tuple[str, ...]: ...
+
+
+def input_columns(params: ThermalParams) -> tuple[str, ...]:
+    """Flight columns the model ``params`` reads, without repeats: heat-map axes, altitude_m,
+    airspeed_mps, oat_c, then the mixture index's columns if the mixture_index effect is on."""
+    return _columns(params.heat_axes, params.effects.mixture_index)
+
+
+def _columns(heat_axes: tuple[str, str], mixture: MixtureIndex | None) -> tuple[str, ...]:
+    names = [*heat_axes, *AMBIENT_COLUMNS]
+    if mixture is not None:
+        names.extend(_MIXTURE_COLUMNS[mixture.source])
+    return tuple(dict.fromkeys(names))
+
+
+def mixture_index(source: str, columns: dict[str, NDArray[np.float64]]) -> NDArray[np.float64]:
+    """The lean/rich index of ``source`` from its columns: EGT (degC) as logged, or the fuel per
+    revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h)."""
+    if source == "egt_c":
+        return np.asarray(columns["egt_c"], dtype=float)
+    if source == "fuel_per_rev":
+        rpm = np.maximum(np.asarray(columns["rpm"], dtype=float), _MIN_RPM)
+        return np.asarray(columns["fuel_flow_lph"], dtype=float) * (1000.0 / 60.0) / rpm
+    raise FlightLogError(f"mixture_index: unknown source {source!r}")
+
+
+def flight_inputs(log: ColumnSource, params: ThermalParams) -> InputSeries:
+    """The model's inputs at the log's sample times (arrays of length N, float64).
+
+    Raises FlightLogError naming the log and the first missing or non-finite column. Without the
+    mixture_index effect the mixture input is NaN (not used).
+    """
+    return read_inputs(log, params.heat_axes, params.effects.mixture_index)
+
+
+def read_inputs(log: ColumnSource, heat_axes: tuple[str, str], mixture: MixtureIndex | None = None) -> InputSeries:
+    """:func:`flight_inputs` for a model known only by its heat-map axes and mixture_index effect."""
+    columns: dict[str, NDArray[np.float64]] = {}
+    for name in _columns(heat_axes, mixture):
+        if not log.has(name):
+            role = "heat-map axis" if name in heat_axes else "model input"
+            raise FlightLogError(f"{log.source}: no column '{name}' ({role}; columns: {', '.join(log.names)})")
+        values = np.asarray(log[name], dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise FlightLogError(f"{log.source}: model input '{name}' holds blank or non-finite values")
+        columns[name] = values
+    x_axis, y_axis = heat_axes
+    n = columns[x_axis].size
+    index = mixture_index(mixture.source, columns) if mixture is not None else np.full(n, np.nan)
+    return InputSeries(
+        columns[x_axis], columns[y_axis], columns["altitude_m"], columns["airspeed_mps"], columns["oat_c"], index
+    )
