@@ -90,6 +90,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import datetime as _dt
+import io
 import logging
 import math
 import os
@@ -413,15 +414,25 @@ class FlightLog:
 
 @contextlib.contextmanager
 def _reading(src: str) -> Iterator[None]:
-    """Turn the errors of opening, reading and decoding a text file into one-line FlightLogErrors."""
+    """Turn the errors of opening and reading a file into one-line FlightLogErrors."""
     try:
         yield
     except FileNotFoundError:
         raise FlightLogError(f"{src}: no such file") from None
-    except UnicodeDecodeError as exc:
-        raise FlightLogError(f"{src}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from exc
     except OSError as exc:
         raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from exc
+
+
+def _read_text(path: Path, notes: list[str]) -> str:
+    """The whole file as text: UTF-8 (a byte-order mark skipped), else Latin-1 with a note."""
+    src = str(path)
+    with _reading(src):
+        data = path.read_bytes()
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        _note(notes, src, f"not UTF-8 text ({exc.reason} at byte {exc.start}): read as Latin-1")
+        return data.decode("latin-1")
 
 
 class _Table(NamedTuple):
@@ -441,8 +452,9 @@ def _read_table(
 ) -> _Table:
     src = str(path)
     before: dict[int, list[str]] = {}
+    text = _read_text(path, notes)
     try:
-        with _reading(src), path.open(newline="", encoding="utf-8-sig") as fh:
+        with io.StringIO(text, newline="") as fh:
             reader = csv.reader(fh, delimiter=delimiter)
             header: list[str] | None = None
             rows: list[tuple[int, list[str]]] = []
@@ -891,8 +903,10 @@ _MAX_CYLINDERS = 24
 class TimeMap:
     """How the time axis is read: ``kind`` is ``date_time`` (two columns) or ``seconds`` (one).
 
-    ``date_formats``/``time_formats`` are tried in order (several firmware versions); with
-    ``row_step_s`` a file without the ``seconds`` column puts row k at ``k * row_step_s``.
+    ``date_formats``/``time_formats`` are tried in order (several firmware versions); a file with
+    the ``utc_offset_column`` (``+08:00``) is timed in UTC, so a flight across time zones or a clock
+    change keeps a forward time; with ``row_step_s`` a file without the ``seconds`` column puts row
+    k at ``k * row_step_s``.
     """
 
     kind: str
@@ -901,6 +915,7 @@ class TimeMap:
     time_formats: tuple[str, ...] = ("%H:%M:%S",)
     unit: str = "s"
     row_step_s: float | None = None
+    utc_offset_column: str | None = None
 
 
 @dataclass(frozen=True)
@@ -1046,7 +1061,17 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
         src,
         "time",
         top.get("time", dict),
-        ("kind", "date_column", "time_column", "date_format", "time_format", "column", "unit", "row_step_s"),
+        (
+            "kind",
+            "date_column",
+            "time_column",
+            "date_format",
+            "time_format",
+            "utc_offset_column",
+            "column",
+            "unit",
+            "row_step_s",
+        ),
     )
     kind = t.get("kind", str)
     if kind == "date_time":
@@ -1058,9 +1083,10 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
             (t.get("date_column", str), t.get("time_column", str)),
             date_formats=t.names("date_format", ("%Y-%m-%d",)),
             time_formats=t.names("time_format", ("%H:%M:%S",)),
+            utc_offset_column=t.get("utc_offset_column", str, None),
         )
     elif kind == "seconds":
-        for key in ("date_column", "time_column", "date_format", "time_format"):
+        for key in ("date_column", "time_column", "date_format", "time_format", "utc_offset_column"):
             if key in t.node:
                 raise t.fail(key, "only for kind: date_time")
         unit = _check_unit(t, None) if "unit" in t.node else "s"
@@ -1219,7 +1245,7 @@ def detect_layout(path: str | os.PathLike[str]) -> Path | None:
     mappings = [load_mapping(p) for p in sorted(MAPPINGS_DIR.glob("*.yaml"))]
     depth = max([1, *(m.header_row for m in mappings)])
     delimiters = {m.delimiter for m in mappings} | {","}
-    with _reading(src), path.open(newline="", encoding="utf-8-sig") as fh:
+    with _reading(src), path.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
         head = [fh.readline() for _ in range(depth)]
     if not head[0].strip():
         raise FlightLogError(f"{src}: empty file, expected a header row")
@@ -1287,7 +1313,52 @@ def _parse_time(
                 f" matches none of the formats {', '.join(repr(f) for f in formats)}"
             )
         stamps[k] = value
+    if spec.utc_offset_column is not None and spec.utc_offset_column in index:
+        stamps = stamps - _utc_offsets(src, spec.utc_offset_column, table, index, lines, notes)
     return _spread_repeats(src, stamps - stamps[0], lines, notes)
+
+
+_OFFSET = re.compile(r"^([+-])([0-9]{1,2}):?([0-9]{2})$")
+
+
+def _utc_offsets(
+    src: str, column: str, table: _Table, index: Mapping[str, int], lines: np.ndarray, notes: list[str]
+) -> np.ndarray:
+    """Local-minus-UTC offset of every row, s, from a ``+08:00`` column; a blank takes the row before's
+    (leading blanks the first known)."""
+    col = index[column]
+    offsets = np.full(len(table.rows), math.nan)
+    cache: dict[str, float] = {}
+    for k, (line, row) in enumerate(table.rows):
+        text = row[col].strip() if col < len(row) else ""
+        if not text:
+            continue
+        value = cache.get(text)
+        if value is None:
+            match = _OFFSET.match(text)
+            if match is None:
+                raise FlightLogError(f"{src}: row {line}, column '{column}': {text!r} is not a UTC offset like +08:00")
+            sign = -1.0 if match.group(1) == "-" else 1.0
+            value = cache[text] = sign * (3600.0 * int(match.group(2)) + 60.0 * int(match.group(3)))
+        offsets[k] = value
+    known = ~np.isnan(offsets)
+    if not np.any(known):
+        _note(notes, src, f"column '{column}' is blank in every row: local time used")
+        return np.zeros(len(table.rows))
+    if not np.all(known):
+        filled_from = np.maximum.accumulate(np.where(known, np.arange(offsets.size), 0))
+        filled_from[: int(np.argmax(known))] = int(np.argmax(known))  # leading blanks: the first known
+        offsets = offsets[filled_from]
+    changes = np.flatnonzero(np.diff(offsets) != 0.0)
+    if changes.size:
+        k = int(changes[0]) + 1
+        _note(
+            notes,
+            src,
+            f"column '{column}': the UTC offset changes {changes.size} time(s) (first at row {lines[k]},"
+            f" {offsets[k - 1] / 3600.0:+g} h -> {offsets[k] / 3600.0:+g} h): time built in UTC",
+        )
+    return offsets
 
 
 _HMS = re.compile(r"^([01]?[0-9]|2[0-3]):([0-5][0-9]):([0-5][0-9])$")
@@ -1325,6 +1396,25 @@ def _stamp(
         except ValueError:
             continue
     return None
+
+
+def _drop_repeated_headers(src: str, table: _Table, notes: list[str]) -> None:
+    """Exports joined end to end repeat their header lines: rows that start with ``#`` (metadata and
+    units lines) or repeat the column names are dropped (in place)."""
+    first_name = table.header[0] if table.header else ""
+
+    def is_header(fields: list[str]) -> bool:
+        head = fields[0].strip() if fields else ""
+        if head.startswith("#"):
+            return True
+        return bool(head) and head == first_name and [f.strip() for f in fields] == table.header
+
+    dropped = [line for line, fields in table.rows if is_header(fields)]
+    if dropped:
+        table.rows[:] = [row for row in table.rows if not is_header(row[1])]
+        _note(notes, src, f"{len(dropped)} repeated header line(s) dropped (first at row {dropped[0]})")
+        if not table.rows:
+            raise FlightLogError(f"{src}: header lines only, no data rows")
 
 
 def _drop_duplicate_rows(src: str, table: _Table, notes: list[str]) -> None:
@@ -1443,6 +1533,7 @@ def import_mapped_csv(
     units = _file_units(mapping, table)
     if not table.rows:
         raise FlightLogError(f"{src}: only a units row after the header, no data rows")
+    _drop_repeated_headers(src, table, notes)
     _check_widths(src, table)
     _drop_duplicate_rows(src, table, notes)
     lines = np.array([line for line, _ in table.rows], dtype=np.int64)

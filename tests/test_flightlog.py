@@ -507,23 +507,25 @@ G1000_NAMES = "  Lcl Date, Lcl Time, UTCOfst, {alt}, OAT, IAS, " + (
 
 def _g1000(
     tmp_path: Path,
-    rows: list[tuple[str, str, str]],
+    rows: list[tuple[str, str, str]] | list[tuple[str, str, str, str]],
     *,
     date_style: str = "iso",
     alt: str = "AltB",
     cht_unit: str = "deg F",
     trailing: str = "",
 ) -> Path:
-    """A small G1000 export: rows of (time, altitude ft, 'CHT1 CHT2' degF) on 2023-04-24 (or 2023/4/24)."""
+    """A small G1000 export: rows of (time, altitude ft, 'CHT1 CHT2' degF[, UTC offset]) on 2023-04-24
+    (or 2023/4/24)."""
     date = "2023-04-24" if date_style == "iso" else "2023/4/24"
     header = '#airframe_info, log_version="1.01", airframe_name="Cessna 172S", system_id="25BA2E6F4"'
     if date_style != "iso":
         header += ', flightstream_header="25BA2E6F4_20000101_000000", ,,,,,,'
     lines = [header, G1000_UNITS.format(cht=cht_unit) + trailing, G1000_NAMES.format(alt=alt) + trailing]
-    for clock, altitude, chts in rows:
+    for clock, altitude, chts, *offset in rows:
         c1, c2 = chts.split()
+        utc = offset[0] if offset else "+08:00"
         lines.append(
-            f"{date}, {clock}, +08:00, {altitude}, 15.0, 60.0, 10.0, 2400, {c1}, {c2}, 1300, 1400, 180, 0{trailing}"
+            f"{date}, {clock}, {utc}, {altitude}, 15.0, 60.0, 10.0, 2400, {c1}, {c2}, 1300, 1400, 180, 0{trailing}"
         )
     path = tmp_path / f"g1000_{date_style}_{alt}.csv"
     path.write_text("\n".join(lines) + "\n")
@@ -560,6 +562,33 @@ def test_g1000_firmware_versions_import_alike(date_style: str, alt: str, tmp_pat
         assert describe_cht(log) == "mean of cylinders 1, 2"
         notes = " | ".join(log.notes)
         assert "1 row(s) share a whole-second stamp" in notes and "'altitude_m': 1 blank field(s) interpolated" in notes
+
+
+def test_time_is_utc_across_a_clock_change(tmp_path: Path) -> None:
+    rows = [
+        ("01:59:58", "1000", "300 320", "-05:00"),
+        ("01:59:59", "1000", "300 320", ""),  # a blank offset takes the row before's
+        ("01:00:00", "1000", "300 320", "-06:00"),  # local clock back one hour: one second later in UTC
+        ("01:00:01", "1000", "300 320", "-06:00"),
+    ]
+    log = load_flight(_g1000(tmp_path, rows))
+    assert log.time_s.tolist() == [0.0, 1.0, 2.0, 3.0]
+    assert any("UTC offset changes 1 time(s) (first at row 6, -5 h -> -6 h)" in n for n in log.notes)
+    bad = _g1000(tmp_path, [("10:00:00", "1000", "300 320", "EST")])
+    with pytest.raises(FlightLogError, match=r"row 4, column 'UTCOfst': 'EST' is not a UTC offset like \+08:00"):
+        load_flight(bad)
+
+
+def test_joined_exports_and_latin1_text(tmp_path: Path) -> None:
+    first = _g1000(tmp_path, GOOD_ROWS[:2]).read_text().splitlines()
+    second = _g1000(tmp_path, [("10:00:05", "1050", "310 330")]).read_text().splitlines()
+    joined = tmp_path / "joined.csv"
+    joined.write_bytes(("\n".join(first + second) + "\n").replace("Cessna", "Cessna \u00b0").encode("latin-1"))
+    log = load_flight(joined)
+    assert log.time_s.tolist() == [0.0, 1.0, 5.0]
+    assert log["cht1_c"][-1] == pytest.approx(_degc(310))
+    notes = " | ".join(log.notes)
+    assert "3 repeated header line(s) dropped (first at row 6)" in notes and "read as Latin-1" in notes
 
 
 def test_cht_choice_mean_hottest_or_one(tmp_path: Path) -> None:
@@ -652,7 +681,10 @@ def test_unknown_layout_says_why_no_layout_fits(tmp_path: Path) -> None:
         load_flight(path)
     message = str(info.value)
     assert message.startswith(f"{path}: not a canonical flight CSV (no column 'time_s') and no known layout fits")
-    assert "g1000: no column 'Lcl Date'" in message and "ngafid_processed: no column 'AltB' or 'AltInd'" in message
+    assert (
+        "g1000: no column 'Lcl Date'" in message
+        and "ngafid_processed: no column 'AltB' or 'AltInd' or 'AltMSL'" in message
+    )
     assert "--mapping FILE" in message and "\n" not in message
 
 
