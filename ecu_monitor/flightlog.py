@@ -734,6 +734,14 @@ def _fmt(value: float) -> str:
     return "" if value != value else repr(value)  # NaN -> blank; repr is the shortest exact text
 
 
+def _column_order(log: FlightLog) -> list[str]:
+    """Canonical columns in contract order, optional ones, the cylinders, the engine columns, the rest."""
+    order = [c for c in CANONICAL_COLUMNS + OPTIONAL_COLUMNS if log.has(c)]
+    order += cylinder_columns(log, "cht") + cylinder_columns(log, "egt")
+    order += [c for c in ENGINE_COLUMNS if log.has(c)]
+    return order + [c for c in log.columns if c not in order]
+
+
 def write_csv(log: FlightLog, path: str | os.PathLike[str]) -> None:
     """Write ``log`` as a canonical CSV: canonical columns in contract order, optional ones, the
     cylinders (``cht1_c..``, ``egt1_c..``), the engine columns, the rest.
@@ -743,11 +751,7 @@ def write_csv(log: FlightLog, path: str | os.PathLike[str]) -> None:
     and renamed, so an interrupted write never leaves a half file under ``path``.
     """
     path = Path(path)
-    known = CANONICAL_COLUMNS + OPTIONAL_COLUMNS
-    order = [c for c in known if log.has(c)]
-    order += cylinder_columns(log, "cht") + cylinder_columns(log, "egt")
-    order += [c for c in ENGINE_COLUMNS if log.has(c)]
-    order += [c for c in log.columns if c not in order]
+    order = _column_order(log)
     data = [log[c].tolist() for c in order]
     tmp = path.with_name(path.name + ".tmp")
     try:
@@ -1582,7 +1586,7 @@ def import_mapped_csv(
         raise FlightLogError(f"{src}: every CHT cylinder column is blank in every row: no cht_c")
     elif cht is not None:
         log = choose_cht(log, cht)  # raises: no per-cylinder columns
-    return log
+    return FlightLog({c: log[c] for c in _column_order(log)}, log.source, log.notes)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -617,6 +617,17 @@ def test_cht_choice_mean_hottest_or_one(tmp_path: Path) -> None:
     assert describe_cht(load_flight(out, cht="mean")) == "mean of cylinders 1, 2"
 
 
+def test_dead_cylinder_probe_is_dropped(tmp_path: Path) -> None:
+    rows = [("10:00:00", "1000", "300 X"), ("10:00:01", "1000", "302 X"), ("10:00:02", "1000", "304 X")]
+    path = _g1000(tmp_path, rows)
+    path.write_text(path.read_text().replace(", X,", ",    ,"))
+    log = load_flight(path)
+    assert cylinder_columns(log, "cht") == ["cht1_c"] and describe_cht(log) == "cylinder 1 (the only one)"
+    assert "column 'cht2_c': blank in every row: dropped" in log.notes
+    with pytest.raises(FlightLogError, match=r"cylinder 2 chosen for cht_c, the log has cylinder\(s\) 1"):
+        load_flight(path, cht=2)
+
+
 def test_units_row_of_the_file_wins(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = _g1000(tmp_path, [("10:00:00", "1000", "150 160"), ("10:00:01", "1000", "151 161")], cht_unit="deg C")
     log = load_flight(path)
