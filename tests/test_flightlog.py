@@ -13,6 +13,8 @@ import can
 import cantools
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.errors import ConfigError, FlightLogError, UserInputError
@@ -779,3 +781,28 @@ def test_every_given_real_export_imports(name: str) -> None:
         assert np.all(np.isfinite(log[column])), column
     assert 60.0 < np.median(log["cht_c"]) < 250.0  # degC, not degF
     assert log.has("manifold_pressure_kpa") is twin
+
+
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    cut=st.integers(min_value=0, max_value=2000),
+    junk=st.one_of(st.binary(max_size=40), st.text(alphabet=" ,.-+:/#0123456789NaE\n\r", max_size=40).map(str.encode)),
+    at=st.integers(min_value=0, max_value=2000),
+    ngafid=st.booleans(),
+)
+def test_damaged_export_reads_or_fails_in_one_line(
+    tmp_path: Path, cut: int, junk: bytes, at: int, ngafid: bool
+) -> None:
+    """Any export cut anywhere with bytes inserted anywhere is read, or refused with one line."""
+    source = _ngafid(tmp_path, time=False, units=True, twin=False) if ngafid else _g1000(tmp_path, GOOD_ROWS)
+    data = source.read_bytes()
+    data = data[: max(cut, 1)] if cut < len(data) else data
+    data = data[:at] + junk + data[at:]
+    path = tmp_path / "damaged.csv"
+    path.write_bytes(data)
+    try:
+        log = load_flight(path)
+    except UserInputError as exc:
+        assert "\n" not in str(exc) and str(exc)
+    else:
+        assert len(log) >= 1 and log.has("cht_c")
