@@ -7,7 +7,7 @@ deleted at the end), on python-can's udp_multicast interface:
 
 * the virtual ECU, ``virtual-ecu run --mission default --realtime`` (ECU_Fast 50 Hz, ECU_Slow and
   AirData 10 Hz: 70 frames/s);
-* the daemon, ``ecu-monitor run --config ...`` (configs/example.yaml on that bus, state in a temp dir);
+* the daemon, ``ecu-monitor run --config ...`` (the shipped example.yaml on that bus, state in a temp dir);
 * the baseline: a process with a python-can Notifier on the same bus and a listener that does nothing.
 
 After ``--warmup`` seconds, utime + stime of each process are read from /proc/<pid>/stat at the start and

@@ -10,7 +10,7 @@ In one process (default), on python-can's ``virtual`` interface (three bus objec
 * a traffic thread sends ``--traffic`` frames/s of other ids (0x400-0x7FF, random payloads), in bursts
   every 2.5 ms;
 * the daemon under test (:class:`~ecu_monitor.service.daemon.Daemon` with the real Pipeline from
-  configs/example.yaml) runs with its 20 ms tick switched off (``tick_s`` = 1 h), so every health frame
+  the shipped example.yaml) runs with its 20 ms tick switched off (``tick_s`` = 1 h), so every health frame
   is emitted inside the Notifier callback of the ECU frame that made its step fall due: the health
   frame's latency is measured from that frame's send (the latest ECU send before it);
 * a receiver thread stamps each health frame with ``perf_counter()`` on ``recv``.
@@ -66,12 +66,12 @@ ECU_VALUES = {
 
 
 def _config(channel: str) -> Any:
-    data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
-    data["dbc"] = [str(REPO / "dbc" / "engine.dbc")]
-    data["health_dbc"] = str(REPO / "dbc" / "health.dbc")
+    data = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text())
+    data["dbc"] = [str(REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc")]
+    data["health_dbc"] = str(REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc")
     data["bus"] = {"interface": "virtual", "channel": channel, "receive_own_messages": False}
     data["state_dir"] = "/tmp/ecu-monitor-bench-unused"
-    return parse_config(data, REPO / "configs" / "bench.yaml")
+    return parse_config(data, REPO / "ecu_monitor" / "data" / "configs" / "bench.yaml")
 
 
 class Periodic(threading.Thread):
@@ -96,7 +96,7 @@ class Periodic(threading.Thread):
 
 
 def _ecu_sender(bus: can.BusABC, sent_at: list[float], counts: dict[str, int]) -> Callable[[int], None]:
-    encoder = Encoder([REPO / "dbc" / "engine.dbc"])
+    encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
     counters = dict.fromkeys(ECU_VALUES, 0)
     ids = {name: encoder.message(name).frame_id for name in ECU_VALUES}
 
@@ -311,7 +311,7 @@ def pipeline_cost(steps: int = 3000, pace_s: float = 0.0) -> tuple[float, float]
     ``pace_s`` > 0 sleeps that long before each step, as live frames come 20 ms apart (cold caches)."""
     config = _config("unused")
     pipeline = Pipeline(config, config.load_params())
-    encoder = Encoder([REPO / "dbc" / "engine.dbc"])
+    encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
     counters = dict.fromkeys(ECU_VALUES, 0)
     t = 0.0
     pipeline.advance_to(t)

@@ -68,7 +68,7 @@ def naive_baseline(path: Path, minutes: float) -> tuple[float, float, int, int]:
     from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1, rk4_step
 
     root = Path(__file__).resolve().parents[1]
-    db: Any = cantools.database.load_file(str(root / "dbc" / "engine.dbc"))
+    db: Any = cantools.database.load_file(str(root / "ecu_monitor" / "data" / "dbc" / "engine.dbc"))
     coeffs = coefficients(paper_table_a1())
     signals = {"EngineSpeed": "rpm", "ThrottlePos": "throttle_pct", "CHT": "cht_c", "OAT": "oat_c",
                "PressureAltitude": "altitude_m", "CalibratedAirspeed": "airspeed_mps"}  # fmt: skip
@@ -143,7 +143,7 @@ def main() -> None:
     from ecu_monitor.service.replay import read_frames, replay_file, replay_frames
 
     root = Path(__file__).resolve().parents[1]
-    config = load_config(root / "configs" / "example.yaml")
+    config = load_config(root / "ecu_monitor" / "data" / "configs" / "example.yaml")
     params = config.load_params()
 
     started = time.perf_counter()

@@ -34,14 +34,14 @@ class MulticastNamespace:
 
 @contextmanager
 def multicast_namespace(group: str, port: int, why: str) -> Iterator[MulticastNamespace]:
-    """Create the namespace and configs/example.yaml rewritten onto ``udp_multicast`` group:port."""
+    """Create the namespace and the shipped example.yaml rewritten onto ``udp_multicast`` group:port."""
     if os.geteuid() != 0 or shutil.which("ip") is None:
         sys.exit(f"{why} needs root and iproute2 (ip netns) to keep multicast inside a namespace")
     name = f"ecu-bench-{uuid.uuid4().hex[:8]}"
     tmp = Path(tempfile.mkdtemp(prefix="ecu-bench-"))
-    data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
-    data["dbc"] = [str(REPO / "dbc" / "engine.dbc")]
-    data["health_dbc"] = str(REPO / "dbc" / "health.dbc")
+    data = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text())
+    data["dbc"] = [str(REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc")]
+    data["health_dbc"] = str(REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc")
     data["bus"] = {"interface": "udp_multicast", "channel": group, "port": port}
     data["state_dir"] = str(tmp / "state")
     config = tmp / "service.yaml"

@@ -12,8 +12,9 @@ import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from typing import Any
 
-from ecu_monitor.errors import run_command
+from ecu_monitor.errors import TOOLS_MODULES, run_command
 
 __all__ = ["COMMANDS", "COMMAND_MODULES", "build_parser", "main"]
 
@@ -32,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "results": "results",
     "evaluate": "evaluate",
     "calibrate": "calibrate",
+    "files": "files",
 }
 COMMAND_MODULES: tuple[str, ...] = tuple(COMMANDS.values())
 
@@ -63,9 +65,26 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     names = [only] if only in COMMANDS else list(COMMANDS)
     for name in names:
-        module = importlib.import_module(f"ecu_monitor.commands.{COMMANDS[name]}")
+        try:
+            module = importlib.import_module(f"ecu_monitor.commands.{COMMANDS[name]}")
+        except ModuleNotFoundError as exc:
+            if (exc.name or "").split(".")[0] not in TOOLS_MODULES:
+                raise
+            _needs_tools(subparsers, name, exc)
+            continue
         module.add_subparser(subparsers)
     return parser
+
+
+def _needs_tools(subparsers: Any, name: str, missing: ModuleNotFoundError) -> None:
+    """Register ``name`` as a command that says which extra to install (the daemon's lean install)."""
+    parser = subparsers.add_parser(name, help=f"(needs: pip install 'ecu-monitor[tools]', {missing.name} is missing)")
+    parser.add_argument("arguments", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+
+    def fail(args: argparse.Namespace) -> int:
+        raise missing
+
+    parser.set_defaults(func=fail)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

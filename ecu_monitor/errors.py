@@ -11,6 +11,7 @@ import sys
 from collections.abc import Callable
 
 __all__ = [
+    "TOOLS_MODULES",
     "BusError",
     "ConfigError",
     "EcuMonitorError",
@@ -20,6 +21,11 @@ __all__ = [
     "UserInputError",
     "run_command",
 ]
+
+
+#: Modules of the ``tools`` extra (plots, progress bars, identification and gap diagnosis); the daemon's
+#: own install (``pip install ecu-monitor``) does without them.
+TOOLS_MODULES = frozenset({"matplotlib", "tqdm", "scipy"})
 
 
 class EcuMonitorError(Exception):
@@ -53,9 +59,9 @@ class EstimationError(EcuMonitorError):
 def run_command(prog: str, command: Callable[[], int | None], debug: bool = False) -> int:
     """Run one CLI command and turn our errors into the contract's exit codes.
 
-    UserInputError -> its one-line message, exit 2; any other EcuMonitorError -> one line, exit 1;
-    Ctrl-C -> 130. With ``debug`` the exception propagates (traceback). Shared by ``ecu-monitor`` and
-    ``virtual-ecu``.
+    UserInputError -> its one-line message, exit 2; any other EcuMonitorError -> one line, exit 1; a
+    missing module of the ``tools`` extra -> one line saying how to install it, exit 1; Ctrl-C -> 130.
+    With ``debug`` the exception propagates (traceback). Shared by ``ecu-monitor`` and ``virtual-ecu``.
     """
     try:
         return int(command() or 0)
@@ -68,6 +74,11 @@ def run_command(prog: str, command: Callable[[], int | None], debug: bool = Fals
         if debug:
             raise
         print(f"{prog}: internal error: {exc}", file=sys.stderr)
+        return 1
+    except ModuleNotFoundError as exc:
+        if debug or (exc.name or "").split(".")[0] not in TOOLS_MODULES:
+            raise
+        print(f"{prog}: error: this command needs {exc.name}: pip install 'ecu-monitor[tools]'", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)

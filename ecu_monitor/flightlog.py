@@ -105,6 +105,7 @@ import numpy as np
 import yaml
 
 from ecu_monitor.errors import ConfigError, FlightLogError, UserInputError
+from ecu_monitor.shipped import resolve_file, shipped_dir
 
 __all__ = [
     "CANONICAL_COLUMNS",
@@ -187,11 +188,11 @@ GAP_WARN_S = 5.0
 
 #: Suffixes read with python-can's ``LogReader``.
 CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".trc")
-#: The repository's engine.dbc (present in a source checkout or an editable install).
-DEFAULT_ENGINE_DBC = Path(__file__).resolve().parent.parent / "dbc" / "engine.dbc"
-#: Shipped mapping files; ``--mapping NAME`` resolves to ``MAPPINGS_DIR / f"{NAME}.yaml"``.
-MAPPINGS_DIR = Path(__file__).resolve().parent / "data" / "mappings"
-#: Canonical column -> "Message.Signal" in dbc/engine.dbc.
+#: The shipped engine.dbc (the reference ECU's and autopilot's frames).
+DEFAULT_ENGINE_DBC = shipped_dir("dbc") / "engine.dbc"
+#: Shipped mapping files; ``--mapping NAME`` names one when no file NAME exists (:func:`resolve_mapping`).
+MAPPINGS_DIR = shipped_dir("mapping")
+#: Canonical column -> "Message.Signal" in engine.dbc.
 DEFAULT_SIGNAL_MAP: Mapping[str, str] = MappingProxyType(
     {
         "throttle_pct": "ECU_Fast.ThrottlePos",
@@ -1155,15 +1156,8 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
 
 
 def resolve_mapping(name_or_path: str | os.PathLike[str]) -> Path:
-    """A mapping file path; a bare name without suffix (``g1000``) names a shipped mapping."""
-    path = Path(name_or_path)
-    if path.exists() or path.suffix or len(path.parts) > 1:
-        return path
-    shipped = MAPPINGS_DIR / f"{path.name}.yaml"
-    if shipped.exists():
-        return shipped
-    known = sorted(p.stem for p in MAPPINGS_DIR.glob("*.yaml"))
-    raise ConfigError(f"{name_or_path}: no such mapping file or shipped mapping (shipped: {', '.join(known)})")
+    """A mapping file: a path that exists, else a shipped mapping's name (``g1000``)."""
+    return resolve_file(name_or_path, "mapping")
 
 
 def _fill(name: str, engine: int, cylinder: int | None = None) -> str:
@@ -1618,7 +1612,7 @@ def import_can_log(
     """Decode a python-can log (.asc, .blf, .log, .trc) with DBC files into a flight log.
 
     ``signal_map`` maps output column -> ``"Message.Signal"`` (default :data:`DEFAULT_SIGNAL_MAP`, for
-    dbc/engine.dbc). Every mapped signal is sampled and held onto a uniform grid of step ``dt_s``
+    the shipped engine.dbc). Every mapped signal is sampled and held onto a uniform grid of step ``dt_s``
     (default 0.1 s, the slowest frame rate) from the first instant every mapped signal has been seen
     to the last frame; ``time_s`` counts from that instant. Frames of unknown ids, error and remote
     frames are ignored; frames that fail to decode are skipped and counted in a warning.
@@ -1767,7 +1761,7 @@ def load_flight(
     ``.csv``: canonical (:func:`read_csv`), or foreign through ``mapping`` (a path or a shipped
     mapping's name, see :func:`resolve_mapping`; None or ``"auto"`` detects the layout with
     :func:`detect_layout`). ``.asc/.blf/.log/.trc``: :func:`import_can_log` with ``dbc_paths``
-    (default: the repository's dbc/engine.dbc) and ``signal_map`` (default :data:`DEFAULT_SIGNAL_MAP`).
+    (default: the shipped engine.dbc) and ``signal_map`` (default :data:`DEFAULT_SIGNAL_MAP`).
     ``engine`` picks the engine of a multi-engine CSV; ``cht`` makes ``cht_c`` from the cylinders
     (``mean``, ``hottest`` or a cylinder number; foreign CSVs default to ``mean``).
     """

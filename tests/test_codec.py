@@ -22,9 +22,9 @@ from ecu_monitor.bus.codec import (
 from ecu_monitor.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
-ENGINE_DBC = ROOT / "dbc" / "engine.dbc"
-HEALTH_DBC = ROOT / "dbc" / "health.dbc"
-RUSEFI_DBC = ROOT / "dbc" / "third_party" / "rusEFI_CAN_verbose.dbc"
+ENGINE_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
+HEALTH_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "health.dbc"
+RUSEFI_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "third_party" / "rusEFI_CAN_verbose.dbc"
 
 SPECS = [
     SignalSpec("rpm", "ECU_Fast", "EngineSpeed", "rpm"),

@@ -14,14 +14,14 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.service.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
-EXAMPLE = ROOT / "configs" / "example.yaml"
-RUSEFI = ROOT / "configs" / "rusefi.yaml"
+EXAMPLE = ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml"
+RUSEFI = ROOT / "ecu_monitor" / "data" / "configs" / "rusefi.yaml"
 
 
 def _base() -> dict[str, Any]:
     data = yaml.safe_load(EXAMPLE.read_text(encoding="utf-8"))
-    data["dbc"] = [str(ROOT / "dbc" / "engine.dbc")]
-    data["health_dbc"] = str(ROOT / "dbc" / "health.dbc")
+    data["dbc"] = [str(ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc")]
+    data["health_dbc"] = str(ROOT / "ecu_monitor" / "data" / "dbc" / "health.dbc")
     return data
 
 
@@ -33,7 +33,7 @@ def test_example_config_loads_with_every_input_and_default_rates() -> None:
     assert config.input("rpm").message == "ECU_Fast" and config.input("rpm").stale_after_s == 0.5
     assert {h.message: h.rate_hz for h in config.health} == {"Health_Status": 10, "Health_Isolation": 2,
                                                              "Health_Diag": 1}  # fmt: skip
-    assert config.dbc_paths == (ROOT / "configs" / ".." / "dbc" / "engine.dbc",)
+    assert config.dbc_paths == (ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc",)  # a shipped name
     assert config.estimator_name == "cbekf-au" and config.estimator.dt_s == 0.02
     assert config.sensor_fault.open_values == (3,) and config.sensor_fault.status_signal == "EcuStatus"
     assert config.bus["interface"] == "virtual" and config.load_params().heat_axes == ("throttle_pct", "rpm")
@@ -152,7 +152,7 @@ def test_bad_files(tmp_path: Path, content: bytes | None, expected: str) -> None
 def test_relative_paths_resolve_against_the_config_file(tmp_path: Path) -> None:
     data = _base()
     (tmp_path / "dbc").mkdir()
-    (tmp_path / "dbc" / "mine.dbc").write_bytes((ROOT / "dbc" / "engine.dbc").read_bytes())
+    (tmp_path / "dbc" / "mine.dbc").write_bytes((ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc").read_bytes())
     data["dbc"] = "dbc/mine.dbc"
     data["state_dir"] = "state"
     path = tmp_path / "svc.yaml"

@@ -36,14 +36,14 @@ from ecu_monitor.service.persistence import DATABASE_NAME
 from ecu_monitor.service.pipeline import Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
-ENGINE_DBC = REPO / "dbc" / "engine.dbc"
-HEALTH_DBC = REPO / "dbc" / "health.dbc"
+ENGINE_DBC = REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
+HEALTH_DBC = REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc"
 HEALTH_IDS = {0x300: "Health_Status", 0x301: "Health_Isolation", 0x302: "Health_Diag"}
 
 
 def write_config(tmp_path: Path, bus: dict[str, Any], name: str = "service.yaml", **changes: Any) -> Path:
-    """configs/example.yaml with absolute DBC paths, the given bus and a state_dir under tmp_path."""
-    data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
+    """The shipped example.yaml with absolute DBC paths, the given bus and a state_dir under tmp_path."""
+    data = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text())
     data["dbc"] = [str(ENGINE_DBC)]
     data["health_dbc"] = str(HEALTH_DBC)
     data["bus"] = bus
@@ -417,7 +417,7 @@ def _bad_configs(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     cases["unknown top key"] = (write_config(tmp_path, bus, "k.yaml", colour="red"), "colour")
     cases["unknown interface"] = (write_config(tmp_path, {"interface": "nocan", "channel": "x"}, "i.yaml"), "nocan")
     cases["missing channel"] = (write_config(tmp_path, {"interface": "virtual"}, "c.yaml"), "bus.channel")
-    inputs = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())["inputs"]
+    inputs = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text())["inputs"]
     wrong_signal = {**inputs, "rpm": {"signal": "ECU_Fast.Nope", "unit": "rpm", "stale_after_s": 0.5}}
     cases["unknown signal"] = (write_config(tmp_path, bus, "s.yaml", inputs=wrong_signal), "Nope")
     wrong_unit = {**inputs, "oat_c": {"signal": "ECU_Slow.OAT", "unit": "furlong", "stale_after_s": 2}}

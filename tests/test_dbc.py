@@ -1,4 +1,4 @@
-"""The DBC contract: dbc/engine.dbc (frames in) and dbc/health.dbc (frames out), and the frame checksum."""
+"""The DBC contract: engine.dbc (frames in) and health.dbc (frames out), and the frame checksum."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from ecu_monitor.bus.checksum import crc8_sae_j1850, frame_checksum
 
-DBC_DIR = Path(__file__).resolve().parents[1] / "dbc"
+DBC_DIR = Path(__file__).resolve().parents[1] / "ecu_monitor" / "data" / "dbc"
 
 #: file -> message -> (frame id, cycle time ms, sender, signal names). Other engineers code against these.
 CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {

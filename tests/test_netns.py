@@ -38,11 +38,11 @@ from ecu_monitor.service.persistence import DATABASE_NAME
 pytestmark = [pytest.mark.netns, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parent.parent
-HEALTH_DBC = REPO / "dbc" / "health.dbc"
+HEALTH_DBC = REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc"
 GROUP = "239.74.163.2"
 HEALTH_IDS = {0x300: "Health_Status", 0x301: "Health_Isolation", 0x302: "Health_Diag"}
 STATE_CODES = {"NOMINAL": 0, "SUSPECT": 1, "DEGRADED": 2, "INPUT_STALE": 3, "SENSOR_FAULT": 4, "UNAVAILABLE": 5}
-#: StaleInputs bits of health.dbc for the inputs configs/example.yaml maps.
+#: StaleInputs bits of health.dbc for the inputs the shipped example.yaml maps.
 ALL_INPUT_BITS = 0b1111111
 
 
@@ -181,8 +181,8 @@ class Setup:
         self.ns = ns
         self.port = random.Random(ns.name).randrange(40000, 50000)
         self.config = ns.tmp / "service.yaml"
-        data = yaml.safe_load((REPO / "configs" / "example.yaml").read_text())
-        data["dbc"] = [str(REPO / "dbc" / "engine.dbc")]
+        data = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text())
+        data["dbc"] = [str(REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc")]
         data["health_dbc"] = str(HEALTH_DBC)
         data["bus"] = {"interface": "udp_multicast", "channel": GROUP, "port": self.port}
         data["state_dir"] = str(ns.tmp / "state")

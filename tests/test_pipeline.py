@@ -23,9 +23,9 @@ from ecu_monitor.service.config import ServiceConfig, parse_config
 from ecu_monitor.service.pipeline import HealthSnapshot, Pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
-ENGINE_DBC = ROOT / "dbc" / "engine.dbc"
-HEALTH_DBC = ROOT / "dbc" / "health.dbc"
-BASE = yaml.safe_load((ROOT / "configs" / "example.yaml").read_text(encoding="utf-8"))
+ENGINE_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
+HEALTH_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "health.dbc"
+BASE = yaml.safe_load((ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text(encoding="utf-8"))
 HEALTH_DB: Any = cantools.database.load_file(str(HEALTH_DBC))
 
 
@@ -37,7 +37,7 @@ def _config(**changes: Any) -> ServiceConfig:
         for key in keys[:-1]:
             node = node.setdefault(key, {})
         node[keys[-1]] = value
-    return parse_config(data, ROOT / "configs" / "example.yaml")
+    return parse_config(data, ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml")
 
 
 class SteadyEcu:
@@ -351,12 +351,14 @@ def test_demo_command_on_a_short_mission(tmp_path: Path, capsys: pytest.CaptureF
 
 
 def test_rusefi_config_runs_the_pipeline_on_third_party_frames() -> None:
-    """configs/rusefi.yaml: rusEFI broadcast frames (no counter/checksum) + our AirData -> estimates."""
+    """The shipped rusefi.yaml: rusEFI broadcast frames (no counter/checksum) + our AirData -> estimates."""
     from ecu_monitor.service.config import load_config
 
-    config = load_config(ROOT / "configs" / "rusefi.yaml")
+    config = load_config(ROOT / "ecu_monitor" / "data" / "configs" / "rusefi.yaml")
     pipeline = Pipeline(config, paper_table_a1())
-    rus: Any = cantools.database.load_file(str(ROOT / "dbc" / "third_party" / "rusEFI_CAN_verbose.dbc"))
+    rus: Any = cantools.database.load_file(
+        str(ROOT / "ecu_monitor" / "data" / "dbc" / "third_party" / "rusEFI_CAN_verbose.dbc")
+    )
     air = Encoder([ENGINE_DBC])
     cht = round(SteadyEcu(rpm=6000.0, throttle_pct=50.0, oat_c=15.0).steady_cht())
 

@@ -51,9 +51,9 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     paths = {suffix: root / f"flight.{suffix}" for suffix in ("blf", "asc", "csv")}
     record(mission_from_dict(SHORT_MISSION), list(paths.values()), paper_table_a1(),
            degradation=[Degradation.parse("gamma_q=1.2@150")], seed=11)  # fmt: skip
-    data = yaml.safe_load((ROOT / "configs" / "example.yaml").read_text(encoding="utf-8"))
-    data["dbc"] = [str(ROOT / "dbc" / "engine.dbc")]
-    data["health_dbc"] = str(ROOT / "dbc" / "health.dbc")
+    data = yaml.safe_load((ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text(encoding="utf-8"))
+    data["dbc"] = [str(ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc")]
+    data["health_dbc"] = str(ROOT / "ecu_monitor" / "data" / "dbc" / "health.dbc")
     data["detector"] = {"symptom": "estimator", "warmup_s": 60.0}
     paths["config"] = root / "service.yaml"
     paths["config"].write_text(yaml.safe_dump(data), encoding="utf-8")

@@ -1,4 +1,5 @@
-"""packaging/ecu-monitor.service: systemd-analyze verify is clean and the security exposure is <= 2.0.
+"""The shipped systemd unit (ecu_monitor/data/systemd/ecu-monitor.service): systemd-analyze verify is
+clean and the security exposure is <= 2.0.
 
 The unit is verified as installed: it is copied into a throwaway root (``--root``) beside the host's
 unit files and an executable at its ExecStart path, so the check covers every directive, not just the
@@ -16,7 +17,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-UNIT = REPO / "packaging" / "ecu-monitor.service"
+UNIT = REPO / "ecu_monitor" / "data" / "systemd" / "ecu-monitor.service"
 ANALYZE = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(ANALYZE is None, reason="systemd-analyze not installed (apt-get install systemd)")
 

@@ -22,6 +22,7 @@ import can
 import yaml
 
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.shipped import resolve_file
 
 __all__ = ["BusConfig", "load_bus_config", "open_bus"]
 
@@ -48,8 +49,8 @@ class BusConfig:
 
 
 def load_bus_config(path: str | Path) -> BusConfig:
-    """Read the ``bus`` section of a YAML file."""
-    path = Path(path)
+    """Read the ``bus`` section of a YAML file (a path, or a shipped config's name: ``example.yaml``)."""
+    path = resolve_file(path, "config")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as exc:

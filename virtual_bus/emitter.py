@@ -1,4 +1,4 @@
-"""Frame emitter of the virtual ECU: the truth plant's measurements as CAN frames of dbc/engine.dbc.
+"""Frame emitter of the virtual ECU: the truth plant's measurements as CAN frames of engine.dbc.
 
 :class:`FrameEncoder` turns :class:`~virtual_bus.plant.StepBlock` objects into ``can.Message`` frames:
 ECU_Fast (0x100) every 20 ms, ECU_Slow (0x101) and AirData (0x200) every 100 ms (the DBC's
@@ -32,6 +32,7 @@ import numpy as np
 
 from ecu_monitor.bus.checksum import CHECKSUM_BYTE, frame_checksum
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.shipped import shipped_dir
 from virtual_bus.plant import StepBlock
 
 __all__ = [
@@ -46,8 +47,8 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-#: The repository's DBC directory and the engine DBC the emitter encodes with.
-DBC_DIR = Path(__file__).resolve().parent.parent / "dbc"
+#: The shipped DBC directory and the engine DBC the emitter encodes with.
+DBC_DIR = shipped_dir("dbc")
 ENGINE_DBC = DBC_DIR / "engine.dbc"
 
 #: Message -> (signal -> field of :class:`~virtual_bus.sensors.Measurements`), counter, checksum.

@@ -72,6 +72,7 @@ import numpy as np
 import yaml
 
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.shipped import resolve_file, shipped_dir, shipped_files
 
 __all__ = [
     "MISSIONS_DIR",
@@ -95,8 +96,8 @@ __all__ = [
     "resolve_mission",
 ]
 
-#: Shipped missions; ``--mission NAME`` resolves to ``MISSIONS_DIR / f"{NAME}.yaml"``.
-MISSIONS_DIR = Path(__file__).resolve().parent / "missions"
+#: Shipped missions; ``--mission NAME`` names one when no file NAME exists (:func:`resolve_mission`).
+MISSIONS_DIR = shipped_dir("mission")
 
 
 def _check(where: str, value: Any, low: float, high: float) -> float:
@@ -455,21 +456,13 @@ def mission_from_dict(data: Any, default_name: str = "mission") -> Mission:
 
 
 def resolve_mission(name_or_path: str | Path) -> Path:
-    """A mission file: an existing path, or the name of a shipped mission (``default``)."""
-    path = Path(name_or_path)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return path
-    shipped = MISSIONS_DIR / f"{name_or_path}.yaml"
-    if shipped.exists():
-        return shipped
-    raise ConfigError(
-        f"{name_or_path}: no such mission file or shipped mission (shipped: {', '.join(list_missions())})"
-    )
+    """A mission file: a path that exists, else the name of a shipped mission (``default``)."""
+    return resolve_file(name_or_path, "mission")
 
 
 def list_missions() -> tuple[str, ...]:
     """Names of the shipped missions."""
-    return tuple(sorted(p.stem for p in MISSIONS_DIR.glob("*.yaml")))
+    return tuple(name.removesuffix(".yaml") for name in shipped_files("mission"))
 
 
 def load_mission(name_or_path: str | Path) -> Mission:

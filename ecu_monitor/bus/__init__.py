@@ -3,8 +3,8 @@
 ``codec`` builds a :class:`Decoder` (frames -> named values in canonical units, every malformed frame
 counted by reason and dropped; a numpy batch path for replay) and an :class:`Encoder` (values ->
 payloads with rolling counter and checksum) once from DBC files. ``checksum`` holds the frame
-checksum (CRC-8/SAE-J1850 over bytes 0..6) shared by every frame of dbc/engine.dbc and
-dbc/health.dbc; see docs/dbc.md.
+checksum (CRC-8/SAE-J1850 over bytes 0..6) shared by every frame of the shipped engine.dbc
+and health.dbc; see docs/dbc.md.
 """
 
 from ecu_monitor.bus.checksum import frame_checksum

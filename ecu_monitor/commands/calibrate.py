@@ -22,7 +22,8 @@ from typing import Any
 
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.model import load_model
-from ecu_monitor.service.config import load_config
+from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
+from ecu_monitor.shipped import resolve_file
 
 __all__ = ["DEFAULT_OUT", "add_subparser"]
 
@@ -39,7 +40,7 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("flights", nargs="+", metavar="FLIGHT", help="nominal flight: canonical .csv or CAN log")
     parser.add_argument(
-        "--config", metavar="CONFIG.yaml", help="service config (default: configs/example.yaml, as replay)"
+        "--config", metavar="CONFIG.yaml", help="service config (default: the shipped example.yaml, as replay)"
     )
     parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the config's model)")
     parser.add_argument(
@@ -56,9 +57,7 @@ def add_subparser(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from ecu_monitor.commands.replay import DEFAULT_CONFIG
-
-    config_path = Path(args.config) if args.config else DEFAULT_CONFIG
+    config_path = resolve_file(args.config, "config") if args.config else DEFAULT_CONFIG
     out = _check(args, config_path)
     config = load_config(config_path)
     params = load_model(args.model) if args.model else config.load_params()

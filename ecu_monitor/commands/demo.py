@@ -1,10 +1,10 @@
 """``ecu-monitor demo [--out DIR] [--seed N] [--inject-at S] [--gamma-q G] [--mission NAME]``: the main job.
 
-The virtual ECU flies the default step-climb mission (virtual_bus/missions/default.yaml) through its
+The virtual ECU flies the default step-climb mission (the shipped mission default.yaml) through its
 truth plant with a heat-input degradation gamma_Q = 1.2 injected mid-flight (t = 1800 s), and sends
 its frames (engine.dbc: ECU_Fast 50 Hz, ECU_Slow and AirData 10 Hz) onto an in-process python-can
 ``virtual`` bus. The service listens on a second Bus instance of the same channel through a
-python-can Notifier: each frame goes into the service pipeline (configs/example.yaml), and the health
+python-can Notifier: each frame goes into the service pipeline (the shipped example.yaml), and the health
 frames that fall due (health.dbc) go back onto the bus, where the ECU side counts them as the
 autopilot would. The virtual clock runs as fast as the machine allows (mission time is carried in the
 frame timestamps); a progress line shows mission time, CHT measured and estimated and the health
@@ -32,14 +32,12 @@ import numpy as np
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import FlightLog, write_csv
-from ecu_monitor.service.config import load_config
+from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
 from ecu_monitor.service.pipeline import STATES, HealthSnapshot, Pipeline
 from ecu_monitor.service.replay import write_health_csv
 
 __all__ = ["DEFAULT_CONFIG", "ServiceListener", "add_subparser", "plot_report"]
 
-#: The service configuration of the demo (the repository's example for dbc/; its bus is replaced).
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "example.yaml"
 #: Frames the ECU side may run ahead of the service before it waits (bounds the bus queue).
 _MAX_BACKLOG = 2000
 
@@ -154,7 +152,13 @@ def _run(args: argparse.Namespace) -> int:
     write_health_csv(rows, out / "health.csv")
     detected = _first(rows, "DEGRADED")
     suspect = _first(rows, "SUSPECT")
-    plot_report(log, rows, out, params.cht_limit_c, args.inject_at, args.gamma_q, detected)
+    try:
+        plot_report(log, rows, out, params.cht_limit_c, args.inject_at, args.gamma_q, detected)
+        plots = ", cht.png, detection.png, gammas.png, headroom.png"
+    except ModuleNotFoundError as exc:  # the daemon's lean install: CSVs only
+        if exc.name != "matplotlib":
+            raise
+        plots = "; no plots: pip install 'ecu-monitor[tools]' for them"
     c = pipeline.counters
     print(
         f"flew {log.duration_s / 60.0:.1f} min of mission {mission.name} in {wall:.1f} s "
@@ -174,7 +178,7 @@ def _run(args: argparse.Namespace) -> int:
         )
     if listener.errors:
         print(f"bus errors in the service listener: {len(listener.errors)} (first: {listener.errors[0]})")
-    print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows), cht.png, detection.png, gammas.png, headroom.png")
+    print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows){plots}")
     return 0
 
 

@@ -4,7 +4,7 @@ Converts flight logs into canonical flight CSVs (docs/flight_logs.md): a canonic
 (validated and rewritten); a foreign CSV, its layout recognised from its header (Garmin G1000
 exports of every firmware, NGAFID processed exports) or given with ``--mapping`` (a mapping YAML, or
 the name of a shipped one: ``g1000``, ``ngafid_processed``); or a python-can log (.asc, .blf, .log,
-.trc) decoded through DBC files (default: the repository's dbc/engine.dbc) with a signal map
+.trc) decoded through DBC files (default: the shipped engine.dbc) with a signal map
 (default: engine.dbc's signals; ``--signal rpm=BASE1.RPM`` entries replace it, for a user's own ECU).
 
 Every cylinder is kept (``cht1_c ..``, ``egt1_c ..``); ``--cht`` says which feeds ``cht_c``, the
@@ -23,6 +23,7 @@ from typing import Any
 
 from ecu_monitor.errors import UserInputError
 from ecu_monitor.flightlog import describe_cht, load_flight, parse_cht_choice, write_csv
+from ecu_monitor.shipped import resolve_file
 
 __all__ = ["add_subparser"]
 
@@ -56,7 +57,7 @@ def add_subparser(subparsers: Any) -> None:
         "--dbc",
         action="append",
         metavar="FILE",
-        help="DBC file to decode a CAN log (repeatable; default dbc/engine.dbc)",
+        help="DBC file or shipped DBC name to decode a CAN log (repeatable; default: engine.dbc)",
     )
     parser.add_argument(
         "--signal",
@@ -100,12 +101,13 @@ def _targets(args: argparse.Namespace) -> list[tuple[str, Path]]:
 def _run(args: argparse.Namespace) -> int:
     cht = None if args.cht is None else parse_cht_choice(args.cht)
     signals = _signal_map(args.signal)
+    dbc_paths = [resolve_file(name, "dbc") for name in args.dbc] if args.dbc else None
     targets = _targets(args)
     failed = 0
     for source, target in targets:
         try:
             log = load_flight(
-                source, mapping=args.mapping, dbc_paths=args.dbc, signal_map=signals, engine=args.engine, cht=cht
+                source, mapping=args.mapping, dbc_paths=dbc_paths, signal_map=signals, engine=args.engine, cht=cht
             )
             write_csv(log, target)
         except UserInputError as exc:

@@ -6,7 +6,7 @@ a canonical flight CSV is turned into the frames the ECU would have sent (each m
 DBC rate) and goes through the same path. Writes one row per health-status period (100 ms):
 ``time_s, cht_meas_c, cht_est_c, deviation, state, gamma_q, gamma_d, headroom_s, stale_inputs,
 sensor_fault`` (deviation = the model-deviation symptom, degC/s; state = the Health_Status verdict).
-Prints one summary line. Defaults: config configs/example.yaml, the model it names (or --model), its
+Prints one summary line. Defaults: config example.yaml (shipped), the model it names (or --model), its
 estimator (or --estimator). ``--live`` feeds the frames one by one through the live path instead of
 the batch path (same rows, slower; for checking).
 """
@@ -25,7 +25,7 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS
 from ecu_monitor.flightlog import load_flight
 from ecu_monitor.model import load_model
-from ecu_monitor.service.config import load_config
+from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
 from ecu_monitor.service.pipeline import STATES, model_input_names
 from ecu_monitor.service.replay import (
     CAN_LOG_SUFFIXES,
@@ -37,9 +37,6 @@ from ecu_monitor.service.replay import (
 )
 
 __all__ = ["DEFAULT_CONFIG", "add_subparser"]
-
-#: The configuration used when --config is not given (the repository's example for dbc/).
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "example.yaml"
 
 
 def add_subparser(subparsers: Any) -> None:

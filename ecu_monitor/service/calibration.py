@@ -31,6 +31,7 @@ from ecu_monitor.estimation.detection import DetectorSettings, ThresholdCalibrat
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.service.config import MODEL_PRESETS, ServiceConfig
 from ecu_monitor.service.replay import ReplayResult, replay_file
+from ecu_monitor.shipped import resolve_file, shipped_file
 
 __all__ = [
     "MIN_WHOLE_HOURS",
@@ -200,9 +201,9 @@ def config_copy_yaml(
 ) -> str:
     """The service config at ``config_path`` with ``detector.threshold`` replaced (and ``model`` set to
     ``model_path`` if given, the model the threshold was calibrated with). Relative file paths (dbc,
-    health_dbc, model, state_dir) are made absolute so the copy loads from any folder. The original's
-    comments are not kept (the YAML is re-emitted)."""
-    src = Path(config_path)
+    health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
+    DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
+    src = resolve_file(config_path, "config")
     try:
         data = yaml.safe_load(src.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
@@ -217,11 +218,18 @@ def config_copy_yaml(
         path = Path(os.path.expanduser(value))
         return str(path if path.is_absolute() else (base / path).resolve())
 
+    def dbc(value: Any) -> Any:
+        """A shipped DBC's name stays a name (unless a file of that name sits beside the config)."""
+        if isinstance(value, str) and not (base / value).exists() and shipped_file("dbc", value) is not None:
+            return value
+        return absolute(value)
+
     if "dbc" in data:
-        data["dbc"] = [absolute(v) for v in data["dbc"]] if isinstance(data["dbc"], list) else absolute(data["dbc"])
-    for key in ("health_dbc", "state_dir"):
-        if key in data:
-            data[key] = absolute(data[key])
+        data["dbc"] = [dbc(v) for v in data["dbc"]] if isinstance(data["dbc"], list) else dbc(data["dbc"])
+    if "health_dbc" in data:
+        data["health_dbc"] = dbc(data["health_dbc"])
+    if "state_dir" in data:
+        data["state_dir"] = absolute(data["state_dir"])
     if model_path is not None:
         data["model"] = str(Path(model_path).resolve())
     elif isinstance(data.get("model"), str) and data["model"] not in MODEL_PRESETS:

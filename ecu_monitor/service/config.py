@@ -1,7 +1,7 @@
-"""The service configuration: YAML -> frozen, validated dataclasses (docs/service.md, configs/*.yaml).
+"""The service configuration: YAML -> frozen, validated dataclasses (docs/service.md, shipped example.yaml).
 
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` whose one-line message names the file,
-the key path and what was expected, e.g. ``configs/x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
+the key path and what was expected, e.g. ``x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
 (the CLI prints it and exits 2). Paths in the file are relative to the file itself. The input DBC
 files are loaded (strict) while validating, so a ``Message.Signal`` that is not in them is caught
 here, not at the first frame.
@@ -25,8 +25,10 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+from ecu_monitor.shipped import resolve_file, shipped_dir
 
 __all__ = [
+    "DEFAULT_CONFIG",
     "HEALTH_MESSAGES",
     "MODEL_PRESETS",
     "REQUIRED_INPUTS",
@@ -39,6 +41,9 @@ __all__ = [
     "load_config",
     "parse_config",
 ]
+
+#: The config the commands use when none is given: the shipped example for engine.dbc.
+DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
 
 #: Inputs every configuration must map (the heat-map axes of the model come on top, checked by the pipeline).
 REQUIRED_INPUTS: tuple[str, ...] = ("cht_c", "oat_c", "altitude_m", "airspeed_mps")
@@ -121,7 +126,7 @@ class SensorFaultSettings:
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """The whole service configuration (see configs/example.yaml for every key with its meaning)."""
+    """The whole service configuration (see the shipped example.yaml for every key with its meaning)."""
 
     source: Path
     engine_serial: str
@@ -243,12 +248,11 @@ def _resolve(src: Path, value: str | os.PathLike[str]) -> Path:
 
 
 def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
-    """Read and validate a service configuration YAML file."""
-    src = Path(path)
+    """Read and validate a service configuration YAML file: a path, or a shipped config's name
+    (``example.yaml``; :func:`ecu_monitor.shipped.resolve_file`)."""
+    src = resolve_file(path, "config")
     try:
         text = src.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{src}: no such config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
         raise ConfigError(f"{src}: cannot read config file ({reason})") from None
@@ -283,7 +287,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     backoff = Backoff(initial, backoff_node.number("max", 10.0, low=initial))
 
     dbc_paths, databases = _dbc_list(top)
-    health_dbc = top.path_value("health_dbc")
+    health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc"))
     health_db = _load(top, "health_dbc", health_dbc)
 
     sensor_node = top.child(
@@ -334,6 +338,16 @@ def _load(node: _Node, key: str, path: Path) -> Any:
         raise node.error(str(exc), key) from None
 
 
+def _dbc_file(top: _Node, key: str, value: Any) -> Path:
+    """A DBC named in the config: a path relative to the config file, else a shipped DBC's name."""
+    if not isinstance(value, str | os.PathLike) or not str(value).strip():
+        raise top.error(f"expected a file path, got {_kind(value)}", key)
+    try:
+        return resolve_file(value, "dbc", base=top.src.parent)
+    except ConfigError as exc:
+        raise top.error(str(exc), key) from None
+
+
 def _dbc_list(top: _Node) -> tuple[tuple[Path, ...], list[tuple[Path, Any]]]:
     value = top.raw("dbc")
     items = [value] if isinstance(value, str) else value
@@ -342,11 +356,8 @@ def _dbc_list(top: _Node) -> tuple[tuple[Path, ...], list[tuple[Path, Any]]]:
     paths: list[Path] = []
     databases: list[tuple[Path, Any]] = []
     for index, item in enumerate(items):
-        key = f"dbc[{index}]"
-        if not isinstance(item, str) or not item.strip():
-            raise top.error(f"expected a file path, got {_kind(item)}", key)
-        path = _resolve(top.src, item)
-        databases.append((path, _load(top, key, path)))
+        path = _dbc_file(top, f"dbc[{index}]", item)
+        databases.append((path, _load(top, f"dbc[{index}]", path)))
         paths.append(path)
     return tuple(paths), databases
 
