@@ -146,7 +146,7 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-#: The canonical columns, in contract order (DESIGN.md section 3).
+#: The canonical columns, in contract order (docs/contracts.md section 1).
 CANONICAL_COLUMNS: tuple[str, ...] = (
     "time_s",
     "throttle_pct",

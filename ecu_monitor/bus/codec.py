@@ -1,6 +1,6 @@
 """Decoding of input frames to model inputs and encoding of frames, built once from DBC files.
 
-One place turns CAN frames into numbers and back (DESIGN.md section 2, STYLE.md point 4):
+One place turns CAN frames into numbers and back (docs/architecture.md, docs/dbc.md):
 
 * :class:`Decoder` maps ``Message.Signal`` of the input DBCs to named values (model inputs in their
   canonical units, plus any extra signal the caller asks for, such as the ECU status). It checks

@@ -137,7 +137,7 @@ CANDIDATES: tuple[Candidate, ...] = (
     ),
 )
 CANDIDATE_IDS: tuple[str, ...] = tuple(c.id for c in CANDIDATES)
-#: The candidates tried by default: the four of DESIGN.md section 5.
+#: The candidates tried by default: the four the gap.json contract names (docs/contracts.md section 3).
 DEFAULT_CANDIDATE_IDS: tuple[str, ...] = (
     "airspeed_cooling",
     "density_cooling",

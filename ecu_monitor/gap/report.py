@@ -1,4 +1,4 @@
-"""Outputs of a gap diagnosis: DIR/gap.json (DESIGN.md section 5), DIR/report.md, plots, DIR/model.yaml.
+"""Outputs of a gap diagnosis: DIR/gap.json (docs/contracts.md section 3), DIR/report.md, plots, DIR/model.yaml.
 
 gap.json holds the contract's four keys (baseline, where, effects, verdict) and, beside them, the
 other breakdowns (segments, regions, correlation, lag_signature, spectrum, innovation_whiteness),
@@ -76,7 +76,7 @@ def _effect_entry(score: EffectScore) -> dict[str, Any]:
 
 
 def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
-    """The gap.json document of a diagnosis (DESIGN.md section 5 plus extra keys beside)."""
+    """The gap.json document of a diagnosis (docs/contracts.md section 3, plus extra keys beside)."""
     base_test = diag.baseline_test_residual
     base_train = diag.baseline_train_residual
     winner = diag.winner

@@ -1,6 +1,6 @@
 """The pipeline: CAN frames in, health frames out, on a fixed 50 Hz step (live and replay, one object).
 
-Data flow (DESIGN.md section 2)::
+Data flow (docs/architecture.md)::
 
     feed(msg) -> Decoder (bus/codec.py: checks, DBC decode, unit conversion) -> held inputs
     advance_to(t) -> fixed steps t0 + k dt <= t -> supervise() -> estimator(s) -> detector
