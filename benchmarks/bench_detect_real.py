@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--identify-args", default="", help='more options for ecu-monitor identify, e.g. "--base B.yaml --free ..."'
     )
-    parser.add_argument("--config", default=str(Path(__file__).resolve().parents[1] / "configs" / "example.yaml"))
+    parser.add_argument("--config", default="example.yaml")  # a path, or a shipped config's name
     parser.add_argument("--onset-every", type=float, default=900.0, help="spacing of the overlay onsets, s")
     parser.add_argument("--variant", action="append", default=[], help="baseline_s:delay_s:reference (repeatable)")
     parser.add_argument("--rate", type=float, default=1.0, help="false alarms per 100 h for the calibration")
