@@ -19,6 +19,7 @@ def _contracts() -> list[dict[str, object]]:
 
 
 def test_import_linter_contracts_are_kept() -> None:
+    assert LINT_IMPORTS.exists(), f"{LINT_IMPORTS} missing: the test extra has import-linter (pip install -e '.[test]')"
     result = subprocess.run(
         [str(LINT_IMPORTS), "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False
     )
