@@ -19,7 +19,7 @@ import yaml
 
 from ecu_monitor.cli import main
 from ecu_monitor.commands.replay import DEFAULT_CONFIG
-from ecu_monitor.estimation.detection import calibrate_threshold, cusum_path
+from ecu_monitor.estimation.detection import DetectorSettings, calibrate_threshold, cusum_path
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import paper_table_a1, save_model
 from ecu_monitor.research.evaluation import residual_effects
@@ -87,6 +87,12 @@ def test_calibrate_prints_a_table_and_writes_the_fragment(calibrated):
     assert any("fewer than the 100 h of one expected alarm" in line for line in lines)
     fragment = yaml.safe_load(calibrated["fragment"].read_text())
     assert set(fragment) == {"detector"} and fragment["detector"]["symptom"] == "estimator"
+    # the whole detector block the threshold holds for: merged into the config it gives the settings used
+    shipped = load_config(DEFAULT_CONFIG).detector
+    calibrated_settings = {k: v for k, v in fragment["detector"].items() if k != "symptom"}
+    assert DetectorSettings(**calibrated_settings) == dataclasses.replace(
+        shipped, threshold=fragment["detector"]["threshold"]
+    )
     text = calibrated["fragment"].read_text()
     assert "nominal_11.blf" in text and "nominal_12.blf" in text and "# method:" in text
     assert calibrated["plot"].stat().st_size > 10_000

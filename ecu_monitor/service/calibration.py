@@ -183,9 +183,13 @@ def _header(result: CalibrationResult, rate_per_100h: float, sources: Sequence[s
 def detector_fragment_yaml(
     result: CalibrationResult, symptom: str, rate_per_100h: float, sources: Sequence[str]
 ) -> str:
-    """A ``detector: {symptom, threshold}`` YAML fragment with comments, to merge into a service config."""
+    """A ``detector:`` YAML fragment with comments, to merge into a service config: the symptom, the new
+    threshold and every other detector setting it was calibrated with (a threshold holds only for the
+    baseline, delay, reference, warm-up and block it was computed with; merging the whole block keeps
+    them together)."""
+    settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
     body = yaml.safe_dump(
-        {"detector": {"symptom": symptom, "threshold": _rounded(result.calibration.threshold)}},
+        {"detector": {"symptom": symptom, **dataclasses.asdict(settings)}},
         sort_keys=False,
         default_flow_style=False,
     )
