@@ -62,17 +62,17 @@ def _swarm_kernel(
 ) -> None:
     """Every particle over every step: the drive where an input changed, then RK4 and the probe lag.
 
-    theta: (len(PARAMETER_FIELDS), P) coefficients; heat (P, n, m). Row r of out_* is the state
-    after r * record_every steps.
+    theta: (P, len(PARAMETER_FIELDS)) coefficients, one contiguous row per particle; heat (P, n, m).
+    Row r of out_* is the state after r * record_every steps.
     """
     n_steps = heat_x.shape[0]
-    n_particles = theta.shape[1]
-    c_w = theta[C_W].copy()
-    tau = theta[TAU_W].copy()
-    rad = theta[RADIATIVE].copy()
+    n_particles = theta.shape[0]
+    c_w = theta[:, C_W].copy()
+    tau = theta[:, TAU_W].copy()
+    rad = theta[:, RADIATIVE].copy()
     fraction = np.empty(n_particles)
     for p in range(n_particles):
-        fraction[p] = lag_fraction(theta[SENSOR_LAG, p], dt)
+        fraction[p] = lag_fraction(theta[p, SENSOR_LAG], dt)
     temp = t0.copy()
     probe = t0.copy()
     pade = np.empty(n_particles)
@@ -98,7 +98,7 @@ def _swarm_kernel(
                 q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
                 altitude_gain, heat_factor, conductance = drive(
                     log_pressure_ratio[k], log_temperature_ratio[k], log_density[k], airspeed[k], load[k],
-                    mixture[k], theta[:, p],
+                    mixture[k], theta[p],
                 )  # fmt: skip
                 gain[p] = altitude_gain * heat_factor
                 cond[p] = conductance
@@ -248,9 +248,9 @@ def simulate_compiled(
     conditions = [np.ascontiguousarray(v) for v in _eq.conditions(hx, alt, air, oat, float(xb[0]), float(xb[-1]))]
     swarm = np.ndim(coeffs.c_w) > 0
     n_particles = int(np.size(coeffs.c_w)) if swarm else 1
-    theta = np.empty((len(PARAMETER_FIELDS), n_particles))
-    for row, name in enumerate(PARAMETER_FIELDS):
-        theta[row] = np.broadcast_to(np.asarray(getattr(coeffs, name), dtype=float), (n_particles,))
+    theta = np.empty((n_particles, len(PARAMETER_FIELDS)))
+    for column, name in enumerate(PARAMETER_FIELDS):
+        theta[:, column] = np.broadcast_to(np.asarray(getattr(coeffs, name), dtype=float), (n_particles,))
     heat = np.ascontiguousarray(
         np.broadcast_to(np.asarray(coeffs.heat_values_w, dtype=float), (n_particles, xb.size, yb.size))
     )
