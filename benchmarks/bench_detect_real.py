@@ -63,7 +63,9 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]]]) -> list[Any]:
     params = load_model(model)
     log = load_flight(flight)
     needed = (*model_input_names(params), "cht_c")
+    began = time.perf_counter()
     nominal = frames_from_flight(log, config, needed)
+    timing = {"all_frames_s": time.perf_counter() - began, "patches_s": [], "replays_s": []}
     cht_message = config.input("cht_c").message
     with_cht = [spec.name for spec in config.inputs if spec.message == cht_message and log.has(spec.name)]
     cht_id = frames_from_flight(FlightLog({"time_s": log.time_s[:2], "cht_c": log["cht_c"][:2]}), config, ["cht_c"])
@@ -71,6 +73,7 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]]]) -> list[Any]:
     out = []
     for onset, gain in overlays:
         frames = nominal
+        began = time.perf_counter()
         if math.isfinite(onset):
             t = log.time_s
             cht = overlay_degradation(t, log["cht_c"], log["oat_c"], t[0] + onset, gain)
@@ -78,9 +81,12 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]]]) -> list[Any]:
             patched = frames_from_flight(part, config, ["cht_c"])
             merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(others, patched, strict=True)))
             frames = merged.take(np.argsort(merged.time_s, kind="stable"))
+            timing["patches_s"].append(time.perf_counter() - began)
+        began = time.perf_counter()
         result = replay_frames(config, params, frames)
+        timing["replays_s"].append(time.perf_counter() - began)
         out.append((onset, gain, float(log.time_s[0]), result.detector_feed))
-    return out
+    return out, timing
 
 
 def _identify(train: list[str], held_out: Path, model: Path, options: list[str]) -> None:
@@ -171,7 +177,11 @@ def main(argv: list[str] | None = None) -> int:
             jobs.append((i, j, (str(flights[j]), str(models[i]), args.config, overlays)))
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(_feeds, [job[2] for job in jobs]))
-    feeds = {(i, j): r for (i, j, _), r in zip(jobs, results, strict=True)}
+    feeds = {(i, j): r for (i, j, _), (r, _) in zip(jobs, results, strict=True)}
+    timings = [t for _, t in results]
+    all_frames = np.median([t["all_frames_s"] for t in timings])
+    patch = np.median([p for t in timings for p in t["patches_s"]])
+    replay = np.median([r for t in timings for r in t["replays_s"]])
     report: dict[str, Any] = {}
     for name, settings in variants:
         unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
@@ -216,7 +226,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'total':<40} {'':>8}  {totals['false']:>3} false DEGRADED    "
               f"{totals[0.2][0]:>3}/{totals[0.2][1]:<10} {totals[0.1][0]:>3}/{totals[0.1][1]}")  # fmt: skip
         report[name] = {"settings": dataclasses.asdict(settings), "flights": per_flight}
-    print(f"\n{len(jobs)} replay jobs, {time.perf_counter() - started:.0f} s; work files in {work}")
+    replays = sum(len(t["replays_s"]) for t in timings)
+    print(
+        f"\n{replays} replays in {len(jobs)} jobs, {time.perf_counter() - started:.0f} s in all; work files in {work}"
+    )
+    print(
+        f"median per flight: frames of the whole flight {all_frames:.1f} s, CHT message re-encoded for an overlay"
+        f" {patch:.1f} s ({all_frames / patch:.1f}x less), replay {replay:.1f} s"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1, default=float), encoding="utf-8")
     return 0
