@@ -52,12 +52,13 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]]]) -> list[Any]:
     carries the CHT (with every signal it holds, from the overlaid log) and merges it back in time
     order, so each overlay costs one replay and one message's encoding instead of all of them."""
     flight, model, config_path, overlays = args
+    from ecu_monitor.bus.canlog import FrameArrays, load_flight
     from ecu_monitor.estimation.detection import overlay_degradation
-    from ecu_monitor.flightlog import FlightLog, load_flight
+    from ecu_monitor.flightlog import FlightLog
     from ecu_monitor.model import load_model
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.pipeline import model_input_names
-    from ecu_monitor.service.replay import FrameArrays, frames_from_flight, replay_frames
+    from ecu_monitor.service.replay import frames_from_flight, replay_frames
 
     config = load_config(config_path)
     params = load_model(model)
@@ -123,8 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
+    from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.estimation.detection import calibrate_threshold, cusum_path
-    from ecu_monitor.flightlog import import_mapped_csv, load_flight, resolve_mapping, write_csv
+    from ecu_monitor.flightlog import import_mapped_csv, resolve_mapping, write_csv
     from ecu_monitor.identify import DEFAULT_FREE
     from ecu_monitor.model import Effects, load_model, save_model
     from ecu_monitor.service.config import load_config

@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.bus.canlog import load_flight
+from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify import (
     DEFAULT_FREE,
     ErrorStats,

@@ -7,7 +7,7 @@ the repository) measures, best of ``--repeat`` runs in one process:
 
 * baseline: Python's ``csv.reader`` over the whole file, fields left as text (the least any import
   must do);
-* import: :func:`ecu_monitor.flightlog.load_flight` (layout detection, time from the stamps, every
+* import: :func:`ecu_monitor.bus.canlog.load_flight` (layout detection, time from the stamps, every
   mapped column and cylinder converted, validation and repairs); a twin's export is read for engine 1;
 * write: :func:`ecu_monitor.flightlog.write_csv` of the imported log to a temporary file.
 
@@ -24,8 +24,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.flightlog import FlightLog, load_flight, write_csv
+from ecu_monitor.flightlog import FlightLog, write_csv
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -7,7 +7,7 @@ ECU's recorder (a 16 h random mission, gamma_Q = 1.15 from 30000 s) into $ECU_MO
 /tmp/ecu-monitor-bench, never into the repository. Measured in one run:
 
 * read only: python-can's LogReader over the whole file (Message objects, nothing else), and the
-  service's array reader (:func:`ecu_monitor.service.replay.read_frames`);
+  service's array reader (:func:`ecu_monitor.bus.canlog.read_frames`);
 * full pipeline: ``replay_file`` (read, decode with every check, fixed-step inputs, supervision,
   estimator, open-loop reference, isolation filter, detector, headroom) plus writing health.csv;
 * naive baseline: python-can LogReader, cantools ``decode_message`` per frame, and a filterpy
@@ -139,8 +139,9 @@ def main() -> None:
 
     import can
 
+    from ecu_monitor.bus.canlog import read_frames
     from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import read_frames, replay_file, replay_frames
+    from ecu_monitor.service.replay import replay_file, replay_frames
 
     root = Path(__file__).resolve().parents[1]
     config = load_config(root / "ecu_monitor" / "data" / "configs" / "example.yaml")

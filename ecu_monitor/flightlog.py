@@ -2,17 +2,16 @@
 
 Everything the model, the estimators, identification and the gap diagnosis read from a flight goes
 through a :class:`FlightLog`: named float64 columns of equal length on a strictly increasing
-``time_s``. Three ways in, one way out:
+``time_s``. Two ways in here (CAN logs are read in the bus layer, :mod:`ecu_monitor.bus.canlog`,
+whose ``load_flight`` loads any supported log), one way out:
 
 * :func:`read_csv` - a canonical CSV, validated row by row;
 * :func:`import_mapped_csv` - a foreign CSV export (e.g. a Garmin G1000 engine-data log) through a
   small YAML mapping of source column -> canonical name + unit;
-* :func:`import_can_log` - a python-can log (.asc, .blf, .log, .trc) decoded with DBC files and
-  sampled-and-held onto a uniform time grid;
 * :func:`write_csv` - canonical columns first, in contract order, then the rest; every value written
   with the shortest text that reads back to the same float.
 
-:func:`load_flight` dispatches on the file suffix and, for a CSV, on its layout. Every problem with
+:func:`load_csv` dispatches a CSV on its layout. Every problem with
 the input raises :class:`~ecu_monitor.errors.FlightLogError` (bad data) or
 :class:`~ecu_monitor.errors.ConfigError` (bad mapping) with one line naming the file, the row (1-based
 file line, the header of a canonical CSV is row 1) and the column. Problems that can be repaired
@@ -31,7 +30,8 @@ Canonical CSV rules (:func:`read_csv`)
 * Values outside :data:`PHYSICAL_LIMITS` are an error; time gaps longer than :data:`GAP_WARN_S` are
   kept with a warning.
 * An empty file or a header without rows is an error; a last row with too few fields (a log cut
-  mid-write) is dropped with a warning; a short row anywhere else is an error.
+  mid-write) is dropped with a warning, a whole last row without a line break at its end (maybe cut
+  inside its last number) is kept with a warning; a short row anywhere else is an error.
 * Extra columns are carried along as floats (blank fields stay NaN) when numeric, and dropped with a
   debug message when they hold text or have no name (a trailing comma).
 
@@ -68,7 +68,8 @@ stripping padding spaces; trailing empty columns are ignored. ``time_s`` is the 
 kept row; whole-second stamps shared by k rows are spread over their second (s, s + 1/k, ...), rows
 identical to the row before are dropped. A known unit in the file's units row (``deg F``, ``gph``,
 ``kt``, ``ft Baro``, ``inch`` = inHg, ...) wins over the mapping's unit of the same quantity (with a
-note); one of another quantity is an error. Units are converted with :data:`UNITS`; negative
+note); one of another quantity is an error. Units are converted with the one unit table,
+:data:`ecu_monitor.units.UNITS`; negative
 ``airspeed_mps`` and ``fuel_flow_lph`` (an air-data system reading -1 kt on the ramp) are clipped to
 0 with a note. Unmapped source columns are ignored. Then the canonical rules above apply (blank
 runs, repeated or backward time, limits, gaps); an ``optional`` column keeps blank runs longer than
@@ -106,36 +107,31 @@ import yaml
 
 from ecu_monitor.errors import ConfigError, FlightLogError, UserInputError
 from ecu_monitor.shipped import resolve_file, shipped_dir
+from ecu_monitor.units import QUANTITY_OF_COLUMN, UNITS
 
 __all__ = [
     "CANONICAL_COLUMNS",
-    "CAN_LOG_SUFFIXES",
     "CHT_CHOICES",
     "CYLINDER_COLUMN",
-    "DEFAULT_ENGINE_DBC",
-    "DEFAULT_SIGNAL_MAP",
     "ENGINE_COLUMNS",
     "GAP_WARN_S",
     "MAPPINGS_DIR",
     "MAX_BLANK_RUN",
     "OPTIONAL_COLUMNS",
     "PHYSICAL_LIMITS",
-    "UNITS",
     "ChtPeak",
     "ColumnMap",
     "CsvMapping",
     "CylinderMap",
     "FlightLog",
     "TimeMap",
-    "Unit",
     "choose_cht",
     "cht_peak",
     "cylinder_columns",
     "describe_cht",
     "detect_layout",
-    "import_can_log",
     "import_mapped_csv",
-    "load_flight",
+    "load_csv",
     "load_mapping",
     "parse_cht_choice",
     "read_csv",
@@ -186,82 +182,14 @@ MAX_BLANK_RUN = 5
 #: Time gaps longer than this are kept but reported.
 GAP_WARN_S = 5.0
 
-#: Suffixes read with python-can's ``LogReader``.
-CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".trc")
-#: The shipped engine.dbc (the reference ECU's and autopilot's frames).
-DEFAULT_ENGINE_DBC = shipped_dir("dbc") / "engine.dbc"
 #: Shipped mapping files; ``--mapping NAME`` names one when no file NAME exists (:func:`resolve_mapping`).
 MAPPINGS_DIR = shipped_dir("mapping")
-#: Canonical column -> "Message.Signal" in engine.dbc.
-DEFAULT_SIGNAL_MAP: Mapping[str, str] = MappingProxyType(
-    {
-        "throttle_pct": "ECU_Fast.ThrottlePos",
-        "rpm": "ECU_Fast.EngineSpeed",
-        "altitude_m": "AirData.PressureAltitude",
-        "airspeed_mps": "AirData.CalibratedAirspeed",
-        "oat_c": "ECU_Slow.OAT",
-        "cht_c": "ECU_Slow.CHT",
-        "fuel_flow_lph": "ECU_Fast.FuelFlow",
-    }
-)
-
 _REQUIRED_ALWAYS = tuple(c for c in CANONICAL_COLUMNS if c != "throttle_pct")
 _STRICT = frozenset(CANONICAL_COLUMNS + OPTIONAL_COLUMNS)
 
 
-class Unit(NamedTuple):
-    """A unit: its quantity and the affine map to the canonical unit, ``si = value * scale + offset``."""
-
-    quantity: str
-    scale: float
-    offset: float
-
-
-#: Unit name -> conversion to the canonical unit of its quantity (m, m/s, degC, L/h, kPa, rpm, %, s).
-UNITS: Mapping[str, Unit] = MappingProxyType(
-    {
-        "m": Unit("length", 1.0, 0.0),
-        "ft": Unit("length", 0.3048, 0.0),
-        "m/s": Unit("speed", 1.0, 0.0),
-        "mps": Unit("speed", 1.0, 0.0),
-        "kt": Unit("speed", 1852.0 / 3600.0, 0.0),
-        "km/h": Unit("speed", 1.0 / 3.6, 0.0),
-        "fpm": Unit("speed", 0.3048 / 60.0, 0.0),
-        "degC": Unit("temperature", 1.0, 0.0),
-        "degF": Unit("temperature", 5.0 / 9.0, -32.0 * 5.0 / 9.0),
-        "K": Unit("temperature", 1.0, -273.15),
-        "usgal_per_h": Unit("volume_flow", 3.785411784, 0.0),
-        "l_per_h": Unit("volume_flow", 1.0, 0.0),
-        "kPa": Unit("pressure", 1.0, 0.0),
-        "hPa": Unit("pressure", 0.1, 0.0),
-        "inHg": Unit("pressure", 3.386389, 0.0),
-        "psi": Unit("pressure", 6.894757293168, 0.0),
-        "rpm": Unit("rotational_speed", 1.0, 0.0),
-        "pct": Unit("fraction", 1.0, 0.0),
-        "s": Unit("time", 1.0, 0.0),
-        "ms": Unit("time", 1e-3, 0.0),
-        "min": Unit("time", 60.0, 0.0),
-    }
-)
-
 #: Quantity each known column must be given in (other target names accept any unit).
-_COLUMN_QUANTITY: Mapping[str, str] = MappingProxyType(
-    {
-        "throttle_pct": "fraction",
-        "rpm": "rotational_speed",
-        "altitude_m": "length",
-        "airspeed_mps": "speed",
-        "vspeed_mps": "speed",
-        "oat_c": "temperature",
-        "cht_c": "temperature",
-        "cht_true_c": "temperature",
-        "fuel_flow_lph": "volume_flow",
-        "egt_c": "temperature",
-        "egt_max_c": "temperature",
-        "oil_temp_c": "temperature",
-        "manifold_pressure_kpa": "pressure",
-    }
-)
+_COLUMN_QUANTITY = {name: q for name, q in QUANTITY_OF_COLUMN.items() if name != "time_s"}
 #: Unit text in a log's own units row (lower case, spaces removed) -> unit name; other texts are ignored.
 _UNIT_TEXT: Mapping[str, str] = MappingProxyType(
     {
@@ -298,8 +226,6 @@ _UNIT_TEXT: Mapping[str, str] = MappingProxyType(
 _NON_NEGATIVE: tuple[str, ...] = ("airspeed_mps", "fuel_flow_lph")
 
 _REDUCERS: Mapping[str, Callable[..., Any]] = MappingProxyType({"mean": np.mean, "max": np.max, "min": np.min})
-#: Timestamp tolerance of the sample-and-hold grid (log formats store us or 10 us resolution).
-_TIE_S = 1e-6
 _IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -490,7 +416,17 @@ def _read_table(
         _note(notes, src, f"row {last_line}: truncated last row ({len(last_fields)} of {width} fields) dropped")
         if not rows:
             raise FlightLogError(f"{src}: row {last_line}: the only data row is truncated")
+    elif _ends_mid_line(path):
+        _note(notes, src, f"row {last_line}: no line break after the last row: it may be cut mid-field (kept)")
     return _Table(header, rows, before)
+
+
+def _ends_mid_line(path: Path) -> bool:
+    """True if the file's last byte is not a line break: its last row was cut while being written (a
+    field may hold only the first digits of its value)."""
+    with _reading(str(path)), path.open("rb") as fh:
+        fh.seek(-1, os.SEEK_END)
+        return fh.read(1) not in (b"\n", b"\r")
 
 
 def _check_widths(src: str, table: _Table) -> None:
@@ -1584,145 +1520,23 @@ def import_mapped_csv(
 
 
 # --------------------------------------------------------------------------------------------------
-# CAN logs
-# --------------------------------------------------------------------------------------------------
-
-
-def _load_dbc(path: str | os.PathLike[str]) -> Any:
-    import cantools
-
-    try:
-        return cantools.database.load_file(str(path), strict=True)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such DBC file") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
-    except (cantools.database.UnsupportedDatabaseFormatError, cantools.database.Error) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ConfigError(f"{path}: not a valid DBC file: {first}") from exc
-
-
-def import_can_log(
-    path: str | os.PathLike[str],
-    dbc_paths: Sequence[str | os.PathLike[str]],
-    signal_map: Mapping[str, str] | None = None,
-    *,
-    dt_s: float = 0.1,
-) -> FlightLog:
-    """Decode a python-can log (.asc, .blf, .log, .trc) with DBC files into a flight log.
-
-    ``signal_map`` maps output column -> ``"Message.Signal"`` (default :data:`DEFAULT_SIGNAL_MAP`, for
-    the shipped engine.dbc). Every mapped signal is sampled and held onto a uniform grid of step ``dt_s``
-    (default 0.1 s, the slowest frame rate) from the first instant every mapped signal has been seen
-    to the last frame; ``time_s`` counts from that instant. Frames of unknown ids, error and remote
-    frames are ignored; frames that fail to decode are skipped and counted in a warning.
-    """
-    import can
-    import cantools
-
-    src = str(path)
-    if not dbc_paths:
-        raise ConfigError(f"{src}: no DBC file given to decode the CAN log")
-    if not (math.isfinite(dt_s) and dt_s > 0.0):
-        raise FlightLogError(f"{src}: sample step must be a positive number, got {dt_s!r}")
-    dbs = [(str(p), _load_dbc(p)) for p in dbc_paths]
-    dbc_names = ", ".join(name for name, _ in dbs)
-    smap = dict(DEFAULT_SIGNAL_MAP if signal_map is None else signal_map)
-    if not smap:
-        raise ConfigError(f"{src}: empty signal map")
-    by_id: dict[tuple[int, bool], tuple[Any, list[tuple[str, str]]]] = {}
-    for column, ref in smap.items():
-        msg_name, _, sig_name = str(ref).partition(".")
-        if column == "time_s" or not _IDENTIFIER.match(column):
-            raise ConfigError(f"signal map: key '{column}': output name must be an identifier other than time_s")
-        message = next((m for _, db in dbs for m in db.messages if m.name == msg_name), None)
-        if message is None:
-            raise ConfigError(f"signal map: key '{column}': no message '{msg_name}' in {dbc_names}")
-        if sig_name not in {s.name for s in message.signals}:
-            raise ConfigError(f"signal map: key '{column}': message '{msg_name}' has no signal '{sig_name}'")
-        key = (message.frame_id, bool(message.is_extended_frame))
-        by_id.setdefault(key, (message, []))[1].append((column, sig_name))
-
-    times: dict[str, list[float]] = {c: [] for c in smap}
-    values: dict[str, list[float]] = {c: [] for c in smap}
-    frames = bad = skipped = 0
-    first_bad = ""
-    last_t = -math.inf
-    try:
-        with can.LogReader(src) as reader:
-            for msg in reader:
-                frames += 1
-                if msg.is_error_frame or msg.is_remote_frame:
-                    skipped += 1
-                    continue
-                entry = by_id.get((msg.arbitration_id, bool(msg.is_extended_id)))
-                last_t = max(last_t, msg.timestamp)
-                if entry is None:
-                    continue
-                message, wanted = entry
-                try:
-                    decoded = message.decode(bytes(msg.data), decode_choices=False)
-                except (cantools.database.DecodeError, ValueError, KeyError) as exc:
-                    bad += 1
-                    first_bad = first_bad or f"{message.name} at t={msg.timestamp:.3f} s: {exc}"
-                    continue
-                for column, sig in wanted:
-                    times[column].append(msg.timestamp)
-                    values[column].append(float(decoded[sig]))
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from exc
-    except (ValueError, can.io.blf.BLFParseError) as exc:
-        raise FlightLogError(f"{src}: unreadable CAN log after {frames} frames: {exc}") from exc
-
-    notes: list[str] = []
-    if bad:
-        _note(notes, src, f"{bad} frame(s) failed to decode and were skipped (first: {first_bad})")
-    if skipped:
-        _note(notes, src, f"{skipped} error/remote frame(s) ignored")
-    for column, ts in times.items():
-        if not ts:
-            raise FlightLogError(
-                f"{src}: signal '{smap[column]}' for column '{column}' never seen ({frames} frames read)"
-            )
-    arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for column in smap:
-        t = np.asarray(times[column], dtype=np.float64)
-        v = np.asarray(values[column], dtype=np.float64)
-        order = np.argsort(t, kind="stable")
-        arrays[column] = (t[order], v[order])
-    start = max(t[0] for t, _ in arrays.values())
-    n = math.floor((last_t - start) / dt_s + 1e-9) + 1
-    offsets = np.round(dt_s * np.arange(n, dtype=np.float64), 9)
-    grid = start + offsets
-    out: dict[str, np.ndarray] = {"time_s": offsets}
-    stale_limit = max(1.0, 10.0 * dt_s)
-    for column, (t, v) in arrays.items():
-        # a frame stamped within _TIE_S after a grid instant counts as at that instant (timestamp rounding)
-        out[column] = v[np.searchsorted(t, grid + _TIE_S, side="right") - 1]
-        stale = int(np.count_nonzero(np.diff(t) > stale_limit))
-        if stale:
-            _note(notes, src, f"'{smap[column]}': {stale} silence(s) longer than {stale_limit:g} s held over")
-    return FlightLog(out, src, tuple(notes))
-
-
-# --------------------------------------------------------------------------------------------------
 # Dispatch
 # --------------------------------------------------------------------------------------------------
 
 
-def _load_csv(
-    path: Path,
-    mapping: str | os.PathLike[str] | None,
-    dbc_paths: Sequence[Any] | None,
-    signal_map: Any,
+def load_csv(
+    path: str | os.PathLike[str],
+    mapping: str | os.PathLike[str] | None = None,
     *,
     engine: int | None = None,
     cht: str | int | None = None,
 ) -> FlightLog:
-    if dbc_paths or signal_map:
-        raise FlightLogError(f"{path}: DBC files apply to CAN logs, not to a CSV")
+    """Load a flight CSV: canonical (:func:`read_csv`), or foreign through ``mapping`` (a path or a
+    shipped mapping's name, see :func:`resolve_mapping`; None or ``"auto"`` detects the layout with
+    :func:`detect_layout`). ``engine`` picks the engine of a multi-engine CSV; ``cht`` makes ``cht_c``
+    from the cylinders (``mean``, ``hottest`` or a cylinder number; foreign CSVs default to ``mean``).
+    For any suffix, CAN logs included, use :func:`ecu_monitor.bus.canlog.load_flight`."""
+    path = Path(path)
     if mapping is None or str(mapping) == "auto":
         layout = detect_layout(path)
         if layout is None:
@@ -1732,48 +1546,3 @@ def _load_csv(
             return log if cht is None else choose_cht(log, cht)
         return import_mapped_csv(path, layout, engine=engine, cht=cht)
     return import_mapped_csv(path, resolve_mapping(mapping), engine=engine, cht=cht)
-
-
-def _load_can(
-    path: Path, mapping: str | os.PathLike[str] | None, dbc_paths: Sequence[Any] | None, signal_map: Any
-) -> FlightLog:
-    if mapping is not None:
-        raise FlightLogError(f"{path}: a CSV mapping does not apply to a CAN log (give DBC files)")
-    return import_can_log(path, list(dbc_paths) if dbc_paths else [DEFAULT_ENGINE_DBC], signal_map)
-
-
-_LOADERS: Mapping[str, Callable[[Path, Any, Any, Any], FlightLog]] = MappingProxyType(
-    {".csv": _load_csv, **dict.fromkeys(CAN_LOG_SUFFIXES, _load_can)}
-)
-
-
-def load_flight(
-    path: str | os.PathLike[str],
-    *,
-    mapping: str | os.PathLike[str] | None = None,
-    dbc_paths: Sequence[str | os.PathLike[str]] | None = None,
-    signal_map: Mapping[str, str] | None = None,
-    engine: int | None = None,
-    cht: str | int | None = None,
-) -> FlightLog:
-    """Load any supported flight log by suffix.
-
-    ``.csv``: canonical (:func:`read_csv`), or foreign through ``mapping`` (a path or a shipped
-    mapping's name, see :func:`resolve_mapping`; None or ``"auto"`` detects the layout with
-    :func:`detect_layout`). ``.asc/.blf/.log/.trc``: :func:`import_can_log` with ``dbc_paths``
-    (default: the shipped engine.dbc) and ``signal_map`` (default :data:`DEFAULT_SIGNAL_MAP`).
-    ``engine`` picks the engine of a multi-engine CSV; ``cht`` makes ``cht_c`` from the cylinders
-    (``mean``, ``hottest`` or a cylinder number; foreign CSVs default to ``mean``).
-    """
-    path = Path(path)
-    loader = _LOADERS.get(path.suffix.lower())
-    if loader is None:
-        raise FlightLogError(
-            f"{path}: unknown log type {path.suffix or '(no suffix)'!r} (known: {', '.join(_LOADERS)})"
-        )
-    if loader is _load_csv:
-        return _load_csv(path, mapping, dbc_paths, signal_map, engine=engine, cht=cht)
-    if engine not in (None, 1):
-        raise FlightLogError(f"{path}: engine {engine} asked for, a CAN log is read for one engine")
-    log = loader(path, mapping, dbc_paths, signal_map)
-    return log if cht is None else choose_cht(log, cht)

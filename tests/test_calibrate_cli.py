@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
+from ecu_monitor.bus.canlog import read_frames
 from ecu_monitor.cli import main
 from ecu_monitor.commands.replay import DEFAULT_CONFIG
 from ecu_monitor.estimation.detection import DetectorSettings, calibrate_threshold, cusum_path
@@ -25,7 +26,7 @@ from ecu_monitor.model import paper_table_a1, save_model
 from ecu_monitor.research.evaluation import residual_effects
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.pipeline import STATES
-from ecu_monitor.service.replay import frames_from_flight, read_frames, replay_file
+from ecu_monitor.service.replay import frames_from_flight, replay_file
 from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
 

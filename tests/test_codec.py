@@ -11,15 +11,9 @@ import numpy as np
 import pytest
 
 from ecu_monitor.bus.checksum import frame_checksum
-from ecu_monitor.bus.codec import (
-    GASOLINE_DENSITY_KG_PER_L,
-    MALFORMED_REASONS,
-    Decoder,
-    Encoder,
-    SignalSpec,
-    unit_conversion,
-)
+from ecu_monitor.bus.codec import MALFORMED_REASONS, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.units import GASOLINE_DENSITY_KG_PER_L, unit_conversion
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
@@ -227,3 +221,24 @@ def test_batch_bit_extraction_matches_cantools_for_big_endian_and_signed(tmp_pat
         rows, values = batch.values[name]
         assert rows.size == 500
         assert np.allclose(values, [e[name] for e in expected[: rows.size]], rtol=0, atol=1e-9)
+
+
+def test_encode_rows_equals_encode_row_by_row() -> None:
+    """The array path the virtual ECU and CSV replay use gives the bytes of the per-frame encoder."""
+    rng = np.random.default_rng(5)
+    enc = Encoder([ENGINE_DBC, HEALTH_DBC])
+    columns = {
+        "EngineSpeed": rng.uniform(-100, 20000, 300),  # beyond the DBC range both ends: clamped
+        "ThrottlePos": rng.uniform(-5, 105, 300),
+        "FuelFlow": rng.uniform(0, 80, 300),
+    }
+    rows = enc.encode_rows("ECU_Fast", columns, first_counter=13)
+    one_by_one = [enc.encode("ECU_Fast", {k: v[i] for k, v in columns.items()}, 13 + i) for i in range(300)]
+    assert rows == one_by_one
+    status = {"ChtEstimate": rng.uniform(-50, 400, 50), "ModelDeviation": rng.normal(0, 1, 50),
+              "DegradationState": rng.integers(0, 6, 50)}  # fmt: skip
+    assert enc.encode_rows("Health_Status", status) == [
+        enc.encode("Health_Status", {k: v[i] for k, v in status.items()}, i) for i in range(50)
+    ]
+    with pytest.raises(ValueError, match="cannot encode NaN"):
+        enc.encode_rows("ECU_Fast", {**columns, "FuelFlow": np.full(300, np.nan)})

@@ -266,3 +266,102 @@ def test_frame_checksum_covers_bytes_0_to_6_only() -> None:
     assert frame_checksum(flipped) != 0xCC
     with pytest.raises(ValueError, match="7 bytes"):
         frame_checksum(b"\x00" * 6)
+
+
+# --------------------------------------------------------------------------------------------------
+# The one loader (ecu_monitor.bus.dbc): a vendor's file by configuration only, a file that is not a DBC
+# --------------------------------------------------------------------------------------------------
+
+VENDOR_DBC = """VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: ECU DASH
+# Vendor dash protocol: these comment lines are not in Vector's format
+// nor are these
+BO_ 0x360 Engine1: 8 ECU
+ SG_ RPM : 7|16@0+ (1,0) [0|30000] "rpm" DASH
+ SG_ CHT : 23|16@0+ (0.1,-273.15) [-273.15|6280.35] "degC" DASH
+ SG_ Throttle : 39|16@0+ (0.1,0) [0|100] "%" DASH
+
+BO_ 0x361 Fuel: 8 ECU
+ SG_ FuelFlow : 7|16@0+ (1,0) [0|65535] "cc/min" DASH
+
+BO_ 866 Unused: 8 ECU
+ SG_ A : 0|16@1+ (1,0) [0|65535] "" DASH
+ SG_ B : 8|16@1+ (1,0) [0|65535] "" DASH
+
+CM_ BO_ 0x360 "Engine data at 50 Hz";
+"""
+
+
+def test_vendor_dbc_loads_what_can_be_loaded(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+
+    from ecu_monitor.bus.codec import Decoder, SignalSpec
+    from ecu_monitor.bus.dbc import load_dbc
+    from ecu_monitor.errors import ConfigError
+    from ecu_monitor.units import custom_unit
+
+    path = tmp_path / "dash.dbc"
+    path.write_text(VENDOR_DBC, encoding="utf-8")
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.bus.dbc"):
+        dbc = load_dbc(path)
+    assert {m.name: m.frame_id for m in dbc.messages} == {"Engine1": 0x360, "Fuel": 0x361, "Unused": 866}
+    assert set(dbc.broken) == {"Unused"} and "overlapping" in dbc.broken["Unused"]
+    assert len(dbc.notes) == 3  # comment lines, hex ids, the broken message: each a warning
+    assert "2 comment line(s) ignored (first at line 8)" in caplog.text
+    assert "3 hexadecimal id(s)" in caplog.text and "Unused" in caplog.text
+    # any unit with a scale and offset: fuel flow in cc/min -> L/h (0.06)
+    cc_per_min = custom_unit({"scale": 0.06}, "fuel_flow")
+    decoder = Decoder([path], [SignalSpec("rpm", "Engine1", "RPM", "rpm"),
+                               SignalSpec("fuel_flow_lph", "Fuel", "FuelFlow", cc_per_min)])  # fmt: skip
+    assert decoder.decode(0x361, False, bytes([0x03, 0xE8, 0, 0, 0, 0, 0, 0]), 0.0) == [(1, pytest.approx(60.0))]
+    with pytest.raises(ConfigError, match=r"message 'Unused' cannot be used: .*overlapping"):
+        Decoder([path], [SignalSpec("a", "Unused", "A")])
+
+
+def test_real_vendor_file_with_vendor_quirks_loads_the_same(tmp_path: Path) -> None:
+    """rusEFI's published DBC, written as vendors do (hex ids, a comment header): the same messages."""
+    from ecu_monitor.bus.dbc import load_dbc
+
+    original = DBC_DIR / "third_party" / "rusEFI_CAN_verbose.dbc"
+    text = original.read_text(encoding="utf-8")
+    quirky = "\n".join(
+        f"BO_ 0x{int(line.split()[1]):X} {' '.join(line.split()[2:])}" if line.startswith("BO_ ") else line
+        for line in text.splitlines()
+    )
+    path = tmp_path / "rusefi_vendor.dbc"
+    path.write_text("# rusEFI CAN broadcast, verbose\n" + quirky, encoding="utf-8")
+    ours, theirs = load_dbc(path), load_dbc(original)
+    assert [(m.name, m.frame_id, [s.name for s in m.signals]) for m in ours.messages] == [
+        (m.name, m.frame_id, [s.name for s in m.signals]) for m in theirs.messages
+    ]
+    assert not ours.broken and len(ours.notes) == 2
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (bytes(range(256)) * 20, r"not a DBC file \(line 1 holds the control byte 0x00\)"),
+        (b'VERSION ""\n\nBO_ 256 M: 8 A\n SG_ X : 0|8@1+ (1,0) [0|255] "" A\n\x00\x01\x02garbage', r"line 5 holds"),
+        (b"time_s,rpm\n0,1000\n", r"not a DBC file \(no BO_ message definition"),
+        (
+            b'VERSION ""\n\nBO_ 256 M: 8 A\n SG_ X : 0|8@1+ (1,0) [0|255] "" A\nWHAT is this\n',
+            r"syntax error at line 5",
+        ),
+    ],
+)
+def test_a_file_that_is_not_a_dbc_is_one_line_with_the_line_number(
+    tmp_path: Path, content: bytes, expected: str
+) -> None:
+    from ecu_monitor.bus.dbc import load_dbc
+    from ecu_monitor.errors import ConfigError
+
+    path = tmp_path / "x.dbc"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError, match=expected) as info:
+        load_dbc(path)
+    assert len(str(info.value).splitlines()) == 1 and len(str(info.value)) < 300

@@ -9,28 +9,22 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import can
-import cantools
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.errors import ConfigError, FlightLogError, UserInputError
 from ecu_monitor.flightlog import (
     CANONICAL_COLUMNS,
-    DEFAULT_ENGINE_DBC,
-    DEFAULT_SIGNAL_MAP,
     MAPPINGS_DIR,
     FlightLog,
     cht_peak,
     cylinder_columns,
     describe_cht,
     detect_layout,
-    import_can_log,
     import_mapped_csv,
-    load_flight,
+    load_csv,
     load_mapping,
     read_csv,
     resolve_mapping,
@@ -316,7 +310,7 @@ def test_resolve_shipped_mapping() -> None:
 
 @pytest.mark.skipif(not G1000_CSV.exists(), reason=f"shared G1000 data not found at {G1000_CSV}")
 def test_g1000_import() -> None:
-    log = load_flight(G1000_CSV, mapping="g1000")
+    log = load_csv(G1000_CSV, mapping="g1000")
     assert not log.has("throttle_pct") and log.has("fuel_flow_lph")
     for name in CANONICAL_COLUMNS[2:]:
         assert log.has(name)
@@ -329,79 +323,6 @@ def test_g1000_import() -> None:
     notes = " | ".join(log.notes)
     assert "truncated last row" in notes and "share a whole-second stamp" in notes and "clipped to 0" in notes
     assert cylinder_columns(log, "cht") == ["cht1_c", "cht2_c", "cht3_c", "cht4_c"]
-
-
-# --------------------------------------------------------------------------------------------------
-# CAN logs
-# --------------------------------------------------------------------------------------------------
-
-T0 = 1_700_000_000.0
-
-
-def _frames() -> list[can.Message]:
-    """2 s of engine.dbc traffic, an unknown id and one malformed frame."""
-    db: Any = cantools.database.load_file(str(DEFAULT_ENGINE_DBC), strict=True)
-    fast, slow, air = (db.get_message_by_name(n) for n in ("ECU_Fast", "ECU_Slow", "AirData"))
-    out: list[tuple[float, int, bytes]] = []
-
-    def add(t: float, msg: Any, values: dict[str, float], counter: int) -> None:
-        names = [s.name for s in msg.signals]
-        data = bytearray(msg.encode({**values, names[-2]: counter % 16, names[-1]: 0}, strict=True))
-        data[7] = frame_checksum(data)
-        out.append((t, msg.frame_id, bytes(data)))
-
-    for j in range(100):  # ECU_Fast 50 Hz from t=0
-        add(0.02 * j, fast, {"EngineSpeed": 2000 + 10 * j, "ThrottlePos": 50.0, "FuelFlow": 12.5}, j)
-    for k in range(20):  # ECU_Slow 10 Hz from t=0.01; AirData from t=0.05, its clock 1 ms/frame late
-        add(0.01 + 0.1 * k, slow, {"CHT": 100 + k, "OAT": -5.5, "EcuStatus": 0}, k)
-        add(0.05 + 0.101 * k, air, {"PressureAltitude": 500 + k, "CalibratedAirspeed": 30.0, "VerticalSpeed": 1}, k)
-    out.append((0.5, 0x7FF, bytes(8)))  # unknown id: ignored
-    out.append((0.51, 0x101, bytes(3)))  # ECU_Slow with 3 bytes: counted, skipped
-    out.sort()
-    return [can.Message(timestamp=T0 + t, arbitration_id=i, data=d, is_extended_id=False, channel=0) for t, i, d in out]
-
-
-@pytest.mark.parametrize("suffix", [".blf", ".asc", ".log"])
-def test_can_log_import(suffix: str, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    path = tmp_path / f"flight{suffix}"
-    with can.Logger(str(path)) as writer:
-        for msg in _frames():
-            writer.on_message_received(msg)
-    with caplog.at_level(logging.WARNING, logger="ecu_monitor.flightlog"):
-        log = load_flight(path)
-    assert set(log.names) == {"time_s", *DEFAULT_SIGNAL_MAP}
-    # the grid starts when every signal has been seen (first AirData, t=0.05) and runs at 10 Hz
-    assert log.time_s.tolist() == pytest.approx([0.1 * k for k in range(len(log))])
-    assert len(log) == 20  # last frame at 0.05 + 0.101 * 19 = 1.969 s -> grid 0.05 .. 1.95
-    k = np.arange(len(log))
-    np.testing.assert_allclose(log["rpm"], 2000 + 10 * (2 + 5 * k))  # ECU_Fast frame at 0.04 + 0.1 k
-    np.testing.assert_allclose(log["cht_c"], 100 + k, atol=0.05)  # ECU_Slow frame at 0.01 + 0.1 k
-    np.testing.assert_allclose(log["altitude_m"], 500 + np.maximum(k - 1, 0))  # held: late frames
-    np.testing.assert_allclose(log["oat_c"], -5.5)
-    np.testing.assert_allclose(log["throttle_pct"], 50.0)
-    np.testing.assert_allclose(log["fuel_flow_lph"], 12.5)
-    np.testing.assert_allclose(log["airspeed_mps"], 30.0)
-    assert "1 frame(s) failed to decode" in caplog.text
-
-
-def test_can_log_signal_map_errors(tmp_path: Path) -> None:
-    path = tmp_path / "x.asc"
-    with can.Logger(str(path)) as writer:
-        for msg in _frames()[:4]:  # up to t=0.04 s: no AirData yet
-            writer.on_message_received(msg)
-    with pytest.raises(ConfigError, match="key 'rpm': no message 'Nope'"):
-        import_can_log(path, [DEFAULT_ENGINE_DBC], {"rpm": "Nope.EngineSpeed"})
-    with pytest.raises(ConfigError, match="has no signal 'Rpm'"):
-        import_can_log(path, [DEFAULT_ENGINE_DBC], {"rpm": "ECU_Fast.Rpm"})
-    with pytest.raises(FlightLogError, match=r"signal 'AirData.PressureAltitude' for column 'altitude_m' never seen"):
-        import_can_log(path, [DEFAULT_ENGINE_DBC], {"altitude_m": "AirData.PressureAltitude"})
-    with pytest.raises(ConfigError, match="no such DBC file"):
-        import_can_log(path, [tmp_path / "missing.dbc"])
-
-
-def test_load_flight_unknown_suffix(tmp_path: Path) -> None:
-    with pytest.raises(FlightLogError, match=r"unknown log type '.parquet'"):
-        load_flight(tmp_path / "x.parquet")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -443,50 +364,6 @@ def test_cli_import_mapped_csv(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().startswith(f"{out}: 4 rows, 2.0 s") and "4 warning(s)" in result.stdout
     assert read_csv(out).names == ("time_s", "throttle_pct", "rpm", "altitude_m", "airspeed_mps", "oat_c", "cht_c")
-
-
-RUSEFI_DBC = G1000_CSV.parents[1] / "dbc" / "rusEFI_CAN_verbose.dbc"
-
-
-@pytest.mark.skipif(not RUSEFI_DBC.exists(), reason=f"shared rusEFI DBC not found at {RUSEFI_DBC}")
-def test_cli_import_can_log_of_another_ecu_is_configuration(tmp_path: Path) -> None:
-    rus: Any = cantools.database.load_file(str(RUSEFI_DBC), strict=False)
-    ours: Any = cantools.database.load_file(str(DEFAULT_ENGINE_DBC), strict=True)
-    base1, base2, base3 = (rus.get_message_by_name(n) for n in ("BASE1", "BASE2", "BASE3"))
-    air = ours.get_message_by_name("AirData")
-
-    def zeros(msg: Any, **values: float) -> bytes:
-        return bytes(msg.encode({**{s.name: 0 for s in msg.signals}, **values}, strict=False))
-
-    frames = []
-    for k in range(12):
-        t = T0 + 0.1 * k
-        frames += [
-            (t, base1.frame_id, zeros(base1, RPM=5000 + k)),
-            (t + 0.01, base2.frame_id, zeros(base2, TPS1=42.0)),
-            (t + 0.02, base3.frame_id, zeros(base3, AUX1Temp=150 + k, IntakeTemp=20, CoolantTemp=0, MCUTemp=0)),
-            (t + 0.03, air.frame_id, zeros(air, PressureAltitude=800, CalibratedAirspeed=25.0)),
-        ]
-    path = tmp_path / "rusefi.blf"
-    with can.Logger(str(path)) as writer:
-        for t, i, d in frames:
-            writer.on_message_received(can.Message(timestamp=t, arbitration_id=i, data=d, is_extended_id=False))
-    signals = {
-        "rpm": "BASE1.RPM",
-        "throttle_pct": "BASE2.TPS1",
-        "cht_c": "BASE3.AUX1Temp",
-        "oat_c": "BASE3.IntakeTemp",
-        "altitude_m": "AirData.PressureAltitude",
-        "airspeed_mps": "AirData.CalibratedAirspeed",
-    }
-    out = tmp_path / "flight.csv"
-    args: list[str | Path] = ["import", path, "--out", out, "--dbc", RUSEFI_DBC, "--dbc", DEFAULT_ENGINE_DBC]
-    args += [arg for column, ref in signals.items() for arg in ("--signal", f"{column}={ref}")]
-    result = _cli(*args, cwd=tmp_path)
-    assert result.returncode == 0, result.stderr
-    log = read_csv(out)
-    assert set(log.names) == {"time_s", *signals}
-    assert log["rpm"][0] == 5000 and log["cht_c"][0] == 150 and log["throttle_pct"][0] == 42.0
 
 
 def test_trailing_comma_column_is_dropped(tmp_path: Path) -> None:
@@ -550,7 +427,7 @@ GOOD_ROWS = [
 @pytest.mark.parametrize(("date_style", "alt"), [("iso", "AltB"), ("slash", "AltInd")])
 def test_g1000_firmware_versions_import_alike(date_style: str, alt: str, tmp_path: Path) -> None:
     path = _g1000(tmp_path, GOOD_ROWS, date_style=date_style, alt=alt, trailing=", ," if alt == "AltInd" else "")
-    for log in (load_flight(path), load_flight(path, mapping="g1000")):  # recognised, or named
+    for log in (load_csv(path), load_csv(path, mapping="g1000")):  # recognised, or named
         assert log.time_s.tolist() == [0.0, 1.0, 1.5, 3.0, 4.0]
         feet = [1000, 1010, 1020, 1020 + 20 * 1.5 / 2.5, 1040]  # the blank at 3 s interpolated in time
         assert log["altitude_m"].tolist() == pytest.approx([0.3048 * f for f in feet])
@@ -573,12 +450,12 @@ def test_time_is_utc_across_a_clock_change(tmp_path: Path) -> None:
         ("01:00:00", "1000", "300 320", "-06:00"),  # local clock back one hour: one second later in UTC
         ("01:00:01", "1000", "300 320", "-06:00"),
     ]
-    log = load_flight(_g1000(tmp_path, rows))
+    log = load_csv(_g1000(tmp_path, rows))
     assert log.time_s.tolist() == [0.0, 1.0, 2.0, 3.0]
     assert any("UTC offset changes 1 time(s) (first at row 6, -5 h -> -6 h)" in n for n in log.notes)
     bad = _g1000(tmp_path, [("10:00:00", "1000", "300 320", "EST")])
     with pytest.raises(FlightLogError, match=r"row 4, column 'UTCOfst': 'EST' is not a UTC offset like \+08:00"):
-        load_flight(bad)
+        load_csv(bad)
 
 
 def test_joined_exports_and_latin1_text(tmp_path: Path) -> None:
@@ -586,7 +463,7 @@ def test_joined_exports_and_latin1_text(tmp_path: Path) -> None:
     second = _g1000(tmp_path, [("10:00:05", "1050", "310 330")]).read_text().splitlines()
     joined = tmp_path / "joined.csv"
     joined.write_bytes(("\n".join(first + second) + "\n").replace("Cessna", "Cessna \u00b0").encode("latin-1"))
-    log = load_flight(joined)
+    log = load_csv(joined)
     assert log.time_s.tolist() == [0.0, 1.0, 5.0]
     assert log["cht1_c"][-1] == pytest.approx(_degc(310))
     notes = " | ".join(log.notes)
@@ -596,16 +473,16 @@ def test_joined_exports_and_latin1_text(tmp_path: Path) -> None:
 def test_cht_choice_mean_hottest_or_one(tmp_path: Path) -> None:
     rows = [("10:00:00", "1000", "300 320"), ("10:00:01", "1000", "340 320"), ("10:00:02", "1000", "350 310")]
     path = _g1000(tmp_path, rows)
-    hottest = load_flight(path, cht="hottest")
+    hottest = load_csv(path, cht="hottest")
     assert hottest["cht_c"].tolist() == pytest.approx([_degc(320), _degc(340), _degc(350)])
     assert describe_cht(hottest) == "hottest of cylinders 1, 2 (per row)"
-    second = load_flight(path, cht="2")
+    second = load_csv(path, cht="2")
     assert second["cht_c"].tolist() == pytest.approx([_degc(320)] * 2 + [_degc(310)])
     assert describe_cht(second) == "cylinder 2 of 1, 2"
     with pytest.raises(FlightLogError, match=r"cylinder 3 chosen for cht_c, the log has cylinder\(s\) 1, 2"):
-        load_flight(path, cht=3)
+        load_csv(path, cht=3)
     with pytest.raises(UserInputError, match=r"CHT choice 'coolest': expected mean, hottest or a cylinder number"):
-        load_flight(path, cht="coolest")
+        load_csv(path, cht="coolest")
     peak = cht_peak(second)
     assert (peak.cylinder, peak.column, peak.time_s) == (1, "cht1_c", 2.0)
     assert peak.value_c == pytest.approx(_degc(350))
@@ -616,28 +493,28 @@ def test_cht_choice_mean_hottest_or_one(tmp_path: Path) -> None:
     again = read_csv(out)
     assert again.names[: len(CANONICAL_COLUMNS) - 1] == CANONICAL_COLUMNS[:1] + CANONICAL_COLUMNS[2:]
     assert describe_cht(again) == "cylinder 2 of 1, 2"
-    assert describe_cht(load_flight(out, cht="mean")) == "mean of cylinders 1, 2"
+    assert describe_cht(load_csv(out, cht="mean")) == "mean of cylinders 1, 2"
 
 
 def test_dead_cylinder_probe_is_dropped(tmp_path: Path) -> None:
     rows = [("10:00:00", "1000", "300 X"), ("10:00:01", "1000", "302 X"), ("10:00:02", "1000", "304 X")]
     path = _g1000(tmp_path, rows)
     path.write_text(path.read_text().replace(", X,", ",    ,"))
-    log = load_flight(path)
+    log = load_csv(path)
     assert cylinder_columns(log, "cht") == ["cht1_c"] and describe_cht(log) == "cylinder 1 (the only one)"
     assert "column 'cht2_c': blank in every row: dropped" in log.notes
     with pytest.raises(FlightLogError, match=r"cylinder 2 chosen for cht_c, the log has cylinder\(s\) 1"):
-        load_flight(path, cht=2)
+        load_csv(path, cht=2)
 
 
 def test_units_row_of_the_file_wins(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = _g1000(tmp_path, [("10:00:00", "1000", "150 160"), ("10:00:01", "1000", "151 161")], cht_unit="deg C")
-    log = load_flight(path)
+    log = load_csv(path)
     assert log["cht1_c"].tolist() == [150.0, 151.0] and log["cht_c"][0] == 155.0
     assert "column 'E1 CHT1': the file's units row says 'deg C': read as degC, not the mapping's degF" in log.notes
     wrong = _g1000(tmp_path, [("10:00:00", "1000", "150 160")], cht_unit="kt")
     with pytest.raises(FlightLogError, match=r"row 2, column 'E1 CHT1': unit 'kt' is a speed unit, 'cht1_c' needs"):
-        load_flight(wrong)
+        load_csv(wrong)
 
 
 NGAFID_NAMES = "AltAGL,AltB,E1 CHT1,E1 EGT1,E1 EGT2,E1 FFlow,E1 MAP,E1 RPM,{twin}IAS,OAT,VSpd"
@@ -662,7 +539,7 @@ def _ngafid(tmp_path: Path, *, time: bool, units: bool, twin: bool) -> Path:
 
 @pytest.mark.parametrize(("time", "units"), [(True, False), (False, True), (True, True)])
 def test_ngafid_processed_layout(time: bool, units: bool, tmp_path: Path) -> None:
-    log = load_flight(_ngafid(tmp_path, time=time, units=units, twin=False))
+    log = load_csv(_ngafid(tmp_path, time=time, units=units, twin=False))
     assert log.time_s.tolist() == ([0.0, 2.0, 4.0, 6.0] if time else [0.0, 1.0, 2.0, 3.0])
     assert log["altitude_m"].tolist() == pytest.approx([0.3048 * (2000 + 10 * k) for k in range(4)])
     expected_f = [350.0, 351.0, (351.0 + 353.0) / 2 if time else 352.0, 353.0]  # NaN interpolated in time
@@ -676,22 +553,22 @@ def test_ngafid_processed_layout(time: bool, units: bool, tmp_path: Path) -> Non
 def test_twin_engine_is_the_users_choice(tmp_path: Path) -> None:
     path = _ngafid(tmp_path, time=True, units=True, twin=True)
     with pytest.raises(FlightLogError, match=r"2 engines \('E1 RPM', 'E2 RPM'\): choose one with --engine N"):
-        load_flight(path)
-    first, second = load_flight(path, engine=1), load_flight(path, engine=2)
+        load_csv(path)
+    first, second = load_csv(path, engine=1), load_csv(path, engine=2)
     assert first["rpm"][0] == 2500 and second["rpm"][0] == 2300
     assert first["cht_c"][0] == pytest.approx(_degc(350)) and second["cht_c"][0] == pytest.approx(_degc(300))
     assert second["fuel_flow_lph"][0] == pytest.approx(8.0 * 3.785411784)
     with pytest.raises(FlightLogError, match=r"no engine 3 in the file \(engines: 1, 2\)"):
-        load_flight(path, engine=3)
+        load_csv(path, engine=3)
     single = _g1000(tmp_path, GOOD_ROWS)
     with pytest.raises(FlightLogError, match=r"no engine 2 in the file \(engines: 1\)"):
-        load_flight(single, engine=2)
+        load_csv(single, engine=2)
 
 
 def test_unknown_layout_says_why_no_layout_fits(tmp_path: Path) -> None:
     path = _write(tmp_path, "Clock,Height,Temp\n1,2,3\n", "other.csv")
     with pytest.raises(FlightLogError) as info:
-        load_flight(path)
+        load_csv(path)
     message = str(info.value)
     assert message.startswith(f"{path}: not a canonical flight CSV (no column 'time_s') and no known layout fits")
     assert (
@@ -770,7 +647,7 @@ REAL_FLIGHTS = {
 @pytest.mark.parametrize("name", sorted(REAL_FLIGHTS))
 def test_every_given_real_export_imports(name: str) -> None:
     twin = "pa44" in name
-    log = load_flight(REAL_DIR / name, engine=1 if twin else None)
+    log = load_csv(REAL_DIR / name, engine=1 if twin else None)
     assert abs(log.duration_s / 60.0 - REAL_FLIGHTS[name]) < 1.0
     assert np.all(np.diff(log.time_s) > 0.0) and np.median(np.diff(log.time_s)) == 1.0
     chts = cylinder_columns(log, "cht")
@@ -801,8 +678,21 @@ def test_damaged_export_reads_or_fails_in_one_line(
     path = tmp_path / "damaged.csv"
     path.write_bytes(data)
     try:
-        log = load_flight(path)
+        log = load_csv(path)
     except UserInputError as exc:
         assert "\n" not in str(exc) and str(exc)
     else:
         assert len(log) >= 1 and log.has("cht_c")
+
+
+def test_a_last_row_cut_mid_field_is_warned(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A log cut inside the last number of its last row (``...,15,8`` of ``...,15,88``): every field is there,
+    only the missing line break tells; the row is kept and the cut is warned."""
+    text = "\n".join([HEADER, *(ROW.format(t=k, cht=88) for k in range(3))])[:-1]
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.flightlog"):
+        log = read_csv(_write(tmp_path, text))
+    assert len(log) == 3 and log["cht_c"][-1] == 8
+    assert "row 4: no line break after the last row: it may be cut mid-field" in caplog.text
+    assert any("cut mid-field" in note for note in log.notes)
+    whole = read_csv(_write(tmp_path, text + "8\n", name="whole.csv"))
+    assert not whole.notes

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.errors import ConfigError
 from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1, steady_state_cht
 from ecu_monitor.service.config import ServiceConfig, parse_config
 from ecu_monitor.service.pipeline import HealthSnapshot, Pipeline
@@ -383,3 +384,39 @@ def test_rusefi_config_runs_the_pipeline_on_third_party_frames() -> None:
     snap = pipeline.snapshot()
     assert pipeline.counters["malformed"] == 0 and pipeline.counters["ok"] == len(frames)
     assert snap.state == "NOMINAL" and snap.stale_inputs == () and abs(snap.cht_est_c - cht) < 1.0
+
+
+def test_a_vendor_dbc_by_config_only(tmp_path: Path) -> None:
+    """A dash DBC with '#' comment lines, hex ids and an unused message of overlapping signals, and a fuel
+    flow in cc/min: a config alone (no hand edit of the file) maps it, the unit by its scale."""
+    from ecu_monitor.service.config import load_config
+
+    dbc = tmp_path / "dash.dbc"
+    dbc.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU DASH\n# vendor comment line\n'
+        'BO_ 0x360 Engine1: 8 ECU\n SG_ RPM : 7|16@0+ (1,0) [0|30000] "rpm" DASH\n'
+        ' SG_ Throttle : 23|16@0+ (0.1,0) [0|100] "%" DASH\n\n'
+        'BO_ 0x361 Fuel: 8 ECU\n SG_ FuelFlow : 7|16@0+ (1,0) [0|65535] "cc/min" DASH\n\n'
+        'BO_ 866 Unused: 8 ECU\n SG_ A : 0|16@1+ (1,0) [0|65535] "" DASH\n SG_ B : 8|16@1+ (1,0) [0|65535] "" DASH\n',
+        encoding="utf-8",
+    )
+    data = copy.deepcopy(BASE)
+    data["dbc"] = [str(dbc), str(ENGINE_DBC)]
+    data["health_dbc"] = str(HEALTH_DBC)
+    data["inputs"]["rpm"] = {"signal": "Engine1.RPM", "unit": "rpm", "stale_after_s": 0.5}
+    data["inputs"]["throttle_pct"] = {"signal": "Engine1.Throttle", "unit": "pct", "stale_after_s": 0.5}
+    data["inputs"]["fuel_flow_lph"] = {"signal": "Fuel.FuelFlow", "unit": {"scale": 0.06}, "stale_after_s": 1.0}
+    path = tmp_path / "dash.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    pipeline = Pipeline(load_config(path), paper_table_a1())
+    decoder = pipeline.decoder
+
+    def decoded(frame_id: int, payload: bytes) -> dict[str, float]:
+        return {decoder.names[slot]: value for slot, value in decoder.decode(frame_id, False, payload, 0.0) or []}
+
+    assert decoded(0x361, bytes([0x03, 0xE8, 0, 0, 0, 0, 0, 0])) == {"fuel_flow_lph": pytest.approx(60.0)}  # cc/min
+    assert decoded(0x360, bytes([0x17, 0x70, 0x01, 0xF4, 0, 0, 0, 0])) == {"rpm": 6000.0, "throttle_pct": 50.0}
+    data["inputs"]["rpm"]["signal"] = "Unused.A"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"inputs.rpm.signal: message 'Unused' cannot be used: .*overlapping"):
+        load_config(path)

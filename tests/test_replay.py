@@ -12,17 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
+from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.cli import main
 from ecu_monitor.model import InputSeries, paper_table_a1
 from ecu_monitor.service.config import load_config
-from ecu_monitor.service.replay import (
-    FrameArrays,
-    headroom_batch,
-    read_frames,
-    replay_file,
-    replay_frames,
-    replay_live,
-)
+from ecu_monitor.service.replay import headroom_batch, replay_file, replay_frames, replay_live
 
 ROOT = Path(__file__).resolve().parents[1]
 NUMERIC = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
@@ -178,7 +172,7 @@ def test_replay_bad_config_exits_2_with_one_line(flight: dict[str, Path], tmp_pa
 
 
 def test_fast_blf_reader_equals_python_can(flight: dict[str, Path], tmp_path: Path) -> None:
-    from ecu_monitor.service.replay import read_blf_arrays
+    from ecu_monitor.bus.canlog import read_blf_arrays
 
     fast = read_blf_arrays(flight["blf"])
     assert fast is not None
@@ -198,3 +192,27 @@ def test_fast_blf_reader_equals_python_can(flight: dict[str, Path], tmp_path: Pa
     assert read_blf_arrays(mixed) is None
     frames = read_frames(mixed)
     assert len(frames) == 2 and frames.ignored.tolist() == [False, True]
+
+
+def test_batch_equals_live_across_a_hole_that_restarts_the_clock(flight: dict[str, Path]) -> None:
+    """Two stretches of a recorded flight with a 700 s hole between them (longer than MAX_CLOCK_GAP_S):
+    both paths restart the clock there, run no step inside the hole and give the same rows."""
+    config = load_config(flight["config"])
+    params = config.load_params()
+    frames = read_frames(flight["blf"])
+    t = frames.time_s - frames.time_s[0]
+    first, second = frames.take(t < 40.0), frames.take((t >= 150.0) & (t < 190.0))
+    moved = FrameArrays(second.time_s + 700.0, *second[1:])
+    both = FrameArrays(*[np.concatenate([a, b]) for a, b in zip(first, moved, strict=True)])
+    batch = replay_frames(config, params, both)
+    live = replay_live(config, params, both.messages())
+    assert batch.counters["clock_restarts"] == live.counters["clock_restarts"] == 1
+    assert len(batch.gaps) == 1 and 800.0 < batch.gaps[0][1] - batch.gaps[0][0] < 820.0
+    b, v = _columns(batch.rows), _columns(live.rows)
+    assert np.array_equal(b["time_s"], v["time_s"])
+    hole = (b["time_s"] > frames.time_s[0] + 41.0) & (b["time_s"] < frames.time_s[0] + 849.0)
+    assert not hole.any()
+    for name in NUMERIC:
+        assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
+        assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name
+    assert [r.state for r in batch.rows] == [r.state for r in live.rows]

@@ -101,3 +101,43 @@ def test_replay_unknown_estimator_or_missing_file_exits_2(flight_csv, tmp_path, 
     assert main(["replay", str(path), "--estimator", "nope", "--out", str(tmp_path / "h.csv")]) == 2
     assert "known: " in capsys.readouterr().err
     assert main(["replay", str(tmp_path / "absent.csv"), "--out", str(tmp_path / "h.csv")]) == 2
+
+
+def _csv_rows(path):
+    with open(path, newline="", encoding="utf-8") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_replay_of_a_csv_with_a_long_hole_runs_no_step_inside_it(flight_csv, tmp_path, capsys):
+    """Two stretches of the flight 28 h apart: no frame and no row across the hole, the hole reported."""
+    from ecu_monitor.flightlog import read_csv
+
+    path, model = flight_csv
+    log = read_csv(path)
+    hole_s = 28 * 3600.0
+    half = len(log) // 2
+    t = log.time_s.copy()
+    t[half:] += hole_s
+    holed = tmp_path / "holed.csv"
+    write_csv(log.with_columns(time_s=t), holed)
+    out = tmp_path / "h.csv"
+    assert main(["replay", str(holed), "--model", str(model), "--out", str(out)]) == 0
+    summary = capsys.readouterr().out
+    assert "1 hole(s) in time without frames (longest 10080" in summary and "2 segments replayed apart" in summary
+    times = np.array([float(r["time_s"]) for r in _csv_rows(out)])
+    inside = (times > t[half - 1] + 1.0) & (times < t[half])
+    assert not inside.any() and times.size < 1300  # 2 x 60 s at 10 Hz, not 28 h of repeated rows
+
+
+def test_replay_of_a_one_row_csv_exits_2_as_simulate_does(flight_csv, tmp_path, capsys):
+    from ecu_monitor.flightlog import read_csv
+
+    path, model = flight_csv
+    one = tmp_path / "one.csv"
+    write_csv(read_csv(path).select(0.0, 0.0), one)
+    for command in ("simulate", "replay"):
+        out = tmp_path / f"{command}.csv"
+        assert main([command, str(one), "--model", str(model), "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "one.csv: at least 2" in err[0]
+        assert not out.exists()

@@ -12,9 +12,10 @@ import can
 import numpy as np
 import pytest
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.errors import ConfigError, ParameterError
-from ecu_monitor.flightlog import load_flight, read_csv, write_csv
+from ecu_monitor.flightlog import read_csv, write_csv
 from ecu_monitor.model import (
     InputSeries,
     SensorLag,

@@ -24,9 +24,10 @@ import sys
 import time
 from typing import Any
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.commands.identify import parse_heat_axes
 from ecu_monitor.errors import ConfigError, UserInputError
-from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, diagnose, write_report
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS
 from ecu_monitor.identify import PsoSettings, identify, model_inputs

@@ -22,8 +22,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import FlightLogError, UserInputError
-from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify import (
     DEFAULT_FREE,
     ErrorStats,

@@ -21,8 +21,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import UserInputError
-from ecu_monitor.flightlog import describe_cht, load_flight, parse_cht_choice, write_csv
+from ecu_monitor.flightlog import describe_cht, parse_cht_choice, write_csv
 from ecu_monitor.shipped import resolve_file
 
 __all__ = ["add_subparser"]

@@ -21,20 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from ecu_monitor.errors import ConfigError
+from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
+from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.estimation import ESTIMATORS
-from ecu_monitor.flightlog import load_flight
 from ecu_monitor.model import load_model
 from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
 from ecu_monitor.service.pipeline import STATES, model_input_names
-from ecu_monitor.service.replay import (
-    CAN_LOG_SUFFIXES,
-    ReplayResult,
-    frames_from_flight,
-    read_frames,
-    replay_frames,
-    replay_live,
-)
+from ecu_monitor.service.replay import ReplayResult, frames_from_flight, replay_frames, replay_live
 
 __all__ = ["DEFAULT_CONFIG", "add_subparser"]
 
@@ -75,6 +68,9 @@ def _run(args: argparse.Namespace) -> int:
     result: ReplayResult = (
         replay_live(config, params, frames.messages()) if args.live else replay_frames(config, params, frames)
     )
+    if len(result) == 0:
+        span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
+        raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
     rows = result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
     return 0
@@ -89,8 +85,14 @@ def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: in
     degraded = np.flatnonzero(codes == STATES.index("DEGRADED"))
     detected = f", DEGRADED from t={time_s[degraded[0]] - time_s[0]:.1f} s" if degraded.size else ""
     share = ", ".join(f"{name} {count}" for name, count in counts.most_common())
+    holes = ""
+    if result.gaps:
+        longest = max(after - before for before, after in result.gaps)
+        restarts = c.get("clock_restarts", 0)
+        segments = f", {restarts + 1} segments replayed apart" if restarts else ""
+        holes = f"; {len(result.gaps)} hole(s) in time without frames (longest {longest:.1f} s{segments})"
     return (
         f"{out}: {rows} rows, {span:.1f} s of {log.name} ({estimator}); frames {c['frames']} "
-        f"(ok {c['ok']}, malformed {c['malformed']}, unknown id {c['unknown_id']}); states: {share}{detected}; "
-        f"{wall_s:.1f} s"
+        f"(ok {c['ok']}, malformed {c['malformed']}, unknown id {c['unknown_id']}); states: {share}{detected}"
+        f"{holes}; {wall_s:.1f} s"
     )

@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.flightlog import FlightLog, load_flight, write_csv
+from ecu_monitor.flightlog import FlightLog, write_csv
 from ecu_monitor.identify import REFERENCE_DT_S, ErrorStats, simulate_flight
 from ecu_monitor.model import load_model, paper_table_a1
 

@@ -3,8 +3,10 @@
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` whose one-line message names the file,
 the key path and what was expected, e.g. ``x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
 (the CLI prints it and exits 2). Paths in the file are relative to the file itself. The input DBC
-files are loaded (strict) while validating, so a ``Message.Signal`` that is not in them is caught
-here, not at the first frame.
+files are loaded (:func:`ecu_monitor.bus.dbc.load_dbc`) while validating, so a ``Message.Signal``
+that is not in them, or in a message that fails the DBC's strict checks, is caught here, not at the
+first frame. An input's ``unit`` is a name of :data:`ecu_monitor.units.UNITS` or, for a unit it does
+not know, ``{scale: S, offset: O}`` (canonical value = raw physical value * S + O).
 """
 
 from __future__ import annotations
@@ -20,12 +22,14 @@ from typing import Any
 
 import yaml
 
-from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec, load_dbc, unit_conversion
+from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec
+from ecu_monitor.bus.dbc import load_dbc
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
 from ecu_monitor.shipped import resolve_file, shipped_dir
+from ecu_monitor.units import Unit, custom_unit
 
 __all__ = [
     "DEFAULT_CONFIG",
@@ -76,12 +80,13 @@ _TOP_KEYS = (
 
 @dataclass(frozen=True)
 class InputSpec:
-    """One model input: ``name`` <- ``message.signal`` in ``unit``, stale after ``stale_after_s`` s of silence."""
+    """One model input: ``name`` <- ``message.signal`` in ``unit`` (a name of the unit table, or a custom
+    unit with its scale and offset), stale after ``stale_after_s`` s of silence."""
 
     name: str
     message: str
     signal: str
-    unit: str
+    unit: str | Unit
     stale_after_s: float
 
     def signal_spec(self) -> SignalSpec:
@@ -369,13 +374,21 @@ def _find_signal(node: _Node, key: str, ref: Any, databases: list[tuple[Path, An
     msg_name, sig_name = ref.split(".")
     files = ", ".join(str(p) for p, _ in databases)
     for _, db in databases:
-        for message in db.messages:
-            if message.name == msg_name:
-                if sig_name not in {s.name for s in message.signals}:
-                    known = ", ".join(s.name for s in message.signals)
-                    raise node.error(f"message '{msg_name}' has no signal '{sig_name}' (signals: {known})", key)
-                return msg_name, sig_name
+        message = db.find(msg_name)
+        if message is not None:
+            if sig_name not in {s.name for s in message.signals}:
+                known = ", ".join(s.name for s in message.signals)
+                raise node.error(f"message '{msg_name}' has no signal '{sig_name}' (signals: {known})", key)
+            if msg_name in db.broken:
+                raise node.error(f"message '{msg_name}' cannot be used: {db.broken[msg_name]}", key)
+            return msg_name, sig_name
     raise node.error(f"no message '{msg_name}' in {files}", key)
+
+
+def _unit(value: Any, quantity: str) -> str | Unit:
+    """A unit name of the unit table, or a custom ``{scale: S, offset: O}`` unit (ValueError if neither)."""
+    conversion = custom_unit(value, quantity)
+    return value if isinstance(value, str) else conversion
 
 
 def _inputs(top: _Node, databases: list[tuple[Path, Any]]) -> tuple[InputSpec, ...]:
@@ -384,9 +397,8 @@ def _inputs(top: _Node, databases: list[tuple[Path, Any]]) -> tuple[InputSpec, .
     for name in node.data:
         item = node.child(name, ("signal", "unit", "stale_after_s"))
         message, signal = _find_signal(item, "signal", item.raw("signal"), databases)
-        unit = item.string("unit")
         try:
-            unit_conversion(unit, INPUT_QUANTITIES[name])
+            unit = _unit(item.raw("unit"), INPUT_QUANTITIES[name])
         except ValueError as exc:
             raise item.error(str(exc), "unit") from None
         stale = item.number("stale_after_s", low=0.0, strict_low=True)

@@ -4,8 +4,9 @@
 
     for msg in frames: pipeline.advance_to(msg.timestamp); pipeline.feed(msg)
 
-but on whole arrays: frames read into numpy arrays (:func:`read_frames`), decoded by id with numpy
-(:meth:`Decoder.decode_batch`, the same checks as the live decoder), the fixed-step inputs built by
+but on whole arrays: frames read into numpy arrays (:func:`ecu_monitor.bus.canlog.read_frames`, the one
+CAN-log reader), decoded by id with numpy (:meth:`Decoder.decode_batch`, the same checks as the live
+decoder, a test proves them equal frame by frame), the fixed-step inputs built by
 sample and hold with ``searchsorted``, the supervision state machine (:func:`~.pipeline.supervise`,
 the very function the live pipeline calls) compiled with numba, and the estimator, the open-loop
 reference model and the isolation filter run through the estimation layer's compiled trace runners
@@ -23,7 +24,6 @@ import functools
 import itertools
 import math
 import os
-import struct
 import types
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -34,12 +34,13 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.bus.codec import INPUT_NAMES, Encoder, unit_conversion
+from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, GAP_S, FrameArrays, load_flight, read_frames, time_gaps
+from ecu_monitor.bus.codec import INPUT_NAMES, Encoder
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation import run_estimator
 from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
-from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
 from ecu_monitor.model.compiled import simulate_compiled
 from ecu_monitor.service import pipeline as _pipeline
@@ -59,21 +60,16 @@ from ecu_monitor.service.pipeline import (
 )
 
 __all__ = [
-    "CAN_LOG_SUFFIXES",
     "HEALTH_COLUMNS",
-    "FrameArrays",
     "ReplayResult",
     "frames_from_flight",
     "headroom_batch",
-    "read_frames",
     "replay_file",
     "replay_frames",
     "replay_live",
     "write_health_csv",
 ]
 
-#: Log formats read through python-can.
-CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".trc")
 #: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
 #: names joined by "+", sensor_fault as 0/1; empty cells for nan.
 HEALTH_COLUMNS: tuple[str, ...] = (
@@ -90,46 +86,6 @@ HEALTH_COLUMNS: tuple[str, ...] = (
 )
 
 
-class FrameArrays(NamedTuple):
-    """Frames of a log as arrays (log order): time_s, id, extended, dlc, data (N, 8) uint8, ignored
-    (error and remote frames)."""
-
-    time_s: NDArray[np.float64]
-    arbitration_id: NDArray[np.int64]
-    is_extended: NDArray[np.bool_]
-    dlc: NDArray[np.int64]
-    data: NDArray[np.uint8]
-    ignored: NDArray[np.bool_]
-
-    def __len__(self) -> int:
-        return int(self.time_s.size)
-
-    def take(self, index: Any) -> FrameArrays:
-        """The frames at ``index`` (a slice, a boolean mask or indices)."""
-        return FrameArrays(
-            self.time_s[index],
-            self.arbitration_id[index],
-            self.is_extended[index],
-            self.dlc[index],
-            self.data[index],
-            self.ignored[index],
-        )
-
-    def messages(self) -> Iterable[can.Message]:
-        """The frames as can.Message objects (for the live path)."""
-        for i in range(len(self)):
-            n = int(self.dlc[i])
-            yield can.Message(
-                timestamp=float(self.time_s[i]),
-                arbitration_id=int(self.arbitration_id[i]),
-                is_extended_id=bool(self.is_extended[i]),
-                is_error_frame=bool(self.ignored[i]),
-                dlc=n,
-                data=self.data[i, : min(n, 8)].tobytes(),
-                check=False,
-            )
-
-
 @dataclass(frozen=True)
 class ReplayResult:
     """A replay's rows (one per health-status period) as columns, and the frame counters.
@@ -138,11 +94,15 @@ class ReplayResult:
     state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool).
     detector_feed (batch path only): per clock segment whose estimator started, what the detector was
     fed: (step times s from its start, symptom per step, nan where the supervisor was not NOMINAL).
+    gaps (batch path only): (last frame time before, first after) of every hole in the frames longer
+    than :data:`~ecu_monitor.bus.canlog.GAP_S`; holes longer than the pipeline's MAX_CLOCK_GAP_S
+    restart the clock (``counters["clock_restarts"]``): no step runs inside them.
     """
 
     columns: dict[str, NDArray[Any]]
     counters: dict[str, int]
     detector_feed: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
+    gaps: tuple[tuple[float, float], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)
@@ -191,151 +151,6 @@ def _empty_columns() -> dict[str, NDArray[Any]]:
     return columns
 
 
-def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
-    """Read a python-can log (.asc, .blf, .log, .trc) into arrays; FlightLogError if unreadable.
-
-    A .blf holding only classic CAN frames (the usual case, and every log the virtual ECU writes) is
-    read by :func:`read_blf_arrays` straight into arrays (no Message objects, about 4x faster);
-    anything else goes through python-can's readers.
-    """
-    src = str(path)
-    if src.lower().endswith(".blf"):
-        fast = read_blf_arrays(src)
-        if fast is not None:
-            return fast
-    times: list[float] = []
-    ids: list[int] = []
-    ext: list[bool] = []
-    dlcs: list[int] = []
-    ignored: list[bool] = []
-    payload = bytearray()
-    try:
-        with can.LogReader(src) as reader:
-            for msg in reader:
-                times.append(msg.timestamp)
-                ids.append(msg.arbitration_id)
-                ext.append(msg.is_extended_id)
-                data = bytes(msg.data[:8])
-                dlcs.append(len(msg.data))
-                ignored.append(msg.is_error_frame or msg.is_remote_frame)
-                payload += data.ljust(8, b"\0")
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    except (ValueError, can.io.blf.BLFParseError) as exc:
-        raise FlightLogError(f"{src}: unreadable CAN log after {len(times)} frames: {exc}") from None
-    if not times:
-        raise FlightLogError(f"{src}: no frames")
-    return FrameArrays(
-        np.asarray(times, dtype=np.float64),
-        np.asarray(ids, dtype=np.int64),
-        np.asarray(ext, dtype=bool),
-        np.asarray(dlcs, dtype=np.int64),
-        np.frombuffer(bytes(payload), dtype=np.uint8).reshape(-1, 8).copy(),
-        np.asarray(ignored, dtype=bool),
-    )
-
-
-_BLF_RECORD = np.dtype(
-    [
-        ("signature", "S4"),
-        ("header_size", "<u2"),
-        ("header_version", "<u2"),
-        ("object_size", "<u4"),
-        ("object_type", "<u4"),
-        ("flags", "<u4"),
-        ("client", "<u2"),
-        ("object_version", "<u2"),
-        ("timestamp", "<u8"),
-        ("channel", "<u2"),
-        ("msg_flags", "u1"),
-        ("dlc", "u1"),
-        ("can_id", "<u4"),
-        ("data", "u1", (8,)),
-    ]
-)  # a CAN_MESSAGE object (type 1) with a version-1 header: 48 bytes
-
-
-def read_blf_arrays(path: str | os.PathLike[str]) -> FrameArrays | None:
-    """Frames of a .blf as arrays without building Message objects, or None if the file holds anything
-    but classic CAN messages with version-1 headers (then use python-can's reader).
-
-    Same layout and timestamps as python-can's BLFReader (start time of the file header plus the
-    object's timestamp, 10 us or 1 ns units); containers are inflated with zlib and the concatenated
-    objects are viewed as one structured array (48 bytes each).
-    """
-    import zlib
-
-    from can.io import blf
-
-    src = str(path)
-    try:
-        with open(src, "rb") as handle:
-            header_bytes = handle.read(blf.FILE_HEADER_STRUCT.size)
-            if len(header_bytes) < blf.FILE_HEADER_STRUCT.size:
-                return None
-            header = blf.FILE_HEADER_STRUCT.unpack(header_bytes)
-            if header[0] != b"LOGG":
-                return None
-            start = blf.systemtime_to_timestamp(header[14:22])
-            handle.read(header[1] - blf.FILE_HEADER_STRUCT.size)
-            chunks: list[bytes] = []
-            base = blf.OBJ_HEADER_BASE_STRUCT
-            while True:
-                head = handle.read(base.size)
-                if not head:
-                    break
-                if len(head) < base.size:
-                    return None
-                signature, _, _, size, kind = base.unpack(head)
-                if signature != b"LOBJ" or size < base.size:
-                    return None
-                body = handle.read(size - base.size)
-                handle.read(size % 4)
-                if kind != blf.LOG_CONTAINER:
-                    return None
-                method, _ = blf.LOG_CONTAINER_STRUCT.unpack_from(body)
-                payload = body[blf.LOG_CONTAINER_STRUCT.size :]
-                if method == blf.ZLIB_DEFLATE:
-                    chunks.append(zlib.decompress(payload))
-                elif method == blf.NO_COMPRESSION:
-                    chunks.append(payload)
-                else:
-                    return None
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    except (zlib.error, struct.error, ValueError):
-        return None
-    raw = b"".join(chunks)
-    if not raw or len(raw) % _BLF_RECORD.itemsize:
-        return None
-    rec = np.frombuffer(raw, dtype=_BLF_RECORD)
-    if not (
-        np.all(rec["signature"] == b"LOBJ")
-        and np.all(rec["object_size"] == _BLF_RECORD.itemsize)
-        and np.all(rec["object_type"] == blf.CAN_MESSAGE)
-        and np.all(rec["header_version"] == 1)
-    ):
-        return None
-    factor = np.where(rec["flags"] == blf.TIME_TEN_MICS, 1e-5, 1e-9)
-    time_s = rec["timestamp"].astype(np.float64) * factor + start
-    dlc = np.minimum(rec["dlc"].astype(np.int64), 8)
-    data = rec["data"].copy()
-    data[np.arange(8)[None, :] >= dlc[:, None]] = 0
-    can_id = rec["can_id"].astype(np.int64)
-    return FrameArrays(
-        time_s,
-        can_id & 0x1FFFFFFF,
-        (can_id & blf.CAN_MSG_EXT) != 0,
-        dlc,
-        data,
-        (rec["msg_flags"] & blf.REMOTE_FLAG) != 0,
-    )
-
-
 def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable[str] | None = None) -> FrameArrays:
     """The frames the ECU would have sent for a flight log: every message the config's inputs use, at
     its DBC cycle time (default 100 ms), carrying the latest row at or before the frame time
@@ -343,7 +158,14 @@ def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable
 
     ``required``: the columns the log must hold (default: every mapped input but fuel flow); a mapped
     input the log lacks and the model does not need (throttle for a fuel-flow heat map) stays unsent.
+
+    No frame is sent inside a hole of the log (rows more than :data:`~ecu_monitor.bus.canlog.GAP_S`
+    apart): the ECU was silent there, so the replay sees the inputs go stale (and, past the
+    pipeline's clock-restart limit, a new segment), and the frames are proportional to the data. A
+    log of fewer than 2 rows is a FlightLogError.
     """
+    if len(log) < 2:
+        raise FlightLogError(f"{log.source}: at least 2 rows are needed to replay (the log has {len(log)})")
     encoder = Encoder(config.dbc_paths)
     by_message: dict[str, list[tuple[str, str]]] = {}
     for spec in config.inputs:
@@ -355,23 +177,24 @@ def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable
     if missing:
         raise FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}")
     t = log.time_s
+    holes = np.flatnonzero(np.diff(t) > GAP_S)
+    runs = list(zip([0, *(holes + 1).tolist()], [*holes.tolist(), t.size - 1], strict=True))  # rows [a, b]
     parts: list[tuple[NDArray[np.float64], int, int, bool, NDArray[np.uint8]]] = []
     for order, (name, signals) in enumerate(by_message.items()):
         message = encoder.message(name)
         cycle_s = (message.cycle_time or 100) / 1000.0
-        count = math.floor((t[-1] - t[0]) / cycle_s + 1e-9) + 1
-        stamps = t[0] + cycle_s * np.arange(count)
+        stamps = np.concatenate(
+            [t[a] + cycle_s * np.arange(math.floor((t[b] - t[a]) / cycle_s + 1e-9) + 1) for a, b in runs]
+        )
+        count = stamps.size
         rows = np.searchsorted(t, stamps + 1e-9, side="right") - 1
         columns = {}
         for signal, column in signals:
-            unit = unit_conversion(config.input(column).unit)
-            columns[signal] = (np.asarray(log[column], dtype=float)[rows] - unit.offset) / unit.scale
+            unit = config.input(column).signal_spec().conversion()
+            columns[signal] = unit.from_canonical(np.asarray(log[column], dtype=float)[rows])
         data = np.zeros((count, 8), dtype=np.uint8)
-        for i in range(count):
-            values = {s.name: 0.0 for s in message.signals}
-            values.update({signal: float(col[i]) for signal, col in columns.items()})
-            encoded = encoder.encode(name, values, i)
-            data[i, : len(encoded)] = np.frombuffer(encoded, dtype=np.uint8)
+        payloads = encoder.encode_rows(name, {**{sig.name: np.zeros(count) for sig in message.signals}, **columns})
+        data[:, : message.length] = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(count, message.length)
         parts.append((stamps, order, int(message.frame_id), bool(message.is_extended_frame), data))
     time_s = np.concatenate([p[0] for p in parts])
     order_key = np.concatenate([np.full(p[0].size, p[1]) for p in parts])
@@ -513,7 +336,7 @@ def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArr
         steps_total += steps
     counters["steps"] = steps_total
     columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else _empty_columns()
-    return ReplayResult(columns, counters, tuple(feeds))
+    return ReplayResult(columns, counters, tuple(feeds), tuple(time_gaps(stamps)))
 
 
 def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:

@@ -1,0 +1,254 @@
+"""The one CAN-log reader (ecu_monitor.bus.canlog): CAN logs imported into flight logs, and what the
+reader does with damaged logs (cut, empty, two logs back to back, holes in time)."""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ecu_monitor.bus.canlog import DEFAULT_SIGNAL_MAP, import_can_log, load_flight
+from ecu_monitor.bus.checksum import frame_checksum
+from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.bus.dbc import shipped_dbc
+from ecu_monitor.errors import ConfigError, FlightLogError
+from ecu_monitor.flightlog import read_csv
+
+DEFAULT_ENGINE_DBC = shipped_dbc("engine.dbc")
+RUSEFI_DBC = shipped_dbc("third_party/rusEFI_CAN_verbose.dbc")
+
+
+def _cli(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ecu_monitor.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=60,
+        check=False,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# CAN logs
+# --------------------------------------------------------------------------------------------------
+
+T0 = 1_700_000_000.0
+
+
+def _frames() -> list[can.Message]:
+    """2 s of engine.dbc traffic, an unknown id and one malformed frame."""
+    db: Any = cantools.database.load_file(str(DEFAULT_ENGINE_DBC), strict=True)
+    fast, slow, air = (db.get_message_by_name(n) for n in ("ECU_Fast", "ECU_Slow", "AirData"))
+    out: list[tuple[float, int, bytes]] = []
+
+    def add(t: float, msg: Any, values: dict[str, float], counter: int) -> None:
+        names = [s.name for s in msg.signals]
+        data = bytearray(msg.encode({**values, names[-2]: counter % 16, names[-1]: 0}, strict=True))
+        data[7] = frame_checksum(data)
+        out.append((t, msg.frame_id, bytes(data)))
+
+    for j in range(100):  # ECU_Fast 50 Hz from t=0
+        add(0.02 * j, fast, {"EngineSpeed": 2000 + 10 * j, "ThrottlePos": 50.0, "FuelFlow": 12.5}, j)
+    for k in range(20):  # ECU_Slow 10 Hz from t=0.01; AirData from t=0.05, its clock 1 ms/frame late
+        add(0.01 + 0.1 * k, slow, {"CHT": 100 + k, "OAT": -5.5, "EcuStatus": 0}, k)
+        add(0.05 + 0.101 * k, air, {"PressureAltitude": 500 + k, "CalibratedAirspeed": 30.0, "VerticalSpeed": 1}, k)
+    out.append((0.5, 0x7FF, bytes(8)))  # unknown id: ignored
+    out.append((0.51, 0x101, bytes(3)))  # ECU_Slow with 3 bytes: counted, skipped
+    out.sort()
+    return [can.Message(timestamp=T0 + t, arbitration_id=i, data=d, is_extended_id=False, channel=0) for t, i, d in out]
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc", ".log"])
+def test_can_log_import(suffix: str, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    path = tmp_path / f"flight{suffix}"
+    with can.Logger(str(path)) as writer:
+        for msg in _frames():
+            writer.on_message_received(msg)
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.bus.canlog"):
+        log = load_flight(path)
+    assert set(log.names) == {"time_s", *DEFAULT_SIGNAL_MAP}
+    # the grid starts when every signal has been seen (first AirData, t=0.05) and runs at 10 Hz
+    assert log.time_s.tolist() == pytest.approx([0.1 * k for k in range(len(log))])
+    assert len(log) == 20  # last frame at 0.05 + 0.101 * 19 = 1.969 s -> grid 0.05 .. 1.95
+    k = np.arange(len(log))
+    np.testing.assert_allclose(log["rpm"], 2000 + 10 * (2 + 5 * k))  # ECU_Fast frame at 0.04 + 0.1 k
+    np.testing.assert_allclose(log["cht_c"], 100 + k, atol=0.05)  # ECU_Slow frame at 0.01 + 0.1 k
+    np.testing.assert_allclose(log["altitude_m"], 500 + np.maximum(k - 1, 0))  # held: late frames
+    np.testing.assert_allclose(log["oat_c"], -5.5)
+    np.testing.assert_allclose(log["throttle_pct"], 50.0)
+    np.testing.assert_allclose(log["fuel_flow_lph"], 12.5)
+    np.testing.assert_allclose(log["airspeed_mps"], 30.0)
+    assert "1 frame(s) failed to decode" in caplog.text
+
+
+def test_can_log_signal_map_errors(tmp_path: Path) -> None:
+    path = tmp_path / "x.asc"
+    with can.Logger(str(path)) as writer:
+        for msg in _frames()[:4]:  # up to t=0.04 s: no AirData yet
+            writer.on_message_received(msg)
+    with pytest.raises(ConfigError, match="key 'rpm': no message 'Nope'"):
+        import_can_log(path, [DEFAULT_ENGINE_DBC], {"rpm": "Nope.EngineSpeed"})
+    with pytest.raises(ConfigError, match="has no signal 'Rpm'"):
+        import_can_log(path, [DEFAULT_ENGINE_DBC], {"rpm": "ECU_Fast.Rpm"})
+    with pytest.raises(FlightLogError, match=r"signal 'AirData.PressureAltitude' for column 'altitude_m' never seen"):
+        import_can_log(path, [DEFAULT_ENGINE_DBC], {"altitude_m": "AirData.PressureAltitude"})
+    with pytest.raises(ConfigError, match="no such DBC file"):
+        import_can_log(path, [tmp_path / "missing.dbc"])
+
+
+def test_load_flight_unknown_suffix(tmp_path: Path) -> None:
+    with pytest.raises(FlightLogError, match=r"unknown log type '.parquet'"):
+        load_flight(tmp_path / "x.parquet")
+
+
+def test_cli_import_can_log_of_another_ecu_is_configuration(tmp_path: Path) -> None:
+    rus: Any = cantools.database.load_file(str(RUSEFI_DBC), strict=False)
+    ours: Any = cantools.database.load_file(str(DEFAULT_ENGINE_DBC), strict=True)
+    base1, base2, base3 = (rus.get_message_by_name(n) for n in ("BASE1", "BASE2", "BASE3"))
+    air = ours.get_message_by_name("AirData")
+    air_encoder = Encoder([DEFAULT_ENGINE_DBC])  # the autopilot's frame: counter and checksum
+    air_values = {"PressureAltitude": 800.0, "CalibratedAirspeed": 25.0, "VerticalSpeed": 0.0}
+
+    def zeros(msg: Any, **values: float) -> bytes:
+        return bytes(msg.encode({**{s.name: 0 for s in msg.signals}, **values}, strict=False))
+
+    frames = []
+    for k in range(12):
+        t = T0 + 0.1 * k
+        frames += [
+            (t, base1.frame_id, zeros(base1, RPM=5000 + k)),
+            (t + 0.01, base2.frame_id, zeros(base2, TPS1=42.0)),
+            (t + 0.02, base3.frame_id, zeros(base3, AUX1Temp=150 + k, IntakeTemp=20, CoolantTemp=0, MCUTemp=0)),
+            (t + 0.03, air.frame_id, air_encoder.encode("AirData", air_values, k)),
+        ]
+    path = tmp_path / "rusefi.blf"
+    with can.Logger(str(path)) as writer:
+        for t, i, d in frames:
+            writer.on_message_received(can.Message(timestamp=t, arbitration_id=i, data=d, is_extended_id=False))
+    signals = {
+        "rpm": "BASE1.RPM",
+        "throttle_pct": "BASE2.TPS1",
+        "cht_c": "BASE3.AUX1Temp",
+        "oat_c": "BASE3.IntakeTemp",
+        "altitude_m": "AirData.PressureAltitude",
+        "airspeed_mps": "AirData.CalibratedAirspeed",
+    }
+    out = tmp_path / "flight.csv"
+    args: list[str | Path] = ["import", path, "--out", out, "--dbc", RUSEFI_DBC, "--dbc", DEFAULT_ENGINE_DBC]
+    args += [arg for column, ref in signals.items() for arg in ("--signal", f"{column}={ref}")]
+    result = _cli(*args, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    log = read_csv(out)
+    assert set(log.names) == {"time_s", *signals}
+    assert log["rpm"][0] == 5000 and log["cht_c"][0] == 150 and log["throttle_pct"][0] == 42.0
+
+
+# --------------------------------------------------------------------------------------------------
+# Damaged logs: cut, empty, two logs back to back, a hole in time
+# --------------------------------------------------------------------------------------------------
+
+
+def _write_log(path: Path, frames: list[can.Message]) -> Path:
+    with can.Logger(str(path)) as writer:
+        for msg in frames:
+            writer.on_message_received(msg)
+    return path
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".log"])
+def test_a_log_cut_in_the_middle_is_read_up_to_the_cut_with_a_warning(
+    suffix: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from ecu_monitor.bus.canlog import read_frames
+
+    whole = read_frames(_write_log(tmp_path / f"whole{suffix}", _frames()))
+    data = (tmp_path / f"whole{suffix}").read_bytes()
+    cut = tmp_path / f"cut{suffix}"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.bus.canlog"):
+        frames = read_frames(cut)
+    assert 0 < len(frames) < len(whole)
+    np.testing.assert_array_equal(frames.time_s, whole.time_s[: len(frames)])
+    reached = f"up to t={frames.time_s[-1]:.3f} s"
+    assert "cut in the middle" in caplog.text and reached in caplog.text
+
+
+@pytest.mark.parametrize("command", ["import", "replay"])
+def test_a_zero_byte_log_exits_2_with_one_line(command: str, tmp_path: Path) -> None:
+    empty = tmp_path / "empty.blf"
+    empty.write_bytes(b"")
+    result = _cli(command, empty, "--out", tmp_path / "out.csv", cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{empty}: empty file (0 bytes)" in lines[0]
+
+
+def test_two_logs_back_to_back_are_refused_with_one_line(tmp_path: Path) -> None:
+    first = _write_log(tmp_path / "a.log", _frames())
+    both = tmp_path / "both.log"
+    both.write_bytes(first.read_bytes() * 2)  # cat a.log a.log > both.log: the clock restarts
+    result = _cli("import", both, "--out", tmp_path / "out.csv", cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "time goes back" in lines[0] and "two logs back to back" in lines[0]
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_import_writes_no_row_inside_a_hole_of_the_log(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    frames = _frames()
+    later = [
+        can.Message(timestamp=m.timestamp + 60.0, arbitration_id=m.arbitration_id, data=m.data, is_extended_id=False)
+        for m in frames
+    ]
+    path = _write_log(tmp_path / "hole.blf", frames + later)
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.bus.canlog"):
+        log = load_flight(path)
+    steps = np.diff(log.time_s)
+    assert np.count_nonzero(steps > 1.0) == 1 and 55.0 < steps.max() < 60.0  # the hole stays a hole
+    assert len(log) < 45  # two stretches of ~2 s at 10 Hz, not 62 s of held values
+    assert "1 hole(s) in the log longer than 5 s" in caplog.text
+
+
+def test_a_unit_in_the_signal_map_converts_on_import(tmp_path: Path) -> None:
+    path = _write_log(tmp_path / "f.blf", _frames())
+    smap = {**DEFAULT_SIGNAL_MAP, "altitude_m": "AirData.PressureAltitude:ft", "cht_c": "ECU_Slow.CHT:K"}
+    log = import_can_log(path, [DEFAULT_ENGINE_DBC], smap)
+    plain = import_can_log(path, [DEFAULT_ENGINE_DBC])
+    np.testing.assert_allclose(log["altitude_m"], plain["altitude_m"] * 0.3048)
+    np.testing.assert_allclose(log["cht_c"], plain["cht_c"] - 273.15)
+    with pytest.raises(ConfigError, match="unknown unit 'furlong'"):
+        import_can_log(path, [DEFAULT_ENGINE_DBC], {**smap, "rpm": "ECU_Fast.EngineSpeed:furlong"})
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    suffix=st.sampled_from([".blf", ".asc", ".log", ".trc"]),
+    cut=st.floats(0.0, 1.0),
+    noise=st.binary(max_size=64),
+)
+def test_any_damage_to_a_log_is_read_or_one_error(tmp_path: Path, suffix: str, cut: float, noise: bytes) -> None:
+    """A log cut anywhere, with random bytes appended: frames or a FlightLogError, never anything else."""
+    from ecu_monitor.bus.canlog import read_frames
+
+    source = tmp_path / f"source{suffix}"
+    if not source.exists():
+        _write_log(source, _frames() if suffix != ".trc" else _frames()[:50])
+    data = source.read_bytes()
+    damaged = tmp_path / f"damaged{suffix}"
+    damaged.write_bytes(data[: int(len(data) * cut)] + noise)
+    try:
+        frames = read_frames(damaged)
+    except FlightLogError as exc:
+        assert len(str(exc).splitlines()) == 1
+    else:
+        assert len(frames) > 0 and frames.data.shape == (len(frames), 8)
