@@ -66,7 +66,7 @@ CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".trc")
 GAP_S = GAP_WARN_S
 #: Time going back by more than this (s) is a second log after the first: refused.
 RESTART_S = 1.0
-#: Canonical column -> "Message.Signal" in dbc/engine.dbc (its units are the canonical ones).
+#: Canonical column -> "Message.Signal" in the shipped engine.dbc (its units are the canonical ones).
 DEFAULT_SIGNAL_MAP: Mapping[str, str] = MappingProxyType(
     {
         "throttle_pct": "ECU_Fast.ThrottlePos",
@@ -397,7 +397,7 @@ def import_can_log(
 
     ``signal_map`` maps output column -> ``"Message.Signal"`` or ``"Message.Signal:unit"`` (a unit of
     :data:`ecu_monitor.units.UNITS`; without one the DBC's physical value is taken as it is; default
-    :data:`DEFAULT_SIGNAL_MAP`, for dbc/engine.dbc). Frames are read by :func:`read_frames` and
+    :data:`DEFAULT_SIGNAL_MAP`, for the shipped engine.dbc). Frames are read by :func:`read_frames` and
     decoded by the service's decoder (the same checks: frames with a bad length, checksum or
     counter, or a value outside the DBC range, are dropped and counted in a warning). Every mapped
     signal is sampled and held onto a uniform grid of step ``dt_s`` (default 0.1 s, the slowest frame
@@ -479,7 +479,7 @@ def load_flight(
 
     ``.csv``: canonical, or foreign through ``mapping`` (:func:`ecu_monitor.flightlog.load_csv`: None
     or ``"auto"`` detects the layout; ``engine`` and ``cht`` as there). ``.asc/.blf/.log/.trc``:
-    :func:`import_can_log` with ``dbc_paths`` (default: the shipped dbc/engine.dbc) and ``signal_map``
+    :func:`import_can_log` with ``dbc_paths`` (default: the shipped engine.dbc) and ``signal_map``
     (default :data:`DEFAULT_SIGNAL_MAP`), for one engine.
     """
     path = Path(path)
