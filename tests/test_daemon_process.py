@@ -223,33 +223,55 @@ def test_send_failures_are_counted_not_fatal(tmp_path: Path) -> None:
         listener.shutdown()
 
 
+class RecordingStop(threading.Event):
+    """The daemon's stop event, recording each wait the supervisor thread asks for (its backoff), s."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.supervisor: threading.Thread | None = None
+        self.waits: list[float] = []
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if threading.current_thread() is self.supervisor and timeout is not None:
+            self.waits.append(timeout)
+        return super().wait(timeout)
+
+
 def test_receive_failure_reopens_the_bus_with_backoff(tmp_path: Path) -> None:
     channel = f"recv-{uuid.uuid4().hex}"
     opens: list[float] = []
+    received = threading.Event()
 
     def open_bus() -> can.BusABC:
         opens.append(time.monotonic())
         if len(opens) in (2, 3):
             raise can.CanInitializationError("device gone (test)")  # the bus comes back on the 4th open
-        started = time.monotonic()
-        first = len(opens) == 1
-        return FlakyBus(channel, lambda: False, lambda: first and time.monotonic() - started > 1.0)
+        if len(opens) == 1:  # the first bus fails its receive once frames have flowed
+            return FlakyBus(channel, lambda: False, received.is_set)
+        return FlakyBus(channel, lambda: False, lambda: False)
 
     pipeline = _pipeline(tmp_path, channel)
-    daemon = Daemon(pipeline, open_bus, settings=DaemonSettings(backoff_initial_s=0.2, backoff_max_s=0.4))
+    settings = DaemonSettings(backoff_initial_s=0.2, backoff_max_s=0.4)
+    daemon = Daemon(pipeline, open_bus, settings=settings)
+    stop = RecordingStop()
+    daemon._stop = stop  # the backoff is read from the waits asked for, not from a loaded machine's clock
     listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     sender_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     thread, result = run_daemon_thread(daemon)
+    stop.supervisor = thread
     try:
         with EcuSender(sender_bus):
-            wait_until(lambda: len(opens) >= 4, 15.0)
-            time.sleep(0.5)
+            assert wait_until(lambda: daemon.counters["frames_in"] > 0, 30.0)
+            received.set()
+            assert wait_until(lambda: len(opens) >= 4, 30.0)
+            before = daemon.counters["frames_in"]
+            assert wait_until(lambda: daemon.counters["frames_in"] > before + 100, 30.0)  # frames flow again
             assert thread.is_alive()
             assert len(opens) == 4
-            # first retry after 0.2 s, then doubled to the 0.4 s maximum (plus one 0.1 s supervisor period):
-            # 0.5 s apart, never less than the backoff, and capped (uncapped, the last gap would be 0.9 s)
-            assert 0.4 <= opens[2] - opens[1] < 0.8
-            assert 0.4 <= opens[3] - opens[2] < 0.8
+            # first retry after 0.2 s, then doubled to the 0.4 s maximum and capped there (uncapped: 0.8 s);
+            # between retries the supervisor keeps its 0.1 s period
+            backoff = [w for w in stop.waits if w != settings.supervise_s]
+            assert backoff == [0.2, 0.4, 0.4]
             assert daemon.counters["receive_errors"] == 1
             assert daemon.counters["open_errors"] == 2
             reader = HealthReader()
@@ -257,7 +279,6 @@ def test_receive_failure_reopens_the_bus_with_backoff(tmp_path: Path) -> None:
         status = reader.frames["Health_Status"]
         assert len(status) >= 10
         assert reader.frames["Health_Diag"][-1]["BusErrors"] >= 3
-        assert daemon.counters["frames_in"] > 100  # frames flow again on the reopened bus
     finally:
         stop_daemon(daemon, thread, result)
         listener.shutdown()
@@ -284,7 +305,7 @@ def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(
     thread, result = run_daemon_thread(daemon)
     try:
         with EcuSender(sender_bus):
-            time.sleep(3.0)
+            assert wait_until(lambda: calls["n"] >= 200, 60.0)  # progress, not a time: 20 errors raised
         assert thread.is_alive()
         assert daemon.counters["daemon_errors"] == calls["n"] // 10 > 10
         assert pipeline.snapshot().state == "NOMINAL"  # the good frames kept the estimator running
