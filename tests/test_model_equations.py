@@ -4,6 +4,7 @@ in kelvin) behave as documented."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -15,7 +16,9 @@ from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.estimation.runner import _compiled_loop, trace_loop
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import (
+    EFFECT_COEFFICIENTS,
     EFFECT_NAMES,
+    EFFECT_TYPES,
     AirspeedCooling,
     DensityCooling,
     Effects,
@@ -93,6 +96,7 @@ def _random_inputs(rng: np.random.Generator, n: int, hold: int = 4) -> InputSeri
 def test_every_kernel_equals_the_reference_model(kelvin: bool) -> None:
     rng = np.random.default_rng(12 + kelvin)
     params = [_random_params(rng, kelvin) for _ in range(5)]
+    assert set(params[0].effects.active) == set(EFFECT_NAMES)  # a new effect must be added above
     inputs = _random_inputs(rng, 240)
     gamma_q = rng.uniform(1.0, 1.3, 240)
     gamma_d = rng.uniform(1.0, 1.3, 240)
@@ -158,6 +162,16 @@ def test_filter_kernels_predict_with_the_reference_model(kelvin: bool) -> None:
     trace = run_isolation(held, params, settings, cht_column="z")
     ref_held, _ = simulate(flight_inputs(held, params), coeffs, DT, 110.0)
     assert np.max(np.abs(trace.cht_c - ref_held)) < 1e-9 * scale
+
+
+def test_every_effect_parameter_reaches_the_equations() -> None:
+    for name, kind in EFFECT_TYPES.items():
+        for field in dataclasses.fields(kind):
+            if field.type not in ("str", str):  # a choice (mixture_index.source) is read by inputs.py
+                assert f"{name}.{field.name}" in EFFECT_COEFFICIENTS, f"{name}.{field.name}"
+    neutral = coefficients(paper_table_a1())
+    for key, (column, value) in EFFECT_COEFFICIENTS.items():
+        assert getattr(neutral, column) == value, key
 
 
 def test_mixture_index_effect() -> None:

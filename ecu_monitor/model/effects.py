@@ -25,9 +25,8 @@ identified model. An effect that is ``None`` in :class:`Effects` is off and the 
   (NaN) the factor is 1.
 
 Adding an effect: a frozen dataclass here (validated fields, a docstring with units), an entry in
-:data:`EFFECT_TYPES` and a field in :class:`Effects`; its coefficients in
-:func:`ecu_monitor.model.thermal.coefficients` and its term in the drive equations of
-:mod:`ecu_monitor.model.equations` (docs/model.md).
+:data:`EFFECT_TYPES` and a field in :class:`Effects`; its coefficients (``Coefficients``,
+``EFFECT_COEFFICIENTS``) and its term in :mod:`ecu_monitor.model.equations` (docs/model.md).
 """
 
 from __future__ import annotations

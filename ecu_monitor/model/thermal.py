@@ -33,8 +33,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.model import equations as _eq
-from ecu_monitor.model.atmosphere import KELVIN_OFFSET, SEA_LEVEL_DENSITY_KG_M3
-from ecu_monitor.model.equations import Coefficients
+from ecu_monitor.model.atmosphere import KELVIN_OFFSET
+from ecu_monitor.model.equations import EFFECT_COEFFICIENTS, Coefficients
 from ecu_monitor.model.heatmap import bilinear
 from ecu_monitor.model.params import ThermalParams
 
@@ -92,22 +92,6 @@ class InputSeries(NamedTuple):
     def at(self, k: int) -> InputSeries:
         """The inputs of step ``k`` as floats (a field given as one number holds for every step)."""
         return InputSeries(*(float(v) if np.ndim(v) == 0 else float(np.asarray(v)[k]) for v in self))
-
-
-#: "effect.parameter" -> (Coefficients field, its neutral value while the effect is off).
-EFFECT_COEFFICIENTS: dict[str, tuple[str, float]] = {
-    "airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", 0.0),
-    "airspeed_cooling.reference_mps": ("airspeed_reference_mps", 23.0),
-    "airspeed_cooling.floor": ("airspeed_floor", 1.0),
-    "airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0),
-    "density_cooling.exponent": ("density_exponent", 0.0),
-    "density_cooling.reference_kg_m3": ("density_reference_kg_m3", SEA_LEVEL_DENSITY_KG_M3),
-    "sensor_lag.time_constant_s": ("sensor_lag_s", 0.0),
-    "mixture_cooling.fraction": ("mixture_fraction", 0.0),
-    "mixture_cooling.onset": ("mixture_onset", 0.7),
-    "mixture_index.gain": ("mixture_gain", 0.0),
-    "mixture_index.reference": ("mixture_reference", 0.0),
-}
 
 
 def coefficients(params: ThermalParams) -> Coefficients:
