@@ -126,6 +126,7 @@ __all__ = [
     "FlightLog",
     "TimeMap",
     "choose_cht",
+    "cht_limit_warning",
     "cht_peak",
     "cylinder_columns",
     "describe_cht",
@@ -826,6 +827,26 @@ def seconds_above(log: FlightLog, limit_c: float) -> float:
     hottest = np.max(np.where(np.isnan(stack), -np.inf, stack), axis=0)
     steps = np.diff(log.time_s, append=log.time_s[-1])
     return float(np.sum(steps[hottest > limit_c]))
+
+
+def cht_limit_warning(log: FlightLog, limit_c: float) -> str | None:
+    """One line saying how far ``log`` exceeds the engine's CHT limit ``limit_c`` (degC), or None.
+
+    For identification and the service's configuration: a model whose limit sits below what the
+    engine routinely reads would report no headroom for most of a normal flight.
+    """
+    if not math.isfinite(limit_c):
+        raise FlightLogError(f"{log.source}: CHT limit must be a finite number of degC, got {limit_c!r}")
+    peak = cht_peak(log)
+    if peak.value_c <= limit_c:
+        return None
+    above = seconds_above(log, limit_c)
+    where = "cht_c" if peak.cylinder is None else f"cylinder {peak.cylinder}"
+    share = 100.0 * above / log.duration_s if log.duration_s > 0 else 100.0
+    return (
+        f"{log.source}: CHT reaches {peak.value_c:.1f} degC ({where} at {peak.time_s:.0f} s), above the limit"
+        f" {limit_c:g} degC for {above:.0f} s ({share:.0f} % of the flight)"
+    )
 
 
 # --------------------------------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from ecu_monitor.flightlog import (
     CANONICAL_COLUMNS,
     MAPPINGS_DIR,
     FlightLog,
+    cht_limit_warning,
     cht_peak,
     cylinder_columns,
     describe_cht,
@@ -487,6 +488,12 @@ def test_cht_choice_mean_hottest_or_one(tmp_path: Path) -> None:
     assert (peak.cylinder, peak.column, peak.time_s) == (1, "cht1_c", 2.0)
     assert peak.value_c == pytest.approx(_degc(350))
     assert seconds_above(second, _degc(330)) == 1.0  # 340 F at 1 s (interval 1-2 s); 350 F is the last sample
+    assert cht_limit_warning(second, _degc(350) + 0.01) is None
+    warning = cht_limit_warning(second, _degc(330))
+    assert warning == (
+        f"{path}: CHT reaches {_degc(350):.1f} degC (cylinder 1 at 2 s), above the limit {_degc(330):g} degC"
+        " for 1 s (50 % of the flight)"
+    )
     # per-cylinder columns survive the canonical CSV, and the choice can be remade from it
     out = tmp_path / "flight.csv"
     write_csv(second, out)
