@@ -52,6 +52,8 @@ Example (after the shipped ``ecu_monitor/data/mappings/g1000.yaml``)::
       time_column: "Lcl Time"
       date_format: ["%Y-%m-%d", "%Y/%m/%d"]   # strptime; one format or several tried in order
       time_format: "%H:%M:%S"
+    altimeter_setting: {column: "BaroA", unit: inHg}   # optional: altitude_m is baro-corrected with
+                               # this setting and is made pressure altitude (standard datum)
     columns:                   # canonical (or any other identifier) -> source column(s) + unit
       altitude_m: {column: ["AltB", "AltInd"], unit: ft}     # a list: the first present is read
       rpm: {column: "E{engine} RPM", unit: rpm}             # {engine}: the engine chosen (1, 2, ...)
@@ -917,6 +919,7 @@ class CsvMapping:
     columns: tuple[ColumnMap, ...]
     cylinders: tuple[CylinderMap, ...] = ()
     units_row: int | None = None
+    altimeter_setting: tuple[str, str] | None = None  # (column, pressure unit): altitude_m is baro-corrected
 
 
 class _Keys:
@@ -997,7 +1000,17 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
         src,
         "",
         raw,
-        ("format", "delimiter", "header_row", "skip_rows_after_header", "units_row", "time", "columns", "cylinders"),
+        (
+            "format",
+            "delimiter",
+            "header_row",
+            "skip_rows_after_header",
+            "units_row",
+            "time",
+            "columns",
+            "cylinders",
+            "altimeter_setting",
+        ),
     )
     fmt = top.get("format", str, "csv")
     if fmt != "csv":
@@ -1100,6 +1113,17 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
             raise c.fail("column", f"the column name needs the cylinder number placeholder {CYLINDER_PLACEHOLDER}")
         cylinders.append(CylinderMap(kind_name, pattern, _check_unit(c, f"{kind_name}1_c")))
 
+    altimeter = None
+    if "altimeter_setting" in top.node:
+        a = _Keys(src, "altimeter_setting", top.node["altimeter_setting"], ("column", "unit"))
+        unit = a.get("unit", str)
+        if unit not in UNITS or UNITS[unit].quantity != "pressure":
+            raise a.fail(
+                "unit",
+                f"expected a pressure unit ({', '.join(k for k, u in UNITS.items() if u.quantity == 'pressure')})",
+            )
+        altimeter = (a.get("column", str).strip(), unit)
+
     mapped = {m.target for m in maps}
     has_cylinder_cht = any(c.kind == "cht" for c in cylinders)
     if has_cylinder_cht and "cht_c" in mapped:
@@ -1109,7 +1133,7 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
             raise top.fail("columns", f"canonical column '{name}' is not mapped")
     if "throttle_pct" not in mapped and "fuel_flow_lph" not in mapped:
         raise top.fail("columns", "map 'throttle_pct' or, for a log without throttle, 'fuel_flow_lph'")
-    return CsvMapping(src, header_row, skip, delimiter, time, tuple(maps), tuple(cylinders), units_row)
+    return CsvMapping(src, header_row, skip, delimiter, time, tuple(maps), tuple(cylinders), units_row, altimeter)
 
 
 def resolve_mapping(name_or_path: str | os.PathLike[str]) -> Path:
@@ -1300,10 +1324,7 @@ def _utc_offsets(
     if not np.any(known):
         _note(notes, src, f"column '{column}' is blank in every row: local time used")
         return np.zeros(len(table.rows))
-    if not np.all(known):
-        filled_from = np.maximum.accumulate(np.where(known, np.arange(offsets.size), 0))
-        filled_from[: int(np.argmax(known))] = int(np.argmax(known))  # leading blanks: the first known
-        offsets = offsets[filled_from]
+    offsets = _fill_forward(offsets)
     changes = np.flatnonzero(np.diff(offsets) != 0.0)
     if changes.size:
         k = int(changes[0]) + 1
@@ -1351,6 +1372,44 @@ def _stamp(
         except ValueError:
             continue
     return None
+
+
+#: Standard atmosphere: pressure altitude h_p = h + (1 - (QNH / p0) ** _BARO_EXP) * _BARO_SCALE_M.
+_P0_KPA = 101.325
+_BARO_EXP = 0.190263
+_BARO_SCALE_M = 44307.694
+#: Altimeter settings outside this range (kPa) are not a setting but an error.
+_QNH_RANGE_KPA = (85.0, 110.0)
+
+
+def _pressure_altitude(
+    src: str, altitude_m: np.ndarray, qnh_kpa: np.ndarray, column: str, lines: np.ndarray, notes: list[str]
+) -> np.ndarray:
+    """Pressure altitude (standard datum, 101.325 kPa) from a baro-corrected altitude and the
+    altimeter setting it was corrected with; a blank setting takes the row before's."""
+    known = ~np.isnan(qnh_kpa)
+    if not np.any(known):
+        _note(notes, src, f"column '{column}' (altimeter setting) is blank in every row: altitude_m kept as logged")
+        return altitude_m
+    lo, hi = _QNH_RANGE_KPA
+    bad = known & ((qnh_kpa < lo) | (qnh_kpa > hi))
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise FlightLogError(
+            f"{src}: row {lines[k]}, column '{column}': altimeter setting {qnh_kpa[k]:g} kPa"
+            f" is outside {lo:g}..{hi:g} kPa"
+        )
+    return altitude_m + (1.0 - (_fill_forward(qnh_kpa) / _P0_KPA) ** _BARO_EXP) * _BARO_SCALE_M
+
+
+def _fill_forward(values: np.ndarray) -> np.ndarray:
+    """NaN take the value of the row before (leading NaN the first value); at least one must be known."""
+    known = ~np.isnan(values)
+    if np.all(known):
+        return values
+    filled_from = np.maximum.accumulate(np.where(known, np.arange(values.size), 0))
+    filled_from[: int(np.argmax(known))] = int(np.argmax(known))
+    return values[filled_from]
 
 
 def _drop_repeated_headers(src: str, table: _Table, notes: list[str]) -> None:
@@ -1524,6 +1583,13 @@ def import_mapped_csv(
     for cyl, found in cylinder_reads:
         for n, name in found:
             cols[f"{cyl.kind}{n}_c"] = read(f"{cyl.kind}{n}_c", name, cyl.unit)
+    if mapping.altimeter_setting is not None and "altitude_m" in cols:
+        column, unit = mapping.altimeter_setting
+        if column in index:
+            qnh_kpa = read("altimeter_setting", column, unit)
+            cols["altitude_m"] = _pressure_altitude(src, cols["altitude_m"], qnh_kpa, column, lines, notes)
+        else:
+            _note(notes, src, f"no column {column!r} (altimeter setting): altitude_m kept as logged")
     log = _assemble(src, time, cols, lines, notes, strict=lambda name: name not in soft, soft=frozenset(soft))
     derived: dict[str, np.ndarray] = {}
     egts = cylinder_columns(log, "egt")
