@@ -560,7 +560,7 @@ def test_ngafid_processed_layout(time: bool, units: bool, tmp_path: Path) -> Non
 def test_baro_corrected_altitude_becomes_pressure_altitude(tmp_path: Path) -> None:
     rows = ["Time,AltB,BaroA,E1 CHT1,E1 FFlow,E1 RPM,IAS,OAT"]
     rows += [f"{k},{1000 + 100 * k},{baro},350,10,2400,90,15" for k, baro in enumerate(["29.92", "30.92", "", "28.5"])]
-    log = load_flight(_write(tmp_path, "\n".join(rows) + "\n", "baro.csv"))
+    log = load_csv(_write(tmp_path, "\n".join(rows) + "\n", "baro.csv"))
 
     def pressure_altitude_ft(feet: float, inhg: float) -> float:  # NOAA: ft and inHg, datum 29.9213 inHg
         return feet + (1.0 - (inhg / 29.9213) ** 0.190263) * 145366.45
@@ -570,7 +570,7 @@ def test_baro_corrected_altitude_becomes_pressure_altitude(tmp_path: Path) -> No
     assert log["altitude_m"][1] < 0.3048 * 1100 - 250  # 1 inHg above standard: ~1000 ft below the reading
     silly = _write(tmp_path, "\n".join([*rows[:2], rows[2].replace("30.92", "3092")]) + "\n", "silly.csv")
     with pytest.raises(FlightLogError, match=r"row 3, column 'BaroA': altimeter setting 10470.7 kPa is outside 85"):
-        load_flight(silly)
+        load_csv(silly)
 
 
 def test_twin_engine_is_the_users_choice(tmp_path: Path) -> None:
