@@ -101,6 +101,51 @@ def _identify(train: list[str], held_out: Path, model: Path, options: list[str])
     print(f"{model.name}:", *rows, sep="\n  ")
 
 
+def _plot(
+    path: Path, flights: list[Path], feeds: dict[Any, Any], variants: list[Any], thresholds: dict[str, Any]
+) -> None:
+    """One row per held-out flight, one column per variant: the statistic (no alarm) of the nominal
+    flight and of the k = 0.1 overlay at the second onset, with the calibrated h and the onset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ecu_monitor.estimation.detection import cusum_path
+
+    n = len(flights)
+    fig, axes = plt.subplots(n, len(variants), figsize=(5.5 * len(variants), 2.6 * n), squeeze=False)
+    for i in range(n):
+        runs = feeds[(i, i)]
+        nominal = next(r for r in runs if not math.isfinite(r[0]))
+        overlays = [r for r in runs if math.isfinite(r[0]) and r[1] == 0.1]
+        chosen = overlays[min(1, len(overlays) - 1)] if overlays else None
+        for col, (name, settings) in enumerate(variants):
+            ax = axes[i][col]
+            unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
+            for run, style, label in ((nominal, "0.5", "nominal"), (chosen, "tab:red", "k = 0.1 overlay")):
+                if run is None:
+                    continue
+                for j, (t, x) in enumerate(run[3]):
+                    ends, stat, _ = cusum_path(t, x, unbounded)
+                    ax.plot((ends - run[2]) / 60.0, stat, color=style, lw=0.9, label=label if j == 0 else None)
+            h = thresholds[name][i]
+            ax.axhline(h, color="black", ls="--", lw=1.0, label=f"h = {h:.1f}")
+            if chosen is not None:
+                ax.axvline(chosen[0] / 60.0, color="tab:red", ls=":", lw=1.0)
+            ax.set_ylim(0.0, 2.5 * h)
+            ax.set_title(f"{flights[i].stem[-13:]}, {name}", fontsize=9)
+            ax.grid(alpha=0.3)
+            if i == n - 1:
+                ax.set_xlabel("time since the start of the log (min)")
+            if col == 0:
+                ax.set_ylabel("CUSUM statistic (degC)")
+            ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("flights", nargs="+", help="nominal flights of one engine (at least 3)")
@@ -119,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=1.0, help="false alarms per 100 h for the calibration")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", help="write every delay here")
+    parser.add_argument(
+        "--plot",
+        help="PNG: per held-out flight, the statistic nominal and with the k = 0.1 overlay at the second onset",
+    )
     parser.add_argument(
         "--work", help="folder for the work files (default: a new temporary folder); models found there are reused"
     )
@@ -185,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     patch = np.median([p for t in timings for p in t["patches_s"]])
     replay = np.median([r for t in timings for r in t["replays_s"]])
     report: dict[str, Any] = {}
+    thresholds: dict[str, list[float]] = {}
     for name, settings in variants:
         unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
         print(f"\nvariant {name}: baseline_s {settings.baseline_s:g}, delay {settings.baseline_delay_s:g} s,"
@@ -228,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'total':<40} {'':>8}  {totals['false']:>3} false DEGRADED    "
               f"{totals[0.2][0]:>3}/{totals[0.2][1]:<10} {totals[0.1][0]:>3}/{totals[0.1][1]}")  # fmt: skip
         report[name] = {"settings": dataclasses.asdict(settings), "flights": per_flight}
+        thresholds[name] = [entry["threshold"] for entry in per_flight]
     replays = sum(len(t["replays_s"]) for t in timings)
     print(
         f"\n{replays} replays in {len(jobs)} jobs, {time.perf_counter() - started:.0f} s in all; work files in {work}"
@@ -238,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1, default=float), encoding="utf-8")
+    if args.plot:
+        _plot(Path(args.plot), flights, feeds, variants, thresholds)
     return 0
 
 
