@@ -420,3 +420,20 @@ def test_a_vendor_dbc_by_config_only(tmp_path: Path) -> None:
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     with pytest.raises(ConfigError, match=r"inputs.rpm.signal: message 'Unused' cannot be used: .*overlapping"):
         load_config(path)
+
+
+def test_a_model_reading_what_the_service_does_not_feed_is_warned(caplog: pytest.LogCaptureFixture) -> None:
+    """The model's own list of its inputs (model/inputs.py) decides: a mixture_index effect reads a column
+    the pipeline does not feed, so the service runs it off (factor 1) and says so."""
+    import logging
+
+    from ecu_monitor.model.effects import Effects, MixtureIndex
+
+    params = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("fuel_per_rev", -2.0, 0.25)))
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.service.pipeline"):
+        Pipeline(_config(), params)
+    assert "mixture_index effect reads fuel_flow_lph, which the service does not feed: the effect is off" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.service.pipeline"):
+        Pipeline(_config(), paper_table_a1())
+    assert not caplog.text

@@ -35,6 +35,7 @@ at the held inputs) is computed every Health_Isolation period and held in betwee
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -49,6 +50,7 @@ from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
 from ecu_monitor.model import InputSeries, ThermalParams, coefficients
+from ecu_monitor.model.inputs import input_columns
 from ecu_monitor.service.config import ServiceConfig
 
 __all__ = [
@@ -72,6 +74,8 @@ __all__ = [
     "model_input_names",
     "supervise",
 ]
+
+_log = logging.getLogger(__name__)
 
 #: DegradationState values of health.dbc, by code.
 STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
@@ -226,6 +230,14 @@ class Pipeline:
         self.config = config
         self.params = params
         self.model_inputs = model_input_names(params)
+        unfed = [name for name in input_columns(params) if name not in self.model_inputs]
+        if unfed:  # the model's own list (model/inputs.py) names more than the pipeline feeds
+            _log.warning(
+                "%s: the model's mixture_index effect reads %s, which the service does not feed: the effect is"
+                " off here (factor 1, the model's rule for an index not logged)",
+                config.source,
+                ", ".join(unfed),
+            )
         mapped = set(config.input_names)
         missing = [name for name in (*self.model_inputs, "cht_c") if name not in mapped]
         if missing:
