@@ -22,6 +22,12 @@ Degradation syntax (:meth:`Degradation.parse`, the CLI's ``--degrade``)::
     gamma_d=1.1@600:ramp=300    gamma_D ramps linearly from its level at 600 s to 1.1 at 900 s
 
 Events of one factor apply in time order, each starting from the level the factor has reached.
+
+Truth-only forms (:class:`TruthForm`, the blind cases of the gap diagnosis): terms the model library
+does not contain exactly (another airspeed law, a mixture effect of another shape, a cooling loss that
+grows with run time, an oil-temperature coupling), applied in the truth as factors on the heat in and
+the dissipation beside the degradation schedule; :func:`fly` then logs their combined factors as
+``form_gamma_q`` and ``form_gamma_d``.
 Effect syntax (:func:`parse_effect`, the CLI's ``--effect``): ``NAME`` (default sizes) or
 ``NAME:key=value,key=value``, e.g. ``sensor_lag:time_constant_s=12``.
 """
@@ -62,8 +68,10 @@ from virtual_bus.sensors import Measurements, SensorModel
 __all__ = [
     "DEGRADATION_FACTORS",
     "LOG_COLUMNS",
+    "TRUTH_FORM_KINDS",
     "Degradation",
     "StepBlock",
+    "TruthForm",
     "block_rows",
     "collect",
     "fly",
@@ -72,6 +80,7 @@ __all__ = [
     "parse_effect",
     "parse_effects",
     "random_effects",
+    "random_truth_form",
     "record_every",
 ]
 
@@ -209,6 +218,73 @@ def random_effects(seed: int, names: Sequence[str] = PLANT_EFFECTS) -> Effects:
     return Effects(**chosen)
 
 
+#: Kinds of :class:`TruthForm`, with their parameters (name, low, high of the random draw).
+TRUTH_FORM_KINDS: dict[str, tuple[tuple[str, float, float], ...]] = {
+    "airspeed_power": (("exponent", 0.5, 0.9), ("slipstream_mps", 12.0, 20.0), ("reference_mps", 23.0, 23.0)),
+    "mixture_sigmoid": (("fraction", 0.08, 0.2), ("centre", 0.55, 0.75), ("width", 0.04, 0.1)),
+    "cooling_drift": (("size", 0.08, 0.2), ("time_constant_s", 900.0, 2400.0)),
+    "oil_coupling": (("coupling", 0.15, 0.35), ("time_constant_s", 600.0, 1500.0)),
+}
+
+
+@dataclass(frozen=True)
+class TruthForm:
+    """A truth term the model library does not contain exactly (blind cases of the gap diagnosis).
+
+    With ``v`` the airspeed (m/s), ``load`` = throttle/100, ``t`` the time since engine start (s):
+
+    - ``airspeed_power``: conductance x (max(v, slipstream_mps) / reference_mps)^exponent (a power law
+      with a slipstream floor, on the whole dissipation; the library's law is linear, on convection);
+    - ``mixture_sigmoid``: heat in x (1 - fraction / (1 + exp(-(load - centre) / width))) (a smooth
+      enrichment; the library's is a clipped ramp);
+    - ``cooling_drift``: conductance / (1 + size (1 - exp(-t / time_constant_s))) (a cooling loss that
+      grows with run time on every flight);
+    - ``oil_coupling``: an oil state ``T_oil' = (T - T_oil) / time_constant_s`` from the starting head
+      temperature; conductance x (1 - coupling (T_oil - T_oil(0)) / 100 degC) (hot oil takes less heat
+      from the head: a second, slow time constant).
+    """
+
+    kind: str
+    params: tuple[tuple[str, float], ...]
+
+    def __post_init__(self) -> None:
+        spec = TRUTH_FORM_KINDS.get(self.kind)
+        if spec is None:
+            raise ParameterError(f"truth form {self.kind!r}: unknown (known: {', '.join(TRUTH_FORM_KINDS)})")
+        given = dict(self.params)
+        if set(given) != {name for name, _, _ in spec}:
+            raise ParameterError(f"truth form {self.kind}: expected parameters {[n for n, _, _ in spec]}")
+        for name, value in given.items():
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
+                raise ParameterError(f"truth form {self.kind}.{name}: expected a positive number, got {value!r}")
+
+    def value(self, name: str) -> float:
+        """One parameter."""
+        return float(dict(self.params)[name])
+
+    def factors(self, time_s: np.ndarray, airspeed_mps: np.ndarray, throttle_pct: np.ndarray) -> tuple[Any, Any]:
+        """Stateless factors (gamma_Q, gamma_D) of this form at each step (1.0 where it has none)."""
+        if self.kind == "airspeed_power":
+            v = np.maximum(airspeed_mps, self.value("slipstream_mps"))
+            return 1.0, (v / self.value("reference_mps")) ** -self.value("exponent")
+        if self.kind == "mixture_sigmoid":
+            load = np.asarray(throttle_pct, dtype=float) / 100.0
+            z = (load - self.value("centre")) / self.value("width")
+            return 1.0 - self.value("fraction") / (1.0 + np.exp(-z)), 1.0
+        if self.kind == "cooling_drift":
+            return 1.0, 1.0 + self.value("size") * (1.0 - np.exp(-np.asarray(time_s) / self.value("time_constant_s")))
+        return 1.0, 1.0  # oil_coupling: stateful, in the step loop
+
+
+def random_truth_form(seed: int, kind: str) -> TruthForm:
+    """A truth form of ``kind`` with parameters drawn uniformly from :data:`TRUTH_FORM_KINDS`."""
+    spec = TRUTH_FORM_KINDS.get(kind)
+    if spec is None:
+        raise ParameterError(f"truth form {kind!r}: unknown (known: {', '.join(TRUTH_FORM_KINDS)})")
+    rng = np.random.default_rng(seed)
+    return TruthForm(kind, tuple((name, float(rng.uniform(low, high))) for name, low, high in spec))
+
+
 class StepBlock(NamedTuple):
     """Truth and measurements of consecutive integration steps (one control period).
 
@@ -233,6 +309,8 @@ class StepBlock(NamedTuple):
     gamma_q: np.ndarray
     gamma_d: np.ndarray
     measured: Measurements
+    form_gamma_q: np.ndarray | None = None  # truth forms' factors per step (None: no truth form)
+    form_gamma_d: np.ndarray | None = None
 
 
 def _check_step(dt_s: float) -> int:
@@ -251,11 +329,13 @@ def iter_steps(
     dt_s: float = 0.02,
     sensors: SensorModel | None = None,
     max_duration_s: float | None = None,
+    truth_forms: Sequence[TruthForm] = (),
 ) -> Iterator[StepBlock]:
     """Fly ``mission`` and yield one :class:`StepBlock` per control period until the mission ends.
 
     ``params`` is the truth model (default the paper's Table A1); ``effects``, if given, replaces its
-    unmodelled effects. Deterministic for a seed: the pilot's random variations and the sensor noise
+    unmodelled effects; ``truth_forms`` adds terms the library does not hold (:class:`TruthForm`).
+    Deterministic for a seed: the pilot's random variations and the sensor noise
     draw from two independent streams spawned from ``seed``.
     """
     params = params or paper_table_a1()
@@ -280,6 +360,9 @@ def iter_steps(
     probe = cht
     pade: Any = None
     cht_measured = cht
+    oil_forms = [f for f in truth_forms if f.kind == "oil_coupling"]
+    oil = [cht for _ in oil_forms]
+    oil_start = list(oil)
     step = 0
     while max_duration_s is None or state.time_s < max_duration_s:
         command = pilot.command(state, cht_measured)
@@ -296,7 +379,13 @@ def iter_steps(
         q, g, amb, cond, gain = (np.broadcast_to(v, (steps_per_period,)).tolist() for v in drive)
         gq_arr = gamma_schedule(degradation, "gamma_q", time_s)
         gd_arr = gamma_schedule(degradation, "gamma_d", time_s)
-        gq, gd = gq_arr.tolist(), gd_arr.tolist()
+        form_q = np.ones(steps_per_period)
+        form_d = np.ones(steps_per_period)
+        for form in truth_forms:
+            fq, fd = form.factors(time_s, kin.airspeed_mps, kin.throttle_pct)
+            form_q = form_q * fq
+            form_d = form_d * fd
+        gq, gd = (gq_arr * form_q).tolist(), (gd_arr * form_d).tolist()
         if pade is None:
             pade = float(initial_pade_state(Drive(q[0], g[0], amb[0], cond[0], gain[0])))
         cht_out = np.empty(steps_per_period)
@@ -304,7 +393,13 @@ def iter_steps(
         for k in range(steps_per_period):
             cht_out[k] = cht
             probe_out[k] = probe
-            cht, pade = rk4_step(cht, pade, Drive(q[k], g[k], amb[k], cond[k], gain[k]), coeffs, dt_s, gq[k], gd[k])
+            gd_k = gd[k]
+            for i, form in enumerate(oil_forms):
+                conductance = max(0.2, 1.0 - form.value("coupling") * (oil[i] - oil_start[i]) / 100.0)
+                gd_k /= conductance
+                form_d[k] /= conductance
+                oil[i] += dt_s * (cht - oil[i]) / form.value("time_constant_s")
+            cht, pade = rk4_step(cht, pade, Drive(q[k], g[k], amb[k], cond[k], gain[k]), coeffs, dt_s, gq[k], gd_k)
             probe = probe + probe_gain * (cht - probe)
         if not math.isfinite(cht):
             raise ParameterError(f"truth plant diverged at t = {state.time_s:.1f} s (dt_s {dt_s} too large?)")
@@ -336,6 +431,8 @@ def iter_steps(
             gamma_q=gq_arr,
             gamma_d=gd_arr,
             measured=measured,
+            form_gamma_q=form_q if truth_forms else None,
+            form_gamma_d=form_d if truth_forms else None,
         )
         step += steps_per_period
         state = next_state
@@ -409,14 +506,26 @@ def fly(
     record_dt_s: float = 0.1,
     sensors: SensorModel | None = None,
     max_duration_s: float | None = None,
+    truth_forms: Sequence[TruthForm] = (),
 ) -> FlightLog:
     """Fly ``mission`` through the truth plant and return the flight sampled every ``record_dt_s``.
 
     Columns: the canonical ones as measured (time_s, throttle_pct, rpm, altitude_m, airspeed_mps,
     oat_c, cht_c quantised), fuel_flow_lph and vspeed_mps (measured), and the truth for scoring:
-    cht_true_c (head temperature), gamma_q, gamma_d. Deterministic for a seed.
+    cht_true_c (head temperature), gamma_q, gamma_d; with ``truth_forms`` also form_gamma_q and
+    form_gamma_d (their combined factors on the heat in and the dissipation). Deterministic for a seed.
     """
     every = record_every(dt_s, record_dt_s)
+    forms: dict[str, list[np.ndarray]] = {"form_gamma_q": [], "form_gamma_d": []}
+
+    def keep_forms(blocks: Iterable[StepBlock]) -> Iterator[StepBlock]:
+        for block in blocks:
+            if truth_forms:
+                keep = np.nonzero((block.first_step + np.arange(block.time_s.size)) % every == 0)[0]
+                forms["form_gamma_q"].append(np.asarray(block.form_gamma_q)[keep])
+                forms["form_gamma_d"].append(np.asarray(block.form_gamma_d)[keep])
+            yield block
+
     blocks = iter_steps(
         mission,
         params,
@@ -426,5 +535,9 @@ def fly(
         dt_s=dt_s,
         sensors=sensors,
         max_duration_s=max_duration_s,
+        truth_forms=truth_forms,
     )
-    return collect(blocks, every, source=f"virtual-ecu:{mission.name}:seed={seed}")
+    log = collect(keep_forms(blocks), every, source=f"virtual-ecu:{mission.name}:seed={seed}")
+    if truth_forms:
+        log = log.with_columns(**{name: np.concatenate(chunks) for name, chunks in forms.items()})
+    return log

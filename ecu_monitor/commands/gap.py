@@ -1,12 +1,15 @@
-"""``ecu-monitor gap [--model M] --train A.csv --test B.csv --out DIR`` (and ``gap --blind N --out DIR``).
+"""``ecu-monitor gap [--model M] --train A.csv [B.csv ...] --test C.csv [D.csv ...] --out DIR``
+(and ``gap --blind N --out DIR``).
 
-Sim-to-real gap diagnosis: where the model departs from the test flight (segments, operating
+Sim-to-real gap diagnosis: where the model departs from the test flights (segments, operating
 regions, correlations, spectrum, innovation whiteness), which candidate effect explains it (each
-refitted on the train flight only and scored on the test flight, with a block-bootstrap significance
-test) and how far the held-out error shrinks. Writes DIR/gap.json, DIR/report.md, PNG plots and
-DIR/model.yaml (the model with the winning effect, or the nominal model when unexplained).
+refitted on all the train flights together and scored on every test flight, with a bootstrap
+significance test that resamples whole test flights and blocks within them) and how far the
+held-out error shrinks, pooled and per test flight, and in which segments. Writes DIR/gap.json,
+DIR/report.md, PNG plots and DIR/model.yaml (the model with the winning effect, or the nominal model
+when unexplained).
 
-Without ``--model`` the nominal model is identified on the train flight (PSO, ``--heat-axes`` as for
+Without ``--model`` the nominal model is identified on the train flights (PSO, ``--heat-axes`` as for
 identify) and each candidate is then re-identified jointly with the whole model (``--refit
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
@@ -22,6 +25,7 @@ import json
 import shlex
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from ecu_monitor.bus.canlog import load_flight
@@ -45,8 +49,8 @@ def add_subparser(subparsers: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--model", metavar="MODEL.yaml", help="nominal model (default: identified on --train)")
-    parser.add_argument("--train", metavar="A.csv", help="flight the candidate effects are refitted on")
-    parser.add_argument("--test", metavar="B.csv", help="held-out flight they are scored on")
+    parser.add_argument("--train", nargs="+", metavar="A.csv", help="flight(s) the candidate effects are refitted on")
+    parser.add_argument("--test", nargs="+", metavar="C.csv", help="held-out flight(s) they are scored on")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
         "--heat-axes", metavar="COL,COL", help="heat-map axes when identifying (default throttle_pct,rpm)"
@@ -76,25 +80,45 @@ def _say(message: str) -> None:
     print(f"gap: {message}", file=sys.stderr, flush=True)
 
 
-def _flights(args: argparse.Namespace) -> tuple[FlightLog, FlightLog]:
+def _flights(args: argparse.Namespace) -> tuple[list[FlightLog], list[FlightLog]]:
     if not args.train:
         raise UserInputError("gap: --train is required (or --blind N)")
     if args.test_first and args.split_at is None:
         raise UserInputError("gap: --test-first needs --split-at S")
-    train = load_flight(args.train, mapping=args.mapping)
+    named = [*args.train, *(args.test or [])]
+    repeated = sorted({path for path in named if named.count(path) > 1})
+    if repeated:
+        raise UserInputError(f"gap: {repeated[0]}: given twice (a flight is either train or test, once)")
     if args.split_at is not None:
         if args.test:
             raise UserInputError("gap: give either --test or --split-at, not both")
+        if len(args.train) != 1:
+            raise UserInputError("gap: --split-at splits one flight: give exactly one --train flight")
+        train = load_flight(args.train[0], mapping=args.mapping)
         t = train.time_s
         if not t[0] + 60.0 < args.split_at < t[-1] - 60.0:
             raise UserInputError(
                 f"--split-at {args.split_at:g}: expected a time at least 60 s inside the flight ({t[0]:g}-{t[-1]:g} s)"
             )
         before, after = train.select(t[0], args.split_at), train.select(args.split_at, t[-1])
-        return (after, before) if args.test_first else (before, after)
+        return ([after], [before]) if args.test_first else ([before], [after])
     if not args.test:
         raise UserInputError("gap: --test is required (or --split-at S to split the train flight)")
-    return train, load_flight(args.test, mapping=args.mapping)
+    trains = [load_flight(path, mapping=args.mapping) for path in args.train]
+    return trains, [load_flight(path, mapping=args.mapping) for path in args.test]
+
+
+def _writable_out(path: str) -> Path:
+    """Create the output directory and prove it writable before the long work (ConfigError if not)."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".gap-write-check"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"{out}: cannot write the output directory ({exc.strerror})") from None
+    return out
 
 
 def _settings(args: argparse.Namespace) -> GapSettings:
@@ -115,13 +139,7 @@ def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
         raise UserInputError(f"--blind: expected a positive number of cases, got {args.blind}")
     if args.duration < 600.0:
         raise UserInputError(f"--duration: expected at least 600 s, got {args.duration:g}")
-    from pathlib import Path
-
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot create the output directory ({exc.strerror})") from None
+    out = _writable_out(args.out)
     started = time.perf_counter()
 
     def progress(result: Any) -> None:
@@ -152,21 +170,25 @@ def _run(args: argparse.Namespace) -> int:
     settings = _settings(args)
     if args.blind is not None:
         return _run_blind(args, settings)
-    train, test = _flights(args)
-    if args.model:
-        nominal = load_model(args.model)
-    else:
-        axes = parse_heat_axes(args.heat_axes) if args.heat_axes else ("throttle_pct", "rpm")
-        model_inputs(train, axes)  # fail early, naming the missing column
-        model_inputs(test, axes)
-        _say(f"no --model: identifying the nominal model on {train.source} (PSO, heat axes {','.join(axes)})")
-        started = time.perf_counter()
-        nominal = identify([train], heat_axes=axes, settings=PsoSettings()).params
-        _say(f"identified in {time.perf_counter() - started:.1f} s")
-    if args.model and args.heat_axes and parse_heat_axes(args.heat_axes) != nominal.heat_axes:
+    trains, tests = _flights(args)
+    nominal = load_model(args.model) if args.model else None
+    if nominal is not None and args.heat_axes and parse_heat_axes(args.heat_axes) != nominal.heat_axes:
         raise UserInputError(f"--heat-axes {args.heat_axes}: the model's heat map is on {','.join(nominal.heat_axes)}")
+    axes = (
+        nominal.heat_axes
+        if nominal is not None
+        else (parse_heat_axes(args.heat_axes) if args.heat_axes else ("throttle_pct", "rpm"))
+    )
+    for log in (*trains, *tests):
+        model_inputs(log, axes)  # fail early, naming the flight and the missing column
+    _writable_out(args.out)
     started = time.perf_counter()
-    diag = diagnose(nominal, train, test, settings, progress=_say)
+    if nominal is None:
+        names = ", ".join(log.source for log in trains)
+        _say(f"no --model: identifying the nominal model on {names} (PSO, heat axes {','.join(axes)})")
+        nominal = identify(trains, heat_axes=axes, settings=PsoSettings()).params
+        _say(f"identified in {time.perf_counter() - started:.1f} s")
+    diag = diagnose(nominal, trains, tests, settings, progress=_say)
     command = "ecu-monitor " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
     doc = write_report(diag, args.out, command)
     verdict = doc["verdict"]
@@ -182,5 +204,8 @@ def _run(args: argparse.Namespace) -> int:
             f"{verdict['label']}: held-out RMS {base['test_rms_c']:.2f} -> {verdict['test_rms_c']:.2f} degC"
             f" (shrink {verdict['shrink_pct']:.0f} %), mostly in {verdict['segment']}"
         )
+    for row in doc["per_flight"]:
+        after = f" -> {row['test_rms_c']:.2f} ({row['shrink_pct']:+.0f} %)" if "test_rms_c" in row else ""
+        print(f"  {row['flight']}: RMS {row['baseline_rms_c']:.2f}{after} degC")
     print(f"wrote {args.out}/gap.json, report.md, model.yaml and plots ({time.perf_counter() - started:.1f} s)")
     return 0

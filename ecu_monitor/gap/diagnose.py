@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -93,13 +93,14 @@ class GapSettings:
 
 @dataclass(frozen=True)
 class EffectScore:
-    """A refitted candidate (or the control) scored on the test flight."""
+    """A refitted candidate (or the control) scored on the test flight(s): residuals per test flight,
+    RMS and peak pooled over all of them."""
 
     fit: FitResult
-    test_residual: np.ndarray  # measured - model on the test flight, degC
+    flight_residuals: tuple[np.ndarray, ...]  # measured - model on each test flight, degC
     test_rms_c: float
     test_peak_c: float
-    shrink_pct: float  # held-out RMS shrink vs the baseline (nominal model), %
+    shrink_pct: float  # pooled held-out RMS shrink vs the baseline (nominal model), %
     versus: ImprovementTest | None  # against the control (singles) or the single effect (pairs)
     role: str  # "control", "single" or "pair"
 
@@ -109,24 +110,54 @@ class EffectScore:
         return self.fit.label
 
     @property
+    def test_residual(self) -> np.ndarray:
+        """The residuals of every test flight end to end, degC."""
+        return np.concatenate(self.flight_residuals)
+
+    @property
+    def flight_rms_c(self) -> tuple[float, ...]:
+        """Held-out RMS on each test flight, degC."""
+        return tuple(_rms(r) for r in self.flight_residuals)
+
+    @property
     def counts(self) -> bool:
         """Significant and material against its reference."""
         return self.versus is not None and self.versus.counts
 
 
 @dataclass(frozen=True)
-class GapDiagnosis:
-    """Everything the report needs (arrays on the test flight's samples)."""
+class HeldOutFlight:
+    """One held-out flight: the nominal model's open-loop baseline on it and where it departs."""
 
-    nominal: ThermalParams
-    train: PreparedFlight
-    test: PreparedFlight
-    baseline_train_residual: np.ndarray
-    baseline_test_residual: np.ndarray
-    baseline_test_model_c: np.ndarray
+    flight: PreparedFlight
+    baseline_residual: np.ndarray  # measured - nominal model, degC
+    baseline_model_c: np.ndarray
     model_rate_c_per_s: np.ndarray
     segmentation: Segmentation
     where: list[SegmentShare]
+
+    @property
+    def name(self) -> str:
+        """The flight's source (file name)."""
+        return self.flight.log.source
+
+    @property
+    def baseline_rms_c(self) -> float:
+        """RMS of the baseline residual, degC."""
+        return _rms(self.baseline_residual)
+
+
+@dataclass(frozen=True)
+class GapDiagnosis:
+    """Everything the report needs. Pooled quantities are over every test flight end to end;
+    ``tests`` holds each test flight's own baseline and segments."""
+
+    nominal: ThermalParams
+    trains: tuple[PreparedFlight, ...]
+    tests: tuple[HeldOutFlight, ...]
+    baseline_train_residual: np.ndarray  # every train flight end to end
+    baseline_test_residual: np.ndarray  # every test flight end to end
+    where: list[SegmentShare]  # pooled over the test flights
     regions: dict[str, list[dict[str, float]]]
     correlation: dict[str, float]
     lag: LagSignature
@@ -143,135 +174,242 @@ class GapDiagnosis:
     references: dict[str, float]
 
     @property
+    def train(self) -> PreparedFlight:
+        """The first train flight."""
+        return self.trains[0]
+
+    @property
+    def test(self) -> PreparedFlight:
+        """The first test flight."""
+        return self.tests[0].flight
+
+    @property
     def verdict_ids(self) -> tuple[str, ...]:
         """The winning candidate ids (empty: unexplained)."""
         return self.winner.fit.ids if self.winner is not None else ()
+
+    def flight_detail(self, score: EffectScore | None = None) -> list[dict[str, Any]]:
+        """Per test flight: baseline, control and ``score`` (default the winner) RMS, their shrink,
+        and by segment the RMS before/after and whether the effect holds there (its RMS below the
+        control's)."""
+        score = score if score is not None else self.winner
+        rows = []
+        for k, test in enumerate(self.tests):
+            base = test.baseline_residual
+            control = self.control.flight_residuals[k]
+            row: dict[str, Any] = {
+                "flight": test.name,
+                "duration_s": float(test.flight.log.duration_s),
+                "baseline_rms_c": _rms(base),
+                "baseline_peak_c": float(np.max(np.abs(base))),
+                "control_rms_c": _rms(control),
+                "where": [w.to_dict() for w in test.where],
+            }
+            if score is not None:
+                after = score.flight_residuals[k]
+                row["test_rms_c"] = _rms(after)
+                row["test_peak_c"] = float(np.max(np.abs(after)))
+                row["shrink_pct"] = _shrink(_rms(base), _rms(after))
+                row["shrink_vs_control_pct"] = _shrink(_rms(control), _rms(after))
+                segments = {}
+                for index, name in enumerate(SEGMENT_NAMES):
+                    mask = test.segmentation.labels == index
+                    if not np.any(mask):
+                        continue
+                    b, c, a = _rms(base[mask]), _rms(control[mask]), _rms(after[mask])
+                    segments[name] = {
+                        "duration_s": float(mask.sum()) * test.flight.dt_s,
+                        "baseline_rms_c": b,
+                        "control_rms_c": c,
+                        "rms_c": a,
+                        "shrink_pct": _shrink(b, a),
+                        "shrink_vs_control_pct": _shrink(c, a),
+                        "holds": bool(a < c and a < b),
+                    }
+                row["segments"] = segments
+            rows.append(row)
+        return rows
 
 
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.asarray(x, dtype=float) ** 2)))
 
 
+def _shrink(before: float, after: float) -> float:
+    return 100.0 * (1.0 - after / before) if before > 0 else 0.0
+
+
 def _score(
     fit: FitResult,
-    test: PreparedFlight,
+    tests: tuple[HeldOutFlight, ...],
     baseline_rms: float,
     engine: str,
     role: str,
-    reference: np.ndarray | None,
+    reference: EffectScore | None,
     n_tests: int,
     significance: SignificanceSettings,
 ) -> EffectScore:
-    model = simulate_probe([fit.params], test, engine)[:, 0]
-    residual = test.cht_c - model
-    if not np.all(np.isfinite(residual)):  # a diverged run scores 1000 degC where it failed: it never counts
-        residual = np.where(np.isfinite(residual), residual, 1e3)
-    rms = _rms(residual)
+    residuals = []
+    for test in tests:
+        model = simulate_probe([fit.params], test.flight, engine)[:, 0]
+        residual = test.flight.cht_c - model
+        if not np.all(np.isfinite(residual)):  # a diverged run scores 1000 degC where it failed: it never counts
+            residual = np.where(np.isfinite(residual), residual, 1e3)
+        residuals.append(residual)
+    pooled = np.concatenate(residuals)
+    rms = _rms(pooled)
     versus = None
     if reference is not None:
-        versus = improvement_test(reference, residual, test.dt_s, n_tests, significance)
+        versus = improvement_test(reference.flight_residuals, residuals, tests[0].flight.dt_s, n_tests, significance)
     return EffectScore(
         fit=fit,
-        test_residual=residual,
+        flight_residuals=tuple(residuals),
         test_rms_c=rms,
-        test_peak_c=float(np.max(np.abs(residual))),
-        shrink_pct=100.0 * (1.0 - rms / baseline_rms) if baseline_rms > 0 else 0.0,
+        test_peak_c=float(np.max(np.abs(pooled))),
+        shrink_pct=_shrink(baseline_rms, rms),
         versus=versus,
         role=role,
     )
 
 
-def _whiteness(nominal: ThermalParams, test_log: FlightLog, estimator: str | None) -> dict[str, Any]:
+def _whiteness(nominal: ThermalParams, logs: Sequence[FlightLog], estimator: str | None) -> dict[str, Any]:
     if estimator is None:
         return {"estimator": None}
-    trace = run_estimator(test_log, nominal, estimator)
-    innovation = np.asarray(trace.innovation, dtype=float)
-    innovation = innovation[np.isfinite(innovation)]  # one per CHT reading
+    parts = []
+    for log in logs:
+        innovation = np.asarray(run_estimator(log, nominal, estimator).innovation, dtype=float)
+        parts.append(innovation[np.isfinite(innovation)])  # one per CHT reading
+    innovation = np.concatenate(parts)
     result: dict[str, Any] = {"estimator": estimator, **ljung_box(innovation, lags=20)}
     result["innovation_rms_c"] = float(np.sqrt(np.mean(innovation**2))) if innovation.size else 0.0
     return result
 
 
 def _second_acts(
-    pair: EffectScore, nominal: ThermalParams, test: PreparedFlight, engine: str, settings: GapSettings
+    pair: EffectScore, nominal: ThermalParams, tests: Sequence[HeldOutFlight], engine: str, settings: GapSettings
 ) -> bool:
     """True when the pair's second effect changes its test prediction by at least min_rms_drop_c RMS
-    (switched off with every other fitted value kept): a pair whose gain comes from a better fit of
-    the first effect's own parameters does not name a second effect."""
+    (switched off with every other fitted value kept; pooled over the test flights): a pair whose gain
+    comes from a better fit of the first effect's own parameters does not name a second effect."""
     entry = candidate(pair.fit.ids[1])
     params = pair.fit.params
     if entry.effect == "nominal":
-        without = params.replace(**{p.name: getattr(nominal, p.name) for p in entry.free})
+        names = [p.name for p in entry.free] + [name for name, _ in entry.fixed]
+        without = params.replace(**{name: getattr(nominal, name) for name in names})
     else:
         without = params.replace(effects=params.effects.replace(entry.effect, None))
-    both = simulate_probe([params, without], test, engine)
+    both = np.concatenate([simulate_probe([params, without], t.flight, engine) for t in tests], axis=0)
     change = float(np.sqrt(np.mean((both[:, 0] - both[:, 1]) ** 2)))
     return change >= settings.significance.min_rms_drop_c
 
 
-def _segment_gain(reference: np.ndarray, improved: np.ndarray, segmentation: Segmentation) -> dict[str, float]:
+def _segment_gain(reference: np.ndarray, improved: np.ndarray, labels: np.ndarray) -> dict[str, float]:
     gain = reference**2 - improved**2
     total = float(np.sum(np.clip(gain, 0.0, None))) or 1.0
     out = {}
     for index, name in enumerate(SEGMENT_NAMES):
-        mask = segmentation.labels == index
+        mask = labels == index
         if np.any(mask):
             out[name] = float(np.sum(gain[mask])) / total
     return out
 
 
+def _end_to_end(logs: Sequence[FlightLog], columns: Sequence[str]) -> FlightLog:
+    """The flights one after the other in one log (each shifted to start 1 s after the previous
+    one ends), with the ``columns`` they all carry: for pooled breakdowns, never for simulation."""
+    if len(logs) == 1:
+        return logs[0]
+    shared = [c for c in columns if all(log.has(c) for log in logs)]
+    times, offset = [], 0.0
+    for log in logs:
+        t = log.time_s - log.time_s[0] + offset
+        times.append(t)
+        offset = float(t[-1]) + 1.0
+    data = {"time_s": np.concatenate(times)}
+    data.update({c: np.concatenate([np.asarray(log[c]) for log in logs]) for c in shared if c != "time_s"})
+    return FlightLog(data, source=" + ".join(log.source for log in logs))
+
+
+def _as_logs(flights: FlightLog | Sequence[FlightLog], side: str) -> tuple[FlightLog, ...]:
+    logs = (flights,) if isinstance(flights, FlightLog) else tuple(flights)
+    if not logs:
+        raise ParameterError(f"gap: at least one {side} flight is needed")
+    return logs
+
+
+def _held_out(nominal: ThermalParams, log: FlightLog, settings: GapSettings) -> HeldOutFlight:
+    flight = prepare_flight(log, nominal.heat_axes, settings.refit.dt_s)
+    model = simulate_probe([nominal], flight, settings.refit.engine)[:, 0]
+    residual = flight.cht_c - model
+    segmentation = segment_flight(log, settings.segments)
+    return HeldOutFlight(
+        flight=flight,
+        baseline_residual=residual,
+        baseline_model_c=model,
+        model_rate_c_per_s=np.gradient(model, log.time_s),
+        segmentation=segmentation,
+        where=segment_breakdown(residual, segmentation, flight.dt_s),
+    )
+
+
 def diagnose(
     nominal: ThermalParams,
-    train_log: FlightLog,
-    test_log: FlightLog,
+    train_logs: FlightLog | Sequence[FlightLog],
+    test_logs: FlightLog | Sequence[FlightLog],
     settings: GapSettings | None = None,
     progress: Progress | None = None,
 ) -> GapDiagnosis:
-    """Run the whole diagnosis of ``nominal`` with ``train_log`` for refits and ``test_log`` held out."""
+    """Run the whole diagnosis of ``nominal``: every candidate refitted on all the train flights
+    together, scored on every test flight (one flight or a sequence on each side)."""
     settings = settings or GapSettings()
     say = progress or (lambda message: None)
     engine = settings.refit.engine
     axes = nominal.heat_axes
-    train = prepare_flight(train_log, axes, settings.refit.dt_s)
-    test = prepare_flight(test_log, axes, settings.refit.dt_s)
-    references = flight_references(train_log, settings.segments.ground_airspeed_mps)
+    train_logs = _as_logs(train_logs, "train")
+    test_logs = _as_logs(test_logs, "test")
+    trains = tuple(prepare_flight(log, axes, settings.refit.dt_s) for log in train_logs)
+    references = flight_references(
+        _end_to_end(train_logs, ("airspeed_mps", "altitude_m", "oat_c")), settings.segments.ground_airspeed_mps
+    )
 
-    say("baseline: nominal model open loop on both flights")
-    base_train = train.cht_c - simulate_probe([nominal], train, engine)[:, 0]
-    base_model = simulate_probe([nominal], test, engine)[:, 0]
-    base_test = test.cht_c - base_model
+    say(f"baseline: nominal model open loop on {len(trains)} train and {len(test_logs)} test flight(s)")
+    base_train = np.concatenate([f.cht_c - simulate_probe([nominal], f, engine)[:, 0] for f in trains])
+    tests = tuple(_held_out(nominal, log, settings) for log in test_logs)
+    base_test = np.concatenate([t.baseline_residual for t in tests])
     baseline_rms = _rms(base_test)
 
     say("where: segments, regions, correlations, spectrum, innovations")
-    segmentation = segment_flight(test_log, settings.segments)
-    rate = np.gradient(base_model, test_log.time_s)
-    columns = [c for c in (*axes, "airspeed_mps", "altitude_m", "oat_c") if test_log.has(c)]
+    columns = [c for c in (*axes, "airspeed_mps", "altitude_m", "oat_c") if all(log.has(c) for log in test_logs)]
     columns = list(dict.fromkeys(columns))
-    where = segment_breakdown(base_test, segmentation, test.dt_s)
-    regions = region_breakdown(base_test, test_log, columns)
-    corr = correlations(base_test, test_log, columns, rate)
+    pooled_log = _end_to_end(test_logs, columns)
+    labels = np.concatenate([t.segmentation.labels for t in tests])
+    rate = np.concatenate([t.model_rate_c_per_s for t in tests])
+    dt_s = tests[0].flight.dt_s
+    where = segment_breakdown(base_test, Segmentation(labels, ()), dt_s)
+    regions = region_breakdown(base_test, pooled_log, columns)
+    corr = correlations(base_test, pooled_log, columns, rate)
     lag = lag_signature(base_test, rate)
-    spectrum = residual_spectrum(base_test, test.dt_s)
-    whiteness = _whiteness(nominal, test_log, settings.whiteness_estimator)
+    spectrum = residual_spectrum(base_test, dt_s)
+    whiteness = _whiteness(nominal, test_logs, settings.whiteness_estimator)
     hm = nominal.heat_map
-    coverage = heat_map_coverage(base_test, train_log, test_log, axes, hm.x_breakpoints, hm.y_breakpoints)
+    coverage = heat_map_coverage(
+        base_test, _end_to_end(train_logs, axes), _end_to_end(test_logs, axes), axes, hm.x_breakpoints, hm.y_breakpoints
+    )
 
     def fit_candidates(entries: list[Candidate]) -> FitResult:
         if settings.refit_mode == "reidentify":
-            return reidentify(nominal, train, entries, references, settings.refit, settings.pso)
-        return refit(nominal, train, entries, references, settings.refit)
+            return reidentify(nominal, trains, entries, references, settings.refit, settings.pso)
+        return refit(nominal, trains, entries, references, settings.refit)
 
-    say("refit: control (nominal with R_Ce and heat scale re-tuned on the train flight)")
+    say("refit: control (nominal with R_Ce and heat scale re-tuned on the train flights)")
     control_fit = fit_candidates([])
-    control = _score(control_fit, test, baseline_rms, engine, "control", None, 1, settings.significance)
+    control = _score(control_fit, tests, baseline_rms, engine, "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
     singles: list[EffectScore] = []
-    for cid in settings.candidates:
-        say(f"refit: {cid}")
+    for number, cid in enumerate(settings.candidates, start=1):
+        say(f"refit: {cid} ({number}/{len(settings.candidates)})")
         fit = fit_candidates([candidate(cid)])
-        singles.append(
-            _score(fit, test, baseline_rms, engine, "single", control.test_residual, n_tests, settings.significance)
-        )
+        singles.append(_score(fit, tests, baseline_rms, engine, "single", control, n_tests, settings.significance))
     counting = [s for s in singles if s.counts]
     winner = min(counting, key=lambda s: s.test_rms_c) if counting else None
     pairs: list[EffectScore] = []
@@ -282,13 +420,13 @@ def diagnose(
         for cid in others:
             say(f"refit: pair {first}+{cid}")
             fit = fit_candidates([candidate(first), candidate(cid)])
-            pairs.append(_score(fit, test, baseline_rms, engine, "pair", winner.test_residual, len(others), pair_test))
-        better = [p for p in pairs if p.counts and _second_acts(p, nominal, test, engine, settings)]
+            pairs.append(_score(fit, tests, baseline_rms, engine, "pair", winner, len(others), pair_test))
+        better = [p for p in pairs if p.counts and _second_acts(p, nominal, tests, engine, settings)]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)
     effects = sorted(singles + pairs, key=lambda s: s.test_rms_c)
     if winner is not None:
-        gain = _segment_gain(control.test_residual, winner.test_residual, segmentation)
+        gain = _segment_gain(control.test_residual, winner.test_residual, labels)
         winner_segment = max(gain, key=lambda k: gain[k])
         model = winner.fit.params
     else:
@@ -298,13 +436,10 @@ def diagnose(
     say("verdict: " + (winner.label if winner is not None else "unexplained"))
     return GapDiagnosis(
         nominal=nominal,
-        train=train,
-        test=test,
+        trains=trains,
+        tests=tests,
         baseline_train_residual=base_train,
         baseline_test_residual=base_test,
-        baseline_test_model_c=base_model,
-        model_rate_c_per_s=rate,
-        segmentation=segmentation,
         where=where,
         regions=regions,
         correlation=corr,

@@ -25,6 +25,8 @@ Added for real data (not in the default set, :data:`DEFAULT_CANDIDATE_IDS`; ask 
   ``g(z) = (p/p_SL)^a (T_SL/T_e)^b`` (no new term: the model's own parameters, started from the
   nominal values). It is the candidate for a heat map on fuel flow, where the fuel flow already
   carries the charge density and the paper's throttle-based exponents (a 1.55, b 2) double-count it.
+- ``no_altitude_factor``: a removal candidate: the same altitude factor switched off (a = b = 0,
+  nothing new fitted), the simpler answer to the same double count.
 """
 
 from __future__ import annotations
@@ -87,12 +89,18 @@ class FreeParameter:
 class Candidate:
     """One library entry: the model effect it switches on (``effect``, a field of
     ecu_monitor.model.Effects) and its free parameters; or, with ``effect`` = "nominal", nominal
-    ThermalParams fields re-fitted from their nominal values (``FreeParameter.start`` is then unused)."""
+    ThermalParams fields re-fitted from their nominal values (``FreeParameter.start`` is then unused)
+    and/or set to ``fixed`` values (a removal candidate: a term of the nominal model switched off)."""
 
     id: str
     effect: str
     description: str
     free: tuple[FreeParameter, ...]
+    fixed: tuple[tuple[str, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.fixed and self.effect != "nominal":
+            raise ParameterError(f"gap candidate {self.id!r}: fixed values only for nominal parameters")
 
 
 CANDIDATES: tuple[Candidate, ...] = (
@@ -134,6 +142,13 @@ CANDIDATES: tuple[Candidate, ...] = (
             FreeParameter("a", 1.55, -1.0, 4.0, "-"),
             FreeParameter("b", 2.0, -2.0, 4.0, "-"),
         ),
+    ),
+    Candidate(
+        "no_altitude_factor",
+        "nominal",
+        "removal: the altitude factor g(z) of the heat into the head switched off (a = b = 0)",
+        (),
+        fixed=(("a", 0.0), ("b", 0.0)),
     ),
 )
 CANDIDATE_IDS: tuple[str, ...] = tuple(c.id for c in CANDIDATES)

@@ -119,21 +119,31 @@ class FitResult:
         return "+".join(self.ids) if self.ids else "control"
 
 
+def _flights(train: PreparedFlight | Sequence[PreparedFlight]) -> tuple[PreparedFlight, ...]:
+    """One prepared flight or several, as a tuple."""
+    flights = (train,) if isinstance(train, PreparedFlight) else tuple(train)
+    if not flights:
+        raise ParameterError("refit: at least one train flight is needed")
+    return flights
+
+
 class _Problem:
-    """Maps the parameter vector to models and residuals; counts evaluations and failures."""
+    """Maps the parameter vector to models and residuals over all train flights (concatenated);
+    counts evaluations and failures."""
 
     def __init__(
         self,
         nominal: ThermalParams,
         entries: Sequence[Candidate],
         references: Mapping[str, float],
-        flight: PreparedFlight,
+        flights: Sequence[PreparedFlight],
         engine: str,
     ) -> None:
         self.nominal = nominal
         self.entries = tuple(entries)
         self.references = references
-        self.flight = flight
+        self.flights = tuple(flights)
+        self.measured = np.concatenate([f.cht_c for f in self.flights])
         self.engine = engine
         self.names = [(e.id, p.name) for e in self.entries for p in e.free]
         self.low = np.array([p.low for e in self.entries for p in e.free] + [RETUNED_BOUNDS[0]] * 2)
@@ -179,7 +189,8 @@ class _Problem:
         r_log, h_log = float(x[-2]), float(x[-1])
         values = self.values(x)
         effects = effects_for(self.nominal.effects, self.entries, values, self.references)
-        nominal_fields = {k: v for e in self.entries if e.effect == "nominal" for k, v in values[e.id].items()}
+        nominal_fields = {k: v for e in self.entries if e.effect == "nominal" for k, v in e.fixed}
+        nominal_fields.update({k: v for e in self.entries if e.effect == "nominal" for k, v in values[e.id].items()})
         return self.nominal.replace(
             **nominal_fields,
             r_ce=self.nominal.r_ce * math.exp(r_log),
@@ -188,12 +199,14 @@ class _Problem:
         )
 
     def residuals(self, points: Sequence[np.ndarray]) -> np.ndarray:
-        """Measured minus simulated CHT for each point: (N, len(points)); failures count and get 1e3."""
-        probe = simulate_probe([self.params(x) for x in points], self.flight, self.engine)
+        """Measured minus simulated CHT for each point, all train flights end to end: (N, len(points));
+        failures count and get 1e3."""
+        params = [self.params(x) for x in points]
+        probe = np.concatenate([simulate_probe(params, flight, self.engine) for flight in self.flights], axis=0)
         self.evaluations += len(points)
         bad = ~np.all(np.isfinite(probe), axis=0)
         self.failed += int(bad.sum())
-        residual = self.flight.cht_c[:, None] - probe
+        residual = self.measured[:, None] - probe
         residual[:, bad] = 1e3
         return residual
 
@@ -232,14 +245,15 @@ def _uncertainty(jac: np.ndarray, residual: np.ndarray, n_params: int) -> np.nda
 
 def refit(
     nominal: ThermalParams,
-    train: PreparedFlight,
+    train: PreparedFlight | Sequence[PreparedFlight],
     entries: Sequence[Candidate],
     references: Mapping[str, float],
     settings: RefitSettings | None = None,
 ) -> FitResult:
-    """Refit ``entries`` (empty: the control) plus the re-tuned nominal factors on ``train``."""
+    """Refit ``entries`` (empty: the control) plus the re-tuned nominal factors on the train flight(s)
+    (several: one fit over all of them, residuals end to end)."""
     settings = settings or RefitSettings()
-    problem = _Problem(nominal, entries, references, train, settings.engine)
+    problem = _Problem(nominal, entries, references, _flights(train), settings.engine)
     result = None
     for start in problem.starts():
         attempt = least_squares(
@@ -285,7 +299,7 @@ def refit(
 
 def reidentify(
     nominal: ThermalParams,
-    train: PreparedFlight,
+    train: PreparedFlight | Sequence[PreparedFlight],
     entries: Sequence[Candidate],
     references: Mapping[str, float],
     settings: RefitSettings | None = None,
@@ -302,6 +316,7 @@ def reidentify(
     """
     settings = settings or RefitSettings()
     pso = pso or PsoSettings()
+    flights = _flights(train)
     start = {e.id: {p.name: p.start for p in e.free} for e in entries if e.effect != "nominal"}
     effect_entries = [e for e in entries if e.effect != "nominal"]
     base = nominal.replace(effects=effects_for(nominal.effects, effect_entries, start, references))
@@ -309,9 +324,12 @@ def reidentify(
     for e in entries:
         for p in e.free:
             free.append(p.name if e.effect == "nominal" else f"effects.{e.effect}.{p.name}")
-    space = default_space([train.log], base=base, heat_axes=nominal.heat_axes, free=free)
-    identified = identify([train.log], space=space, settings=pso).params
-    fit = refit(identified, train, entries, references, settings)
+    fixed = {k: v for e in entries if e.effect == "nominal" for k, v in e.fixed}
+    base = base.replace(**fixed) if fixed else base
+    logs = [f.log for f in flights]
+    space = default_space(logs, base=base, heat_axes=nominal.heat_axes, free=free)
+    identified = identify(logs, space=space, settings=pso).params
+    fit = refit(identified, flights, entries, references, settings)
     return dataclasses.replace(
         fit,
         extra={**fit.extra, "refit": "reidentify", "pso_particles": pso.particles, "pso_iterations": pso.iterations},

@@ -80,6 +80,7 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
     base_test = diag.baseline_test_residual
     base_train = diag.baseline_train_residual
     winner = diag.winner
+    detail = diag.flight_detail()
     verdict: dict[str, Any] = {
         "effect": winner.fit.ids[0] if winner is not None else None,
         "shrink_pct": winner.shrink_pct if winner is not None else 0.0,
@@ -89,6 +90,12 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
         "test_rms_c": winner.test_rms_c if winner is not None else float(np.sqrt(np.mean(base_test**2))),
         "test_peak_c": winner.test_peak_c if winner is not None else float(np.max(np.abs(base_test))),
         "segment_gain_share": diag.segment_gain,
+        "flights_confirming": [row["flight"] for row in detail if row.get("shrink_vs_control_pct", 0.0) > 0.0],
+        "segments_holding": _segments_holding(detail),
+        "per_flight": [
+            {k: row[k] for k in ("flight", "test_rms_c", "shrink_pct", "shrink_vs_control_pct") if k in row}
+            for row in detail
+        ],
     }
     return _clean(
         {
@@ -104,7 +111,9 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
             "verdict": verdict,
             "control": _effect_entry(diag.control),
             "segments": [
-                {"segment": s.name, "start_s": s.start_s, "stop_s": s.stop_s} for s in diag.segmentation.segments
+                {"flight": t.name, "segment": s.name, "start_s": s.start_s, "stop_s": s.stop_s}
+                for t in diag.tests
+                for s in t.segmentation.segments
             ],
             "regions": diag.regions,
             "correlation": diag.correlation,
@@ -124,13 +133,45 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
                 "min_shrink_pct": diag.settings.significance.min_shrink_pct,
                 "min_rms_drop_c": diag.settings.significance.min_rms_drop_c,
             },
-            "flights": {"train": diag.train.log.source, "test": diag.test.log.source},
+            "flights": {
+                "train": [f.log.source for f in diag.trains],
+                "test": [t.name for t in diag.tests],
+            },
+            "per_flight": [
+                {
+                    **row,
+                    "effects": [
+                        {"id": s.label, "test_rms_c": s.flight_rms_c[k], "shrink_pct": _shrink(row, s.flight_rms_c[k])}
+                        for s in diag.effects
+                    ],
+                }
+                for k, row in enumerate(detail)
+            ],
         }
     )
 
 
-def _segment_colours(diag: GapDiagnosis) -> list[str]:
-    return [_COLOURS[SEGMENT_NAMES[i]] for i in diag.segmentation.labels]
+def _shrink(row: dict[str, Any], rms_c: float) -> float:
+    base = row["baseline_rms_c"]
+    return 100.0 * (1.0 - rms_c / base) if base > 0 else 0.0
+
+
+def _segments_holding(detail: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """Segment -> the test flights on which the winner's RMS there is below the control's and the baseline's."""
+    out: dict[str, list[str]] = {}
+    for name in SEGMENT_NAMES:
+        flights = [row["flight"] for row in detail if row.get("segments", {}).get(name, {}).get("holds")]
+        if flights:
+            out[name] = flights
+    return out
+
+
+def _segment_colours(labels: np.ndarray) -> list[str]:
+    return [_COLOURS[SEGMENT_NAMES[i]] for i in labels]
+
+
+def _short(name: str) -> str:
+    return Path(name).name
 
 
 def _legend(ax: Any, present: set[str]) -> None:
@@ -141,34 +182,40 @@ def _legend(ax: Any, present: set[str]) -> None:
 
 
 def _plot_residual_time(diag: GapDiagnosis, path: Path) -> None:
-    t = diag.test.log.time_s / 60.0
-    present = {SEGMENT_NAMES[i] for i in np.unique(diag.segmentation.labels)}
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True, height_ratios=(1.2, 1))
-    top.plot(t, diag.test.cht_c, color="black", lw=1.0, label="measured")
-    top.plot(t, diag.baseline_test_model_c, color="tab:orange", lw=1.0, label="nominal model (open loop)")
-    top.set_ylabel("CHT, degC")
-    top.legend(loc="best", fontsize=8)
-    top.set_title("Test flight: measured vs nominal model")
-    bottom.scatter(t, diag.baseline_test_residual, c=_segment_colours(diag), s=3)
-    bottom.axhline(0.0, color="grey", lw=0.7)
-    bottom.set_ylabel("residual (meas - model), degC")
-    bottom.set_xlabel("time, min")
-    _legend(bottom, present)
+    rows = len(diag.tests)
+    fig, axes = plt.subplots(2 * rows, 1, figsize=(11, 5.5 * rows), squeeze=False, height_ratios=(1.2, 1) * rows)
+    for k, test in enumerate(diag.tests):
+        top, bottom = axes[2 * k, 0], axes[2 * k + 1, 0]
+        t = test.flight.log.time_s / 60.0
+        present = {SEGMENT_NAMES[i] for i in np.unique(test.segmentation.labels)}
+        top.plot(t, test.flight.cht_c, color="black", lw=1.0, label="measured")
+        top.plot(t, test.baseline_model_c, color="tab:orange", lw=1.0, label="nominal model (open loop)")
+        top.set_ylabel("CHT, degC")
+        top.legend(loc="best", fontsize=8)
+        top.set_title(
+            f"Test flight {_short(test.name)}: measured vs nominal model (RMS {test.baseline_rms_c:.2f} degC)"
+        )
+        bottom.scatter(t, test.baseline_residual, c=_segment_colours(test.segmentation.labels), s=3)
+        bottom.axhline(0.0, color="grey", lw=0.7)
+        bottom.set_ylabel("meas - model, degC")
+        bottom.set_xlabel("time, min")
+        _legend(bottom, present)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
 def _plot_residual_inputs(diag: GapDiagnosis, path: Path) -> None:
-    log = diag.test.log
-    names = [n for n in diag.correlation if n != "model_dTdt" and log.has(n)]
+    names = [n for n in diag.correlation if n != "model_dTdt" and all(t.flight.log.has(n) for t in diag.tests)]
     panels = [*names, "model_dTdt"]
+    labels = np.concatenate([t.segmentation.labels for t in diag.tests])
+    rate = np.concatenate([t.model_rate_c_per_s for t in diag.tests])
     cols = 3
     rows = math.ceil(len(panels) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(12, 3.4 * rows), squeeze=False)
-    colours = _segment_colours(diag)
+    colours = _segment_colours(labels)
     for ax, name in zip(axes.flat, panels, strict=False):
-        x = diag.model_rate_c_per_s if name == "model_dTdt" else np.asarray(log[name])
+        x = rate if name == "model_dTdt" else np.concatenate([np.asarray(t.flight.log[name]) for t in diag.tests])
         ax.scatter(x, diag.baseline_test_residual, c=colours, s=2)
         ax.axhline(0.0, color="grey", lw=0.7)
         label = "model dT/dt, degC/s" if name == "model_dTdt" else name
@@ -177,8 +224,8 @@ def _plot_residual_inputs(diag: GapDiagnosis, path: Path) -> None:
         ax.set_title(f"r = {diag.correlation[name]:+.2f}", fontsize=9)
     for ax in list(axes.flat)[len(panels) :]:
         ax.axis("off")
-    _legend(axes.flat[0], {SEGMENT_NAMES[i] for i in np.unique(diag.segmentation.labels)})
-    fig.suptitle("Test-flight residual of the nominal model against each input")
+    _legend(axes.flat[0], {SEGMENT_NAMES[i] for i in np.unique(labels)})
+    fig.suptitle(f"Residual of the nominal model against each input ({len(diag.tests)} test flight(s) pooled)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -194,7 +241,7 @@ def _plot_spectrum(diag: GapDiagnosis, path: Path) -> None:
 
         n = diag.winner.test_residual.size
         fw, pw = signal.welch(
-            diag.winner.test_residual, fs=1.0 / diag.test.dt_s, nperseg=int(min(1024, n)), detrend="linear"
+            diag.winner.test_residual, fs=1.0 / diag.tests[0].flight.dt_s, nperseg=int(min(1024, n)), detrend="linear"
         )
         ax.loglog(fw[1:], pw[1:], color="tab:green", label=f"residual with {diag.winner.label}")
     for period in (600.0, 60.0):
@@ -209,25 +256,31 @@ def _plot_spectrum(diag: GapDiagnosis, path: Path) -> None:
 
 
 def _plot_before_after(diag: GapDiagnosis, path: Path) -> None:
-    t = diag.test.log.time_s / 60.0
     after = diag.winner if diag.winner is not None else diag.control
     label = after.label if diag.winner is not None else "control (R_Ce, heat re-tuned; not significant)"
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
-    top.plot(t, diag.test.cht_c, color="black", lw=1.0, label="measured")
-    top.plot(t, diag.baseline_test_model_c, color="tab:orange", lw=1.0, label="before: nominal")
-    top.plot(t, diag.test.cht_c - after.test_residual, color="tab:green", lw=1.0, label=f"after: {label}")
-    top.set_ylabel("CHT, degC")
-    top.legend(loc="best", fontsize=8)
-    top.set_title("Held-out test flight, before and after (model refitted on the train flight only)")
-    base_rms = float(np.sqrt(np.mean(diag.baseline_test_residual**2)))
-    bottom.plot(t, diag.baseline_test_residual, color="tab:orange", lw=0.8, label=f"before, RMS {base_rms:.2f} degC")
-    bottom.plot(t, after.test_residual, color="tab:green", lw=0.8, label=f"after, RMS {after.test_rms_c:.2f} degC")
-    bottom.axhline(0.0, color="grey", lw=0.7)
-    bottom.set_ylabel("residual, degC")
-    bottom.set_xlabel("time, min")
-    bottom.legend(loc="best", fontsize=8)
+    rows = len(diag.tests)
+    fig, axes = plt.subplots(2 * rows, 1, figsize=(11, 5.5 * rows), squeeze=False)
+    for k, test in enumerate(diag.tests):
+        top, bottom = axes[2 * k, 0], axes[2 * k + 1, 0]
+        t = test.flight.log.time_s / 60.0
+        residual = after.flight_residuals[k]
+        top.plot(t, test.flight.cht_c, color="black", lw=1.0, label="measured")
+        top.plot(t, test.baseline_model_c, color="tab:orange", lw=1.0, label="before: nominal")
+        top.plot(t, test.flight.cht_c - residual, color="tab:green", lw=1.0, label=f"after: {label}")
+        top.set_ylabel("CHT, degC")
+        top.legend(loc="best", fontsize=8)
+        top.set_title(f"Held-out {_short(test.name)}, before and after (refitted on the train flights only)")
+        after_rms = float(np.sqrt(np.mean(residual**2)))
+        bottom.plot(
+            t, test.baseline_residual, color="tab:orange", lw=0.8, label=f"before, RMS {test.baseline_rms_c:.2f}"
+        )
+        bottom.plot(t, residual, color="tab:green", lw=0.8, label=f"after, RMS {after_rms:.2f} degC")
+        bottom.axhline(0.0, color="grey", lw=0.7)
+        bottom.set_ylabel("meas - model, degC")
+        bottom.set_xlabel("time, min")
+        bottom.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -250,11 +303,36 @@ def _params_text(score: EffectScore) -> str:
     return "; ".join(parts)
 
 
+def _flight_table(diag: GapDiagnosis, doc: dict[str, Any]) -> list[str]:
+    """Per test flight: baseline, control and winner RMS; winner shrink by segment."""
+    name = diag.winner.label if diag.winner is not None else None
+    head = "| flight | baseline RMS | control RMS |"
+    rule = "|---|---|---|"
+    if name:
+        head += f" {name} RMS | shrink vs baseline | vs control | shrink by segment (vs baseline; * = holds) |"
+        rule += "---|---|---|---|"
+    lines = [head, rule]
+    for row in doc["per_flight"]:
+        line = f"| {_short(row['flight'])} | {row['baseline_rms_c']:.2f} | {row['control_rms_c']:.2f} |"
+        if name:
+            segs = ", ".join(
+                f"{seg} {v['shrink_pct']:+.0f} %{'*' if v['holds'] else ''}" for seg, v in row["segments"].items()
+            )
+            line += (
+                f" {row['test_rms_c']:.2f} | {row['shrink_pct']:+.0f} % | {row['shrink_vs_control_pct']:+.0f} %"
+                f" | {segs} |"
+            )
+        lines.append(line)
+    return lines
+
+
 def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> str:
     base = doc["baseline"]
     verdict = doc["verdict"]
     lines = ["# Sim-to-real gap diagnosis", ""]
-    lines.append(f"Train flight (refits): `{diag.train.log.source}`; test flight (held out): `{diag.test.log.source}`.")
+    trains = ", ".join(f"`{f.log.source}`" for f in diag.trains)
+    tests = ", ".join(f"`{t.name}`" for t in diag.tests)
+    lines.append(f"Train flight(s) (refits): {trains}; test flight(s) (held out): {tests}.")
     if command:
         lines += ["", f"Command: `{command}`"]
     lines += ["", "## Verdict", ""]
@@ -265,6 +343,14 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
             f"peak {base['test_peak_c']:.1f} -> "
             f"{verdict['test_peak_c']:.1f} degC. Most of the gain is in the **{verdict['segment']}** segment. "
             f"Fitted: {_params_text(diag.winner)}. The improved model is in model.yaml."
+        )
+        confirming = verdict["flights_confirming"]
+        lines.append("")
+        lines.append(
+            f"Held-out flights on which it beats the control: {len(confirming)} of {len(diag.tests)}. "
+            "Segments where it holds (RMS below the control's and the baseline's): "
+            + ("; ".join(f"{seg} on {len(fl)} flight(s)" for seg, fl in verdict["segments_holding"].items()) or "none")
+            + "."
         )
     else:
         top = diag.where[0]
@@ -280,10 +366,14 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
         "",
         "| flight | RMS, degC | peak, degC |",
         "|---|---|---|",
-        f"| train | {base['train_rms_c']:.2f} | {base['train_peak_c']:.2f} |",
-        f"| test | {base['test_rms_c']:.2f} | {base['test_peak_c']:.2f} |",
+        f"| train ({len(diag.trains)} flight(s) end to end) | {base['train_rms_c']:.2f} | {base['train_peak_c']:.2f} |",
+        f"| test ({len(diag.tests)} flight(s) pooled) | {base['test_rms_c']:.2f} | {base['test_peak_c']:.2f} |",
         "",
-        "## Where (test flight)",
+        "## Per test flight",
+        "",
+        *_flight_table(diag, doc),
+        "",
+        "## Where (test flights pooled)",
         "",
         "| segment | share of squared error | RMS, degC | mean, degC | duration, s |",
         "|---|---|---|---|---|",
@@ -325,11 +415,12 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
     )
     lines += [
         "",
-        "## Candidate effects (refitted on the train flight, scored on the test flight)",
+        "## Candidate effects (refitted on the train flights, scored on the test flights)",
         "",
         f"Control (no effect, R_Ce and heat scale re-tuned): test RMS {diag.control.test_rms_c:.2f} degC. "
         "A candidate counts when its held-out gain over its reference (the control for a single effect, the "
-        "single effect for a pair) is significant in a block bootstrap "
+        "single effect for a pair) is significant in a bootstrap that resamples whole test flights and blocks "
+        "within them "
         f"({diag.settings.significance.block_s:.0f} s blocks, family-wise alpha {diag.settings.significance.alpha}) "
         f"and material (>= {diag.settings.significance.min_shrink_pct:.0f} % and "
         f">= {diag.settings.significance.min_rms_drop_c} degC).",

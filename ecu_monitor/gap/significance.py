@@ -1,10 +1,14 @@
 """Held-out improvement test: does a refitted candidate beat the control on the TEST flight?
 
-The statistic is the mean of the per-sample difference of squared errors on the test flight,
-``d_t = e_control(t)^2 - e_candidate(t)^2`` (> 0 where the candidate is better). The open-loop
-residuals are strongly autocorrelated (a thermal time constant of minutes), so the samples are not
-independent: the spread of the mean comes from a moving-block bootstrap (circular blocks of
-``block_s`` seconds, several thermal time constants long, resampled with replacement).
+The statistic is the mean of the per-sample difference of squared errors on the test flight(s),
+``d_t = e_control(t)^2 - e_candidate(t)^2`` (> 0 where the candidate is better), pooled over every
+sample of every test flight. The open-loop residuals are strongly autocorrelated (a thermal time
+constant of minutes), so the samples are not independent: the spread of the mean comes from a
+moving-block bootstrap (circular blocks of ``block_s`` seconds, several thermal time constants long,
+resampled with replacement). With several test flights the bootstrap is two-level: each resample
+draws whole flights with replacement (flights differ by day, weather, pilot: the gain on one flight
+says little about the next), then blocks within each drawn flight; the resampled statistic is the
+pooled mean over the samples drawn. With one test flight it is the plain block bootstrap.
 
 A candidate counts only when it is both
 
@@ -21,6 +25,7 @@ out-of-library cases stay null.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,28 +80,59 @@ class ImprovementTest:
         return self.significant and self.material
 
 
+def _block_sums(gain: np.ndarray, block: int, resamples: int, rng: np.random.Generator) -> np.ndarray:
+    """Sums of ``resamples`` circular block-bootstrap copies of ``gain`` (each of the original length)."""
+    n = gain.size
+    block = int(min(max(1, block), n))
+    n_blocks = math.ceil(n / block)
+    # prefix sums over the doubled series: a circular block's sum in O(1)
+    prefix = np.concatenate([[0.0], np.cumsum(np.concatenate([gain, gain]))])
+    starts = rng.integers(0, n, size=(resamples, n_blocks))
+    lengths = np.full(n_blocks, block)
+    lengths[-1] = n - block * (n_blocks - 1)
+    return np.sum(prefix[starts + lengths[None, :]] - prefix[starts], axis=1)
+
+
+def _as_flights(residual: np.ndarray | Sequence[np.ndarray]) -> list[np.ndarray]:
+    if isinstance(residual, np.ndarray) and residual.ndim == 1:
+        return [np.asarray(residual, dtype=float)]
+    return [np.asarray(r, dtype=float) for r in residual]
+
+
 def improvement_test(
-    reference_residual: np.ndarray,
-    candidate_residual: np.ndarray,
+    reference_residual: np.ndarray | Sequence[np.ndarray],
+    candidate_residual: np.ndarray | Sequence[np.ndarray],
     dt_s: float,
     n_tests: int = 1,
     settings: SignificanceSettings | None = None,
 ) -> ImprovementTest:
-    """Block-bootstrap test that ``candidate_residual`` beats ``reference_residual`` (both (N,), degC)."""
+    """Bootstrap test that ``candidate_residual`` beats ``reference_residual`` (degC): each one (N,)
+    array for one test flight, or a sequence of them, one per test flight (flights and blocks
+    resampled, module doc)."""
     settings = settings or SignificanceSettings()
-    ref = np.asarray(reference_residual, dtype=float)
-    cand = np.asarray(candidate_residual, dtype=float)
-    if ref.shape != cand.shape or ref.ndim != 1 or ref.size < 2:
-        raise ParameterError("improvement_test: residuals must be 1-D arrays of equal length >= 2")
-    gain = ref**2 - cand**2
-    n = gain.size
-    block = int(min(max(1, round(settings.block_s / dt_s)), n))
-    n_blocks = math.ceil(n / block)
+    refs = _as_flights(reference_residual)
+    cands = _as_flights(candidate_residual)
+    if (
+        not refs
+        or len(refs) != len(cands)
+        or any(r.shape != c.shape or r.ndim != 1 or r.size < 2 for r, c in zip(refs, cands, strict=True))
+    ):
+        raise ParameterError("improvement_test: residuals must be 1-D arrays of equal length >= 2, flight by flight")
+    gains = [r**2 - c**2 for r, c in zip(refs, cands, strict=True)]
     rng = np.random.default_rng(settings.seed)
-    starts = rng.integers(0, n, size=(settings.resamples, n_blocks))
-    index = (starts[:, :, None] + np.arange(block)[None, None, :]) % n
-    index = index.reshape(settings.resamples, -1)[:, :n]
-    means = gain[index].mean(axis=1)
+    block = round(settings.block_s / dt_s)
+    sums = np.stack([_block_sums(g, block, settings.resamples, rng) for g in gains])  # (F, R)
+    sizes = np.array([g.size for g in gains], dtype=float)
+    n_flights = len(gains)
+    if n_flights == 1:
+        means = sums[0] / sizes[0]
+    else:
+        drawn = rng.integers(0, n_flights, size=(settings.resamples, n_flights))
+        column = rng.integers(0, settings.resamples, size=(settings.resamples, n_flights))
+        means = sums[drawn, column].sum(axis=1) / sizes[drawn].sum(axis=1)
+    ref = np.concatenate(refs)
+    cand = np.concatenate(cands)
+    gain = np.concatenate(gains)
     level = settings.alpha / max(n_tests, 1)
     lower = float(np.quantile(means, level))
     mean_gain = float(gain.mean())
