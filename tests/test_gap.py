@@ -83,6 +83,27 @@ def test_improvement_test_separates_real_gain_from_noise() -> None:
         improvement_test(base, base[:-1], 1.0)
 
 
+def test_improvement_test_resamples_whole_flights() -> None:
+    rng = np.random.default_rng(2)
+    walks = [np.cumsum(rng.normal(0.0, 0.1, 2400)) + 2.0 for _ in range(3)]
+    flights = [3.0 * w / np.sqrt(np.mean(w**2)) for w in walks]  # 3 degC RMS each
+    # better on every flight: significant, and one flight alone gives the plain block bootstrap
+    better = improvement_test(flights, [0.5 * f for f in flights], 1.0)
+    assert better.counts and better.shrink_pct == pytest.approx(50.0)
+    single = improvement_test(flights[0], 0.5 * flights[0], 1.0)
+    assert single == improvement_test([flights[0]], [0.5 * flights[0]], 1.0)
+    # much better on one flight, a little worse on the two others: the pooled gain is positive, but
+    # a resample that draws only the two other flights says it may not hold on the next flight
+    mixed = [0.05 * flights[0], 1.1 * flights[1], 1.1 * flights[2]]
+    pooled = improvement_test(flights, mixed, 1.0)
+    assert pooled.mean_gain_c2 > 0.0
+    assert pooled.p_value > 0.1 and not pooled.significant
+    blocks_only = improvement_test(np.concatenate(flights), np.concatenate(mixed), 1.0)
+    assert blocks_only.p_value < pooled.p_value
+    with pytest.raises(ParameterError):
+        improvement_test(flights, mixed[:2], 1.0)
+
+
 def test_ljung_box_and_lag_signature() -> None:
     rng = np.random.default_rng(1)
     white = rng.normal(size=2000)

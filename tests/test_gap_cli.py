@@ -9,8 +9,10 @@ import pytest
 
 from ecu_monitor.cli import main
 from ecu_monitor.flightlog import write_csv
-from ecu_monitor.model import load_model, save_model
+from ecu_monitor.model import load_model, paper_table_a1, save_model
 from ecu_monitor.research.blind import blind_case
+from virtual_bus.missions import random_mission
+from virtual_bus.plant import fly
 
 SEED = 1
 DURATION_S = 1500.0
@@ -18,23 +20,32 @@ DURATION_S = 1500.0
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Train/test CSVs of a blind sensor-lag case and the case's (perturbed) nominal model."""
+    """Train/test CSVs of a blind sensor-lag case, a second train and a second test flight of the same
+    truth on other missions, and the case's (perturbed) nominal model."""
     case = blind_case(3, SEED, DURATION_S)
     root = tmp_path_factory.mktemp("gapcli")
     write_csv(case.train, root / "train.csv")
     write_csv(case.test, root / "test.csv")
+    truth = paper_table_a1().replace(effects=case.effects)
+    for name, mission in (("train2", 11), ("test2", 12)):
+        log = fly(random_mission(mission, DURATION_S), truth, seed=mission, record_dt_s=1.0)
+        write_csv(log, root / f"{name}.csv")
     save_model(case.nominal, root / "nominal.yaml")
     (root / "bad.yaml").write_text("c_w: -3\n", encoding="utf-8")
     return {
         "train": root / "train.csv",
         "test": root / "test.csv",
+        "train2": root / "train2.csv",
+        "test2": root / "test2.csv",
         "model": root / "nominal.yaml",
         "bad": root / "bad.yaml",
         "root": root,
     }
 
 
-def test_gap_cli_writes_gap_json_report_and_model(flights: dict[str, Path], capsys: pytest.CaptureFixture) -> None:
+def test_gap_cli_many_flights_writes_gap_json_report_and_model(
+    flights: dict[str, Path], capsys: pytest.CaptureFixture
+) -> None:
     out = flights["root"] / "out"
     code = main(
         [
@@ -43,8 +54,10 @@ def test_gap_cli_writes_gap_json_report_and_model(flights: dict[str, Path], caps
             str(flights["model"]),
             "--train",
             str(flights["train"]),
+            str(flights["train2"]),
             "--test",
             str(flights["test"]),
+            str(flights["test2"]),
             "--out",
             str(out),
         ]
@@ -54,13 +67,36 @@ def test_gap_cli_writes_gap_json_report_and_model(flights: dict[str, Path], caps
     assert "sensor_lag" in captured.out
     assert "gap: refit: sensor_lag" in captured.err  # progress on stderr
     doc = json.loads((out / "gap.json").read_text())
-    assert doc["verdict"]["effect"] == "sensor_lag"
+    assert doc["flights"]["train"] == [str(flights["train"]), str(flights["train2"])]
+    assert doc["flights"]["test"] == [str(flights["test"]), str(flights["test2"])]
+    verdict = doc["verdict"]
+    assert verdict["effect"] == "sensor_lag"
     assert [e["test_rms_c"] for e in doc["effects"]] == sorted(e["test_rms_c"] for e in doc["effects"])
+    # pooled = over both test flights; per flight beside it, each better than the baseline
+    rows = doc["per_flight"]
+    assert [r["flight"] for r in rows] == doc["flights"]["test"]
+    pooled_sq = sum(r["baseline_rms_c"] ** 2 * r["samples"] for r in rows) / sum(r["samples"] for r in rows)
+    assert doc["baseline"]["test_rms_c"] == pytest.approx(pooled_sq**0.5, rel=1e-9)
+    assert all(r["test_rms_c"] < r["baseline_rms_c"] for r in rows)
+    assert verdict["flights_confirming"] == doc["flights"]["test"]
+    assert set(verdict["segments_holding"]) <= {"ground", "climb", "cruise", "descent"}
+    for r in rows:
+        assert {e["id"] for e in r["effects"]} == {e["id"] for e in doc["effects"]}
     model = load_model(out / "model.yaml")
     assert model.effects.sensor_lag is not None
-    assert (out / "report.md").read_text().startswith("# Sim-to-real gap diagnosis")
+    report = (out / "report.md").read_text()
+    assert report.startswith("# Sim-to-real gap diagnosis") and "## Per test flight" in report
     for name in ("residual_time.png", "residual_inputs.png", "spectrum.png", "before_after.png"):
         assert (out / name).stat().st_size > 10_000
+
+
+def test_gap_cli_checks_the_output_before_the_work(flights: dict[str, Path], capsys: pytest.CaptureFixture) -> None:
+    blocker = flights["root"] / "a-file"
+    blocker.write_text("not a directory\n", encoding="utf-8")
+    args = ["gap", "--model", str(flights["model"]), "--train", str(flights["train"]), "--test", str(flights["test"])]
+    assert main([*args, "--out", str(blocker / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write the output directory" in err and "refit" not in err and "Traceback" not in err
 
 
 def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
@@ -84,6 +120,8 @@ def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
         (["--test", "{test}", "--heat-axes", "rpm"], "--heat-axes"),
         (["--split-at", "5"], "--split-at"),
         (["--test", "{test}", "--test-first"], "--test-first"),
+        (["--test", "{train}"], "given twice"),
+        (["--test", "{test}", "--split-at", "700"], "--split-at"),
     ],
 )
 def test_gap_cli_bad_input_exits_2(
@@ -92,7 +130,7 @@ def test_gap_cli_bad_input_exits_2(
     args = ["gap", "--train", str(flights["train"]), "--out", str(flights["root"] / "bad-out")]
     if "--model" not in extra:
         args += ["--model", str(flights["model"])]
-    filled = [a.format(test=flights["test"], bad=flights["bad"]) for a in extra]
+    filled = [a.format(test=flights["test"], train=flights["train"], bad=flights["bad"]) for a in extra]
     assert main(args + filled) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]

@@ -52,7 +52,14 @@ from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings, 
 from ecu_monitor.identify import PsoSettings
 from ecu_monitor.model import ThermalParams
 
-__all__ = ["EffectScore", "GapDiagnosis", "GapSettings", "diagnose"]
+__all__ = ["JOINT_REFIT", "EffectScore", "GapDiagnosis", "GapSettings", "HeldOutFlight", "diagnose"]
+
+#: The re-identification of "reidentify" mode: no swarm iterations, so the best of the initial swarm
+#: (the given nominal model with the candidate switched on at its neutral start is one of its
+#: particles) is polished by least squares jointly over the whole model and the candidate. On the
+#: real flights this gave the same held-out scores as a full PSO run (48 particles x 120 iterations)
+#: at a third of the time (docs/results/gap_real.md); pass ``pso=PsoSettings()`` for the full search.
+JOINT_REFIT = PsoSettings(particles=4, iterations=0)
 
 Progress = Callable[[str], None]
 
@@ -63,7 +70,8 @@ class GapSettings:
 
     refit_mode "local" (default) refits the candidate's parameters and two nominal factors from the
     nominal model (:func:`ecu_monitor.gap.refit.refit`); "reidentify" re-identifies the whole nominal
-    model jointly with them (:func:`ecu_monitor.gap.refit.reidentify`, PSO with ``pso``), the choice
+    model jointly with them (:func:`ecu_monitor.gap.refit.reidentify`, with ``pso``: by default
+    :data:`JOINT_REFIT`, a joint least-squares refit from the given model), the choice
     when the nominal model was identified on the train flight itself.
 
     Pairs are tried when the best single effect leaves a test RMS above ``pair_threshold_c`` (degC);
@@ -80,7 +88,7 @@ class GapSettings:
     pair_min_shrink_pct: float = 30.0
     whiteness_estimator: str | None = "cbekf-au"
     refit_mode: str = "local"
-    pso: PsoSettings = field(default_factory=PsoSettings)
+    pso: PsoSettings = field(default_factory=lambda: JOINT_REFIT)
 
     def __post_init__(self) -> None:
         for cid in self.candidates:
@@ -200,6 +208,7 @@ class GapDiagnosis:
             row: dict[str, Any] = {
                 "flight": test.name,
                 "duration_s": float(test.flight.log.duration_s),
+                "samples": int(base.size),
                 "baseline_rms_c": _rms(base),
                 "baseline_peak_c": float(np.max(np.abs(base))),
                 "control_rms_c": _rms(control),
