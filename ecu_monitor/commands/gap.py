@@ -33,7 +33,7 @@ from ecu_monitor.commands.identify import parse_heat_axes
 from ecu_monitor.errors import ConfigError, UserInputError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, diagnose, write_report
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidates_for
 from ecu_monitor.identify import PsoSettings, identify, model_inputs
 from ecu_monitor.model import load_model
 
@@ -61,7 +61,8 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument(
         "--candidates",
         metavar="IDS",
-        help=f"comma-separated candidate effects (default {','.join(DEFAULT_CANDIDATE_IDS)};"
+        help=f"comma-separated candidate effects (default {','.join(DEFAULT_CANDIDATE_IDS)},"
+        " and no_altitude_factor with a heat map on fuel flow;"
         f" known: {','.join(CANDIDATE_IDS)})",
     )
     parser.add_argument(
@@ -121,15 +122,21 @@ def _writable_out(path: str) -> Path:
     return out
 
 
-def _settings(args: argparse.Namespace) -> GapSettings:
-    mode = args.refit or ("local" if args.model or args.blind is not None else "reidentify")
+def _candidate_ids(args: argparse.Namespace) -> tuple[str, ...] | None:
+    """The ids named by --candidates (None: not given); UserInputError if one is unknown."""
     if not args.candidates:
-        return GapSettings(refit_mode=mode)
+        return None
     ids = tuple(c.strip() for c in args.candidates.split(",") if c.strip())
     unknown = [c for c in ids if c not in CANDIDATE_IDS]
     if unknown or not ids:
         raise UserInputError(f"--candidates: unknown effect(s) {unknown or ids} (known: {', '.join(CANDIDATE_IDS)})")
-    return GapSettings(candidates=ids, refit_mode=mode)
+    return ids
+
+
+def _settings(args: argparse.Namespace, candidates: tuple[str, ...] | None = None) -> GapSettings:
+    mode = args.refit or ("local" if args.model or args.blind is not None else "reidentify")
+    ids = _candidate_ids(args) or candidates
+    return GapSettings(refit_mode=mode) if ids is None else GapSettings(candidates=ids, refit_mode=mode)
 
 
 def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
@@ -167,9 +174,9 @@ def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    settings = _settings(args)
     if args.blind is not None:
-        return _run_blind(args, settings)
+        return _run_blind(args, _settings(args))
+    _candidate_ids(args)  # a bad --candidates fails before the flights are read
     trains, tests = _flights(args)
     nominal = load_model(args.model) if args.model else None
     if nominal is not None and args.heat_axes and parse_heat_axes(args.heat_axes) != nominal.heat_axes:
@@ -181,6 +188,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     for log in (*trains, *tests):
         model_inputs(log, axes)  # fail early, naming the flight and the missing column
+    settings = _settings(args, candidates_for(axes, [*trains, *tests]))
     _writable_out(args.out)
     started = time.perf_counter()
     if nominal is None:

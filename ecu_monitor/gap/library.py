@@ -57,6 +57,7 @@ __all__ = [
     "Candidate",
     "FreeParameter",
     "candidate",
+    "candidates_for",
     "effects_for",
     "flight_references",
 ]
@@ -159,6 +160,17 @@ DEFAULT_CANDIDATE_IDS: tuple[str, ...] = (
     "sensor_lag",
     "mixture_cooling",
 )
+
+
+def candidates_for(heat_axes: Sequence[str], flights: Sequence[FlightLog]) -> tuple[str, ...]:
+    """The candidates tried when the user names none: :data:`DEFAULT_CANDIDATE_IDS`, plus the removal
+    ``no_altitude_factor`` when the heat map is on fuel flow (the fuel flow already carries the charge
+    density that the altitude factor models: the paper's form may double-count it)."""
+    del flights  # the choice depends on the logged columns only through the heat axes today
+    ids = list(DEFAULT_CANDIDATE_IDS)
+    if "fuel_flow_lph" in heat_axes:
+        ids.append("no_altitude_factor")
+    return tuple(ids)
 
 
 def candidate(candidate_id: str) -> Candidate:
