@@ -1,21 +1,23 @@
-"""Wall time of a whole gap diagnosis on two one-hour flights, against the same refit on the numpy model.
+"""Wall time of a whole gap diagnosis on four train and three test flights of about 100 minutes each,
+against the same refit on the numpy model in the same run.
 
-    .venv/bin/python benchmarks/bench_gap.py [--duration 3600] [--seed 7]
+    .venv/bin/python benchmarks/bench_gap.py [--duration 6000] [--train 4] [--test 3] [--seed 7]
 
-Two virtual-ECU flights of about ``--duration`` seconds on different random missions with a sensor
-lag (8 s) and airspeed cooling in the truth (so the greedy pair stage runs too), a perturbed nominal
-model (as in the blind cases), then:
+Seven virtual-ECU flights of about ``--duration`` seconds on different random missions, with a sensor
+lag (8 s) and airspeed cooling in the truth (so the greedy pair stage runs too), and a perturbed
+nominal model (as in the blind cases); then, timed as ``ecu-monitor gap`` runs them:
 
-* the whole diagnosis with every library candidate (``CANDIDATE_IDS``, the opt-in one included):
-  baseline, localisation (incl. the CBEKF-AU innovations), control, every single refit, pairs,
-  significance tests; plus writing gap.json, report.md, four plots and model.yaml;
-* the command's path without ``--model``: PSO identification of the nominal model on the train
-  flight, then the diagnosis with every candidate re-identified jointly with the model (PSO each);
-* the baseline measured in the same run: ONE single-effect refit (sensor_lag) with the plain numpy
-  model loop (``RefitSettings(engine="numpy")``) against the same refit with the compiled swarm
-  simulator, reported as a ratio.
+* with ``--model`` (local refits): baseline, localisation (incl. the CBEKF-AU innovations on every
+  test flight), control, the default candidates, pairs, significance tests (flights and blocks
+  resampled); plus writing gap.json, report.md, the plots and model.yaml;
+* without ``--model``: PSO identification of the nominal model on the train flights, then every
+  candidate refitted jointly with the whole model (``--refit reidentify``, the command's default
+  then), and the report;
+* the baseline measured in the same run: ONE single-effect refit (sensor_lag) on the first train
+  flight with the plain numpy model loop (``RefitSettings(engine="numpy")``) against the same refit
+  with the compiled swarm simulator, reported as a ratio.
 
-Compile time is excluded (one warm-up diagnosis on a short flight first; numba caches on disk).
+Compile time is excluded (one warm-up diagnosis on short flights first; numba caches on disk).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import time
 import numpy as np
 
 from ecu_monitor.gap import GapSettings, diagnose, write_report
-from ecu_monitor.gap.library import CANDIDATE_IDS, candidate, flight_references
+from ecu_monitor.gap.library import candidate, candidates_for, flight_references
 from ecu_monitor.gap.refit import RefitSettings, prepare_flight, refit
 from ecu_monitor.identify import identify
 from ecu_monitor.model import AirspeedCooling, Effects, SensorLag, paper_table_a1
@@ -39,59 +41,64 @@ from virtual_bus.plant import fly
 def main() -> None:
     """Run the benchmark and print the table rows."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--duration", type=float, default=3600.0)
+    parser.add_argument("--duration", type=float, default=6000.0)
+    parser.add_argument("--train", type=int, default=4)
+    parser.add_argument("--test", type=int, default=3)
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
     truth = paper_table_a1()
     effects = Effects(sensor_lag=SensorLag(8.0), airspeed_cooling=AirspeedCooling(0.02, floor=0.45))
     nominal = perturbed_nominal(truth, np.random.default_rng(args.seed))
-    settings = GapSettings(candidates=CANDIDATE_IDS)
+    ids = candidates_for(nominal.heat_axes, [])
+    local = GapSettings(candidates=ids)
 
-    warm_train = fly(random_mission(1, 900.0), truth, effects=effects, seed=1, record_dt_s=1.0)
-    warm_test = fly(random_mission(2, 900.0), truth, effects=effects, seed=2, record_dt_s=1.0)
-    diagnose(nominal, warm_train, warm_test, settings)
+    warm = [fly(random_mission(s, 900.0), truth, effects=effects, seed=s, record_dt_s=1.0) for s in (1, 2, 3)]
+    diagnose(nominal, warm[:2], warm[2:], local)
 
-    train = fly(random_mission(args.seed, args.duration), truth, effects=effects, seed=args.seed, record_dt_s=1.0)
-    test = fly(
-        random_mission(args.seed + 1, args.duration), truth, effects=effects, seed=args.seed + 1, record_dt_s=1.0
-    )
-    print(f"flights: train {train.duration_s:.0f} s, test {test.duration_s:.0f} s, {len(train) + len(test)} samples")
+    flights = [
+        fly(random_mission(args.seed + k, args.duration), truth, effects=effects, seed=args.seed + k, record_dt_s=1.0)
+        for k in range(args.train + args.test)
+    ]
+    trains, tests = flights[: args.train], flights[args.train :]
+    minutes = [f"{f.duration_s / 60:.0f}" for f in flights]
+    print(f"flights: {args.train} train + {args.test} test, {', '.join(minutes)} min, {sum(map(len, flights))} samples")
 
     started = time.perf_counter()
-    diag = diagnose(nominal, train, test, settings)
-    diagnose_s = time.perf_counter() - started
+    diag = diagnose(nominal, trains, tests, local)
     with tempfile.TemporaryDirectory() as out:
-        started = time.perf_counter()
         write_report(diag, out)
-        report_s = time.perf_counter() - started
+    local_s = time.perf_counter() - started
     fits = 1 + len(diag.effects)
-    print(f"diagnosis, {len(CANDIDATE_IDS)} candidates, {fits} refits (control + singles + pairs): {diagnose_s:.1f} s")
-    print(f"report (gap.json, report.md, 4 plots, model.yaml): {report_s:.1f} s")
-    print(f"total: {diagnose_s + report_s:.1f} s; verdict {diag.winner.label if diag.winner else 'unexplained'}")
+    verdict = diag.winner.label if diag.winner else "unexplained"
+    print(f"with --model: {len(ids)} candidates, {fits} refits, report: {local_s:.1f} s; verdict {verdict}")
 
     started = time.perf_counter()
-    nominal_identified = identify([train], heat_axes=nominal.heat_axes).params
+    identified = identify(trains, heat_axes=nominal.heat_axes).params
     identify_s = time.perf_counter() - started
-    started = time.perf_counter()
-    diag_pso = diagnose(nominal_identified, train, test, GapSettings(candidates=CANDIDATE_IDS, refit_mode="reidentify"))
-    reidentify_s = time.perf_counter() - started
+    joint = GapSettings(candidates=ids, refit_mode="reidentify")
+    diag_joint = diagnose(identified, trains, tests, joint)
+    with tempfile.TemporaryDirectory() as out:
+        write_report(diag_joint, out)
+    total_s = time.perf_counter() - started
+    verdict = diag_joint.winner.label if diag_joint.winner else "unexplained"
     print(
-        f"without --model: identify nominal {identify_s:.1f} s + diagnosis with PSO re-identification per candidate"
-        f" {reidentify_s:.1f} s = {identify_s + reidentify_s:.1f} s;"
-        f" verdict {diag_pso.winner.label if diag_pso.winner else 'unexplained'}"
+        f"without --model: identify {identify_s:.1f} s + joint refits and report {total_s - identify_s:.1f} s"
+        f" = {total_s:.1f} s; verdict {verdict}"
     )
 
-    refs = flight_references(train)
+    refs = flight_references(trains[0])
     timings = {}
     for engine in ("compiled", "numpy"):
         rs = RefitSettings(engine=engine)
-        flight = prepare_flight(train, nominal.heat_axes, rs.dt_s)
+        flight = prepare_flight(trains[0], nominal.heat_axes, rs.dt_s)
         started = time.perf_counter()
         fit = refit(nominal, flight, [candidate("sensor_lag")], refs, rs)
         timings[engine] = (time.perf_counter() - started, fit.evaluations, fit.values["sensor_lag"]["time_constant_s"])
     comp, nump = timings["compiled"], timings["numpy"]
-    print(f"sensor_lag refit, compiled swarm: {comp[0]:.2f} s ({comp[1]} evaluations, tau {comp[2]:.2f} s)")
-    print(f"sensor_lag refit, numpy model loop: {nump[0]:.2f} s ({nump[1]} evaluations, tau {nump[2]:.2f} s)")
+    print(f"sensor_lag refit, one flight, compiled swarm: {comp[0]:.2f} s ({comp[1]} evaluations, tau {comp[2]:.2f} s)")
+    print(
+        f"sensor_lag refit, one flight, numpy model loop: {nump[0]:.2f} s ({nump[1]} evaluations, tau {nump[2]:.2f} s)"
+    )
     print(f"ratio numpy / compiled: {nump[0] / comp[0]:.0f}x")
 
 

@@ -15,7 +15,8 @@ reidentify``: the nominal heat map has absorbed what it could of any effect on t
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
 with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
 the other way round). ``--blind N`` runs N generated blind cases on the virtual ECU instead and
-writes DIR/blind.json and DIR/blind.md (scores and confusion matrix).
+writes DIR/blind.json and DIR/blind.md (scores and confusion matrix); ``--blind N --forms`` the
+non-circular ones (truths of a form the library does not hold; DIR/forms.json, DIR/forms.md).
 """
 
 from __future__ import annotations
@@ -72,6 +73,11 @@ def add_subparser(subparsers: Any) -> None:
         " reidentify: PSO re-identification of the whole model jointly with each effect (default without --model)",
     )
     parser.add_argument("--blind", type=int, metavar="N", help="run N blind cases on the virtual ECU instead")
+    parser.add_argument(
+        "--forms",
+        action="store_true",
+        help="with --blind: the non-circular cases (truth forms the library does not hold; DIR/forms.md)",
+    )
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the blind cases (default 0)")
     parser.add_argument("--duration", type=float, default=3600.0, metavar="S", help="blind-case flight length, s")
     parser.set_defaults(func=_run)
@@ -139,14 +145,49 @@ def _settings(args: argparse.Namespace, candidates: tuple[str, ...] | None = Non
     return GapSettings(refit_mode=mode) if ids is None else GapSettings(candidates=ids, refit_mode=mode)
 
 
-def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
-    from ecu_monitor.research.blind import blind_markdown, confusion_matrix, run_blind_cases, summary
-
+def _check_blind(args: argparse.Namespace) -> Path:
     if args.blind < 1:
         raise UserInputError(f"--blind: expected a positive number of cases, got {args.blind}")
     if args.duration < 600.0:
         raise UserInputError(f"--duration: expected at least 600 s, got {args.duration:g}")
-    out = _writable_out(args.out)
+    return _writable_out(args.out)
+
+
+def _run_forms(args: argparse.Namespace, settings: GapSettings) -> int:
+    from ecu_monitor.research.blind_forms import forms_markdown, forms_summary, run_form_cases
+
+    out = _check_blind(args)
+    started = time.perf_counter()
+
+    def progress(result: Any) -> None:
+        c = result.case
+        _say(
+            f"case {c.index + 1}/{args.blind} {c.kind}: expected {'+'.join(c.expected) or 'null'},"
+            f" verdict {'+'.join(result.verdict) or 'null'} {'ok' if result.right else 'WRONG'}"
+            f" ({time.perf_counter() - started:.0f} s)"
+        )
+
+    results = run_form_cases(args.blind, args.seed, args.duration, settings, progress)
+    command = "ecu-monitor " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
+    doc = {
+        "seed": args.seed,
+        "duration_s": args.duration,
+        "summary": forms_summary(results),
+        "cases": [r.to_dict() for r in results],
+    }
+    (out / "forms.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    (out / "forms.md").write_text(forms_markdown(results, command), encoding="utf-8")
+    right = sum(r.right for r in results)
+    print(f"non-circular blind cases: {right}/{len(results)} verdicts right; {out / 'forms.md'}")
+    return 0
+
+
+def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
+    from ecu_monitor.research.blind import blind_markdown, confusion_matrix, run_blind_cases, summary
+
+    if args.forms:
+        return _run_forms(args, settings)
+    out = _check_blind(args)
     started = time.perf_counter()
 
     def progress(result: Any) -> None:
@@ -194,7 +235,13 @@ def _run(args: argparse.Namespace) -> int:
     if nominal is None:
         names = ", ".join(log.source for log in trains)
         _say(f"no --model: identifying the nominal model on {names} (PSO, heat axes {','.join(axes)})")
-        nominal = identify(trains, heat_axes=axes, settings=PsoSettings()).params
+        pso = PsoSettings()
+
+        def identifying(iteration: int, best: float, elapsed: float) -> None:
+            if iteration % 20 == 0 or iteration == pso.iterations:
+                _say(f"identify: iteration {iteration}/{pso.iterations}, RMS {best:.2f} degC ({elapsed:.0f} s)")
+
+        nominal = identify(trains, heat_axes=axes, settings=pso, progress=identifying).params
         _say(f"identified in {time.perf_counter() - started:.1f} s")
     diag = diagnose(nominal, trains, tests, settings, progress=_say)
     command = "ecu-monitor " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
