@@ -90,6 +90,20 @@ def test_gap_cli_many_flights_writes_gap_json_report_and_model(
         assert (out / name).stat().st_size > 10_000
 
 
+def test_gap_cli_leave_one_out_pools_every_held_out_flight(flights: dict[str, Path]) -> None:
+    out = flights["root"] / "loo"
+    paths = [str(flights[name]) for name in ("train", "train2", "test")]
+    args = ["gap", "--model", str(flights["model"]), "--train", *paths, "--leave-one-out"]
+    assert main([*args, "--candidates", "sensor_lag,density_cooling", "--out", str(out)]) == 0
+    doc = json.loads((out / "gap.json").read_text())
+    assert doc["flights"]["cross_validation"] == "leave-one-flight-out"
+    assert doc["flights"]["test"] == paths and [r["flight"] for r in doc["per_flight"]] == paths
+    assert doc["verdict"]["effect"] == "sensor_lag"
+    assert all(r["test_rms_c"] < r["control_rms_c"] for r in doc["per_flight"])
+    # model.yaml: the winner refitted on all three flights
+    assert load_model(out / "model.yaml").effects.sensor_lag is not None
+
+
 def test_gap_cli_checks_the_output_before_the_work(flights: dict[str, Path], capsys: pytest.CaptureFixture) -> None:
     blocker = flights["root"] / "a-file"
     blocker.write_text("not a directory\n", encoding="utf-8")
@@ -122,6 +136,8 @@ def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
         (["--test", "{test}", "--test-first"], "--test-first"),
         (["--test", "{train}"], "given twice"),
         (["--test", "{test}", "--split-at", "700"], "--split-at"),
+        (["--leave-one-out"], "at least two"),
+        (["--test", "{test}", "--leave-one-out"], "--leave-one-out"),
     ],
 )
 def test_gap_cli_bad_input_exits_2(

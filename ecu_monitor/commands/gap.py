@@ -12,7 +12,10 @@ when unexplained).
 Without ``--model`` the nominal model is identified on the train flights (PSO, ``--heat-axes`` as for
 identify) and each candidate is then re-identified jointly with the whole model (``--refit
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
-with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--split-at S``
+with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--leave-one-out``
+with ``--train A B ...`` alone holds out each flight in turn (every candidate refitted on the others,
+from a nominal model identified on the others when ``--model`` is not given) and pools the scores
+over all the held-out flights; model.yaml is then the winner refitted on all of them. ``--split-at S``
 with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
 the other way round). ``--blind N`` runs N generated blind cases on the virtual ECU instead and
 writes DIR/blind.json and DIR/blind.md (scores and confusion matrix); ``--blind N --forms`` the
@@ -33,10 +36,10 @@ from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.commands.identify import parse_heat_axes
 from ecu_monitor.errors import ConfigError, UserInputError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, diagnose, write_report
+from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, cross_validate, diagnose, write_report
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidates_for
 from ecu_monitor.identify import PsoSettings, identify, model_inputs
-from ecu_monitor.model import load_model
+from ecu_monitor.model import ThermalParams, load_model
 
 __all__ = ["add_subparser"]
 
@@ -52,6 +55,11 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--model", metavar="MODEL.yaml", help="nominal model (default: identified on --train)")
     parser.add_argument("--train", nargs="+", metavar="A.csv", help="flight(s) the candidate effects are refitted on")
     parser.add_argument("--test", nargs="+", metavar="C.csv", help="held-out flight(s) they are scored on")
+    parser.add_argument(
+        "--leave-one-out",
+        action="store_true",
+        help="with --train A B ... only: hold out each flight in turn (refits on the others), pool the scores",
+    )
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
         "--heat-axes", metavar="COL,COL", help="heat-map axes when identifying (default throttle_pct,rpm)"
@@ -96,6 +104,12 @@ def _flights(args: argparse.Namespace) -> tuple[list[FlightLog], list[FlightLog]
     repeated = sorted({path for path in named if named.count(path) > 1})
     if repeated:
         raise UserInputError(f"gap: {repeated[0]}: given twice (a flight is either train or test, once)")
+    if args.leave_one_out:
+        if args.test or args.split_at is not None:
+            raise UserInputError("gap: --leave-one-out takes its flights from --train alone (no --test, --split-at)")
+        if len(args.train) < 2:
+            raise UserInputError("gap: --leave-one-out needs at least two --train flights")
+        return [load_flight(path, mapping=args.mapping) for path in args.train], []
     if args.split_at is not None:
         if args.test:
             raise UserInputError("gap: give either --test or --split-at, not both")
@@ -214,6 +228,22 @@ def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
     return 0
 
 
+def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> ThermalParams:
+    """The nominal model identified on ``flights`` (PSO), with progress on stderr."""
+    names = ", ".join(log.source for log in flights)
+    _say(f"{label}no --model: identifying the nominal model on {names} (PSO, heat axes {','.join(axes)})")
+    pso = PsoSettings()
+    started = time.perf_counter()
+
+    def identifying(iteration: int, best: float, elapsed: float) -> None:
+        if iteration % 20 == 0 or iteration == pso.iterations:
+            _say(f"{label}identify: iteration {iteration}/{pso.iterations}, RMS {best:.2f} degC ({elapsed:.0f} s)")
+
+    params = identify(flights, heat_axes=axes, settings=pso, progress=identifying).params
+    _say(f"{label}identified in {time.perf_counter() - started:.1f} s")
+    return params
+
+
 def _run(args: argparse.Namespace) -> int:
     if args.blind is not None:
         return _run_blind(args, _settings(args))
@@ -232,18 +262,16 @@ def _run(args: argparse.Namespace) -> int:
     settings = _settings(args, candidates_for(axes, [*trains, *tests]))
     _writable_out(args.out)
     started = time.perf_counter()
-    if nominal is None:
-        names = ", ".join(log.source for log in trains)
-        _say(f"no --model: identifying the nominal model on {names} (PSO, heat axes {','.join(axes)})")
-        pso = PsoSettings()
-
-        def identifying(iteration: int, best: float, elapsed: float) -> None:
-            if iteration % 20 == 0 or iteration == pso.iterations:
-                _say(f"identify: iteration {iteration}/{pso.iterations}, RMS {best:.2f} degC ({elapsed:.0f} s)")
-
-        nominal = identify(trains, heat_axes=axes, settings=pso, progress=identifying).params
-        _say(f"identified in {time.perf_counter() - started:.1f} s")
-    diag = diagnose(nominal, trains, tests, settings, progress=_say)
+    if args.leave_one_out:
+        nominals = []
+        for k in range(len(trains)):
+            others = [log for i, log in enumerate(trains) if i != k]
+            nominals.append(nominal or _identify(others, axes, f"fold {k + 1}/{len(trains)}: "))
+        final = nominal or _identify(trains, axes, "all flights: ")
+        diag = cross_validate(nominals, trains, final, settings, progress=_say)
+    else:
+        nominal = nominal or _identify(trains, axes, "")
+        diag = diagnose(nominal, trains, tests, settings, progress=_say)
     command = "ecu-monitor " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else None
     doc = write_report(diag, args.out, command)
     verdict = doc["verdict"]

@@ -6,7 +6,7 @@ Start with :func:`diagnose` (nominal model + train and test flights -> :class:`G
 :mod:`ecu_monitor.research.blind`.
 """
 
-from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis, GapSettings, diagnose
+from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis, GapSettings, cross_validate, diagnose
 from ecu_monitor.gap.library import CANDIDATE_IDS, CANDIDATES, Candidate, FreeParameter
 from ecu_monitor.gap.refit import FitResult, RefitSettings, refit
 from ecu_monitor.gap.report import gap_json, write_report
@@ -26,6 +26,7 @@ __all__ = [
     "RefitSettings",
     "SegmentSettings",
     "SignificanceSettings",
+    "cross_validate",
     "diagnose",
     "gap_json",
     "improvement_test",

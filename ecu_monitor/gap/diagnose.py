@@ -52,7 +52,15 @@ from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings, 
 from ecu_monitor.identify import PsoSettings
 from ecu_monitor.model import ThermalParams
 
-__all__ = ["JOINT_REFIT", "EffectScore", "GapDiagnosis", "GapSettings", "HeldOutFlight", "diagnose"]
+__all__ = [
+    "JOINT_REFIT",
+    "EffectScore",
+    "GapDiagnosis",
+    "GapSettings",
+    "HeldOutFlight",
+    "cross_validate",
+    "diagnose",
+]
 
 #: The re-identification of "reidentify" mode: no swarm iterations, so the best of the initial swarm
 #: (the given nominal model with the candidate switched on at its neutral start is one of its
@@ -111,6 +119,7 @@ class EffectScore:
     shrink_pct: float  # pooled held-out RMS shrink vs the baseline (nominal model), %
     versus: ImprovementTest | None  # against the control (singles) or the single effect (pairs)
     role: str  # "control", "single" or "pair"
+    fold_fits: tuple[FitResult, ...] = ()  # cross-validation: the refit of each fold (fit = the first)
 
     @property
     def label(self) -> str:
@@ -180,6 +189,7 @@ class GapDiagnosis:
     model: ThermalParams  # the winner's model, or the nominal model when unexplained
     settings: GapSettings
     references: dict[str, float]
+    folds: int = 1  # > 1: leave-one-flight-out (each test flight scored by refits on the others)
 
     @property
     def train(self) -> PreparedFlight:
@@ -248,8 +258,20 @@ def _shrink(before: float, after: float) -> float:
     return 100.0 * (1.0 - after / before) if before > 0 else 0.0
 
 
+@dataclass(frozen=True)
+class _Fold:
+    """One refit set-up: the nominal model, the flights the candidates are refitted on, their
+    reference conditions, and the indices (into the diagnosis's test flights) it is scored on."""
+
+    nominal: ThermalParams
+    trains: tuple[PreparedFlight, ...]
+    references: dict[str, float]
+    tests: tuple[int, ...]
+
+
 def _score(
-    fit: FitResult,
+    fits: Sequence[FitResult],
+    folds: Sequence[_Fold],
     tests: tuple[HeldOutFlight, ...],
     baseline_rms: float,
     engine: str,
@@ -258,26 +280,30 @@ def _score(
     n_tests: int,
     significance: SignificanceSettings,
 ) -> EffectScore:
-    residuals = []
-    for test in tests:
-        model = simulate_probe([fit.params], test.flight, engine)[:, 0]
-        residual = test.flight.cht_c - model
-        if not np.all(np.isfinite(residual)):  # a diverged run scores 1000 degC where it failed: it never counts
-            residual = np.where(np.isfinite(residual), residual, 1e3)
-        residuals.append(residual)
+    """Each fold's fit simulated on that fold's test flights; residuals in the order of ``tests``."""
+    by_flight: dict[int, np.ndarray] = {}
+    for fit, fold in zip(fits, folds, strict=True):
+        for k in fold.tests:
+            model = simulate_probe([fit.params], tests[k].flight, engine)[:, 0]
+            residual = tests[k].flight.cht_c - model
+            if not np.all(np.isfinite(residual)):  # a diverged run scores 1000 degC where it failed: it never counts
+                residual = np.where(np.isfinite(residual), residual, 1e3)
+            by_flight[k] = residual
+    residuals = [by_flight[k] for k in range(len(tests))]
     pooled = np.concatenate(residuals)
     rms = _rms(pooled)
     versus = None
     if reference is not None:
         versus = improvement_test(reference.flight_residuals, residuals, tests[0].flight.dt_s, n_tests, significance)
     return EffectScore(
-        fit=fit,
+        fit=fits[0],
         flight_residuals=tuple(residuals),
         test_rms_c=rms,
         test_peak_c=float(np.max(np.abs(pooled))),
         shrink_pct=_shrink(baseline_rms, rms),
         versus=versus,
         role=role,
+        fold_fits=tuple(fits) if len(fits) > 1 else (),
     )
 
 
@@ -295,19 +321,26 @@ def _whiteness(nominal: ThermalParams, logs: Sequence[FlightLog], estimator: str
 
 
 def _second_acts(
-    pair: EffectScore, nominal: ThermalParams, tests: Sequence[HeldOutFlight], engine: str, settings: GapSettings
+    pair: EffectScore,
+    folds: Sequence[_Fold],
+    tests: Sequence[HeldOutFlight],
+    engine: str,
+    settings: GapSettings,
 ) -> bool:
     """True when the pair's second effect changes its test prediction by at least min_rms_drop_c RMS
     (switched off with every other fitted value kept; pooled over the test flights): a pair whose gain
     comes from a better fit of the first effect's own parameters does not name a second effect."""
     entry = candidate(pair.fit.ids[1])
-    params = pair.fit.params
-    if entry.effect == "nominal":
-        names = [p.name for p in entry.free] + [name for name, _ in entry.fixed]
-        without = params.replace(**{name: getattr(nominal, name) for name in names})
-    else:
-        without = params.replace(effects=params.effects.replace(entry.effect, None))
-    both = np.concatenate([simulate_probe([params, without], t.flight, engine) for t in tests], axis=0)
+    parts = []
+    for fit, fold in zip(pair.fold_fits or (pair.fit,), folds, strict=True):
+        params = fit.params
+        if entry.effect == "nominal":
+            names = [p.name for p in entry.free] + [name for name, _ in entry.fixed]
+            without = params.replace(**{name: getattr(fold.nominal, name) for name in names})
+        else:
+            without = params.replace(effects=params.effects.replace(entry.effect, None))
+        parts += [simulate_probe([params, without], tests[k].flight, engine) for k in fold.tests]
+    both = np.concatenate(parts, axis=0)
     change = float(np.sqrt(np.mean((both[:, 0] - both[:, 1]) ** 2)))
     return change >= settings.significance.min_rms_drop_c
 
@@ -371,19 +404,62 @@ def diagnose(
     """Run the whole diagnosis of ``nominal``: every candidate refitted on all the train flights
     together, scored on every test flight (one flight or a sequence on each side)."""
     settings = settings or GapSettings()
-    say = progress or (lambda message: None)
-    engine = settings.refit.engine
-    axes = nominal.heat_axes
     train_logs = _as_logs(train_logs, "train")
     test_logs = _as_logs(test_logs, "test")
-    trains = tuple(prepare_flight(log, axes, settings.refit.dt_s) for log in train_logs)
-    references = flight_references(
-        _end_to_end(train_logs, ("airspeed_mps", "altitude_m", "oat_c")), settings.segments.ground_airspeed_mps
-    )
+    trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s) for log in train_logs)
+    fold = _Fold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
+    return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress)
+
+
+def cross_validate(
+    nominals: Sequence[ThermalParams],
+    logs: Sequence[FlightLog],
+    final_nominal: ThermalParams,
+    settings: GapSettings | None = None,
+    progress: Progress | None = None,
+) -> GapDiagnosis:
+    """Leave-one-flight-out diagnosis: for each flight k, every candidate refitted on the other
+    flights from ``nominals[k]`` (a nominal model that has not seen flight k) and scored on flight k;
+    the scores and the significance test pooled over all the held-out flights (flights and blocks
+    resampled). The winner is then refitted on all the flights from ``final_nominal`` for model.yaml."""
+    settings = settings or GapSettings()
+    logs = _as_logs(logs, "train")
+    if len(logs) < 2 or len(nominals) != len(logs):
+        raise ParameterError("gap leave-one-out: at least two flights, and one nominal model per flight")
+    dt = settings.refit.dt_s
+    prepared = tuple(prepare_flight(log, final_nominal.heat_axes, dt) for log in logs)
+    folds = []
+    for k, nominal in enumerate(nominals):
+        others = tuple(f for i, f in enumerate(prepared) if i != k)
+        references = _references([log for i, log in enumerate(logs) if i != k], settings)
+        folds.append(_Fold(nominal, others, references, (k,)))
+    return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress)
+
+
+def _references(logs: Sequence[FlightLog], settings: GapSettings) -> dict[str, float]:
+    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c"))
+    return flight_references(pooled, settings.segments.ground_airspeed_mps)
+
+
+def _diagnose(
+    folds: Sequence[_Fold],
+    trains: tuple[PreparedFlight, ...],
+    test_logs: Sequence[FlightLog],
+    test_nominals: Sequence[ThermalParams],
+    final_nominal: ThermalParams,
+    settings: GapSettings,
+    progress: Progress | None,
+) -> GapDiagnosis:
+    say = progress or (lambda message: None)
+    engine = settings.refit.engine
+    nominal = final_nominal
+    axes = nominal.heat_axes
+    train_logs = [f.log for f in trains]
+    references = _references(train_logs, settings)
 
     say(f"baseline: nominal model open loop on {len(trains)} train and {len(test_logs)} test flight(s)")
     base_train = np.concatenate([f.cht_c - simulate_probe([nominal], f, engine)[:, 0] for f in trains])
-    tests = tuple(_held_out(nominal, log, settings) for log in test_logs)
+    tests = tuple(_held_out(m, log, settings) for m, log in zip(test_nominals, test_logs, strict=True))
     base_test = np.concatenate([t.baseline_residual for t in tests])
     baseline_rms = _rms(base_test)
 
@@ -405,20 +481,25 @@ def diagnose(
         base_test, _end_to_end(train_logs, axes), _end_to_end(test_logs, axes), axes, hm.x_breakpoints, hm.y_breakpoints
     )
 
-    def fit_candidates(entries: list[Candidate]) -> FitResult:
+    def fit_one(fold: _Fold, entries: list[Candidate]) -> FitResult:
         if settings.refit_mode == "reidentify":
-            return reidentify(nominal, trains, entries, references, settings.refit, settings.pso)
-        return refit(nominal, trains, entries, references, settings.refit)
+            return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
+        return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
 
-    say("refit: control (nominal with R_Ce and heat scale re-tuned on the train flights)")
-    control_fit = fit_candidates([])
-    control = _score(control_fit, tests, baseline_rms, engine, "control", None, 1, settings.significance)
+    def fit_candidates(entries: list[Candidate]) -> list[FitResult]:
+        return [fit_one(fold, entries) for fold in folds]
+
+    def score(fits: list[FitResult], role: str, reference: EffectScore | None, n: int, test: Any) -> EffectScore:
+        return _score(fits, folds, tests, baseline_rms, engine, role, reference, n, test)
+
+    fold_note = f", {len(folds)} folds" if len(folds) > 1 else ""
+    say(f"refit: control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note})")
+    control = score(fit_candidates([]), "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
     singles: list[EffectScore] = []
     for number, cid in enumerate(settings.candidates, start=1):
         say(f"refit: {cid} ({number}/{len(settings.candidates)})")
-        fit = fit_candidates([candidate(cid)])
-        singles.append(_score(fit, tests, baseline_rms, engine, "single", control, n_tests, settings.significance))
+        singles.append(score(fit_candidates([candidate(cid)]), "single", control, n_tests, settings.significance))
     counting = [s for s in singles if s.counts]
     winner = min(counting, key=lambda s: s.test_rms_c) if counting else None
     pairs: list[EffectScore] = []
@@ -428,9 +509,9 @@ def diagnose(
         pair_test = dataclasses.replace(settings.significance, min_shrink_pct=settings.pair_min_shrink_pct)
         for cid in others:
             say(f"refit: pair {first}+{cid}")
-            fit = fit_candidates([candidate(first), candidate(cid)])
-            pairs.append(_score(fit, tests, baseline_rms, engine, "pair", winner, len(others), pair_test))
-        better = [p for p in pairs if p.counts and _second_acts(p, nominal, tests, engine, settings)]
+            fits = fit_candidates([candidate(first), candidate(cid)])
+            pairs.append(score(fits, "pair", winner, len(others), pair_test))
+        better = [p for p in pairs if p.counts and _second_acts(p, folds, tests, engine, settings)]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)
     effects = sorted(singles + pairs, key=lambda s: s.test_rms_c)
@@ -438,6 +519,10 @@ def diagnose(
         gain = _segment_gain(control.test_residual, winner.test_residual, labels)
         winner_segment = max(gain, key=lambda k: gain[k])
         model = winner.fit.params
+        if len(folds) > 1:
+            say(f"refit: {winner.label} on all {len(trains)} flights (model.yaml)")
+            final = _Fold(final_nominal, trains, references, ())
+            model = fit_one(final, [candidate(cid) for cid in winner.fit.ids]).params
     else:
         gain = {}
         winner_segment = where[0].segment
@@ -464,4 +549,5 @@ def diagnose(
         model=model,
         settings=settings,
         references=references,
+        folds=len(folds),
     )

@@ -136,6 +136,7 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
             "flights": {
                 "train": [f.log.source for f in diag.trains],
                 "test": [t.name for t in diag.tests],
+                "cross_validation": "leave-one-flight-out" if diag.folds > 1 else None,
             },
             "per_flight": [
                 {
@@ -332,7 +333,13 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
     lines = ["# Sim-to-real gap diagnosis", ""]
     trains = ", ".join(f"`{f.log.source}`" for f in diag.trains)
     tests = ", ".join(f"`{t.name}`" for t in diag.tests)
-    lines.append(f"Train flight(s) (refits): {trains}; test flight(s) (held out): {tests}.")
+    if diag.folds > 1:
+        lines.append(
+            f"Leave-one-flight-out over {trains}: each flight held out in turn, every candidate refitted on the "
+            "other flights (from a nominal model that has not seen it) and scored on it; pooled over all of them."
+        )
+    else:
+        lines.append(f"Train flight(s) (refits): {trains}; test flight(s) (held out): {tests}.")
     if command:
         lines += ["", f"Command: `{command}`"]
     lines += ["", "## Verdict", ""]
