@@ -1280,7 +1280,7 @@ def _parse_time(
         return _spread_repeats(src, (values - values[0]) * UNITS[spec.unit].scale, lines, notes)
     date_col, time_col = (index[c] for c in spec.columns)
     formats = [f"{d} {t}" for d in spec.date_formats for t in spec.time_formats]
-    whole_seconds = spec.time_formats == ("%H:%M:%S",)
+    whole_seconds = spec.time_formats[0] == "%H:%M:%S"  # the fast path for H:MM:SS; other forms by strptime
     stamps = np.empty(len(table.rows), dtype=np.float64)
     midnights: dict[str, float] = {}
     for k, (line, row) in enumerate(table.rows):

@@ -459,6 +459,11 @@ def test_time_is_utc_across_a_clock_change(tmp_path: Path) -> None:
         load_csv(bad)
 
 
+def test_fractional_seconds_in_the_clock(tmp_path: Path) -> None:
+    rows = [("10:00:00", "1000", "300 320"), ("10:00:00.5", "1000", "300 320"), ("10:00:01.25", "1000", "300 320")]
+    assert load_csv(_g1000(tmp_path, rows)).time_s.tolist() == [0.0, 0.5, 1.25]
+
+
 def test_joined_exports_and_latin1_text(tmp_path: Path) -> None:
     first = _g1000(tmp_path, GOOD_ROWS[:2]).read_text().splitlines()
     second = _g1000(tmp_path, [("10:00:05", "1050", "310 330")]).read_text().splitlines()
