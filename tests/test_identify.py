@@ -179,8 +179,9 @@ def test_swarm_cost_equals_single_simulation_and_reports_failures():
     costs = objective.costs(swarm)
     for k in range(swarm.shape[0]):
         params = space.to_params(space.from_unit(swarm[k]))
-        rms = math.sqrt(np.mean((simulate_flight(params, log, dt_s=0.5) - log["cht_c"]) ** 2))
-        assert costs[k] == pytest.approx(rms, rel=1e-9)
+        mse = np.mean((simulate_flight(params, log, dt_s=0.5) - log["cht_c"]) ** 2)
+        prior = space.prior_penalty(space.from_unit(swarm[k])[None, :])[0]
+        assert costs[k] == pytest.approx(math.sqrt(mse + prior), rel=1e-9)
     assert objective.evaluations == 6 and objective.failed == 0
 
 
@@ -191,6 +192,8 @@ def test_space_round_trip_and_scale_degeneracy_refused():
     vector = space.from_params(truth)
     back = space.to_params(vector)
     assert back.c_w == pytest.approx(truth.c_w) and back.r_ce == pytest.approx(truth.r_ce)
+    assert back.alpha_r_e == pytest.approx(truth.alpha_r_e)
+    assert set(space.names) >= {"time_constant_s", "radiation_fraction", "tau_w"} and "r_ce" not in space.names
     for i, j in space.heat_cells:
         assert back.heat_map.values_array()[i, j] == pytest.approx(truth.heat_map.values_array()[i, j])
     np.testing.assert_allclose(space.from_unit(space.to_unit(vector)), vector, rtol=1e-12)
@@ -244,15 +247,21 @@ def identified():
 def test_identification_recovers_the_main_parameters(identified):
     _train, truth, result = identified
     p = result.params
-    assert p.c_w == pytest.approx(truth.c_w, rel=0.05)
-    assert p.r_ce == pytest.approx(truth.r_ce, rel=0.05)
+    # the common scale is not observable (module doc of identify.problem): r_ce stays at the start
+    # value and the scale-free quantities are compared with the truth
+    assert p.r_ce == 0.09
+    assert p.c_w * p.r_ce == pytest.approx(truth.c_w * truth.r_ce, rel=0.05)
+    share = result.space.radiation_share
+    assert share(p) == pytest.approx(share(truth), abs=0.05)
     # throttle and rpm move together on this flight, so the data fix the heat map along the flown line
-    # (at the operating points), not every breakpoint: off-line breakpoints trade off against each other
+    # (at the operating points), not every breakpoint: off-line breakpoints follow the prior
     levels = np.unique(_train["throttle_pct"])
     rpm = 2000.0 + 70.0 * levels
-    np.testing.assert_allclose(p.heat_map(levels, rpm), truth.heat_map(levels, rpm), rtol=0.05)
+    np.testing.assert_allclose(p.heat_map(levels, rpm) * p.r_ce, truth.heat_map(levels, rpm) * truth.r_ce, rtol=0.05)
+    assert result.at_bounds == ()
     assert p.tau_w == pytest.approx(truth.tau_w, rel=0.15)
-    assert result.failed_particles == 0
+    # particles with a time constant far below the step diverge; they are counted and never chosen
+    assert result.failed_particles < 0.05 * result.evaluations
     assert result.evaluations > 32 * 61
 
 

@@ -1,14 +1,21 @@
-"""``ecu-monitor identify FLIGHT.csv [FLIGHT2.csv ...] --out model.yaml [--validate FLIGHT.csv ...]``.
+"""``ecu-monitor identify FLIGHT.csv [FLIGHT2.csv ...] --out model.yaml [--effects auto] [--cht-limit C]``.
 
-PSO identification of the thermal model (C_w, R_Ce, tau_w and the visited heat-map breakpoints; the
-radiative term anchors the scale and the altitude exponents a, b stay at the base values unless freed
-with ``--free``) on one or more flights, then a least-squares polish. Shows a progress bar (iteration,
-best cost, elapsed) on stderr, prints a table of mean / peak / RMS error in degC and % on every
-training and validation flight, writes model.yaml (which every other command accepts) and, with
-``--plots DIR``, PNG plots: measured vs simulated CHT per flight, cost per iteration, heat map.
+PSO identification of the thermal model on one or more flights (several flights make one model), then
+a least-squares polish. The common scale of C_w, R_Ce, the radiation and the heat map is not observable
+from temperatures: R_Ce keeps the base model's value and the search runs in coordinates the data pin
+(time constant C_w R_Ce, temperature rise Q R_Ce per heat-map breakpoint, radiated share of the heat),
+with a smooth, power-monotone prior on the heat map. ``--effects`` fits the model jointly with terms
+(airspeed cooling with a propeller-wash floor, density cooling, probe lag, mixture cooling) or without
+parts of the paper's form (``-altitude_factor``; ``radiation_kelvin`` for T^4 in kelvin); ``auto``
+keeps what lowers the error on held-out flights. With 2+ flights each flight is also predicted by a
+model fitted on the others (leave-one-flight-out). Prints a table of mean / peak / RMS error in degC
+and % per flight, any parameter that ended at a bound, writes model.yaml (header: how it was made,
+the errors, the bounds hit) and, with ``--plots DIR``, PNG plots.
 
 The heat map's axes default to throttle_pct,rpm; a log without throttle but with fuel flow uses
 fuel_flow_lph,rpm (say it with ``--heat-axes``). Foreign CSVs load through ``--mapping`` (g1000).
+Give the engine's CHT limit with ``--cht-limit`` (the manufacturer's value, degC): it goes into
+model.yaml for headroom and monitoring, and identify warns when the flights exceed it.
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ecu_monitor.bus.canlog import load_flight
-from ecu_monitor.errors import FlightLogError, UserInputError
+from ecu_monitor.errors import FlightLogError, ParameterError, UserInputError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify import (
     DEFAULT_FREE,
@@ -31,12 +38,12 @@ from ecu_monitor.identify import (
     PsoSettings,
     default_space,
     flight_errors,
-    identify,
     model_inputs,
     simulate_flight,
 )
 from ecu_monitor.identify.report import error_table, plot_cost, plot_flight, plot_heat_map
-from ecu_monitor.model import load_model, save_model
+from ecu_monitor.identify.select import TERM_NAMES, CrossValidation, Selection, identify_flights, parse_terms
+from ecu_monitor.model import load_model, paper_table_a1, save_model
 
 __all__ = ["add_subparser", "parse_grid", "parse_heat_axes"]
 
@@ -63,6 +70,15 @@ def add_subparser(subparsers: Any) -> None:
         help=f"comma-separated free parameters (default {','.join(DEFAULT_FREE)}; also alpha_r_e, a, b,"
         " effects.<effect>.<parameter>)",
     )
+    parser.add_argument(
+        "--effects",
+        metavar="NAMES|auto",
+        help="terms to fit with the model, comma-separated (a leading '-' removes one): "
+        + ", ".join(TERM_NAMES)
+        + "; auto keeps those that lower the held-out error (needs 2+ flights)",
+    )
+    parser.add_argument("--cht-limit", type=float, metavar="C", help="the engine's CHT limit, degC (into model.yaml)")
+    parser.add_argument("--no-lofo", action="store_true", help="skip the leave-one-flight-out check (2+ flights)")
     parser.add_argument("--particles", type=int, default=_DEFAULTS.particles, metavar="N", help="swarm size")
     parser.add_argument("--iterations", type=int, default=_DEFAULTS.iterations, metavar="N", help="PSO iterations")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
@@ -110,6 +126,8 @@ def _choose_axes(arg: str | None, flights: list[FlightLog]) -> tuple[str, str]:
 
 def _progress_bar(bar: Any) -> Callable[[int, float, float], None]:
     def progress(iteration: int, best: float, elapsed: float) -> None:
+        if iteration < bar.n:  # the next of several fits (leave-one-flight-out, effects auto)
+            bar.reset()
         bar.update(iteration - bar.n)
         bar.set_postfix_str(f"best {best:.4f} degC, {elapsed:.1f} s")
 
@@ -131,23 +149,47 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if not out.parent.is_dir():
         raise UserInputError(f"{out}: the directory {out.parent} does not exist")
+    if args.cht_limit is not None and not 20.0 <= args.cht_limit <= 500.0:
+        raise UserInputError(f"--cht-limit: expected a temperature in [20, 500] degC, got {args.cht_limit:g}")
+    terms: dict[str, bool] | str | None = None
+    if args.effects:
+        terms = "auto" if args.effects.strip() == "auto" else _parse_terms(args.effects)
     if args.plots:
         _make_dir(Path(args.plots))
     flights = _load(args.flights, args.mapping)
     validation = _load(args.validate, args.mapping)
     axes = _choose_axes(args.heat_axes, flights)
-    base = load_model(args.base) if args.base else None
+    base = load_model(args.base) if args.base else paper_table_a1()
+    if args.cht_limit is not None:
+        base = base.replace(cht_limit_c=args.cht_limit)
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
     grid = parse_grid(args.grid) if args.grid else None
-    space = default_space(flights, base=base, heat_axes=axes, grid=grid, free=free)
+    default_space(flights, base=base, heat_axes=axes, grid=grid, free=free)  # fail early on a bad space
     for log in validation:  # fail early on a validation flight that lacks a column
         model_inputs(log, axes)
         if not log.has("cht_c"):
             raise FlightLogError(f"{log.source}: no column 'cht_c' (measured CHT) to validate against")
+    if terms == "auto" and len(flights) < 2:
+        raise UserInputError("--effects auto: needs at least 2 training flights (it keeps what helps held-out flights)")
+    warnings = _limit_warnings(flights, base.cht_limit_c, args.cht_limit is not None)
+    for line in warnings:
+        print(f"warning: {line}", file=sys.stderr)
     bar = None if args.quiet else tqdm(total=settings.iterations, desc="identify", unit="it", file=sys.stderr)
     progress = None if bar is None else _progress_bar(bar)
+    notes = None if args.quiet else (lambda line: print(line, file=sys.stderr))
     try:
-        result = identify(flights, space=space, settings=settings, progress=progress)
+        result, cv, selection = identify_flights(
+            flights,
+            base=base,
+            heat_axes=axes,
+            grid=grid,
+            settings=settings,
+            terms=terms,
+            free=free,
+            lofo=not args.no_lofo,
+            progress=notes,
+            pso_progress=progress,
+        )
     finally:
         if bar is not None:
             bar.close()
@@ -155,42 +197,94 @@ def _run(args: argparse.Namespace) -> int:
     rows: list[tuple[str, str, ErrorStats]] = [
         ("train", Path(log.source).name, e) for log, e in zip(flights, result.train_errors, strict=True)
     ]
+    if cv is not None:
+        rows += [("held out (LOFO)", Path(f.held_out).name, f.errors) for f in cv.folds]
     rows += [("validate", Path(log.source).name, flight_errors(params, log)) for log in validation]
+    space = result.space
     n_cells = params.heat_map.shape[0] * params.heat_map.shape[1]
     summary = (
-        f"{len(space.names)} coordinates ({len(space.heat_cells)}/{n_cells} heat-map breakpoints visited),"
+        f"{len(space.names)} coordinates ({len(space.heat_cells)}/{n_cells} heat-map breakpoints free),"
         f" {result.evaluations} particle simulations ({result.failed_particles} failed), {result.restarts} restart(s),"
         f" {result.elapsed_s:.1f} s; cost PSO {result.pso_cost:.4f}"
         + (f", polished {result.polish_cost:.4f}" if result.polish_cost is not None else "")
         + " degC"
     )
-    comment = "\n".join(
-        [
-            "Identified by: ecu-monitor identify " + " ".join(sys.argv[2:] if len(sys.argv) > 2 else args.flights),
-            summary,
-            "alpha_r_e anchors the common scale of c_w, r_ce, heat map (fixed at the base value);"
-            f" free: {', '.join(free)}",
-            *(
-                f"{role} {name}: mean {e.mean_c:.2f} degC ({e.mean_pct:.2f} %), peak {e.peak_c:.2f} degC"
-                f" ({e.peak_pct:.2f} %), RMS {e.rms_c:.2f} degC"
-                for role, name, e in rows
-            ),
-        ]
-    )
+    bounds = [f"AT BOUND: {line}" for line in result.at_bounds] or ["no parameter ended within 1 % of a bound"]
+    lines = [
+        "Identified by: ecu-monitor identify " + " ".join(sys.argv[2:] if len(sys.argv) > 2 else args.flights),
+        summary,
+        f"r_ce anchors the common scale of c_w, r_ce, alpha_r_e, heat map (kept at {params.r_ce:g});"
+        f" radiated share at the reference point {space.radiation_share(params):.3f}",
+        f"terms: {_terms_label(params)}",
+        *_selection_lines(selection),
+        *bounds,
+        *(f"warning: {line}" for line in warnings),
+        *(
+            f"{role} {name}: mean {e.mean_c:.2f} degC ({e.mean_pct:.2f} %), peak {e.peak_c:.2f} degC"
+            f" ({e.peak_pct:.2f} %), RMS {e.rms_c:.2f} degC"
+            for role, name, e in rows
+        ),
+        *_lofo_lines(cv),
+    ]
     try:
-        save_model(params, out, comment=comment)
+        save_model(params, out, comment="\n".join(lines))
     except OSError as exc:
         raise UserInputError(f"{out}: cannot write the model ({exc.strerror})") from None
     print(error_table(rows))
-    print(summary)
+    for line in (*_lofo_lines(cv), summary, f"terms: {_terms_label(params)}", *_selection_lines(selection), *bounds):
+        print(line)
     print(
-        f"c_w {params.c_w:.4g} J/degC, r_ce {params.r_ce:.4g} degC/W, tau_w {params.tau_w:.3g} s,"
-        f" a {params.a:.3g}, b {params.b:.3g}; heat map {params.heat_map.x_axis} x {params.heat_map.y_axis}"
+        f"c_w {params.c_w:.4g} J/degC, r_ce {params.r_ce:.4g} degC/W, alpha_r_e {params.alpha_r_e:.4g},"
+        f" tau_w {params.tau_w:.3g} s, a {params.a:.3g}, b {params.b:.3g}, CHT limit {params.cht_limit_c:g} degC;"
+        f" heat map {params.heat_map.x_axis} x {params.heat_map.y_axis}"
         f" {params.heat_map.shape[0]}x{params.heat_map.shape[1]} -> {args.out}"
     )
     if args.plots:
         _plots(Path(args.plots), result, flights, validation, rows)
     return 0
+
+
+def _parse_terms(text: str) -> dict[str, bool]:
+    try:
+        return parse_terms(text)
+    except ParameterError as exc:
+        raise UserInputError(str(exc)) from None
+
+
+def _terms_label(params: Any) -> str:
+    from ecu_monitor.identify.select import term_is_on
+
+    return ", ".join(f"{'+' if term_is_on(params, n) else '-'}{n}" for n in TERM_NAMES)
+
+
+def _selection_lines(selection: Selection | None) -> list[str]:
+    if selection is None:
+        return []
+    out = [f"effects auto ({selection.elapsed_s:.0f} s): mean held-out RMS, degC, by round:"]
+    out += [f"  round {r} {label}: {value:.3f}{'  kept' if kept else ''}" for r, label, value, kept in selection.steps]
+    return out
+
+
+def _lofo_lines(cv: CrossValidation | None) -> list[str]:
+    if cv is None:
+        return []
+    values = cv.rms_c
+    return [f"leave-one-flight-out held-out RMS: mean {values.mean():.2f} degC, worst {values.max():.2f} degC"]
+
+
+def _limit_warnings(flights: list[FlightLog], limit_c: float, given: bool) -> list[str]:
+    """One line per flight whose measured CHT exceeds the model's CHT limit."""
+    out = []
+    for log in flights:
+        if not log.has("cht_c"):
+            continue
+        peak = float(np.nanmax(np.asarray(log["cht_c"], dtype=float)))
+        if peak > limit_c:
+            hint = "" if given else " (the base model's limit: give your engine's with --cht-limit)"
+            out.append(
+                f"{Path(log.source).name}: measured CHT reaches {peak:.1f} degC, above the limit {limit_c:g} degC{hint}"
+            )
+    return out
 
 
 def _make_dir(directory: Path) -> None:

@@ -46,6 +46,7 @@ class IdentificationResult:
     elapsed_s: wall time of the identification, s.
     space: the parameter space searched; best_vector: the identified coordinates.
     best_cost: final cost (after the polish if any); restarts: PSO restarts made.
+    at_bounds: coordinates that ended within 1 % of a bound (readable lines; empty = none).
     """
 
     params: ThermalParams
@@ -60,6 +61,7 @@ class IdentificationResult:
     pso_cost: float
     polish_cost: float | None
     restarts: int
+    at_bounds: tuple[str, ...] = ()
 
 
 def polish(
@@ -76,7 +78,7 @@ def polish(
 
     def residuals_of(unit: NDArray[np.float64]) -> NDArray[np.float64]:
         res, failed = objective.residuals(unit)
-        prior = np.stack([space.prior_residuals(v) for v in space.from_unit(np.atleast_2d(unit))])
+        prior = space.prior_residual_matrix(space.from_unit(np.atleast_2d(unit)))
         out = np.concatenate([res / np.sqrt(n), prior], axis=1)
         out[failed] = np.nan
         return out
@@ -159,4 +161,5 @@ def identify(
         pso_cost=float(run.best_cost),
         polish_cost=polish_cost,
         restarts=run.restarts,
+        at_bounds=tuple(space.at_bounds(vector)),
     )

@@ -4,15 +4,23 @@ and the vectorised cost over a whole swarm.
 Scale degeneracy (why one scale parameter is fixed). The model's energy balance
 ``C_w dT/dt = g Q - (T - T_e)/R_Ce - (T^4 - T_e^4)/(alpha R_e)`` is unchanged when C_w, the heat map Q,
 1/R_Ce and 1/(alpha R_e) are all multiplied by the same factor: a temperature record fixes their
-ratios, never their common scale. The default space therefore keeps ``alpha_r_e`` (the radiative
-term) fixed at the base model's value and frees C_w, R_Ce, tau_w and the heat map; freeing all four
-scale parameters at once is refused.
+ratios, never their common scale. The default space keeps ``r_ce`` at the base model's value (the
+scale anchor: the model's watts are in the base model's scale) and searches everything else in
+coordinates the data pin, none of which carries the unobservable scale, so no bound binds on an engine
+far from the base:
 
-Search coordinates. The optimiser does not search C_w and Q directly, because the data pin down
-products of them far better than the factors (the steady-state rise is ~Q R_Ce, the time constant
-~C_w R_Ce). With R_Ce free, the coordinates are ``r_ce`` (log), ``time_constant_s`` = C_w R_Ce (log)
-and ``heat_rise_c[i,j]`` = Q_ij R_Ce (degC): nearly orthogonal directions, bounded from the data's
-temperature rise. :meth:`ParameterSpace.to_params` maps them back to C_w (J/degC) and Q (W).
+- ``time_constant_s`` = C_w R_Ce (log): the convective time constant, s;
+- ``heat_rise_c[i,j]`` = Q_ij R_Ce (degC): the convective-only temperature rise of each heat-map breakpoint;
+- ``radiation_fraction``: the share of the heat leaving by radiation at the reference operating point
+  (the training data's median OAT and median CHT - OAT), 0 (no radiation) to 0.99.
+
+Freeing ``r_ce`` with ``alpha_r_e`` fixed (the earlier anchor) is still possible; freeing all four scale
+parameters at once is refused.
+
+The heat map carries a prior (a penalty added to the cost): second differences between neighbouring
+breakpoints are small (a smooth map) and the heat does not fall as the first axis (throttle or fuel
+flow: power) rises. Every breakpoint is free; breakpoints the flights hardly visit follow their
+neighbours instead of trading off against the rest.
 
 Altitude exponents a, b: one flight hardly excites them (the g1000 README: a fit drives them to
 their bounds), so they are fixed at the base values by default; when freed they carry a Gaussian
@@ -49,6 +57,7 @@ __all__ = [
     "heat_map_breakpoints",
     "model_inputs",
     "prepare_flight",
+    "reference_point",
     "simulate_flight",
     "visited_weight_s",
 ]
@@ -57,8 +66,18 @@ __all__ = [
 REFERENCE_DT_S = 0.02
 #: Integration step used inside identification, s; chosen by measurement (docs/results/identification.md).
 IDENTIFICATION_DT_S = 0.5
-#: Model free parameters by default (alpha_r_e anchors the scale, a and b are fixed: see module doc).
-DEFAULT_FREE: tuple[str, ...] = ("c_w", "r_ce", "tau_w", "heat_map")
+#: Model free parameters by default (r_ce anchors the scale, a and b are fixed: see module doc).
+DEFAULT_FREE: tuple[str, ...] = ("c_w", "tau_w", "alpha_r_e", "heat_map")
+#: Largest radiation fraction searched (1 would mean no convection at the reference point).
+MAX_RADIATION_FRACTION = 0.99
+#: Bounds of the convective time constant C_w R_Ce, s (wide: engines from model aircraft to radials).
+TIME_CONSTANT_BOUNDS_S = (0.5, 20000.0)
+#: A coordinate closer than this fraction of its range (in search units) to a bound is reported.
+BOUND_TOLERANCE = 0.01
+#: Heat-map prior: standard deviation of a second difference between neighbouring breakpoints, as a
+#: fraction of the largest observed temperature rise, and of a fall of the heat with rising power, degC.
+HEAT_SMOOTH_SIGMA = 0.5
+HEAT_MONOTONE_SIGMA_C = 2.0
 #: A heat-map breakpoint whose total bilinear weight over the training flights is below this many
 #: seconds of flight is "not visited": it is not identified and takes the value of the nearest visited
 #: one (its base value would be a guess, and even a few seconds of weight on a wrong guess bias the fit).
@@ -236,6 +255,13 @@ def heat_map_breakpoints(
     return out[0], out[1]
 
 
+def reference_point(flights: Sequence[FlightLog], heat_axes: tuple[str, str]) -> tuple[float, float]:
+    """(OAT, CHT - OAT) of the reference operating point, degC: the flights' medians (rise at least 5)."""
+    oat = np.concatenate([np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
+    rise = np.concatenate([_measured(log) - np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
+    return float(np.median(oat)), max(5.0, float(np.median(rise)))
+
+
 def visited_weight_s(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
     """Time (s) each heat-map breakpoint carries over the flights: sum of its bilinear weight x sample interval."""
     xb = np.asarray(heat_map.x_breakpoints)
@@ -276,6 +302,9 @@ class ParameterSpace:
     prior_mean, prior_sigma: Gaussian prior of each coordinate (NaN sigma = none).
     heat_cells: (i, j) of the heat-map values identified; the other (unvisited) cells copy the value
         of the nearest identified cell when ``fill_unvisited`` (as default_space sets), else keep the base value.
+    reference_rise_c, reference_oat_c: the operating point where ``radiation_fraction`` is defined
+        (CHT - OAT and OAT, degC).
+    heat_smooth_sigma_c, heat_monotone_sigma_c: heat-map prior (module doc), degC; NaN = no prior.
     """
 
     base: ThermalParams
@@ -287,6 +316,10 @@ class ParameterSpace:
     prior_sigma: tuple[float, ...]
     heat_cells: tuple[tuple[int, int], ...] = ()
     fill_unvisited: bool = False
+    reference_rise_c: float = 100.0
+    reference_oat_c: float = 15.0
+    heat_smooth_sigma_c: float = math.nan
+    heat_monotone_sigma_c: float = math.nan
     _index: dict[str, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -326,7 +359,7 @@ class ParameterSpace:
         """Coordinates from points of the unit cube (..., D) (log-scaled ones are log-uniform)."""
         lo, hi, logs = self._edges()
         raw = lo + np.clip(unit, 0.0, 1.0) * (hi - lo)
-        return np.where(logs, np.exp(raw), raw)
+        return np.where(logs, np.exp(np.where(logs, raw, 0.0)), raw)
 
     def to_unit(self, vector: NDArray[np.float64]) -> NDArray[np.float64]:
         """Points of the unit cube from coordinates (clipped to the bounds)."""
@@ -367,6 +400,11 @@ class ParameterSpace:
         alpha = self._column(v, "alpha_r_e")
         if alpha is not None:
             fields_["radiative_conductance"] = 1.0 / alpha
+        fraction = self._column(v, "radiation_fraction")
+        if fraction is not None:
+            fields_["radiative_conductance"] = (
+                fraction / (1.0 - fraction) * self.reference_rise_c / fields_["r_ce"] / self._reference_t4(base)
+            )
         for name, (target, *_rest) in _EFFECT_FIELDS.items():
             col = self._column(v, name)
             if col is not None:
@@ -386,6 +424,20 @@ class ParameterSpace:
         fields_["y_breakpoints"] = base.y_breakpoints
         return Coefficients(**fields_)
 
+    def _reference_t4(self, base: Coefficients) -> float:
+        """(T^4 - T_e^4) at the reference operating point, in the model's radiation units."""
+        offset = base.radiation_offset_c
+        t_k = self.reference_oat_c + self.reference_rise_c + offset
+        e_k = self.reference_oat_c + offset
+        return t_k**4 - e_k**4
+
+    def radiation_share(self, params: ThermalParams) -> float:
+        """Share of the heat leaving by radiation at the reference operating point (0..1)."""
+        base = coefficients(params)
+        radiated = float(base.radiative_conductance) * self._reference_t4(base)
+        convected = self.reference_rise_c / params.r_ce
+        return radiated / (radiated + convected)
+
     def to_params(self, vector: NDArray[np.float64]) -> ThermalParams:
         """The ThermalParams of one coordinate vector (raises ParameterError if outside physical ranges)."""
         c = self.coefficient_arrays(np.asarray(vector, dtype=float)[None, :])
@@ -399,6 +451,9 @@ class ParameterSpace:
         )
         if "alpha_r_e" in self._index:
             changes["alpha_r_e"] = float(vector[self._index["alpha_r_e"]])
+        if "radiation_fraction" in self._index:
+            conductance = float(np.asarray(c.radiative_conductance)[0])
+            changes["alpha_r_e"] = 1.0 / conductance if conductance > 0.0 else math.inf
         effects = self.base.effects
         for name in _EFFECT_FIELDS:
             if name in self._index:
@@ -420,6 +475,8 @@ class ParameterSpace:
         for k, name in enumerate(self.names):
             if name == "time_constant_s":
                 out[k] = params.c_w * params.r_ce
+            elif name == "radiation_fraction":
+                out[k] = self.radiation_share(params)
             elif name.startswith("heat_rise_c["):
                 i, j = _parse_cell(name)
                 out[k] = values[i, j] * params.r_ce
@@ -435,20 +492,52 @@ class ParameterSpace:
 
     def prior_penalty(self, vectors: NDArray[np.float64]) -> NDArray[np.float64]:
         """Prior penalty of each vector (P,), in degC^2 (added to the mean squared error)."""
-        sigma = np.asarray(self.prior_sigma, dtype=float)
-        has = np.isfinite(sigma) & (sigma > 0)
-        if not has.any():
-            return np.zeros(np.atleast_2d(vectors).shape[0])
-        mean = np.asarray(self.prior_mean, dtype=float)
-        z = (np.atleast_2d(vectors)[:, has] - mean[has]) / sigma[has]
-        return PRIOR_SCALE_C**2 * np.sum(z * z, axis=1)
+        residuals = self.prior_residual_matrix(vectors)
+        return np.sum(residuals * residuals, axis=1)
 
     def prior_residuals(self, vector: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Prior terms as residuals (degC), for least squares."""
+        """Prior terms of one vector as residuals (degC), for least squares."""
+        return self.prior_residual_matrix(np.asarray(vector, dtype=float)[None, :])[0]
+
+    def prior_residual_matrix(self, vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Prior terms as residuals (P, R), degC: Gaussian priors of single coordinates, then the heat map's."""
+        v = np.atleast_2d(np.asarray(vectors, dtype=float))
         sigma = np.asarray(self.prior_sigma, dtype=float)
         has = np.isfinite(sigma) & (sigma > 0)
         mean = np.asarray(self.prior_mean, dtype=float)
-        return PRIOR_SCALE_C * (np.asarray(vector)[has] - mean[has]) / sigma[has]
+        parts = [PRIOR_SCALE_C * (v[:, has] - mean[has]) / sigma[has]]
+        if self.heat_cells and math.isfinite(self.heat_smooth_sigma_c):
+            parts.append(self._heat_prior(v))
+        return np.concatenate(parts, axis=1)
+
+    def heat_rises(self, vectors: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Heat-map temperature rises Q R_Ce (P, n, m), degC, unidentified cells filled as in the model."""
+        v = np.atleast_2d(np.asarray(vectors, dtype=float))
+        c = self.coefficient_arrays(v)
+        return np.asarray(c.heat_values_w) * np.asarray(c.r_ce, dtype=float)[:, None, None]
+
+    def _heat_prior(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        rise = self.heat_rises(v)
+        n, m = rise.shape[1:]
+        parts = []
+        if n >= 3:
+            parts.append((rise[:, 2:, :] - 2.0 * rise[:, 1:-1, :] + rise[:, :-2, :]).reshape(v.shape[0], -1))
+        if m >= 3:
+            parts.append((rise[:, :, 2:] - 2.0 * rise[:, :, 1:-1] + rise[:, :, :-2]).reshape(v.shape[0], -1))
+        smooth = np.concatenate(parts, axis=1) / self.heat_smooth_sigma_c if parts else np.zeros((v.shape[0], 0))
+        fall = np.maximum(rise[:, :-1, :] - rise[:, 1:, :], 0.0).reshape(v.shape[0], -1)
+        return PRIOR_SCALE_C * np.concatenate([smooth, fall / self.heat_monotone_sigma_c], axis=1)
+
+    def at_bounds(self, vector: NDArray[np.float64], tolerance: float = BOUND_TOLERANCE) -> list[str]:
+        """Coordinates within ``tolerance`` of the range (in search units) of a bound, as readable lines."""
+        unit = self.to_unit(np.asarray(vector, dtype=float))
+        out = []
+        for k, name in enumerate(self.names):
+            if unit[k] <= tolerance:
+                out.append(f"{name} = {vector[k]:.4g} at its lower bound {self.lower[k]:.4g}")
+            elif unit[k] >= 1.0 - tolerance:
+                out.append(f"{name} = {vector[k]:.4g} at its upper bound {self.upper[k]:.4g}")
+        return out
 
 
 def _cell_name(i: int, j: int) -> str:
@@ -483,16 +572,19 @@ def default_space(
     grid: tuple[int, int] | None = None,
     free: Sequence[str] = DEFAULT_FREE,
     min_visit_s: float = MIN_VISIT_S,
+    heat_prior: bool = True,
 ) -> ParameterSpace:
     """The default search space for ``flights``.
 
     Base: ``base`` or the paper's Table A1. The heat map keeps the base's breakpoints when the base has
     the same axes and no ``grid`` is asked; otherwise an n x m grid (default 4 x 4) at the data's
     quantiles (:func:`heat_map_breakpoints`), started flat at the median temperature rise. Bounds:
-    R_Ce within x30 of the base; time constant C_w R_Ce in [5, 3000] s; tau_w in [1, 120] s;
-    heat rise Q R_Ce in [0, 4 x the largest observed CHT - OAT]; alpha_r_e within x100; a, b in
-    [0, 4] with a N(base, 0.5) prior; effect parameters within their physical ranges.
-    Only breakpoints the flights visit (>= ``min_visit_s`` seconds of bilinear weight) are free.
+    time constant C_w R_Ce in :data:`TIME_CONSTANT_BOUNDS_S`; radiation fraction in [0, 0.99];
+    tau_w in [1, 120] s; heat rise Q R_Ce in [0, 4 x the largest observed CHT - OAT]; R_Ce within
+    x30 of the base and alpha_r_e within x100 when freed instead; a, b in [0, 4] with a N(base, 0.5)
+    prior; effect parameters within their physical ranges. With ``heat_prior`` every breakpoint is
+    free under the smoothness and monotonicity prior; without it only breakpoints the flights visit
+    (>= ``min_visit_s`` seconds of bilinear weight) are free and the others copy the nearest.
     """
     from ecu_monitor.model import paper_table_a1
 
@@ -509,11 +601,8 @@ def default_space(
             " keep one of them fixed"
         )
     base = paper_table_a1() if base is None else base
-    rises = []
-    for log in flights:
-        series = model_inputs(log, heat_axes)
-        rises.append(_measured(log) - np.asarray(series.oat_c))
-    rise = np.concatenate(rises)
+    rise = np.concatenate([_measured(log) - np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
+    reference_oat_c, reference_rise_c = reference_point(flights, heat_axes)
     max_rise = max(20.0, float(np.quantile(rise, 0.99)))
     fill = True
     if grid is not None or base.heat_axes != tuple(heat_axes):
@@ -541,14 +630,14 @@ def default_space(
     free_set = set(free)
     if "r_ce" in free_set:
         add("r_ce", max(1e-4, base.r_ce / 30.0), min(100.0, base.r_ce * 30.0), True)
-        if "c_w" in free_set:
-            add("time_constant_s", 5.0, 3000.0, True)
-    elif "c_w" in free_set:
-        add("c_w", max(1.0, base.c_w / 30.0), min(1e6, base.c_w * 30.0), True)
+    if "c_w" in free_set:
+        add("time_constant_s", *TIME_CONSTANT_BOUNDS_S, True)
     if "tau_w" in free_set:
         add("tau_w", 1.0, 120.0, True)
-    if "alpha_r_e" in free_set:
+    if "alpha_r_e" in free_set and "r_ce" in free_set:
         add("alpha_r_e", base.alpha_r_e / 100.0, base.alpha_r_e * 100.0, True)
+    elif "alpha_r_e" in free_set:
+        add("radiation_fraction", 0.0, MAX_RADIATION_FRACTION, False)
     for name in ("a", "b"):
         if name in free_set:
             add(name, 0.0, 4.0, False, (float(getattr(base, name)), 0.5))
@@ -562,7 +651,8 @@ def default_space(
     cells: list[tuple[int, int]] = []
     if "heat_map" in free_set:
         weight = visited_weight_s(flights, base.heat_map)
-        cells = [(i, j) for i in range(weight.shape[0]) for j in range(weight.shape[1]) if weight[i, j] >= min_visit_s]
+        threshold = 0.0 if heat_prior else min_visit_s
+        cells = [(i, j) for i in range(weight.shape[0]) for j in range(weight.shape[1]) if weight[i, j] >= threshold]
         if not cells:
             raise ParameterError(
                 f"heat map: no breakpoint is visited for {min_visit_s:g} s by the flights; choose a coarser grid"
@@ -579,6 +669,10 @@ def default_space(
         prior_sigma=tuple(sigma),
         heat_cells=tuple(cells),
         fill_unvisited=fill,
+        reference_rise_c=reference_rise_c,
+        reference_oat_c=reference_oat_c,
+        heat_smooth_sigma_c=HEAT_SMOOTH_SIGMA * max_rise if heat_prior else math.nan,
+        heat_monotone_sigma_c=HEAT_MONOTONE_SIGMA_C if heat_prior else math.nan,
     )
 
 

@@ -1,0 +1,366 @@
+"""Several flights make one model: leave-one-flight-out validation and the choice of the model's terms.
+
+A *term* is a part of the model that one engine needs and another does not: an unmodelled-effect
+extension (airspeed cooling with its propeller-wash floor, density cooling, probe lag, mixture
+cooling), or a part of the paper's own form that can be removed (``altitude_factor``, the heat scaling
+g(z), which a heat map driven by measured fuel flow already carries) or changed (``radiation_kelvin``:
+T^4 in kelvin instead of the paper's degC). :func:`model_form` switches terms on or off and names the
+parameters to fit with them.
+
+:func:`leave_one_flight_out` fits the model on all flights but one and scores the flight left out, for
+every flight. :func:`select_terms` (``identify --effects auto``) starts from the base model's form and,
+round by round, toggles the one term that lowers the mean held-out RMS error the most, while it lowers
+it by at least :data:`MIN_GAIN`: a term is kept only when flights the fit never saw say it helps, and a
+term of the paper's form is dropped when they say it hurts. The candidate toggles of a round are
+refitted by a least-squares polish that starts from each fold's current fit (fitted without the flight
+it is scored on, so nothing leaks); the chosen form is then identified afresh (PSO and polish).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.identify.fit import IdentificationResult, identify, polish
+from ecu_monitor.identify.problem import (
+    DEFAULT_FREE,
+    ErrorStats,
+    ParameterSpace,
+    SwarmObjective,
+    default_space,
+    flight_errors,
+    reference_point,
+)
+from ecu_monitor.identify.pso import PsoSettings
+from ecu_monitor.model import (
+    AirspeedCooling,
+    DensityCooling,
+    MixtureCooling,
+    SensorLag,
+    ThermalParams,
+    air_density_kg_m3,
+    isa_pressure_pa,
+)
+
+__all__ = [
+    "MIN_GAIN",
+    "TERM_NAMES",
+    "CrossValidation",
+    "Fold",
+    "Selection",
+    "identify_flights",
+    "leave_one_flight_out",
+    "model_form",
+    "parse_terms",
+    "select_terms",
+    "term_is_on",
+]
+
+#: Terms that identification can switch on or off (module doc).
+TERM_NAMES: tuple[str, ...] = (
+    "airspeed_cooling",
+    "density_cooling",
+    "sensor_lag",
+    "mixture_cooling",
+    "altitude_factor",
+    "radiation_kelvin",
+)
+#: A toggle is kept when it lowers the mean held-out RMS error by at least this fraction.
+MIN_GAIN = 0.02
+#: The paper's altitude exponents, used when the altitude factor is switched back on.
+_PAPER_A, _PAPER_B = 1.55, 2.0
+_TERM_FREE: dict[str, tuple[str, ...]] = {
+    "airspeed_cooling": ("effects.airspeed_cooling.gain_per_mps", "effects.airspeed_cooling.floor"),
+    "density_cooling": ("effects.density_cooling.exponent",),
+    "sensor_lag": ("effects.sensor_lag.time_constant_s",),
+    "mixture_cooling": ("effects.mixture_cooling.fraction", "effects.mixture_cooling.onset"),
+    "altitude_factor": (),
+    "radiation_kelvin": (),
+}
+
+
+def term_is_on(params: ThermalParams, name: str) -> bool:
+    """Whether a term (TERM_NAMES) is part of the model."""
+    if name == "altitude_factor":
+        return params.a != 0.0 or params.b != 0.0
+    if name == "radiation_kelvin":
+        return params.radiation_in_kelvin
+    if name not in _TERM_FREE:
+        raise ParameterError(f"effect {name!r}: unknown (known: {', '.join(TERM_NAMES)})")
+    return getattr(params.effects, name) is not None
+
+
+def parse_terms(text: str) -> dict[str, bool]:
+    """'airspeed_cooling,-altitude_factor' -> {name: on}; a leading '-' switches a term off."""
+    out: dict[str, bool] = {}
+    for item in (part.strip() for part in text.split(",")):
+        if not item:
+            continue
+        on = not item.startswith("-")
+        name = item.lstrip("+-")
+        if name not in TERM_NAMES:
+            raise ParameterError(f"--effects {item!r}: unknown term (known: {', '.join(TERM_NAMES)}, or auto)")
+        out[name] = on
+    if not out:
+        raise ParameterError("--effects: expected term names (e.g. airspeed_cooling,-altitude_factor) or auto")
+    return out
+
+
+def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[FlightLog]) -> ThermalParams:
+    """params with one term switched on (starting values from the data) or off."""
+    if term_is_on(params, name) == on:
+        return params
+    if name == "altitude_factor":
+        return params.replace(a=_PAPER_A if on else 0.0, b=_PAPER_B if on else 0.0)
+    if name == "radiation_kelvin":
+        return _switch_radiation_units(params, on, flights)
+    if not on:
+        return params.replace(effects=params.effects.replace(name, None))
+    airspeed = np.concatenate([np.asarray(log["airspeed_mps"], dtype=float) for log in flights])
+    if name == "airspeed_cooling":
+        reference = max(1.0, float(np.quantile(airspeed, 0.75)))
+        effect: object = AirspeedCooling(gain_per_mps=0.5 / reference, reference_mps=reference, floor=0.5)
+    elif name == "density_cooling":
+        density = np.concatenate(
+            [
+                np.asarray(air_density_kg_m3(isa_pressure_pa(log["altitude_m"]), log["oat_c"]), dtype=float)
+                for log in flights
+            ]
+        )
+        effect = DensityCooling(exponent=0.5, reference_kg_m3=float(np.clip(np.median(density), 0.3, 1.6)))
+    elif name == "sensor_lag":
+        effect = SensorLag(time_constant_s=10.0)
+    else:
+        effect = MixtureCooling()
+    return params.replace(effects=params.effects.replace(name, effect))
+
+
+def _switch_radiation_units(params: ThermalParams, kelvin: bool, flights: Sequence[FlightLog]) -> ThermalParams:
+    """Change the radiation form keeping the radiated heat at the data's reference operating point."""
+    oat, rise = reference_point(flights, params.heat_axes)
+    old = 273.15 if params.radiation_in_kelvin else 0.0
+    new = 273.15 if kelvin else 0.0
+    old_t4 = (oat + rise + old) ** 4 - (oat + old) ** 4
+    new_t4 = (oat + rise + new) ** 4 - (oat + new) ** 4
+    alpha = params.alpha_r_e * new_t4 / old_t4 if math.isfinite(params.alpha_r_e) else math.inf
+    return params.replace(radiation_in_kelvin=kelvin, alpha_r_e=max(alpha, 1.0))
+
+
+def model_form(
+    base: ThermalParams, flights: Sequence[FlightLog], terms: dict[str, bool], free: Sequence[str] = DEFAULT_FREE
+) -> tuple[ThermalParams, tuple[str, ...]]:
+    """The base with the given terms switched on/off, and the free parameters: ``free`` plus the
+    parameters of every effect that is on."""
+    params = base
+    for name, on in terms.items():
+        params = _set_term(params, name, on, flights)
+    names = [n for n in free if not n.startswith("effects.")]
+    for name in TERM_NAMES:
+        if term_is_on(params, name):
+            names += [n for n in _TERM_FREE[name] if n not in names]
+    return params, tuple(names)
+
+
+def _form_label(params: ThermalParams) -> str:
+    on = [name for name in TERM_NAMES if term_is_on(params, name)]
+    return ", ".join(on) if on else "paper form without altitude factor"
+
+
+# --------------------------------------------------------------------------------------------------
+# Leave one flight out
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One flight held out: the model fitted on the others and its errors on the held-out flight."""
+
+    held_out: str  # the held-out flight's source
+    params: ThermalParams
+    space: ParameterSpace
+    vector: NDArray[np.float64]
+    errors: ErrorStats  # on the held-out flight (reference step)
+    train_cost: float
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """Leave-one-flight-out result: one fold per flight."""
+
+    folds: tuple[Fold, ...]
+
+    @property
+    def rms_c(self) -> NDArray[np.float64]:
+        """Held-out RMS error of each flight, degC."""
+        return np.asarray([f.errors.rms_c for f in self.folds])
+
+    @property
+    def mean_rms_c(self) -> float:
+        """Mean held-out RMS error over the flights, degC (inf if any fold failed)."""
+        values = self.rms_c
+        return float(values.mean()) if np.all(np.isfinite(values)) else math.inf
+
+
+def _fold_flights(flights: Sequence[FlightLog], k: int) -> list[FlightLog]:
+    return [log for i, log in enumerate(flights) if i != k]
+
+
+def leave_one_flight_out(
+    flights: Sequence[FlightLog],
+    base: ThermalParams,
+    free: Sequence[str],
+    heat_axes: tuple[str, str],
+    grid: tuple[int, int] | None,
+    settings: PsoSettings,
+    error_dt_s: float | None = None,
+    pso_progress: Callable[[int, float, float], None] | None = None,
+) -> CrossValidation:
+    """Identify on every flight but one and score the one left out, for each flight (at least 2)."""
+    if len(flights) < 2:
+        raise ParameterError("leave-one-flight-out needs at least 2 flights")
+    folds = []
+    for k, log in enumerate(flights):
+        train = _fold_flights(flights, k)
+        result = identify(
+            train, base=base, heat_axes=heat_axes, free=free, grid=grid, settings=settings, progress=pso_progress
+        )
+        folds.append(
+            Fold(
+                held_out=log.source,
+                params=result.params,
+                space=result.space,
+                vector=result.best_vector,
+                errors=flight_errors(result.params, log, error_dt_s),
+                train_cost=result.best_cost,
+            )
+        )
+    return CrossValidation(tuple(folds))
+
+
+def _refit_fold(
+    fold: Fold,
+    flights: Sequence[FlightLog],
+    k: int,
+    term: str,
+    on: bool,
+    free: Sequence[str],
+    settings: PsoSettings,
+    error_dt_s: float | None,
+) -> Fold:
+    """The fold's current fit with one term toggled, polished on the fold's training flights."""
+    train = _fold_flights(flights, k)
+    start = _set_term(fold.params, term, on, train)
+    start, names = model_form(start, train, {}, free)
+    space = default_space(train, base=start, heat_axes=start.heat_axes, free=names)
+    objective = SwarmObjective(train, space, settings.dt_s)
+    unit, cost = polish(objective, space.to_unit(space.from_params(start)), settings.polish_evaluations)
+    vector = space.from_unit(unit)
+    params = space.to_params(vector)
+    errors = flight_errors(params, flights[k], error_dt_s)
+    return Fold(fold.held_out, params, space, vector, errors, cost)
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Outcome of :func:`select_terms`.
+
+    terms: the chosen on/off state of every term; steps: (toggle, mean held-out RMS degC) of each
+    candidate tried, round by round ("start" = the base form), and whether it was kept.
+    cross_validation: the folds of the chosen form (polished fold fits).
+    """
+
+    terms: dict[str, bool]
+    steps: tuple[tuple[int, str, float, bool], ...]
+    cross_validation: CrossValidation
+    elapsed_s: float
+
+
+def select_terms(
+    flights: Sequence[FlightLog],
+    base: ThermalParams,
+    heat_axes: tuple[str, str],
+    grid: tuple[int, int] | None,
+    settings: PsoSettings,
+    candidates: Sequence[str] = TERM_NAMES,
+    free: Sequence[str] = DEFAULT_FREE,
+    min_gain: float = MIN_GAIN,
+    error_dt_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
+    pso_progress: Callable[[int, float, float], None] | None = None,
+) -> Selection:
+    """Choose the terms by leave-one-flight-out held-out error (module doc); needs at least 2 flights."""
+    started = time.perf_counter()
+    usable = list(candidates)
+    start, names = model_form(base, flights, {}, free)
+    cv = leave_one_flight_out(flights, start, names, heat_axes, grid, settings, error_dt_s, pso_progress)
+    steps: list[tuple[int, str, float, bool]] = [(0, "start: " + _form_label(start), cv.mean_rms_c, True)]
+    if progress:
+        progress(f"start ({_form_label(start)}): held-out mean RMS {cv.mean_rms_c:.2f} degC")
+    state = {name: term_is_on(start, name) for name in usable}
+    tried: set[str] = set()
+    for round_ in range(1, len(usable) + 1):
+        best: tuple[float, str, CrossValidation] | None = None
+        for name in usable:
+            if name in tried:
+                continue
+            on = not state[name]
+            folds = tuple(
+                _refit_fold(fold, flights, k, name, on, free, settings, error_dt_s) for k, fold in enumerate(cv.folds)
+            )
+            trial = CrossValidation(folds)
+            label = ("+" if on else "-") + name
+            steps.append((round_, label, trial.mean_rms_c, False))
+            if progress:
+                progress(f"round {round_}: {label}: held-out mean RMS {trial.mean_rms_c:.2f} degC")
+            if best is None or trial.mean_rms_c < best[0]:
+                best = (trial.mean_rms_c, name, trial)
+        if best is None or not best[0] < cv.mean_rms_c * (1.0 - min_gain):
+            break
+        _, name, cv = best
+        state[name] = not state[name]
+        tried.add(name)  # a term toggled once is not toggled back
+        label = ("+" if state[name] else "-") + name
+        steps = [(r, s, v, kept or (r == round_ and s == label)) for r, s, v, kept in steps]
+    return Selection(state, tuple(steps), cv, time.perf_counter() - started)
+
+
+def identify_flights(
+    flights: Sequence[FlightLog],
+    *,
+    base: ThermalParams,
+    heat_axes: tuple[str, str],
+    grid: tuple[int, int] | None,
+    settings: PsoSettings,
+    terms: dict[str, bool] | str | None = None,
+    free: Sequence[str] = DEFAULT_FREE,
+    lofo: bool = True,
+    error_dt_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
+    pso_progress: Callable[[int, float, float], None] | None = None,
+) -> tuple[IdentificationResult, CrossValidation | None, Selection | None]:
+    """The normal real-data path: choose the terms (``"auto"``, a dict, or None = the base's form), fit
+    one model on every flight, and (``lofo`` with 2+ flights) its leave-one-flight-out errors."""
+    selection = None
+    if terms == "auto":
+        if len(flights) < 2:
+            raise ParameterError("--effects auto needs at least 2 flights (it keeps terms that help held-out flights)")
+        selection = select_terms(flights, base, heat_axes, grid, settings, free=free, error_dt_s=error_dt_s,
+                                 progress=progress, pso_progress=pso_progress)  # fmt: skip
+        chosen = selection.terms
+    else:
+        chosen = dict(terms) if isinstance(terms, dict) else {}
+    form, names = model_form(base, flights, chosen, free)
+    cv = selection.cross_validation if selection is not None else None
+    if cv is None and lofo and len(flights) >= 2:
+        cv = leave_one_flight_out(flights, form, names, heat_axes, grid, settings, error_dt_s, pso_progress)
+    result = identify(
+        flights, base=form, heat_axes=heat_axes, free=names, grid=grid, settings=settings, progress=pso_progress
+    )
+    return result, cv, selection
