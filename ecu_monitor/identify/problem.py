@@ -255,10 +255,13 @@ def heat_map_breakpoints(
     return out[0], out[1]
 
 
-def reference_point(flights: Sequence[FlightLog], heat_axes: tuple[str, str]) -> tuple[float, float]:
+def reference_point(flights: Sequence[FlightLog]) -> tuple[float, float]:
     """(OAT, CHT - OAT) of the reference operating point, degC: the flights' medians (rise at least 5)."""
-    oat = np.concatenate([np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
-    rise = np.concatenate([_measured(log) - np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
+    for log in flights:
+        if not log.has("oat_c"):
+            raise FlightLogError(f"{log.source}: no column 'oat_c' (model input; columns: {', '.join(log.names)})")
+    oat = np.concatenate([np.asarray(log["oat_c"], dtype=float) for log in flights])
+    rise = np.concatenate([_measured(log) - np.asarray(log["oat_c"], dtype=float) for log in flights])
     return float(np.median(oat)), max(5.0, float(np.median(rise)))
 
 
@@ -602,7 +605,7 @@ def default_space(
         )
     base = paper_table_a1() if base is None else base
     rise = np.concatenate([_measured(log) - np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
-    reference_oat_c, reference_rise_c = reference_point(flights, heat_axes)
+    reference_oat_c, reference_rise_c = reference_point(flights)
     max_rise = max(20.0, float(np.quantile(rise, 0.99)))
     fill = True
     if grid is not None or base.heat_axes != tuple(heat_axes):

@@ -144,7 +144,7 @@ def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[Flig
 
 def _switch_radiation_units(params: ThermalParams, kelvin: bool, flights: Sequence[FlightLog]) -> ThermalParams:
     """Change the radiation form keeping the radiated heat at the data's reference operating point."""
-    oat, rise = reference_point(flights, params.heat_axes)
+    oat, rise = reference_point(flights)
     old = 273.15 if params.radiation_in_kelvin else 0.0
     new = 273.15 if kelvin else 0.0
     old_t4 = (oat + rise + old) ** 4 - (oat + old) ** 4
