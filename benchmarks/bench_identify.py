@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/bench_identify.py --study dt       # integration step inside identification
     .venv/bin/python benchmarks/bench_identify.py --study variants # PSO variants and DE, several seeds
     .venv/bin/python benchmarks/bench_identify.py --study g1000 --plots docs/results/identification
+    nice -n 10 .venv/bin/python benchmarks/bench_identify.py --study plants --seeds 10  # randomised plants
 
 Virtual flights: the virtual ECU (virtual_bus.plant.fly) flies random_mission(1) (train) and
 random_mission(2) (held out), both about one hour, truth = the paper's Table A1, CHT sampled at 1 Hz
@@ -464,10 +465,42 @@ def study_virtual_plots(seed: int, plots: Path) -> None:
     print(f"plots -> {plots}")
 
 
+def study_plants(seeds: int, first_seed: int) -> None:
+    """Randomised plants (ecu_monitor.research.plants): identified on one mission, scored on another."""
+    from ecu_monitor.research.plants import draw_plant, run_plant
+
+    print(f"Randomised plants, seeds {first_seed}..{first_seed + seeds - 1}; errors in % of the measured CHT")
+    print()
+    print("| seed | C_w x | R_Ce x | radiation (chosen) | radiated share | true model on held-out mean / peak % |"
+          " train mean / peak % | held-out mean / peak % | pass | at bounds | time s |")  # fmt: skip
+    print("|---:|---:|---:|---|---:|---:|---:|---:|---|---|---:|")
+    passed = 0
+    for seed in range(first_seed, first_seed + seeds):
+        plant = draw_plant(seed)
+        outcome = run_plant(plant)
+        passed += outcome.passed
+        units = "K" if plant.truth.radiation_in_kelvin else "degC"
+        units += " (K)" if outcome.radiation_kelvin else " (degC)"
+        floor = outcome.truth_floor
+        print(
+            f"| {seed} | {plant.c_w_factor:.3f} | {plant.r_ce_factor:.2f} | {units} | {plant.radiated_share:.2f} |"
+            f" {floor.mean_pct:.2f} / {floor.peak_pct:.2f} |"
+            f" {outcome.train.mean_pct:.2f} / {outcome.train.peak_pct:.2f} |"
+            f" {outcome.held_out.mean_pct:.2f} / {outcome.held_out.peak_pct:.2f} |"
+            f" {'yes' if outcome.passed else 'NO'} |"
+            f" {'; '.join(outcome.at_bounds) or '-'} | {outcome.elapsed_s:.0f} |",
+            flush=True,
+        )
+    print()
+    print(f"{passed} of {seeds} plants meet mean < 1 % and peak < 5 % on the held-out flight")
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "--study", choices=("main", "dt", "variants", "g1000", "g1000-effects", "virtual-plots"), default="main"
+        "--study",
+        choices=("main", "dt", "variants", "g1000", "g1000-effects", "virtual-plots", "plants"),
+        default="main",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--record-dt", type=float, default=1.0, help="logging interval of the train flight, s (main)")
@@ -485,6 +518,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         study_g1000(args.seed, args.plots)
     elif args.study == "g1000-effects":
         study_g1000_effects(args.seed)
+    elif args.study == "plants":
+        study_plants(args.seeds, args.seed)
     else:
         study_virtual_plots(args.seed, args.plots or REPO / "docs/results/identification")
 

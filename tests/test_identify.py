@@ -295,3 +295,81 @@ def test_effect_parameters_can_be_freed_by_name():
     params = space.to_params(vector)
     assert params.effects.sensor_lag == SensorLag(20.0)
     np.testing.assert_array_equal(space.coefficient_arrays(vector[None, :]).sensor_lag_s, [20.0])
+
+
+# --------------------------------------------------------------------------------------------------
+# Scale anchor, heat-map prior, bounds, terms
+# --------------------------------------------------------------------------------------------------
+
+
+def test_radiation_share_coordinate_is_scale_free_and_kelvin_aware():
+    log = _synthetic_flight(7, 600)
+    for kelvin in (False, True):
+        base = paper_table_a1().replace(radiation_in_kelvin=kelvin)
+        space = default_space([log], base=base)
+        vector = space.from_params(base)
+        k = space.names.index("radiation_fraction")
+        assert 0.0 < vector[k] < 1.0
+        vector[k] = 0.25
+        params = space.to_params(vector)
+        assert space.radiation_share(params) == pytest.approx(0.25)
+        # the same share in a model of twice the scale (C_w, Q, 1/R_Ce, 1/alpha R_e all doubled)
+        double = params.replace(
+            c_w=2 * params.c_w,
+            r_ce=params.r_ce / 2,
+            alpha_r_e=params.alpha_r_e / 2,
+            heat_map=params.heat_map.with_values(2 * params.heat_map.values_array()),
+        )
+        assert space.radiation_share(double) == pytest.approx(0.25)
+        vector[k] = 0.0
+        assert math.isinf(space.to_params(vector).alpha_r_e)
+
+
+def test_heat_map_prior_penalises_curvature_and_a_fall_with_power():
+    log = _synthetic_flight(8, 600)
+    space = default_space([log], grid=(3, 3))
+    assert len(space.heat_cells) == 9  # every breakpoint is free under the prior
+    vector = space.from_params(space.base)
+    assert space.prior_penalty(vector[None, :])[0] == pytest.approx(0.0)  # a flat map
+    cells = {c: space.names.index(f"heat_rise_c[{c[0]},{c[1]}]") for c in space.heat_cells}
+    falling = vector.copy()
+    falling[cells[(2, 1)]] -= 2.0 * space.heat_monotone_sigma_c  # less heat at more power
+    bumped = vector.copy()
+    bumped[cells[(2, 1)]] += space.heat_smooth_sigma_c  # a bump at full power: curvature along both axes
+    assert space.prior_penalty(falling[None, :])[0] > 4.0
+    assert space.prior_penalty(bumped[None, :])[0] == pytest.approx(1.0 + 4.0, rel=1e-9)
+    rising = vector.copy()
+    for (i, _j), k in cells.items():
+        rising[k] += 10.0 * i  # linear in power: no curvature, no fall
+    assert space.prior_penalty(rising[None, :])[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_bounds_within_one_percent_are_reported():
+    log = _synthetic_flight(9, 600)
+    space = default_space([log])
+    vector = space.from_params(paper_table_a1())
+    assert space.at_bounds(vector) == []
+    k = space.names.index("time_constant_s")
+    vector[k] = space.upper[k]
+    lines = space.at_bounds(vector)
+    assert len(lines) == 1 and "time_constant_s" in lines[0] and "upper bound" in lines[0]
+
+
+def test_terms_switch_on_and_off_and_parse():
+    from ecu_monitor.identify.select import model_form, parse_terms, split_halves, term_is_on
+
+    log = _synthetic_flight(12, 1300)
+    assert parse_terms("airspeed_cooling,-altitude_factor") == {"airspeed_cooling": True, "altitude_factor": False}
+    with pytest.raises(ParameterError, match="unknown term"):
+        parse_terms("warp_drive")
+    form, free = model_form(paper_table_a1(), [log], {"airspeed_cooling": True, "altitude_factor": False})
+    assert term_is_on(form, "airspeed_cooling") and not term_is_on(form, "altitude_factor")
+    assert "effects.airspeed_cooling.gain_per_mps" in free and "heat_map" in free
+    kelvin, _ = model_form(paper_table_a1(), [log], {"radiation_kelvin": True})
+    space = default_space([log], base=paper_table_a1())
+    # the switch keeps the radiated share at the data's reference point
+    assert space.radiation_share(kelvin) == pytest.approx(space.radiation_share(paper_table_a1()), rel=1e-9)
+    first, second = split_halves(log)
+    assert len(first) + len(second) == len(log) and first.time_s[-1] < second.time_s[0]
+    with pytest.raises(ParameterError, match="needs"):
+        split_halves(_synthetic_flight(13, 600))

@@ -101,6 +101,8 @@ def test_identify_without_throttle_uses_fuel_flow_and_a_data_grid(tmp_path, caps
         (["--heat-axes", "egt_c,rpm"], "egt_c"),
         (["--particles", "1"], "particles"),
         (["--free", "c_w,volume"], "volume"),
+        (["--effects", "turbo_cooling"], "turbo_cooling"),
+        (["--cht-limit", "900"], "--cht-limit"),
     ],
 )
 def test_identify_bad_options_exit_2(flights, tmp_path, capsys, extra, message):
@@ -131,3 +133,22 @@ def test_unwritable_outputs_exit_2_before_identifying(flights, tmp_path, capsys)
     blocker.write_text("")
     assert main(["identify", str(train), "--out", str(tmp_path / "m.yaml"), "--plots", str(blocker), "--quiet"]) == 2
     assert "plot directory" in capsys.readouterr().err
+
+
+def test_two_flights_make_one_model_with_effects_lofo_limit_and_bounds(flights, tmp_path, capsys):
+    """Several flights, named terms, the user's CHT limit: per-flight table with held-out rows, the
+    limit in model.yaml and a warning when the data exceed it, the bound report in the header."""
+    train, held_out = flights
+    model = tmp_path / "model.yaml"
+    argv = ["identify", str(train), str(held_out), "--out", str(model), "--particles", "12", "--iterations", "8"]
+    argv += ["--effects=-altitude_factor,sensor_lag", "--cht-limit", "90", "--quiet"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert captured.out.count("held out (LOFO)") == 2 and "leave-one-flight-out held-out RMS" in captured.out
+    assert "measured CHT reaches" in captured.err and "above the limit 90" in captured.err
+    params = load_model(model)
+    assert params.cht_limit_c == 90.0 and params.a == 0.0 and params.b == 0.0
+    assert params.effects.sensor_lag is not None
+    header = [line for line in model.read_text().splitlines() if line.startswith("#")]
+    assert any("bound" in line for line in header)  # either AT BOUND lines or "no parameter ended ..."
+    assert any("held out (LOFO)" in line for line in header) and any("warning:" in line for line in header)

@@ -75,7 +75,7 @@ def add_subparser(subparsers: Any) -> None:
         metavar="NAMES|auto",
         help="terms to fit with the model, comma-separated (a leading '-' removes one): "
         + ", ".join(TERM_NAMES)
-        + "; auto keeps those that lower the held-out error (needs 2+ flights)",
+        + "; auto keeps those that lower the held-out error (other flights, or the halves of one)",
     )
     parser.add_argument("--cht-limit", type=float, metavar="C", help="the engine's CHT limit, degC (into model.yaml)")
     parser.add_argument("--no-lofo", action="store_true", help="skip the leave-one-flight-out check (2+ flights)")
@@ -169,8 +169,6 @@ def _run(args: argparse.Namespace) -> int:
         model_inputs(log, axes)
         if not log.has("cht_c"):
             raise FlightLogError(f"{log.source}: no column 'cht_c' (measured CHT) to validate against")
-    if terms == "auto" and len(flights) < 2:
-        raise UserInputError("--effects auto: needs at least 2 training flights (it keeps what helps held-out flights)")
     warnings = _limit_warnings(flights, base.cht_limit_c, args.cht_limit is not None)
     for line in warnings:
         print(f"warning: {line}", file=sys.stderr)

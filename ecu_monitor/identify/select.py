@@ -60,6 +60,7 @@ __all__ = [
     "model_form",
     "parse_terms",
     "select_terms",
+    "split_halves",
     "term_is_on",
 ]
 
@@ -267,6 +268,24 @@ def _refit_fold(
     return Fold(fold.held_out, params, space, vector, errors, cost)
 
 
+#: Shortest half-flight ``--effects auto`` splits a single flight into, s.
+MIN_HALF_S = 600.0
+
+
+def split_halves(log: FlightLog) -> list[FlightLog]:
+    """A single flight cut at its middle time into two flights (for held-out choices on one flight)."""
+    t = np.asarray(log.time_s, dtype=float)
+    middle = t[0] + 0.5 * (t[-1] - t[0])
+    if middle - t[0] < MIN_HALF_S:
+        raise ParameterError(
+            f"{log.source}: --effects auto on one flight needs {2 * MIN_HALF_S:.0f} s at least (two halves that"
+            " predict each other); give more flights or name the terms"
+        )
+    first = log.select(t[0], middle)
+    second = log.select(float(t[t > middle][0]), t[-1])
+    return [first, second]
+
+
 @dataclass(frozen=True)
 class Selection:
     """Outcome of :func:`select_terms`.
@@ -339,25 +358,27 @@ def identify_flights(
     grid: tuple[int, int] | None,
     settings: PsoSettings,
     terms: dict[str, bool] | str | None = None,
+    candidates: Sequence[str] = TERM_NAMES,
     free: Sequence[str] = DEFAULT_FREE,
     lofo: bool = True,
     error_dt_s: float | None = None,
     progress: Callable[[str], None] | None = None,
     pso_progress: Callable[[int, float, float], None] | None = None,
 ) -> tuple[IdentificationResult, CrossValidation | None, Selection | None]:
-    """The normal real-data path: choose the terms (``"auto"``, a dict, or None = the base's form), fit
-    one model on every flight, and (``lofo`` with 2+ flights) its leave-one-flight-out errors."""
+    """The normal real-data path: choose the terms (``"auto"`` among ``candidates``, a dict, or None =
+    the base's form), fit one model on every flight, and (``lofo`` with 2+ flights) its
+    leave-one-flight-out errors. With one flight, ``"auto"`` chooses on its two halves (each predicts
+    the other) and fits the chosen form on the whole flight."""
     selection = None
     if terms == "auto":
-        if len(flights) < 2:
-            raise ParameterError("--effects auto needs at least 2 flights (it keeps terms that help held-out flights)")
-        selection = select_terms(flights, base, heat_axes, grid, settings, free=free, error_dt_s=error_dt_s,
-                                 progress=progress, pso_progress=pso_progress)  # fmt: skip
+        chosen_on = list(flights) if len(flights) >= 2 else split_halves(flights[0])
+        selection = select_terms(chosen_on, base, heat_axes, grid, settings, candidates=candidates, free=free,
+                                 error_dt_s=error_dt_s, progress=progress, pso_progress=pso_progress)  # fmt: skip
         chosen = selection.terms
     else:
         chosen = dict(terms) if isinstance(terms, dict) else {}
     form, names = model_form(base, flights, chosen, free)
-    cv = selection.cross_validation if selection is not None else None
+    cv = selection.cross_validation if selection is not None and len(flights) >= 2 else None
     if cv is None and lofo and len(flights) >= 2:
         cv = leave_one_flight_out(flights, form, names, heat_axes, grid, settings, error_dt_s, pso_progress)
     result = identify(
