@@ -330,8 +330,9 @@ def test_heat_map_prior_penalises_curvature_and_a_fall_with_power():
     space = default_space([log], grid=(3, 3))
     assert len(space.heat_cells) == 9  # every breakpoint is free under the prior
     vector = space.from_params(space.base)
-    assert space.prior_penalty(vector[None, :])[0] == pytest.approx(0.0)  # a flat map
     cells = {c: space.names.index(f"heat_rise_c[{c[0]},{c[1]}]") for c in space.heat_cells}
+    vector[list(cells.values())] = 60.0
+    assert space.prior_penalty(vector[None, :])[0] == pytest.approx(0.0)  # a flat map
     falling = vector.copy()
     falling[cells[(2, 1)]] -= 2.0 * space.heat_monotone_sigma_c  # less heat at more power
     bumped = vector.copy()

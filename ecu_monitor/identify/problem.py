@@ -41,7 +41,7 @@ from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import Coefficients, HeatMap, InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.compiled import simulate_compiled
-from ecu_monitor.model.effects import EFFECT_TYPES, MixtureIndex
+from ecu_monitor.model.effects import EFFECT_TYPES, MIXTURE_SOURCES, MixtureIndex
 from ecu_monitor.model.inputs import read_inputs
 
 __all__ = [
@@ -56,6 +56,7 @@ __all__ = [
     "flight_errors",
     "heat_map_breakpoints",
     "model_inputs",
+    "observed_rise_map",
     "prepare_flight",
     "reference_point",
     "simulate_flight",
@@ -179,14 +180,21 @@ class FlightGrid(NamedTuple):
         return (1.0 - w) * recorded[self.sample_row] + w * recorded[self.sample_row + 1]
 
 
-def prepare_flight(log: FlightLog, heat_axes: tuple[str, str], dt_s: float, record_period_s: float = 1.0) -> FlightGrid:
+def prepare_flight(
+    log: FlightLog,
+    heat_axes: tuple[str, str],
+    dt_s: float,
+    record_period_s: float = 1.0,
+    mixture: MixtureIndex | None = None,
+) -> FlightGrid:
     """Put a flight on a uniform grid of step ``dt_s`` (inputs held from the last sample at or before
-    each grid time), recording the state every ``record_period_s`` (rounded to a whole number of steps)."""
+    each grid time), recording the state every ``record_period_s`` (rounded to a whole number of steps).
+    ``mixture``: the model's mixture_index effect, whose index column is then read too."""
     if not (math.isfinite(dt_s) and dt_s > 0.0):
         raise ParameterError(f"integration step: expected a positive number of seconds, got {dt_s!r}")
     if len(log) < 2:
         raise FlightLogError(f"{log.source}: at least 2 samples are needed to identify or simulate")
-    series = model_inputs(log, heat_axes)
+    series = model_inputs(log, heat_axes, mixture)
     measured = _measured(log)
     t = np.asarray(log.time_s, dtype=float)
     span = float(t[-1] - t[0])
@@ -215,7 +223,9 @@ def simulate_flight(params: ThermalParams, log: FlightLog, dt_s: float | None = 
     starting from the first measured CHT with the heat-path delay in steady state. NaN from the sample
     where the trajectory stops being finite (reported by :func:`flight_errors` as NaN errors).
     """
-    grid = prepare_flight(log, params.heat_axes, REFERENCE_DT_S if dt_s is None else dt_s)
+    grid = prepare_flight(
+        log, params.heat_axes, REFERENCE_DT_S if dt_s is None else dt_s, mixture=params.effects.mixture_index
+    )
     probe, _ = _run_grid(grid, coefficients(params))
     return probe
 
@@ -253,6 +263,37 @@ def heat_map_breakpoints(
             points = np.linspace(low, high, count)
         out.append(tuple(float(round(p, 6)) for p in points))
     return out[0], out[1]
+
+
+def observed_rise_map(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
+    """The temperature rise CHT - OAT the flights show at each breakpoint (degC): the mean over the
+    samples weighted by their bilinear weight, made non-decreasing along the first (power) axis;
+    a breakpoint the flights never reach takes the median rise. The identification's starting map."""
+    xb = np.asarray(heat_map.x_breakpoints)
+    yb = np.asarray(heat_map.y_breakpoints)
+    total = np.zeros(heat_map.shape)
+    weight = np.zeros(heat_map.shape)
+    rises = []
+    for log in flights:
+        series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
+        rise = _measured(log) - np.asarray(series.oat_c)
+        rises.append(rise)
+        i, fx = _cell_weights(xb, series.heat_x)
+        j, fy = _cell_weights(yb, series.heat_y)
+        for di, wx in ((0, 1.0 - fx), (1, fx)):
+            for dj, wy in ((0, 1.0 - fy), (1, fy)):
+                np.add.at(total, (i + di, j + dj), wx * wy * rise)
+                np.add.at(weight, (i + di, j + dj), wx * wy)
+    median = max(5.0, float(np.median(np.concatenate(rises))))
+    seen = weight > 1.0
+    out = np.where(seen, total / np.maximum(weight, 1e-12), median)
+    return np.maximum(np.maximum.accumulate(np.maximum(out, 1.0), axis=0), 1.0)
+
+
+def _cell_weights(breakpoints: NDArray[np.float64], q: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    qc = np.clip(np.asarray(q, dtype=float), breakpoints[0], breakpoints[-1])
+    cell = np.clip(np.searchsorted(breakpoints, qc, side="right") - 1, 0, breakpoints.size - 2)
+    return cell, (qc - breakpoints[cell]) / (breakpoints[cell + 1] - breakpoints[cell])
 
 
 def reference_point(flights: Sequence[FlightLog]) -> tuple[float, float]:
@@ -610,9 +651,9 @@ def default_space(
     fill = True
     if grid is not None or base.heat_axes != tuple(heat_axes):
         xb, yb = heat_map_breakpoints(flights, heat_axes, grid or (4, 4))
-        start_rise = max(5.0, float(np.median(rise)))
-        values = np.full((len(xb), len(yb)), start_rise / base.r_ce)
-        base = base.replace(heat_map=HeatMap(heat_axes[0], heat_axes[1], xb, yb, tuple(map(tuple, values))))
+        flat = HeatMap(heat_axes[0], heat_axes[1], xb, yb, tuple(tuple(1.0 for _ in yb) for _ in xb))
+        values = observed_rise_map(flights, flat) / base.r_ce
+        base = base.replace(heat_map=flat.with_values(values))
     names: list[str] = []
     lower: list[float] = []
     upper: list[float] = []
@@ -650,6 +691,9 @@ def default_space(
             if getattr(base.effects, effect) is None:
                 raise ParameterError(f"free parameter {name}: the effect is off in the base model (switch it on first)")
             _target, lo, hi, log_scaled = _EFFECT_FIELDS[name]
+            if name == "effects.mixture_index.gain":  # |gain| x the index's typical swing <= 3
+                swing = MIXTURE_SOURCES[base.effects.mixture_index.source][3]
+                lo, hi = -3.0 / swing, 3.0 / swing
             add(name, lo, hi, log_scaled)
     cells: list[tuple[int, int]] = []
     if "heat_map" in free_set:
@@ -695,7 +739,8 @@ class SwarmObjective:
 
     def __init__(self, flights: Sequence[FlightLog], space: ParameterSpace, dt_s: float, record_period_s: float = 1.0):
         self.space = space
-        self.grids = [prepare_flight(log, space.base.heat_axes, dt_s, record_period_s) for log in flights]
+        mixture = space.base.effects.mixture_index
+        self.grids = [prepare_flight(log, space.base.heat_axes, dt_s, record_period_s, mixture) for log in flights]
         self.samples = int(sum(g.measured_c.size for g in self.grids))
         self.failed = 0
         self.evaluations = 0

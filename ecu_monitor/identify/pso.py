@@ -49,7 +49,8 @@ class PsoSettings:
     seed: random seed (reproducible runs).
     dt_s: integration step of the model inside identification, s (chosen by measured accuracy).
     polish: finish with scipy.optimize.least_squares from the best particle.
-    polish_evaluations: largest number of residual evaluations of the polish.
+    polish_evaluations: largest number of residual evaluations of the polish (each with a Jacobian:
+        cheap next to the swarm, and the polish is what converges in 20-30 dimensions).
     """
 
     particles: int = 48
@@ -65,7 +66,7 @@ class PsoSettings:
     seed: int = 0
     dt_s: float = IDENTIFICATION_DT_S
     polish: bool = True
-    polish_evaluations: int = 40
+    polish_evaluations: int = 100
 
     def __post_init__(self) -> None:
         if isinstance(self.particles, bool) or not isinstance(self.particles, int) or self.particles < 2:

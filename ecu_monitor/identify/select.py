@@ -2,7 +2,8 @@
 
 A *term* is a part of the model that one engine needs and another does not: an unmodelled-effect
 extension (airspeed cooling with its propeller-wash floor, density cooling, probe lag, mixture
-cooling), or a part of the paper's own form that can be removed (``altitude_factor``, the heat scaling
+cooling, mixture index: the heat follows a logged lean/rich index, the mean EGT or else the fuel
+per revolution), or a part of the paper's own form that can be removed (``altitude_factor``, the heat scaling
 g(z), which a heat map driven by measured fuel flow already carries) or changed (``radiation_kelvin``:
 T^4 in kelvin instead of the paper's degC). :func:`model_form` switches terms on or off and names the
 parameters to fit with them.
@@ -48,6 +49,8 @@ from ecu_monitor.model import (
     air_density_kg_m3,
     isa_pressure_pa,
 )
+from ecu_monitor.model.effects import MIXTURE_SOURCES, MixtureIndex
+from ecu_monitor.model.inputs import read_inputs
 
 __all__ = [
     "MIN_GAIN",
@@ -70,6 +73,7 @@ TERM_NAMES: tuple[str, ...] = (
     "density_cooling",
     "sensor_lag",
     "mixture_cooling",
+    "mixture_index",
     "altitude_factor",
     "radiation_kelvin",
 )
@@ -78,7 +82,8 @@ MIN_GAIN = 0.02
 #: The paper's altitude exponents, used when the altitude factor is switched back on.
 _PAPER_A, _PAPER_B = 1.55, 2.0
 _TERM_FREE: dict[str, tuple[str, ...]] = {
-    "airspeed_cooling": ("effects.airspeed_cooling.gain_per_mps", "effects.airspeed_cooling.floor"),
+    "airspeed_cooling": ("effects.airspeed_cooling.gain_per_mps", "effects.airspeed_cooling.prop_wash_mps"),
+    "mixture_index": ("effects.mixture_index.gain",),
     "density_cooling": ("effects.density_cooling.exponent",),
     "sensor_lag": ("effects.sensor_lag.time_constant_s",),
     "mixture_cooling": ("effects.mixture_cooling.fraction", "effects.mixture_cooling.onset"),
@@ -127,7 +132,10 @@ def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[Flig
     airspeed = np.concatenate([np.asarray(log["airspeed_mps"], dtype=float) for log in flights])
     if name == "airspeed_cooling":
         reference = max(1.0, float(np.quantile(airspeed, 0.75)))
-        effect: object = AirspeedCooling(gain_per_mps=0.5 / reference, reference_mps=reference, floor=0.5)
+        prop_wash = min(0.5 * reference, 60.0)
+        effect: object = AirspeedCooling(
+            gain_per_mps=0.5 / reference, reference_mps=reference, floor=0.05, prop_wash_mps=prop_wash
+        )
     elif name == "density_cooling":
         density = np.concatenate(
             [
@@ -138,6 +146,11 @@ def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[Flig
         effect = DensityCooling(exponent=0.5, reference_kg_m3=float(np.clip(np.median(density), 0.3, 1.6)))
     elif name == "sensor_lag":
         effect = SensorLag(time_constant_s=10.0)
+    elif name == "mixture_index":
+        source = "egt_c" if all(log.has("egt_c") for log in flights) else "fuel_per_rev"
+        probe = MixtureIndex(source=source, gain=0.0, reference=MIXTURE_SOURCES[source][1])
+        index = np.concatenate([np.asarray(read_inputs(log, params.heat_axes, probe).mixture_index) for log in flights])
+        effect = MixtureIndex(source=source, gain=0.0, reference=float(np.nanmedian(index)))
     else:
         effect = MixtureCooling()
     return params.replace(effects=params.effects.replace(name, effect))
