@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import EcuMonitorError
-from ecu_monitor.flightlog import FlightLog, load_flight
+from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.segments import SEGMENT_NAMES, segment_flight
 from ecu_monitor.identify import ErrorStats, PsoSettings, identify, simulate_flight
 from ecu_monitor.identify.report import plot_flight
