@@ -220,7 +220,7 @@ def _read_with_python_can(src: str, text: str | None = None) -> FrameArrays:
     payload = bytearray()
     try:
         reader_class = can.io.player.MESSAGE_READERS.get(Path(src).suffix.lower())
-        opened = can.LogReader(src) if text is None or reader_class is None else reader_class(io.StringIO(text))
+        opened = can.LogReader(src) if text is None or reader_class is None else reader_class(io.StringIO(text))  # type: ignore[arg-type]  # the text readers take a file object too
         with opened as reader:
             for msg in reader:
                 times.append(msg.timestamp)

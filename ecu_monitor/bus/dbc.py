@@ -139,12 +139,12 @@ def _load_cached(src: str, size: int, mtime_ns: int) -> Dbc:
             raise ConfigError(f"{src}: not a valid DBC file: syntax error at line {number}: {shown!r}") from None
         raise ConfigError(f"{src}: not a valid DBC file: {message[:200]}") from None
     broken: dict[str, str] = {}
-    for message in database.messages:
+    for frame_def in database.messages:  # type: ignore[union-attr]  # load_string of a .dbc gives a CAN database
         try:
-            message.refresh(strict=True)
+            frame_def.refresh(strict=True)
         except (cantools.database.Error, ValueError) as exc:
-            broken[message.name] = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            message.refresh(strict=False)
+            broken[frame_def.name] = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            frame_def.refresh(strict=False)
     if broken:
         shown = "; ".join(f"{name}: {reason}" for name, reason in list(broken.items())[:3])
         more = f" (and {len(broken) - 3} more)" if len(broken) > 3 else ""

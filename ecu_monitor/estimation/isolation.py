@@ -260,7 +260,11 @@ def _run(
 
 
 # Names the core calls; compiled_kernels() binds them to compiled functions.
-derivatives = rk4 = predict = correct = deviation = None
+derivatives: Any = None
+rk4: Any = None
+predict: Any = None
+correct: Any = None
+deviation: Any = None
 
 
 @functools.cache

@@ -171,7 +171,13 @@ def _drive_kernel(
 
 
 # Names the kernels call; _kernel() and _drive() bind them to the compiled equations.
-blend = drive = rk4 = lag_fraction = probe_step = conditions = particles_step = None
+blend: Any = None
+drive: Any = None
+rk4: Any = None
+lag_fraction: Any = None
+probe_step: Any = None
+conditions: Any = None
+particles_step: Any = None
 
 
 @functools.cache

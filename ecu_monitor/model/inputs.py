@@ -39,7 +39,8 @@ _MIN_RPM = 100.0
 class ColumnSource(Protocol):
     """What :func:`flight_inputs` reads: a flight log's named columns."""
 
-    source: str
+    @property
+    def source(self) -> str: ...
 
     def has(self, name: str) -> bool: ...
 

@@ -159,7 +159,7 @@ def compute_drive(inputs: InputSeries, coeffs: Coefficients) -> Drive:
     xb = coeffs.x_breakpoints
     q_sl0 = bilinear(coeffs.heat_values_w, xb, coeffs.y_breakpoints, inputs.heat_x, inputs.heat_y)
     oat_c = np.asarray(inputs.oat_c, dtype=float)
-    conditions = _eq.conditions(
+    conditions: tuple[Any, Any, Any, Any, Any] = _eq.conditions(
         np.asarray(inputs.heat_x, dtype=float),
         np.asarray(inputs.altitude_m, dtype=float),
         np.asarray(inputs.airspeed_mps, dtype=float),
