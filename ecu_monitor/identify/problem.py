@@ -691,8 +691,9 @@ def default_space(
             if getattr(base.effects, effect) is None:
                 raise ParameterError(f"free parameter {name}: the effect is off in the base model (switch it on first)")
             _target, lo, hi, log_scaled = _EFFECT_FIELDS[name]
-            if name == "effects.mixture_index.gain":  # |gain| x the index's typical swing <= 3
-                swing = MIXTURE_SOURCES[base.effects.mixture_index.source][3]
+            mixture = base.effects.mixture_index
+            if name == "effects.mixture_index.gain" and mixture is not None:  # |gain| x typical swing <= 3
+                swing = MIXTURE_SOURCES[mixture.source][3]
                 lo, hi = -3.0 / swing, 3.0 / swing
             add(name, lo, hi, log_scaled)
     cells: list[tuple[int, int]] = []
