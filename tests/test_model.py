@@ -217,3 +217,68 @@ def test_scalar_drive_path_equals_numpy_path():
 def test_save_model_to_unwritable_place_is_a_one_line_error(tmp_path):
     with pytest.raises(ConfigError, match="cannot write model file"):
         save_model(paper_table_a1(), tmp_path / "missing-dir" / "model.yaml")
+
+
+def _model_text(**changes: object) -> str:
+    """The paper's model.yaml with some top-level keys changed (None: the key left out)."""
+    import yaml
+
+    data = paper_table_a1().to_dict()
+    for key, value in changes.items():
+        if value is None:
+            data.pop(key)
+        else:
+            data[key] = value
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        (_model_text(c_w=None), "c_w: missing"),
+        (_model_text(heat_map=None), "heat_map: missing"),
+        (_model_text(version=None), "version: missing"),
+        (_model_text(version=2), "version: expected 1"),
+        (_model_text(a=-1.55), "a: expected a value in [0, 10]"),
+        (_model_text(b=-2.0), "b: expected a value in [0, 10]"),
+        (_model_text(colour="red"), "colour: unknown key"),
+        (_model_text() + "c_w: 600\n", "c_w: duplicate key (line"),
+        (_model_text(effects={"sensor_lag": {"time_constant_s": 5, "time_constant_s ": 1}}), "time_constant_s"),
+    ],
+)
+def test_model_yaml_refuses_missing_unknown_duplicate_and_version(tmp_path, text, needle):
+    path = tmp_path / "model.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_model(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and needle in message and "\n" not in message
+
+
+def test_model_yaml_duplicate_key_in_a_nested_mapping_is_refused(tmp_path):
+    text = _model_text().replace("  x_axis:", "  y_axis: rpm\n  x_axis:", 1)
+    path = tmp_path / "model.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"y_axis: duplicate key"):
+        load_model(path)
+
+
+@pytest.mark.parametrize(
+    ("values", "needle"),
+    [
+        ("[[1, 2], [3]]", "row 2: expected 2 values"),
+        ("[[1, 2], [3, 4, 5]]", "row 2: expected 2 values"),
+        ("[[1, 2]]", "expected 2 rows"),
+        ("[[1, 2], 7]", "row 2: expected 2 values"),
+    ],
+)
+def test_heat_map_row_of_the_wrong_length_names_the_row(tmp_path, values, needle):
+    text = _model_text(heat_map=None) + (
+        "heat_map: {x_axis: rpm, y_axis: throttle_pct, x_breakpoints: [0, 1], y_breakpoints: [0, 1], "
+        f"values_w: {values}}}\n"
+    )
+    path = tmp_path / "model.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_model(path)
+    assert "heat_map.values_w: " in str(info.value) and needle in str(info.value)

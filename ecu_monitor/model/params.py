@@ -20,9 +20,11 @@ import yaml
 from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.model.effects import Effects
 from ecu_monitor.model.heatmap import HeatMap, reference_heat_map
+from ecu_monitor.yamlfile import load_yaml_text
 
 __all__ = [
     "MODEL_KIND",
+    "MODEL_VERSION",
     "NOMINAL_TERMS",
     "ThermalParams",
     "load_model",
@@ -31,6 +33,23 @@ __all__ = [
 ]
 
 MODEL_KIND = "cht-0d-single-zone"
+#: The model.yaml schema version this code reads and writes.
+MODEL_VERSION = 1
+#: Keys every model.yaml must give: a missing one is an error, never a silent default (the defaults
+#: are the paper's engine, not the reader's). ``effects`` and ``terms_off`` may be left out (none).
+REQUIRED_KEYS: tuple[str, ...] = (
+    "model",
+    "version",
+    "c_w",
+    "r_ce",
+    "alpha_r_e",
+    "radiation_in_kelvin",
+    "tau_w",
+    "a",
+    "b",
+    "cht_limit_c",
+    "heat_map",
+)
 #: Terms of the paper's own model that a model may switch off (``ThermalParams.terms_off``):
 #: "altitude_scaling" makes g(z) = 1 (a and b unused: a heat map driven by measured fuel flow already
 #: carries altitude); "radiation" drops the T^4 term (alpha_r_e unused).
@@ -41,8 +60,10 @@ _SCALARS: dict[str, tuple[float, float]] = {
     "r_ce": (1e-4, 100.0),
     "alpha_r_e": (1.0, math.inf),
     "tau_w": (0.05, 600.0),
-    "a": (-5.0, 10.0),
-    "b": (-5.0, 10.0),
+    # g(z) = (p/p_SL)^a (T_SL/T_e)^b: an exponent below 0 would make thinner or warmer air put more
+    # heat into the wall, which no aspirated engine does (the paper's a = 1.55, b = 2); 0 = no effect
+    "a": (0.0, 10.0),
+    "b": (0.0, 10.0),
     "cht_limit_c": (20.0, 500.0),
 }
 
@@ -118,7 +139,7 @@ class ThermalParams:
         hm = self.heat_map
         return {
             "model": MODEL_KIND,
-            "version": 1,
+            "version": MODEL_VERSION,
             "c_w": self.c_w,
             "r_ce": self.r_ce,
             "alpha_r_e": self.alpha_r_e,
@@ -140,20 +161,31 @@ class ThermalParams:
 
     @classmethod
     def from_dict(cls, data: Any) -> ThermalParams:
-        """Parse the model.yaml schema; raises ParameterError naming the key."""
+        """Parse the model.yaml schema; raises ParameterError naming the key.
+
+        Every key of :data:`REQUIRED_KEYS` must be given; unknown keys and another ``version`` than
+        :data:`MODEL_VERSION` are refused. Values are checked before missing keys are reported, so a
+        one-key file with a bad value names that value.
+        """
         if not isinstance(data, dict):
             raise ParameterError("expected a mapping at the top level")
-        kind = data.get("model", MODEL_KIND)
-        if kind != MODEL_KIND:
-            raise ParameterError(f"model: expected {MODEL_KIND!r}, got {kind!r}")
         known = {f.name for f in dataclasses.fields(cls)} | {"model", "version"}
         for key in data:
             if key not in known:
                 raise ParameterError(f"{key}: unknown key (known: {', '.join(sorted(known))})")
+        if "model" in data and data["model"] != MODEL_KIND:
+            raise ParameterError(f"model: expected {MODEL_KIND!r}, got {data['model']!r}")
+        if "version" in data and (isinstance(data["version"], bool) or data["version"] != MODEL_VERSION):
+            raise ParameterError(
+                f"version: expected {MODEL_VERSION} (the schema this program reads), got {data['version']!r}"
+            )
         kwargs: dict[str, Any] = {}
-        for name in _SCALARS:
+        for name, (low, high) in _SCALARS.items():
             if name in data:
-                kwargs[name] = _number(data[name], name)
+                value = _number(data[name], name)
+                if not low <= value <= high:
+                    raise ParameterError(f"{name}: expected a value in [{low:g}, {high:g}], got {data[name]!r}")
+                kwargs[name] = value
         if "radiation_in_kelvin" in data:
             kwargs["radiation_in_kelvin"] = data["radiation_in_kelvin"]
         if "heat_map" in data:
@@ -164,7 +196,11 @@ class ThermalParams:
             if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
                 raise ParameterError(f"terms_off: expected a list of term names, got {data['terms_off']!r}")
             kwargs["terms_off"] = tuple(terms)
-        return cls(**kwargs)
+        params = cls(**kwargs)  # validates the values given
+        for key in REQUIRED_KEYS:
+            if key not in data:
+                raise ParameterError(f"{key}: missing (a model file gives every one of {', '.join(REQUIRED_KEYS)})")
+        return params
 
 
 def _number(value: Any, where: str) -> float:
@@ -186,12 +222,21 @@ def _heat_map(data: Any) -> HeatMap:
     for key in required:
         if key not in data:
             raise ParameterError(f"heat_map.{key}: missing")
-    try:
-        xb = tuple(_number(v, "heat_map.x_breakpoints") for v in data["x_breakpoints"])
-        yb = tuple(_number(v, "heat_map.y_breakpoints") for v in data["y_breakpoints"])
-        values = tuple(tuple(_number(v, "heat_map.values_w") for v in row) for row in data["values_w"])
-    except TypeError:
-        raise ParameterError("heat_map: breakpoints and values_w must be lists of numbers") from None
+    for key in ("x_breakpoints", "y_breakpoints", "values_w"):
+        if not isinstance(data[key], list):
+            raise ParameterError(f"heat_map.{key}: expected a list, got {data[key]!r}")
+    xb = tuple(_number(v, "heat_map.x_breakpoints") for v in data["x_breakpoints"])
+    yb = tuple(_number(v, "heat_map.y_breakpoints") for v in data["y_breakpoints"])
+    rows = data["values_w"]
+    if len(rows) != len(xb):
+        raise ParameterError(f"heat_map.values_w: expected {len(xb)} rows (one per x breakpoint), got {len(rows)}")
+    for i, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != len(yb):
+            got = f"{len(row)} values" if isinstance(row, list) else repr(row)
+            raise ParameterError(
+                f"heat_map.values_w: row {i + 1}: expected {len(yb)} values (one per y breakpoint), got {got}"
+            )
+    values = tuple(tuple(_number(v, "heat_map.values_w") for v in row) for row in rows)
     return HeatMap(str(data["x_axis"]), str(data["y_axis"]), xb, yb, values)
 
 
@@ -209,7 +254,7 @@ def load_model(path: str | Path) -> ThermalParams:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read model file ({exc.strerror})") from None
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml_text(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
     try:
