@@ -126,13 +126,27 @@ def test_run_emits_onto_the_configured_bus(tiny_mission: Path, tmp_path: Path, m
     assert f"sent {count} frames (0 send errors)" in capsys.readouterr().out
 
 
-def test_run_with_interface_options_and_realtime(tiny_mission: Path, make_bus: Any):
+def test_run_with_interface_options_and_realtime(tiny_mission: Path, make_bus: Any, capsys: Any):
     channel = f"vecu-cli-{uuid.uuid4().hex[:8]}"
     receiver = make_bus(channel)
     argv = ["run", "--interface", "virtual", "--channel", channel, "--mission", str(tiny_mission)]
     assert main([*argv, "--realtime", "--speed", "50"]) == 0
     first = receiver.recv(timeout=0.5)
     assert first is not None and first.arbitration_id in (0x100, 0x101, 0x200)
+    # a daemon on the bus runs on the wall clock: faster than real time is warned, once, in one line
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "faster than real time" in line]
+    assert len(warnings) == 1 and "--speed 50" in warnings[0] and "replay" in warnings[0]
+
+
+@pytest.mark.parametrize("option", ["--dt", "--record-dt"])
+@pytest.mark.parametrize("value", ["0", "nan", "-0.02", "inf"])
+def test_record_refuses_a_zero_or_nan_step_in_one_line(tmp_path: Path, capsys: Any, option: str, value: str):
+    out = tmp_path / "flight.csv"
+    assert main(["record", option, value, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err
+    assert err.startswith("virtual-ecu: error: ") and option.lstrip("-").replace("-", "_") in err
+    assert not out.exists()
 
 
 @pytest.mark.slow

@@ -174,6 +174,15 @@ def _run(args: argparse.Namespace) -> int:
     config = _bus_config(args)
     if not args.speed > 0.0:
         raise ConfigError(f"--speed: expected a positive factor, got {args.speed!r}")
+    if args.realtime and args.speed > 1.0:
+        # a daemon on the bus (ecu-monitor run) steps its filter on the wall clock, so frames paced
+        # faster than real time compress the thermal dynamics it sees: a healthy engine looks degraded
+        print(
+            f"virtual-ecu: warning: --speed {args.speed:g} is faster than real time; a monitoring daemon on this bus"
+            " runs on the wall clock and will misread the engine (use `ecu-monitor replay` on a recorded log"
+            " for faster than real time)",
+            file=sys.stderr,
+        )
     progress = _Progress(f"virtual-ecu run {flight.mission.name} on {config.interface}:{config.channel}")
 
     def show(stats: EmitStats) -> None:

@@ -476,7 +476,11 @@ def block_rows(block: StepBlock, every: int) -> dict[str, np.ndarray]:
 
 
 def record_every(dt_s: float, record_dt_s: float) -> int:
-    """Steps between recorded samples; record_dt_s must be a whole multiple of dt_s."""
+    """Steps between recorded samples; record_dt_s must be a whole multiple of dt_s (both checked
+    before use: a zero or NaN step is a ParameterError naming it, not a division error)."""
+    _check_step(dt_s)
+    if not (isinstance(record_dt_s, int | float) and math.isfinite(record_dt_s) and record_dt_s > 0):
+        raise ParameterError(f"record_dt_s: expected a positive finite step, s, got {record_dt_s!r}")
     ratio = record_dt_s / dt_s
     every = round(ratio)
     if every < 1 or abs(ratio - every) > 1e-6 * max(1.0, ratio):
