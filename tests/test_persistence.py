@@ -277,3 +277,88 @@ def test_history_prints_the_trend_and_plots_it(tmp_path: Path, capsys: pytest.Ca
     assert main(["history", "--state-dir", str(tmp_path), "--engine", "NOPE"]) == 2
     assert "no engine 'NOPE'" in capsys.readouterr().err
     assert main(["history", "--state-dir", str(tmp_path / "missing")]) == 2
+
+
+def test_history_shows_the_checkpointed_flight_of_a_killed_daemon(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Killed mid-flight, before the next start: the running row is listed with its checkpoint."""
+    from ecu_monitor.cli import main
+
+    store = StateStore(tmp_path)
+    recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+    _feed(recorder, 0.0, 100.0, 6000.0, lambda s: 150.0)  # checkpoints at 30, 60, 90 s
+    store.close()  # killed: the flight is never closed
+    assert main(["history", "--state-dir", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert f"engine {SERIAL}: 1 flights (1 running), 0.03 h" in text  # 90 s to the last checkpoint
+    (row,) = [line for line in text.splitlines() if "running (checkpoint" in line]
+    assert "cut by a crash" in row
+
+
+def test_history_plot_has_no_offset_and_no_negative_ticks(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    from ecu_monitor.commands.history import trend_figure
+
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        t = 0.0
+        for gamma in (1.0, 1.001, 1.002):  # gamma near 1: matplotlib's default would print "+1" and 0.001
+            t = _feed(recorder, t, 120.0, 6000.0, lambda s: 150.0, lambda s, g=gamma: g)  # flat CHT: 0 cycles
+            t = _feed(recorder, t, 20.0, 0.0, lambda s: 60.0)
+        records = store.flights(SERIAL)
+    assert len(records) == 3 and all(r.cycles_total == 0 and r.time_above_limit_s == 0 for r in records)
+    fig = trend_figure({SERIAL: records})
+    try:
+        fig.canvas.draw()
+        for ax in fig.axes:
+            assert ax.yaxis.get_major_formatter().get_offset() == ""
+            low, high = sorted(ax.get_ylim())
+            labels = [tick.get_text() for tick in ax.get_yticklabels() if low <= tick.get_position()[1] <= high]
+            if ax.get_ylabel().startswith(("thermal cycles", "time above")):
+                assert low >= 0.0
+                assert not any(text.startswith(("-", "\N{MINUS SIGN}")) for text in labels), labels
+    finally:
+        plt.close(fig)
+
+
+def _killed_mid_flight(tmp_path: Path, seconds: float) -> float:
+    """A daemon that flew ``seconds`` of a climbing-gamma run and was killed; returns the time reached."""
+    store = StateStore(tmp_path)
+    recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+    t = _feed(recorder, 0.0, seconds, 6000.0, lambda s: 150.0 + 30.0 * math.sin(s / 5.0), lambda s: 1.0 + s / 3600.0)
+    store.close()
+    return t
+
+
+def test_a_restart_mid_run_keeps_one_engine_run_one_flight(tmp_path: Path) -> None:
+    """Killed at 100 s (last checkpoint 90 s), restarted 5 s later with the engine still running: the
+    run is one flight from its start to its real end, its gamma trend continuous."""
+    t = _killed_mid_flight(tmp_path, 100.0)
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        (cut,) = recorder.recovered
+        t = _feed(recorder, t + 5.0, 200.0, 6000.0, lambda s: 150.0 + 30.0 * math.sin(s / 5.0),
+                  lambda s, t0=t + 5.0: 1.0 + t0 / 3600.0 + s / 3600.0)  # fmt: skip
+        t = _feed(recorder, t, 20.0, 0.0, lambda s: 60.0)
+        (flight,) = store.flights(SERIAL)
+    assert recorder.resumed == cut == flight.id
+    assert (flight.status, flight.end_reason) == ("finished", "engine_stopped")
+    assert flight.duration_s == pytest.approx(305.0, abs=0.3)  # 0 .. 100 + 5 + 200 s, the outage included
+    assert flight.gamma_q_start == pytest.approx(1.0, abs=1e-9)
+    assert flight.gamma_q_end == pytest.approx(1.0 + 304.9 / 3600.0, abs=1e-6)
+    assert flight.gamma_q_slope_per_h == pytest.approx(1.0, rel=0.05)  # d gamma / d hour of the whole run
+    assert flight.cycles_total >= 9  # both parts: 90 + 200 s of a 31.4 s period (the second alone: 6.4)
+
+
+def test_a_restart_after_the_engine_stopped_starts_a_new_flight(tmp_path: Path) -> None:
+    t = _killed_mid_flight(tmp_path, 100.0)
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        t = _feed(recorder, t + 600.0, 100.0, 6000.0, lambda s: 150.0)  # ten minutes later: another run
+        recorder.close()
+        first, second = store.flights(SERIAL)
+    assert recorder.resumed is None
+    assert (first.status, second.status) == ("recovered", "finished")

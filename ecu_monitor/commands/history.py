@@ -1,9 +1,12 @@
 """``ecu-monitor history``: the flight history and degradation trend of each engine, printed and plotted.
 
 Reads the daemon's SQLite database (``state_dir`` of ``--config``, or ``--state-dir``) read-only, so it
-is safe while the daemon runs. Per engine: flights, hours, maximum CHT, time above the CHT limit,
-gamma_Q / gamma_D per flight and their trend over engine hours (least-squares slope per 100 h), and the
-thermal cycles counted by rainflow. ``--plot out.png`` draws the same trend.
+is safe while the daemon runs. A flight still ``running`` in the database is listed with its last
+checkpoint: either the daemon is flying it now, or the daemon was killed and its next start closes it
+as ``recovered`` (or resumes it) at that checkpoint: the database alone cannot tell the two apart.
+Per engine: flights, hours, maximum CHT, time above the CHT limit, gamma_Q / gamma_D per flight and
+their trend over engine hours (least-squares slope per 100 h), and the thermal cycles counted by
+rainflow. ``--plot out.png`` draws the same trend.
 """
 
 from __future__ import annotations
@@ -89,8 +92,10 @@ def _fmt(value: float | None, spec: str) -> str:
 def format_history(serial: str, records: list[FlightRecord]) -> str:
     """The printed history of one engine: a summary line, the trend, one row per flight."""
     trend = engine_trend(records)
+    running = sum(1 for r in records if r.status == "running")
+    count = f"{len(records)} flights" + (f" ({running} running)" if running else "")
     lines = [
-        f"engine {serial}: {len(records)} flights, {trend['hours']:.2f} h, max CHT {_fmt(trend['max_cht_c'], '.1f')} "
+        f"engine {serial}: {count}, {trend['hours']:.2f} h, max CHT {_fmt(trend['max_cht_c'], '.1f')} "
         f"degC, {trend['time_above_limit_s']:.0f} s above limit, {trend['cycles']:.1f} thermal cycles "
         f"({trend['large_cycles']:.1f} of >= {LARGE_CYCLE_C:g} degC)",
         f"  trend: gamma_Q {_fmt(trend['gamma_q_last'], '.3f')} ({_fmt(trend['gamma_q_per_100h'], '+.4f')} per 100 h),"
@@ -100,7 +105,11 @@ def format_history(serial: str, records: list[FlightRecord]) -> str:
     ]
     for record in records:
         start = dt.datetime.fromtimestamp(record.start_utc, tz=dt.UTC).strftime("%Y-%m-%d %H:%M:%S")
-        status = record.status if record.end_reason is None else f"{record.status} ({record.end_reason})"
+        if record.status == "running":
+            checkpoint = dt.datetime.fromtimestamp(record.end_utc, tz=dt.UTC).strftime("%H:%M:%S")
+            status = f"running (checkpoint {checkpoint} UTC; in flight, or cut by a crash until the next start)"
+        else:
+            status = record.status if record.end_reason is None else f"{record.status} ({record.end_reason})"
         lines.append(
             f"  {record.id:>4} {start:<19} {record.hours:>6.2f} {_fmt(record.max_cht_c, '6.1f'):>6} "
             f"{record.time_above_limit_s:>7.0f} {_fmt(record.gamma_q_mean, '7.3f'):>7} "
@@ -112,6 +121,16 @@ def format_history(serial: str, records: list[FlightRecord]) -> str:
 
 def plot_history(histories: dict[str, list[FlightRecord]], out: Path) -> None:
     """Trend plot over engine hours: gamma estimates, max CHT and time above limit, cumulative cycles."""
+    import matplotlib.pyplot as plt
+
+    fig = trend_figure(histories)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def trend_figure(histories: dict[str, list[FlightRecord]]) -> Any:
+    """The figure of :func:`plot_history` (axes: gamma, max CHT with time-above bars, cycles)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -143,7 +162,11 @@ def plot_history(histories: dict[str, list[FlightRecord]], out: Path) -> None:
             larges.append(cumulative_large)
         ax_cycles.plot([0.0, *hours], totals, "o-", label=f"{serial} all cycles >= {CYCLE_BIN_EDGES_C[0]:g} degC")
         ax_cycles.plot([0.0, *hours], larges, "s--", label=f"{serial} cycles >= {LARGE_CYCLE_C:g} degC")
+        above.set_ylim(bottom=0.0)  # durations and counts: no negative ticks when all are 0
     ax_gamma.axhline(1.0, color="grey", linewidth=0.8)
+    ax_gamma.ticklabel_format(axis="y", useOffset=False)  # gamma near 1 reads as 1.02, not "+1" and 0.02
+    ax_cycles.set_ylim(bottom=0.0)
+    ax_cycles.set_xlim(left=0.0)
     ax_gamma.set_ylabel("degradation factor")
     ax_gamma.set_title("Engine health trend per flight (x: engine hours at the end of the flight)")
     ax_cht.set_ylabel("max CHT, degC (limit dotted)")
@@ -153,9 +176,7 @@ def plot_history(histories: dict[str, list[FlightRecord]], out: Path) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -166,7 +187,7 @@ def _run(args: argparse.Namespace) -> int:
             if args.engine not in serials:
                 raise ConfigError(f"{store.path}: --engine: no engine {args.engine!r} (engines: {', '.join(serials)})")
             serials = [args.engine]
-        histories = {serial: store.flights(serial) for serial in serials}
+        histories = {serial: store.flights(serial, include_running=True) for serial in serials}
     if not histories:
         print(f"{store.path}: no engine recorded yet")
         return 0
@@ -174,7 +195,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.plot:
         with_flights = {serial: records for serial, records in histories.items() if records}
         if not with_flights:
-            raise ConfigError(f"{store.path}: --plot: no finished flight to plot")
+            raise ConfigError(f"{store.path}: --plot: no flight to plot")
         plot_history(with_flights, Path(args.plot))
         print(f"plot written to {args.plot}")
     return 0

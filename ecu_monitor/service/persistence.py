@@ -18,7 +18,12 @@ Durability (the database must survive ``kill -9`` and a power cut at any moment)
   either entirely there or not at all;
 * a running flight is checkpointed every ``checkpoint_every_s`` (its aggregates and the CHT reversal
   points needed for rainflow, status ``running``); at the next start a row left ``running`` by a crash
-  is closed as ``recovered`` at its last checkpoint, cycles counted from the stored reversals.
+  is closed as ``recovered`` at its last checkpoint, cycles counted from the stored reversals. If the
+  engine is still running when the restarted service sees it (its first running sample within
+  ``checkpoint_every_s + end_after_s`` of that checkpoint), the recovered flight is resumed, not split:
+  one engine run stays one flight. The outage itself adds to the duration, not to the time above the
+  limit or the cycles (no samples), and the gamma statistics weigh the part before the restart as if
+  sampled at the rate seen after it.
 
 The CHT history is not stored sample by sample: an online hysteresis filter keeps only its turning
 points (reversals) of at least ``cycle_hysteresis_c`` (5 degC by default: the sensor is quantised to
@@ -191,6 +196,12 @@ class ReversalFilter:
             self._candidate = value
             self._direction = -self._direction
 
+    def restore(self, points: list[float]) -> None:
+        """Continue from the output of :meth:`points` (a flight resumed after a restart)."""
+        self._points = list(points[:-1]) if len(points) >= 2 else list(points)
+        self._candidate = points[-1] if points else math.nan
+        self._direction = 0 if len(points) < 2 else (1 if points[-1] > points[-2] else -1)
+
     def points(self) -> list[float]:
         """The reversal points so far, ending with the latest extreme."""
         if not self._points:
@@ -208,7 +219,10 @@ class _Moments:
         self.first = math.nan
         self.last = math.nan
         self.maximum = -math.inf
+        self.first_t_h = self.last_t_h = 0.0
         self.sum_t = self.sum_v = self.sum_tt = self.sum_tv = 0.0
+        #: (first, mean, max, slope per h or None, span h) of the part before a restart, or None
+        self.prior: tuple[float, float, float, float | None, float] | None = None
 
     def add(self, t_s: float, value: float) -> None:
         if not math.isfinite(value):
@@ -219,12 +233,17 @@ class _Moments:
         self.last = value
         self.maximum = max(self.maximum, value)
         t_h = t_s / 3600.0
+        if self.n == 1:
+            self.first_t_h = t_h
+        self.last_t_h = t_h
         self.sum_t += t_h
         self.sum_v += value
         self.sum_tt += t_h * t_h
         self.sum_tv += t_h * value
 
     def summary(self) -> tuple[float | None, float | None, float | None, float | None, float | None]:
+        if self.prior is not None:
+            return self._summary_with_prior(self.prior)
         if self.n == 0:
             return None, None, None, None, None
         mean = self.sum_v / self.n
@@ -233,6 +252,29 @@ class _Moments:
         if slope is not None and (denominator <= 1e-18 or not math.isfinite(slope)):
             slope = None
         return self.first, self.last, mean, self.maximum, slope
+
+    def _summary_with_prior(
+        self, prior: tuple[float, float, float, float | None, float]
+    ) -> tuple[float | None, float | None, float | None, float | None, float | None]:
+        """The prior part as samples spread evenly over [0, span] at the rate seen since (at least one),
+        on its own least-squares line, pooled with the samples since."""
+        first, mean_p, max_p, slope_p, span_h = prior
+        if self.n == 0:
+            return first, None, mean_p, max_p, slope_p
+        span_new_h = self.last_t_h - self.first_t_h
+        rate = (self.n - 1) / span_new_h if self.n >= 2 and span_new_h > 0 else 0.0  # samples per hour
+        n_p = max(1.0, rate * span_h)
+        sum_t = n_p * span_h / 2.0
+        sum_tt = n_p * span_h**2 / 3.0
+        sum_v = n_p * mean_p
+        sum_tv = sum_t * mean_p + (slope_p or 0.0) * (sum_tt - sum_t**2 / n_p)
+        n = n_p + self.n
+        st, sv, stt, stv = sum_t + self.sum_t, sum_v + self.sum_v, sum_tt + self.sum_tt, sum_tv + self.sum_tv
+        denominator = n * stt - st**2
+        slope = (n * stv - st * sv) / denominator if denominator > 1e-18 else None
+        if slope is not None and not math.isfinite(slope):
+            slope = None
+        return first, self.last, sv / n, max(max_p, self.maximum), slope
 
 
 _FLIGHT_COLUMNS = (
@@ -384,6 +426,18 @@ class StateStore:
                 kept.append(int(flight_id))
         return kept
 
+    def reopen_flight(self, flight_id: int) -> tuple[FlightRecord, list[float]]:
+        """Set a recovered flight back to ``running`` (its engine run goes on after a restart); returns
+        the row as it was and its stored reversal points."""
+        with self._transaction() as conn:
+            row = conn.execute(
+                f"SELECT {_FLIGHT_COLUMNS}, reversals FROM flights WHERE id = ?", (flight_id,)
+            ).fetchone()
+            if row is None:
+                raise EcuMonitorError(f"flight database: no flight {flight_id} to resume")
+            conn.execute("UPDATE flights SET status = 'running', end_reason = NULL WHERE id = ?", (flight_id,))
+        return _record(row[:-1]), _unpack(row[-1])
+
     # --- reading -------------------------------------------------------------------------------------
 
     def engines(self) -> list[str]:
@@ -455,6 +509,29 @@ class _OpenFlight:
         self.gamma_d = _Moments()
         self.reversals = ReversalFilter(hysteresis)
 
+    @classmethod
+    def resume(
+        cls, record: FlightRecord, reversals: list[float], sample: FlightSample, hysteresis: float
+    ) -> _OpenFlight:
+        """Continue a flight cut by a restart: its aggregates from the row, its clock from its start (UTC)."""
+        flight = cls(record.id, sample, hysteresis)
+        flight.start_time_s = sample.time_s - (sample.wall_time_s - record.start_utc)
+        flight.start_utc = record.start_utc
+        flight.last_checkpoint_s = sample.time_s
+        flight.max_cht_c = record.max_cht_c if record.max_cht_c is not None else -math.inf
+        flight.time_above_limit_s = record.time_above_limit_s
+        flight.time_degraded_s = record.time_degraded_s
+        flight.worst_state = record.worst_state
+        flight.reversals.restore(reversals)
+        span_h = record.duration_s / 3600.0
+        for moments, first, mean, top, slope in (
+            (flight.gamma_q, record.gamma_q_start, record.gamma_q_mean, record.gamma_q_max, record.gamma_q_slope_per_h),
+            (flight.gamma_d, record.gamma_d_start, record.gamma_d_mean, record.gamma_d_max, record.gamma_d_slope_per_h),
+        ):
+            if first is not None and mean is not None and top is not None:
+                moments.prior = (first, mean, top, slope, span_h)
+        return flight
+
     def values(self, end_running: bool) -> dict[str, object]:
         """Columns of the flights row; the flight ends at the last running sample when ``end_running``."""
         duration_s = self.last_running_time_s - self.start_time_s
@@ -502,6 +579,11 @@ class FlightRecorder:
         self.recovered = store.recover(serial, self.rules.min_flight_s)
         store.ensure_engine(serial)
         self._flight: _OpenFlight | None = None
+        #: the flight a crash cut, resumed if the engine is still running when samples come back
+        self._resumable = max(
+            (r for r in store.flights(serial) if r.id in self.recovered), key=lambda r: r.end_utc, default=None
+        )
+        self.resumed: int | None = None
 
     @property
     def in_flight(self) -> bool:
@@ -515,10 +597,9 @@ class FlightRecorder:
         flight = self._flight
         if flight is None:
             if not running:
+                self._resumable = None  # the engine was seen stopped: the cut flight is over
                 return
-            flight_id = self.store.begin_flight(self.serial, sample.wall_time_s, self.cht_limit_c)
-            flight = self._flight = _OpenFlight(flight_id, sample, rules.cycle_hysteresis_c)
-            _log.info("flight %d of engine %s started", flight_id, self.serial)
+            flight = self._flight = self._resume(sample) or self._begin(sample)
         if not running:
             if sample.time_s - flight.last_running_time_s >= rules.end_after_s:
                 self._finish("engine_stopped")
@@ -527,6 +608,26 @@ class FlightRecorder:
         if sample.time_s - flight.last_checkpoint_s >= rules.checkpoint_every_s:
             self.store.write_flight(flight.flight_id, flight.values(end_running=False))
             flight.last_checkpoint_s = sample.time_s
+
+    def _begin(self, sample: FlightSample) -> _OpenFlight:
+        flight_id = self.store.begin_flight(self.serial, sample.wall_time_s, self.cht_limit_c)
+        _log.info("flight %d of engine %s started", flight_id, self.serial)
+        return _OpenFlight(flight_id, sample, self.rules.cycle_hysteresis_c)
+
+    def _resume(self, sample: FlightSample) -> _OpenFlight | None:
+        """The flight a restart cut, reopened when this first running sample continues its engine run."""
+        cut, self._resumable = self._resumable, None
+        if cut is None:
+            return None
+        gap_s = sample.wall_time_s - cut.end_utc
+        if not 0.0 <= gap_s <= self.rules.checkpoint_every_s + self.rules.end_after_s:
+            return None
+        record, reversals = self.store.reopen_flight(cut.id)
+        self.resumed = record.id
+        _log.info(
+            "flight %d of engine %s resumed after a restart (%.0f s since its checkpoint)", cut.id, self.serial, gap_s
+        )
+        return _OpenFlight.resume(record, reversals, sample, self.rules.cycle_hysteresis_c)
 
     def _accumulate(self, flight: _OpenFlight, sample: FlightSample) -> None:
         dt = sample.time_s - flight.last_time_s
