@@ -45,3 +45,11 @@ def test_user_input_error_is_one_line_exit_2(tmp_path):
     assert result.returncode == 2, result.stderr
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("ecu-monitor: error:")
+
+
+@pytest.mark.parametrize(("name", "folder"), [("results", "results-out"), ("evaluate", "evaluate-out")])
+def test_results_and_evaluate_default_to_a_new_folder_not_docs_results(name, folder):
+    """Run in a checkout, the default must not overwrite the committed docs/results."""
+    args = build_parser(only=name).parse_args([name])
+    assert args.out == folder
+    assert "docs" not in args.out

@@ -1,4 +1,4 @@
-"""``ecu-monitor evaluate [--hours 50] [--out docs/results] [--seed N] [--workers 2]``.
+"""``ecu-monitor evaluate [--hours 50] [--out evaluate-out] [--seed N] [--workers 2]``.
 
 Simulates nominal and degraded flights with the virtual ECU and measures degradation detection
 (false alarms per 100 flight hours, detection delay), isolation of gamma_Q vs gamma_D, the CBEKF-AU
@@ -29,7 +29,13 @@ def add_subparser(subparsers: Any) -> None:
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
     parser.add_argument("--hours", type=float, default=50.0, help="nominal flight hours per set (default 50)")
-    parser.add_argument("--out", default="docs/results", metavar="DIR", help="report folder (default docs/results)")
+    parser.add_argument(
+        "--out",
+        default="evaluate-out",
+        metavar="DIR",
+        help="report folder (default ./evaluate-out: a new folder, never the checkout's docs/results;"
+        " give --out docs/results to regenerate those)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="base seed of the campaign (default 0)")
     parser.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     parser.add_argument("--degraded-seeds", type=int, default=4, help="missions per degradation case (default 4)")

@@ -1,4 +1,4 @@
-"""``ecu-monitor results [--out docs/results]``: reproduce the paper's Section 3.2 on the virtual ECU.
+"""``ecu-monitor results [--out results-out]``: reproduce the paper's Section 3.2 on the virtual ECU.
 
 Flies steady cruises with gamma_Q / gamma_D injected at t = 150 s and compares EKF, CBEKF and
 CBEKF-AU; writes the paper's Figures 7-11 and paper_reproduction.md (ecu_monitor.research.paper).
@@ -20,7 +20,13 @@ def add_subparser(subparsers: Any) -> None:
         help="reproduce the paper's Section 3.2 on the virtual ECU (figures + paper_reproduction.md)",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    parser.add_argument("--out", default="docs/results", metavar="DIR", help="output directory (docs/results)")
+    parser.add_argument(
+        "--out",
+        default="results-out",
+        metavar="DIR",
+        help="output directory (default ./results-out: a new folder, never the checkout's docs/results;"
+        " give --out docs/results to regenerate those)",
+    )
     parser.add_argument("--seeds", type=int, default=4, metavar="N", help="flights per degradation level (4)")
     parser.set_defaults(func=_run)
 
