@@ -282,3 +282,11 @@ def test_heat_map_row_of_the_wrong_length_names_the_row(tmp_path, values, needle
     with pytest.raises(ConfigError) as info:
         load_model(path)
     assert "heat_map.values_w: " in str(info.value) and needle in str(info.value)
+
+
+def test_a_binary_model_file_is_one_line(tmp_path):
+    """Found by tests/test_bad_input_fuzz.py: a non-UTF-8 model file was a UnicodeDecodeError (exit 1)."""
+    path = tmp_path / "model.yaml"
+    path.write_bytes(b"\x80\x00c_w: 1\n")
+    with pytest.raises(ConfigError, match=r"model\.yaml: not a model file \(not UTF-8"):
+        load_model(path)

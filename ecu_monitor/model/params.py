@@ -253,6 +253,8 @@ def load_model(path: str | Path) -> ThermalParams:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read model file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a model file (not UTF-8 text: byte {exc.start})") from None
     try:
         data = load_yaml_text(text)
     except yaml.YAMLError as exc:
