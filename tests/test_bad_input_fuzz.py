@@ -2,7 +2,7 @@
 `calibrate` give exit 0 or 2, never a traceback or an internal error (exit 1), and never leave an
 output file half-written: after exit 2 the output is absent, after exit 0 it is a whole CSV/YAML.
 
-The suite runs a few examples per entry point (``ECU_FUZZ_EXAMPLES``, default 8); the full search is
+The suite runs a few examples per entry point (``ECU_FUZZ_EXAMPLES``, default 3); the full search is
 run by hand: ``ECU_FUZZ_EXAMPLES=500 .venv/bin/python -m pytest -q tests/test_bad_input_fuzz.py``.
 """
 
@@ -23,7 +23,7 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-EXAMPLES = int(os.environ.get("ECU_FUZZ_EXAMPLES", "8"))
+EXAMPLES = int(os.environ.get("ECU_FUZZ_EXAMPLES", "3"))
 FUZZ = settings(
     max_examples=EXAMPLES,
     deadline=None,
