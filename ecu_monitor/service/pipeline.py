@@ -38,7 +38,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import can
@@ -47,11 +46,26 @@ from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import CHTEstimator, make_estimator
 from ecu_monitor.estimation.detection import Detector
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
+from ecu_monitor.estimation.headroom import thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
 from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.inputs import input_columns
 from ecu_monitor.service.config import ServiceConfig
+from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S, HealthSnapshot
+from ecu_monitor.service.schedule import FILTER_PERIOD_S, MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick, filter_period_steps
+from ecu_monitor.service.supervision import (
+    ACTION_INITIALISE,
+    ACTION_NONE,
+    ACTION_PREDICT,
+    ACTION_UPDATE,
+    CODE_FAULT,
+    CODE_NOMINAL,
+    CODE_UNAVAILABLE,
+    STATES,
+    SupervisorState,
+    initial_supervisor,
+    supervise,
+)
 
 __all__ = [
     "ACTION_INITIALISE",
@@ -77,126 +91,10 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-#: DegradationState values of health.dbc, by code.
-STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
-_NOMINAL, _SUSPECT, _DEGRADED, _STALE, _FAULT, _UNAVAILABLE = range(6)
-#: Supervisor actions on the estimator at a step.
-ACTION_NONE, ACTION_INITIALISE, ACTION_PREDICT, ACTION_UPDATE = range(4)
 #: Value name of the optional ECU status signal (sensor open) in the decoder.
 STATUS_INPUT = "cht_sensor_status"
 #: The model inputs besides the heat-map axes (InputSeries order after the axes).
 MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
-#: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
-MAX_CLOCK_GAP_S = 600.0
-#: The filters (estimator, isolation filter, open-loop reference) are called every this many seconds
-#: (on the steps k with k % period == 0, the 10 Hz Health_Status instants, and at initialisation) with
-#: the inputs held at that instant; each call integrates the elapsed steps of dt_s (0.02 s) on the
-#: model and applies the latest CHT reading if one arrived since the last call (the CHT frame comes
-#: every 100 ms). The supervision, staleness and detector run every step.
-FILTER_PERIOD_S = 0.1
-
-
-def filter_period_steps(dt_s: float) -> int:
-    """Steps of dt_s between two filter calls (at least 1)."""
-    return max(1, round(FILTER_PERIOD_S / dt_s))
-
-
-#: Clock readings beyond this magnitude (s) are ignored as corrupt.
-MAX_CLOCK_S = 1e12
-
-
-def clock_tick(t_s: float) -> float:
-    """A clock reading rounded to the microsecond (frame stamps and step times alike), so that a frame
-    stamped on a step instant compares equal to it whatever the log format's time resolution."""
-    return math.floor(t_s * 1e6 + 0.5) / 1e6
-
-
-#: ThermalHeadroom meaning "not limited" (health.dbc; the headroom module's cap).
-HEADROOM_NOT_LIMITED_S = DEFAULT_CAP_S
-
-
-@dataclass(frozen=True)
-class HealthSnapshot:
-    """The service's view of the engine at one instant (one health-status period).
-
-    time_s: step time, s (the advance_to clock). cht_meas_c: last CHT reading held, degC (nan: none).
-    cht_est_c: estimate, degC (nan when UNAVAILABLE). deviation: model-deviation symptom, degC/s.
-    state: one of STATES. gamma_q, gamma_d: isolation estimates (nan when UNAVAILABLE). headroom_s:
-    time to the CHT limit at the present inputs, s (HEADROOM_NOT_LIMITED_S = not limited; nan when
-    UNAVAILABLE). stale_inputs: names of the stale inputs. sensor_fault: the CHT sensor is faulty.
-    """
-
-    time_s: float
-    cht_meas_c: float
-    cht_est_c: float
-    deviation: float
-    state: str
-    gamma_q: float
-    gamma_d: float
-    headroom_s: float
-    stale_inputs: tuple[str, ...]
-    sensor_fault: bool
-
-
-class SupervisorState(NamedTuple):
-    """What :func:`supervise` carries from one step to the next (floats and bools only)."""
-
-    running: bool  # the estimator is initialised
-    stale_since_s: float  # nan while no input is stale
-    changed_s: float  # time of the last change of a plausible CHT reading
-    last_reading_c: float
-    model_low_c: float  # open-loop model range since changed_s
-    model_high_c: float
-
-
-def initial_supervisor() -> SupervisorState:
-    """The supervisor before the first step."""
-    return SupervisorState(False, math.nan, math.nan, math.nan, math.nan, math.nan)
-
-
-def supervise(
-    sv: SupervisorState,
-    time_s: float,
-    any_stale: bool,
-    new_reading: bool,
-    reading_c: float,
-    reading_bad: bool,
-    model_c: float,
-    stale_limit_s: float,
-    stuck_after_s: float,
-    stuck_change_c: float,
-) -> tuple[SupervisorState, int, int]:
-    """One step of the supervision state machine: (new state, state code, estimator action).
-
-    reading_c: held CHT reading; reading_bad: it is implausible (open / out of range); model_c: the
-    open-loop model's CHT at this step (for the stuck test; equal to reading_c at initialisation).
-    Codes 0..2 mean "the detector decides" (returned as 0). Pure: the replay compiles it with numba.
-    """
-    if not sv.running:
-        if any_stale or reading_bad or math.isnan(reading_c):
-            return sv, _UNAVAILABLE, ACTION_NONE
-        start = SupervisorState(True, math.nan, time_s, reading_c, reading_c, reading_c)
-        return start, _NOMINAL, ACTION_INITIALISE
-    if any_stale:
-        since = time_s if math.isnan(sv.stale_since_s) else sv.stale_since_s
-        if time_s - since > stale_limit_s:
-            return initial_supervisor(), _UNAVAILABLE, ACTION_NONE
-        kept = SupervisorState(True, since, sv.changed_s, sv.last_reading_c, sv.model_low_c, sv.model_high_c)
-        return kept, _STALE, ACTION_PREDICT
-    changed_s = sv.changed_s
-    last = sv.last_reading_c
-    low = min(sv.model_low_c, model_c)
-    high = max(sv.model_high_c, model_c)
-    if new_reading and not reading_bad and reading_c != last:
-        changed_s = time_s
-        last = reading_c
-        low = model_c
-        high = model_c
-    out = SupervisorState(True, math.nan, changed_s, last, low, high)
-    stuck = time_s - changed_s >= stuck_after_s and high - low >= stuck_change_c
-    if reading_bad or stuck:
-        return out, _FAULT, ACTION_PREDICT
-    return out, _NOMINAL, ACTION_UPDATE if new_reading else ACTION_PREDICT
 
 
 class _Held(NamedTuple):
@@ -469,7 +367,7 @@ class Pipeline:
             self._headroom_s = math.nan
             self._detector_started = True
         elif call and self._estimator is not None and self._isolation is not None:
-            z = reading if self._pending_reading and code == _NOMINAL else None
+            z = reading if self._pending_reading and code == CODE_NOMINAL else None
             self._pending_reading = False
             estimate = self._estimator.estimate(time_s, u, z)
             iso_deviation = self._isolation.estimate(time_s, u, z).deviation
@@ -480,8 +378,8 @@ class Pipeline:
         state = code
         if self._detector_started:
             symptom = deviation if cfg.detector_symptom == "estimator" else iso_deviation
-            verdict = self._detector.update(time_s, symptom if code == _NOMINAL else math.nan)
-            if code == _NOMINAL:
+            verdict = self._detector.update(time_s, symptom if code == CODE_NOMINAL else math.nan)
+            if code == CODE_NOMINAL:
                 state = STATES.index(verdict.state)
         if action == ACTION_NONE or not (math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)):
             self._headroom_s = math.nan
@@ -500,7 +398,7 @@ class Pipeline:
             gamma_d=gamma_d,
             headroom_s=headroom,
             stale_inputs=tuple(stale),
-            sensor_fault=code == _FAULT,
+            sensor_fault=code == CODE_FAULT,
         )
         self._snapshot = snap
         if self._k % self._status_period == 0:
@@ -556,5 +454,5 @@ class Pipeline:
         }
 
     def _empty_snapshot(self, time_s: float) -> HealthSnapshot:
-        return HealthSnapshot(time_s, math.nan, math.nan, math.nan, STATES[_UNAVAILABLE], math.nan, math.nan,
+        return HealthSnapshot(time_s, math.nan, math.nan, math.nan, STATES[CODE_UNAVAILABLE], math.nan, math.nan,
                               math.nan, tuple(n for n, _ in self._input_slots), False)  # fmt: skip

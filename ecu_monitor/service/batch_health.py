@@ -1,0 +1,173 @@
+"""The health outputs of the replay's batch path on whole arrays, equal to the live pipeline's: the
+detector's state per step (:func:`detect_states`, fed by :func:`detector_feed`) and the thermal
+headroom (:func:`held_headroom` over :func:`headroom_batch`)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.estimation.detection import Detector
+from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
+from ecu_monitor.service.config import ServiceConfig
+from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S
+from ecu_monitor.service.supervision import ACTION_INITIALISE, ACTION_NONE, STATES
+
+
+def detector_feed(
+    code: NDArray[np.int64], symptom: NDArray[np.float64], stretches: list[tuple[int, int]]
+) -> tuple[int, NDArray[np.float64]]:
+    """(step of the first initialisation, where the detector starts; the symptom it is fed per step:
+    nan before that step and wherever the supervisor is not NOMINAL)."""
+    first = stretches[0][0] if stretches else code.size
+    fed = np.where(code == 0, symptom, np.nan)
+    fed[:first] = np.nan
+    return first, fed
+
+
+def detect_states(
+    config: ServiceConfig,
+    times: NDArray[np.float64],
+    code: NDArray[np.int64],
+    first: int,
+    fed: NDArray[np.float64],
+    stretches: list[tuple[int, int]],
+) -> NDArray[np.int64]:
+    """Final state codes: the detector's verdict where the supervisor says NOMINAL.
+
+    ``first``, ``fed``: from :func:`detector_feed` (where the detector starts, what it is fed).
+
+    Equal to the live pipeline's per-step Detector.update (started at the first initialisation, fed
+    NaN off NOMINAL steps): the symptom is averaged here over the very blocks Detector forms (block
+    m holds the steps from the one that closed block m-1 up to the step before the first at or after
+    its end), and a real Detector gets one sample per block, the block's mean, at the block's first
+    step (the mean of one sample is itself), so its CUSUM runs exactly as live, once per block.
+    """
+    state = code.copy()
+    if not stretches:
+        return state
+    s = config.detector
+    n = times.size
+    t0 = float(times[first])
+    begin = t0 + s.warmup_s
+    if float(times[-1]) < begin:
+        return state
+    count = math.floor((float(times[-1]) - begin) / s.block_s) + 2
+    ends = np.cumsum(np.concatenate(([begin + s.block_s], np.full(count - 1, s.block_s))))
+    closes = np.searchsorted(times, ends - 1e-9, side="left")
+    closes = closes[closes < n]
+    start = max(int(np.searchsorted(times, begin, side="left")), first)
+    starts = np.array([start, *closes.tolist()], dtype=np.int64)
+    starts = starts[np.concatenate(([True], np.diff(starts) > 0))]  # blocks with at least one step
+    starts = starts[starts < n]
+    finite = np.isfinite(fed)
+    sums = np.add.reduceat(np.where(finite, fed, 0.0), starts)
+    counts = np.add.reduceat(finite.astype(np.int64), starts)
+    detector = Detector(s)
+    detector.update(t0, math.nan)
+    block_state = np.empty(starts.size, dtype=np.int64)
+    for i, (lo, total, k) in enumerate(zip(starts.tolist(), sums.tolist(), counts.tolist(), strict=True)):
+        out = detector.update(float(times[lo]), total / k if k else math.nan)
+        block_state[i] = STATES.index(out.state)
+    verdicts = np.zeros(n, dtype=np.int64)
+    which = np.searchsorted(starts, np.arange(n), side="right") - 1
+    verdicts[which >= 0] = block_state[which[which >= 0]]
+    nominal = code == 0
+    state[nominal] = verdicts[nominal]
+    return state
+
+
+def held_headroom(
+    params: ThermalParams,
+    times: NDArray[np.float64],
+    inputs: dict[str, NDArray[np.float64]],
+    est: NDArray[np.float64],
+    gamma_q: NDArray[np.float64],
+    gamma_d: NDArray[np.float64],
+    action: NDArray[np.int64],
+    step_numbers: NDArray[np.int64],
+    period: int,
+) -> NDArray[np.float64]:
+    """Headroom held between its computations every ``period`` steps while the estimator runs (nan
+    otherwise), as the live pipeline does; computed with :func:`headroom_batch`."""
+    n = times.size
+    running = action != ACTION_NONE
+    due = running & (step_numbers % period == 0)
+    idx = np.flatnonzero(due)
+    axes = list(inputs)
+    computed = headroom_batch(
+        params, InputSeries(*(inputs[name][idx] for name in axes)), est[idx], gamma_q[idx], gamma_d[idx]
+    )
+    # hold: last computation since the last (re)initialisation, nan after a stop or before the first
+    value = np.full(n, np.nan)
+    value[idx] = computed
+    marker = np.full(n, -1, dtype=np.int64)
+    marker[idx] = idx
+    resets = np.flatnonzero((action == ACTION_INITIALISE) & ~due)
+    marker[resets] = resets  # an initialisation clears the held value (value there is nan)
+    stops = np.flatnonzero(~running)
+    marker[stops] = stops
+    np.maximum.accumulate(marker, out=marker)
+    return np.where(marker >= 0, value[np.maximum(marker, 0)], np.nan)
+
+
+def headroom_batch(
+    params: ThermalParams,
+    inputs: InputSeries,
+    cht_c: NDArray[np.float64],
+    gamma_q: NDArray[np.float64],
+    gamma_d: NDArray[np.float64],
+    *,
+    cap_s: float = HEADROOM_NOT_LIMITED_S,
+    step_s: float = 2.0,
+) -> NDArray[np.float64]:
+    """:func:`ecu_monitor.estimation.headroom.thermal_headroom` (heat path in steady state) on arrays:
+    the same steady-state test and the same RK4 march with linear interpolation of the crossing, all
+    rows at once (the model functions broadcast)."""
+    m = np.asarray(cht_c).size
+    if m == 0:
+        return np.zeros(0)
+    coeffs = coefficients(params)
+    limit = params.cht_limit_c
+    d = compute_drive(inputs, coeffs)
+    columns = [np.broadcast_to(np.asarray(v, dtype=float), (m,)).copy() for v in d]
+    drive = Drive(*columns)
+    margin = limit - cht_c
+    out = np.where(margin <= 0.0, 0.0, cap_s)
+    # the steady state lies below the convective-only solution (radiation only takes heat out): where
+    # that bound is below the limit the answer is "not limited" without Newton's iterations
+    heat = gamma_q * gamma_d * drive.heat_gain * drive.altitude_gain * drive.q_sl0_w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = drive.ambient_c + heat / drive.conductance_w_per_c
+    need = np.flatnonzero((margin > 0.0) & ~((heat >= 0.0) & (bound < limit)))
+    steady_fn: Any = steady_state_cht  # broadcasts over arrays of gammas
+    sub_drive = Drive(*(v[need] for v in columns))
+    steady = np.asarray(steady_fn(sub_drive, coeffs, gamma_q[need], gamma_d[need]), dtype=float)
+    active = need[steady >= limit]
+    temp = cht_c[active].astype(float)
+    pade = 2.0 * columns[0][active]
+    sub = Drive(*(v[active] for v in columns))
+    gq, gd = gamma_q[active], gamma_d[active]
+    elapsed = 0.0
+    while active.size and elapsed < cap_s:
+        stepped, stepped_pade = rk4_step(temp, pade, sub, coeffs, step_s, gq, gd)
+        new_temp = np.asarray(stepped, dtype=float)
+        pade = np.asarray(stepped_pade, dtype=float)
+        hit = new_temp >= limit
+        if np.any(hit):
+            rising = new_temp[hit] > temp[hit]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                fraction = np.where(rising, (limit - temp[hit]) / (new_temp[hit] - temp[hit]), 1.0)
+            crossing = elapsed + fraction * step_s
+            out[active[hit]] = np.where(crossing <= cap_s, crossing, cap_s)
+            keep = ~hit
+            active, temp, pade = active[keep], new_temp[keep], pade[keep]
+            sub = Drive(*(np.asarray(v)[keep] for v in sub))
+            gq, gd = gq[keep], gd[keep]
+        else:
+            temp = new_temp
+        elapsed += step_s
+    return out

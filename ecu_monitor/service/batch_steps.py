@@ -1,0 +1,102 @@
+"""The fixed-step machinery of the replay's batch path: inputs sampled and held on the steps, the
+pipeline's own supervision state machine compiled with numba, the stretches of steps where the
+estimator runs."""
+
+from __future__ import annotations
+
+import functools
+import types
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.service import supervision
+from ecu_monitor.service.supervision import ACTION_INITIALISE, ACTION_NONE
+
+
+def _rebound(function: Callable[..., Any], **callees: Any) -> Callable[..., Any]:
+    """A copy of ``function`` whose global names ``callees`` point at other (compiled) functions."""
+    namespace = dict(function.__globals__)
+    namespace.update(callees)
+    return types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
+
+
+def _supervise_loop(
+    supervise: Any,
+    initial: Any,
+    times: NDArray[np.float64],
+    any_stale: NDArray[np.bool_],
+    new_reading: NDArray[np.bool_],
+    reading: NDArray[np.float64],
+    reading_bad: NDArray[np.bool_],
+    model_c: NDArray[np.float64],
+    stale_limit_s: float,
+    stuck_after_s: float,
+    stuck_change_c: float,
+    out_code: NDArray[np.int64],
+    out_action: NDArray[np.int64],
+) -> None:
+    sv = initial()
+    for k in range(times.shape[0]):
+        sv, code, action = supervise(
+            sv, times[k], any_stale[k], new_reading[k], reading[k], reading_bad[k], model_c[k],
+            stale_limit_s, stuck_after_s, stuck_change_c,
+        )  # fmt: skip
+        out_code[k] = code
+        out_action[k] = action
+
+
+@functools.cache
+def compiled_supervisor() -> Callable[..., None]:
+    """:func:`_supervise_loop` over the pipeline's own :func:`supervise`, compiled with numba."""
+    import numba
+
+    initial = numba.njit(cache=False)(_rebound(supervision.initial_supervisor))
+    supervise = numba.njit(cache=False)(_rebound(supervision.supervise, initial_supervisor=initial))
+    loop = numba.njit(cache=False)(_supervise_loop)
+
+    def run(*args: Any) -> None:
+        loop(supervise, initial, *args)
+
+    return run
+
+
+class HeldInput(NamedTuple):
+    """An input sampled and held on the steps: value, stamp of the frame (nan: none), frames seen."""
+
+    value: NDArray[np.float64]
+    stamp: NDArray[np.float64]
+    frames_seen: NDArray[np.int64]
+
+
+def hold_inputs(frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64]) -> HeldInput:
+    """Values held at each step from ``j`` (index of the latest valid frame stamped strictly before the
+    step, -1: none yet; a frame fed after advance_to(t) is stamped t)."""
+    if not values.size:
+        nothing = np.full(j.size, np.nan)
+        return HeldInput(nothing, nothing, j + 1)
+    jj = np.maximum(j, 0)
+    seen = j >= 0
+    return HeldInput(np.where(seen, values[jj], np.nan), np.where(seen, frame_stamps[jj], np.nan), j + 1)
+
+
+def estimator_stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:
+    """[start, end) of each run of steps where the estimator runs (from an INITIALISE to before a NONE)."""
+    starts = np.flatnonzero(action == ACTION_INITIALISE)
+    stops = np.flatnonzero(action == ACTION_NONE)
+    out = []
+    for a in starts.tolist():
+        after = stops[stops > a]
+        out.append((a, int(after[0]) if after.size else action.size))
+    return out
+
+
+def stretch_log(
+    times: NDArray[np.float64], inputs: dict[str, NDArray[np.float64]], z: NDArray[np.float64], a: int, b: int
+) -> FlightLog:
+    """A stretch [a, b) of steps as the flight log the estimator runs on (CHT readings ``z``)."""
+    columns = {"time_s": times[a:b], **{name: col[a:b] for name, col in inputs.items()}, "cht_c": z}
+    return FlightLog(columns, source="replay")
