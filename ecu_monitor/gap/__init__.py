@@ -3,7 +3,8 @@ it, and how far the held-out error shrinks once it is added.
 
 Start with :func:`diagnose` (nominal model + train and test flights -> :class:`GapDiagnosis`) and
 :func:`write_report` (gap.json, report.md, plots, model.yaml); the blind cases are in
-:mod:`ecu_monitor.research.blind`.
+:mod:`ecu_monitor.research.blind`. The run is in :mod:`.diagnose`, its settings and results in
+:mod:`.diagnosis`, the held-out scoring of refitted candidates in :mod:`.scoring`.
 """
 
 from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis, GapSettings, cross_validate, diagnose

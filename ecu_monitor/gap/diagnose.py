@@ -17,23 +17,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ecu_monitor.errors import ParameterError
-from ecu_monitor.estimation import run_estimator
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, Candidate, candidate, flight_references
+from ecu_monitor.gap.diagnosis import JOINT_REFIT, EffectScore, GapDiagnosis, GapSettings, HeldOutFlight, rms_of
+from ecu_monitor.gap.library import Candidate, candidate, flight_references
 from ecu_monitor.gap.localise import (
-    LagSignature,
-    SegmentShare,
-    Spectrum,
     correlations,
     heat_map_coverage,
     lag_signature,
-    ljung_box,
     region_breakdown,
     residual_spectrum,
     segment_breakdown,
@@ -41,15 +36,13 @@ from ecu_monitor.gap.localise import (
 from ecu_monitor.gap.refit import (
     FitResult,
     PreparedFlight,
-    RefitSettings,
     prepare_flight,
     refit,
     reidentify,
     simulate_probe,
 )
-from ecu_monitor.gap.segments import SEGMENT_NAMES, Segmentation, SegmentSettings, segment_flight
-from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings, improvement_test
-from ecu_monitor.identify import PsoSettings
+from ecu_monitor.gap.scoring import RefitFold, innovation_whiteness, score_fits, second_effect_acts, segment_gain_shares
+from ecu_monitor.gap.segments import Segmentation, segment_flight
 from ecu_monitor.model import ThermalParams
 
 __all__ = [
@@ -62,298 +55,7 @@ __all__ = [
     "diagnose",
 ]
 
-#: The re-identification of "reidentify" mode: no swarm iterations, so the best of the initial swarm
-#: (the given nominal model with the candidate switched on at its neutral start is one of its
-#: particles) is polished by least squares jointly over the whole model and the candidate. On the
-#: real flights this gave the same held-out scores as a full PSO run (48 particles x 120 iterations)
-#: at a third of the time (docs/results/gap_real.md); pass ``pso=PsoSettings()`` for the full search.
-JOINT_REFIT = PsoSettings(particles=4, iterations=0)
-
 Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class GapSettings:
-    """Settings of the diagnosis: candidates tried, refit, significance, segmentation, pairs.
-
-    refit_mode "local" (default) refits the candidate's parameters and two nominal factors from the
-    nominal model (:func:`ecu_monitor.gap.refit.refit`); "reidentify" re-identifies the whole nominal
-    model jointly with them (:func:`ecu_monitor.gap.refit.reidentify`, with ``pso``: by default
-    :data:`JOINT_REFIT`, a joint least-squares refit from the given model), the choice
-    when the nominal model was identified on the train flight itself.
-
-    Pairs are tried when the best single effect leaves a test RMS above ``pair_threshold_c`` (degC);
-    a pair must beat the single effect by ``pair_min_shrink_pct`` (a higher bar than a single effect
-    against the control: the second effect of a pair is fitted to what the first one leaves, small
-    structured remainders such as a slightly wrong nominal altitude exponent included)."""
-
-    candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
-    refit: RefitSettings = field(default_factory=RefitSettings)
-    significance: SignificanceSettings = field(default_factory=SignificanceSettings)
-    segments: SegmentSettings = field(default_factory=SegmentSettings)
-    try_pairs: bool = True
-    pair_threshold_c: float = 1.0
-    pair_min_shrink_pct: float = 30.0
-    whiteness_estimator: str | None = "cbekf-au"
-    refit_mode: str = "local"
-    pso: PsoSettings = field(default_factory=lambda: JOINT_REFIT)
-
-    def __post_init__(self) -> None:
-        for cid in self.candidates:
-            candidate(cid)  # raises ParameterError if unknown
-        if not self.candidates:
-            raise ParameterError("gap: at least one candidate effect is needed")
-        if self.refit_mode not in ("local", "reidentify"):
-            raise ParameterError(f"gap refit mode: expected 'local' or 'reidentify', got {self.refit_mode!r}")
-
-
-@dataclass(frozen=True)
-class EffectScore:
-    """A refitted candidate (or the control) scored on the test flight(s): residuals per test flight,
-    RMS and peak pooled over all of them."""
-
-    fit: FitResult
-    flight_residuals: tuple[np.ndarray, ...]  # measured - model on each test flight, degC
-    test_rms_c: float
-    test_peak_c: float
-    shrink_pct: float  # pooled held-out RMS shrink vs the baseline (nominal model), %
-    versus: ImprovementTest | None  # against the control (singles) or the single effect (pairs)
-    role: str  # "control", "single" or "pair"
-    fold_fits: tuple[FitResult, ...] = ()  # cross-validation: the refit of each fold (fit = the first)
-
-    @property
-    def label(self) -> str:
-        """Candidate ids joined with '+' ('control' for the effect-free refit)."""
-        return self.fit.label
-
-    @property
-    def test_residual(self) -> np.ndarray:
-        """The residuals of every test flight end to end, degC."""
-        return np.concatenate(self.flight_residuals)
-
-    @property
-    def flight_rms_c(self) -> tuple[float, ...]:
-        """Held-out RMS on each test flight, degC."""
-        return tuple(_rms(r) for r in self.flight_residuals)
-
-    @property
-    def counts(self) -> bool:
-        """Significant and material against its reference."""
-        return self.versus is not None and self.versus.counts
-
-
-@dataclass(frozen=True)
-class HeldOutFlight:
-    """One held-out flight: the nominal model's open-loop baseline on it and where it departs."""
-
-    flight: PreparedFlight
-    baseline_residual: np.ndarray  # measured - nominal model, degC
-    baseline_model_c: np.ndarray
-    model_rate_c_per_s: np.ndarray
-    segmentation: Segmentation
-    where: list[SegmentShare]
-
-    @property
-    def name(self) -> str:
-        """The flight's source (file name)."""
-        return self.flight.log.source
-
-    @property
-    def baseline_rms_c(self) -> float:
-        """RMS of the baseline residual, degC."""
-        return _rms(self.baseline_residual)
-
-
-@dataclass(frozen=True)
-class GapDiagnosis:
-    """Everything the report needs. Pooled quantities are over every test flight end to end;
-    ``tests`` holds each test flight's own baseline and segments."""
-
-    nominal: ThermalParams
-    trains: tuple[PreparedFlight, ...]
-    tests: tuple[HeldOutFlight, ...]
-    baseline_train_residual: np.ndarray  # every train flight end to end
-    baseline_test_residual: np.ndarray  # every test flight end to end
-    where: list[SegmentShare]  # pooled over the test flights
-    regions: dict[str, list[dict[str, float]]]
-    correlation: dict[str, float]
-    lag: LagSignature
-    spectrum: Spectrum
-    whiteness: dict[str, Any]
-    coverage: dict[str, float]
-    control: EffectScore
-    effects: list[EffectScore]  # every single and pair tried, sorted by test RMS
-    winner: EffectScore | None
-    winner_segment: str  # segment with the largest held-out gain of the winner over the control (where[0] if null)
-    segment_gain: dict[str, float]  # share of the winner's squared-error reduction (vs the control) by segment
-    model: ThermalParams  # the winner's model, or the nominal model when unexplained
-    settings: GapSettings
-    references: dict[str, float]
-    folds: int = 1  # > 1: leave-one-flight-out (each test flight scored by refits on the others)
-
-    @property
-    def train(self) -> PreparedFlight:
-        """The first train flight."""
-        return self.trains[0]
-
-    @property
-    def test(self) -> PreparedFlight:
-        """The first test flight."""
-        return self.tests[0].flight
-
-    @property
-    def verdict_ids(self) -> tuple[str, ...]:
-        """The winning candidate ids (empty: unexplained)."""
-        return self.winner.fit.ids if self.winner is not None else ()
-
-    def flight_detail(self, score: EffectScore | None = None) -> list[dict[str, Any]]:
-        """Per test flight: baseline, control and ``score`` (default the winner) RMS, their shrink,
-        and by segment the RMS before/after and whether the effect holds there (its RMS below the
-        control's)."""
-        score = score if score is not None else self.winner
-        rows = []
-        for k, test in enumerate(self.tests):
-            base = test.baseline_residual
-            control = self.control.flight_residuals[k]
-            row: dict[str, Any] = {
-                "flight": test.name,
-                "duration_s": float(test.flight.log.duration_s),
-                "samples": int(base.size),
-                "baseline_rms_c": _rms(base),
-                "baseline_peak_c": float(np.max(np.abs(base))),
-                "control_rms_c": _rms(control),
-                "where": [w.to_dict() for w in test.where],
-            }
-            if score is not None:
-                after = score.flight_residuals[k]
-                row["test_rms_c"] = _rms(after)
-                row["test_peak_c"] = float(np.max(np.abs(after)))
-                row["shrink_pct"] = _shrink(_rms(base), _rms(after))
-                row["shrink_vs_control_pct"] = _shrink(_rms(control), _rms(after))
-                segments = {}
-                for index, name in enumerate(SEGMENT_NAMES):
-                    mask = test.segmentation.labels == index
-                    if not np.any(mask):
-                        continue
-                    b, c, a = _rms(base[mask]), _rms(control[mask]), _rms(after[mask])
-                    segments[name] = {
-                        "duration_s": float(mask.sum()) * test.flight.dt_s,
-                        "baseline_rms_c": b,
-                        "control_rms_c": c,
-                        "rms_c": a,
-                        "shrink_pct": _shrink(b, a),
-                        "shrink_vs_control_pct": _shrink(c, a),
-                        "holds": bool(a < c and a < b),
-                    }
-                row["segments"] = segments
-            rows.append(row)
-        return rows
-
-
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.asarray(x, dtype=float) ** 2)))
-
-
-def _shrink(before: float, after: float) -> float:
-    return 100.0 * (1.0 - after / before) if before > 0 else 0.0
-
-
-@dataclass(frozen=True)
-class _Fold:
-    """One refit set-up: the nominal model, the flights the candidates are refitted on, their
-    reference conditions, and the indices (into the diagnosis's test flights) it is scored on."""
-
-    nominal: ThermalParams
-    trains: tuple[PreparedFlight, ...]
-    references: dict[str, float]
-    tests: tuple[int, ...]
-
-
-def _score(
-    fits: Sequence[FitResult],
-    folds: Sequence[_Fold],
-    tests: tuple[HeldOutFlight, ...],
-    baseline_rms: float,
-    engine: str,
-    role: str,
-    reference: EffectScore | None,
-    n_tests: int,
-    significance: SignificanceSettings,
-) -> EffectScore:
-    """Each fold's fit simulated on that fold's test flights; residuals in the order of ``tests``."""
-    by_flight: dict[int, np.ndarray] = {}
-    for fit, fold in zip(fits, folds, strict=True):
-        for k in fold.tests:
-            model = simulate_probe([fit.params], tests[k].flight, engine)[:, 0]
-            residual = tests[k].flight.cht_c - model
-            if not np.all(np.isfinite(residual)):  # a diverged run scores 1000 degC where it failed: it never counts
-                residual = np.where(np.isfinite(residual), residual, 1e3)
-            by_flight[k] = residual
-    residuals = [by_flight[k] for k in range(len(tests))]
-    pooled = np.concatenate(residuals)
-    rms = _rms(pooled)
-    versus = None
-    if reference is not None:
-        versus = improvement_test(reference.flight_residuals, residuals, tests[0].flight.dt_s, n_tests, significance)
-    return EffectScore(
-        fit=fits[0],
-        flight_residuals=tuple(residuals),
-        test_rms_c=rms,
-        test_peak_c=float(np.max(np.abs(pooled))),
-        shrink_pct=_shrink(baseline_rms, rms),
-        versus=versus,
-        role=role,
-        fold_fits=tuple(fits) if len(fits) > 1 else (),
-    )
-
-
-def _whiteness(nominal: ThermalParams, logs: Sequence[FlightLog], estimator: str | None) -> dict[str, Any]:
-    if estimator is None:
-        return {"estimator": None}
-    parts = []
-    for log in logs:
-        innovation = np.asarray(run_estimator(log, nominal, estimator).innovation, dtype=float)
-        parts.append(innovation[np.isfinite(innovation)])  # one per CHT reading
-    innovation = np.concatenate(parts)
-    result: dict[str, Any] = {"estimator": estimator, **ljung_box(innovation, lags=20)}
-    result["innovation_rms_c"] = float(np.sqrt(np.mean(innovation**2))) if innovation.size else 0.0
-    return result
-
-
-def _second_acts(
-    pair: EffectScore,
-    folds: Sequence[_Fold],
-    tests: Sequence[HeldOutFlight],
-    engine: str,
-    settings: GapSettings,
-) -> bool:
-    """True when the pair's second effect changes its test prediction by at least min_rms_drop_c RMS
-    (switched off with every other fitted value kept; pooled over the test flights): a pair whose gain
-    comes from a better fit of the first effect's own parameters does not name a second effect."""
-    entry = candidate(pair.fit.ids[1])
-    parts = []
-    for fit, fold in zip(pair.fold_fits or (pair.fit,), folds, strict=True):
-        params = fit.params
-        if entry.effect == "nominal":
-            names = [p.name for p in entry.free] + [name for name, _ in entry.fixed]
-            without = params.replace(**{name: getattr(fold.nominal, name) for name in names})
-        else:
-            without = params.replace(effects=params.effects.replace(entry.effect, None))
-        parts += [simulate_probe([params, without], tests[k].flight, engine) for k in fold.tests]
-    both = np.concatenate(parts, axis=0)
-    change = float(np.sqrt(np.mean((both[:, 0] - both[:, 1]) ** 2)))
-    return change >= settings.significance.min_rms_drop_c
-
-
-def _segment_gain(reference: np.ndarray, improved: np.ndarray, labels: np.ndarray) -> dict[str, float]:
-    gain = reference**2 - improved**2
-    total = float(np.sum(np.clip(gain, 0.0, None))) or 1.0
-    out = {}
-    for index, name in enumerate(SEGMENT_NAMES):
-        mask = labels == index
-        if np.any(mask):
-            out[name] = float(np.sum(gain[mask])) / total
-    return out
 
 
 def _end_to_end(logs: Sequence[FlightLog], columns: Sequence[str]) -> FlightLog:
@@ -407,7 +109,7 @@ def diagnose(
     train_logs = _as_logs(train_logs, "train")
     test_logs = _as_logs(test_logs, "test")
     trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s) for log in train_logs)
-    fold = _Fold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
+    fold = RefitFold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
     return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress)
 
 
@@ -432,7 +134,7 @@ def cross_validate(
     for k, nominal in enumerate(nominals):
         others = tuple(f for i, f in enumerate(prepared) if i != k)
         references = _references([log for i, log in enumerate(logs) if i != k], settings)
-        folds.append(_Fold(nominal, others, references, (k,)))
+        folds.append(RefitFold(nominal, others, references, (k,)))
     return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress)
 
 
@@ -442,7 +144,7 @@ def _references(logs: Sequence[FlightLog], settings: GapSettings) -> dict[str, f
 
 
 def _diagnose(
-    folds: Sequence[_Fold],
+    folds: Sequence[RefitFold],
     trains: tuple[PreparedFlight, ...],
     test_logs: Sequence[FlightLog],
     test_nominals: Sequence[ThermalParams],
@@ -461,7 +163,7 @@ def _diagnose(
     base_train = np.concatenate([f.cht_c - simulate_probe([nominal], f, engine)[:, 0] for f in trains])
     tests = tuple(_held_out(m, log, settings) for m, log in zip(test_nominals, test_logs, strict=True))
     base_test = np.concatenate([t.baseline_residual for t in tests])
-    baseline_rms = _rms(base_test)
+    baseline_rms = rms_of(base_test)
 
     say("where: segments, regions, correlations, spectrum, innovations")
     columns = [c for c in (*axes, "airspeed_mps", "altitude_m", "oat_c") if all(log.has(c) for log in test_logs)]
@@ -475,13 +177,13 @@ def _diagnose(
     corr = correlations(base_test, pooled_log, columns, rate)
     lag = lag_signature(base_test, rate)
     spectrum = residual_spectrum(base_test, dt_s)
-    whiteness = _whiteness(nominal, test_logs, settings.whiteness_estimator)
+    whiteness = innovation_whiteness(nominal, test_logs, settings.whiteness_estimator)
     hm = nominal.heat_map
     coverage = heat_map_coverage(
         base_test, _end_to_end(train_logs, axes), _end_to_end(test_logs, axes), axes, hm.x_breakpoints, hm.y_breakpoints
     )
 
-    def fit_one(fold: _Fold, entries: list[Candidate]) -> FitResult:
+    def fit_one(fold: RefitFold, entries: list[Candidate]) -> FitResult:
         if settings.refit_mode == "reidentify":
             return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
         return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
@@ -490,7 +192,7 @@ def _diagnose(
         return [fit_one(fold, entries) for fold in folds]
 
     def score(fits: list[FitResult], role: str, reference: EffectScore | None, n: int, test: Any) -> EffectScore:
-        return _score(fits, folds, tests, baseline_rms, engine, role, reference, n, test)
+        return score_fits(fits, folds, tests, baseline_rms, engine, role, reference, n, test)
 
     fold_note = f", {len(folds)} folds" if len(folds) > 1 else ""
     say(f"refit: control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note})")
@@ -511,17 +213,17 @@ def _diagnose(
             say(f"refit: pair {first}+{cid}")
             fits = fit_candidates([candidate(first), candidate(cid)])
             pairs.append(score(fits, "pair", winner, len(others), pair_test))
-        better = [p for p in pairs if p.counts and _second_acts(p, folds, tests, engine, settings)]
+        better = [p for p in pairs if p.counts and second_effect_acts(p, folds, tests, engine, settings)]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)
     effects = sorted(singles + pairs, key=lambda s: s.test_rms_c)
     if winner is not None:
-        gain = _segment_gain(control.test_residual, winner.test_residual, labels)
+        gain = segment_gain_shares(control.test_residual, winner.test_residual, labels)
         winner_segment = max(gain, key=lambda k: gain[k])
         model = winner.fit.params
         if len(folds) > 1:
             say(f"refit: {winner.label} on all {len(trains)} flights (model.yaml)")
-            final = _Fold(final_nominal, trains, references, ())
+            final = RefitFold(final_nominal, trains, references, ())
             model = fit_one(final, [candidate(cid) for cid in winner.fit.ids]).params
     else:
         gain = {}

@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis
+from ecu_monitor.gap.diagnosis import EffectScore, GapDiagnosis
 from ecu_monitor.gap.segments import SEGMENT_NAMES
 from ecu_monitor.model import save_model
 

@@ -1,0 +1,222 @@
+"""What the gap diagnosis takes and gives: :class:`GapSettings`, and the results it hands the report
+(:class:`GapDiagnosis`, with an :class:`EffectScore` per candidate tried and a :class:`HeldOutFlight` per
+test flight)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ecu_monitor.errors import ParameterError
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate
+from ecu_monitor.gap.localise import (
+    LagSignature,
+    SegmentShare,
+    Spectrum,
+)
+from ecu_monitor.gap.refit import (
+    FitResult,
+    PreparedFlight,
+    RefitSettings,
+)
+from ecu_monitor.gap.segments import SEGMENT_NAMES, Segmentation, SegmentSettings
+from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings
+from ecu_monitor.identify import PsoSettings
+from ecu_monitor.model import ThermalParams
+
+#: The re-identification of "reidentify" mode: no swarm iterations, so the best of the initial swarm
+#: (the given nominal model with the candidate switched on at its neutral start is one of its
+#: particles) is polished by least squares jointly over the whole model and the candidate. On the
+#: real flights this gave the same held-out scores as a full PSO run (48 particles x 120 iterations)
+#: at a third of the time (docs/results/gap_real.md); pass ``pso=PsoSettings()`` for the full search.
+JOINT_REFIT = PsoSettings(particles=4, iterations=0)
+
+
+@dataclass(frozen=True)
+class GapSettings:
+    """Settings of the diagnosis: candidates tried, refit, significance, segmentation, pairs.
+
+    refit_mode "local" (default) refits the candidate's parameters and two nominal factors from the
+    nominal model (:func:`ecu_monitor.gap.refit.refit`); "reidentify" re-identifies the whole nominal
+    model jointly with them (:func:`ecu_monitor.gap.refit.reidentify`, with ``pso``: by default
+    :data:`JOINT_REFIT`, a joint least-squares refit from the given model), the choice
+    when the nominal model was identified on the train flight itself.
+
+    Pairs are tried when the best single effect leaves a test RMS above ``pair_threshold_c`` (degC);
+    a pair must beat the single effect by ``pair_min_shrink_pct`` (a higher bar than a single effect
+    against the control: the second effect of a pair is fitted to what the first one leaves, small
+    structured remainders such as a slightly wrong nominal altitude exponent included)."""
+
+    candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
+    refit: RefitSettings = field(default_factory=RefitSettings)
+    significance: SignificanceSettings = field(default_factory=SignificanceSettings)
+    segments: SegmentSettings = field(default_factory=SegmentSettings)
+    try_pairs: bool = True
+    pair_threshold_c: float = 1.0
+    pair_min_shrink_pct: float = 30.0
+    whiteness_estimator: str | None = "cbekf-au"
+    refit_mode: str = "local"
+    pso: PsoSettings = field(default_factory=lambda: JOINT_REFIT)
+
+    def __post_init__(self) -> None:
+        for cid in self.candidates:
+            candidate(cid)  # raises ParameterError if unknown
+        if not self.candidates:
+            raise ParameterError("gap: at least one candidate effect is needed")
+        if self.refit_mode not in ("local", "reidentify"):
+            raise ParameterError(f"gap refit mode: expected 'local' or 'reidentify', got {self.refit_mode!r}")
+
+
+@dataclass(frozen=True)
+class EffectScore:
+    """A refitted candidate (or the control) scored on the test flight(s): residuals per test flight,
+    RMS and peak pooled over all of them."""
+
+    fit: FitResult
+    flight_residuals: tuple[np.ndarray, ...]  # measured - model on each test flight, degC
+    test_rms_c: float
+    test_peak_c: float
+    shrink_pct: float  # pooled held-out RMS shrink vs the baseline (nominal model), %
+    versus: ImprovementTest | None  # against the control (singles) or the single effect (pairs)
+    role: str  # "control", "single" or "pair"
+    fold_fits: tuple[FitResult, ...] = ()  # cross-validation: the refit of each fold (fit = the first)
+
+    @property
+    def label(self) -> str:
+        """Candidate ids joined with '+' ('control' for the effect-free refit)."""
+        return self.fit.label
+
+    @property
+    def test_residual(self) -> np.ndarray:
+        """The residuals of every test flight end to end, degC."""
+        return np.concatenate(self.flight_residuals)
+
+    @property
+    def flight_rms_c(self) -> tuple[float, ...]:
+        """Held-out RMS on each test flight, degC."""
+        return tuple(rms_of(r) for r in self.flight_residuals)
+
+    @property
+    def counts(self) -> bool:
+        """Significant and material against its reference."""
+        return self.versus is not None and self.versus.counts
+
+
+@dataclass(frozen=True)
+class HeldOutFlight:
+    """One held-out flight: the nominal model's open-loop baseline on it and where it departs."""
+
+    flight: PreparedFlight
+    baseline_residual: np.ndarray  # measured - nominal model, degC
+    baseline_model_c: np.ndarray
+    model_rate_c_per_s: np.ndarray
+    segmentation: Segmentation
+    where: list[SegmentShare]
+
+    @property
+    def name(self) -> str:
+        """The flight's source (file name)."""
+        return self.flight.log.source
+
+    @property
+    def baseline_rms_c(self) -> float:
+        """RMS of the baseline residual, degC."""
+        return rms_of(self.baseline_residual)
+
+
+@dataclass(frozen=True)
+class GapDiagnosis:
+    """Everything the report needs. Pooled quantities are over every test flight end to end;
+    ``tests`` holds each test flight's own baseline and segments."""
+
+    nominal: ThermalParams
+    trains: tuple[PreparedFlight, ...]
+    tests: tuple[HeldOutFlight, ...]
+    baseline_train_residual: np.ndarray  # every train flight end to end
+    baseline_test_residual: np.ndarray  # every test flight end to end
+    where: list[SegmentShare]  # pooled over the test flights
+    regions: dict[str, list[dict[str, float]]]
+    correlation: dict[str, float]
+    lag: LagSignature
+    spectrum: Spectrum
+    whiteness: dict[str, Any]
+    coverage: dict[str, float]
+    control: EffectScore
+    effects: list[EffectScore]  # every single and pair tried, sorted by test RMS
+    winner: EffectScore | None
+    winner_segment: str  # segment with the largest held-out gain of the winner over the control (where[0] if null)
+    segment_gain: dict[str, float]  # share of the winner's squared-error reduction (vs the control) by segment
+    model: ThermalParams  # the winner's model, or the nominal model when unexplained
+    settings: GapSettings
+    references: dict[str, float]
+    folds: int = 1  # > 1: leave-one-flight-out (each test flight scored by refits on the others)
+
+    @property
+    def train(self) -> PreparedFlight:
+        """The first train flight."""
+        return self.trains[0]
+
+    @property
+    def test(self) -> PreparedFlight:
+        """The first test flight."""
+        return self.tests[0].flight
+
+    @property
+    def verdict_ids(self) -> tuple[str, ...]:
+        """The winning candidate ids (empty: unexplained)."""
+        return self.winner.fit.ids if self.winner is not None else ()
+
+    def flight_detail(self, score: EffectScore | None = None) -> list[dict[str, Any]]:
+        """Per test flight: baseline, control and ``score`` (default the winner) RMS, their shrink,
+        and by segment the RMS before/after and whether the effect holds there (its RMS below the
+        control's)."""
+        score = score if score is not None else self.winner
+        rows = []
+        for k, test in enumerate(self.tests):
+            base = test.baseline_residual
+            control = self.control.flight_residuals[k]
+            row: dict[str, Any] = {
+                "flight": test.name,
+                "duration_s": float(test.flight.log.duration_s),
+                "samples": int(base.size),
+                "baseline_rms_c": rms_of(base),
+                "baseline_peak_c": float(np.max(np.abs(base))),
+                "control_rms_c": rms_of(control),
+                "where": [w.to_dict() for w in test.where],
+            }
+            if score is not None:
+                after = score.flight_residuals[k]
+                row["test_rms_c"] = rms_of(after)
+                row["test_peak_c"] = float(np.max(np.abs(after)))
+                row["shrink_pct"] = shrink_percent(rms_of(base), rms_of(after))
+                row["shrink_vs_control_pct"] = shrink_percent(rms_of(control), rms_of(after))
+                segments = {}
+                for index, name in enumerate(SEGMENT_NAMES):
+                    mask = test.segmentation.labels == index
+                    if not np.any(mask):
+                        continue
+                    b, c, a = rms_of(base[mask]), rms_of(control[mask]), rms_of(after[mask])
+                    segments[name] = {
+                        "duration_s": float(mask.sum()) * test.flight.dt_s,
+                        "baseline_rms_c": b,
+                        "control_rms_c": c,
+                        "rms_c": a,
+                        "shrink_pct": shrink_percent(b, a),
+                        "shrink_vs_control_pct": shrink_percent(c, a),
+                        "holds": bool(a < c and a < b),
+                    }
+                row["segments"] = segments
+            rows.append(row)
+        return rows
+
+
+def rms_of(x: np.ndarray) -> float:
+    """Root mean square of ``x`` (same unit, degC for residuals)."""
+    return float(np.sqrt(np.mean(np.asarray(x, dtype=float) ** 2)))
+
+
+def shrink_percent(before: float, after: float) -> float:
+    """How much ``after`` is below ``before``, % of ``before`` (0 when ``before`` is 0)."""
+    return 100.0 * (1.0 - after / before) if before > 0 else 0.0
