@@ -5,6 +5,7 @@ Start with :func:`identify` (flights -> :class:`IdentificationResult`), :func:`f
 """
 
 from ecu_monitor.identify.fit import IdentificationResult, identify, polish
+from ecu_monitor.identify.objective import SwarmObjective
 from ecu_monitor.identify.problem import (
     DEFAULT_FREE,
     IDENTIFICATION_DT_S,
@@ -12,7 +13,6 @@ from ecu_monitor.identify.problem import (
     ErrorStats,
     FlightGrid,
     ParameterSpace,
-    SwarmObjective,
     default_space,
     flight_errors,
     heat_map_breakpoints,

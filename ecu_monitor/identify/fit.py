@@ -16,11 +16,11 @@ from scipy.optimize import least_squares
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.identify.objective import SwarmObjective
 from ecu_monitor.identify.problem import (
     DEFAULT_FREE,
     ErrorStats,
     ParameterSpace,
-    SwarmObjective,
     default_space,
     flight_errors,
 )

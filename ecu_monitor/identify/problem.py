@@ -32,17 +32,41 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.errors import FlightLogError, ParameterError
+from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import Coefficients, HeatMap, InputSeries, ThermalParams, coefficients
-from ecu_monitor.model.compiled import simulate_compiled
-from ecu_monitor.model.effects import EFFECT_TYPES, MIXTURE_SOURCES, MixtureIndex
-from ecu_monitor.model.inputs import read_inputs
+from ecu_monitor.identify.flights import (
+    IDENTIFICATION_DT_S,
+    REFERENCE_DT_S,
+    ErrorStats,
+    FlightGrid,
+    flight_errors,
+    measured_cht,
+    model_inputs,
+    prepare_flight,
+    simulate_flight,
+)
+from ecu_monitor.identify.heat_grid import heat_map_breakpoints, observed_rise_map, reference_point, visited_weight_s
+from ecu_monitor.identify.search_settings import (
+    _EFFECT_FIELDS,
+    _EFFECT_TYPES,
+    _KNOWN_FREE,
+    _SCALE_PARAMETERS,
+    BOUND_TOLERANCE,
+    DEFAULT_FREE,
+    HEAT_MONOTONE_SIGMA_C,
+    HEAT_SMOOTH_SIGMA,
+    MAX_RADIATION_FRACTION,
+    MIN_VISIT_S,
+    PRIOR_SCALE_C,
+    TIME_CONSTANT_BOUNDS_S,
+)
+from ecu_monitor.model import Coefficients, HeatMap, ThermalParams, coefficients
+from ecu_monitor.model.effects import MIXTURE_SOURCES
 
 __all__ = [
     "DEFAULT_FREE",
@@ -51,7 +75,6 @@ __all__ = [
     "ErrorStats",
     "FlightGrid",
     "ParameterSpace",
-    "SwarmObjective",
     "default_space",
     "flight_errors",
     "heat_map_breakpoints",
@@ -62,271 +85,6 @@ __all__ = [
     "simulate_flight",
     "visited_weight_s",
 ]
-
-#: Integration step of the reference simulation (the paper's and the estimators' step), s.
-REFERENCE_DT_S = 0.02
-#: Integration step used inside identification, s; chosen by measurement (docs/results/identification.md).
-IDENTIFICATION_DT_S = 0.5
-#: Model free parameters by default (r_ce anchors the scale, a and b are fixed: see module doc).
-DEFAULT_FREE: tuple[str, ...] = ("c_w", "tau_w", "alpha_r_e", "heat_map")
-#: Largest radiation fraction searched (1 would mean no convection at the reference point).
-MAX_RADIATION_FRACTION = 0.99
-#: Bounds of the convective time constant C_w R_Ce, s (wide: engines from model aircraft to radials).
-TIME_CONSTANT_BOUNDS_S = (0.5, 20000.0)
-#: A coordinate closer than this fraction of its range (in search units) to a bound is reported.
-BOUND_TOLERANCE = 0.01
-#: Heat-map prior: standard deviation of a second difference between neighbouring breakpoints, as a
-#: fraction of the largest observed temperature rise, and of a fall of the heat with rising power, degC.
-HEAT_SMOOTH_SIGMA = 0.5
-HEAT_MONOTONE_SIGMA_C = 2.0
-#: A heat-map breakpoint whose total bilinear weight over the training flights is below this many
-#: seconds of flight is "not visited": it is not identified and takes the value of the nearest visited
-#: one (its base value would be a guess, and even a few seconds of weight on a wrong guess bias the fit).
-MIN_VISIT_S = 20.0
-#: Prior penalty scale: one prior standard deviation costs as much as 1 degC^2 of mean squared error.
-PRIOR_SCALE_C = 1.0
-#: Percent errors are relative to the measured CHT in degC, floored at this value to avoid dividing by ~0.
-PCT_FLOOR_C = 1.0
-
-# effect parameter name -> (Coefficients field, lower, upper, log-scaled)
-_EFFECT_FIELDS: dict[str, tuple[str, float, float, bool]] = {
-    "effects.airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", -0.05, 0.1, False),
-    "effects.airspeed_cooling.reference_mps": ("airspeed_reference_mps", 1.0, 200.0, False),
-    "effects.airspeed_cooling.floor": ("airspeed_floor", 0.05, 1.0, False),
-    "effects.density_cooling.exponent": ("density_exponent", 0.0, 1.5, False),
-    "effects.density_cooling.reference_kg_m3": ("density_reference_kg_m3", 0.3, 1.6, False),
-    "effects.sensor_lag.time_constant_s": ("sensor_lag_s", 0.0, 60.0, False),
-    "effects.mixture_cooling.fraction": ("mixture_fraction", 0.0, 0.6, False),
-    "effects.mixture_cooling.onset": ("mixture_onset", 0.0, 0.95, False),
-    "effects.airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0, 60.0, False),
-    "effects.mixture_index.gain": ("mixture_gain", -0.01, 0.01, False),  # per degC of EGT; H4b: per source
-    "effects.mixture_index.reference": ("mixture_reference", 0.0, 1200.0, False),
-}
-_EFFECT_TYPES: dict[str, type] = EFFECT_TYPES
-_SCALE_PARAMETERS = {"c_w", "r_ce", "alpha_r_e", "heat_map"}
-_KNOWN_FREE = {"c_w", "r_ce", "tau_w", "alpha_r_e", "a", "b", "heat_map", *_EFFECT_FIELDS}
-
-
-# --------------------------------------------------------------------------------------------------
-# Errors and open-loop simulation of one flight
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ErrorStats:
-    """Model error on one flight: |simulated - measured| CHT.
-
-    mean_c, peak_c, rms_c: mean, largest and RMS absolute error, degC.
-    mean_pct, peak_pct: mean and largest error in percent of the measured CHT in degC (as the paper;
-    the measured value is floored at 1 degC).
-    """
-
-    mean_c: float
-    peak_c: float
-    rms_c: float
-    mean_pct: float
-    peak_pct: float
-
-    @classmethod
-    def from_series(cls, simulated_c: NDArray[np.float64], measured_c: NDArray[np.float64]) -> ErrorStats:
-        """Error statistics of a simulated against a measured CHT series (same samples)."""
-        error = np.abs(np.asarray(simulated_c, dtype=float) - np.asarray(measured_c, dtype=float))
-        if error.size == 0 or not np.all(np.isfinite(error)):
-            nan = math.nan
-            return cls(nan, nan, nan, nan, nan)
-        pct = 100.0 * error / np.maximum(np.abs(measured_c), PCT_FLOOR_C)
-        return cls(
-            mean_c=float(error.mean()),
-            peak_c=float(error.max()),
-            rms_c=float(np.sqrt(np.mean(error**2))),
-            mean_pct=float(pct.mean()),
-            peak_pct=float(pct.max()),
-        )
-
-
-def model_inputs(log: FlightLog, heat_axes: tuple[str, str], mixture: MixtureIndex | None = None) -> InputSeries:
-    """The model inputs of a flight at its own sample times (:func:`ecu_monitor.model.inputs.read_inputs`).
-
-    Raises FlightLogError naming the first missing or non-finite column.
-    """
-    return read_inputs(log, heat_axes, mixture)
-
-
-def _measured(log: FlightLog) -> NDArray[np.float64]:
-    if not log.has("cht_c"):
-        raise FlightLogError(f"{log.source}: no column 'cht_c' (measured CHT; columns: {', '.join(log.names)})")
-    cht = np.asarray(log["cht_c"], dtype=float)
-    if not np.all(np.isfinite(cht)):
-        raise FlightLogError(f"{log.source}: column 'cht_c' holds blank or non-finite values")
-    return cht
-
-
-class FlightGrid(NamedTuple):
-    """A flight prepared for simulation on a uniform step: inputs held (zero-order hold) on the grid,
-    and where each measured sample falls between the recorded states."""
-
-    inputs: InputSeries  # on the uniform grid t0 + k dt, k < steps
-    dt_s: float
-    record_every: int  # states recorded every record_every steps
-    sample_row: NDArray[np.intp]  # per measured sample: recorded row just before it
-    sample_weight: NDArray[np.float64]  # linear interpolation weight towards the next row
-    measured_c: NDArray[np.float64]  # measured CHT at the log's sample times
-    initial_c: float  # initial CHT = the first measured sample
-    source: str
-
-    def sample(self, recorded: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Recorded states (rows, ...) interpolated at the measured sample times."""
-        w = self.sample_weight.reshape((-1,) + (1,) * (recorded.ndim - 1))
-        return (1.0 - w) * recorded[self.sample_row] + w * recorded[self.sample_row + 1]
-
-
-def prepare_flight(
-    log: FlightLog,
-    heat_axes: tuple[str, str],
-    dt_s: float,
-    record_period_s: float = 1.0,
-    mixture: MixtureIndex | None = None,
-) -> FlightGrid:
-    """Put a flight on a uniform grid of step ``dt_s`` (inputs held from the last sample at or before
-    each grid time), recording the state every ``record_period_s`` (rounded to a whole number of steps).
-    ``mixture``: the model's mixture_index effect, whose index column is then read too."""
-    if not (math.isfinite(dt_s) and dt_s > 0.0):
-        raise ParameterError(f"integration step: expected a positive number of seconds, got {dt_s!r}")
-    if len(log) < 2:
-        raise FlightLogError(f"{log.source}: at least 2 samples are needed to identify or simulate")
-    series = model_inputs(log, heat_axes, mixture)
-    measured = _measured(log)
-    t = np.asarray(log.time_s, dtype=float)
-    span = float(t[-1] - t[0])
-    every = max(1, round(record_period_s / dt_s))
-    rows = max(1, math.ceil(span / (every * dt_s) - 1e-9))
-    steps = rows * every + 1
-    grid = t[0] + dt_s * np.arange(steps)
-    index = np.clip(np.searchsorted(t, grid + 1e-9 * dt_s, side="right") - 1, 0, t.size - 1)
-    held = InputSeries(*(np.ascontiguousarray(np.asarray(v)[index]) for v in series))
-    position = (t - t[0]) / (every * dt_s)
-    row = np.clip(np.floor(position).astype(np.intp), 0, rows - 1)
-    weight = np.clip(position - row, 0.0, 1.0)
-    return FlightGrid(held, float(dt_s), every, row, weight, measured, float(measured[0]), log.source)
-
-
-def _run_grid(grid: FlightGrid, coeffs: Coefficients) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Probe CHT at the measured samples: (N,) or (N, P), and the failure mask () or (P,)."""
-    run = simulate_compiled(grid.inputs, coeffs, grid.dt_s, grid.initial_c, record_every=grid.record_every)
-    return grid.sample(run.probe_c), run.failed
-
-
-def simulate_flight(params: ThermalParams, log: FlightLog, dt_s: float | None = None) -> NDArray[np.float64]:
-    """Open-loop model CHT (what the probe reads, degC) at the log's sample times.
-
-    Driven by the log's inputs held on a uniform step ``dt_s`` (default :data:`REFERENCE_DT_S`), RK4,
-    starting from the first measured CHT with the heat-path delay in steady state. NaN from the sample
-    where the trajectory stops being finite (reported by :func:`flight_errors` as NaN errors).
-    """
-    grid = prepare_flight(
-        log, params.heat_axes, REFERENCE_DT_S if dt_s is None else dt_s, mixture=params.effects.mixture_index
-    )
-    probe, _ = _run_grid(grid, coefficients(params))
-    return probe
-
-
-def flight_errors(params: ThermalParams, log: FlightLog, dt_s: float | None = None) -> ErrorStats:
-    """Error statistics of the open-loop model against the log's measured CHT."""
-    return ErrorStats.from_series(simulate_flight(params, log, dt_s), _measured(log))
-
-
-# --------------------------------------------------------------------------------------------------
-# Heat-map grid from the data
-# --------------------------------------------------------------------------------------------------
-
-
-def heat_map_breakpoints(
-    flights: Sequence[FlightLog], heat_axes: tuple[str, str], grid: tuple[int, int]
-) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Breakpoints of an n x m heat map for a new axis pair, from the training data.
-
-    Each axis gets n (or m) breakpoints at the quantiles linspace(1 %, 99 %) of its pooled samples, so
-    every breakpoint sits where the engine actually ran (the 1 % tails are clamped, not extrapolated).
-    Where the quantiles collide (a mostly constant input) the breakpoints fall back to even spacing
-    between the 1 % and 99 % quantiles.
-    """
-    out = []
-    for axis, count in zip(heat_axes, grid, strict=True):
-        if count < 2:
-            raise ParameterError(f"heat-map grid: expected at least 2 breakpoints per axis, got {count}")
-        values = np.concatenate([np.asarray(model_inputs(f, heat_axes)[heat_axes.index(axis)]) for f in flights])
-        points = np.quantile(values, np.linspace(0.01, 0.99, count))
-        low, high = float(points[0]), float(points[-1])
-        if high - low <= 1e-9 * max(1.0, abs(high)):
-            raise ParameterError(f"heat-map axis '{axis}': the data hold one value only ({low:g}); choose another axis")
-        if np.any(np.diff(points) <= 1e-6 * (high - low)):
-            points = np.linspace(low, high, count)
-        out.append(tuple(float(round(p, 6)) for p in points))
-    return out[0], out[1]
-
-
-def observed_rise_map(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
-    """The temperature rise CHT - OAT the flights show at each breakpoint (degC): the mean over the
-    samples weighted by their bilinear weight, made non-decreasing along the first (power) axis;
-    a breakpoint the flights never reach takes the median rise. The identification's starting map."""
-    xb = np.asarray(heat_map.x_breakpoints)
-    yb = np.asarray(heat_map.y_breakpoints)
-    total = np.zeros(heat_map.shape)
-    weight = np.zeros(heat_map.shape)
-    rises = []
-    for log in flights:
-        series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
-        rise = _measured(log) - np.asarray(series.oat_c)
-        rises.append(rise)
-        i, fx = _cell_weights(xb, series.heat_x)
-        j, fy = _cell_weights(yb, series.heat_y)
-        for di, wx in ((0, 1.0 - fx), (1, fx)):
-            for dj, wy in ((0, 1.0 - fy), (1, fy)):
-                np.add.at(total, (i + di, j + dj), wx * wy * rise)
-                np.add.at(weight, (i + di, j + dj), wx * wy)
-    median = max(5.0, float(np.median(np.concatenate(rises))))
-    seen = weight > 1.0
-    out = np.where(seen, total / np.maximum(weight, 1e-12), median)
-    return np.maximum(np.maximum.accumulate(np.maximum(out, 1.0), axis=0), 1.0)
-
-
-def _cell_weights(breakpoints: NDArray[np.float64], q: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    qc = np.clip(np.asarray(q, dtype=float), breakpoints[0], breakpoints[-1])
-    cell = np.clip(np.searchsorted(breakpoints, qc, side="right") - 1, 0, breakpoints.size - 2)
-    return cell, (qc - breakpoints[cell]) / (breakpoints[cell + 1] - breakpoints[cell])
-
-
-def reference_point(flights: Sequence[FlightLog]) -> tuple[float, float]:
-    """(OAT, CHT - OAT) of the reference operating point, degC: the flights' medians (rise at least 5)."""
-    for log in flights:
-        if not log.has("oat_c"):
-            raise FlightLogError(f"{log.source}: no column 'oat_c' (model input; columns: {', '.join(log.names)})")
-    oat = np.concatenate([np.asarray(log["oat_c"], dtype=float) for log in flights])
-    rise = np.concatenate([_measured(log) - np.asarray(log["oat_c"], dtype=float) for log in flights])
-    return float(np.median(oat)), max(5.0, float(np.median(rise)))
-
-
-def visited_weight_s(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
-    """Time (s) each heat-map breakpoint carries over the flights: sum of its bilinear weight x sample interval."""
-    xb = np.asarray(heat_map.x_breakpoints)
-    yb = np.asarray(heat_map.y_breakpoints)
-    total = np.zeros(heat_map.shape)
-    for log in flights:
-        series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
-        t = np.asarray(log.time_s, dtype=float)
-        interval = np.diff(t, append=t[-1] + (float(np.median(np.diff(t))) if t.size > 1 else 1.0))
-        for ix, (bp, q) in enumerate(((xb, series.heat_x), (yb, series.heat_y))):
-            qc = np.clip(np.asarray(q, dtype=float), bp[0], bp[-1])
-            cell = np.clip(np.searchsorted(bp, qc, side="right") - 1, 0, bp.size - 2)
-            frac = (qc - bp[cell]) / (bp[cell + 1] - bp[cell])
-            if ix == 0:
-                xi, xf = cell, frac
-            else:
-                yi, yf = cell, frac
-        for di, wx in ((0, 1.0 - xf), (1, xf)):
-            for dj, wy in ((0, 1.0 - yf), (1, yf)):
-                np.add.at(total, (xi + di, yi + dj), wx * wy * interval)
-    return total
 
 
 # --------------------------------------------------------------------------------------------------
@@ -645,7 +403,7 @@ def default_space(
             " keep one of them fixed"
         )
     base = paper_table_a1() if base is None else base
-    rise = np.concatenate([_measured(log) - np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
+    rise = np.concatenate([measured_cht(log) - np.asarray(model_inputs(log, heat_axes).oat_c) for log in flights])
     reference_oat_c, reference_rise_c = reference_point(flights)
     max_rise = max(20.0, float(np.quantile(rise, 0.99)))
     fill = True
@@ -722,52 +480,3 @@ def default_space(
         heat_smooth_sigma_c=HEAT_SMOOTH_SIGMA * max_rise if heat_prior else math.nan,
         heat_monotone_sigma_c=HEAT_MONOTONE_SIGMA_C if heat_prior else math.nan,
     )
-
-
-# --------------------------------------------------------------------------------------------------
-# The swarm cost
-# --------------------------------------------------------------------------------------------------
-
-
-class SwarmObjective:
-    """Cost of a whole swarm at once: RMS of simulated (probe) minus measured CHT over all flights.
-
-    ``costs(unit)`` takes points of the unit cube (P, D) and returns the cost of each (P,), with the
-    prior penalty added inside the square root; a particle whose trajectory is not finite on any flight
-    gets +inf and is counted in ``failed``. ``evaluations`` counts particle simulations (one particle
-    over all flights = 1).
-    """
-
-    def __init__(self, flights: Sequence[FlightLog], space: ParameterSpace, dt_s: float, record_period_s: float = 1.0):
-        self.space = space
-        mixture = space.base.effects.mixture_index
-        self.grids = [prepare_flight(log, space.base.heat_axes, dt_s, record_period_s, mixture) for log in flights]
-        self.samples = int(sum(g.measured_c.size for g in self.grids))
-        self.failed = 0
-        self.evaluations = 0
-
-    def residuals(self, unit: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-        """Simulated minus measured CHT (P, samples of all flights) and the failure mask (P,)."""
-        unit = np.atleast_2d(unit)
-        vectors = self.space.from_unit(unit)
-        coeffs = self.space.coefficient_arrays(vectors)
-        parts = []
-        failed = np.zeros(unit.shape[0], dtype=bool)
-        for grid in self.grids:
-            probe, bad = _run_grid(grid, coeffs)
-            parts.append(probe.T - grid.measured_c[None, :])
-            failed |= np.asarray(bad, dtype=bool)
-        residual = np.concatenate(parts, axis=1)
-        failed |= ~np.all(np.isfinite(residual), axis=1)
-        self.evaluations += unit.shape[0]
-        self.failed += int(failed.sum())
-        return residual, failed
-
-    def costs(self, unit: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Cost of each point (P,): sqrt(mean squared error + prior penalty), +inf for a failed particle."""
-        residual, failed = self.residuals(unit)
-        with np.errstate(invalid="ignore", over="ignore"):
-            mse = np.mean(residual * residual, axis=1)
-        cost = np.sqrt(mse + self.space.prior_penalty(self.space.from_unit(np.atleast_2d(unit))))
-        cost[failed] = np.inf
-        return cost

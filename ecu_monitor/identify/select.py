@@ -30,11 +30,11 @@ from numpy.typing import NDArray
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.fit import IdentificationResult, identify, polish
+from ecu_monitor.identify.objective import SwarmObjective
 from ecu_monitor.identify.problem import (
     DEFAULT_FREE,
     ErrorStats,
     ParameterSpace,
-    SwarmObjective,
     default_space,
     flight_errors,
     reference_point,

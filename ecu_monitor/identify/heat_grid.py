@@ -1,0 +1,109 @@
+"""What the training flights pin about the heat map: breakpoints, observed rise, visited time, reference point."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import FlightLogError, ParameterError
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.identify.flights import measured_cht, model_inputs
+from ecu_monitor.model import HeatMap
+
+__all__ = ["heat_map_breakpoints", "observed_rise_map", "reference_point", "visited_weight_s"]
+
+# --------------------------------------------------------------------------------------------------
+# Heat-map grid from the data
+# --------------------------------------------------------------------------------------------------
+
+
+def heat_map_breakpoints(
+    flights: Sequence[FlightLog], heat_axes: tuple[str, str], grid: tuple[int, int]
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Breakpoints of an n x m heat map for a new axis pair, from the training data.
+
+    Each axis gets n (or m) breakpoints at the quantiles linspace(1 %, 99 %) of its pooled samples, so
+    every breakpoint sits where the engine actually ran (the 1 % tails are clamped, not extrapolated).
+    Where the quantiles collide (a mostly constant input) the breakpoints fall back to even spacing
+    between the 1 % and 99 % quantiles.
+    """
+    out = []
+    for axis, count in zip(heat_axes, grid, strict=True):
+        if count < 2:
+            raise ParameterError(f"heat-map grid: expected at least 2 breakpoints per axis, got {count}")
+        values = np.concatenate([np.asarray(model_inputs(f, heat_axes)[heat_axes.index(axis)]) for f in flights])
+        points = np.quantile(values, np.linspace(0.01, 0.99, count))
+        low, high = float(points[0]), float(points[-1])
+        if high - low <= 1e-9 * max(1.0, abs(high)):
+            raise ParameterError(f"heat-map axis '{axis}': the data hold one value only ({low:g}); choose another axis")
+        if np.any(np.diff(points) <= 1e-6 * (high - low)):
+            points = np.linspace(low, high, count)
+        out.append(tuple(float(round(p, 6)) for p in points))
+    return out[0], out[1]
+
+
+def observed_rise_map(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
+    """The temperature rise CHT - OAT the flights show at each breakpoint (degC): the mean over the
+    samples weighted by their bilinear weight, made non-decreasing along the first (power) axis;
+    a breakpoint the flights never reach takes the median rise. The identification's starting map."""
+    xb = np.asarray(heat_map.x_breakpoints)
+    yb = np.asarray(heat_map.y_breakpoints)
+    total = np.zeros(heat_map.shape)
+    weight = np.zeros(heat_map.shape)
+    rises = []
+    for log in flights:
+        series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
+        rise = measured_cht(log) - np.asarray(series.oat_c)
+        rises.append(rise)
+        i, fx = _cell_weights(xb, series.heat_x)
+        j, fy = _cell_weights(yb, series.heat_y)
+        for di, wx in ((0, 1.0 - fx), (1, fx)):
+            for dj, wy in ((0, 1.0 - fy), (1, fy)):
+                np.add.at(total, (i + di, j + dj), wx * wy * rise)
+                np.add.at(weight, (i + di, j + dj), wx * wy)
+    median = max(5.0, float(np.median(np.concatenate(rises))))
+    seen = weight > 1.0
+    out = np.where(seen, total / np.maximum(weight, 1e-12), median)
+    return np.maximum(np.maximum.accumulate(np.maximum(out, 1.0), axis=0), 1.0)
+
+
+def _cell_weights(breakpoints: NDArray[np.float64], q: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    qc = np.clip(np.asarray(q, dtype=float), breakpoints[0], breakpoints[-1])
+    cell = np.clip(np.searchsorted(breakpoints, qc, side="right") - 1, 0, breakpoints.size - 2)
+    return cell, (qc - breakpoints[cell]) / (breakpoints[cell + 1] - breakpoints[cell])
+
+
+def reference_point(flights: Sequence[FlightLog]) -> tuple[float, float]:
+    """(OAT, CHT - OAT) of the reference operating point, degC: the flights' medians (rise at least 5)."""
+    for log in flights:
+        if not log.has("oat_c"):
+            raise FlightLogError(f"{log.source}: no column 'oat_c' (model input; columns: {', '.join(log.names)})")
+    oat = np.concatenate([np.asarray(log["oat_c"], dtype=float) for log in flights])
+    rise = np.concatenate([measured_cht(log) - np.asarray(log["oat_c"], dtype=float) for log in flights])
+    return float(np.median(oat)), max(5.0, float(np.median(rise)))
+
+
+def visited_weight_s(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:
+    """Time (s) each heat-map breakpoint carries over the flights: sum of its bilinear weight x sample interval."""
+    xb = np.asarray(heat_map.x_breakpoints)
+    yb = np.asarray(heat_map.y_breakpoints)
+    total = np.zeros(heat_map.shape)
+    for log in flights:
+        series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
+        t = np.asarray(log.time_s, dtype=float)
+        interval = np.diff(t, append=t[-1] + (float(np.median(np.diff(t))) if t.size > 1 else 1.0))
+        for ix, (bp, q) in enumerate(((xb, series.heat_x), (yb, series.heat_y))):
+            qc = np.clip(np.asarray(q, dtype=float), bp[0], bp[-1])
+            cell = np.clip(np.searchsorted(bp, qc, side="right") - 1, 0, bp.size - 2)
+            frac = (qc - bp[cell]) / (bp[cell + 1] - bp[cell])
+            if ix == 0:
+                xi, xf = cell, frac
+            else:
+                yi, yf = cell, frac
+        for di, wx in ((0, 1.0 - xf), (1, xf)):
+            for dj, wy in ((0, 1.0 - yf), (1, yf)):
+                np.add.at(total, (xi + di, yi + dj), wx * wy * interval)
+    return total
