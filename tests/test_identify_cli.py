@@ -76,7 +76,7 @@ def test_identify_then_simulate(flights, tmp_path, capsys):
     errors = np.array([float(r["error_c"]) for r in rows])
     model_c = np.array([float(r["cht_model_c"]) for r in rows])
     meas_c = np.array([float(r["cht_meas_c"]) for r in rows])
-    np.testing.assert_allclose(errors, model_c - meas_c, atol=1e-9)
+    np.testing.assert_allclose(errors, meas_c - model_c, atol=1e-9)  # the one residual sign
     assert math.sqrt(np.mean(errors**2)) == pytest.approx(
         flight_errors(params, _flight(2, (70, 40, 95, 50, 80, 30))).rms_c
     )

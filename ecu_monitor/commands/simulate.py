@@ -3,7 +3,8 @@
 Open-loop model prediction driven by a flight's inputs (the heat-map axes named in the model,
 altitude, airspeed, OAT), starting from the first measured CHT, RK4 on a fixed step (0.02 s by
 default) with the inputs held between samples. Writes ``time_s, cht_meas_c, cht_model_c, error_c``
-(error = model - measured, degC) at the flight's sample times and prints mean / peak / RMS error.
+(error = measured - model, degC: the one residual sign of every output, docs/contracts.md) at the
+flight's sample times and prints mean / peak / RMS error.
 Without ``--model`` the paper's Table A1 preset is used.
 """
 
@@ -49,13 +50,13 @@ def _run(args: argparse.Namespace) -> int:
     model = simulate_flight(params, log, args.dt)
     measured = np.asarray(log["cht_c"])
     out = FlightLog(
-        {"time_s": log.time_s, "cht_meas_c": measured, "cht_model_c": model, "error_c": model - measured},
+        {"time_s": log.time_s, "cht_meas_c": measured, "cht_model_c": model, "error_c": measured - model},
         source=str(args.out),
     )
     write_csv(out, args.out)
     e = ErrorStats.from_series(model, measured)
     print(
-        f"{args.flight}: {len(log)} samples, {log.duration_s / 60.0:.1f} min; model - measured CHT: mean"
+        f"{args.flight}: {len(log)} samples, {log.duration_s / 60.0:.1f} min; |measured - model| CHT: mean"
         f" {e.mean_c:.2f} degC ({e.mean_pct:.2f} %), peak {e.peak_c:.2f} degC ({e.peak_pct:.2f} %),"
         f" RMS {e.rms_c:.2f} degC -> {args.out}"
     )

@@ -67,9 +67,9 @@ def plot_flight(
             f" ({errors.peak_pct:.2f} %), RMS {errors.rms_c:.2f} degC"
         )
     top.set_title(heading, fontsize=10)
-    bottom.plot(t_min, simulated_c - measured, color="tab:red", lw=0.8)
+    bottom.plot(t_min, measured - simulated_c, color="tab:red", lw=0.8)
     bottom.axhline(0.0, color="0.5", lw=0.6)
-    bottom.set_ylabel("model - meas., degC")
+    bottom.set_ylabel("meas - model, degC")
     bottom.set_xlabel("time, min")
     bottom.grid(alpha=0.3)
     fig.tight_layout()
