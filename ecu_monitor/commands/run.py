@@ -24,8 +24,9 @@ import can
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.service.config import ServiceConfig, load_config
 from ecu_monitor.service.daemon import Daemon, DaemonSettings
+from ecu_monitor.service.flight_recorder import FlightRecorder
 from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
-from ecu_monitor.service.persistence import FlightRecorder, FlightRules, StateStore
+from ecu_monitor.service.persistence import FlightRules, StateStore
 
 __all__ = ["add_subparser", "bus_opener", "engine_speed_of"]
 

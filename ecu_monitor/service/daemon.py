@@ -41,8 +41,9 @@ from typing import Any, Protocol, TypeVar
 
 import can
 
+from ecu_monitor.service.flight_recorder import FlightRecorder
 from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate
-from ecu_monitor.service.persistence import FlightRecorder, FlightSample
+from ecu_monitor.service.persistence import FlightSample
 
 __all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike"]
 
