@@ -78,6 +78,8 @@ def calibrated(nominal):
 def test_calibrate_prints_a_table_and_writes_the_fragment(calibrated):
     assert calibrated["code"] == 0 and calibrated["code_config"] == 0
     lines = calibrated["printed"].splitlines()
+    assert lines[0].startswith("chosen: 2 flight(s) given, cross-validation needs 3: kept the config's baseline_s 120")
+    lines = lines[1:]
     assert lines[0].split()[:5] == ["flight", "hours", "whole", "h", "max"]
     assert "alarms at h=7.77" in lines[0]
     rows = {line.split()[0]: line.split() for line in lines[1:4]}
@@ -209,7 +211,7 @@ def test_unreadable_flights_exit_2(tmp_path, capsys):
     assert "not a file" in _one_line_exit_2([str(tmp_path), "--out", str(tmp_path / "x.yaml")], capsys)
     other = tmp_path / "flight.txt"
     other.write_text("not a log\n")
-    assert "unknown log format" in _one_line_exit_2([str(other), "--out", str(tmp_path / "x.yaml")], capsys)
+    assert "unknown log" in _one_line_exit_2([str(other), "--out", str(tmp_path / "x.yaml")], capsys)
 
 
 def test_csv_without_the_models_inputs_exits_2(nominal, tmp_path, capsys):
@@ -243,3 +245,163 @@ def test_option_errors_exit_2(nominal, tmp_path, capsys):
     assert "--rate" in _one_line_exit_2([flight, "--rate", "0", "--out", str(tmp_path / "x.yaml")], capsys)
     assert "--rate" in _one_line_exit_2([flight, "--rate", "nan", "--out", str(tmp_path / "x.yaml")], capsys)
     assert math.isclose(load_config(DEFAULT_CONFIG).detector.threshold, 7.77)  # the input config is untouched
+
+
+# --------------------------------------------------------------------------------------------------
+# Choosing the baseline by cross-validation (service.calibration.choose_settings)
+# --------------------------------------------------------------------------------------------------
+
+SYNTHETIC_S = 4500.0  # 1.25 h: one whole hour of statistic after the 600 s warm-up
+
+
+def _synthetic_flight(name, rng, bump=0.0, overlay_slope=None):
+    """A detector feed at 1 Hz: white noise of 0.02 (well inside the 0.05 allowance) plus, if ``bump``,
+    a smooth nominal excursion of that height rising over 750 s from 1500 s and falling back by 3000 s
+    (a phase the model misses on this flight only); overlays add a degradation to the symptom: a
+    step of 0.3 approached with 240 s (``overlay_slope`` None) or a ramp of that slope, per s."""
+    from ecu_monitor.service.calibration import FlightFeeds, OverlayRun
+
+    t = np.arange(0.0, SYNTHETIC_S, 1.0)
+    nominal = rng.normal(0.0, 0.02, t.size) + bump * np.sin(np.pi * np.clip((t - 1500.0) / 1500.0, 0.0, 1.0)) ** 2
+    runs = []
+    for onset in (1200.0, 2400.0, 3600.0):
+        for gain in (0.2, 0.1):
+            after = np.maximum(t - onset, 0.0)
+            if overlay_slope is None:
+                rise = 1.5 * gain * -np.expm1(-after / 240.0)
+            else:
+                rise = overlay_slope * gain / 0.2 * after
+            runs.append(OverlayRun(onset, gain, ((t, nominal + rise),)))
+    return FlightFeeds(name, ((t, nominal),), 0.0, float(t[-1]), 0.0, tuple(runs))
+
+
+def test_choice_excludes_candidates_with_a_false_alarm_on_a_held_out_flight():
+    """One flight has a slow nominal excursion (0.15 over 750 s) the others lack. A 120 s baseline
+    follows it (lag 0.15/750 x 180 s = 0.036, under the 0.05 allowance); longer ones do not and alarm
+    when that flight is held out (h from the other two, on noise only, sits at the 1.0 floor). The
+    choice is 120 s, and it detects the k = 0.2 overlays."""
+    from ecu_monitor.service.calibration import choose_settings
+
+    rng = np.random.default_rng(5)
+    flights = [_synthetic_flight("a", rng, bump=0.15), _synthetic_flight("b", rng), _synthetic_flight("c", rng)]
+    current = dataclasses.replace(DetectorSettings(), baseline_s=600.0)
+    choice = choose_settings(flights, current, 1.0, (120.0, 600.0, 1200.0))
+    assert choice.cross_validated and choice.settings.baseline_s == 120.0
+    assert "no false alarm" in choice.reason
+    by_baseline = {s.settings.baseline_s: s for s in choice.scores}
+    assert by_baseline[120.0].false_alarms == 0
+    assert by_baseline[600.0].false_alarms == 1 and by_baseline[1200.0].false_alarms == 1
+    assert math.isfinite(by_baseline[1200.0].false_alarm_s[0])  # the flight with the excursion
+    assert by_baseline[120.0].hits(0.2) == 9  # the 0.3 step (approached in 240 s) within 300 s at every onset
+
+
+def test_held_out_verdicts_are_those_of_the_threshold_calibrated_on_the_others():
+    """Recomputed here with calibrate_threshold and cusum_path: per fold, h from the other flights'
+    nominal statistics, the held-out nominal flight's first alarm, each overlay's delay."""
+    from ecu_monitor.service.calibration import score_candidate
+
+    rng = np.random.default_rng(6)
+    flights = [_synthetic_flight(n, rng, bump=b, overlay_slope=3e-4) for n, b in (("a", 0.1), ("b", 0.0), ("c", 0.05))]
+    settings = dataclasses.replace(DetectorSettings(), baseline_s=300.0)
+    score = score_candidate(flights, settings, 1.0)
+    unbounded = dataclasses.replace(settings, threshold=1e300)
+    delays = {0.2: [], 0.1: []}
+    for i, held in enumerate(flights):
+        others = [cusum_path(t, x, unbounded)[1] for j, f in enumerate(flights) if j != i for t, x in f.feed]
+        h = calibrate_threshold(others, 1.0, sample_period_s=1.0).threshold
+        assert score.thresholds[i] == h
+        alarms = cusum_path(*held.feed[0], dataclasses.replace(settings, threshold=h))[2]
+        assert (score.false_alarm_s[i] == alarms[0]) if alarms.size else math.isinf(score.false_alarm_s[i])
+        for run in held.overlays:
+            first = cusum_path(*run.feed[0], dataclasses.replace(settings, threshold=h))[2]
+            if not first.size:
+                delays[run.gain].append(math.inf)
+            elif first[0] < run.onset_s:
+                delays[run.gain].append(math.nan)
+            else:
+                delays[run.gain].append(float(first[0] - run.onset_s))
+    for gain in (0.2, 0.1):
+        np.testing.assert_array_equal(score.delays[gain], delays[gain])
+
+
+def test_choice_falls_back_with_too_few_flights_or_too_little_airborne_time():
+    from ecu_monitor.service.calibration import FlightFeeds, choose_settings
+
+    rng = np.random.default_rng(7)
+    flights = [_synthetic_flight(n, rng) for n in "abc"]
+    current = DetectorSettings()
+    two = choose_settings(flights[:2], current, 1.0)
+    assert not two.cross_validated and two.settings == current and not two.scores
+    assert "2 flight(s) given" in two.reason and "kept the config's baseline_s 120 s" in two.reason
+    grounded = dataclasses.replace(flights[2], overlays=())
+    assert isinstance(grounded, FlightFeeds)
+    short = choose_settings([*flights[:2], grounded], current, 1.0)
+    assert not short.cross_validated and short.settings == current
+    assert "2 flight(s) with at least 15 min airborne" in short.reason
+    t, x = flights[2].feed[0]
+    brief = dataclasses.replace(flights[2], feed=((t[:3000], x[:3000]),))  # no whole hour after the warm-up
+    fold = choose_settings([*flights[:2], brief], current, 1.0)
+    assert not fold.cross_validated and "without a the other flights give 1 whole hour(s)" in fold.reason
+
+
+def test_onsets_lie_in_the_airborne_part_after_the_warm_up():
+    from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.service.calibration import airborne_onsets
+
+    t = np.arange(0.0, 5000.0, 1.0)
+    airspeed = np.where((t > 300.0) & (t < 4500.0), 50.0, 3.0)  # taxi, flight 300-4500 s, taxi
+    log = FlightLog({"time_s": t + 1000.0, "airspeed_mps": airspeed})
+    onsets = airborne_onsets(log, 600.0)
+    assert onsets.size == 3 and onsets[0] >= 600.0 and onsets[-1] <= 4500.0 - 600.0
+    assert airborne_onsets(log, 3500.0).size == 0  # 3500 s warm-up: 399 s left before landing - 600 s
+
+
+def test_baseline_override_skips_the_choice(nominal, tmp_path):
+    _, paths = nominal
+    out = tmp_path / "d.yaml"
+    code, printed = _calibrate([*map(str, paths), "--baseline-s", "600", "--out", str(out)])
+    assert code == 0
+    assert printed.splitlines()[0] == "detector settings: baseline_s 600 s given by --baseline-s (no cross-validation)"
+    fragment = yaml.safe_load(out.read_text())["detector"]
+    assert fragment["baseline_s"] == 600.0
+    # the threshold is calibrated for that baseline
+    config = load_config(DEFAULT_CONFIG)
+    settings = dataclasses.replace(config.detector, baseline_s=600.0, threshold=1e300)
+    feeds = [replay_file(p, config, config.load_params()).detector_feed[0] for p in paths]
+    expected = calibrate_threshold([cusum_path(t, x, settings)[1] for t, x in feeds], 1.0).threshold
+    assert fragment["threshold"] == pytest.approx(expected, abs=1.01e-4)
+
+
+def test_calibrate_chooses_the_baseline_on_three_flights(nominal, tmp_path):
+    """Three flights (the two CAN logs and the CSV of the first, which counts as a third flight here:
+    this checks the command's path, test_choice_* the choice): the table per candidate, the rule, and
+    the chosen baseline written with its threshold."""
+    folder, paths = nominal
+    third = folder / "nominal.csv"
+    out = tmp_path / "d.yaml"
+    code, printed = _calibrate([*map(str, paths), str(third), "--candidates", "120,600", "--out", str(out)])
+    assert code == 0
+    lines = printed.splitlines()
+    assert lines[0].startswith("cross-validation, leave one flight out over 3 flights (9 overlays per gain)")
+    assert lines[1].split()[:2] == ["baseline_s", "h"]
+    rows = [line.split() for line in lines[2:4]]
+    assert [float(r[0]) for r in rows] == [120.0, 600.0]
+    chosen = [r for r in rows if r[-2:] == ["<-", "chosen"]]
+    assert len(chosen) <= 1
+    fragment = yaml.safe_load(out.read_text())["detector"]
+    header = out.read_text()
+    if chosen:
+        assert lines[4].startswith(f"chosen: baseline_s {chosen[0][0]} s: no false alarm on any held-out flight")
+        assert int(chosen[0][4]) == 0  # false alarms
+        assert fragment["baseline_s"] == float(chosen[0][0])
+        assert "# detector settings (cross-validated): baseline_s" in header
+    else:  # every candidate alarmed on a held-out flight: the config's baseline kept, and said
+        assert "every candidate raised a false alarm" in lines[4]
+        assert fragment["baseline_s"] == 120.0
+
+
+def test_bad_baseline_options_exit_2(nominal, tmp_path, capsys):
+    folder, _ = nominal
+    flight = str(folder / "short.csv")
+    assert "--baseline-s" in _one_line_exit_2([flight, "--baseline-s", "0.5", "--out", str(tmp_path / "x")], capsys)
+    assert "--candidates" in _one_line_exit_2([flight, "--candidates", "1,x", "--out", str(tmp_path / "x")], capsys)

@@ -1,6 +1,14 @@
-"""``ecu-monitor calibrate FLIGHT [FLIGHT ...] [--config C] [--model M] [--rate 1] [--out detector.yaml]``.
+"""``ecu-monitor calibrate FLIGHT [FLIGHT ...] [--config C] [--model M] [--rate 1] [--baseline-s S] [--out D.yaml]``.
 
-Calibrates the detector's threshold h on your own NOMINAL flights (healthy engine): each flight is
+Calibrates the detector on your own NOMINAL flights (healthy engine). First the length of its
+adaptive baseline is chosen among --candidates (default 120,300,600,1200 s) by leave-one-flight-out:
+for each candidate and each flight held out, h is calibrated on the other flights, the held-out flight
+must raise no alarm, and a degradation overlaid on its recorded CHT (k (CHT - OAT)(1 - exp(-t/240 s)),
+k = 0.2 and 0.1, three onsets over its airborne part) must be detected within 300 s (k = 0.2) and
+600 s (k = 0.1). Chosen: no false alarm, then the most detections in time, then the most for k = 0.1,
+then the shorter baseline. A table per candidate is printed. With fewer than 3 flights with at least
+15 min airborne after the warm-up (or too few hours per fold), the config's baseline is kept and the
+output says so; --baseline-s S skips the choice. Then the threshold h: each flight is
 replayed through the service's pipeline (as ``ecu-monitor replay``: same estimator, symptom, warm-up
 and baseline), the CUSUM statistic is run without alarms, and a Gumbel law fitted to its hourly
 maxima gives h for --rate false alarms per 100 flight hours (never below 1.1 x the largest statistic
@@ -9,7 +17,7 @@ of statistic (after each flight's warm-up).
 
 Prints per flight: hours, largest statistic, alarms the current threshold would raise; then the new
 threshold. Writes --out: a ``detector:`` YAML fragment to merge into the service config, or with
---write-config a full copy of the config with the threshold replaced (the input config is never
+--write-config a full copy of the config with the threshold and baseline replaced (the input config is never
 overwritten). --plot draws the statistic of each flight with both thresholds.
 """
 
@@ -46,6 +54,17 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument(
         "--rate", type=float, default=1.0, help="false alarms per 100 flight hours to calibrate for (default 1)"
     )
+    parser.add_argument(
+        "--baseline-s",
+        type=float,
+        metavar="S",
+        help="use this adaptive-baseline length, s, instead of choosing it by cross-validation",
+    )
+    parser.add_argument(
+        "--candidates",
+        metavar="S,S,...",
+        help="baseline lengths, s, to cross-validate (default: calibration.BASELINE_CANDIDATES_S, 120,300,600,1200)",
+    )
     parser.add_argument("--out", metavar="FILE.yaml", help=f"output YAML (default: ./{DEFAULT_OUT})")
     parser.add_argument(
         "--write-config",
@@ -59,7 +78,12 @@ def add_subparser(subparsers: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     config_path = resolve_file(args.config, "config") if args.config else DEFAULT_CONFIG
     out = _check(args, config_path)
+    from ecu_monitor.service.calibration import BASELINE_CANDIDATES_S
+
+    candidates = _candidates(args.candidates) if args.candidates else list(BASELINE_CANDIDATES_S)
     config = load_config(config_path)
+    if args.baseline_s is not None:
+        _with_baseline(config.detector, args.baseline_s)  # bad value: one line before any work
     params = load_model(args.model) if args.model else config.load_params()
     for flight in args.flights:
         if not Path(flight).is_file():
@@ -68,18 +92,37 @@ def _run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ecu_monitor.service.calibration import (
+        SettingsChoice,
         calibrate_flights,
+        choose_settings,
         config_copy_yaml,
+        cross_validation_blocker,
         detector_fragment_yaml,
-        flight_statistic,
+        flight_feeds,
     )
 
-    flights = []
+    feeds = []
     for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
-        flights.append(flight_statistic(path, config, params))
-    for line in _table(flights, config.detector.threshold, config.detector.block_s):
+        feeds.append(flight_feeds(path, config, params, overlays=False))
+    choose = args.baseline_s is None
+    if choose and cross_validation_blocker(feeds, config.detector) is None:  # replay again with the overlays
+        feeds = []
+        for path in tqdm(args.flights, desc="overlays", unit="flight", file=sys.stderr, leave=False, disable=None):
+            feeds.append(flight_feeds(path, config, params))
+    if choose:
+        choice = choose_settings(feeds, config.detector, args.rate, candidates)
+        for line in _candidate_table(choice):
+            print(line)
+        print(f"chosen: {choice.reason}")
+    else:
+        settings = _with_baseline(config.detector, args.baseline_s)
+        choice = SettingsChoice(settings, f"baseline_s {args.baseline_s:g} s given by --baseline-s", (), False)
+        print(f"detector settings: {choice.reason} (no cross-validation)")
+    settings = choice.settings
+    flights = [f.statistic_for(settings) for f in feeds]
+    for line in _table(flights, config.detector.threshold, settings.block_s):
         print(line)
-    result = calibrate_flights(flights, args.rate, config.detector)
+    result = calibrate_flights(flights, args.rate, settings, choice)
     sources = [str(Path(p).resolve()) for p in args.flights]
     if args.write_config:
         text = config_copy_yaml(config_path, result, args.rate, sources, args.model)
@@ -109,6 +152,49 @@ def _run(args: argparse.Namespace) -> int:
         _plot(flights, config.detector.threshold, c.threshold, Path(args.plot))
         print(f"wrote {args.plot}")
     return 0
+
+
+def _with_baseline(settings: Any, baseline_s: float) -> Any:
+    """The settings with another baseline length; ParameterError naming --baseline-s when invalid."""
+    import dataclasses
+
+    try:
+        return dataclasses.replace(settings, baseline_s=baseline_s)
+    except ConfigError as exc:
+        raise ParameterError(f"--baseline-s: {exc}") from None
+
+
+def _candidates(text: str) -> list[float]:
+    """Parse --candidates (comma-separated seconds, each 0 or >= the block)."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ParameterError(f"--candidates: expected comma-separated seconds, got {text!r}") from None
+    if not values or any(not (v >= 0.0 and v < float("inf")) for v in values):
+        raise ParameterError(f"--candidates: expected comma-separated seconds >= 0, got {text!r}")
+    return values
+
+
+def _candidate_table(choice: Any) -> list[str]:
+    """Per candidate baseline: h per held-out flight, false alarms, detections within target, median delays."""
+    if not choice.scores:
+        return []
+    first = choice.scores[0]
+    lines = [
+        f"cross-validation, leave one flight out over {len(first.flights)} flights"
+        f" ({first.total(0.2)} overlays per gain): h calibrated on the others, held-out flight replayed nominal"
+        " and with k = 0.2 / 0.1 overlaid",
+        f"{'baseline_s':>10}  {'h per held-out flight':<28}  {'false alarms':>12}  {'k=0.2 <=300 s':>18}"
+        f"  {'k=0.1 <=600 s':>18}",
+    ]
+    for s in choice.scores:
+        hs = " ".join(f"{h:.1f}" for h in s.thresholds)
+        cells = [f"{s.hits(g)}/{s.total(g)} med {s.median_delay(g):.0f} s" for g in (0.2, 0.1)]
+        mark = "  <- chosen" if choice.cross_validated and s.settings == choice.settings else ""
+        lines.append(
+            f"{s.settings.baseline_s:10g}  {hs:<28}  {s.false_alarms:12d}  {cells[0]:>18}  {cells[1]:>18}{mark}"
+        )
+    return lines
 
 
 def _check(args: argparse.Namespace, config_path: Path) -> Path:
