@@ -45,48 +45,38 @@ UNBOUNDED = 1e300
 EFFECT_STARTS = {"airspeed_cooling": {"gain_per_mps": 0.01}, "density_cooling": {"exponent": 0.3}}
 
 
-def _feeds(args: tuple[str, str, str, list[tuple[float, float]]]) -> list[Any]:
-    """Replay one flight nominal (onset nan) and with each overlay; returns the detector feeds.
+def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None]) -> Any:
+    """Replay one flight nominal (onset nan) and with each overlay; returns the detector feeds and timings.
 
-    The frames of the nominal flight are built once; an overlay re-encodes only the message that
-    carries the CHT (with every signal it holds, from the overlaid log) and merges it back in time
-    order, so each overlay costs one replay and one message's encoding instead of all of them."""
+    overlays None (a training flight): what ``ecu-monitor calibrate`` replays to choose the baseline
+    (``service.calibration.flight_feeds``: nominal, and k = 0.2 / 0.1 at its airborne onsets), returned
+    as a FlightFeeds. Else (the held-out flight): the nominal replay and one per (onset, gain), through
+    ``service.calibration.overlay_replays`` (only the CHT's message re-encoded per overlay)."""
     flight, model, config_path, overlays = args
-    from ecu_monitor.bus.canlog import FrameArrays, load_flight
-    from ecu_monitor.estimation.detection import overlay_degradation
-    from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.model import load_model
+    from ecu_monitor.service.calibration import flight_feeds, overlay_replays
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.pipeline import model_input_names
     from ecu_monitor.service.replay import frames_from_flight, replay_frames
 
     config = load_config(config_path)
     params = load_model(model)
-    log = load_flight(flight)
-    needed = (*model_input_names(params), "cht_c")
     began = time.perf_counter()
-    nominal = frames_from_flight(log, config, needed)
-    timing = {"all_frames_s": time.perf_counter() - began, "patches_s": [], "replays_s": []}
-    cht_message = config.input("cht_c").message
-    with_cht = [spec.name for spec in config.inputs if spec.message == cht_message and log.has(spec.name)]
-    cht_id = frames_from_flight(FlightLog({"time_s": log.time_s[:2], "cht_c": log["cht_c"][:2]}), config, ["cht_c"])
-    others = nominal.take(nominal.arbitration_id != int(cht_id.arbitration_id[0]))
-    out = []
-    for onset, gain in overlays:
-        frames = nominal
-        began = time.perf_counter()
-        if math.isfinite(onset):
-            t = log.time_s
-            cht = overlay_degradation(t, log["cht_c"], log["oat_c"], t[0] + onset, gain)
-            part = FlightLog({"time_s": t, **{n: (cht if n == "cht_c" else log[n]) for n in with_cht}})
-            patched = frames_from_flight(part, config, ["cht_c"])
-            merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(others, patched, strict=True)))
-            frames = merged.take(np.argsort(merged.time_s, kind="stable"))
-            timing["patches_s"].append(time.perf_counter() - began)
-        began = time.perf_counter()
-        result = replay_frames(config, params, frames)
-        timing["replays_s"].append(time.perf_counter() - began)
-        out.append((onset, gain, float(log.time_s[0]), result.detector_feed))
+    if overlays is None:
+        return flight_feeds(flight, config, params), {"training_s": time.perf_counter() - began}
+    log = load_flight(flight)
+    nominal = frames_from_flight(log, config, (*model_input_names(params), "cht_c"))
+    timing = {"all_frames_s": time.perf_counter() - began}
+    began = time.perf_counter()
+    out = [(math.nan, 0.0, float(log.time_s[0]), replay_frames(config, params, nominal).detector_feed)]
+    timing["replay_s"] = time.perf_counter() - began
+    began = time.perf_counter()
+    shifted = [(onset, gain) for onset, gain in overlays if math.isfinite(onset)]
+    results = overlay_replays(log, config, params, shifted, nominal)
+    timing["overlay_s"] = (time.perf_counter() - began) / max(len(shifted), 1)
+    start = float(log.time_s[0])
+    out += [(onset, gain, start, r.detector_feed) for (onset, gain), r in zip(shifted, results, strict=True)]
     return out, timing
 
 
@@ -120,8 +110,9 @@ def _plot(
         nominal = next(r for r in runs if not math.isfinite(r[0]))
         overlays = [r for r in runs if math.isfinite(r[0]) and r[1] == 0.1]
         chosen = overlays[min(1, len(overlays) - 1)] if overlays else None
-        for col, (name, settings) in enumerate(variants):
+        for col, (name, per_fold) in enumerate(variants):
             ax = axes[i][col]
+            settings = per_fold[i]
             unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
             for run, style, label in ((nominal, "0.5", "nominal"), (chosen, "tab:red", "k = 0.1 overlay")):
                 if run is None:
@@ -134,7 +125,7 @@ def _plot(
             if chosen is not None:
                 ax.axvline(chosen[0] / 60.0, color="tab:red", ls=":", lw=1.0)
             ax.set_ylim(0.0, 2.5 * h)
-            ax.set_title(f"{flights[i].stem[-13:]}, {name}", fontsize=9)
+            ax.set_title(f"{flights[i].stem[-13:]}, {name} (baseline {settings.baseline_s:g} s)", fontsize=9)
             ax.grid(alpha=0.3)
             if i == n - 1:
                 ax.set_xlabel("time since the start of the log (min)")
@@ -174,10 +165,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.commands.calibrate import candidate_table
     from ecu_monitor.estimation.detection import calibrate_threshold, cusum_path
     from ecu_monitor.flightlog import import_mapped_csv, resolve_mapping, write_csv
     from ecu_monitor.identify import DEFAULT_FREE
     from ecu_monitor.model import Effects, load_model, save_model
+    from ecu_monitor.service.calibration import choose_settings
     from ecu_monitor.service.config import load_config
 
     config = load_config(args.config)
@@ -214,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
             model = work / f"model_effects_without_{i}.yaml"
             _identify(train, flights[i], model, [*extra, "--base", str(base), "--free", ",".join(free)])
         models.append(model)
-    # jobs: per held-out i, the training flights nominal and the held-out flight nominal + overlays
+    # jobs: per held-out i, the training flights as calibrate replays them and the held-out flight
+    # nominal + overlays at onsets every --onset-every s
     jobs = []
     for i in range(n):
         for j in range(n):
@@ -222,37 +216,42 @@ def main(argv: list[str] | None = None) -> int:
                 duration = load_flight(flights[i]).duration_s
                 warm = max(v.warmup_s for _, v in variants)
                 onsets = np.arange(warm, duration - 600.0 + 1e-9, args.onset_every)
-                overlays = [(math.nan, 0.0)] + [(float(t0), k) for t0 in onsets for k in LIMITS]
+                overlays: list[tuple[float, float]] | None = [(float(t0), k) for t0 in onsets for k in LIMITS]
             else:
-                overlays = [(math.nan, 0.0)]
+                overlays = None
             jobs.append((i, j, (str(flights[j]), str(models[i]), args.config, overlays)))
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(_feeds, [job[2] for job in jobs]))
     feeds = {(i, j): r for (i, j, _), (r, _) in zip(jobs, results, strict=True)}
     timings = [t for _, t in results]
-    all_frames = np.median([t["all_frames_s"] for t in timings])
-    patch = np.median([p for t in timings for p in t["patches_s"]])
-    replay = np.median([r for t in timings for r in t["replays_s"]])
-    report: dict[str, Any] = {}
+    # calibrate's choice, nested: made on the three training flights of each fold only
+    chosen = []
+    for i in range(n):
+        training = [feeds[(i, j)] for j in range(n) if j != i]
+        choice = choose_settings(training, config.detector, args.rate)
+        print(f"\nfold without {flights[i].name}: calibrate's cross-validation on the {n - 1} others")
+        print(*candidate_table(choice), f"chosen: {choice.reason}", sep="\n")
+        chosen.append(choice)
+    fold_variants = [("calibrate's choice", [c.settings for c in chosen])]
+    fold_variants += [(name, [settings] * n) for name, settings in variants]
+    report: dict[str, Any] = {"choices": [c.reason for c in chosen]}
     thresholds: dict[str, list[float]] = {}
-    for name, settings in variants:
-        unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
-        print(f"\nvariant {name}: baseline_s {settings.baseline_s:g}, delay {settings.baseline_delay_s:g} s,"
-              f" reference {settings.reference:g}, warm-up {settings.warmup_s:g} s")  # fmt: skip
+    for name, per_fold in fold_variants:
+        first = per_fold[0]
+        baselines = ", ".join(f"{s.baseline_s:g}" for s in per_fold)
+        print(f"\nvariant {name}: baseline_s {baselines} (per fold), delay {first.baseline_delay_s:g} s,"
+              f" reference {first.reference:g}, warm-up {first.warmup_s:g} s")  # fmt: skip
         print(f"{'held-out flight':<40} {'h':>8}  {'nominal':>18}  {'k=0.2 <=300 s':>14}  {'k=0.1 <=600 s':>14}")
         totals = {"false": 0, 0.2: [0, 0], 0.1: [0, 0]}
         per_flight = []
         for i in range(n):
-            paths = [
-                cusum_path(t, x, unbounded)[1]
-                for j in range(n)
-                if j != i
-                for _, _, _, feed in feeds[(i, j)]
-                for t, x in feed
-            ]
+            settings = per_fold[i]
+            unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
+            paths = [cusum_path(t, x, unbounded)[1] for j in range(n) if j != i for t, x in feeds[(i, j)].feed]
             h = calibrate_threshold(paths, args.rate, sample_period_s=settings.block_s).threshold
             tuned = dataclasses.replace(settings, threshold=h)
-            entry: dict[str, Any] = {"flight": flights[i].name, "threshold": h, "delays": {}}
+            entry: dict[str, Any] = {"flight": flights[i].name, "baseline_s": settings.baseline_s, "threshold": h}
+            entry["delays"] = {}
             for onset, gain, start, feed in feeds[(i, i)]:
                 alarms = [a - start for t, x in feed for a in cusum_path(t, x, tuned)[2]]
                 if not math.isfinite(onset):
@@ -277,20 +276,21 @@ def main(argv: list[str] | None = None) -> int:
             per_flight.append(entry)
         print(f"{'total':<40} {'':>8}  {totals['false']:>3} false DEGRADED    "
               f"{totals[0.2][0]:>3}/{totals[0.2][1]:<10} {totals[0.1][0]:>3}/{totals[0.1][1]}")  # fmt: skip
-        report[name] = {"settings": dataclasses.asdict(settings), "flights": per_flight}
+        report[name] = {"settings": [dataclasses.asdict(s) for s in per_fold], "flights": per_flight}
         thresholds[name] = [entry["threshold"] for entry in per_flight]
-    replays = sum(len(t["replays_s"]) for t in timings)
+    held = [t for t in timings if "all_frames_s" in t]
+    training = [t["training_s"] for t in timings if "training_s" in t]
+    print(f"\n{len(jobs)} jobs, {time.perf_counter() - started:.0f} s in all; work files in {work}")
     print(
-        f"\n{replays} replays in {len(jobs)} jobs, {time.perf_counter() - started:.0f} s in all; work files in {work}"
-    )
-    print(
-        f"median per flight: frames of the whole flight {all_frames:.1f} s, CHT message re-encoded for an overlay"
-        f" {patch:.1f} s ({all_frames / patch:.1f}x less), replay {replay:.1f} s"
+        f"median per held-out flight: frames of the whole flight {np.median([t['all_frames_s'] for t in held]):.1f} s,"
+        f" nominal replay {np.median([t['replay_s'] for t in held]):.1f} s, an overlay (CHT message re-encoded +"
+        f" replay) {np.median([t['overlay_s'] for t in held]):.1f} s; a training flight as calibrate replays it"
+        f" (nominal + 6 overlays) {np.median(training):.1f} s"
     )
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1, default=float), encoding="utf-8")
     if args.plot:
-        _plot(Path(args.plot), flights, feeds, variants, thresholds)
+        _plot(Path(args.plot), flights, feeds, fold_variants, thresholds)
     return 0
 
 

@@ -33,7 +33,7 @@ from ecu_monitor.model import load_model
 from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
 from ecu_monitor.shipped import resolve_file
 
-__all__ = ["DEFAULT_OUT", "add_subparser"]
+__all__ = ["DEFAULT_OUT", "add_subparser", "candidate_table"]
 
 #: The fragment written when --out is not given (in the current folder).
 DEFAULT_OUT = "detector.yaml"
@@ -111,7 +111,7 @@ def _run(args: argparse.Namespace) -> int:
             feeds.append(flight_feeds(path, config, params))
     if choose:
         choice = choose_settings(feeds, config.detector, args.rate, candidates)
-        for line in _candidate_table(choice):
+        for line in candidate_table(choice):
             print(line)
         print(f"chosen: {choice.reason}")
     else:
@@ -175,7 +175,7 @@ def _candidates(text: str) -> list[float]:
     return values
 
 
-def _candidate_table(choice: Any) -> list[str]:
+def candidate_table(choice: Any) -> list[str]:
     """Per candidate baseline: h per held-out flight, false alarms, detections within target, median delays."""
     if not choice.scores:
         return []
