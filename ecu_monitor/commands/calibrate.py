@@ -5,20 +5,22 @@ adaptive baseline is chosen among --candidates (default 120,300,600,1200 s) by l
 for each candidate and each flight held out, h is calibrated on the other flights, the held-out flight
 must raise no alarm, and a degradation overlaid on its recorded CHT (k (CHT - OAT)(1 - exp(-t/240 s)),
 k = 0.2 and 0.1, three onsets over its airborne part) must be detected within 300 s (k = 0.2) and
-600 s (k = 0.1). Chosen: no false alarm, then the most detections in time, then the most for k = 0.1,
-then the shorter baseline. A table per candidate is printed. With fewer than 3 flights with at least
-15 min airborne after the warm-up (or too few hours per fold), the config's baseline is kept and the
-output says so; --baseline-s S skips the choice. Then the threshold h: each flight is
+600 s (k = 0.1). Chosen: the fewest false alarms (none when a candidate has none; else a warning),
+then the most detections in time, then the most for k = 0.1, then the shorter baseline. A table per
+candidate is printed. With fewer than 3 flights with at least 15 min airborne after the warm-up (or
+too few hours per fold), the config's baseline is kept and the output says so; --baseline-s S skips
+the choice. Then the threshold h: each flight is
 replayed through the service's pipeline (as ``ecu-monitor replay``: same estimator, symptom, warm-up
 and baseline), the CUSUM statistic is run without alarms, and a Gumbel law fitted to its hourly
 maxima gives h for --rate false alarms per 100 flight hours (never below 1.1 x the largest statistic
-seen, landings included, when the flights hold fewer hours than one expected alarm). Needs at least 2 whole hours
-of statistic (after each flight's warm-up).
+seen, landings included, when the flights hold fewer hours than one expected alarm). Needs at least 2
+whole hours of statistic (after each flight's warm-up).
 
-Prints per flight: hours, largest statistic, alarms the current threshold would raise; then the new
-threshold. Writes --out: a ``detector:`` YAML fragment to merge into the service config, or with
---write-config a full copy of the config with the threshold and baseline replaced (the input config is never
-overwritten). --plot draws the statistic of each flight with both thresholds.
+Prints the table per candidate and the choice; per flight: hours, largest statistic, alarms the
+current threshold would raise; then the new threshold. Writes --out: a ``detector:`` YAML fragment
+to merge into the service config, or with --write-config a full copy of the config with the
+threshold and baseline replaced (the input config is never overwritten). --plot draws the statistic
+of each flight with both thresholds.
 """
 
 from __future__ import annotations
