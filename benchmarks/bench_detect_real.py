@@ -5,10 +5,13 @@
 
 For each flight in turn (the held-out flight), as a user commissioning the monitor would:
 
-1. ``ecu-monitor identify`` on the other flights (``--heat-axes``) -> model.yaml;
-2. the detector threshold calibrated on the other flights through the service's replay path
-   (``service.calibration.flight_statistic`` + ``calibrate_flights``, what ``ecu-monitor calibrate`` runs);
-3. the held-out flight replayed nominal (any crossing of h = a false DEGRADED), and with a degradation
+1. ``ecu-monitor identify`` on the other flights (``--heat-axes``, ``--identify-args``) -> model.yaml;
+2. calibrate's choice of the detector's baseline, nested: ``service.calibration.choose_settings`` (what
+   ``ecu-monitor calibrate`` runs) on the other flights only, each replayed by ``flight_feeds`` nominal
+   and with its own overlays; the held-out flight is never seen by the choice;
+3. the detector threshold calibrated on the other flights through the service's replay path, for the
+   chosen baseline and for each fixed variant;
+4. the held-out flight replayed nominal (any crossing of h = a false DEGRADED), and with a degradation
    overlaid (``detection.overlay_degradation``: CHT + k (CHT - OAT)(1 - exp(-(t - t0)/240 s))) for
    k = 0.2 and 0.1 at onsets t0 every ``--onset-every`` s from the end of the warm-up to 600 s before
    the end of the flight; detected = the statistic crosses h at or after t0 (targets: k = 0.2 within
@@ -16,10 +19,11 @@ For each flight in turn (the held-out flight), as a user commissioning the monit
 
 The replays run the service's batch path on the frames the ECU would have sent for each flight
 (``frames_from_flight`` + ``replay_frames``); the detector's input (``ReplayResult.detector_feed``) is
-kept, so the CUSUM of each detector variant (``--variant baseline_s:delay_s:reference``; the config's
-detector first) is evaluated on the same feeds, each with its own calibrated threshold. Inputs may be
-canonical CSVs or foreign CSVs with ``--mapping`` (e.g. raw G1000 exports). Work files go to a temporary
-folder. Prints one table per variant; ``--json`` keeps every delay.
+kept, so the CUSUM of each detector variant (calibrate's choice, the config's detector, then each
+``--variant baseline_s:delay_s:reference``) is evaluated on the same feeds, each with its own
+calibrated threshold. Inputs may be canonical CSVs or foreign CSVs with ``--mapping`` (e.g. raw G1000
+exports). Work files go to a temporary folder. Prints calibrate's table per fold and one table per
+variant; ``--json`` keeps every delay.
 """
 
 from __future__ import annotations
