@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
 import time
 from collections.abc import Sequence
@@ -46,8 +47,9 @@ from ecu_monitor.identify import (
 from ecu_monitor.identify.report import plot_cost, plot_flight, plot_heat_map
 from ecu_monitor.model import AirspeedCooling, Effects, ThermalParams, coefficients, paper_table_a1, simulate
 
-G1000 = Path("/work/shared/data/g1000/log_110701_131851_KGFK.csv")
 REPO = Path(__file__).resolve().parents[1]
+#: The G1000 flight of the g1000 study: $G1000_LOG, else the data folder beside the checkout (not shipped).
+G1000 = Path(os.environ.get("G1000_LOG", REPO.parent / "shared" / "data" / "g1000" / "log_110701_131851_KGFK.csv"))
 
 
 def virtual_flights(record_dt_s: float = 1.0) -> tuple[FlightLog, FlightLog, ThermalParams]:
