@@ -271,6 +271,21 @@ def test_mapped_import_converts_units_and_repairs() -> None:
     assert len(log.notes) == 4
 
 
+def test_mapped_unit_may_be_scale_and_offset(tmp_path: Path) -> None:
+    """A unit the table does not know (ft as scale 0.3048, degF as 5/9 and -160/9) reads like the named one."""
+    custom = _mapping_text(
+        **{
+            "unit: ft}": "unit: {scale: 0.3048, offset: 0}}",
+            "unit: degF}": "unit: {scale: 0.5555555556, offset: -17.77777778}}",
+        }
+    )
+    assert "scale: 0.3048" in custom and "offset: -17.7" in custom
+    named = import_mapped_csv(DATA / "foreign_small.csv", DATA / "foreign_small.yaml")
+    log = import_mapped_csv(DATA / "foreign_small.csv", _write(tmp_path, custom, "custom.yaml"))
+    for name in ("altitude_m", "cht_c"):
+        assert log[name].tolist() == pytest.approx(named[name].tolist())
+
+
 def _mapping_text(**replace: str) -> str:
     text = (DATA / "foreign_small.yaml").read_text()
     for old, new in replace.items():
@@ -290,6 +305,8 @@ BAD_MAPPINGS = {
     "missing canonical": ({'  rpm: {column: "RPM", unit: rpm}\n': ""}, r"key 'columns': canonical column 'rpm'"),
     "wrong type": ({"header_row: 3": "header_row: three"}, r"key 'header_row': expected int"),
     "not yaml": ({"format: csv": "format: [csv"}, r"not valid YAML"),
+    "custom unit without scale": ({"unit: ft}": "unit: {offset: 1}}"}, r"key 'columns.altitude_m.unit': a custom"),
+    "custom unit scale 0": ({"unit: ft}": "unit: {scale: 0}}"}, r"key 'columns.altitude_m.unit': custom unit scale"),
 }
 
 

@@ -20,7 +20,7 @@ from ecu_monitor.flightlog.mapping import _MAX_CYLINDERS, _REDUCERS, ColumnMap, 
 from ecu_monitor.flightlog.rules import _assemble
 from ecu_monitor.flightlog.table import _check_widths, _is_number, _note, _numbers, _read_table, _Table
 from ecu_monitor.flightlog.timestamps import _fill_forward, _parse_time
-from ecu_monitor.units import UNITS
+from ecu_monitor.units import UNITS, Unit
 
 #: Unit text in a log's own units row (lower case, spaces removed) -> unit name; other texts are ignored.
 _UNIT_TEXT: Mapping[str, str] = MappingProxyType(
@@ -139,8 +139,13 @@ def _file_units(mapping: CsvMapping, table: _Table) -> tuple[int, list[str]] | N
 
 
 def _source_unit(
-    src: str, target: str, name: str, unit: str, units: tuple[int, list[str]] | None, index: Mapping[str, int]
-) -> tuple[str, str | None]:
+    src: str,
+    target: str,
+    name: str,
+    unit: str | Unit,
+    units: tuple[int, list[str]] | None,
+    index: Mapping[str, int],
+) -> tuple[str | Unit, str | None]:
     """The unit column ``name`` is read in: the file's units row wins over the mapping when it names a
     known unit of the same quantity. Returns (unit, note or None)."""
     if units is None:
@@ -151,12 +156,16 @@ def _source_unit(
     known = _UNIT_TEXT.get(text.lower().replace(" ", ""))
     if known is None or known == unit:
         return unit, None
-    if UNITS[known].quantity != UNITS[unit].quantity:
+    quantity = unit.quantity if isinstance(unit, Unit) else UNITS[unit].quantity
+    if quantity == "custom":  # a custom unit of a column of no known quantity: the mapping's word stands
+        return unit, None
+    if UNITS[known].quantity != quantity:
         raise FlightLogError(
             f"{src}: row {line}, column '{name}': unit {text!r} is a {UNITS[known].quantity} unit,"
-            f" '{target}' needs {UNITS[unit].quantity}"
+            f" '{target}' needs {quantity}"
         )
-    return known, f"column '{name}': the file's units row says {text!r}: read as {known}, not the mapping's {unit}"
+    mapped = f"{{scale: {unit.scale:g}, offset: {unit.offset:g}}}" if isinstance(unit, Unit) else unit
+    return known, f"column '{name}': the file's units row says {text!r}: read as {known}, not the mapping's {mapped}"
 
 
 def import_mapped_csv(
@@ -226,14 +235,13 @@ def import_mapped_csv(
     lines = np.array([line for line, _ in table.rows], dtype=np.int64)
     time = _parse_time(src, mapping.time, table, index, lines, notes)
 
-    def read(target: str, name: str, unit: str) -> np.ndarray:
+    def read(target: str, name: str, unit: str | Unit) -> np.ndarray:
         unit, note = _source_unit(src, target, name, unit, units, index)
         if note:
             _note(notes, src, note)
         col = index[name]
         values = _numbers(src, name, [r[col] for _, r in table.rows], lines)
-        u = UNITS[unit]
-        return values * u.scale + u.offset
+        return (unit if isinstance(unit, Unit) else UNITS[unit]).to_canonical(values)
 
     cols: dict[str, np.ndarray] = {}
     soft: set[str] = set()

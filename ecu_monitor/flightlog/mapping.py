@@ -37,7 +37,9 @@ kept row; whole-second stamps shared by k rows are spread over their second (s, 
 identical to the row before are dropped. A known unit in the file's units row (``deg F``, ``gph``,
 ``kt``, ``ft Baro``, ``inch`` = inHg, ...) wins over the mapping's unit of the same quantity (with a
 note); one of another quantity is an error. Units are converted with the one unit table,
-:data:`ecu_monitor.units.UNITS`; negative
+:data:`ecu_monitor.units.UNITS`; a unit it does not know is given as ``unit: {scale: S, offset: O}``
+(canonical = value * S + O, parsed by :func:`ecu_monitor.units.custom_unit` as in the service config;
+not for time); negative
 ``airspeed_mps`` and ``fuel_flow_lph`` (an air-data system reading -1 kt on the ramp) are clipped to
 0 with a note. Unmapped source columns are ignored. Then the canonical rules above apply (blank
 runs, repeated or backward time, limits, gaps); an ``optional`` column keeps blank runs longer than
@@ -61,7 +63,7 @@ import yaml
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog.log import _REQUIRED_ALWAYS, CYLINDER_COLUMN
 from ecu_monitor.shipped import resolve_file, shipped_dir
-from ecu_monitor.units import QUANTITY_OF_COLUMN, UNITS
+from ecu_monitor.units import QUANTITY_OF_COLUMN, UNITS, Unit, custom_unit
 
 #: Shipped mapping files; ``--mapping NAME`` names one when no file NAME exists (:func:`resolve_mapping`).
 MAPPINGS_DIR = shipped_dir("mapping")
@@ -110,7 +112,7 @@ class ColumnMap:
 
     target: str
     sources: tuple[str, ...]
-    unit: str
+    unit: str | Unit  # a unit name, or a custom {scale, offset} unit
     reduce: str | None = None
     optional: bool = False
 
@@ -121,7 +123,7 @@ class CylinderMap:
 
     kind: str
     pattern: str
-    unit: str
+    unit: str | Unit  # a unit name, or a custom {scale, offset} unit
 
 
 @dataclass(frozen=True)
@@ -185,15 +187,23 @@ class _Keys:
         return ConfigError(f"{self.src}: key '{self.key(name)}': {message}")
 
 
-def _check_unit(keys: _Keys, target: str | None) -> str:
-    unit = keys.get("unit", str)
-    if unit not in UNITS:
-        raise keys.fail("unit", f"unknown unit {unit!r} (known: {', '.join(UNITS)})")
+def _check_unit(keys: _Keys, target: str | None) -> str | Unit:
+    """A column's unit: a name of the unit table (returned as the name) or, except for time, a custom
+    ``{scale: S, offset: O}`` (returned as a :class:`~ecu_monitor.units.Unit` of the column's quantity)."""
     wanted = _COLUMN_QUANTITY.get(target or "")
     if target is None:
         wanted = "time"
     elif CYLINDER_COLUMN.match(target):
         wanted = "temperature"
+    value = keys.get("unit", (str, dict) if target is not None else str)
+    if isinstance(value, dict):
+        try:
+            return custom_unit(value, wanted)
+        except ValueError as exc:
+            raise keys.fail("unit", str(exc)) from None
+    unit = value
+    if unit not in UNITS:
+        raise keys.fail("unit", f"unknown unit {unit!r} (known: {', '.join(UNITS)}; or {{scale: S, offset: O}})")
     if wanted is not None and UNITS[unit].quantity != wanted:
         raise keys.fail("unit", f"{unit!r} is a {UNITS[unit].quantity} unit, '{target or 'time'}' needs {wanted}")
     return unit
