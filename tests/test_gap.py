@@ -179,3 +179,25 @@ def test_gap_json_schema_and_outputs(tmp_path: Path) -> None:
     for name in ("report.md", "residual_time.png", "residual_inputs.png", "spectrum.png", "before_after.png"):
         assert (tmp_path / "out" / name).stat().st_size > 0
     assert "sensor_lag" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_refit_sigma_not_identifiable_when_round_off_or_wider_than_bounds():
+    """A sigma of 8.5e-16 on floor in [0.1, 1] or of 62 on onset in [0, 0.95] means nothing: inf."""
+    from ecu_monitor.gap.refit import identifiable_std
+
+    std = identifiable_std(
+        np.array([8.5e-16, 62.0, 0.05, np.nan]), np.array([0.1, 0.0, 0.0, 0.0]), np.array([1.0, 0.95, 0.95, 1.0])
+    )
+    assert np.isinf(std[[0, 1, 3]]).all()
+    assert std[2] == 0.05
+
+
+def test_gap_report_says_not_identifiable_and_never_a_negative_lag():
+    from ecu_monitor.gap.localise import LagSignature
+    from ecu_monitor.gap.report import _lag_text, _sigma_text
+
+    assert _sigma_text(float("inf")) == "(not identifiable)"
+    assert _sigma_text(0.012) == "+- 0.012"
+    lead = _lag_text(LagSignature(-12.5, -0.3, 0.09))
+    assert "-12.5" not in lead and "tau = -" not in lead and "none" in lead
+    assert "tau = 8.0 s" in _lag_text(LagSignature(8.0, 0.6, 0.36))

@@ -243,6 +243,16 @@ def _uncertainty(jac: np.ndarray, residual: np.ndarray, n_params: int) -> np.nda
     return np.sqrt(np.where(diag >= 0, diag, np.inf))
 
 
+def identifiable_std(std: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """``std`` with inf where a parameter is not identifiable: a sigma that is not finite, zero to
+    round-off (below 1e-9 of its bound width: a flat or pinned direction of the Jacobian) or wider
+    than the whole bound interval (the data do not constrain it)."""
+    std = np.asarray(std, dtype=float)
+    width = np.asarray(high, dtype=float) - np.asarray(low, dtype=float)
+    bad = ~np.isfinite(std) | (std <= 1e-9 * width) | (std > width)
+    return np.where(bad, np.inf, std)
+
+
 def refit(
     nominal: ThermalParams,
     train: PreparedFlight | Sequence[PreparedFlight],
@@ -273,7 +283,9 @@ def refit(
         raise ParameterError("refit: no start point")
     x = np.asarray(result.x, dtype=float)
     residual = np.asarray(result.fun, dtype=float)
-    std = _uncertainty(np.asarray(result.jac, dtype=float), residual, x.size)
+    std = identifiable_std(
+        _uncertainty(np.asarray(result.jac, dtype=float), residual, x.size), problem.low, problem.high
+    )
     values = problem.values(x)
     stds: dict[str, dict[str, float]] = {e.id: {} for e in problem.entries}
     for (cid, name), sigma in zip(problem.names, std[: len(problem.names)], strict=True):

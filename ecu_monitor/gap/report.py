@@ -24,6 +24,7 @@ import numpy as np
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.gap.diagnosis import EffectScore, GapDiagnosis
+from ecu_monitor.gap.localise import LagSignature
 from ecu_monitor.gap.segments import SEGMENT_NAMES
 from ecu_monitor.model import save_model
 
@@ -249,7 +250,8 @@ def _plot_spectrum(diag: GapDiagnosis, path: Path) -> None:
         ax.axvline(1.0 / period, color="grey", lw=0.6, ls=":")
     ax.set_xlabel("frequency, Hz (dotted: 10 min and 1 min periods)")
     ax.set_ylabel("PSD, degC^2/Hz")
-    ax.set_title(f"Residual spectrum (lag signature tau = {diag.lag.tau_s:.1f} s, r = {diag.lag.correlation:+.2f})")
+    lag = f"lag signature tau = {diag.lag.tau_s:.1f} s" if diag.lag.tau_s > 0.0 else "no lag signature"
+    ax.set_title(f"Residual spectrum ({lag}, r = {diag.lag.correlation:+.2f})")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -293,12 +295,29 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
+def _sigma_text(sigma: float) -> str:
+    """``+- sigma``, or "(not identifiable)" for the inf that refit.identifiable_std gives."""
+    return f"+- {_fmt(sigma, 2)}" if math.isfinite(sigma) else "(not identifiable)"
+
+
+def _lag_text(lag: LagSignature) -> str:
+    """The lag signature as a sentence; a fit with tau <= 0 is a lead, not a lag, and is said so."""
+    if lag.tau_s <= 0.0:
+        return (
+            f"Lag signature: none (the fit r(t) ~ -tau dT/dt gives no positive tau; correlation "
+            f"{lag.correlation:+.2f})."
+        )
+    return (
+        f"Lag signature: r(t) ~ -tau dT/dt gives tau = {lag.tau_s:.1f} s with correlation {lag.correlation:+.2f} "
+        f"({100 * lag.explained:.0f} % of the residual variance)."
+    )
+
+
 def _params_text(score: EffectScore) -> str:
     parts = []
     for cid, values in score.fit.values.items():
         for name, value in values.items():
-            sigma = score.fit.std[cid][name]
-            parts.append(f"{name} = {_fmt(value)} +- {_fmt(sigma, 2)}")
+            parts.append(f"{name} = {_fmt(value)} {_sigma_text(score.fit.std[cid][name])}")
     f = score.fit.nominal_factors
     parts.append(f"R_Ce x {f['r_ce_factor']:.3f}, heat x {f['heat_factor']:.3f}")
     return "; ".join(parts)
@@ -399,8 +418,7 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
     bands = diag.spectrum.band_share
     lines += [
         "",
-        f"Lag signature: r(t) ~ -tau dT/dt gives tau = {lag.tau_s:.1f} s with correlation {lag.correlation:+.2f} "
-        f"({100 * lag.explained:.0f} % of the residual variance).",
+        _lag_text(lag),
         "Spectrum: share of residual power with periods > 10 min "
         f"{bands['period_over_600s']:.2f}, 1-10 min {bands['period_60_600s']:.2f}, "
         f"< 1 min {bands['period_under_60s']:.2f}; dominant period "
