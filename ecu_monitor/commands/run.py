@@ -1,14 +1,16 @@
 """``ecu-monitor run --config FILE``: the daemon (systemd Type=notify with watchdog, docs/service.md).
 
 Loads the config (any error: one line, exit 2), opens the flight database in ``state_dir``, opens the
-bus once to check the interface (an unknown interface or a missing driver is a config error, exit 2; a
-device that is not up yet is retried with backoff by the daemon), then runs until SIGTERM or SIGINT and
-exits 0 once the flight in progress is written.
+bus once to check the interface (an unknown interface, a missing driver or an interface this host cannot
+have, such as socketcan on a kernel without CAN, is a config error, exit 2; a device that is not up yet
+is retried with backoff by the daemon), then runs until SIGTERM or SIGINT and exits 0 once the flight in
+progress is written.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import gc
 import logging
 import os
@@ -28,9 +30,13 @@ from ecu_monitor.service.flight_recorder import FlightRecorder
 from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
 from ecu_monitor.service.persistence import FlightRules, StateStore
 
-__all__ = ["add_subparser", "bus_opener", "engine_speed_of"]
+__all__ = ["add_subparser", "bus_opener", "engine_speed_of", "unsupported_on_host"]
 
 _log = logging.getLogger("ecu_monitor.run")
+
+#: errno values of a first open that say the interface cannot exist on this host (the kernel lacks the
+#: protocol or address family, e.g. AF_CAN on a kernel without CAN): no retry can succeed.
+_UNSUPPORTED_ON_HOST = frozenset({errno.EAFNOSUPPORT, errno.EPFNOSUPPORT, errno.EPROTONOSUPPORT, errno.ESOCKTNOSUPPORT})
 
 #: syslog priorities journald reads from a ``<N>`` line prefix (sd-daemon(3)).
 _JOURNAL_PRIORITY = {"DEBUG": 7, "INFO": 6, "WARNING": 4, "ERROR": 3, "CRITICAL": 2}
@@ -79,9 +85,10 @@ class _HalfOpenBusFilter(logging.Filter):
 def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
     """A function that opens the configured bus (``can.Bus(**config.bus)``); checks the interface first.
 
-    The first open happens here: an unknown interface, a missing driver, bad options or an address that
-    does not resolve raise ConfigError; a device that is not there yet (OSError, CanInitializationError)
-    is left to the daemon's backoff.
+    The first open happens here: an unknown interface, a missing driver, bad options, an address that
+    does not resolve or an interface the host cannot have (:func:`unsupported_on_host`) raise
+    ConfigError; a device that is not there yet (any other OSError or CanInitializationError) is left to
+    the daemon's backoff.
     """
     options = dict(config.bus)
     interface = options.get("interface")
@@ -98,10 +105,13 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
     logging.getLogger("can.bus").addFilter(half_open)
     try:
         first = open_bus()
-    except (can.CanInterfaceNotImplementedError, TypeError, ValueError, socket.gaierror) as exc:
+    except (can.CanInterfaceNotImplementedError, ImportError, TypeError, ValueError, socket.gaierror) as exc:
         error = f"{config.source}: bus: cannot use {interface}:{options.get('channel')}: {exc}"
     except (can.CanError, OSError) as exc:
-        _log.warning("bus %s:%s not available yet (%s); will retry", interface, options.get("channel"), exc)
+        if unsupported_on_host(exc):
+            error = f"{config.source}: bus: this host cannot have a {interface} bus ({exc}); no retry can help"
+        else:
+            _log.warning("bus %s:%s not available yet (%s); will retry", interface, options.get("channel"), exc)
     finally:
         gc.collect()  # a bus whose constructor failed is collected here, its "not shut down" warning dropped
         logging.getLogger("can.bus").removeFilter(half_open)
@@ -116,6 +126,22 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
         return open_bus()
 
     return reopen
+
+
+def unsupported_on_host(exc: BaseException) -> bool:
+    """True when ``exc`` (or an error it was raised from) says the kernel lacks the bus's protocol family.
+
+    EAFNOSUPPORT and its kin (``_UNSUPPORTED_ON_HOST``): socketcan on a kernel without AF_CAN. A device
+    that is missing or down (ENODEV, ENETDOWN, ...) is not one of them: it may appear later.
+    """
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, OSError) and current.errno in _UNSUPPORTED_ON_HOST:
+            return True
+        current = current.__cause__ or current.__context__
+    return False
 
 
 def _run(args: argparse.Namespace) -> int:
