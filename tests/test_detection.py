@@ -200,7 +200,7 @@ def test_evaluate_command_rejects_bad_arguments() -> None:
 
 
 def test_steady_gate_holds_the_test_after_a_throttle_change_and_on_the_ground() -> None:
-    from ecu_monitor.estimation.detection import GateSettings, SteadyGate, steady_mask
+    from ecu_monitor.estimation.steady_gate import GateSettings, SteadyGate, steady_mask
 
     t = np.arange(0.0, 1000.0, 0.5)
     throttle = np.where(t < 400.0, 50.0, 90.0) + 0.2 * np.sin(t)

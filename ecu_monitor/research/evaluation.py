@@ -33,18 +33,17 @@ from numpy.typing import NDArray
 
 from ecu_monitor.estimation.detection import (
     DetectorSettings,
-    GateSettings,
     ThresholdCalibration,
     block_means,
     calibrate_threshold,
     count_alarms,
     cusum_path,
-    steady_mask,
 )
 from ecu_monitor.estimation.ekf import EstimatorSettings
 from ecu_monitor.estimation.headroom import thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.estimation.runner import run_estimator
+from ecu_monitor.estimation.steady_gate import GateSettings, steady_mask
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import (
     AirspeedCooling,
