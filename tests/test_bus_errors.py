@@ -1,5 +1,7 @@
 """Bus errors at start-up: an interface the host cannot have ends the daemon (exit 2, one line); a bus
 that merely is not up yet is left to the daemon's backoff (tests/test_daemon_process.py covers reopening).
+A silent bus: when the daemon warns (SilenceWatch; the daemon's log in tests/test_daemon_process.py), and
+the shipped multicast.yaml that both the daemon and the virtual ECU read.
 """
 
 from __future__ import annotations
@@ -18,6 +20,9 @@ import yaml
 from ecu_monitor.commands.run import bus_opener, unsupported_on_host
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.service.config import load_config
+from ecu_monitor.service.daemon import SilenceWatch
+from ecu_monitor.shipped import resolve_file
+from virtual_bus.busconfig import load_bus_config
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIGS = REPO / "ecu_monitor" / "data" / "configs"
@@ -111,3 +116,35 @@ def test_run_on_a_host_without_can_exits_2_with_one_line(tmp_path: Path) -> None
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
     assert "socketcan" in lines[0] and str(config) in lines[0]
+
+
+# --- a bus that carries nothing: the warning, and a pair of processes that can reach each other -------
+
+
+def test_silence_watch_warns_once_per_silence() -> None:
+    watch = SilenceWatch(limit_s=10.0, start_s=100.0)
+    assert watch.check(109.9) is None
+    assert watch.check(110.0) == "silent"
+    assert [watch.check(t) for t in (111.0, 500.0)] == [None, None]  # the same silence: warned once
+    watch.frame(501.0)
+    assert watch.check(501.1) == "resumed"
+    watch.frame(505.0)
+    assert [watch.check(t) for t in (505.1, 514.9)] == [None, None]
+    assert watch.check(515.0) == "silent"  # frames stopped again
+
+
+def test_no_frames_warning_s_is_read_and_checked(tmp_path: Path) -> None:
+    assert load_config(_shipped_config(tmp_path, "example.yaml")).no_frames_warning_s == 10.0
+    assert load_config(_shipped_config(tmp_path, "example.yaml", no_frames_warning_s=3)).no_frames_warning_s == 3.0
+    with pytest.raises(ConfigError, match="no_frames_warning_s"):
+        load_config(_shipped_config(tmp_path, "example.yaml", no_frames_warning_s=0))
+
+
+def test_multicast_yaml_is_one_bus_for_both_commands() -> None:
+    """The shipped pair across processes: both commands read the same udp_multicast bus from it."""
+    service = load_config(resolve_file("multicast.yaml", "config"))
+    emulator = load_bus_config("multicast.yaml")
+    assert service.bus["interface"] == emulator.interface == "udp_multicast"
+    assert service.bus["channel"] == emulator.channel
+    assert service.bus["port"] == emulator.options["port"]
+    assert emulator.options["hop_limit"] == 1  # never routed off the host

@@ -317,6 +317,55 @@ def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(
         sender_bus.shutdown()
 
 
+def test_a_silent_bus_is_warned_once_per_silence(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A virtual bus with no sender (the README pair before multicast.yaml): one warning naming the
+    virtual interface's limit; frames coming back re-arm it; the next silence is warned once more.
+    The daemon's clock is the test's: a silence is a jump of that clock, not a sleep."""
+    channel = f"silent-{uuid.uuid4().hex}"
+    offset = [0.0]
+    limit_s = 1000.0  # far beyond any real delay of a loaded machine: only the clock jumps reach it
+
+    def clock() -> float:
+        return time.monotonic() + offset[0]
+
+    pipeline = _pipeline(tmp_path, channel)
+    open_bus = lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False)  # noqa: E731
+    daemon = Daemon(pipeline, open_bus, settings=DaemonSettings(no_frames_warning_s=limit_s), clock=clock)
+    sender_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+
+    def warnings() -> list[str]:
+        return [r.getMessage() for r in caplog.records if r.getMessage().startswith("no frames on")]
+
+    stop = RecordingStop()
+    daemon._stop = stop  # its waits count the supervisor's passes
+    thread, result = run_daemon_thread(daemon)
+    stop.supervisor = thread
+    try:
+        with caplog.at_level("INFO", logger="ecu_monitor.service.daemon"):
+            offset[0] += limit_s - 1.0
+            polls = len(stop.waits)
+            assert wait_until(lambda: len(stop.waits) > polls + 3, 30.0)  # the supervisor looked
+            assert warnings() == []  # 1 s short of the limit
+            offset[0] += 2.0
+            assert wait_until(lambda: daemon.counters["silence_warnings"] == 1, 30.0)
+            first = warnings()
+            assert len(first) == 1 and "virtual interface" in first[0] and "multicast.yaml" in first[0]
+            offset[0] += 3 * limit_s  # the same silence goes on: no second warning
+            polls = len(stop.waits)
+            assert wait_until(lambda: len(stop.waits) > polls + 3, 30.0)
+            assert daemon.counters["silence_warnings"] == 1
+            with EcuSender(sender_bus):
+                assert wait_until(
+                    lambda: any("frames again" in r.getMessage() for r in caplog.records), 30.0
+                )  # frames resumed: re-armed
+            offset[0] += limit_s + 1.0
+            assert wait_until(lambda: daemon.counters["silence_warnings"] == 2, 30.0)
+            assert len(warnings()) == 2
+    finally:
+        stop_daemon(daemon, thread, result)
+        sender_bus.shutdown()
+
+
 # --- sd_notify pieces ----------------------------------------------------------------------------------
 
 

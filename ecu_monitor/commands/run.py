@@ -164,6 +164,7 @@ def _run(args: argparse.Namespace) -> int:
         backoff_initial_s=config.reopen_backoff.initial,
         backoff_max_s=config.reopen_backoff.max,
         watchdog_period_s=watchdog_period_s(),
+        no_frames_warning_s=config.no_frames_warning_s,
     )
     with SystemdNotifier() as notifier:
         daemon = Daemon(

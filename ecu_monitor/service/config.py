@@ -73,6 +73,7 @@ _TOP_KEYS = (
     "estimator",
     "detector",
     "stale_predict_limit_s",
+    "no_frames_warning_s",
     "state_dir",
     "sensor_fault",
 )
@@ -149,6 +150,8 @@ class ServiceConfig:
     stale_predict_limit_s: float
     state_dir: Path
     sensor_fault: SensorFaultSettings = field(default_factory=SensorFaultSettings)
+    #: the daemon logs a warning when its bus has carried no engine frame for this long, s
+    no_frames_warning_s: float = 10.0
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -333,6 +336,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         stale_predict_limit_s=top.number("stale_predict_limit_s", 30.0, low=0.0),
         state_dir=top.path_value("state_dir", "/var/lib/ecu-monitor"),
         sensor_fault=sensor,
+        no_frames_warning_s=top.number("no_frames_warning_s", 10.0, low=0.0, strict_low=True),
     )
 
 

@@ -16,6 +16,11 @@ Bus failures never end the process: a receive error (reported by the Notifier th
 Health_Diag.BusErrors); a receive error, or ``SEND_FAILURES_TO_REOPEN`` sends failing in a row, closes
 the bus and reopens it after ``initial``, ``2*initial``, ... up to ``max`` seconds.
 
+A bus that carries no engine frame for ``no_frames_warning_s`` gets one warning (:class:`SilenceWatch`),
+and one more each time frames come back and stop again: a daemon and a sender that cannot reach each
+other (python-can's ``virtual`` interface connects only the buses of one process) otherwise just show
+UNAVAILABLE.
+
 Garbage collection: after importing numba, cantools and numpy the process holds ~120,000 tracked
 objects, and a full (generation 2) collection scanning them all stalled every thread for 50-350 ms
 here, longer than a health period and long enough to overflow a socket's receive queue. The daemon
@@ -40,12 +45,13 @@ from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 import can
+from can.interfaces.virtual import VirtualBus
 
 from ecu_monitor.service.flight_recorder import FlightRecorder
 from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate
 from ecu_monitor.service.persistence import FlightSample
 
-__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike"]
+__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch"]
 
 _log = logging.getLogger(__name__)
 
@@ -87,6 +93,37 @@ class DaemonSettings:
     backoff_max_s: float = 10.0
     watchdog_period_s: float | None = None  # None: no watchdog (not under systemd's WatchdogSec)
     freeze_heap: bool = True  # gc.freeze() the start-up heap (module docstring, "Garbage collection")
+    no_frames_warning_s: float = 10.0  # warn once when the bus carries no engine frame this long
+
+
+class SilenceWatch:
+    """When to warn that a bus is silent: once per silence of at least ``limit_s``, s.
+
+    :meth:`frame` records the time of the latest frame; :meth:`check`, called periodically, returns
+    ``"silent"`` the first time a silence reaches ``limit_s``, ``"resumed"`` the first time after that
+    when a frame has come (which re-arms the warning for the next silence), and None otherwise.
+    """
+
+    def __init__(self, limit_s: float, start_s: float) -> None:
+        self.limit_s = limit_s
+        self.last_frame_s = start_s
+        self._warned_for: float | None = None  # last_frame_s of the silence already warned about
+
+    def frame(self, now_s: float) -> None:
+        """A frame arrived at ``now_s``, s."""
+        self.last_frame_s = now_s
+
+    def check(self, now_s: float) -> str | None:
+        """``"silent"``, ``"resumed"`` or None (see the class docstring)."""
+        if self._warned_for is not None:
+            if self.last_frame_s == self._warned_for:
+                return None
+            self._warned_for = None
+            return "resumed"
+        if now_s - self.last_frame_s >= self.limit_s:
+            self._warned_for = self.last_frame_s
+            return "silent"
+        return None
 
 
 class _Listener(can.Listener):
@@ -144,6 +181,7 @@ class Daemon:
         self._tick_thread: threading.Thread | None = None
         self._send_failures_in_row = 0
         self._heap_frozen_running = False
+        self._silence = SilenceWatch(self.settings.no_frames_warning_s, clock())
         self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
         self.counters: dict[str, int] = {
@@ -158,6 +196,7 @@ class Daemon:
             "daemon_errors": 0,
             "watchdog_pings": 0,
             "rows_recorded": 0,
+            "silence_warnings": 0,
         }
 
     # --- the one keep-alive handler ---------------------------------------------------------------
@@ -187,6 +226,7 @@ class Daemon:
         msg.timestamp = now  # one clock for frames and steps: the daemon's monotonic time of reception
         with self._lock:
             self.counters["frames_in"] += 1
+            self._silence.frame(now)
             self.pipeline.feed(msg)
             self._send_locked(self.pipeline.advance_to(now))
 
@@ -341,6 +381,24 @@ class Daemon:
             gc.freeze()  # the estimator's first steps loaded its compiled code: keep it out of collections too
             self._heap_frozen_running = True
         self._record()
+        self._check_silence(now)
+
+    def _check_silence(self, now: float) -> None:
+        with self._lock:
+            event = self._silence.check(now)
+            bus = self._bus
+        if event == "silent":
+            self.counters["silence_warnings"] += 1
+            hint = ""
+            if isinstance(bus, VirtualBus):
+                hint = (
+                    " (python-can's virtual interface connects only the buses of one process: across processes "
+                    "use udp_multicast, e.g. the shipped multicast.yaml)"
+                )
+            where = bus.channel_info if bus is not None else "the bus (not open)"
+            _log.warning("no frames on %s for %.0f s: is the sender on this bus?%s", where, self._silence.limit_s, hint)
+        elif event == "resumed":
+            _log.info("frames again on the bus after a silence")
 
     def run(self) -> int:
         """Run until :meth:`stop`; returns 0 after a clean stop (flight closed, bus shut down)."""
@@ -348,6 +406,8 @@ class Daemon:
         # compiled code loaded before the bus opens: the first frames must not wait for numba
         _log.info("estimators warmed up in %.2f s", self.pipeline.warm_up())
         self._attach()
+        with self._lock:
+            self._silence.frame(self._clock())  # the silence counts from the first open, not from the warm-up
         with self._lock:
             self.pipeline.advance_to(self._clock())
         if settings.freeze_heap:
