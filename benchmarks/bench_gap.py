@@ -34,8 +34,8 @@ from ecu_monitor.gap.refit import RefitSettings, prepare_flight, refit
 from ecu_monitor.identify import identify
 from ecu_monitor.model import AirspeedCooling, Effects, SensorLag, paper_table_a1
 from ecu_monitor.research.blind import perturbed_nominal
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
+from virtual_bus.random_missions import random_mission
 
 
 def main() -> None:

@@ -54,8 +54,8 @@ G1000 = Path(os.environ.get("G1000_LOG", REPO.parent / "shared" / "data" / "g100
 
 def virtual_flights(record_dt_s: float = 1.0) -> tuple[FlightLog, FlightLog, ThermalParams]:
     """Train (logged every record_dt_s) and held-out (1 Hz) virtual-ECU flights, about 1 h each, and the truth."""
-    from virtual_bus.missions import random_mission
     from virtual_bus.plant import fly
+    from virtual_bus.random_missions import random_mission
 
     truth = paper_table_a1()
     train = fly(random_mission(1), truth, seed=1, record_dt_s=record_dt_s)

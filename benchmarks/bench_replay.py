@@ -44,8 +44,8 @@ def ensure_log(path: Path) -> None:
     if path.exists():
         return
     from ecu_monitor.model import paper_table_a1
-    from virtual_bus.missions import random_mission
     from virtual_bus.plant import Degradation
+    from virtual_bus.random_missions import random_mission
     from virtual_bus.recorder import record
 
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -27,8 +27,8 @@ from ecu_monitor.research.evaluation import residual_effects
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.pipeline import STATES
 from ecu_monitor.service.replay import frames_from_flight, replay_file
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
+from virtual_bus.random_missions import random_mission
 
 SEEDS = (11, 12)
 

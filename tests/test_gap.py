@@ -16,8 +16,8 @@ from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
 from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
 from ecu_monitor.model import SensorLag, load_model, paper_table_a1
 from ecu_monitor.research.blind import CASE_KINDS, blind_case, run_blind_case
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
+from virtual_bus.random_missions import random_mission
 
 BLIND_SEED = 1
 #: The blind verdict tests fly one-hour missions (what the method is calibrated for; on 25-minute flights

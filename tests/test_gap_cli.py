@@ -11,8 +11,8 @@ from ecu_monitor.cli import main
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import load_model, paper_table_a1, save_model
 from ecu_monitor.research.blind import blind_case
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import fly
+from virtual_bus.random_missions import random_mission
 
 SEED = 1
 DURATION_S = 1500.0

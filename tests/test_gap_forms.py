@@ -9,8 +9,8 @@ from ecu_monitor.errors import ParameterError
 from ecu_monitor.gap import GapSettings
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.research.blind_forms import FORM_CASE_KINDS, form_case, run_form_case
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import TRUTH_FORM_KINDS, TruthForm, fly, random_truth_form
+from virtual_bus.random_missions import random_mission
 
 
 def test_stateless_truth_forms_follow_their_laws() -> None:

@@ -35,10 +35,10 @@ from virtual_bus.missions import (
     list_missions,
     load_mission,
     mission_from_dict,
-    random_mission,
 )
 from virtual_bus.pilot import propeller_rpm
 from virtual_bus.plant import Degradation, fly, gamma_schedule, iter_steps, parse_effects, random_effects
+from virtual_bus.random_missions import random_mission
 from virtual_bus.recorder import record
 
 # A short mission (~110 s): warm-up, take-off, a short climb. Fast to fly in every test.

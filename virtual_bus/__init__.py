@@ -7,8 +7,9 @@ command is :mod:`virtual_bus.cli`.
 """
 
 from virtual_bus.emitter import EmitStats, FrameEmitter, FrameEncoder
-from virtual_bus.missions import Mission, list_missions, load_mission, random_mission
+from virtual_bus.missions import Mission, list_missions, load_mission
 from virtual_bus.plant import Degradation, StepBlock, fly, iter_steps, parse_effects, random_effects
+from virtual_bus.random_missions import random_mission
 from virtual_bus.recorder import RecordSummary, record
 from virtual_bus.sensors import SensorModel
 

@@ -57,8 +57,8 @@ Schema (every key optional unless marked *required*; units in the key names)::
         idle_throttle_pct: 10
 
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` naming the file and the key
-(``segments[2].climb_rate_mps``). :func:`random_mission` builds a varied mission from a seed for
-estimator and gap-diagnosis tests.
+(``segments[2].climb_rate_mps``). :func:`virtual_bus.random_missions.random_mission` builds a varied
+mission from a seed for estimator and gap-diagnosis tests.
 """
 
 from __future__ import annotations
@@ -92,7 +92,6 @@ __all__ = [
     "list_missions",
     "load_mission",
     "mission_from_dict",
-    "random_mission",
     "resolve_mission",
 ]
 
@@ -481,89 +480,3 @@ def load_mission(name_or_path: str | Path) -> Mission:
         return mission_from_dict(data, default_name=path.stem)
     except ValueError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-
-
-# --------------------------------------------------------------------------------------------------
-# Random missions
-# --------------------------------------------------------------------------------------------------
-
-
-def random_mission(seed: int, duration_s: float = 3600.0) -> Mission:
-    """A varied mission of about ``duration_s`` seconds drawn from ``seed`` (deterministic).
-
-    Ground run, take-off, a (step-)climb to 600-3800 m, cruise legs with random throttle/speed
-    variations and altitude changes, a descent and a landing; day offset -15..+20 degC, field
-    elevation 0-1200 m. The flown duration differs from ``duration_s`` by the step-climb plateaus.
-    """
-    if not math.isfinite(duration_s) or duration_s < 600.0:
-        raise ValueError(f"duration_s: expected at least 600 s, got {duration_s!r}")
-    rng = np.random.default_rng(seed)
-    field = float(rng.uniform(0.0, 1200.0))
-    cruise_alt = float(field + rng.uniform(600.0, 3800.0 - min(field, 600.0)))
-    climb_rate = float(rng.uniform(2.0, 4.0))
-    descent_rate = float(rng.uniform(2.5, 5.0))
-    ground_s = float(rng.uniform(60.0, 300.0))
-    climb_s = (cruise_alt - field) / climb_rate
-    descent_s = (cruise_alt - field - 150.0) / descent_rate
-    fixed = ground_s + 30.0 + climb_s + descent_s + 120.0
-    cruise_total = max(120.0, duration_s - fixed)
-    legs = int(rng.integers(1, 4))
-    leg_s = cruise_total / legs
-    segments: list[Segment] = [
-        GroundRun(duration_s=ground_s, throttle_pct=float(rng.uniform(20.0, 40.0))),
-        Takeoff(throttle_pct=float(rng.uniform(90.0, 100.0)), airspeed_mps=float(rng.uniform(18.0, 22.0))),
-        Climb(
-            target_altitude_m=cruise_alt,
-            climb_rate_mps=climb_rate,
-            throttle_pct=float(rng.uniform(80.0, 100.0)),
-            airspeed_mps=float(rng.uniform(18.0, 22.0)),
-            step_climb=StepClimb(
-                cht_margin_c=float(rng.uniform(10.0, 18.0)),
-                hysteresis_c=float(rng.uniform(8.0, 20.0)),
-                min_level_s=float(rng.uniform(30.0, 150.0)),
-            )
-            if rng.random() < 0.7
-            else None,
-        ),
-    ]
-    altitude = cruise_alt
-    for _ in range(legs):
-        changes: list[AltitudeChange] = []
-        if rng.random() < 0.6:
-            new_alt = float(np.clip(altitude + rng.uniform(-800.0, 600.0), field + 300.0, 4000.0))
-            changes.append(AltitudeChange(float(rng.uniform(0.2, 0.6) * leg_s), new_alt, float(rng.uniform(1.0, 3.0))))
-            altitude = new_alt
-        segments.append(
-            Cruise(
-                duration_s=leg_s,
-                airspeed_mps=float(rng.uniform(20.0, 28.0)),
-                throttle_pct=float(rng.uniform(40.0, 65.0)),
-                throttle_variation=Variation(
-                    kind=str(rng.choice(["sine", "random"])),
-                    amplitude=float(rng.uniform(2.0, 10.0)),
-                    period_s=float(rng.uniform(60.0, 600.0)),
-                ),
-                speed_variation=Variation(
-                    kind=str(rng.choice(["sine", "random"])),
-                    amplitude=float(rng.uniform(0.5, 3.0)),
-                    period_s=float(rng.uniform(30.0, 300.0)),
-                ),
-                altitude_changes=tuple(changes),
-            )
-        )
-    segments.append(
-        Descent(
-            target_altitude_m=field + 150.0,
-            rate_mps=descent_rate,
-            throttle_pct=float(rng.uniform(12.0, 30.0)),
-            airspeed_mps=float(rng.uniform(22.0, 28.0)),
-        )
-    )
-    segments.append(Landing(idle_s=float(rng.uniform(30.0, 120.0))))
-    return Mission(
-        name=f"random-{seed}",
-        description=f"random mission from seed {seed}, about {duration_s:.0f} s",
-        segments=tuple(segments),
-        field_elevation_m=field,
-        atmosphere=Atmosphere(oat_offset_c=float(rng.uniform(-15.0, 20.0))),
-    )

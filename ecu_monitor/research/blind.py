@@ -37,8 +37,8 @@ from ecu_monitor.gap.refit import prepare_flight
 from ecu_monitor.gap.segments import SEGMENT_NAMES, segment_flight
 from ecu_monitor.model import Effects, ThermalParams, coefficients, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import Degradation, fly, gamma_schedule, random_effects
+from virtual_bus.random_missions import random_mission
 
 __all__ = [
     "CASE_KINDS",

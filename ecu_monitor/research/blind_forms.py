@@ -42,8 +42,8 @@ from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
 from ecu_monitor.model import Effects, ThermalParams, coefficients, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
 from ecu_monitor.research.blind import MEASURED_COLUMNS, perturbed_nominal
-from virtual_bus.missions import random_mission
 from virtual_bus.plant import TRUTH_FORM_KINDS, TruthForm, fly, random_effects, random_truth_form
+from virtual_bus.random_missions import random_mission
 
 __all__ = [
     "FORM_CASE_KINDS",

@@ -1,7 +1,7 @@
 """Evaluation of detection, isolation, the CBEKF-AU reset and thermal headroom on simulated flights.
 
 The virtual ECU (:func:`virtual_bus.plant.fly`) flies random missions
-(:func:`virtual_bus.missions.random_mission`); the monitor runs the nominal model (the paper's Table A1
+(:func:`virtual_bus.random_missions.random_mission`); the monitor runs the nominal model (the paper's Table A1
 by default). Three sets of flights, disjoint in seeds:
 
 * calibration: nominal flights (>= ``hours``) on which the CUSUM threshold is set
@@ -209,8 +209,8 @@ def plan_cases(config: EvaluationConfig) -> list[FlightCase]:
 
 
 def _fly(case: FlightCase, params: ThermalParams) -> FlightLog:
-    from virtual_bus.missions import random_mission
     from virtual_bus.plant import Degradation, fly, random_effects
+    from virtual_bus.random_missions import random_mission
 
     if case.role == "full_size":
         effects = random_effects(case.seed)
@@ -816,7 +816,7 @@ def write_report(
         f"- full-size-effects set: {len(full)} nominal flights, {sum(r.hours for r in full):.1f} h, with the truth"
         " plant's full-size effects (`random_effects`) and no refit of the model.",
         "",
-        "Every flight: `virtual_bus.missions.random_mission` (ground run, take-off, step-climb or climb to 600-3800 m,"
+        "Every flight: `virtual_bus.random_missions.random_mission` (ground run, take-off, step-climb or climb to 600-3800 m,"
         " 1-3 cruise legs with throttle/speed variations and altitude changes, descent, landing), the truth plant"
         " `virtual_bus.plant.fly` with a 0.3 degC-noise 1 degC quantised CHT sensor, and unmodelled effects in the"
         " truth drawn by `residual_effects` (see the docs). The monitor runs the paper's Table A1 model.",

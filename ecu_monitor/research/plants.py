@@ -112,8 +112,8 @@ class PlantOutcome:
 
 def run_plant(plant: RandomPlant, duration_s: float = 3600.0, settings: PsoSettings | None = None) -> PlantOutcome:
     """Fly the plant's two missions, identify on the first from Table A1, score on the second."""
-    from virtual_bus.missions import random_mission
     from virtual_bus.plant import fly
+    from virtual_bus.random_missions import random_mission
 
     train = fly(random_mission(plant.train_mission_seed, duration_s), plant.truth, seed=plant.seed, record_dt_s=1.0)
     test = fly(random_mission(plant.test_mission_seed, duration_s), plant.truth, seed=plant.seed + 1, record_dt_s=1.0)
