@@ -818,8 +818,9 @@ def write_report(
         "",
         "Every flight: `virtual_bus.random_missions.random_mission` (ground run, take-off, step-climb or climb to"
         " 600-3800 m, 1-3 cruise legs with throttle/speed variations and altitude changes, descent, landing), the"
-        " truth plant `virtual_bus.plant.fly` with a 0.3 degC-noise 1 degC quantised CHT sensor, and unmodelled effects in the"
-        " truth drawn by `residual_effects` (see the docs). The monitor runs the paper's Table A1 model.",
+        " truth plant `virtual_bus.plant.fly` with a 0.3 degC-noise 1 degC quantised CHT sensor, and unmodelled"
+        " effects in the truth drawn by `residual_effects` (see the docs). The monitor runs the paper's Table A1"
+        " model.",
         "",
         "Open-loop error of the monitor's nominal model against the truth CHT (mean |error| as % of CHT - OAT,"
         " and degC):",
