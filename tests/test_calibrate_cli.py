@@ -402,3 +402,18 @@ def test_bad_baseline_options_exit_2(nominal, tmp_path, capsys):
     flight = str(folder / "short.csv")
     assert "--baseline-s" in _one_line_exit_2([flight, "--baseline-s", "0.5", "--out", str(tmp_path / "x")], capsys)
     assert "--candidates" in _one_line_exit_2([flight, "--candidates", "1,x", "--out", str(tmp_path / "x")], capsys)
+
+
+def test_calibrate_refuses_the_same_flight_twice(tmp_path, capsys):
+    """The same file twice (even spelled differently) would count its hours twice: one line, exit 2."""
+    from ecu_monitor.cli import main
+
+    flight = tmp_path / "a.csv"
+    flight.write_text("time_s,cht_c\n0,20\n1,20\n", encoding="utf-8")
+    other_spelling = tmp_path / "." / "a.csv"
+    code = main(["calibrate", str(flight), str(other_spelling), "--out", str(tmp_path / "d.yaml")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "given twice" in err and "a.csv" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "d.yaml").exists()

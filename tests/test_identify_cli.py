@@ -152,3 +152,16 @@ def test_two_flights_make_one_model_with_effects_lofo_limit_and_bounds(flights, 
     header = [line for line in model.read_text().splitlines() if line.startswith("#")]
     assert any("bound" in line for line in header)  # either AT BOUND lines or "no parameter ended ..."
     assert any("held out (LOFO)" in line for line in header) and any("warning:" in line for line in header)
+
+
+def test_identify_refuses_a_flight_given_twice(tmp_path, capsys):
+    """A training flight also given as --validate (or twice) is refused in one line, exit 2."""
+    from ecu_monitor.cli import main
+
+    flight = tmp_path / "a.csv"
+    flight.write_text("time_s,cht_c\n0,20\n1,20\n", encoding="utf-8")
+    code = main(["identify", str(flight), "--validate", str(flight), "--out", str(tmp_path / "m.yaml")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "given twice" in err
+    assert not (tmp_path / "m.yaml").exists()

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
+from ecu_monitor.flightlog import require_distinct
 from ecu_monitor.model import load_model
 from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
 from ecu_monitor.shipped import resolve_file
@@ -87,6 +88,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.baseline_s is not None:
         _with_baseline(config.detector, args.baseline_s)  # bad value: one line before any work
     params = load_model(args.model) if args.model else config.load_params()
+    require_distinct(args.flights, "calibrate")
     for flight in args.flights:
         if not Path(flight).is_file():
             raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import FlightLogError, ParameterError, UserInputError
-from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.flightlog import FlightLog, require_distinct
 from ecu_monitor.identify import (
     DEFAULT_FREE,
     ErrorStats,
@@ -156,6 +156,7 @@ def _run(args: argparse.Namespace) -> int:
         terms = "auto" if args.effects.strip() == "auto" else _parse_terms(args.effects)
     if args.plots:
         _make_dir(Path(args.plots))
+    require_distinct([*args.flights, *(args.validate or [])], "identify")
     flights = _load(args.flights, args.mapping)
     validation = _load(args.validate, args.mapping)
     axes = _choose_axes(args.heat_axes, flights)

@@ -41,7 +41,7 @@ from ecu_monitor.flightlog.cht_limit import ChtPeak, cht_limit_warning, cht_peak
 from ecu_monitor.flightlog.cylinders import choose_cht, cylinder_columns, describe_cht, parse_cht_choice
 from ecu_monitor.flightlog.foreign import import_mapped_csv
 from ecu_monitor.flightlog.layout import detect_layout
-from ecu_monitor.flightlog.load import load_csv
+from ecu_monitor.flightlog.load import load_csv, require_distinct
 from ecu_monitor.flightlog.log import (
     CANONICAL_COLUMNS,
     CHT_CHOICES,
@@ -90,6 +90,7 @@ __all__ = [
     "load_mapping",
     "parse_cht_choice",
     "read_csv",
+    "require_distinct",
     "resolve_mapping",
     "seconds_above",
     "write_csv",

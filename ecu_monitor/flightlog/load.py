@@ -1,8 +1,10 @@
-"""One entry for any flight CSV: :func:`load_csv` dispatches on the layout."""
+"""One entry for any flight CSV: :func:`load_csv` dispatches on the layout; :func:`require_distinct` refuses a
+flight given twice to a command that pools flights."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 from ecu_monitor.errors import FlightLogError
@@ -36,3 +38,15 @@ def load_csv(
             return log if cht is None else choose_cht(log, cht)
         return import_mapped_csv(path, layout, engine=engine, cht=cht)
     return import_mapped_csv(path, resolve_mapping(mapping), engine=engine, cht=cht)
+
+
+def require_distinct(paths: Sequence[str | os.PathLike[str]], command: str) -> None:
+    """Refuse a flight given twice (the same file, however it is spelled): pooled flights would count it
+    twice. Raises FlightLogError naming the file."""
+    seen: dict[Path, str] = {}
+    for path in paths:
+        key = Path(path).resolve()
+        if key in seen:
+            same = "" if str(path) == seen[key] else f" (the same file as {seen[key]})"
+            raise FlightLogError(f"{command}: {path}: given twice{same}; each flight counts once")
+        seen[key] = str(path)
