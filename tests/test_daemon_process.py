@@ -342,11 +342,11 @@ def test_a_silent_bus_is_warned_once_per_silence(tmp_path: Path, caplog: pytest.
     stop.supervisor = thread
     try:
         with caplog.at_level("INFO", logger="ecu_monitor.service.daemon"):
-            offset[0] += limit_s - 1.0
+            offset[0] += limit_s / 2  # half the limit: real time (a loaded machine) cannot make up the rest
             polls = len(stop.waits)
             assert wait_until(lambda: len(stop.waits) > polls + 3, 30.0)  # the supervisor looked
-            assert warnings() == []  # 1 s short of the limit
-            offset[0] += 2.0
+            assert warnings() == []
+            offset[0] += limit_s / 2  # now at the limit, whatever real time has passed
             assert wait_until(lambda: daemon.counters["silence_warnings"] == 1, 30.0)
             first = warnings()
             assert len(first) == 1 and "virtual interface" in first[0] and "multicast.yaml" in first[0]
