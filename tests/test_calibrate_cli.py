@@ -24,6 +24,7 @@ from ecu_monitor.estimation.detection import DetectorSettings, calibrate_thresho
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import paper_table_a1, save_model
 from ecu_monitor.research.evaluation import residual_effects
+from ecu_monitor.service.calibration import model_fingerprint
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.pipeline import STATES
 from ecu_monitor.service.replay import frames_from_flight, replay_file
@@ -92,7 +93,8 @@ def test_calibrate_prints_a_table_and_writes_the_fragment(calibrated):
     assert set(fragment) == {"detector"} and fragment["detector"]["symptom"] == "estimator"
     # the whole detector block the threshold holds for: merged into the config it gives the settings used
     shipped = load_config(DEFAULT_CONFIG).detector
-    calibrated_settings = {k: v for k, v in fragment["detector"].items() if k != "symptom"}
+    calibrated_settings = {k: v for k, v in fragment["detector"].items() if k not in ("symptom", "calibrated_for")}
+    assert fragment["detector"]["calibrated_for"] == model_fingerprint(load_config(DEFAULT_CONFIG).load_params())
     assert DetectorSettings(**calibrated_settings) == dataclasses.replace(
         shipped, threshold=fragment["detector"]["threshold"]
     )
@@ -134,6 +136,7 @@ def test_written_config_loads_and_replay_uses_the_new_threshold(calibrated, tmp_
         assert main(["replay", flight, "--config", str(written), "--out", str(tmp_path / "health.csv")]) == 0
         summary = capsys.readouterr().out
         assert "DEGRADED" not in summary and "SUSPECT" in summary  # the statistic passes h/2, never h
+        assert "not calibrated for this model" not in summary  # the copy records the model it holds for
 
 
 def test_the_statistic_is_the_one_the_service_alarms_on(calibrated):

@@ -112,7 +112,17 @@ ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
     ("status without values", _drop("sensor_fault.open_values"), "sensor_fault.open_values: missing"),
     ("sensor range", _set("sensor_fault.max_c", -50), "sensor_fault.max_c: expected a number > -40"),
     ("status signal", _set("sensor_fault.status_signal", "ECU_Slow.Status"), "sensor_fault.status_signal: message"),
+    ("calibrated_for", _set("detector.calibrated_for", "model.yaml"), "detector.calibrated_for: expected 16 hex"),
 ]
+
+
+def test_detector_calibrated_for_is_kept(tmp_path: Path) -> None:
+    data = _base()
+    data.setdefault("detector", {})["calibrated_for"] = "0123456789abcdef"
+    path = tmp_path / "calibrated.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    assert load_config(path).detector_calibrated_for == "0123456789abcdef"
+    assert load_config(EXAMPLE).detector_calibrated_for is None
 
 
 @pytest.mark.parametrize(("case", "edit", "expected"), ERRORS, ids=[e[0] for e in ERRORS])

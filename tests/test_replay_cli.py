@@ -52,7 +52,8 @@ def test_replay_writes_health_csv(flight_csv, tmp_path, capsys, estimator):
     code = main(["replay", str(path), "--model", str(model), "--estimator", estimator, "--out", str(out)])
     assert code == 0
     summary = capsys.readouterr().out.strip().splitlines()
-    assert len(summary) == 1 and "rows" in summary[0] and estimator in summary[0]
+    assert "rows" in summary[0] and estimator in summary[0]
+    assert all(line.startswith("warning: ") for line in summary[1:])
     with open(out, newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert 1150 <= len(rows) <= 1201  # one row per 0.1 s: the input's rate and the health frame's
@@ -71,6 +72,37 @@ def test_replay_writes_health_csv(flight_csv, tmp_path, capsys, estimator):
     else:
         assert rms < 1.0
         assert np.mean(late) > 0.1  # gamma_Q = 1.2 adds about 0.33 degC/s at this point
+
+
+def test_replay_warns_when_the_limit_or_the_threshold_does_not_fit(flight_csv, tmp_path, capsys):
+    """A CHT limit below what the engine read and a threshold not calibrated for the model: one line each."""
+    import dataclasses
+
+    from ecu_monitor.commands.replay import fit_warnings
+    from ecu_monitor.flightlog import read_csv
+    from ecu_monitor.service.calibration import model_fingerprint
+    from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
+    from ecu_monitor.service.replay import replay_file
+
+    path, _ = flight_csv
+    flown = read_csv(path)["cht_c"]
+    low = dataclasses.replace(paper_table_a1(), cht_limit_c=float(np.median(flown)))
+    model = tmp_path / "low_limit.yaml"
+    save_model(low, model)
+    assert main(["replay", str(path), "--model", str(model), "--out", str(tmp_path / "health.csv")]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    warnings = [line for line in lines if line.startswith("warning: ")]
+    assert len(warnings) == 2 and len(lines) == 3
+    assert f"CHT limit {low.cht_limit_c:g} degC is below what the engine read (up to {flown.max():.1f}" in warnings[0]
+    assert "not calibrated for this model" in warnings[1] and "no detector.calibrated_for" in warnings[1]
+
+    config = load_config(DEFAULT_CONFIG)
+    fits = dataclasses.replace(paper_table_a1(), cht_limit_c=float(flown.max()) + 10.0)
+    result = replay_file(path, config, fits)
+    assert fit_warnings(config.replace(detector_calibrated_for=model_fingerprint(fits)), fits, result) == []
+    other = config.replace(detector_calibrated_for=model_fingerprint(low))
+    (line,) = fit_warnings(other, fits, result)
+    assert f"calibrated for model {model_fingerprint(low)}, this model is {model_fingerprint(fits)}" in line
 
 
 def test_replay_without_model_uses_the_paper_preset(flight_csv, tmp_path):

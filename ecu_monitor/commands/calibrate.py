@@ -103,6 +103,7 @@ def _run(args: argparse.Namespace) -> int:
         cross_validation_blocker,
         detector_fragment_yaml,
         flight_feeds,
+        model_fingerprint,
     )
 
     feeds = []
@@ -129,9 +130,9 @@ def _run(args: argparse.Namespace) -> int:
     result = calibrate_flights(flights, args.rate, settings, choice)
     sources = [str(Path(p).resolve()) for p in args.flights]
     if args.write_config:
-        text = config_copy_yaml(config_path, result, args.rate, sources, args.model)
+        text = config_copy_yaml(config_path, result, args.rate, sources, model_fingerprint(params), args.model)
     else:
-        text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources)
+        text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
     try:
         out.write_text(text, encoding="utf-8")
     except OSError as exc:

@@ -6,9 +6,12 @@ a canonical flight CSV is turned into the frames the ECU would have sent (each m
 DBC rate) and goes through the same path. Writes one row per health-status period (100 ms):
 ``time_s, cht_meas_c, cht_est_c, deviation, state, gamma_q, gamma_d, headroom_s, stale_inputs,
 sensor_fault`` (deviation = the model-deviation symptom, degC/s; state = the Health_Status verdict).
-Prints one summary line. Defaults: config example.yaml (shipped), the model it names (or --model), its
-estimator (or --estimator). ``--live`` feeds the frames one by one through the live path instead of
-the batch path (same rows, slower; for checking).
+Prints one summary line, then one ``warning:`` line for each setting that does not fit the engine:
+the model's CHT limit below what the engine read (the headroom is 0 there), and a detector threshold
+not calibrated for this model (``detector.calibrated_for`` absent from the config or naming another
+model; ``ecu-monitor calibrate`` writes it). Defaults: config example.yaml (shipped), the model it
+names (or --model), its estimator (or --estimator). ``--live`` feeds the frames one by one through
+the live path instead of the batch path (same rows, slower; for checking).
 """
 
 from __future__ import annotations
@@ -24,12 +27,13 @@ import numpy as np
 from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.estimation import ESTIMATORS
-from ecu_monitor.model import load_model
-from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
+from ecu_monitor.model import ThermalParams, load_model
+from ecu_monitor.service.calibration import model_fingerprint
+from ecu_monitor.service.config import DEFAULT_CONFIG, ServiceConfig, load_config
 from ecu_monitor.service.pipeline import STATES, model_input_names
 from ecu_monitor.service.replay import ReplayResult, frames_from_flight, replay_frames, replay_live
 
-__all__ = ["DEFAULT_CONFIG", "add_subparser"]
+__all__ = ["DEFAULT_CONFIG", "add_subparser", "fit_warnings"]
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -73,7 +77,37 @@ def _run(args: argparse.Namespace) -> int:
         raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
     rows = result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
+    for line in fit_warnings(config, params, result):
+        print(f"warning: {line}")
     return 0
+
+
+def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayResult) -> list[str]:
+    """One line per setting that does not fit the replayed engine: the model's CHT limit below the
+    measured CHT, and a detector threshold not calibrated for ``params`` (by its fingerprint)."""
+    out = []
+    cht = np.asarray(result.columns["cht_meas_c"], dtype=float)
+    cht = cht[np.isfinite(cht)]
+    limit = params.cht_limit_c
+    if cht.size and float(cht.max()) > limit:
+        share = 100.0 * np.count_nonzero(cht > limit) / cht.size
+        out.append(
+            f"the model's CHT limit {limit:g} degC is below what the engine read (up to {float(cht.max()):.1f} degC,"
+            f" {share:.0f} % of the rows above): headroom is 0 there; set the engine's cht_limit_c in the model"
+        )
+    fingerprint = model_fingerprint(params)
+    calibrated = config.detector_calibrated_for
+    if calibrated != fingerprint:
+        why = (
+            f"{config.source} has no detector.calibrated_for"
+            if calibrated is None
+            else f"it was calibrated for model {calibrated}, this model is {fingerprint}"
+        )
+        out.append(
+            f"the detector threshold {config.detector.threshold:g} was not calibrated for this model ({why});"
+            " calibrate it on nominal flights: ecu-monitor calibrate"
+        )
+    return out
 
 
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import hashlib
+import json
 import math
 import os
 from collections.abc import Sequence
@@ -44,6 +46,7 @@ from ecu_monitor.estimation.detection import (
     calibrate_threshold,
     cusum_path,
 )
+from ecu_monitor.model import ThermalParams
 from ecu_monitor.service.calibration_replays import (
     AIRBORNE_MPS,
     MIN_AIRBORNE_S,
@@ -89,6 +92,7 @@ __all__ = [
     "detector_fragment_yaml",
     "flight_feeds",
     "flight_statistic",
+    "model_fingerprint",
     "overlay_replays",
     "score_candidate",
     "statistic_paths",
@@ -337,16 +341,24 @@ def _header(result: CalibrationResult, rate_per_100h: float, sources: Sequence[s
     return lines
 
 
+def model_fingerprint(params: ThermalParams) -> str:
+    """16 hex digits of the sha256 of the model's parameters (its model.yaml content, key order and
+    file formatting aside): what ``detector.calibrated_for`` records, so a replay or the service can
+    tell whether the threshold was calibrated for the model in use."""
+    text = json.dumps(params.to_dict(), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
 def detector_fragment_yaml(
-    result: CalibrationResult, symptom: str, rate_per_100h: float, sources: Sequence[str]
+    result: CalibrationResult, symptom: str, rate_per_100h: float, sources: Sequence[str], calibrated_for: str
 ) -> str:
     """A ``detector:`` YAML fragment with comments, to merge into a service config: the symptom, the new
     threshold and every other detector setting it was calibrated with (a threshold holds only for the
     baseline, delay, reference, warm-up and block it was computed with; merging the whole block keeps
-    them together)."""
+    them together), and ``calibrated_for``, the :func:`model_fingerprint` of the model used."""
     settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
     body = yaml.safe_dump(
-        {"detector": {"symptom": symptom, **dataclasses.asdict(settings)}},
+        {"detector": {"symptom": symptom, **dataclasses.asdict(settings), "calibrated_for": calibrated_for}},
         sort_keys=False,
         default_flow_style=False,
     )
@@ -358,10 +370,12 @@ def config_copy_yaml(
     result: CalibrationResult,
     rate_per_100h: float,
     sources: Sequence[str],
+    calibrated_for: str,
     model_path: str | os.PathLike[str] | None = None,
 ) -> str:
-    """The service config at ``config_path`` with ``detector.threshold`` replaced (and ``model`` set to
-    ``model_path`` if given, the model the threshold was calibrated with). Relative file paths (dbc,
+    """The service config at ``config_path`` with ``detector.threshold`` replaced, ``detector.calibrated_for``
+    set (the :func:`model_fingerprint` of the model used) and ``model`` set to ``model_path`` if given, the
+    model the threshold was calibrated with. Relative file paths (dbc,
     health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
     DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
     src = resolve_file(config_path, "config")
@@ -399,6 +413,7 @@ def config_copy_yaml(
     detector = dict(detector) if isinstance(detector, dict) else {}
     detector["threshold"] = _rounded(result.calibration.threshold)
     detector["baseline_s"] = result.current.baseline_s
+    detector["calibrated_for"] = calibrated_for
     data["detector"] = detector
     header = _header(result, rate_per_100h, sources)
     header.append(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,6 +153,9 @@ class ServiceConfig:
     sensor_fault: SensorFaultSettings = field(default_factory=SensorFaultSettings)
     #: the daemon logs a warning when its bus has carried no engine frame for this long, s
     no_frames_warning_s: float = 10.0
+    #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
+    #: ``ecu-monitor calibrate`` writes it, ecu_monitor.service.calibration.model_fingerprint); None if not given.
+    detector_calibrated_for: str | None = None
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -317,7 +321,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
             raise top.error(f"no such model file {model_path} (or a preset: {', '.join(MODEL_PRESETS)})", "model")
         model = str(model_path)
 
-    detector, symptom = _detector(top)
+    detector, symptom, calibrated_for = _detector(top)
 
     return ServiceConfig(
         source=source,
@@ -337,6 +341,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         state_dir=top.path_value("state_dir", "/var/lib/ecu-monitor"),
         sensor_fault=sensor,
         no_frames_warning_s=top.number("no_frames_warning_s", 10.0, low=0.0, strict_low=True),
+        detector_calibrated_for=calibrated_for,
     )
 
 
@@ -452,21 +457,26 @@ def _estimator(top: _Node) -> tuple[str, EstimatorSettings]:
     return name, settings
 
 
-def _detector(top: _Node) -> tuple[DetectorSettings, str]:
+def _detector(top: _Node) -> tuple[DetectorSettings, str, str | None]:
     node = top.child("detector", None, {})
     symptom = node.raw("symptom", "estimator")
     if symptom not in SYMPTOMS:
         raise node.error(f"expected one of {', '.join(SYMPTOMS)}, got {_kind(symptom)}", "symptom")
+    calibrated_for = node.raw("calibrated_for", None)
+    if calibrated_for is not None and not (
+        isinstance(calibrated_for, str) and re.fullmatch(r"[0-9a-f]{16}", calibrated_for)
+    ):
+        raise node.error(f"expected 16 hex digits (a model fingerprint), got {_kind(calibrated_for)}", "calibrated_for")
     known = {f.name for f in dataclasses.fields(DetectorSettings)}
     kwargs = {}
     for key, value in node.data.items():
-        if key == "symptom":
+        if key in ("symptom", "calibrated_for"):
             continue
         if key not in known:
-            raise node.error(f"unknown key '{key}' (known: symptom, {', '.join(sorted(known))})", key)
+            raise node.error(f"unknown key '{key}' (known: symptom, calibrated_for, {', '.join(sorted(known))})", key)
         kwargs[key] = value
     try:
-        return DetectorSettings(**kwargs), symptom
+        return DetectorSettings(**kwargs), symptom, calibrated_for
     except ConfigError as exc:
         raise ConfigError(f"{top.src}: {exc}") from None
 
