@@ -122,7 +122,7 @@ def test_detector_calibrated_for_is_kept(tmp_path: Path) -> None:
     path = tmp_path / "calibrated.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     assert load_config(path).detector_calibrated_for == "0123456789abcdef"
-    assert load_config(EXAMPLE).detector_calibrated_for is None
+    assert load_config(RUSEFI).detector_calibrated_for is None  # example.yaml carries the shipped mark
 
 
 @pytest.mark.parametrize(("case", "edit", "expected"), ERRORS, ids=[e[0] for e in ERRORS])
@@ -180,3 +180,15 @@ def test_broken_model_file_names_config_and_key(tmp_path: Path) -> None:
     config = load_config(path)
     with pytest.raises(ConfigError, match=r"svc\.yaml: model: .*model\.yaml: c_w"):
         config.load_params()
+
+
+def test_shipped_example_threshold_is_marked_for_the_model_it_names():
+    """example.yaml and multicast.yaml carry the shipped threshold calibrated for paper_table_a1: their
+    calibrated_for is that model's fingerprint, so replay does not warn on them (and would, rightly,
+    once the preset changed without a recalibration)."""
+    from ecu_monitor.service.calibration import model_fingerprint
+    from ecu_monitor.shipped import shipped_file
+
+    for name in ("example.yaml", "multicast.yaml"):
+        config = load_config(shipped_file("config", name))
+        assert config.detector_calibrated_for == model_fingerprint(config.load_params()), name

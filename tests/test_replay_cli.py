@@ -94,7 +94,7 @@ def test_replay_warns_when_the_limit_or_the_threshold_does_not_fit(flight_csv, t
     warnings = [line for line in lines if line.startswith("warning: ")]
     assert len(warnings) == 2 and len(lines) == 3
     assert f"CHT limit {low.cht_limit_c:g} degC is below what the engine read (up to {flown.max():.1f}" in warnings[0]
-    assert "not calibrated for this model" in warnings[1] and "no detector.calibrated_for" in warnings[1]
+    assert "not calibrated for this model" in warnings[1] and "this model is" in warnings[1]
 
     config = load_config(DEFAULT_CONFIG)
     fits = dataclasses.replace(paper_table_a1(), cht_limit_c=float(flown.max()) + 10.0)
