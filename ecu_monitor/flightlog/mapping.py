@@ -292,6 +292,8 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
             if key in t.node:
                 raise t.fail(key, "only for kind: date_time")
         unit = _check_unit(t, None) if "unit" in t.node else "s"
+        if not isinstance(unit, str):  # _check_unit gives time a named unit only
+            raise t.fail("unit", "the time column takes a named unit (such as s or ms)")
         step = t.get("row_step_s", (int, float), None)
         if step is not None and not (math.isfinite(step) and step > 0):
             raise t.fail("row_step_s", f"expected a positive number of seconds, got {step!r}")
