@@ -805,6 +805,8 @@ def write_report(
         "",
         f"Regenerate: `{command}` ({elapsed_s / 60.0:.1f} min on this machine).",
         "Method and reasoning: [docs/detection_isolation.md](../detection_isolation.md).",
+        "On a real engine (N550ND, leave-one-flight-out, `calibrate`'s choice of the detector settings):"
+        " [detection_real.md](detection_real.md) (written by `benchmarks/bench_detect_real.py`, not by `evaluate`).",
         "",
         "## Flights",
         "",
