@@ -242,3 +242,97 @@ def test_encode_rows_equals_encode_row_by_row() -> None:
     ]
     with pytest.raises(ValueError, match="cannot encode NaN"):
         enc.encode_rows("ECU_Fast", {**columns, "FuelFlow": np.full(300, np.nan)})
+
+
+_LAYOUT_DBC = """VERSION ""
+NS_ :
+BS_:
+BU_: A B
+BO_ 1 Mixed: 8 A
+ SG_ BigSigned : 7|12@0- (0.05,-3) [-100|99] "" B
+ SG_ LittleOdd : 19|11@1- (0.25,0.5) [-200|200] "" B
+ SG_ BigUnsigned : 39|9@0+ (2,10) [10|1000] "" B
+ SG_ Flag : 48|1@1+ (1,0) [0|1] "" B
+ SG_ Tail : 63|7@0+ (1,0) [0|100] "" B
+BO_ 2 Short: 3 A
+ SG_ Word : 0|16@1+ (0.1,-5) [-5|6000] "" B
+ SG_ Nibble : 20|4@1+ (1,0) [0|15] "" B
+BO_ 3 WithFloat: 8 A
+ SG_ Real : 0|32@1- (1,0) [-1000|1000] "" B
+SIG_VALTYPE_ 3 Real : 1;
+"""
+
+
+def _random_values(rng: np.random.Generator, message: Any, names: tuple[str, ...]) -> list[list[float]]:
+    """Rows of physical values: uniform beyond both ends of each DBC range (clipped), the range's ends and
+    their neighbours, huge and infinite values, integers."""
+    signals = {s.name: s for s in message.signals}
+    rows: list[list[float]] = []
+    for k in range(400):
+        row = []
+        for name in names:
+            low, high = float(signals[name].minimum), float(signals[name].maximum)
+            span = high - low
+            pick = k % 8
+            if pick == 0:
+                row.append(low if k % 16 else high)
+            elif pick == 1:
+                row.append(float(np.nextafter(low, -np.inf) if k % 16 else np.nextafter(high, np.inf)))
+            elif pick == 2:
+                row.append(float(rng.choice([-1e300, 1e300, -np.inf, np.inf, 0.0, -0.0])))
+            elif pick == 3:
+                row.append(int(rng.integers(int(low) - 5, int(high) + 6)))
+            else:
+                row.append(float(rng.uniform(low - 0.2 * span, high + 0.2 * span)))
+        rows.append(row)
+    return rows
+
+
+def test_prepared_layouts_are_bit_exact_against_cantools(tmp_path: Path) -> None:
+    """Every message with a FrameLayout packs the bytes cantools encodes from the same clamped values:
+    random values across and beyond the DBC ranges, the ranges' ends, huge and infinite values, big- and
+    little-endian, signed and unsigned, integer and fractional scales, short messages."""
+    custom = tmp_path / "layouts.dbc"
+    custom.write_text(_LAYOUT_DBC)
+    enc = Encoder([ENGINE_DBC, HEALTH_DBC, RUSEFI_DBC, custom])
+    rng = np.random.default_rng(13)
+    prepared = [name for name in enc._layouts if enc.layout(name) is not None]
+    assert {"ECU_Fast", "ECU_Slow", "AirData", "Health_Status", "Health_Isolation", "Health_Diag"} <= set(prepared)
+    assert {"Mixed", "Short"} <= set(prepared) and enc.layout("WithFloat") is None
+    checked = 0
+    for name in prepared:
+        layout = enc.layout(name)
+        assert layout is not None
+        message = enc.message(name)
+        for k, row in enumerate(_random_values(rng, message, layout.signal_names)):
+            values = dict(zip(layout.signal_names, row, strict=True))
+            counter = k * 7 + int(rng.integers(0, 1000))
+            expected = enc.encode_cantools(name, values, counter)
+            assert layout.pack(row, counter) == expected, (name, values, counter)
+            assert enc.encode(name, values, counter) == expected
+            checked += 1
+    assert checked >= 8 * 400
+    # cantools' own strict encoder agrees on in-range values (the clamp is the only difference)
+    db: Any = cantools.database.load_file(str(custom))
+    layout = enc.layout("Mixed")
+    assert layout is not None
+    row = [12.35, -37.75, 512.0, 1.0, 99.0]
+    assert layout.pack(row) == db.encode_message("Mixed", dict(zip(layout.signal_names, row, strict=True)))
+
+
+def test_prepared_layout_refuses_nan_and_a_wrong_count() -> None:
+    layout = Encoder([HEALTH_DBC]).layout("Health_Isolation")
+    assert layout is not None and layout.signal_names == (
+        "GammaQEstimate", "GammaDEstimate", "ThermalHeadroom", "ChtLimitMargin"
+    )  # fmt: skip
+    with pytest.raises(ValueError, match=r"Health_Isolation.ThermalHeadroom: cannot encode NaN"):
+        layout.pack([1.0, 1.0, math.nan, 0.0])
+    with pytest.raises(ValueError, match="expected 4 values"):
+        layout.pack([1.0, 1.0, 0.0])
+
+
+def test_messages_without_a_layout_still_encode_through_cantools() -> None:
+    enc = Encoder([RUSEFI_DBC])
+    assert enc.layout("BASE0") is None  # no DBC range: an unclamped value may not fit its bits
+    values = {s.name: 1 for s in enc.message("BASE0").signals}
+    assert enc.encode("BASE0", values) == enc.encode_cantools("BASE0", values)
