@@ -11,10 +11,10 @@ import pytest
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, flight_references
+from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
 from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
-from ecu_monitor.model import SensorLag, load_model, paper_table_a1
+from ecu_monitor.model import MixtureIndex, SensorLag, load_model, paper_table_a1
 from ecu_monitor.research.blind import CASE_KINDS, blind_case, run_blind_case
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
@@ -127,6 +127,27 @@ def test_refit_recovers_a_sensor_lag_on_the_train_flight() -> None:
     assert fit.train_rms_c < 0.7 * control.train_rms_c
     probe = simulate_probe([fit.params, control.params], flight)
     assert probe.shape == (len(log), 2) and np.all(np.isfinite(probe))
+
+
+def test_refit_recovers_a_mixture_effect_read_from_the_logged_egt() -> None:
+    # the pilot leans and enriches (EGT swings by +-60 degC, slower than the head) on a flight whose
+    # CHT follows exp(gain (EGT - 650)); the mixture_index candidate is offered once EGT is logged
+    base = fly(random_mission(6, 800.0), paper_table_a1(), seed=6, record_dt_s=1.0)
+    columns = {name: np.asarray(base[name]) for name in base.names}
+    columns["egt_c"] = 650.0 + 60.0 * np.sin(2.0 * np.pi * base.time_s / 400.0)
+    truth = paper_table_a1().replace(
+        effects=paper_table_a1().effects.replace("mixture_index", MixtureIndex("egt_c", -0.002, 650.0))
+    )
+    columns["cht_c"] = simulate_probe([truth], prepare_flight(FlightLog(columns, source="egt"), truth.heat_axes, 0.5))[
+        :, 0
+    ]
+    log = FlightLog(columns, source="egt")
+    assert "mixture_index" in candidates_for(truth.heat_axes, [log])
+    assert "mixture_index" not in candidates_for(truth.heat_axes, [base])
+    flight = prepare_flight(log, truth.heat_axes, 0.5)
+    fit = refit(paper_table_a1(), flight, [candidate("mixture_index")], flight_references(log))
+    assert fit.values["mixture_index"]["gain"] == pytest.approx(-0.002, abs=3e-4)
+    assert fit.train_rms_c < 0.1
 
 
 def test_gap_settings_reject_unknown_candidates() -> None:

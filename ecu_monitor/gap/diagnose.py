@@ -8,7 +8,10 @@
    a candidate counts when its held-out gain over the control is significant and material
    (:mod:`ecu_monitor.gap.significance`). The best counting candidate is kept; when it leaves a
    structured residual (test RMS above ``pair_threshold_c``), pairs with it are tried greedily and a
-   pair counts only if it beats the single effect by the same test.
+   pair counts only if it beats the single effect by the same test. When no single effect counts but
+   the best one's gain is material (large, not significant: it holds on some test flights and fails
+   on others), pairs with it are tried too, each tested against the control (alpha spread over the
+   singles and the pairs): two effects that each hold where the other fails count only together.
 4. Verdict: the winning effect(s) and the held-out shrink vs the baseline, or ``None``
    ("unexplained") when no candidate counts; then no candidate is named.
 """
@@ -138,8 +141,16 @@ def cross_validate(
     return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress)
 
 
+def _material_lead(singles: Sequence[EffectScore]) -> EffectScore | None:
+    """When no single effect counts: the best one whose held-out gain over the control is material but
+    not significant (it may hold on some test flights and fail on others, where a second effect is
+    missing); None when no single effect is material."""
+    material = [s for s in singles if s.versus is not None and s.versus.material]
+    return min(material, key=lambda s: s.test_rms_c) if material else None
+
+
 def _references(logs: Sequence[FlightLog], settings: GapSettings) -> dict[str, float]:
-    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c"))
+    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c", "egt_c"))
     return flight_references(pooled, settings.segments.ground_airspeed_mps)
 
 
@@ -204,15 +215,21 @@ def _diagnose(
         singles.append(score(fit_candidates([candidate(cid)]), "single", control, n_tests, settings.significance))
     counting = [s for s in singles if s.counts]
     winner = min(counting, key=lambda s: s.test_rms_c) if counting else None
+    lead = winner if winner is not None else _material_lead(singles)
     pairs: list[EffectScore] = []
-    if winner is not None and settings.try_pairs and winner.test_rms_c > settings.pair_threshold_c:
-        first = winner.fit.ids[0]
+    if lead is not None and settings.try_pairs and lead.test_rms_c > settings.pair_threshold_c:
+        first = lead.fit.ids[0]
         others = [cid for cid in settings.candidates if cid != first]
         pair_test = dataclasses.replace(settings.significance, min_shrink_pct=settings.pair_min_shrink_pct)
+        # a counting single: a pair must beat it; none counts: a pair must beat the control, the
+        # family-wise alpha then spread over the singles and the pairs
+        reference, role, n_pair_tests = (
+            (winner, "pair", len(others)) if winner is not None else (control, "pair_vs_control", n_tests + len(others))
+        )
         for cid in others:
             say(f"refit: pair {first}+{cid}")
             fits = fit_candidates([candidate(first), candidate(cid)])
-            pairs.append(score(fits, "pair", winner, len(others), pair_test))
+            pairs.append(score(fits, role, reference, n_pair_tests, pair_test))
         better = [p for p in pairs if p.counts and second_effect_acts(p, folds, tests, engine, settings)]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)

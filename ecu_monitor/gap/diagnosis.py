@@ -45,7 +45,8 @@ class GapSettings:
     when the nominal model was identified on the train flight itself.
 
     Pairs are tried when the best single effect leaves a test RMS above ``pair_threshold_c`` (degC);
-    a pair must beat the single effect by ``pair_min_shrink_pct`` (a higher bar than a single effect
+    a pair must beat the single effect (or, when no single counts, the control) by
+    ``pair_min_shrink_pct`` (a higher bar than a single effect
     against the control: the second effect of a pair is fitted to what the first one leaves, small
     structured remainders such as a slightly wrong nominal altitude exponent included)."""
 
@@ -79,8 +80,8 @@ class EffectScore:
     test_rms_c: float
     test_peak_c: float
     shrink_pct: float  # pooled held-out RMS shrink vs the baseline (nominal model), %
-    versus: ImprovementTest | None  # against the control (singles) or the single effect (pairs)
-    role: str  # "control", "single" or "pair"
+    versus: ImprovementTest | None  # against the control (singles, pair_vs_control) or the single effect (pair)
+    role: str  # "control", "single", "pair" (vs the counting single) or "pair_vs_control" (no single counts)
     fold_fits: tuple[FitResult, ...] = ()  # cross-validation: the refit of each fold (fit = the first)
 
     @property

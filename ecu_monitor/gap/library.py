@@ -25,6 +25,9 @@ Added for real data (not in the default set, :data:`DEFAULT_CANDIDATE_IDS`; ask 
   ``g(z) = (p/p_SL)^a (T_SL/T_e)^b`` (no new term: the model's own parameters, started from the
   nominal values). It is the candidate for a heat map on fuel flow, where the fuel flow already
   carries the charge density and the paper's throttle-based exponents (a 1.55, b 2) double-count it.
+- ``mixture_index``: heat ``x exp(gain (EGT - EGT_ref))``, the mixture read from the logged exhaust
+  gas temperature (a richer mixture, lower EGT, cools the head); free gain; EGT_ref = median EGT of
+  the train flights. Tried by default when every flight logs ``egt_c``.
 - ``no_altitude_factor``: a removal candidate: the same altitude factor switched off (a = b = 0,
   nothing new fitted), the simpler answer to the same double count.
 """
@@ -44,6 +47,7 @@ from ecu_monitor.model import (
     DensityCooling,
     Effects,
     MixtureCooling,
+    MixtureIndex,
     SensorLag,
     air_density_kg_m3,
     isa_pressure_pa,
@@ -136,6 +140,12 @@ CANDIDATES: tuple[Candidate, ...] = (
         ),
     ),
     Candidate(
+        "mixture_index",
+        "mixture_index",
+        "heat into the head follows the mixture, read from the logged EGT",
+        (FreeParameter("gain", 0.0, -0.01, 0.01, "1/degC"),),
+    ),
+    Candidate(
         "heat_altitude_scaling",
         "nominal",
         "altitude exponents a, b of the heat into the head re-fitted (heat map on fuel flow)",
@@ -165,11 +175,13 @@ DEFAULT_CANDIDATE_IDS: tuple[str, ...] = (
 def candidates_for(heat_axes: Sequence[str], flights: Sequence[FlightLog]) -> tuple[str, ...]:
     """The candidates tried when the user names none: :data:`DEFAULT_CANDIDATE_IDS`, plus the removal
     ``no_altitude_factor`` when the heat map is on fuel flow (the fuel flow already carries the charge
-    density that the altitude factor models: the paper's form may double-count it)."""
-    del flights  # the choice depends on the logged columns only through the heat axes today
+    density that the altitude factor models: the paper's form may double-count it), plus
+    ``mixture_index`` when every flight logs its EGT (``egt_c``)."""
     ids = list(DEFAULT_CANDIDATE_IDS)
     if "fuel_flow_lph" in heat_axes:
         ids.append("no_altitude_factor")
+    if flights and all(log.has("egt_c") for log in flights):
+        ids.append("mixture_index")
     return tuple(ids)
 
 
@@ -182,16 +194,20 @@ def candidate(candidate_id: str) -> Candidate:
 
 
 def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> dict[str, float]:
-    """Reference conditions of the train flight: median airborne airspeed (m/s), median density (kg/m^3)."""
+    """Reference conditions of the train flight: median airborne airspeed (m/s), median density (kg/m^3),
+    and the median EGT (degC) when it is logged."""
     airspeed = np.asarray(train["airspeed_mps"], dtype=float)
     airborne = airspeed[airspeed >= ground_airspeed_mps]
     reference_mps = float(np.median(airborne)) if airborne.size else 23.0
     pressure = np.asarray(isa_pressure_pa(np.asarray(train["altitude_m"], dtype=float)))
     density = np.asarray(air_density_kg_m3(pressure, np.asarray(train["oat_c"], dtype=float)))
-    return {
+    references = {
         "reference_mps": float(np.clip(reference_mps, 1.0, 200.0)),
         "reference_kg_m3": float(np.clip(np.median(density), 0.3, 1.6)),
     }
+    if train.has("egt_c"):
+        references["reference_egt_c"] = float(np.clip(np.median(np.asarray(train["egt_c"], dtype=float)), 0.0, 1200.0))
+    return references
 
 
 def _make(entry: Candidate, values: Mapping[str, float], references: Mapping[str, float]) -> Any:
@@ -207,6 +223,10 @@ def _make(entry: Candidate, values: Mapping[str, float], references: Mapping[str
         return SensorLag(time_constant_s=float(values["time_constant_s"]))
     if entry.effect == "mixture_cooling":
         return MixtureCooling(fraction=float(values["fraction"]), onset=float(values["onset"]))
+    if entry.effect == "mixture_index":
+        if "reference_egt_c" not in references:
+            raise ParameterError(f"gap candidate {entry.id!r}: the train flights log no EGT (column egt_c)")
+        return MixtureIndex(source="egt_c", gain=float(values["gain"]), reference=references["reference_egt_c"])
     raise ParameterError(f"gap candidate {entry.id!r}: no model effect {entry.effect!r}")
 
 

@@ -29,7 +29,7 @@ from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.library import RETUNED_BOUNDS, RETUNED_NOMINAL, Candidate, FreeParameter, effects_for
 from ecu_monitor.identify import DEFAULT_FREE, IDENTIFICATION_DT_S, FlightGrid, PsoSettings, default_space, identify
 from ecu_monitor.identify import prepare_flight as prepare_grid
-from ecu_monitor.model import ThermalParams, coefficients, simulate, stack_coefficients
+from ecu_monitor.model import MixtureIndex, ThermalParams, coefficients, simulate, stack_coefficients
 from ecu_monitor.model.compiled import simulate_compiled
 
 __all__ = [
@@ -72,11 +72,18 @@ class PreparedFlight(NamedTuple):
     dt_s: float
 
 
+#: How a prepared flight reads the mixture_index candidate's lean/rich index (EGT, when logged); the
+#: gain and reference here are unused (each model carries its own; the effect off is a factor 1).
+EGT_INDEX = MixtureIndex(source="egt_c", gain=0.0, reference=650.0)
+
+
 def prepare_flight(log: FlightLog, heat_axes: tuple[str, str], dt_s: float) -> PreparedFlight:
-    """Put ``log`` on a uniform integration step ``dt_s``; FlightLogError if a column is missing."""
+    """Put ``log`` on a uniform integration step ``dt_s`` (with its EGT as the mixture index when the
+    log carries one); FlightLogError if a column is missing."""
     if len(log) < 10:
         raise FlightLogError(f"{log.source}: too short for a gap diagnosis ({len(log)} samples)")
-    grid = prepare_grid(log, heat_axes, dt_s, record_period_s=max(dt_s, 1.0))
+    mixture = EGT_INDEX if log.has("egt_c") else None
+    grid = prepare_grid(log, heat_axes, dt_s, record_period_s=max(dt_s, 1.0), mixture=mixture)
     spacing = float(np.median(np.diff(log.time_s)))
     return PreparedFlight(log, grid, np.asarray(grid.measured_c, dtype=float), spacing)
 

@@ -66,7 +66,7 @@ def _effect_entry(score: EffectScore) -> dict[str, Any]:
         "nominal_factors": {k: _finite(x) for k, x in score.fit.nominal_factors.items()},
         "train_rms_c": score.fit.train_rms_c,
         "role": score.role,
-        "compared_with": "control" if score.role == "single" else "+".join(score.fit.ids[:1]),
+        "compared_with": "control" if score.role in ("single", "pair_vs_control") else "+".join(score.fit.ids[:1]),
         "shrink_vs_reference_pct": v.shrink_pct if v else None,
         "p_value": v.p_value if v else None,
         "bootstrap_significant": v.significant if v else None,
@@ -444,7 +444,8 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
         "",
         f"Control (no effect, R_Ce and heat scale re-tuned): test RMS {diag.control.test_rms_c:.2f} degC. "
         "A candidate counts when its held-out gain over its reference (the control for a single effect, the "
-        "single effect for a pair) is significant in a bootstrap that resamples whole test flights and blocks "
+        "single effect for a pair, the control for a pair tried when no single effect counts) is significant "
+        "in a bootstrap that resamples whole test flights and blocks "
         "within them "
         f"({diag.settings.significance.block_s:.0f} s blocks, family-wise alpha {diag.settings.significance.alpha}) "
         f"and material (>= {diag.settings.significance.min_shrink_pct:.0f} % and "
@@ -456,8 +457,9 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
     ]
     for score in diag.effects:
         v = score.versus
+        label = score.label + (" (vs control)" if score.role == "pair_vs_control" else "")
         lines.append(
-            f"| {score.label} | {score.test_rms_c:.2f} | {score.test_peak_c:.1f} | {score.shrink_pct:+.0f} % | "
+            f"| {label} | {score.test_rms_c:.2f} | {score.test_peak_c:.1f} | {score.shrink_pct:+.0f} % | "
             f"{(v.shrink_pct if v else 0.0):+.0f} % | {_fmt(v.p_value if v else None, 2)} | "
             f"{'yes' if score.counts else 'no'} | {_params_text(score)} |"
         )
