@@ -261,7 +261,10 @@ def run_case(
         daemon.phases = []
         daemon_thread = threading.Thread(target=daemon.run, daemon=True)
         daemon_thread.start()
-        time.sleep(1.0)  # past the daemon's start-up collection
+        deadline = time.monotonic() + 120.0
+        while daemon._tick_thread is None and time.monotonic() < deadline:  # warmed up, heap frozen: running
+            time.sleep(0.05)
+        time.sleep(0.5)  # past the daemon's start-up collection
         tick = daemon._tick_thread
         threads = [t.native_id for t in (daemon_thread, tick) if t is not None and t.native_id is not None]
         threads += _notifier_threads(daemon._can_notifier)

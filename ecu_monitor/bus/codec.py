@@ -144,6 +144,30 @@ class _Plan(NamedTuple):
     message: Any
     fields: tuple[_Field, ...]
     counter_name: str | None  # None: no counter/checksum in this message
+    # per field (shift, mask, sign bit or 0, big-endian): the raw integer read straight from the payload
+    # as one integer, or None when cantools decodes the message (a float or multiplexed signal)
+    extract: tuple[tuple[int, int, int, bool], ...] | None
+
+
+def _extraction(message: Any, fields: Sequence[_Field]) -> tuple[tuple[int, int, int, bool], ...] | None:
+    """How :meth:`Decoder.decode` reads each used signal's raw integer without cantools (the bits cantools
+    reads: little-endian from the start bit up, big-endian from the sawtooth MSB down), or None."""
+    if message.length > 8 or message.is_multiplexed():
+        return None
+    out = []
+    for f in fields:
+        sig = f.signal
+        if sig.is_float or sig.multiplexer_ids:
+            return None
+        if sig.byte_order == "little_endian":
+            shift = sig.start
+        else:
+            shift = (message.length - 1 - sig.start // 8) * 8 + sig.start % 8 - sig.length + 1
+        if shift < 0 or shift + sig.length > 8 * message.length:
+            return None
+        sign = 1 << (sig.length - 1) if sig.is_signed else 0
+        out.append((shift, (1 << sig.length) - 1, sign, sig.byte_order != "little_endian"))
+    return tuple(out)
 
 
 class BatchDecoded(NamedTuple):
@@ -210,7 +234,7 @@ class Decoder:
         for key, message in messages.items():
             integrity = _integrity_signals(message)
             counter = integrity[0].name if integrity else None
-            self._plans[key] = _Plan(message, tuple(fields[key]), counter)
+            self._plans[key] = _Plan(message, tuple(fields[key]), counter, _extraction(message, fields[key]))
         self._last_counter: dict[tuple[int, bool], tuple[int, float]] = {}
         self.counters: dict[str, int] = dict.fromkeys(("frames", "ok", "unknown_id", "ignored", "malformed"), 0)
         self.counters.update(dict.fromkeys(MALFORMED_REASONS, 0))
@@ -265,6 +289,8 @@ class Decoder:
             if last is not None and time_s - last[1] <= COUNTER_RESYNC_S and (counter - last[0]) % 16 not in (1, 2):
                 self._malformed("bad_counter")
                 return None
+        if plan.extract is not None:
+            return self._decode_prepared(plan, payload)
         try:
             raw = plan.message.decode(payload, decode_choices=False, scaling=False)
         except (cantools.database.DecodeError, ValueError, KeyError, IndexError, TypeError, OverflowError):
@@ -283,6 +309,23 @@ class Decoder:
                 self._malformed("out_of_range")
                 return None
             out.append((f.output, (value * f.factor + f.offset) * f.unit_scale + f.unit_offset))
+        self.counters["ok"] += 1
+        return out
+
+    def _decode_prepared(self, plan: _Plan, payload: bytes) -> list[tuple[int, float]] | None:
+        """The end of :meth:`decode` for integer signals: raw integers by shift and mask (the values
+        cantools' decode gives), then the same range check and scaling."""
+        little = int.from_bytes(payload, "little")
+        big = int.from_bytes(payload, "big")
+        out: list[tuple[int, float]] = []
+        for f, (shift, mask, sign, big_endian) in zip(plan.fields, plan.extract or (), strict=True):
+            raw = ((big if big_endian else little) >> shift) & mask
+            if raw & sign:
+                raw -= mask + 1
+            if not f.raw_low <= raw <= f.raw_high:
+                self._malformed("out_of_range")
+                return None
+            out.append((f.output, (raw * f.factor + f.offset) * f.unit_scale + f.unit_offset))
         self.counters["ok"] += 1
         return out
 

@@ -45,6 +45,8 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from ecu_monitor.errors import ConfigError, EstimationError
 from ecu_monitor.estimation import quantiser as _quantiser
 from ecu_monitor.estimation.quantiser import level_of, reset_value, sensor_model, sensor_slope
@@ -59,6 +61,7 @@ from ecu_monitor.model import (
     rk4_step,
     scalar_coefficients,
 )
+from ecu_monitor.model import compiled as _compiled_model
 from ecu_monitor.model import thermal as _thermal
 from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
 
@@ -74,6 +77,7 @@ __all__ = [
     "compiled_filter",
     "deviation_update",
     "filter_step",
+    "live_steps",
     "predict",
     "scalar_drive",
     "update",
@@ -310,6 +314,70 @@ def filter_steps(
     return state, innovation, nis, did_reset
 
 
+def live_steps(
+    state: Any,
+    drive: Any,
+    inputs: Any,
+    drive_rows: Any,
+    out: Any,
+    heat_x: float,
+    heat_y: float,
+    altitude_m: float,
+    airspeed_mps: float,
+    oat_c: float,
+    mixture_index: float,
+    z: float,
+    measured: bool,
+    coeffs: Coefficients,
+    dt: float,
+    Q: float,
+    R: float,
+    a: float,
+    b: float,
+    c: float,
+    tau: float,
+    use_deviation: bool,
+    reset_code: int,
+    steps: int,
+) -> None:
+    """One live filter call in one compiled call: :func:`filter_steps` on the state held in ``state``
+    (the FilterState fields, float64[7], updated in place) with the drive held in ``drive`` (the Drive
+    fields, float64[5]); then the drive of this call's inputs (the model's compiled drive kernel, equal
+    bit for bit to :func:`scalar_drive`) replaces it for the next call. ``inputs`` (6, 1) and
+    ``drive_rows`` (4, 1) are scratch; ``out`` gets (innovation, nis, reset as 0/1)."""
+    held = FilterState(state[0], state[1], state[2], state[3], state[4], state[5], state[6])
+    new, innovation, nis, did_reset = filter_steps(
+        held, Drive(drive[0], drive[1], drive[2], drive[3], drive[4]), z, measured, coeffs, dt, Q, R, a, b, c, tau,
+        use_deviation, reset_code, steps,
+    )  # fmt: skip
+    state[0] = new.x
+    state[1] = new.P
+    state[2] = new.pade_w
+    state[3] = new.delta
+    state[4] = new.reference
+    state[5] = new.steps_since
+    state[6] = new.level
+    inputs[0, 0] = heat_x
+    inputs[1, 0] = heat_y
+    inputs[2, 0] = altitude_m
+    inputs[3, 0] = airspeed_mps
+    inputs[4, 0] = oat_c
+    inputs[5, 0] = mixture_index
+    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, drive_rows)
+    drive[0] = drive_rows[0, 0]  # Drive order: q_sl0, altitude gain, ambient, conductance, heat gain
+    drive[1] = drive_rows[1, 0]
+    drive[2] = oat_c
+    drive[3] = drive_rows[3, 0]
+    drive[4] = drive_rows[2, 0]
+    out[0] = innovation
+    out[1] = nis
+    out[2] = 1.0 if did_reset else 0.0
+
+
+# The compiled drive kernel live_steps calls; compiled_filter() binds it.
+drive_kernel: Any = None
+
+
 class ThermalEKF:
     """Stateful shell over :func:`filter_step`: EKF, CBEKF or CBEKF-AU on a given model.
 
@@ -341,15 +409,24 @@ class ThermalEKF:
         self.compiled = compiled
         self._compiled_coeffs = scalar_coefficients(self._coeffs)
         self._steps: Any = None  # filter_steps, or its numba twin (loaded on first use)
+        self._live: Any = None  # live_steps compiled (compiled=True; loaded on first use)
         self._state: FilterState | None = None
         self._drive: Drive | None = None
         self._time_s = 0.0
+        # compiled live path: state and drive held in preallocated arrays between calls (no allocation)
+        self._state_vec = np.zeros(len(FilterState._fields))
+        self._drive_vec = np.zeros(len(Drive._fields))
+        self._inputs = np.zeros((6, 1))
+        self._drive_rows = np.zeros((4, 1))
+        self._out = np.zeros(3)
 
     @property
     def state(self) -> FilterState:
         """The filter's current state (raises EstimationError before initialise())."""
         if self._state is None:
             raise EstimationError(f"{self.name}: estimate() called before initialise()")
+        if self.compiled:
+            return FilterState(*self._state_vec.tolist())
         return self._state
 
     def initialise(self, t_s: float, u: InputSeries, z_cht_c: float) -> None:
@@ -369,6 +446,8 @@ class ThermalEKF:
             0.0,
             float(level_of(z_cht_c, c)),
         )
+        self._state_vec[:] = self._state
+        self._drive_vec[:] = drive
 
     def estimate(self, t_s: float, u: InputSeries, z_cht_c: float | None) -> Estimate:
         """Advance to t_s (one fixed step, or several if t_s is later) and correct with z (None: no reading)."""
@@ -381,6 +460,8 @@ class ThermalEKF:
             )
         measured = z_cht_c is not None and math.isfinite(z_cht_c)
         z = float(z_cht_c) if measured and z_cht_c is not None else math.nan
+        if self.compiled:
+            return self._estimate_compiled(float(t_s), u, z, measured, steps)
         drive = self._drive
         if drive is None:  # set together with the state
             raise EstimationError(f"{self.name}: estimate() called before initialise()")
@@ -418,6 +499,34 @@ class ThermalEKF:
             measured=measured,
         )
 
+    def _estimate_compiled(self, t_s: float, u: InputSeries, z: float, measured: bool, steps: int) -> Estimate:
+        """:meth:`estimate` as one compiled call (:func:`live_steps`): no Python model code, no allocation
+        besides the returned Estimate."""
+        if self._live is None:
+            self._live = compiled_filter().live
+        s = self.settings
+        state = self._state_vec
+        out = self._out
+        self._live(
+            state, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
+            float(u[3]), float(u[4]), float(u[5]), z, measured, self._compiled_coeffs, s.dt_s, s.process_var,
+            s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, self.use_deviation,
+            _RESET_CODES[self.reset_mode], steps,
+        )  # fmt: skip
+        self._time_s = t_s
+        delta = float(state[3])
+        return Estimate(
+            time_s=t_s,
+            cht_c=float(state[0]),
+            variance_c2=float(state[1]),
+            innovation_c=float(out[0]),
+            nis=float(out[1]),
+            deviation=delta / s.dt_s if self.use_deviation else 0.0,
+            deviation_raw_c=delta if self.use_deviation else 0.0,
+            reset=bool(out[2]),
+            measured=measured,
+        )
+
 
 def _live_steps(compiled: bool) -> Any:
     """:func:`filter_steps`, or its numba twin (:func:`compiled_filter`)."""
@@ -429,7 +538,8 @@ def compiled_filter() -> SimpleNamespace:
     """numba twins of :func:`filter_step` and :func:`filter_steps`, compiled from this very source with
     the model's compiled equations (ecu_monitor.model.kernels; cached on disk). The live filter and the
     whole-flight runner both use them."""
-    tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, sys.modules[__name__])])
+    modules = (_thermal, _quantiser, _compiled_model, sys.modules[__name__])
+    tag = fingerprint([str(m.__file__) for m in modules])
 
     def compile_(function: Any, **callees: Any) -> Any:
         return jit(function, tag, **callees)
@@ -453,4 +563,6 @@ def compiled_filter() -> SimpleNamespace:
         level_of=level_of_,
         reset_value=reset_value_,
     )
-    return SimpleNamespace(step=step, steps=compile_(filter_steps, filter_step=step), level_of=level_of_)
+    steps = compile_(filter_steps, filter_step=step)
+    live = compile_(live_steps, filter_steps=steps, drive_kernel=_compiled_model.drive_kernel())
+    return SimpleNamespace(step=step, steps=steps, live=live, level_of=level_of_)

@@ -52,6 +52,7 @@ from ecu_monitor.errors import ConfigError, EstimationError
 from ecu_monitor.estimation.ekf import Estimate, scalar_drive
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, scalar_coefficients
+from ecu_monitor.model import compiled as _compiled_model
 from ecu_monitor.model.compiled import compute_drive_compiled
 from ecu_monitor.model.inputs import flight_inputs
 from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
@@ -259,7 +260,57 @@ def _run(
         out[k, 9] = deviation(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model)
 
 
+def _live(
+    s: NDArray[np.float64],
+    drive: NDArray[np.float64],
+    inputs: NDArray[np.float64],
+    drive_rows: NDArray[np.float64],
+    out: NDArray[np.float64],
+    heat_x: float,
+    heat_y: float,
+    altitude_m: float,
+    airspeed_mps: float,
+    oat_c: float,
+    mixture_index: float,
+    z: float,
+    measured: bool,
+    steps: int,
+    model: NDArray[np.float64],
+    cfg: NDArray[np.float64],
+    coeffs: Any,
+) -> None:
+    """One live call in one compiled call: ``steps`` predictions with the held drive (``drive``, the
+    Drive fields), the update with z when measured, the deviation; then the drive of this call's inputs
+    (the model's compiled drive kernel) is held for the next call. out = (innovation, NIS, deviation)."""
+    q0 = drive[0]
+    hg = drive[4] * drive[1]
+    g = drive[3]
+    te = drive[2]
+    for _ in range(steps):
+        predict(s, q0, hg, g, te, model, cfg)
+    innovation = np.nan
+    nis = np.nan
+    if measured:
+        innovation, nis = correct(s, z, cfg)
+    out[0] = innovation
+    out[1] = nis
+    out[2] = deviation(s, q0, hg, g, te, model)
+    inputs[0, 0] = heat_x
+    inputs[1, 0] = heat_y
+    inputs[2, 0] = altitude_m
+    inputs[3, 0] = airspeed_mps
+    inputs[4, 0] = oat_c
+    inputs[5, 0] = mixture_index
+    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, drive_rows)
+    drive[0] = drive_rows[0, 0]  # Drive order: q_sl0, altitude gain, ambient, conductance, heat gain
+    drive[1] = drive_rows[1, 0]
+    drive[2] = oat_c
+    drive[3] = drive_rows[3, 0]
+    drive[4] = drive_rows[2, 0]
+
+
 # Names the core calls; compiled_kernels() binds them to compiled functions.
+drive_kernel: Any = None
 derivatives: Any = None
 rk4: Any = None
 predict: Any = None
@@ -271,12 +322,14 @@ deviation: Any = None
 def compiled_kernels() -> SimpleNamespace:
     """The filter's core compiled by numba with the model's compiled equations (cached on disk)."""
     equations = compiled_equations(False)
-    tag = fingerprint([__file__])
+    tag = fingerprint([__file__, str(_compiled_model.__file__)])
     predict_ = jit(_predict, tag, derivatives=equations.derivatives, rk4=equations.rk4)
     correct_ = jit(_correct, tag)
     deviation_ = jit(_deviation, tag, derivatives=equations.derivatives)
     run = jit(_run, tag, predict=predict_, correct=correct_, deviation=deviation_)
-    return SimpleNamespace(predict=predict_, correct=correct_, deviation=deviation_, run=run)
+    live = jit(_live, tag, predict=predict_, correct=correct_, deviation=deviation_,
+               drive_kernel=_compiled_model.drive_kernel())  # fmt: skip
+    return SimpleNamespace(predict=predict_, correct=correct_, deviation=deviation_, run=run, live=live)
 
 
 def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> NDArray[np.float64]:
@@ -317,12 +370,18 @@ class IsolationFilter:
         self.params = params
         self.settings = settings or IsolationSettings()
         self._coeffs = coefficients(params)
+        self._compiled_coeffs = scalar_coefficients(self._coeffs)
         self._model = _model_vector(self._coeffs)
         self._kernels: SimpleNamespace | None = None  # compiled on first use
         self._cfg = self.settings.vector()
         self._state: NDArray[np.float64] | None = None
         self._drive: Drive | None = None
         self._time_s = 0.0
+        # the live call's drive, scratch and outputs, preallocated (estimate() allocates no array)
+        self._drive_vec = np.zeros(len(Drive._fields))
+        self._inputs = np.zeros((6, 1))
+        self._drive_rows = np.zeros((4, 1))
+        self._out = np.zeros(3)
 
     def _require(self) -> tuple[NDArray[np.float64], Drive]:
         if self._state is None or self._drive is None:
@@ -362,11 +421,12 @@ class IsolationFilter:
         drive = scalar_drive(u, self._coeffs)
         self._state = _initial_state(float(z_cht_c), 2.0 * float(drive.q_sl0_w), self.settings)
         self._drive = drive
+        self._drive_vec[:] = drive
         self._time_s = float(t_s)
 
     def estimate(self, t_s: float, u: InputSeries, z_cht_c: float | None) -> Estimate:
         """Advance to t_s by whole steps with the held inputs, then correct with z (None: no reading)."""
-        s, drive = self._require()
+        s, _ = self._require()  # the drive held for this call is in self._drive_vec
         steps = round((t_s - self._time_s) / self.settings.dt_s)
         if steps < 1:
             raise EstimationError(
@@ -375,19 +435,14 @@ class IsolationFilter:
             )
         if self._kernels is None:
             self._kernels = compiled_kernels()
-        kernels = self._kernels
-        q0 = float(drive.q_sl0_w)
-        hg = float(drive.heat_gain) * float(drive.altitude_gain)
-        g = float(drive.conductance_w_per_c)
-        te = float(drive.ambient_c)
-        for _ in range(steps):
-            kernels.predict(s, q0, hg, g, te, self._model, self._cfg)
         measured = z_cht_c is not None and math.isfinite(z_cht_c)
-        innovation = nis = math.nan
-        if measured and z_cht_c is not None:
-            innovation, nis = kernels.correct(s, float(z_cht_c), self._cfg)
-        deviation = float(kernels.deviation(s, q0, hg, g, te, self._model))
-        self._drive = scalar_drive(u, self._coeffs)
+        z = float(z_cht_c) if measured and z_cht_c is not None else math.nan
+        out = self._out
+        self._kernels.live(
+            s, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
+            float(u[3]), float(u[4]), float(u[5]), z, measured, steps, self._model, self._cfg, self._compiled_coeffs,
+        )  # fmt: skip
+        innovation, nis, deviation = float(out[0]), float(out[1]), float(out[2])
         self._time_s = float(t_s)
         return Estimate(
             time_s=float(t_s),

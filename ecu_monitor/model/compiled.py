@@ -25,7 +25,7 @@ from ecu_monitor.model.equations import C_W, PARAMETER_FIELDS, RADIATIVE, SENSOR
 from ecu_monitor.model.kernels import SWARM_FASTMATH, compiled_equations, fingerprint, jit
 from ecu_monitor.model.thermal import Drive, InputSeries
 
-__all__ = ["CompiledRun", "compute_drive_compiled", "simulate_compiled"]
+__all__ = ["CompiledRun", "compute_drive_compiled", "drive_kernel", "simulate_compiled"]
 
 
 class CompiledRun(NamedTuple):
@@ -204,6 +204,13 @@ def _drive() -> Callable[..., None]:
     """The drive kernel compiled with the exact (IEEE) equations: equal bit for bit to the scalar path."""
     eq = compiled_equations(False)
     return jit(_drive_kernel, fingerprint([__file__]), blend=eq.blend, conditions=eq.conditions, drive=eq.drive)
+
+
+def drive_kernel() -> Callable[..., None]:
+    """The compiled drive kernel ``(heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture, coeffs, out)``
+    (arrays of length N; out (4, N): q_sl0, g(z), heat factor, G), for compiled callers such as the
+    live filter step."""
+    return _drive()
 
 
 def compute_drive_compiled(inputs: InputSeries, coeffs: Coefficients) -> Drive:

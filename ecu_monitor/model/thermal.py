@@ -264,8 +264,15 @@ def steady_state_cht(
     """CHT (degC) where heat in equals heat out for a held drive (Newton on the balance).
 
     Starts from the convective-only solution (an upper bound: the balance is convex, so Newton falls
-    monotonically) and stops once every step is below 1e-9 degC, at most ``iterations`` steps.
+    monotonically) and stops once every step is below 1e-9 degC, at most ``iterations`` steps. For one
+    operating point (every argument a number) the same iteration runs on Python floats and complex
+    numbers (the live headroom: ~10x cheaper than numpy on 0-d arrays).
     """
+    if all(isinstance(v, float | int) for v in (*drive, gamma_q, gamma_d)):
+        try:
+            return _steady_state_scalar(drive, coeffs, float(gamma_q), float(gamma_d), iterations)
+        except ZeroDivisionError:  # no conductance: numpy's inf and nan below, as for arrays
+            pass
     heat = gamma_q * gamma_d * np.asarray(drive.heat_gain) * drive.altitude_gain * drive.q_sl0_w
     g_conv = np.asarray(drive.conductance_w_per_c, dtype=float)
     ambient = np.asarray(drive.ambient_c, dtype=float)
@@ -283,6 +290,24 @@ def steady_state_cht(
 
 
 _COMPLEX_STEP = 1e-30
+
+
+def _steady_state_scalar(drive: Drive, coeffs: Coefficients, gamma_q: float, gamma_d: float, iterations: int) -> float:
+    """:func:`steady_state_cht` of one operating point on Python floats (the same operations in the same order)."""
+    heat = gamma_q * gamma_d * float(drive.heat_gain) * float(drive.altitude_gain) * float(drive.q_sl0_w)
+    g_conv = float(drive.conductance_w_per_c)
+    ambient = float(drive.ambient_c)
+    radiative = float(coeffs.radiative_conductance)
+    offset = float(coeffs.radiation_offset_c)
+    dissipation = _eq.SCALAR.dissipation
+    temp = ambient + heat / g_conv
+    for _ in range(iterations):
+        lost = dissipation(complex(temp, _COMPLEX_STEP), ambient, g_conv, radiative, offset)
+        change = (lost.real - heat) / (lost.imag / _COMPLEX_STEP)
+        temp = temp - change
+        if not abs(change) > 1e-9:
+            break
+    return temp
 
 
 def simulate(

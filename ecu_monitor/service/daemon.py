@@ -27,6 +27,9 @@ here, longer than a health period and long enough to overflow a socket's receive
 collects once before READY and moves the start-up heap into the permanent generation (``gc.freeze``),
 and freezes again when the estimator has run its first steps (its compiled code is loaded then), so
 the collector only ever scans what the service allocates while it runs (docs/service.md, "Daemon").
+Then automatic collection is switched off and the supervisor collects every period instead (the young
+generation every 0.1 s, generation 1 every second, a full collection every minute): a collection is
+work that can wait, so it never starts inside the callback of a frame on the bus thread.
 
 :meth:`Daemon._guarded` holds the codebase's only broad ``except Exception``: whatever a frame or a tick
 raises is logged and counted (``daemon_errors``), and the daemon keeps running; the watchdog then
@@ -93,6 +96,7 @@ class DaemonSettings:
     backoff_max_s: float = 10.0
     watchdog_period_s: float | None = None  # None: no watchdog (not under systemd's WatchdogSec)
     freeze_heap: bool = True  # gc.freeze() the start-up heap (module docstring, "Garbage collection")
+    collect_in_supervisor: bool = True  # with freeze_heap: gc.disable(), the supervisor collects instead
     no_frames_warning_s: float = 10.0  # warn once when the bus carries no engine frame this long
 
 
@@ -181,6 +185,8 @@ class Daemon:
         self._tick_thread: threading.Thread | None = None
         self._send_failures_in_row = 0
         self._heap_frozen_running = False
+        self._collections = 0  # supervisor periods since the start (the collections it ran)
+        self._manual_gc = False  # automatic collection switched off by run()
         self._silence = SilenceWatch(self.settings.no_frames_warning_s, clock())
         self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
@@ -382,6 +388,14 @@ class Daemon:
             self._heap_frozen_running = True
         self._record()
         self._check_silence(now)
+        if self._manual_gc:
+            self._collect()
+
+    def _collect(self) -> None:
+        """The cyclic collector's work of one supervisor period (module docstring, "Garbage collection")."""
+        self._collections += 1
+        every = self._collections
+        gc.collect(2 if every % 600 == 0 else 1 if every % 10 == 0 else 0)
 
     def _check_silence(self, now: float) -> None:
         with self._lock:
@@ -413,6 +427,9 @@ class Daemon:
         if settings.freeze_heap:
             gc.collect()  # once, before READY: then the start-up heap leaves the collector's sight
             gc.freeze()
+            if settings.collect_in_supervisor and gc.isenabled():
+                gc.disable()  # the supervisor collects (_collect), never the bus thread
+                self._manual_gc = True
         self._tick_thread = threading.Thread(target=self._tick_loop, name="ecu-monitor tick", daemon=True)
         self._tick_thread.start()
         self._notifier.ready(status="running: " + self._status_line())
@@ -441,6 +458,9 @@ class Daemon:
         self._guarded("flush", self._record)
         if self._recorder is not None:
             self._guarded("flush", self._recorder.close)
+        if self._manual_gc:
+            gc.enable()
+            self._manual_gc = False
         if self.settings.freeze_heap:
             gc.unfreeze()  # back to normal collection for whoever runs on in this process (tests, benchmarks)
         _log.info("stopped: %s", ", ".join(f"{k} {v}" for k, v in self.counters.items()))

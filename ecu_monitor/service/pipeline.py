@@ -158,6 +158,7 @@ class Pipeline:
         self._values = [math.nan] * len(names)
         self._stamps = [math.nan] * len(names)
         self._model_slots = [self._slot[n] for n in self.model_inputs]
+        self._needed = frozenset((*self.model_inputs, "cht_c"))  # a stale one of these stops the correction
         self._cht_slot = self._slot["cht_c"]
         self._status_slot = self._slot.get(STATUS_INPUT, -1)
         self._input_slots = [(n, self._slot[n]) for n in INPUT_NAMES if n in mapped]
@@ -327,7 +328,7 @@ class Pipeline:
     def _step(self, time_s: float, frames: list[can.Message]) -> None:
         self.counters["steps"] += 1
         stale = self._stale(time_s)
-        needed = {*self.model_inputs, "cht_c"}
+        needed = self._needed
         any_stale = any(name in needed for name in stale)
         reading = self._values[self._cht_slot]
         new_reading = self._readings > self._readings_used
