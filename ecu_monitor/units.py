@@ -17,12 +17,16 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any, NamedTuple
 
+import numpy as np
+
 __all__ = [
     "GASOLINE_DENSITY_KG_PER_L",
     "QUANTITY_OF_COLUMN",
     "UNITS",
     "Unit",
     "custom_unit",
+    "pressure_altitude_m",
+    "standard_pressure_kpa",
     "unit_conversion",
 ]
 
@@ -87,6 +91,7 @@ UNITS: Mapping[str, Unit] = MappingProxyType(
         "kg_per_h_gasoline": Unit("fuel_flow", 1.0 / GASOLINE_DENSITY_KG_PER_L, 0.0),
         # pressure (manifold pressure), canonical kPa
         "kPa": Unit("pressure", 1.0, 0.0),
+        "Pa": Unit("pressure", 1e-3, 0.0),
         "hPa": Unit("pressure", 0.1, 0.0),
         "inHg": Unit("pressure", 3.386389, 0.0),
         "psi": Unit("pressure", 6.894757293168, 0.0),
@@ -118,6 +123,29 @@ QUANTITY_OF_COLUMN: Mapping[str, str] = MappingProxyType(
         "manifold_pressure_kpa": "pressure",
     }
 )
+
+
+#: Standard atmosphere (troposphere): pressure altitude h = (1 - (p / p0) ** _BARO_EXP) * _BARO_SCALE_M, p0 in kPa.
+_P0_KPA = 101.325
+_BARO_EXP = 0.190263
+_BARO_SCALE_M = 44307.694
+
+
+def pressure_altitude_m(pressure_kpa: Any) -> Any:
+    """Pressure altitude (m, standard datum 101.325 kPa) of a static pressure (kPa); a float or a numpy
+    array. A pressure of 0 or below, or NaN, gives NaN (no altitude), never an exception."""
+    p = np.asarray(pressure_kpa, dtype=float)
+    with np.errstate(invalid="ignore"):
+        positive = p > 0.0
+        h = np.where(positive, (1.0 - (np.where(positive, p, _P0_KPA) / _P0_KPA) ** _BARO_EXP) * _BARO_SCALE_M, np.nan)
+    return float(h) if h.ndim == 0 else h
+
+
+def standard_pressure_kpa(altitude_m: Any) -> Any:
+    """The inverse of :func:`pressure_altitude_m`: static pressure (kPa) at a pressure altitude (m)."""
+    h = np.asarray(altitude_m, dtype=float)
+    p = _P0_KPA * np.maximum(1.0 - h / _BARO_SCALE_M, 0.0) ** (1.0 / _BARO_EXP)
+    return float(p) if p.ndim == 0 else p
 
 
 def unit_conversion(unit: str, quantity: str | None = None) -> Unit:

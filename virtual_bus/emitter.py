@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 import numpy as np
@@ -32,6 +32,9 @@ from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.bus.dbc import load_dbc, shipped_dbc
 from ecu_monitor.errors import ConfigError
 from virtual_bus.plant import StepBlock
+
+if TYPE_CHECKING:
+    from virtual_bus.dronecan_emitter import DroneCanFrameEncoder
 
 __all__ = [
     "ENGINE_DBC",
@@ -169,7 +172,7 @@ class FrameEmitter:
     def __init__(
         self,
         bus: can.BusABC,
-        encoder: FrameEncoder | None = None,
+        encoder: FrameEncoder | DroneCanFrameEncoder | None = None,
         *,
         realtime: bool = False,
         speed: float = 1.0,
@@ -179,7 +182,7 @@ class FrameEmitter:
         if not speed > 0.0:
             raise ConfigError(f"--speed: expected a positive factor, got {speed!r}")
         self.bus = bus
-        self.encoder = encoder or FrameEncoder()
+        self.encoder: FrameEncoder | DroneCanFrameEncoder = encoder or FrameEncoder()
         self.realtime = realtime
         self.speed = float(speed)
         self.send_timeout_s = send_timeout_s

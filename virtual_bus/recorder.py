@@ -5,7 +5,9 @@ Outputs are chosen by suffix: ``.csv`` (canonical flight CSV through
 ``gamma_d``), ``.asc``, ``.blf`` or ``.log`` (candump) through ``can.Logger``. Every output of a call
 comes from the same flight (the same seed, the same frames). The flight is streamed: frames go to the
 log writers block by block and only the CSV's samples (every ``record_dt_s``) are kept in memory, so
-a 16 h flight records in constant memory for the CAN logs.
+a 16 h flight records in constant memory for the CAN logs. ``protocol="dronecan"`` writes the
+frames of :class:`~virtual_bus.dronecan_emitter.DroneCanFrameEncoder` into the CAN logs instead of
+engine.dbc's (the CSV is the same).
 """
 
 from __future__ import annotations
@@ -22,16 +24,30 @@ import numpy as np
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import FlightLog, write_csv
 from ecu_monitor.model import Effects, ThermalParams, paper_table_a1
+from virtual_bus.dronecan_emitter import DroneCanFrameEncoder
 from virtual_bus.emitter import FrameEncoder
 from virtual_bus.missions import Mission
 from virtual_bus.plant import LOG_COLUMNS, Degradation, StepBlock, block_rows, iter_steps, record_every
 from virtual_bus.sensors import SensorModel
 
-__all__ = ["CAN_SUFFIXES", "OUTPUT_SUFFIXES", "RecordSummary", "check_outputs", "record"]
+__all__ = ["CAN_SUFFIXES", "OUTPUT_SUFFIXES", "PROTOCOLS", "RecordSummary", "check_outputs", "frame_encoder", "record"]
 
 #: Suffixes written as python-can logs, and every suffix the recorder accepts.
 CAN_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log")
 OUTPUT_SUFFIXES: tuple[str, ...] = (".csv", *CAN_SUFFIXES)
+#: What the virtual ECU speaks on the bus: engine.dbc frames, or DroneCAN messages.
+PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
+
+
+def frame_encoder(
+    protocol: str, *, cht_limit_c: float, start_time_s: float = 0.0
+) -> FrameEncoder | DroneCanFrameEncoder:
+    """The virtual ECU's frame encoder for ``protocol`` (one of :data:`PROTOCOLS`)."""
+    if protocol == "dbc":
+        return FrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s)
+    if protocol == "dronecan":
+        return DroneCanFrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s)
+    raise ConfigError(f"--protocol: expected one of {', '.join(PROTOCOLS)}, got {protocol!r}")
 
 
 @dataclass
@@ -76,6 +92,7 @@ def record(
     sensors: SensorModel | None = None,
     start_time_s: float = 0.0,
     progress: Callable[[float], None] | None = None,
+    protocol: str = "dbc",
 ) -> RecordSummary:
     """Fly ``mission`` once and write every output; ``progress`` gets the mission time (s) per block."""
     paths = check_outputs(outputs)
@@ -83,7 +100,7 @@ def record(
     every = record_every(dt_s, record_dt_s)
     csv_paths = [p for p in paths if p.suffix.lower() == ".csv"]
     can_paths = [p for p in paths if p.suffix.lower() in CAN_SUFFIXES]
-    encoder = FrameEncoder(cht_limit_c=params.cht_limit_c, start_time_s=start_time_s)
+    encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s)
     summary = RecordSummary()
     parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
     writers: list[Any] = []

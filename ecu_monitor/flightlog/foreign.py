@@ -20,7 +20,7 @@ from ecu_monitor.flightlog.mapping import _MAX_CYLINDERS, _REDUCERS, ColumnMap, 
 from ecu_monitor.flightlog.rules import _assemble
 from ecu_monitor.flightlog.table import _check_widths, _is_number, _note, _numbers, _read_table, _Table
 from ecu_monitor.flightlog.timestamps import _fill_forward, _parse_time
-from ecu_monitor.units import UNITS, Unit
+from ecu_monitor.units import UNITS, Unit, pressure_altitude_m
 
 #: Unit text in a log's own units row (lower case, spaces removed) -> unit name; other texts are ignored.
 _UNIT_TEXT: Mapping[str, str] = MappingProxyType(
@@ -57,10 +57,6 @@ _UNIT_TEXT: Mapping[str, str] = MappingProxyType(
 #: Columns that cannot be negative: small negative readings (sensor offset on the ground) clip to 0.
 _NON_NEGATIVE: tuple[str, ...] = ("airspeed_mps", "fuel_flow_lph")
 
-#: Standard atmosphere: pressure altitude h_p = h + (1 - (QNH / p0) ** _BARO_EXP) * _BARO_SCALE_M.
-_P0_KPA = 101.325
-_BARO_EXP = 0.190263
-_BARO_SCALE_M = 44307.694
 #: Altimeter settings outside this range (kPa) are not a setting but an error.
 _QNH_RANGE_KPA = (85.0, 110.0)
 
@@ -82,7 +78,8 @@ def _pressure_altitude(
             f"{src}: row {lines[k]}, column '{column}': altimeter setting {qnh_kpa[k]:g} kPa"
             f" is outside {lo:g}..{hi:g} kPa"
         )
-    return altitude_m + (1.0 - (_fill_forward(qnh_kpa) / _P0_KPA) ** _BARO_EXP) * _BARO_SCALE_M
+    # pressure altitude h_p = h + (the pressure altitude of the setting QNH), standard atmosphere
+    return altitude_m + pressure_altitude_m(_fill_forward(qnh_kpa))
 
 
 def _drop_repeated_headers(src: str, table: _Table, notes: list[str]) -> None:

@@ -7,6 +7,11 @@ files are loaded (:func:`ecu_monitor.bus.dbc.load_dbc`) while validating, so a `
 that is not in them, or in a message that fails the DBC's strict checks, is caught here, not at the
 first frame. An input's ``unit`` is a name of :data:`ecu_monitor.units.UNITS` or, for a unit it does
 not know, ``{scale: S, offset: O}`` (canonical value = raw physical value * S + O).
+
+``protocol: dronecan`` (default ``dbc``) reads DroneCAN messages instead (:mod:`ecu_monitor.bus.dronecan`,
+the shipped dronecan.yaml): each input names ``field: data.type.Name.field.path`` instead of
+``signal:``, checked against the DSDL definitions at load; ``dbc`` is not used; the ``dronecan:``
+section gives the service's node id and the accepted senders (:class:`DroneCanSettings`).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from typing import Any
 import yaml
 
 from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec
-from ecu_monitor.bus.dbc import load_dbc
+from ecu_monitor.bus.dbc import load_dbc, shipped_dbc
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
@@ -33,12 +38,16 @@ from ecu_monitor.shipped import resolve_file, shipped_dir
 from ecu_monitor.units import Unit, custom_unit
 
 __all__ = [
+    "CYLINDER_INPUT",
     "DEFAULT_CONFIG",
+    "DRONECAN_ALTITUDE_FIELD",
     "HEALTH_MESSAGES",
     "MODEL_PRESETS",
+    "PROTOCOLS",
     "REQUIRED_INPUTS",
     "SYMPTOMS",
     "Backoff",
+    "DroneCanSettings",
     "HealthRate",
     "InputSpec",
     "SensorFaultSettings",
@@ -49,6 +58,13 @@ __all__ = [
 
 #: The config the commands use when none is given: the shipped example for engine.dbc.
 DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
+#: Bus protocols of the inputs: DBC-described frames, or DroneCAN messages.
+PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
+#: Per-cylinder CHT inputs (``cht1_c`` .. ``cht16_c``, the flight-log column names): mapped and held
+#: beside the model inputs.
+CYLINDER_INPUT = re.compile(r"^cht([1-9]|1[0-6])_c$")
+#: DroneCAN: the field altitude_m is taken from when the config maps none (pressure altitude, Pa).
+DRONECAN_ALTITUDE_FIELD = "uavcan.equipment.air_data.StaticPressure.static_pressure"
 
 #: Inputs every configuration must map (the heat-map axes of the model come on top, checked by the pipeline).
 REQUIRED_INPUTS: tuple[str, ...] = ("cht_c", "oat_c", "altitude_m", "airspeed_mps")
@@ -63,6 +79,8 @@ SYMPTOMS: tuple[str, ...] = ("estimator", "isolation")
 MODEL_PRESETS = MappingProxyType({"paper_table_a1": paper_table_a1})
 
 _TOP_KEYS = (
+    "protocol",
+    "dronecan",
     "engine",
     "bus",
     "reopen_backoff_s",
@@ -94,6 +112,25 @@ class InputSpec:
     def signal_spec(self) -> SignalSpec:
         """The decoder's view of this input."""
         return SignalSpec(self.name, self.message, self.signal, self.unit)
+
+
+@dataclass(frozen=True)
+class DroneCanSettings:
+    """The service as a DroneCAN node (docs/service.md, "DroneCAN").
+
+    node_id: the service's node id (1..127), the source of its NodeStatus, KeyValue and LogMessage.
+    source_node_ids: accept inputs only from these nodes (empty: from any node). priority: the CAN
+    priority of the service's transfers (0 highest .. 31 lowest). key_value_hz: rate of the health
+    values as uavcan.protocol.debug.KeyValue (0: none). log_messages: state changes as
+    uavcan.protocol.debug.LogMessage. dbc_health_frames: send the health.dbc frames too.
+    """
+
+    node_id: int = 100
+    source_node_ids: tuple[int, ...] = ()
+    priority: int = 24
+    key_value_hz: float = 1.0
+    log_messages: bool = True
+    dbc_health_frames: bool = False
 
 
 @dataclass(frozen=True)
@@ -156,6 +193,10 @@ class ServiceConfig:
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
     #: ``ecu-monitor calibrate`` writes it, ecu_monitor.service.calibration.model_fingerprint); None if not given.
     detector_calibrated_for: str | None = None
+    #: ``dbc`` or ``dronecan`` (:data:`PROTOCOLS`): how the inputs are read from the bus
+    protocol: str = "dbc"
+    #: the service as a DroneCAN node (used when protocol is dronecan)
+    dronecan: DroneCanSettings = field(default_factory=DroneCanSettings)
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -298,16 +339,31 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     initial = backoff_node.number("initial", 0.5, low=0.0, strict_low=True)
     backoff = Backoff(initial, backoff_node.number("max", 10.0, low=initial))
 
-    dbc_paths, databases = _dbc_list(top)
-    health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc"))
+    protocol = top.raw("protocol", "dbc")
+    if protocol not in PROTOCOLS:
+        raise top.error(f"expected one of {', '.join(PROTOCOLS)}, got {_kind(protocol)}", "protocol")
+    if protocol == "dronecan":
+        if top.has("dbc"):
+            raise top.error("input DBC files do not apply to protocol dronecan (inputs name DroneCAN fields)", "dbc")
+        dbc_paths: tuple[Path, ...] = ()
+        databases: list[tuple[Path, Any]] = []
+        dronecan = _dronecan(top)
+        health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc", str(shipped_dbc("health.dbc"))))
+    else:
+        if top.has("dronecan"):
+            raise top.error("applies to protocol dronecan only (add protocol: dronecan)", "dronecan")
+        dbc_paths, databases = _dbc_list(top)
+        dronecan = DroneCanSettings()
+        health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc"))
     health_db = _load(top, "health_dbc", health_dbc)
+    find = _find_field if protocol == "dronecan" else _find_signal
 
     sensor_node = top.child(
         "sensor_fault", ("stuck_after_s", "min_c", "max_c", "stuck_change_c", "status_signal", "open_values"), {}
     )
-    sensor = _sensor_fault(sensor_node, databases)
+    sensor = _sensor_fault(sensor_node, databases, find)
 
-    inputs = _inputs(top, databases)
+    inputs = _inputs(top, databases, protocol)
     estimator_name, estimator = _estimator(top)
     health = _health(top, health_db, estimator.dt_s)
 
@@ -342,6 +398,8 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         sensor_fault=sensor,
         no_frames_warning_s=top.number("no_frames_warning_s", 10.0, low=0.0, strict_low=True),
         detector_calibrated_for=calibrated_for,
+        protocol=protocol,
+        dronecan=dronecan,
     )
 
 
@@ -394,28 +452,96 @@ def _find_signal(node: _Node, key: str, ref: Any, databases: list[tuple[Path, An
     raise node.error(f"no message '{msg_name}' in {files}", key)
 
 
+def _find_field(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any]]) -> tuple[str, str]:
+    """Split and check ``data.type.Name.field.path`` against the DroneCAN DSDL definitions."""
+    from ecu_monitor.bus.dronecan import parse_field
+
+    try:
+        path = parse_field(ref)
+    except ConfigError as exc:
+        raise node.error(str(exc), key) from None
+    return path.type_name, path.text[len(path.type_name) + 1 :]
+
+
+def _dronecan(top: _Node) -> DroneCanSettings:
+    keys = ("node_id", "source_node_ids", "priority", "key_value_hz", "log_messages", "dbc_health_frames")
+    node = top.child("dronecan", keys)
+    node_id = node.raw("node_id")
+    if type(node_id) is not int or not 1 <= node_id <= 127:
+        raise node.error(f"expected a node id 1..127, got {_kind(node_id)}", "node_id")
+    sources = node.raw("source_node_ids", [])
+    if not isinstance(sources, list) or not all(type(n) is int and 1 <= n <= 127 for n in sources):
+        raise node.error(f"expected a list of node ids 1..127, got {_kind(sources)}", "source_node_ids")
+    if node_id in sources:
+        raise node.error(f"lists the service's own node id {node_id}", "source_node_ids")
+    priority = node.raw("priority", 24)
+    if type(priority) is not int or not 0 <= priority <= 31:
+        raise node.error(f"expected a CAN priority 0..31, got {_kind(priority)}", "priority")
+    flags = {}
+    for key, default in (("log_messages", True), ("dbc_health_frames", False)):
+        value = node.raw(key, default)
+        if not isinstance(value, bool):
+            raise node.error(f"expected true or false, got {_kind(value)}", key)
+        flags[key] = value
+    return DroneCanSettings(
+        node_id=node_id,
+        source_node_ids=tuple(sources),
+        priority=priority,
+        key_value_hz=node.number("key_value_hz", 1.0, low=0.0, high=50.0),
+        **flags,
+    )
+
+
 def _unit(value: Any, quantity: str) -> str | Unit:
     """A unit name of the unit table, or a custom ``{scale: S, offset: O}`` unit (ValueError if neither)."""
     conversion = custom_unit(value, quantity)
     return value if isinstance(value, str) else conversion
 
 
-def _inputs(top: _Node, databases: list[tuple[Path, Any]]) -> tuple[InputSpec, ...]:
-    node = top.child("inputs", INPUT_NAMES)
+def _inputs(top: _Node, databases: list[tuple[Path, Any]], protocol: str = "dbc") -> tuple[InputSpec, ...]:
+    node = top.child("inputs")
+    dronecan = protocol == "dronecan"
+    ref_key = "field" if dronecan else "signal"
     specs: list[InputSpec] = []
     for name in node.data:
-        item = node.child(name, ("signal", "unit", "stale_after_s"))
-        message, signal = _find_signal(item, "signal", item.raw("signal"), databases)
+        if name not in INPUT_NAMES and not (isinstance(name, str) and CYLINDER_INPUT.match(name)):
+            raise node.error(f"unknown key '{name}' (known: {', '.join(INPUT_NAMES)}, cht1_c .. cht16_c)", name)
+        item = node.child(name, (ref_key, "unit", "stale_after_s"))
+        if dronecan:
+            message, signal = _find_field(item, ref_key, item.raw(ref_key), databases)
+        else:
+            message, signal = _find_signal(item, ref_key, item.raw(ref_key), databases)
+        quantity = INPUT_QUANTITIES.get(name, "temperature")
         try:
-            unit = _unit(item.raw("unit"), INPUT_QUANTITIES[name])
+            if dronecan and name == "altitude_m" and _is_pressure(item.raw("unit")):
+                unit = _unit(item.raw("unit"), "pressure")  # a static pressure: its pressure altitude
+            else:
+                unit = _unit(item.raw("unit"), quantity)
         except ValueError as exc:
-            raise item.error(str(exc), "unit") from None
+            hint = (
+                " (or, for protocol dronecan, a pressure unit: the pressure altitude)" if name == "altitude_m" else ""
+            )
+            raise item.error(f"{exc}{hint}", "unit") from None
         stale = item.number("stale_after_s", low=0.0, strict_low=True)
         specs.append(InputSpec(name, message, signal, unit, stale))
+    if dronecan and "altitude_m" not in node.data and "airspeed_mps" in node.data:
+        # no altitude sent: the pressure altitude of the air-data computer's static pressure, as fresh as its airspeed
+        air = next(spec for spec in specs if spec.name == "airspeed_mps")
+        message, signal = _find_field(node, "altitude_m", DRONECAN_ALTITUDE_FIELD, databases)
+        specs.append(InputSpec("altitude_m", message, signal, "Pa", air.stale_after_s))
+    mapped = {spec.name for spec in specs}
     for name in REQUIRED_INPUTS:
-        if name not in node.data:
+        if name not in mapped:
             raise node.error(f"missing (every configuration maps {', '.join(REQUIRED_INPUTS)})", name)
     return tuple(specs)
+
+
+def _is_pressure(value: Any) -> bool:
+    """True for a unit of the unit table that measures a pressure."""
+    try:
+        return isinstance(value, str) and custom_unit(value).quantity == "pressure"
+    except ValueError:
+        return False
 
 
 def _health(top: _Node, health_db: Any, dt_s: float) -> tuple[HealthRate, ...]:
@@ -481,13 +607,15 @@ def _detector(top: _Node) -> tuple[DetectorSettings, str, str | None]:
         raise ConfigError(f"{top.src}: {exc}") from None
 
 
-def _sensor_fault(node: _Node, databases: list[tuple[Path, Any]]) -> SensorFaultSettings:
+def _sensor_fault(node: _Node, databases: list[tuple[Path, Any]], find: Any = None) -> SensorFaultSettings:
     min_c = node.number("min_c", -40.0)
     max_c = node.number("max_c", 350.0, low=min_c, strict_low=True)
     status_message = status_signal = None
     open_values: tuple[int, ...] = ()
     if node.has("status_signal"):
-        status_message, status_signal = _find_signal(node, "status_signal", node.raw("status_signal"), databases)
+        status_message, status_signal = (find or _find_signal)(
+            node, "status_signal", node.raw("status_signal"), databases
+        )
         values = node.raw("open_values")
         if not isinstance(values, list) or not values or not all(type(v) is int for v in values):
             raise node.error(f"expected a non-empty list of integers, got {_kind(values)}", "open_values")

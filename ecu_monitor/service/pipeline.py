@@ -38,10 +38,12 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import can
 
+if TYPE_CHECKING:
+    from ecu_monitor.bus.dronecan import DroneCanDecoder
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import CHTEstimator, make_estimator
@@ -85,6 +87,7 @@ __all__ = [
     "clock_tick",
     "filter_period_steps",
     "initial_supervisor",
+    "make_decoder",
     "model_input_names",
     "supervise",
 ]
@@ -109,6 +112,16 @@ class _Held(NamedTuple):
 
 
 _NO_ESTIMATE = _Held(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan)
+
+
+def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | DroneCanDecoder:
+    """The decoder of the config's protocol: DBC frames (:class:`Decoder`) or DroneCAN messages
+    (:class:`~ecu_monitor.bus.dronecan.DroneCanDecoder`, senders filtered by ``dronecan.source_node_ids``)."""
+    if config.protocol == "dronecan":
+        from ecu_monitor.bus.dronecan import DroneCanDecoder
+
+        return DroneCanDecoder(specs, config.dronecan.source_node_ids)
+    return Decoder(config.dbc_paths, specs)
 
 
 def model_input_names(params: ThermalParams) -> tuple[str, ...]:
@@ -147,7 +160,7 @@ class Pipeline:
         sf = config.sensor_fault
         if sf.status_message is not None and sf.status_signal is not None:
             specs.append(SignalSpec(STATUS_INPUT, sf.status_message, sf.status_signal, "raw"))
-        self.decoder = Decoder(config.dbc_paths, specs)
+        self.decoder = make_decoder(config, specs)
         self.encoder = Encoder([config.health_dbc])
         self.counters: dict[str, int] = self.decoder.counters
         for key in ("bus_errors", "steps", "health_frames", "send_errors", "clock_restarts"):

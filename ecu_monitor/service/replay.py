@@ -146,14 +146,19 @@ def _replay_segment(
     held: dict[str, HeldInput] = {}
     message_of = {spec.name: spec.message for spec in config.inputs}
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
-    latest: dict[str, NDArray[np.int64]] = {}  # per message: the latest frame before each step
+    # per message: its frames and the latest of them before each step (a DroneCAN field sent as NaN leaves
+    # its value out of one message's frames: then that value has its own)
+    latest: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
     for name, (rows, vals) in values.items():
         inside = (rows >= first) & (rows < end)
-        frame_stamps = stamps[rows[inside]]
+        frame_rows = rows[inside]
+        frame_stamps = stamps[frame_rows]
         message = message_of[name]
-        if message not in latest:
-            latest[message] = np.searchsorted(frame_stamps, times, side="left") - 1
-        held[name] = hold_inputs(frame_stamps, vals[inside], latest[message])
+        cached = latest.get(message)
+        if cached is None or not np.array_equal(cached[0], frame_rows):
+            cached = (frame_rows, np.searchsorted(frame_stamps, times, side="left") - 1)
+            latest.setdefault(message, cached)
+        held[name] = hold_inputs(frame_stamps, vals[inside], cached[1])
     mapped = [name for name in INPUT_NAMES if name in config.input_names]
     stale = {
         name: np.isnan(held[name].stamp) | (times - held[name].stamp > config.input(name).stale_after_s)

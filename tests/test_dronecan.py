@@ -1,0 +1,311 @@
+"""DroneCAN input (bus/dronecan.py, protocol: dronecan): frames built by the ``dronecan`` package itself
+decode to the mapped inputs in canonical units; the multi-frame corner cases (toggle, CRC, transfer-id
+wrap, interleaved nodes, node filter, orphans, timeouts) are counted, never raised; the batch decoder
+equals the live one; configs are checked at load; a DroneCAN .blf of a virtual flight replays."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+import yaml
+
+from ecu_monitor.bus.canlog import FrameArrays, read_frames
+from ecu_monitor.bus.codec import SignalSpec
+from ecu_monitor.bus.dronecan import TRANSFER_TIMEOUT_S, DroneCanDecoder, looks_like_dronecan, parse_field
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.model import paper_table_a1
+from ecu_monitor.service.config import load_config, parse_config
+from ecu_monitor.service.replay import replay_frames, replay_live
+from ecu_monitor.units import pressure_altitude_m
+
+dronecan = pytest.importorskip("dronecan")
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "ecu_monitor" / "data" / "configs" / "dronecan.yaml"
+STATUS = "uavcan.equipment.ice.reciprocating.Status"
+SPECS = [
+    SignalSpec("rpm", STATUS, "engine_speed_rpm", "rpm"),
+    SignalSpec("throttle_pct", STATUS, "throttle_position_percent", "pct"),
+    SignalSpec("fuel_flow_lph", STATUS, "fuel_consumption_rate_cm3pm", "cc_per_min"),
+    SignalSpec("cht_c", STATUS, "cylinder_status[mean].cylinder_head_temperature", "K"),
+    SignalSpec("cht1_c", STATUS, "cylinder_status[0].cylinder_head_temperature", "K"),
+    SignalSpec("cht4_c", STATUS, "cylinder_status[3].cylinder_head_temperature", "K"),
+    SignalSpec("altitude_m", "uavcan.equipment.air_data.StaticPressure", "static_pressure", "Pa"),
+    SignalSpec("airspeed_mps", "uavcan.equipment.air_data.IndicatedAirspeed", "indicated_airspeed", "mps"),
+    SignalSpec("oat_c", "uavcan.equipment.air_data.StaticTemperature", "static_temperature", "K"),
+]
+
+
+def _status(rpm: int = 5500, chts_k: tuple[float, ...] = (420.0, 430.0, 440.0, 450.0)) -> Any:
+    """An ICE status built with the dronecan package's own types (not our encoder)."""
+    ice = dronecan.uavcan.equipment.ice.reciprocating
+    msg = ice.Status(engine_speed_rpm=rpm, throttle_position_percent=63, fuel_consumption_rate_cm3pm=250.0)
+    for k in chts_k:
+        msg.cylinder_status.append(ice.CylinderStatus(cylinder_head_temperature=k, exhaust_gas_temperature=900.0))
+    return msg
+
+
+def _frames(
+    payload: Any, node: int, transfer_id: int = 0, time_s: float = 0.0, priority: int = 16
+) -> list[can.Message]:
+    """The frames of one broadcast, split and CRC'd by the dronecan package's Transfer."""
+    transfer = dronecan.transport.Transfer(
+        transfer_id=transfer_id, source_node_id=node, payload=payload, transfer_priority=priority
+    )
+    return [
+        can.Message(timestamp=time_s, arbitration_id=f.message_id, is_extended_id=True, data=bytes(f.bytes))
+        for f in transfer.to_frames()
+    ]
+
+
+def _feed(decoder: DroneCanDecoder, frames: list[can.Message]) -> dict[str, list[float]]:
+    got: dict[str, list[float]] = {}
+    for msg in frames:
+        out = decoder.decode(msg.arbitration_id, msg.is_extended_id, msg.data, msg.timestamp)
+        for slot, value in out or ():
+            got.setdefault(decoder.names[slot], []).append(value)
+    return got
+
+
+def test_frames_of_the_dronecan_package_decode_to_canonical_units() -> None:
+    decoder = DroneCanDecoder(SPECS)
+    air = dronecan.uavcan.equipment.air_data
+    frames = _frames(_status(), node=20)
+    assert len(frames) > 1  # a multi-frame transfer: tail bytes, toggle, transfer CRC
+    frames += _frames(air.StaticPressure(static_pressure=70108.0), node=21)
+    frames += _frames(air.IndicatedAirspeed(indicated_airspeed=23.5), node=21)
+    frames += _frames(air.StaticTemperature(static_temperature=280.0), node=21)
+    got = _feed(decoder, frames)
+    assert got["rpm"] == [5500.0] and got["throttle_pct"] == [63.0]
+    assert got["fuel_flow_lph"] == pytest.approx([250.0 * 0.06])
+    assert got["cht_c"] == pytest.approx([435.0 - 273.15])  # the mean of the four cylinders
+    assert got["cht1_c"] == pytest.approx([420.0 - 273.15]) and got["cht4_c"] == pytest.approx([450.0 - 273.15])
+    assert got["altitude_m"] == pytest.approx([pressure_altitude_m(70.108)], abs=1e-6)
+    assert 2900.0 < got["altitude_m"][0] < 3100.0
+    assert got["airspeed_mps"] == [23.5] and got["oat_c"] == pytest.approx([280.0 - 273.15])
+    assert decoder.counters["ok"] == len(frames) and decoder.counters["malformed"] == 0
+
+
+def test_a_cylinder_missing_or_nan_gives_no_value_and_the_mean_skips_it() -> None:
+    decoder = DroneCanDecoder(SPECS)
+    got = _feed(decoder, _frames(_status(chts_k=(400.0, math.nan)), node=20))
+    assert got["cht_c"] == pytest.approx([400.0 - 273.15])
+    assert "cht4_c" not in got and decoder.counters["unknown_value"] == 1
+    assert decoder.counters["malformed"] == 0
+
+
+def _spoil(frames: list[can.Message], index: int, xor: int, at: int = -1) -> list[can.Message]:
+    out = [can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=True,
+                       data=bytearray(m.data)) for m in frames]  # fmt: skip
+    out[index].data[at] ^= xor
+    return out
+
+
+def test_toggle_crc_and_tail_errors_drop_the_transfer_and_are_counted() -> None:
+    frames = _frames(_status(), node=20)
+    for spoiled, reason in (
+        (_spoil(frames, 2, 0x20), "bad_toggle"),  # toggle bit of the third frame flipped
+        (_spoil(frames, 1, 0x01, at=0), "bad_crc"),  # a payload byte changed: the transfer CRC fails
+        (frames[:2] + frames[3:], "bad_toggle"),  # a frame lost in the middle
+    ):
+        decoder = DroneCanDecoder(SPECS)
+        assert _feed(decoder, spoiled) == {}
+        assert decoder.counters[reason] == len(spoiled) == decoder.counters["malformed"], reason
+    decoder = DroneCanDecoder(SPECS)  # the next good transfer decodes
+    assert _feed(decoder, _spoil(frames, 2, 0x20) + _frames(_status(rpm=4000), node=20, transfer_id=1))["rpm"] == [
+        4000.0
+    ]
+
+
+def test_transfer_id_wraps_and_interleaved_nodes_reassemble_apart() -> None:
+    decoder = DroneCanDecoder(SPECS)
+    a = [_frames(_status(rpm=1000 + i), node=20, transfer_id=i % 32) for i in range(40)]  # 0..31, 0..7
+    b = [_frames(_status(rpm=3000 + i, chts_k=(500.0,)), node=30, transfer_id=(i + 30) % 32) for i in range(40)]
+    mixed: list[can.Message] = []
+    for fa, fb in zip(a, b, strict=True):  # frame by frame, two multi-frame transfers at once
+        for k in range(max(len(fa), len(fb))):
+            mixed.extend(f[k] for f in (fa, fb) if k < len(f))
+    got = _feed(decoder, mixed)
+    assert sorted(got["rpm"]) == sorted([1000.0 + i for i in range(40)] + [3000.0 + i for i in range(40)])
+    assert decoder.counters["malformed"] == 0 and decoder.counters["ok"] == len(mixed)
+    only_20 = DroneCanDecoder(SPECS, source_node_ids=[20])
+    got = _feed(only_20, mixed)
+    assert got["rpm"] == [1000.0 + i for i in range(40)]
+    assert only_20.counters["filtered_node"] == sum(len(f) for f in b)
+
+
+def test_orphans_timeouts_foreign_frames_and_empty_frames() -> None:
+    frames = _frames(_status(), node=20)
+    decoder = DroneCanDecoder(SPECS)
+    assert _feed(decoder, frames[1:]) == {}  # joined mid-transfer
+    assert decoder.counters["orphan_frame"] == len(frames) - 1
+    late = [can.Message(timestamp=i * (TRANSFER_TIMEOUT_S + 0.5), arbitration_id=m.arbitration_id,
+                        is_extended_id=True, data=m.data) for i, m in enumerate(frames)]  # fmt: skip
+    decoder = DroneCanDecoder(SPECS)
+    assert _feed(decoder, late) == {}
+    assert decoder.counters["transfer_timeout"] == 2 and decoder.counters["orphan_frame"] == len(frames) - 2
+    decoder = DroneCanDecoder(SPECS)
+    decoder.decode(0x100, False, b"\x00" * 8, 0.0)  # an 11-bit frame (a DBC ECU on the same bus)
+    decoder.decode(frames[0].arbitration_id | 0x80, True, b"\xc0", 0.0)  # a service frame
+    node_status = _frames(dronecan.uavcan.protocol.NodeStatus(uptime_sec=5), node=20)[0]
+    decoder.decode(node_status.arbitration_id, True, node_status.data, 0.0)
+    assert decoder.counters["unknown_id"] == 3
+    decoder.decode(frames[0].arbitration_id, True, b"", 0.0)
+    assert decoder.counters["bad_dlc"] == 1 and decoder.counters["malformed"] == 1
+
+
+def _arrays(frames: list[can.Message]) -> FrameArrays:
+    data = np.zeros((len(frames), 8), dtype=np.uint8)
+    for i, m in enumerate(frames):
+        data[i, : len(m.data)] = np.frombuffer(bytes(m.data), dtype=np.uint8)
+    return FrameArrays(
+        np.array([m.timestamp for m in frames]),
+        np.array([m.arbitration_id for m in frames], dtype=np.int64),
+        np.array([m.is_extended_id for m in frames]),
+        np.array([len(m.data) for m in frames], dtype=np.int64),
+        data,
+        np.zeros(len(frames), dtype=bool),
+    )
+
+
+def test_batch_decode_equals_the_live_decoder() -> None:
+    frames: list[can.Message] = []
+    for i in range(12):
+        good = _frames(_status(rpm=2000 + i), node=20, transfer_id=i, time_s=0.1 * i)
+        frames += _spoil(good, 1, 0x20) if i == 5 else good[1:] if i == 7 else good
+        frames += _frames(dronecan.uavcan.equipment.air_data.IndicatedAirspeed(indicated_airspeed=20.0 + i),
+                          node=21, transfer_id=i, time_s=0.1 * i)  # fmt: skip
+    frames.append(can.Message(timestamp=2.0, arbitration_id=0x123, is_extended_id=False, data=b"\x01"))
+    live = DroneCanDecoder(SPECS)
+    rows: dict[str, list[tuple[int, float]]] = {}
+    for row, m in enumerate(frames):
+        for slot, value in live.decode(m.arbitration_id, m.is_extended_id, m.data, m.timestamp) or ():
+            rows.setdefault(live.names[slot], []).append((row, value))
+    arrays = _arrays(frames)
+    batch = DroneCanDecoder(SPECS).decode_batch(arrays.arbitration_id, arrays.is_extended, arrays.dlc, arrays.data,
+                                                arrays.time_s)  # fmt: skip
+    for name in live.names:
+        expected = rows.get(name, [])
+        assert batch.values[name][0].tolist() == [r for r, _ in expected], name
+        assert batch.values[name][1].tolist() == [v for _, v in expected], name
+    assert {k: v for k, v in batch.counts.items()} == live.counters
+    assert live.counters["bad_toggle"] > 0 and live.counters["orphan_frame"] > 0 and live.counters["unknown_id"] == 1
+    assert looks_like_dronecan(arrays.arbitration_id, arrays.is_extended, arrays.dlc, arrays.data)
+
+
+def test_field_paths_are_checked_against_the_dsdl() -> None:
+    assert parse_field(f"{STATUS}.cylinder_status[2].exhaust_gas_temperature").steps == (
+        "cylinder_status", 2, "exhaust_gas_temperature")  # fmt: skip
+    for bad, words in (
+        ("uavcan.equipment.nothing.Here.x", "no DroneCAN data type"),
+        (STATUS, "name a field"),
+        (f"{STATUS}.cylinder_status", "is an array"),
+        (f"{STATUS}.cylinder_status[0]", "not a number field"),
+        (f"{STATUS}.engine_speed_rpm[1]", "not an array"),
+        (f"{STATUS}.rpm", "has no field 'rpm'"),
+        ("uavcan.protocol.GetNodeInfo.status", "not a broadcast message"),
+    ):
+        with pytest.raises(ConfigError, match=words):
+            parse_field(bad)
+
+
+def _shipped() -> dict[str, Any]:
+    data: dict[str, Any] = yaml.safe_load(SHIPPED.read_text(encoding="utf-8"))
+    return data
+
+
+def test_shipped_config_loads_and_bad_keys_name_the_file_and_key(tmp_path: Path) -> None:
+    config = load_config("dronecan.yaml")
+    assert config.protocol == "dronecan" and config.dronecan.node_id == 100 and config.dbc_paths == ()
+    assert config.input("cht_c").signal == "cylinder_status[mean].cylinder_head_temperature"
+    src = tmp_path / "x.yaml"
+    spoilt: list[tuple[dict[str, Any], str]] = []
+    data = _shipped()
+    data["inputs"]["rpm"] = {"field": f"{STATUS}.rpm", "unit": "rpm", "stale_after_s": 1}
+    spoilt.append((data, "inputs.rpm.field: .*has no field 'rpm'"))
+    data = _shipped()
+    data["inputs"]["altitude_m"]["unit"] = "degC"
+    spoilt.append((data, "inputs.altitude_m.unit: .*pressure unit"))
+    data = _shipped()
+    data["dbc"] = ["engine.dbc"]
+    spoilt.append((data, "dbc: input DBC files do not apply"))
+    data = _shipped()
+    data["dronecan"]["node_id"] = 128
+    spoilt.append((data, "dronecan.node_id: expected a node id 1..127"))
+    data = _shipped()
+    data["inputs"]["cht17_c"] = data["inputs"]["cht1_c"]
+    spoilt.append((data, "inputs.cht17_c: unknown key 'cht17_c'"))
+    data = yaml.safe_load((ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text(encoding="utf-8"))
+    data["dronecan"] = {"node_id": 5}
+    spoilt.append((data, "dronecan: applies to protocol dronecan only"))
+    for data, message in spoilt:
+        with pytest.raises(ConfigError, match=f"^{src}: {message}"):
+            parse_config(data, src)
+
+
+def test_altitude_not_sent_is_the_pressure_altitude_of_the_static_pressure(tmp_path: Path) -> None:
+    data = _shipped()
+    del data["inputs"]["altitude_m"]
+    config = parse_config(data, tmp_path / "x.yaml")
+    spec = config.input("altitude_m")
+    assert (spec.message, spec.signal, spec.unit) == (
+        "uavcan.equipment.air_data.StaticPressure",
+        "static_pressure",
+        "Pa",
+    )
+    assert spec.stale_after_s == config.input("airspeed_mps").stale_after_s
+
+
+# --------------------------------------------------------------------------------------------------
+# A virtual flight over DroneCAN, recorded to .blf and replayed
+# --------------------------------------------------------------------------------------------------
+
+MISSION = {
+    "name": "dronecan-short",
+    "segments": [
+        {"kind": "ground_run", "duration_s": 30, "throttle_pct": 35},
+        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
+         "climb_rate_mps": 3},
+        {"kind": "cruise", "duration_s": 60, "airspeed_mps": 23, "throttle_pct": 60},
+    ],
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def dronecan_flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    from virtual_bus.missions import mission_from_dict
+    from virtual_bus.recorder import record
+
+    root = tmp_path_factory.mktemp("dronecan")
+    paths = {"blf": root / "flight.blf", "csv": root / "flight.csv"}
+    record(mission_from_dict(MISSION), [paths["blf"], paths["csv"]], paper_table_a1(), seed=3, protocol="dronecan")
+    return paths
+
+
+def test_replay_of_a_dronecan_blf_follows_the_truth_and_batch_equals_live(dronecan_flight: dict[str, Path]) -> None:
+    from ecu_monitor.flightlog import load_csv
+
+    config = load_config("dronecan.yaml")
+    params = config.load_params()
+    frames = read_frames(dronecan_flight["blf"])
+    assert looks_like_dronecan(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data)
+    batch = replay_frames(config, params, frames)
+    assert batch.counters["malformed"] == 0 and batch.counters["ok"] == len(frames)
+    states = batch.columns["state"]
+    assert len(states) > 1000 and np.all(states[20:] == 0)  # NOMINAL once every input has come
+    truth = load_csv(dronecan_flight["csv"])
+    t = batch.columns["time_s"]
+    true_c = np.interp(t, truth.time_s, truth["cht_true_c"])
+    error = batch.columns["cht_est_c"][20:] - true_c[20:]
+    assert float(np.sqrt(np.mean(error**2))) < 1.0
+    live = replay_live(config, params, list(frames.take(slice(0, 12000)).messages()))
+    n = len(live.columns["time_s"])
+    assert n > 250
+    for name in ("time_s", "cht_meas_c", "cht_est_c", "gamma_q"):
+        assert np.allclose(batch.columns[name][:n], live.columns[name], rtol=0, atol=1e-9, equal_nan=True), name
+    assert np.array_equal(batch.columns["state"][:n], live.columns["state"])
