@@ -193,4 +193,4 @@ def test_wheel_runs_record_replay_and_demo_from_an_empty_directory(installed: Pa
     assert "0 malformed" in demo.stdout and (work / "d" / "cht.png").stat().st_size > 1000
 
     missing = _run(installed, "ecu-monitor", ["run", "--config", "nope.yaml"], work)
-    assert missing.returncode == 2 and "shipped: example.yaml" in missing.stderr
+    assert missing.returncode == 2 and "(shipped: dronecan.yaml, example.yaml" in missing.stderr
