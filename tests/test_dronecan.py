@@ -309,3 +309,19 @@ def test_replay_of_a_dronecan_blf_follows_the_truth_and_batch_equals_live(dronec
     for name in ("time_s", "cht_meas_c", "cht_est_c", "gamma_q"):
         assert np.allclose(batch.columns[name][:n], live.columns[name], rtol=0, atol=1e-9, equal_nan=True), name
     assert np.array_equal(batch.columns["state"][:n], live.columns["state"])
+
+
+def test_receive_filters_pass_the_mapped_types_of_any_node_and_priority_only() -> None:
+    decoder = DroneCanDecoder(SPECS)
+    bus = can.Bus(interface="virtual", channel="dronecan-filters", receive_own_messages=True)
+    try:
+        bus.set_filters(decoder.can_filters())
+        wanted = _frames(_status(), node=77, priority=3)[0]
+        foreign = _frames(dronecan.uavcan.protocol.NodeStatus(uptime_sec=1), node=20)[0]
+        service = can.Message(arbitration_id=wanted.arbitration_id | 0x80, is_extended_id=True, data=b"\xc0")
+        for msg in (foreign, service, wanted):
+            bus.send(msg)
+        got = [bus.recv(0.5) for _ in range(3)]
+        assert [m.arbitration_id for m in got if m is not None] == [wanted.arbitration_id]
+    finally:
+        bus.shutdown()

@@ -44,9 +44,12 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from can.typechecking import CanFilter
 
 from ecu_monitor.bus.checksum import CHECKSUM_BYTE, crc8_sae_j1850, frame_checksum
 from ecu_monitor.bus.dbc import Dbc, load_dbc
@@ -254,6 +257,10 @@ class Decoder:
     def frame_ids(self) -> tuple[int, ...]:
         """The frame ids this decoder reads (for a bus filter)."""
         return tuple(sorted(key[0] for key in self._plans))
+
+    def can_filters(self) -> list[CanFilter]:
+        """python-can receive filters of exactly the frame ids this decoder reads."""
+        return [{"can_id": frame_id, "can_mask": 0x1FFFFFFF} for frame_id in self.frame_ids]
 
     def _malformed(self, reason: str) -> None:
         self.counters[reason] += 1

@@ -41,9 +41,12 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from can.typechecking import CanFilter
 
 from ecu_monitor.bus.codec import MALFORMED_REASONS, BatchDecoded, SignalSpec
 from ecu_monitor.errors import ConfigError
@@ -233,7 +236,7 @@ class DroneCanDecoder:
         """The DroneCAN data type ids this decoder reads."""
         return tuple(sorted(self._plans))
 
-    def can_filters(self) -> list[dict[str, Any]]:
+    def can_filters(self) -> list[CanFilter]:
         """python-can receive filters: 29-bit message frames of the mapped data types (any priority and
         node; the node filter is the decoder's)."""
         return [{"can_id": dtid << 8, "can_mask": 0x00FFFF80, "extended": True} for dtid in self.frame_ids]

@@ -151,7 +151,8 @@ class Daemon:
     ``engine_speed()`` (called under the pipeline lock) gives the engine speed held by the pipeline,
     rev/min, or None when it is stale: the recorder finds flights from it. ``receive_ids`` (the
     decoder's frame ids) become the bus's receive filter, so other traffic (kernel-filtered on
-    socketcan) and our own health frames never reach the pipeline lock.
+    socketcan) and our own health frames never reach the pipeline lock; ``receive_filters`` (python-can
+    filters, the decoder's ``can_filters()``: DroneCAN matches a data type id under a mask) replace them.
     ``stop()`` is safe from a signal handler; :meth:`run` returns once everything is flushed.
     """
 
@@ -165,6 +166,7 @@ class Daemon:
         recorder: FlightRecorder | None = None,
         engine_speed: Callable[[], float | None] | None = None,
         receive_ids: Sequence[int] = (),
+        receive_filters: Sequence[can.typechecking.CanFilter] | None = None,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
     ) -> None:
@@ -174,7 +176,11 @@ class Daemon:
         self._notifier = notifier or SystemdNotifier(address="")
         self._recorder = recorder
         self._engine_speed = engine_speed
-        self._filters: list[can.typechecking.CanFilter] = [{"can_id": i, "can_mask": 0x1FFFFFFF} for i in receive_ids]
+        self._filters: list[can.typechecking.CanFilter] = (
+            list(receive_filters)
+            if receive_filters is not None
+            else [{"can_id": i, "can_mask": 0x1FFFFFFF} for i in receive_ids]
+        )
         self._clock = clock
         self._wall_clock = wall_clock
         self._lock = threading.Lock()
