@@ -291,7 +291,8 @@ def test_choice_excludes_candidates_with_a_false_alarm_on_a_held_out_flight():
     choice = choose_settings(flights, current, 1.0, (120.0, 600.0, 1200.0))
     assert choice.cross_validated and choice.settings.baseline_s == 120.0
     assert "by the rule: the fewest false alarms" in choice.reason and "WARNING" not in choice.reason
-    by_baseline = {s.settings.baseline_s: s for s in choice.scores}
+    plain = [s for s in choice.scores if not s.settings.baseline_freeze and s.settings.baseline_delay_s == 60.0]
+    by_baseline = {s.settings.baseline_s: s for s in plain}
     assert by_baseline[120.0].false_alarms == 0
     assert by_baseline[600.0].false_alarms == 1 and by_baseline[1200.0].false_alarms == 1
     assert math.isfinite(by_baseline[1200.0].false_alarm_s[0])  # the flight with the excursion
@@ -386,17 +387,22 @@ def test_calibrate_chooses_the_baseline_on_three_flights(nominal, tmp_path):
     assert code == 0
     lines = printed.splitlines()
     assert lines[0].startswith("cross-validation, leave one flight out over 3 flights (9 overlays per gain)")
-    assert lines[1].split()[:2] == ["baseline_s", "h"]
-    rows = [line.split() for line in lines[2:4]]
-    assert [float(r[0]) for r in rows] == [120.0, 600.0]
+    assert lines[1].split()[:4] == ["baseline_s", "delay_s", "freeze", "h"]
+    rows = [line.split() for line in lines[2:10]]  # 2 lengths x 2 delays x freeze or not
+    assert [(float(r[0]), float(r[1]), r[2]) for r in rows] == [
+        (b, d, f) for b in (120.0, 600.0) for d in (0.0, 60.0) for f in ("no", "yes")
+    ]
     chosen = [r for r in rows if r[-2:] == ["<-", "chosen"]]
     assert len(chosen) == 1
     fragment = yaml.safe_load(out.read_text())["detector"]
-    assert lines[4].startswith(f"chosen: baseline_s {chosen[0][0]} s by the rule: the fewest false alarms")
-    fewest = min(int(r[4]) for r in rows)
-    assert int(chosen[0][4]) == fewest  # false alarms
-    assert ("WARNING: every candidate raised a false alarm" in lines[4]) == (fewest > 0)
+    frozen = "frozen while a change is suspected" if chosen[0][2] == "yes" else "always learning"
+    assert lines[10].startswith(f"chosen: baseline_s {chosen[0][0]} s, delay {chosen[0][1]} s, {frozen}, by the rule")
+    fewest = min(int(r[6]) for r in rows)
+    assert int(chosen[0][6]) == fewest  # false alarms
+    assert ("WARNING: every candidate raised a false alarm" in lines[10]) == (fewest > 0)
     assert fragment["baseline_s"] == float(chosen[0][0])
+    assert fragment["baseline_delay_s"] == float(chosen[0][1])
+    assert fragment["baseline_freeze"] == (chosen[0][2] == "yes")
     assert "# detector settings (cross-validated): baseline_s" in out.read_text()
 
 

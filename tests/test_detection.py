@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -62,10 +63,12 @@ def test_live_detector_equals_the_vectorised_path() -> None:
     rng = np.random.default_rng(2)
     t = np.arange(0.0, 1500.0, 0.1)
     x = 0.02 * rng.standard_normal(t.size) + np.where(t > 900.0, 0.15, 0.0)
-    for baseline_s, delay_s in ((0.0, 0.0), (200.0, 0.0), (200.0, 30.0)):
+    cases = ((0.0, 0.0, False), (200.0, 0.0, False), (200.0, 30.0, False), (200.0, 30.0, True))
+    for baseline_s, delay_s, freeze in cases:
         settings = DetectorSettings(
-            threshold=5.0, reference=0.05, warmup_s=100.0, block_s=1.0, baseline_s=baseline_s, baseline_delay_s=delay_s
-        )
+            threshold=5.0, reference=0.05, warmup_s=100.0, block_s=1.0, baseline_s=baseline_s,
+            baseline_delay_s=delay_s, baseline_freeze=freeze,
+        )  # fmt: skip
         ends, stat, alarms = cusum_path(t, x, settings)
         det = Detector(settings)
         live_stats = []
@@ -104,6 +107,15 @@ def test_baseline_absorbs_a_constant_offset_but_not_a_step() -> None:
     alarm = cusum_path(t, step, delayed)[2]
     assert alarm.size == 1
     assert alarm[0] - 2000.0 == pytest.approx(105.0, abs=5.0)
+    # a small step (0.02 above the allowance): the adapting baseline absorbs it (S peaks near 1 at
+    # ~100 s); a baseline frozen while S > 0 never learns it, S climbs 0.02 per s: h at ~500 s
+    small = offset + np.where(t >= 2000.0, 0.07, 0.0)
+    assert cusum_path(t, small, adaptive)[2].size == 0
+    frozen = dataclasses.replace(adaptive, baseline_freeze=True)
+    assert cusum_path(t, offset, frozen)[2].size == 0
+    alarm = cusum_path(t, small, frozen)[2]
+    assert alarm.size == 1
+    assert alarm[0] - 2000.0 == pytest.approx(500.0, abs=5.0)
 
 
 def test_calibration_gives_the_intended_rate_on_synthetic_data() -> None:
@@ -157,6 +169,8 @@ def test_settings_are_validated() -> None:
         DetectorSettings(suspect_fraction=1.5)
     with pytest.raises(ConfigError):
         DetectorSettings(baseline_s=0.5, block_s=1.0)
+    with pytest.raises(ConfigError, match="baseline_freeze"):
+        DetectorSettings(baseline_freeze="yes")  # type: ignore[arg-type]
 
 
 def test_evaluation_plan_and_one_simulated_flight() -> None:

@@ -1,12 +1,14 @@
 """``ecu-monitor calibrate FLIGHT [FLIGHT ...] [--config C] [--model M] [--rate 1] [--baseline-s S] [--out D.yaml]``.
 
-Calibrates the detector on your own NOMINAL flights (healthy engine). First the length of its
-adaptive baseline is chosen among --candidates (default 120,300,600,1200 s) by leave-one-flight-out:
+Calibrates the detector on your own NOMINAL flights (healthy engine). First its adaptive baseline is
+chosen, length among --candidates (default 120,300,600,1200 s) x delay 0 or 60 s x learning always
+or frozen while a change is suspected (statistic above 0), by leave-one-flight-out:
 for each candidate and each flight held out, h is calibrated on the other flights, the held-out flight
 must raise no alarm, and a degradation overlaid on its recorded CHT (k (CHT - OAT)(1 - exp(-t/240 s)),
 k = 0.2 and 0.1, three onsets over its airborne part) must be detected within 300 s (k = 0.2) and
 600 s (k = 0.1). Chosen: the fewest false alarms (none when a candidate has none; else a warning),
-then the most detections in time, then the most for k = 0.1, then the shorter baseline. A table per
+then the most detections in time, then the most for k = 0.1, then the shorter baseline, then the
+longer delay, then no freeze. A table per
 candidate is printed. With fewer than 3 flights with at least 15 min airborne after the warm-up (or
 too few hours per fold), the config's baseline is kept and the output says so; --baseline-s S skips
 the choice. Then the threshold h: each flight is
@@ -19,7 +21,7 @@ whole hours of statistic (after each flight's warm-up).
 Prints the table per candidate and the choice; per flight: hours, largest statistic, alarms the
 current threshold would raise; then the new threshold. Writes --out: a ``detector:`` YAML fragment
 to merge into the service config, or with --write-config a full copy of the config with the
-threshold and baseline replaced (the input config is never overwritten). --plot draws the statistic
+threshold and baseline settings replaced (the input config is never overwritten). --plot draws the statistic
 of each flight with both thresholds.
 """
 
@@ -189,15 +191,17 @@ def candidate_table(choice: Any) -> list[str]:
         f"cross-validation, leave one flight out over {len(first.flights)} flights"
         f" ({first.total(0.2)} overlays per gain): h calibrated on the others, held-out flight replayed nominal"
         " and with k = 0.2 / 0.1 overlaid",
-        f"{'baseline_s':>10}  {'h per held-out flight':<28}  {'false alarms':>12}  {'k=0.2 <=300 s':>18}"
-        f"  {'k=0.1 <=600 s':>18}",
+        f"{'baseline_s':>10}  {'delay_s':>7}  {'freeze':>6}  {'h per held-out flight':<28}  {'false alarms':>12}"
+        f"  {'k=0.2 <=300 s':>18}  {'k=0.1 <=600 s':>18}",
     ]
     for s in choice.scores:
         hs = " ".join(f"{h:.1f}" for h in s.thresholds)
         cells = [f"{s.hits(g)}/{s.total(g)} med {s.median_delay(g):.0f} s" for g in (0.2, 0.1)]
         mark = "  <- chosen" if choice.cross_validated and s.settings == choice.settings else ""
         lines.append(
-            f"{s.settings.baseline_s:10g}  {hs:<28}  {s.false_alarms:12d}  {cells[0]:>18}  {cells[1]:>18}{mark}"
+            f"{s.settings.baseline_s:10g}  {s.settings.baseline_delay_s:7g}"
+            f"  {'yes' if s.settings.baseline_freeze else 'no':>6}  {hs:<28}  {s.false_alarms:12d}"
+            f"  {cells[0]:>18}  {cells[1]:>18}{mark}"
         )
     return lines
 

@@ -14,7 +14,11 @@ The baseline absorbs the slowly varying offset that the residual model error put
 each operating point; the test then looks for a *change* of the symptom, which is what a degradation
 onset is. The price: a degradation that creeps in more slowly than ``baseline_s`` is absorbed too,
 and one present from engine start is part of the baseline (the plain test, or the gamma estimates
-over flights, must catch those).
+over flights, must catch those). With ``baseline_freeze`` the baseline stops learning while S > 0
+(a change is suspected): a rise keeps its full size in the test however long it lasts, instead of
+being absorbed after a few baseline time constants; the baseline learns again once S is back at 0.
+On a real engine, whose model error moves with the flight phase, this lets a short baseline follow
+the phases and still see a degradation of the size k = 0.1 (docs/results/detection_real.md).
 
 k (``reference``) is the drift allowance: about half the symptom of the smallest degradation to
 detect; h (``threshold``) is set from nominal flights by :func:`calibrate_threshold` for a target
@@ -77,6 +81,7 @@ class DetectorSettings:
     block_s: averaging block of the symptom before the test, s.
     baseline_s: time constant of the adaptive baseline subtracted from the symptom, s (0 = none).
     baseline_delay_s: age of the newest block mean the baseline may use, s (0 = up to the previous block).
+    baseline_freeze: the baseline holds while the statistic is above 0 (a change suspected).
 
     The defaults are the variant kept by ``ecu-monitor evaluate`` for the CBEKF's model deviation on the
     paper's Table A1 model (docs/results/detection.md: h calibrated on 53 nominal flight hours for 1
@@ -91,8 +96,11 @@ class DetectorSettings:
     block_s: float = 1.0
     baseline_s: float = 120.0
     baseline_delay_s: float = 60.0
+    baseline_freeze: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.baseline_freeze, bool):
+            raise ConfigError(f"detector.baseline_freeze: expected true or false, got {self.baseline_freeze!r}")
         names = ("threshold", "reference", "warmup_s", "suspect_fraction", "block_s", "baseline_s", "baseline_delay_s")
         for name in names:
             value = getattr(self, name)
@@ -180,7 +188,7 @@ class Detector:
                 lagged = self._recent.popleft() if len(self._recent) > s.delay_blocks else math.nan
                 self._statistic, self._baseline = _cusum_step(
                     self._statistic, self._baseline, mean, lagged, s.reference, s.block_s, s.baseline_s,
-                    self._steady or math.isnan(mean),
+                    self._steady or math.isnan(mean), s.baseline_freeze,
                 )  # fmt: skip
                 self._steady = True
                 if self._statistic >= s.threshold and math.isnan(self._alarm_time_s):
@@ -224,25 +232,31 @@ def block_means(
 
 @numba.njit(cache=True)
 def _cusum_step(statistic: float, baseline: float, mean: float, lagged: float, k: float, block_s: float,
-                baseline_s: float, steady: bool) -> tuple[float, float]:  # fmt: skip
+                baseline_s: float, steady: bool, freeze: bool) -> tuple[float, float]:  # fmt: skip
     """One CUSUM update: (new statistic, new baseline). mean: this block's mean (nan = empty block);
     lagged: the block mean leaving the delay line now, which enters the baseline after the test
     (nan = none); baseline nan = not started yet (the statistic stays 0 until it has a value).
-    steady False: the statistic is held (a transient of the inputs), the baseline still learns."""
+    steady False: the statistic is held (a transient of the inputs), the baseline still learns.
+    freeze: a started baseline does not learn while the (new) statistic is above 0."""
     if baseline_s <= 0.0:
         if math.isnan(mean) or not steady:
             return statistic, 0.0
         return max(0.0, statistic + (mean - k) * block_s), 0.0
     if steady and not math.isnan(mean) and not math.isnan(baseline):
         statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
-    if not math.isnan(lagged):
-        baseline = lagged if math.isnan(baseline) else baseline + (block_s / baseline_s) * (lagged - baseline)
-    return statistic, baseline
+    if math.isnan(lagged):
+        return statistic, baseline
+    if math.isnan(baseline):
+        return statistic, lagged
+    if freeze and statistic > 0.0:
+        return statistic, baseline
+    return statistic, baseline + (block_s / baseline_s) * (lagged - baseline)
 
 
 @numba.njit(cache=True)
 def _cusum(means: NDArray[np.float64], steady: NDArray[np.bool_], k: float, h: float, block_s: float,
-           baseline_s: float, delay: int, restart: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
+           baseline_s: float, delay: int, restart: bool,
+           freeze: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
     stat = np.empty(means.shape[0])
     alarms = np.empty(means.shape[0], dtype=np.int64)
     n_alarms = 0
@@ -250,7 +264,7 @@ def _cusum(means: NDArray[np.float64], steady: NDArray[np.bool_], k: float, h: f
     baseline = np.nan
     for i in range(means.shape[0]):
         lagged = means[i - delay] if i >= delay else np.nan
-        s, baseline = _cusum_step(s, baseline, means[i], lagged, k, block_s, baseline_s, steady[i])
+        s, baseline = _cusum_step(s, baseline, means[i], lagged, k, block_s, baseline_s, steady[i], freeze)
         stat[i] = s
         if s >= h:
             alarms[n_alarms] = i
@@ -294,6 +308,7 @@ def cusum_path(
         settings.baseline_s,
         settings.delay_blocks,
         restart,
+        settings.baseline_freeze,
     )
     return ends, stat, ends[alarm_index]
 

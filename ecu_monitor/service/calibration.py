@@ -7,15 +7,16 @@ detector's input (:attr:`ReplayResult.detector_feed`) is run through
 ``ecu-monitor evaluate`` calibrates). :func:`~ecu_monitor.estimation.detection.calibrate_threshold`
 then fits the hourly maxima of these paths for the asked false-alarm rate.
 
-Before the threshold, :func:`choose_settings` chooses the detector's adaptive-baseline length from
-:data:`BASELINE_CANDIDATES_S` by cross-validation on the same flights: for each candidate, each
+Before the threshold, :func:`choose_settings` chooses the detector's adaptive baseline, its length
+from :data:`BASELINE_CANDIDATES_S`, its delay from :data:`DELAY_CANDIDATES_S`, and whether it freezes
+while a change is suspected (``baseline_freeze``), by cross-validation on the same flights: for each candidate, each
 flight in turn is held out, h is calibrated on the others, the held-out flight must raise no alarm
 nominal, and degradations overlaid on it (:func:`~ecu_monitor.estimation.detection.overlay_degradation`,
 k = 0.2 and 0.1, tau 240 s, onsets spread over its airborne part) must be detected within 300 s and
 600 s. The rule: the fewest false alarms (none, if any candidate has none), then the most
-detections within these times, then the most for k = 0.1, then the shorter baseline. With fewer than
-:data:`MIN_CROSS_FLIGHTS` flights that have room for the overlays, the config's settings are kept
-(today's behaviour).
+detections within these times, then the most for k = 0.1, then the shorter baseline, then the
+longer delay, then no freeze. With fewer than :data:`MIN_CROSS_FLIGHTS` flights that have room for the overlays,
+the config's settings are kept (today's behaviour).
 
 Helpers write the result as a ``detector:`` YAML fragment, or as a full copy of the service config
 with the detector settings replaced (relative paths made absolute, so the copy loads from anywhere).
@@ -70,6 +71,7 @@ from ecu_monitor.shipped import resolve_file, shipped_file
 __all__ = [
     "AIRBORNE_MPS",
     "BASELINE_CANDIDATES_S",
+    "DELAY_CANDIDATES_S",
     "MIN_AIRBORNE_S",
     "MIN_CROSS_FLIGHTS",
     "MIN_WHOLE_HOURS",
@@ -86,6 +88,7 @@ __all__ = [
     "airborne_onsets",
     "calibrate_flights",
     "calibration_method",
+    "candidate_settings",
     "choose_settings",
     "config_copy_yaml",
     "cross_validation_blocker",
@@ -102,6 +105,10 @@ __all__ = [
 MIN_WHOLE_HOURS = 2
 #: Candidate lengths of the detector's adaptive baseline, s (cross-validated by :func:`choose_settings`).
 BASELINE_CANDIDATES_S: tuple[float, ...] = (120.0, 300.0, 600.0, 1200.0)
+#: Candidate delays of the baseline, s (each with every length, frozen while S > 0 or not). On a real
+#: engine (N550ND) the freeze candidates let k = 0.1 be seen within 600 s at 25 of 28 airborne onsets
+#: against 16 without them, with no false alarm (docs/results/detection_real.md).
+DELAY_CANDIDATES_S: tuple[float, ...] = (0.0, 60.0)
 #: Cross-validation needs at least this many such flights (one held out, h calibrated on the others).
 MIN_CROSS_FLIGHTS = 3
 
@@ -177,11 +184,20 @@ class CandidateScore:
         return float(np.median(d)) if d.size else math.inf
 
     @property
-    def key(self) -> tuple[int, int, int, float]:
-        """The rule's order (larger is better): no false alarm, detections in time, k = 0.1's, shorter baseline."""
+    def key(self) -> tuple[int, int, int, float, float, int]:
+        """The rule's order (larger is better): no false alarm, detections in time, k = 0.1's, shorter
+        baseline, longer delay, no freeze."""
         weakest = min(OVERLAY_TARGETS_S)
         hits = sum(self.hits(g) for g in OVERLAY_TARGETS_S)
-        return (-self.false_alarms, hits, self.hits(weakest), -self.settings.baseline_s)
+        s = self.settings
+        return (
+            -self.false_alarms,
+            hits,
+            self.hits(weakest),
+            -s.baseline_s,
+            s.baseline_delay_s,
+            -int(s.baseline_freeze),
+        )
 
 
 def score_candidate(flights: Sequence[FlightFeeds], settings: DetectorSettings, rate_per_100h: float) -> CandidateScore:
@@ -232,17 +248,39 @@ class SettingsChoice:
     cross_validated: bool
 
 
+def candidate_settings(
+    current: DetectorSettings,
+    baselines_s: Sequence[float] = BASELINE_CANDIDATES_S,
+    delays_s: Sequence[float] = DELAY_CANDIDATES_S,
+) -> list[DetectorSettings]:
+    """The settings :func:`choose_settings` cross-validates: ``current`` with each baseline length and
+    delay, the baseline learning always or frozen while a change is suspected (a length 0, the plain
+    test, once)."""
+    out: list[DetectorSettings] = []
+    for b in baselines_s:
+        for d in delays_s if b > 0.0 else (current.baseline_delay_s,):
+            for freeze in (False, True) if b > 0.0 else (False,):
+                candidate = dataclasses.replace(
+                    current, baseline_s=float(b), baseline_delay_s=float(d), baseline_freeze=freeze
+                )
+                if candidate not in out:
+                    out.append(candidate)
+    return out
+
+
 def choose_settings(
     flights: Sequence[FlightFeeds],
     current: DetectorSettings,
     rate_per_100h: float,
     baselines_s: Sequence[float] = BASELINE_CANDIDATES_S,
+    delays_s: Sequence[float] = DELAY_CANDIDATES_S,
 ) -> SettingsChoice:
-    """Choose the baseline length among ``baselines_s`` (other settings as ``current``) by
+    """Choose the baseline among :func:`candidate_settings` (lengths ``baselines_s`` x delays
+    ``delays_s`` x frozen while a change is suspected or not; other settings as ``current``) by
     leave-one-flight-out over the flights with overlays (:func:`score_candidate`). Rule: no false
     alarm on any held-out nominal flight, then the most overlays detected within their target time,
-    then the most for k = 0.1, then the shorter baseline; when every candidate raises one, the fewest
-    false alarms first (and the reason warns). Keeps ``current`` (and says why) with fewer than
+    then the most for k = 0.1, then the shorter baseline, then the longer delay, then no freeze; when every candidate
+    raises one, the fewest false alarms first (and the reason warns). Keeps ``current`` (and says why) with fewer than
     :data:`MIN_CROSS_FLIGHTS` flights, too few hours in a fold, or fewer than :data:`MIN_CROSS_FLIGHTS`
     flights with room for overlays."""
     blocker = cross_validation_blocker(flights, current)
@@ -259,17 +297,20 @@ def choose_settings(
         )
     try:
         scores = tuple(
-            score_candidate(usable, dataclasses.replace(current, baseline_s=float(b)), rate_per_100h)
-            for b in baselines_s
+            score_candidate(usable, candidate, rate_per_100h)
+            for candidate in candidate_settings(current, baselines_s, delays_s)
         )
     except ParameterError as exc:
         return SettingsChoice(current, f"{exc}: kept the config's baseline_s {current.baseline_s:g} s", (), False)
     best = max(scores, key=lambda s: s.key)
     rule = (
         "the fewest false alarms on the held-out flights, then the most overlays detected within target"
-        " (k = 0.2 within 300 s, k = 0.1 within 600 s), then the most for k = 0.1, then the shorter baseline"
+        " (k = 0.2 within 300 s, k = 0.1 within 600 s), then the most for k = 0.1, then the shorter baseline,"
+        " then the longer delay, then no freeze"
     )
-    reason = f"baseline_s {best.settings.baseline_s:g} s by the rule: {rule}"
+    chosen = best.settings
+    frozen = "frozen while a change is suspected" if chosen.baseline_freeze else "always learning"
+    reason = f"baseline_s {chosen.baseline_s:g} s, delay {chosen.baseline_delay_s:g} s, {frozen}, by the rule: {rule}"
     if best.false_alarms:
         reason += (
             f". WARNING: every candidate raised a false alarm on at least {best.false_alarms} held-out flight(s)"
@@ -413,11 +454,14 @@ def config_copy_yaml(
     detector = dict(detector) if isinstance(detector, dict) else {}
     detector["threshold"] = _rounded(result.calibration.threshold)
     detector["baseline_s"] = result.current.baseline_s
+    detector["baseline_delay_s"] = result.current.baseline_delay_s
+    detector["baseline_freeze"] = result.current.baseline_freeze
     detector["calibrated_for"] = calibrated_for
     data["detector"] = detector
     header = _header(result, rate_per_100h, sources)
     header.append(
-        f"# copy of {src.resolve()} with detector.threshold and baseline_s replaced (comments of the original not kept)"
+        f"# copy of {src.resolve()} with detector.threshold and baseline settings replaced"
+        " (comments of the original not kept)"
     )
     return "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
 
