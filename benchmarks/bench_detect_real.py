@@ -262,7 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, per_fold in fold_variants:
         first = per_fold[0]
         baselines = ", ".join(f"{s.baseline_s:g}" for s in per_fold)
-        print(f"\nvariant {name}: baseline_s {baselines} (per fold), delay {first.baseline_delay_s:g} s,"
+        delays = ", ".join(f"{s.baseline_delay_s:g}" for s in per_fold)
+        freezes = ", ".join("yes" if s.baseline_freeze else "no" for s in per_fold)
+        print(f"\nvariant {name}: baseline_s {baselines}, delay_s {delays}, freeze {freezes} (per fold),"
               f" reference {first.reference:g}, warm-up {first.warmup_s:g} s")  # fmt: skip
         print(f"{'held-out flight':<40} {'h':>8}  {'nominal':>18}  {'k=0.2 <=300 s':>14}  {'k=0.1 <=600 s':>14}")
         totals = {"false": 0, 0.2: [0, 0], 0.1: [0, 0], "all 0.2": [0, 0], "all 0.1": [0, 0]}
