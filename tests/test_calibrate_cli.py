@@ -299,6 +299,25 @@ def test_choice_excludes_candidates_with_a_false_alarm_on_a_held_out_flight():
     assert by_baseline[120.0].hits(0.2) == 9  # the 0.3 step (approached in 240 s) within 300 s at every onset
 
 
+def test_choice_freezes_the_baseline_when_the_degradation_creeps_in():
+    """Overlays that ramp up (k = 0.1: 1.5e-4 per s) instead of stepping: a learning baseline follows a
+    ramp with a lag of slope x (baseline + delay), 0.1 for 600 s + 60 s, so the excess over the 0.05
+    allowance builds up slowly; frozen while S > 0, the whole ramp stays in the test. The choice is a
+    frozen baseline, and at 600 s / 60 s the frozen candidate sees more k = 0.1 ramps in time than
+    its learning twin."""
+    from ecu_monitor.service.calibration import choose_settings
+
+    rng = np.random.default_rng(8)
+    flights = [_synthetic_flight(n, rng, overlay_slope=3e-4) for n in "abc"]
+    choice = choose_settings(flights, DetectorSettings(), 1.0, (120.0, 600.0))
+    assert choice.cross_validated and choice.settings.baseline_freeze
+    assert "frozen while a change is suspected" in choice.reason
+    twins = {s.settings.baseline_freeze: s for s in choice.scores if s.settings.baseline_s == 600.0
+             and s.settings.baseline_delay_s == 60.0}  # fmt: skip
+    assert twins[True].false_alarms == twins[False].false_alarms == 0
+    assert twins[True].hits(0.1) > twins[False].hits(0.1)
+
+
 def test_held_out_verdicts_are_those_of_the_threshold_calibrated_on_the_others():
     """Recomputed here with calibrate_threshold and cusum_path: per fold, h from the other flights'
     nominal statistics, the held-out nominal flight's first alarm, each overlay's delay."""
