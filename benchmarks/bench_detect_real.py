@@ -13,9 +13,9 @@ For each flight in turn (the held-out flight), as a user commissioning the monit
    chosen baseline and for each fixed variant;
 4. the held-out flight replayed nominal (any crossing of h = a false DEGRADED), and with a degradation
    overlaid (``detection.overlay_degradation``: CHT + k (CHT - OAT)(1 - exp(-(t - t0)/240 s))) for
-   k = 0.2 and 0.1 at onsets t0 every ``--onset-every`` s from the end of the warm-up to 600 s before
-   the end of the flight; detected = the statistic crosses h at or after t0 (targets: k = 0.2 within
-   300 s, k = 0.1 within 600 s). The onsets that count for the targets (fixed before any result): those
+   k = 0.2 and 0.1 at onsets t0 every ``--onset-every`` s from the end of the warm-up (or
+   ``--first-onset``) to 600 s before the end of the flight; detected = the statistic crosses h at or
+   after t0 (targets: k = 0.2 within 300 s, k = 0.1 within 600 s). The onsets that count: those
    in the airborne part with at least 600 s of it after them (take-off <= t0 <= landing - 600 s, airborne
    = airspeed >= ``calibration.AIRBORNE_MPS``, the rule calibrate's own overlays follow); the totals over
    all onsets, ground and landing included, are printed too.
@@ -159,6 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", default="example.yaml")  # a path, or a shipped config's name
     parser.add_argument("--onset-every", type=float, default=900.0, help="spacing of the overlay onsets, s")
     parser.add_argument(
+        "--first-onset", type=float, help="first overlay onset, s after the log's start (default: end of the warm-up)"
+    )
+    parser.add_argument(
         "--variant", action="append", default=[], help="baseline_s:delay_s:reference[:freeze] (repeatable)"
     )
     parser.add_argument("--rate", type=float, default=1.0, help="false alarms per 100 h for the calibration")
@@ -238,7 +241,8 @@ def main(argv: list[str] | None = None) -> int:
             if j == i:
                 duration = log.duration_s
                 warm = max(v.warmup_s for _, v in variants)
-                onsets = np.arange(warm, duration - 600.0 + 1e-9, args.onset_every)
+                first = warm if args.first_onset is None else args.first_onset
+                onsets = np.arange(first, duration - 600.0 + 1e-9, args.onset_every)
                 overlays: list[tuple[float, float]] | None = [(float(t0), k) for t0 in onsets for k in LIMITS]
             else:
                 overlays = None
