@@ -1,6 +1,6 @@
 """Live latency: ECU frame -> the health frame it causes, p50/p99, with 4,000 frames/s of other traffic.
 
-    .venv/bin/python benchmarks/bench_latency.py [--seconds 30] [--traffic 4000] [--gc-study]
+    .venv/bin/python benchmarks/bench_latency.py [--seconds 30] [--traffic 4000] [--pace-study] [--gc-study]
     sudo .venv/bin/python benchmarks/bench_latency.py --netns [--seconds 30] [--nice -10]   # across processes
 
 In one process (default), on python-can's ``virtual`` interface (three bus objects on one channel):
@@ -19,12 +19,22 @@ Baseline in the same run, same traffic: a bare Notifier listener that answers ev
 with one frame (no pipeline): the virtual-bus round trip the daemon cannot beat. "No frame lost":
 every ECU frame sent is counted in by the daemon and every health frame sent is received.
 
+CPU, % of one core: utime + stime of the daemon's threads (its Notifier thread, the tick and the
+supervisor) or of the echo's Notifier thread, over the measured seconds (/proc/self/task/<tid>/stat).
+The targets of issue 13 are checked at the end of each report: in one process p99 < 1 ms and at most
+2.5x the echo's p99; across processes p99 within 1.5x of the echo process's; daemon CPU < 3 %.
+
+``--pace-study``: the pipeline alone (no bus, no thread) on the same frames back to back, one frame
+per 20 ms asleep or spinning on the clock in between, one per 1 ms, and with garbage collection off:
+what makes a paced step cost more (docs/performance.md).
+
 ``--netns``: the same measurement across processes on python-can's udp_multicast interface inside a
 network namespace made for the run (loopback only, multicast routed to lo, deleted at the end): the
 daemon (or the echo baseline) is one process, the other traffic another, and the measuring process
 (ECU sender + health receiver, one clock) a third. Every process on the group receives every frame, so
 the daemon's receive thread unpacks all 4,000 frames/s before its id filter drops them (on socketcan
-the kernel would filter them). Needs root.
+the kernel would filter them). The CPU figure there is the whole daemon (or echo) process
+(/proc/<pid>/stat). Needs root.
 """
 
 from __future__ import annotations
@@ -324,6 +334,23 @@ def run_case(
     }
 
 
+def pace_study(steps: int = 600) -> None:
+    """Why a paced step costs more than a back-to-back one: the same frames and steps, waits between them."""
+    print("| pipeline alone, feed + advance_to of a frame whose step emits health frames | p50 | p99 |")
+    print("|---|---|---|")
+    for name, kwargs in (
+        ("back to back", {}),
+        ("one frame per 20 ms, asleep in between", {"pace_s": 0.02}),
+        ("one frame per 20 ms, spinning on the clock in between", {"pace_s": 0.02, "spin": True}),
+        ("one frame per 1 ms, asleep in between", {"pace_s": 0.001}),
+        ("one frame per 20 ms, asleep, garbage collection off", {"pace_s": 0.02, "gc_off": True}),
+        ("back to back again", {}),
+    ):
+        p50, p99 = pipeline_cost(steps=steps if kwargs else 3000, **kwargs)  # type: ignore[arg-type]
+        print(f"| {name} | {p50:.0f} us | {p99:.0f} us |", flush=True)
+    print()
+
+
 def full_collection_ms() -> tuple[float, float, int]:
     """A full gc.collect() in a process holding the daemon's modules and a running pipeline, ms:
     (heap as is, after gc.freeze() and 20 s more of pipeline steps, objects tracked before the freeze)."""
@@ -341,10 +368,14 @@ def full_collection_ms() -> tuple[float, float, int]:
     return plain_ms, frozen_ms, tracked
 
 
-def pipeline_cost(steps: int = 3000, pace_s: float = 0.0) -> tuple[float, float]:
+def pipeline_cost(
+    steps: int = 3000, pace_s: float = 0.0, spin: bool = False, gc_off: bool = False
+) -> tuple[float, float]:
     """p50, p99 (us) of feed + advance_to for the frames whose step emits health frames, no bus, no threads.
 
-    ``pace_s`` > 0 sleeps that long before each step, as live frames come 20 ms apart (cold caches)."""
+    ``pace_s`` > 0 waits that long before each step, as live frames come 20 ms apart: asleep, or with
+    ``spin`` busy on the clock (the core stays awake at full clock; other processes still get it when
+    the scheduler preempts). ``gc_off``: automatic garbage collection off during the loop."""
     config = _config("unused")
     pipeline = Pipeline(config, config.load_params())
     encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
@@ -352,9 +383,15 @@ def pipeline_cost(steps: int = 3000, pace_s: float = 0.0) -> tuple[float, float]
     t = 0.0
     pipeline.advance_to(t)
     costs = []
+    if gc_off:
+        gc.disable()
     for k in range(steps):
         t += 0.02
-        if pace_s > 0.0:
+        if pace_s > 0.0 and spin:
+            until = time.perf_counter() + pace_s
+            while time.perf_counter() < until:
+                pass
+        elif pace_s > 0.0:
             time.sleep(pace_s)
         for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
             data = encoder.encode(name, ECU_VALUES[name], counters[name])
@@ -365,6 +402,7 @@ def pipeline_cost(steps: int = 3000, pace_s: float = 0.0) -> tuple[float, float]
             frames = pipeline.advance_to(t)
             if frames:
                 costs.append((time.perf_counter() - started) * 1e6)
+    gc.enable()
     p50, p99, _ = _percentiles(costs[50:])  # after the estimator's start
     return p50, p99
 
@@ -575,6 +613,7 @@ def main() -> None:
     parser.add_argument("--netns", action="store_true", help="across processes on udp_multicast in a netns")
     parser.add_argument("--gc-study", action="store_true", help="also run the daemon without gc.freeze")
     parser.add_argument("--nice", type=int, default=0, help="with --netns: run the daemon and the echo at this nice")
+    parser.add_argument("--pace-study", action="store_true", help="also time the pipeline alone under other pacings")
     args = parser.parse_args()
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)
@@ -592,6 +631,8 @@ def main() -> None:
         f"p99 {paced_p99:.0f} us\n"
     )
     report(f"{title}, other traffic {daemon['traffic_hz']:.0f} frames/s", baseline, daemon)
+    if args.pace_study:
+        pace_study()
     if args.gc_study:
         plain_ms, frozen_ms, tracked = full_collection_ms()
         print(f"full gc.collect(), {tracked} objects tracked: {plain_ms:.1f} ms; after gc.freeze(): {frozen_ms:.2f} ms")

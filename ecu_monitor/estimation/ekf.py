@@ -564,5 +564,5 @@ def compiled_filter() -> SimpleNamespace:
         reset_value=reset_value_,
     )
     steps = compile_(filter_steps, filter_step=step)
-    live = compile_(live_steps, filter_steps=steps, drive_kernel=_compiled_model.drive_kernel())
+    live = jit(live_steps, tag, nogil=False, filter_steps=steps, drive_kernel=_compiled_model.drive_kernel())
     return SimpleNamespace(step=step, steps=steps, live=live, level_of=level_of_)

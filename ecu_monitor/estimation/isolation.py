@@ -327,7 +327,7 @@ def compiled_kernels() -> SimpleNamespace:
     correct_ = jit(_correct, tag)
     deviation_ = jit(_deviation, tag, derivatives=equations.derivatives)
     run = jit(_run, tag, predict=predict_, correct=correct_, deviation=deviation_)
-    live = jit(_live, tag, predict=predict_, correct=correct_, deviation=deviation_,
+    live = jit(_live, tag, nogil=False, predict=predict_, correct=correct_, deviation=deviation_,
                drive_kernel=_compiled_model.drive_kernel())  # fmt: skip
     return SimpleNamespace(predict=predict_, correct=correct_, deviation=deviation_, run=run, live=live)
 

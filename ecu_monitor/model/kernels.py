@@ -52,13 +52,18 @@ def rebound(function: Callable[..., Any], tag: str, **callees: Any) -> types.Fun
     return clone
 
 
-def jit(function: Callable[..., Any], tag: str, fastmath: Any = False, **callees: Any) -> Any:
+def jit(function: Callable[..., Any], tag: str, fastmath: Any = False, nogil: bool = True, **callees: Any) -> Any:
     """numba.njit of a :func:`rebound` copy of ``function``: cached, nogil, and numpy's error model
     (a division by zero gives inf or NaN, as in the numpy reference, instead of a check per division
-    that would stop the particle loop from vectorising)."""
+    that would stop the particle loop from vectorising).
+
+    ``nogil=False`` for the live path's short calls (tens of microseconds): releasing the GIL around
+    them lets another thread take it, and getting it back can then wait for that thread (up to the
+    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain."""
     import numba  # first use only
 
-    return numba.njit(cache=True, nogil=True, fastmath=fastmath, error_model="numpy")(rebound(function, tag, **callees))
+    options: dict[str, Any] = {"cache": True, "nogil": nogil, "fastmath": fastmath, "error_model": "numpy"}
+    return numba.njit(**options)(rebound(function, tag, **callees))
 
 
 @functools.cache
