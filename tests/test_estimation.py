@@ -403,3 +403,30 @@ def test_live_filter_compiled_equals_python():
         assert fast.cht_c == pytest.approx(slow.cht_c, abs=1e-9)
         assert fast.deviation == pytest.approx(slow.deviation, abs=1e-12)
         assert fast.reset == slow.reset
+
+
+def test_live_filter_call_follows_changing_inputs_as_the_python_filter():
+    """The compiled live call computes the next call's drive itself (the model's compiled drive kernel):
+    with inputs changing at every call (across heat-map cells, altitude, airspeed, OAT), the whole filter
+    state, Pade state included, stays the Python filter's, for CBEKF-AU and the open-loop EKF."""
+    from ecu_monitor.estimation import EstimatorSettings, ThermalEKF
+    from ecu_monitor.model import InputSeries, paper_table_a1
+
+    params = paper_table_a1()
+    settings = EstimatorSettings()
+    for kind, deviation, reset in (("cbekf-au", True, "boundary"), ("ekf", False, "none")):
+        filters = [
+            ThermalEKF(params, settings, name=kind, use_deviation=deviation, reset=reset, compiled=flag)
+            for flag in (True, False)
+        ]
+        rng = np.random.default_rng(3)
+        for f in filters:
+            f.initialise(0.0, InputSeries(40.0, 4000.0, 300.0, 20.0, 10.0), 120.0)
+        for k in range(1, 300):
+            u = InputSeries(*rng.uniform((-5.0, 1500.0, -200.0, 0.0, -30.0), (105.0, 9500.0, 4000.0, 45.0, 40.0)))
+            z = float(round(120.0 + 10.0 * math.sin(0.05 * k))) if kind == "cbekf-au" and k % 3 else None
+            fast, slow = (f.estimate(0.1 * k, u, z) for f in filters)
+            assert fast.cht_c == pytest.approx(slow.cht_c, abs=1e-9)
+            assert fast.deviation == pytest.approx(slow.deviation, abs=1e-12)
+            assert fast.reset == slow.reset
+            assert filters[0].state == pytest.approx(filters[1].state, abs=1e-9)
