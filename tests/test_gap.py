@@ -11,9 +11,11 @@ import pytest
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
+from ecu_monitor.gap.diagnose import EffectScore, _material_lead
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
-from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
+from ecu_monitor.gap.refit import FitResult, prepare_flight, refit, simulate_probe
+from ecu_monitor.gap.significance import ImprovementTest
 from ecu_monitor.model import MixtureIndex, SensorLag, load_model, paper_table_a1
 from ecu_monitor.research.blind import CASE_KINDS, blind_case, run_blind_case
 from virtual_bus.plant import fly
@@ -222,3 +224,17 @@ def test_gap_report_says_not_identifiable_and_never_a_negative_lag():
     lead = _lag_text(LagSignature(-12.5, -0.3, 0.09))
     assert "-12.5" not in lead and "tau = -" not in lead and "none" in lead
     assert "tau = 8.0 s" in _lag_text(LagSignature(8.0, 0.6, 0.36))
+
+
+def test_pairs_start_from_a_material_single_effect_when_none_counts() -> None:
+    # airspeed: large gain, not significant (fails on one flight); density: significant, not material
+    def score(ids: tuple[str, ...], rms: float, significant: bool, material: bool) -> EffectScore:
+        fit = FitResult(ids, paper_table_a1(), {}, {}, {}, rms, 1, 0, True)
+        versus = ImprovementTest(8.0, rms, 100.0 * (1.0 - rms / 8.0), 1.0, 0.1, 0.04, significant, material)
+        return EffectScore(fit, (np.zeros(3),), rms, rms, 0.0, versus, "single")
+
+    airspeed = score(("airspeed_cooling",), 5.7, significant=False, material=True)
+    density = score(("density_cooling",), 5.0, significant=True, material=False)
+    lag = score(("sensor_lag",), 7.9, significant=False, material=False)
+    assert _material_lead([airspeed, density, lag]) is airspeed
+    assert _material_lead([density, lag]) is None
