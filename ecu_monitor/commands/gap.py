@@ -71,7 +71,7 @@ def add_subparser(subparsers: Any) -> None:
         "--candidates",
         metavar="IDS",
         help=f"comma-separated candidate effects (default {','.join(DEFAULT_CANDIDATE_IDS)},"
-        " and no_altitude_factor with a heat map on fuel flow;"
+        " no_altitude_factor with a heat map on fuel flow and mixture_index when every flight logs egt_c;"
         f" known: {','.join(CANDIDATE_IDS)})",
     )
     parser.add_argument(
