@@ -50,6 +50,30 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
             "EcuMonitor",
             ("StaleInputs", "MalformedFrames", "BusErrors", "DiagCounter", "DiagChecksum"),
         ),
+        "Health_Spread": (
+            0x303,
+            500,
+            "EcuMonitor",
+            (
+                "ChtSpread",
+                "HottestCylinder",
+                "SpreadAlarm",
+                "CylinderCount",
+                "FaultyCylinders",
+                "SpreadCounter",
+                "SpreadChecksum",
+            ),
+        ),
+        "Health_Cylinder": (
+            0x304,
+            500,
+            "EcuMonitor",
+            ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD", "CylCounter", "CylChecksum"),
+        ),
+    },
+    "cylinders.dbc": {
+        "ECU_Cht1to4": (0x102, 100, "ECU", ("CHT1", "CHT2", "CHT3", "CHT4", "Cht1to4Counter", "Cht1to4Checksum")),
+        "ECU_Cht5to8": (0x103, 100, "ECU", ("CHT5", "CHT6", "CHT7", "CHT8", "Cht5to8Counter", "Cht5to8Checksum")),
     },
 }
 
@@ -71,11 +95,28 @@ RANGES: dict[str, tuple[str, float, float, float]] = {
     "Health_Isolation.ChtLimitMargin": ("degC", -200, 300, 0.1),
     "Health_Diag.MalformedFrames": ("", 0, 65535, 1),
     "Health_Diag.BusErrors": ("", 0, 255, 1),
+    "ECU_Cht1to4.CHT1": ("degC", -40, 350, 0.1),
+    "ECU_Cht5to8.CHT8": ("degC", -40, 350, 0.1),
+    "Health_Spread.ChtSpread": ("degC", 0, 400, 0.1),
+    "Health_Spread.HottestCylinder": ("", 0, 16, 1),
+    "Health_Spread.FaultyCylinders": ("", 0, 65535, 1),
+    "Health_Cylinder.CylinderNumber": ("", 1, 16, 1),
+    "Health_Cylinder.CylChtEstimate": ("degC", -40, 400, 0.1),
+    "Health_Cylinder.CylGammaQ": ("", 0.5, 2.5, 0.001),
+    "Health_Cylinder.CylGammaD": ("", 0.5, 2.5, 0.001),
 }
 
 CHOICES: dict[str, dict[int, str]] = {
     "ECU_Slow.EcuStatus": {0: "OK", 1: "WARNING", 2: "FAULT", 3: "CHT_SENSOR_OPEN"},
     "Health_Status.DegradationState": {
+        0: "NOMINAL",
+        1: "SUSPECT",
+        2: "DEGRADED",
+        3: "INPUT_STALE",
+        4: "SENSOR_FAULT",
+        5: "UNAVAILABLE",
+    },
+    "Health_Cylinder.CylState": {
         0: "NOMINAL",
         1: "SUSPECT",
         2: "DEGRADED",

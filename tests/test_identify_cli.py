@@ -165,3 +165,33 @@ def test_identify_refuses_a_flight_given_twice(tmp_path, capsys):
     assert code == 2
     assert "given twice" in err
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_identify_every_cylinder_writes_one_model_each(tmp_path, capsys):
+    """--cylinder all: one model per cylinder column, each fitted on its own cylinder's CHT; --cylinder 2
+    fits cylinder 2 alone; a cylinder the flight lacks exits 2."""
+    log = _flight(4, (30, 80, 50, 95))
+    hot = log.with_columns(cht1_c=log["cht_c"], cht2_c=log["cht_c"] * 1.1 + 5.0)
+    path = tmp_path / "two_cylinders.csv"
+    write_csv(hot, path)
+    model = tmp_path / "m.yaml"
+    argv = [
+        "identify",
+        str(path),
+        "--out",
+        str(model),
+        "--particles",
+        "8",
+        "--iterations",
+        "4",
+        "--quiet",
+        "--no-polish",
+    ]
+    assert main([*argv, "--cylinder", "all"]) == 0
+    out = capsys.readouterr().out
+    assert "== cylinder 2 of 2 ==" in out and f"cylinders: {{models: [{tmp_path / 'm_cyl1.yaml'}," in out
+    one, two = load_model(tmp_path / "m_cyl1.yaml"), load_model(tmp_path / "m_cyl2.yaml")
+    assert flight_errors(two, hot.with_columns(cht_c=hot["cht2_c"])).rms_c < flight_errors(one, hot.with_columns(
+        cht_c=hot["cht2_c"])).rms_c  # fmt: skip
+    assert main([*argv, "--cylinder", "3"]) == 2
+    assert "cylinder 3 chosen for cht_c" in capsys.readouterr().err

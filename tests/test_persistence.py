@@ -363,3 +363,77 @@ def test_a_restart_after_the_engine_stopped_starts_a_new_flight(tmp_path: Path) 
         first, second = store.flights(SERIAL)
     assert recorder.resumed is None
     assert (first.status, second.status) == ("recovered", "finished")
+
+
+def _cylinder_sample(t: float, rpm: float, degraded_after_s: float) -> FlightSample:
+    """Three cylinders: 2 runs 10 degC hotter than 1, 3 is 5 degC cooler and degrades (gamma_Q rising)."""
+    base = 150.0 + 10.0 * math.sin(t / 20.0)
+    gamma = 1.0 + max(0.0, t - degraded_after_s) / 1000.0
+    state = "DEGRADED" if t >= degraded_after_s + 30.0 else "NOMINAL"
+    cylinders = ((base, 1.0, 1.0, "NOMINAL"), (base + 10.0, 1.01, 1.0, "NOMINAL"), (base - 5.0, gamma, 1.0, state))
+    return FlightSample(t, 1.7e9 + t, rpm, base + 10.0, 1.01, 1.0, state if state == "DEGRADED" else "NOMINAL",
+                        cylinders, 15.0 + (t > 100.0), 2, t > 100.0)  # fmt: skip
+
+
+def test_per_cylinder_aggregates_survive_a_restart_and_old_databases_gain_them(tmp_path: Path) -> None:
+    """An engine monitored per cylinder: each cylinder's max CHT, gamma and worst state, the largest spread,
+    the alarm time and the hottest cylinder are kept in the flight row, across a restart mid-run; a
+    database of schema version 1 gains the column when opened."""
+    old = tmp_path / "old"
+    old.mkdir()
+    with sqlite3.connect(old / DATABASE_NAME) as conn:  # a version-1 flights table, without cylinders_json
+        conn.executescript(
+            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
+            "INSERT INTO meta VALUES ('schema_version', '1');"
+            "CREATE TABLE engines (serial TEXT PRIMARY KEY, first_seen_utc REAL NOT NULL);"
+            "CREATE TABLE flights (id INTEGER PRIMARY KEY, engine_serial TEXT NOT NULL, status TEXT NOT NULL,"
+            " end_reason TEXT, start_utc REAL NOT NULL, end_utc REAL NOT NULL, duration_s REAL NOT NULL,"
+            " max_cht_c REAL, cht_limit_c REAL NOT NULL, time_above_limit_s REAL NOT NULL, gamma_q_start REAL,"
+            " gamma_q_end REAL, gamma_q_mean REAL, gamma_q_max REAL, gamma_q_slope_per_h REAL, gamma_d_start REAL,"
+            " gamma_d_end REAL, gamma_d_mean REAL, gamma_d_max REAL, gamma_d_slope_per_h REAL,"
+            " worst_state TEXT NOT NULL, time_degraded_s REAL NOT NULL, cycles_total REAL NOT NULL,"
+            " cycles_json TEXT NOT NULL, reversals BLOB, updated_utc REAL NOT NULL);"
+            "INSERT INTO engines VALUES ('OLD', 1.7e9);"
+            "INSERT INTO flights VALUES (1, 'OLD', 'finished', 'engine_stopped', 1.7e9, 1.7e9 + 600, 600, 150, 200,"
+            " 0, 1, 1, 1, 1, 0, 1, 1, 1, 1, 0, 'NOMINAL', 0, 3, '{}', NULL, 1.7e9);"
+        )
+    with StateStore(old) as store:
+        (kept,) = store.flights("OLD")
+    assert kept.cylinders == {} and kept.max_cht_c == 150.0
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        for i in range(1000):  # 100 s, killed after the checkpoint at 90 s
+            recorder.add(_cylinder_sample(i * 0.1, 6000.0, 60.0))
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        for i in range(1050, 2050):  # back 5 s later, the engine still running, for 100 s
+            recorder.add(_cylinder_sample(i * 0.1, 6000.0, 60.0))
+        recorder.close()
+        (flight,) = store.flights(SERIAL)
+    cyl = flight.cylinders
+    one, two, three = cyl["per_cylinder"]
+    assert [c["number"] for c in (one, two, three)] == [1, 2, 3]
+    assert one["max_cht_c"] == pytest.approx(160.0, abs=0.01) and two["max_cht_c"] == pytest.approx(170.0, abs=0.01)
+    assert (one["worst_state"], three["worst_state"]) == ("NOMINAL", "DEGRADED")
+    # 90-100 s after the last checkpoint went with the crash, the 5 s outage has no samples: 105-205 s count
+    assert three["time_degraded_s"] == pytest.approx(100.0, abs=0.5)
+    assert three["gamma_q_start"] == 1.0 and three["gamma_q_end"] == pytest.approx(1.0 + 144.9 / 1000.0)
+    assert one["gamma_q_max"] == 1.0 and two["gamma_q_mean"] == pytest.approx(1.01)
+    assert cyl["spread_max_c"] == 16.0 and cyl["spread_alarm_s"] == pytest.approx(100.0, abs=0.5)
+    assert set(cyl["hottest_s"]) == {"2"} and cyl["hottest_s"]["2"] == pytest.approx(190.0, abs=0.5)
+
+
+def test_history_prints_and_plots_the_cylinders(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from ecu_monitor.cli import main
+
+    with StateStore(tmp_path) as store:
+        recorder = FlightRecorder(store, SERIAL, LIMIT_C, RULES)
+        for i in range(1000):
+            recorder.add(_cylinder_sample(i * 0.1, 6000.0, 60.0))
+        recorder.close()
+    plot = tmp_path / "trend.png"
+    assert main(["history", "--state-dir", str(tmp_path), "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out
+    assert "cylinder 3: max CHT 155.0, gQ mean" in out and "worst DEGRADED" in out
+    assert "CHT spread max 15.0 degC, spread alarm 0 s; hottest cylinder: 2 100 %" in out
+    assert plot.stat().st_size > 10000

@@ -22,6 +22,7 @@ from typing import Any
 from ecu_monitor.errors import ConfigError, run_command
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
 from virtual_bus.busconfig import BusConfig, load_bus_config, open_bus
+from virtual_bus.cylinders import cylinder_models
 from virtual_bus.emitter import EmitStats, FrameEmitter, FrameEncoder
 from virtual_bus.missions import Mission, list_missions, load_mission
 from virtual_bus.plant import Degradation, iter_steps, parse_effects
@@ -70,7 +71,15 @@ def _add_flight_options(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="SPEC",
-        help="degradation event gamma_q|gamma_d=VALUE@START_S[:ramp=SECONDS] (repeatable)",
+        help="degradation event gamma_q|gamma_d=VALUE@START_S[:ramp=SECONDS][:cylinder=N] (repeatable)",
+    )
+    parser.add_argument(
+        "--cylinders",
+        type=int,
+        default=1,
+        metavar="N",
+        help="an engine with N cylinders whose models differ (heat +-8 %%, wall mass +-5 %%, drawn from --seed):"
+        " frames of cylinders.dbc, CSV columns cht1_c..chtN_c (default 1)",
     )
     parser.add_argument(
         "--effect",
@@ -94,10 +103,13 @@ class _Flight:
         self.effects = parse_effects(args.effect, base=self.params.effects) if args.effect else None
         self.seed: int = args.seed
         self.dt_s: float = args.dt
+        self.cylinders = cylinder_models(self.params, args.cylinders, seed=args.seed) if args.cylinders != 1 else ()
 
     def describe(self) -> str:
         effects = (self.effects or self.params.effects).active
         parts = [f"mission {self.mission.name}", f"seed {self.seed}"]
+        if self.cylinders:
+            parts.append(f"{len(self.cylinders)} cylinders")
         parts.append("degradation " + (", ".join(map(str, self.degradation)) or "none"))
         parts.append("effects " + (", ".join(effects) or "none"))
         return "; ".join(parts)
@@ -149,6 +161,7 @@ def _record(args: argparse.Namespace) -> int:
         dt_s=flight.dt_s,
         record_dt_s=args.record_dt,
         progress=lambda t: progress(f"t = {t:.0f} s"),
+        cylinders=flight.cylinders,
     )
     progress.done()
     print(f"{flight.describe()}")
@@ -196,8 +209,10 @@ def _run(args: argparse.Namespace) -> int:
         degradation=flight.degradation,
         seed=flight.seed,
         dt_s=flight.dt_s,
+        cylinders=flight.cylinders,
     )
-    encoder = FrameEncoder(cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time)
+    count = len(flight.cylinders) or 1
+    encoder = FrameEncoder(cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time, cylinders=count)
     with open_bus(config) as bus:
         emitter = FrameEmitter(bus, encoder, realtime=args.realtime, speed=args.speed, progress=show)
         stats = emitter.emit(blocks)

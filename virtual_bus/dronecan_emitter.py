@@ -84,7 +84,8 @@ class DroneCanFrameEncoder:
     def _transfers(self, m: Any, j: int, stamp: float) -> list[can.Message]:
         rpm = float(m.rpm[j])
         pressure_kpa = float(standard_pressure_kpa(float(m.altitude_m[j])))
-        chts = [float(m.cht_c[j])]
+        heads = m.cht_cylinders_c  # an engine flown with cylinders: one CylinderStatus each
+        chts = [float(m.cht_c[j])] if heads is None else [float(v) for v in heads[:, j]]
         flags = _FLAG_TEMPERATURE_SUPPORTED
         if max(chts) >= self.cht_limit_c:
             flags |= _FLAG_TEMPERATURE_ABOVE_NOMINAL

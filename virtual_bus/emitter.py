@@ -49,6 +49,10 @@ _log = logging.getLogger(__name__)
 
 #: The engine DBC the emitter encodes with.
 ENGINE_DBC = shipped_dbc("engine.dbc")
+#: The per-cylinder CHT frames an engine flown with cylinders also sends (ECU_Cht1to4, ECU_Cht5to8).
+CYLINDERS_DBC = shipped_dbc("cylinders.dbc")
+#: Per-cylinder CHT messages of cylinders.dbc, four cylinders each, in cylinder order.
+CYLINDER_MESSAGES: tuple[str, ...] = ("ECU_Cht1to4", "ECU_Cht5to8")
 
 #: Message -> (signal -> field of :class:`~virtual_bus.sensors.Measurements`), counter, checksum.
 MESSAGE_SIGNALS: dict[str, tuple[dict[str, str], str, str]] = {
@@ -82,18 +86,30 @@ class _MessageSpec:
     cycle_ms: int
     next_index: int = 0
     counter: int = 0
+    first_cylinder: int = -1  # a per-cylinder CHT message: index of its first cylinder (-1: not one)
 
 
 class FrameEncoder:
     """Encodes StepBlocks into timestamped frames of engine.dbc, keeping the counters across blocks.
 
     ``cht_limit_c`` sets EcuStatus (WARNING at or above it); ``start_time_s`` is added to every
-    timestamp (mission time 0 -> start_time_s).
+    timestamp (mission time 0 -> start_time_s). ``cylinders`` >= 2: an engine flown with cylinders
+    also sends the per-cylinder CHT frames of cylinders.dbc (ECU_Cht1to4, ECU_Cht5to8 from five
+    cylinders on; a signal past the last cylinder carries the range minimum) and ECU_Slow.CHT carries
+    the cylinders' mean.
     """
 
-    def __init__(self, dbc_path: Path = ENGINE_DBC, *, cht_limit_c: float = 150.0, start_time_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        dbc_path: Path = ENGINE_DBC,
+        *,
+        cht_limit_c: float = 150.0,
+        start_time_s: float = 0.0,
+        cylinders: int = 1,
+    ) -> None:
         db = load_engine_dbc(Path(dbc_path))
-        self.encoder = Encoder([dbc_path])
+        self.cylinders = cylinders
+        self.encoder = Encoder([dbc_path, CYLINDERS_DBC] if cylinders > 1 else [dbc_path])
         self.cht_limit_c = cht_limit_c
         self.start_time_s = start_time_s
         self.specs: list[_MessageSpec] = []
@@ -107,6 +123,10 @@ class FrameEncoder:
             if not self.encoder.has_counter(name):
                 raise ConfigError(f"{dbc_path}: message {name!r} lacks the rolling counter and checksum of docs/dbc.md")
             self.specs.append(_MessageSpec(definition, sources, int(definition.cycle_time)))
+        if cylinders > 1:
+            for index, name in enumerate(CYLINDER_MESSAGES[: math.ceil(cylinders / 4)]):
+                definition = self.encoder.message(name)
+                self.specs.append(_MessageSpec(definition, {}, int(definition.cycle_time), first_cylinder=4 * index))
 
     def frames(self, block: StepBlock) -> list[can.Message]:
         """The frames due during ``block`` (times in [first step, first step + block length)), in time
@@ -134,8 +154,20 @@ class FrameEncoder:
             signal: getattr(block.measured, source)[k] for signal, source in spec.sources.items()
         }
         if spec.definition.name == "ECU_Slow":
-            warning = block.measured.cht_c[k] >= self.cht_limit_c
+            hottest = (
+                block.measured.cht_c
+                if block.measured.cht_cylinders_c is None
+                else block.measured.cht_cylinders_c.max(axis=0)
+            )
+            warning = hottest[k] >= self.cht_limit_c
             columns["EcuStatus"] = np.where(warning, _STATUS_WARNING, _STATUS_OK)
+        if spec.first_cylinder >= 0:
+            heads = block.measured.cht_cylinders_c
+            if heads is None:
+                raise ConfigError(f"{spec.definition.name}: the flight was not flown with cylinders")
+            for i, signal in enumerate(s for s in spec.definition.signals if s.name.startswith("CHT")):
+                c = spec.first_cylinder + i
+                columns[signal.name] = heads[c, k] if c < heads.shape[0] else np.full(k.size, float(signal.minimum))
         payloads = self.encoder.encode_rows(spec.definition.name, columns, spec.counter)
         spec.counter = (spec.counter + len(payloads)) % 16
         frame_id, extended = spec.definition.frame_id, bool(spec.definition.is_extended_frame)

@@ -3,8 +3,9 @@ unmodelled effects switched on in the truth, and truth-only forms the model libr
 
 Degradation syntax (:meth:`Degradation.parse`, the CLI's ``--degrade``)::
 
-    gamma_q=1.2@1800            step of gamma_Q to 1.2 at t = 1800 s
+    gamma_q=1.2@1800            step of gamma_Q to 1.2 at t = 1800 s (every cylinder)
     gamma_d=1.1@600:ramp=300    gamma_D ramps linearly from its level at 600 s to 1.1 at 900 s
+    gamma_q=1.2@1800:cylinder=3 gamma_Q of cylinder 3 alone (an engine flown with cylinders)
 
 Effect syntax (:func:`parse_effect`, the CLI's ``--effect``): ``NAME`` (default sizes) or
 ``NAME:key=value,key=value``, e.g. ``sensor_lag:time_constant_s=12``.
@@ -38,19 +39,21 @@ __all__ = [
 DEGRADATION_FACTORS: tuple[str, ...] = ("gamma_q", "gamma_d")
 _DEGRADE_RE = re.compile(
     r"^\s*(?P<factor>gamma_[qQdD])\s*=\s*(?P<value>[^@\s]+)\s*@\s*(?P<start>[^:\s]+)"
-    r"(?:\s*:\s*ramp\s*=\s*(?P<ramp>\S+))?\s*$"
+    r"(?:\s*:\s*ramp\s*=\s*(?P<ramp>[^:\s]+))?(?:\s*:\s*cylinder\s*=\s*(?P<cylinder>\S+))?\s*$"
 )
 
 
 @dataclass(frozen=True)
 class Degradation:
     """One degradation event: ``factor`` (gamma_q or gamma_d) goes to ``value`` from ``start_s``,
-    as a step (ramp_s = 0) or a linear ramp over ``ramp_s`` seconds."""
+    as a step (ramp_s = 0) or a linear ramp over ``ramp_s`` seconds, in every cylinder (``cylinder``
+    None) or in one (1-based)."""
 
     factor: str
     value: float
     start_s: float
     ramp_s: float = 0.0
+    cylinder: int | None = None
 
     def __post_init__(self) -> None:
         if self.factor not in DEGRADATION_FACTORS:
@@ -65,27 +68,38 @@ class Degradation:
                 raise ParameterError(f"degradation {name}: expected a number, got {value!r}")
             if not low <= value <= high:
                 raise ParameterError(f"degradation {name}: expected a number in [{low:g}, {high:g}], got {value!r}")
+        if self.cylinder is not None and (type(self.cylinder) is not int or not 1 <= self.cylinder <= 16):
+            raise ParameterError(f"degradation cylinder: expected a cylinder number 1 .. 16, got {self.cylinder!r}")
+
+    def applies_to(self, cylinder: int) -> bool:
+        """Whether this event degrades cylinder ``cylinder`` (1-based)."""
+        return self.cylinder is None or self.cylinder == cylinder
 
     @classmethod
     def parse(cls, text: str) -> Degradation:
-        """Parse ``gamma_q=1.2@1800`` or ``gamma_d=1.1@600:ramp=300``; ConfigError on bad syntax."""
+        """Parse ``gamma_q=1.2@1800``, ``gamma_d=1.1@600:ramp=300`` or, in one cylinder,
+        ``gamma_q=1.2@1800:cylinder=3``; ConfigError on bad syntax."""
         match = _DEGRADE_RE.match(text)
         if match is None:
-            raise ConfigError(f"--degrade {text!r}: expected gamma_q|gamma_d=VALUE@START_S[:ramp=SECONDS]")
+            raise ConfigError(f"--degrade {text!r}: expected gamma_q|gamma_d=VALUE@START_S[:ramp=SECONDS][:cylinder=N]")
         try:
             value = float(match["value"])
             start = float(match["start"])
             ramp = float(match["ramp"]) if match["ramp"] is not None else 0.0
         except ValueError:
             raise ConfigError(f"--degrade {text!r}: VALUE, START_S and ramp must be numbers") from None
+        cylinder = match["cylinder"]
+        if cylinder is not None and not cylinder.isdigit():
+            raise ConfigError(f"--degrade {text!r}: cylinder must be a cylinder number (1, 2, ...), got {cylinder!r}")
         try:
-            return cls(match["factor"].lower(), value, start, ramp)
+            return cls(match["factor"].lower(), value, start, ramp, None if cylinder is None else int(cylinder))
         except ParameterError as exc:
             raise ConfigError(f"--degrade {text!r}: {exc}") from None
 
     def __str__(self) -> str:
         ramp = f":ramp={self.ramp_s:g}" if self.ramp_s > 0 else ""
-        return f"{self.factor}={self.value:g}@{self.start_s:g}{ramp}"
+        cylinder = f":cylinder={self.cylinder}" if self.cylinder is not None else ""
+        return f"{self.factor}={self.value:g}@{self.start_s:g}{ramp}{cylinder}"
 
 
 def gamma_schedule(events: Sequence[Degradation], factor: str, time_s: Any) -> np.ndarray:

@@ -55,6 +55,7 @@ from ecu_monitor.model import (
     rk4_step,
     sensor_step,
 )
+from virtual_bus.cylinders import CylinderState, fly_cylinders
 from virtual_bus.faults import (
     DEGRADATION_FACTORS,
     TRUTH_FORM_KINDS,
@@ -116,6 +117,11 @@ class StepBlock(NamedTuple):
     measured: Measurements
     form_gamma_q: np.ndarray | None = None  # truth forms' factors per step (None: no truth form)
     form_gamma_d: np.ndarray | None = None
+    # an engine flown with cylinders: each cylinder's head temperature and gammas, (cylinders, steps);
+    # cht_true_c and probe_c are then the cylinders' mean, gamma_q and gamma_d the every-cylinder schedule
+    cylinders_true_c: np.ndarray | None = None
+    cylinders_gamma_q: np.ndarray | None = None
+    cylinders_gamma_d: np.ndarray | None = None
 
 
 def _check_step(dt_s: float) -> int:
@@ -135,17 +141,29 @@ def iter_steps(
     sensors: SensorModel | None = None,
     max_duration_s: float | None = None,
     truth_forms: Sequence[TruthForm] = (),
+    cylinders: Sequence[ThermalParams] = (),
 ) -> Iterator[StepBlock]:
     """Fly ``mission`` and yield one :class:`StepBlock` per control period until the mission ends.
 
     ``params`` is the truth model (default the paper's Table A1); ``effects``, if given, replaces its
     unmodelled effects; ``truth_forms`` adds terms the library does not hold (:class:`TruthForm`).
+    ``cylinders`` (2 or more models, :func:`virtual_bus.cylinders.cylinder_models`): an engine with
+    one head per model on the shared inputs, each probe measured on its own, degradation events with
+    ``cylinder=n`` in that cylinder alone; the pilot watches the hottest probe; not with truth forms.
     Deterministic for a seed: the pilot's random variations and the sensor noise
     draw from two independent streams spawned from ``seed``.
     """
     params = params or paper_table_a1()
     if effects is not None:
         params = params.replace(effects=effects)
+        cylinders = [c.replace(effects=effects) for c in cylinders]
+    multi = len(cylinders) > 1
+    if multi and truth_forms:
+        raise ParameterError("truth forms apply to a single-cylinder engine (fly cylinders without them)")
+    count = len(cylinders) if multi else 1
+    wrong = [e for e in degradation if e.cylinder is not None and e.cylinder > count]
+    if wrong:
+        raise ParameterError(f"degradation {wrong[0]}: the engine has {count} cylinder(s)")
     sensors = sensors or SensorModel()
     steps_per_period = _check_step(dt_s)
     coeffs = coefficients(params)
@@ -165,6 +183,7 @@ def iter_steps(
     probe = cht
     pade: Any = None
     cht_measured = cht
+    heads = [CylinderState(cht, cht) for _ in cylinders] if multi else []
     oil_forms = [f for f in truth_forms if f.kind == "oil_coupling"]
     oil = [cht for _ in oil_forms]
     oil_start = list(oil)
@@ -195,7 +214,7 @@ def iter_steps(
             pade = float(initial_pade_state(Drive(q[0], g[0], amb[0], cond[0], gain[0])))
         cht_out = np.empty(steps_per_period)
         probe_out = np.empty(steps_per_period)
-        for k in range(steps_per_period):
+        for k in range(steps_per_period if not multi else 0):
             cht_out[k] = cht
             probe_out[k] = probe
             gd_k = gd[k]
@@ -206,6 +225,13 @@ def iter_steps(
                 oil[i] += dt_s * (cht - oil[i]) / form.value("time_constant_s")
             cht, pade = rk4_step(cht, pade, Drive(q[k], g[k], amb[k], cond[k], gain[k]), coeffs, dt_s, gq[k], gd_k)
             probe = probe + probe_gain * (cht - probe)
+        per_cylinder: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        if multi:
+            inputs = InputSeries(heat_x, heat_y, kin.altitude_m, kin.airspeed_mps, oat)
+            per_cylinder = fly_cylinders(heads, cylinders, inputs, time_s, degradation, dt_s)
+            cht_out = per_cylinder[0].mean(axis=0)
+            probe_out = per_cylinder[1].mean(axis=0)
+            cht = float(np.mean([head.cht_c for head in heads]))
         if not math.isfinite(cht):
             raise ParameterError(f"truth plant diverged at t = {state.time_s:.1f} s (dt_s {dt_s} too large?)")
         measured = sensors.measure(
@@ -219,7 +245,12 @@ def iter_steps(
             vspeed_mps=kin.vspeed_mps,
             fuel_flow_lph=fuel,
         )
-        cht_measured = float(measured.cht_c[-1])
+        if per_cylinder is not None:
+            probes = sensors.quantise_cht(per_cylinder[1], sensor_rng)
+            measured = measured._replace(cht_c=probes.mean(axis=0), cht_cylinders_c=probes)
+            cht_measured = float(probes[:, -1].max())
+        else:
+            cht_measured = float(measured.cht_c[-1])
         yield StepBlock(
             first_step=step,
             segment_index=pilot.index,
@@ -238,6 +269,9 @@ def iter_steps(
             measured=measured,
             form_gamma_q=form_q if truth_forms else None,
             form_gamma_d=form_d if truth_forms else None,
+            cylinders_true_c=None if per_cylinder is None else per_cylinder[0],
+            cylinders_gamma_q=None if per_cylinder is None else per_cylinder[2],
+            cylinders_gamma_d=None if per_cylinder is None else per_cylinder[3],
         )
         step += steps_per_period
         state = next_state
@@ -261,8 +295,31 @@ LOG_COLUMNS: tuple[str, ...] = (
 
 
 def block_rows(block: StepBlock, every: int) -> dict[str, np.ndarray]:
-    """The samples of ``block`` whose global step index is a multiple of ``every``, as log columns."""
+    """The samples of ``block`` whose global step index is a multiple of ``every``, as log columns
+    (:data:`LOG_COLUMNS`; an engine flown with cylinders adds :func:`cylinder_rows`)."""
     keep = np.nonzero((block.first_step + np.arange(block.time_s.size)) % every == 0)[0]
+    return {**_log_rows(block, keep), **cylinder_rows(block, keep)}
+
+
+def cylinder_rows(block: StepBlock, keep: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-cylinder log columns of ``block`` at the steps ``keep``: measured ``cht1_c .. chtN_c`` (the
+    flight CSV's cylinder columns), truth ``cylN_cht_true_c``, ``cylN_gamma_q``, ``cylN_gamma_d``;
+    none for a single-cylinder engine."""
+    m = block.measured
+    if m.cht_cylinders_c is None or block.cylinders_true_c is None:
+        return {}
+    out: dict[str, np.ndarray] = {}
+    count = m.cht_cylinders_c.shape[0]
+    for c in range(count):
+        out[f"cht{c + 1}_c"] = m.cht_cylinders_c[c, keep]
+    for c in range(count):
+        out[f"cyl{c + 1}_cht_true_c"] = block.cylinders_true_c[c, keep]
+        out[f"cyl{c + 1}_gamma_q"] = np.asarray(block.cylinders_gamma_q)[c, keep]
+        out[f"cyl{c + 1}_gamma_d"] = np.asarray(block.cylinders_gamma_d)[c, keep]
+    return out
+
+
+def _log_rows(block: StepBlock, keep: np.ndarray) -> dict[str, np.ndarray]:
     m = block.measured
     return {
         "time_s": block.time_s[keep],
@@ -298,7 +355,7 @@ def collect(blocks: Iterable[StepBlock], every: int, source: str) -> FlightLog:
     parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
     for block in blocks:
         for name, values in block_rows(block, every).items():
-            parts[name].append(values)
+            parts.setdefault(name, []).append(values)
     if not parts["time_s"]:
         raise ConfigError(f"{source}: the mission produced no samples")
     return FlightLog({name: np.concatenate(chunks) for name, chunks in parts.items()}, source=source)
@@ -316,13 +373,16 @@ def fly(
     sensors: SensorModel | None = None,
     max_duration_s: float | None = None,
     truth_forms: Sequence[TruthForm] = (),
+    cylinders: Sequence[ThermalParams] = (),
 ) -> FlightLog:
     """Fly ``mission`` through the truth plant and return the flight sampled every ``record_dt_s``.
 
     Columns: the canonical ones as measured (time_s, throttle_pct, rpm, altitude_m, airspeed_mps,
     oat_c, cht_c quantised), fuel_flow_lph and vspeed_mps (measured), and the truth for scoring:
     cht_true_c (head temperature), gamma_q, gamma_d; with ``truth_forms`` also form_gamma_q and
-    form_gamma_d (their combined factors on the heat in and the dissipation). Deterministic for a seed.
+    form_gamma_d (their combined factors on the heat in and the dissipation); with ``cylinders`` the
+    per-cylinder columns of :func:`cylinder_rows` (cht_c is then the cylinders' mean). Deterministic
+    for a seed.
     """
     every = record_every(dt_s, record_dt_s)
     forms: dict[str, list[np.ndarray]] = {"form_gamma_q": [], "form_gamma_d": []}
@@ -345,6 +405,7 @@ def fly(
         sensors=sensors,
         max_duration_s=max_duration_s,
         truth_forms=truth_forms,
+        cylinders=cylinders,
     )
     log = collect(keep_forms(blocks), every, source=f"virtual-ecu:{mission.name}:seed={seed}")
     if truth_forms:

@@ -40,11 +40,12 @@ PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
 
 
 def frame_encoder(
-    protocol: str, *, cht_limit_c: float, start_time_s: float = 0.0
+    protocol: str, *, cht_limit_c: float, start_time_s: float = 0.0, cylinders: int = 1
 ) -> FrameEncoder | DroneCanFrameEncoder:
-    """The virtual ECU's frame encoder for ``protocol`` (one of :data:`PROTOCOLS`)."""
+    """The virtual ECU's frame encoder for ``protocol`` (one of :data:`PROTOCOLS`); ``cylinders``: an
+    engine flown with cylinders (DBC: the frames of cylinders.dbc too; DroneCAN: one CylinderStatus each)."""
     if protocol == "dbc":
-        return FrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s)
+        return FrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s, cylinders=cylinders)
     if protocol == "dronecan":
         return DroneCanFrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s)
     raise ConfigError(f"--protocol: expected one of {', '.join(PROTOCOLS)}, got {protocol!r}")
@@ -93,14 +94,18 @@ def record(
     start_time_s: float = 0.0,
     progress: Callable[[float], None] | None = None,
     protocol: str = "dbc",
+    cylinders: Sequence[ThermalParams] = (),
 ) -> RecordSummary:
-    """Fly ``mission`` once and write every output; ``progress`` gets the mission time (s) per block."""
+    """Fly ``mission`` once and write every output; ``progress`` gets the mission time (s) per block.
+    ``cylinders``: fly an engine with one head per model (:func:`virtual_bus.plant.iter_steps`): the
+    CSV gets ``cht1_c .. chtN_c`` and the per-cylinder truth, the CAN logs the frames of cylinders.dbc."""
     paths = check_outputs(outputs)
     params = params or paper_table_a1()
     every = record_every(dt_s, record_dt_s)
     csv_paths = [p for p in paths if p.suffix.lower() == ".csv"]
     can_paths = [p for p in paths if p.suffix.lower() in CAN_SUFFIXES]
-    encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s)
+    count = len(cylinders) if len(cylinders) > 1 else 1
+    encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s, cylinders=count)
     summary = RecordSummary()
     parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
     writers: list[Any] = []
@@ -111,7 +116,14 @@ def record(
             except OSError as exc:
                 raise ConfigError(f"{path}: cannot write: {exc.strerror or exc}") from None
         blocks = iter_steps(
-            mission, params, effects=effects, degradation=degradation, seed=seed, dt_s=dt_s, sensors=sensors
+            mission,
+            params,
+            effects=effects,
+            degradation=degradation,
+            seed=seed,
+            dt_s=dt_s,
+            sensors=sensors,
+            cylinders=cylinders,
         )
         for block in blocks:
             _take(block, every, parts, summary, bool(csv_paths))
@@ -143,4 +155,4 @@ def _take(block: StepBlock, every: int, parts: dict[str, list[np.ndarray]], summ
     summary.max_cht_true_c = max(summary.max_cht_true_c, float(np.max(block.cht_true_c)))
     if keep:
         for name, values in block_rows(block, every).items():
-            parts[name].append(values)
+            parts.setdefault(name, []).append(values)

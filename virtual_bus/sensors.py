@@ -34,6 +34,8 @@ class Measurements(NamedTuple):
     oat_c: np.ndarray
     vspeed_mps: np.ndarray
     fuel_flow_lph: np.ndarray
+    #: per-cylinder CHT (cylinders, steps) of an engine flown with cylinders (then cht_c is their mean)
+    cht_cylinders_c: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

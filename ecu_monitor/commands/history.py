@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import math
 from pathlib import Path
 from typing import Any
 
@@ -116,7 +117,30 @@ def format_history(serial: str, records: list[FlightRecord]) -> str:
             f"{_fmt(record.gamma_q_end, '7.3f'):>7} {_fmt(record.gamma_d_mean, '7.3f'):>7} {record.worst_state:<12} "
             f"{record.cycles_total:>6.1f} {_large_cycles(record):>5.1f} {status}"
         )
+        lines.extend(_cylinder_lines(record))
     return "\n".join(lines)
+
+
+def _cylinder_lines(record: FlightRecord) -> list[str]:
+    """An engine monitored per cylinder: one line per cylinder and one of the spread, under its flight."""
+    cyl = record.cylinders
+    if not cyl:
+        return []
+    out = [
+        f"       cylinder {c['number']}: max CHT {_fmt(c['max_cht_c'], '.1f')},"
+        f" gQ mean {_fmt(c['gamma_q_mean'], '.3f')} max {_fmt(c['gamma_q_max'], '.3f')},"
+        f" gD mean {_fmt(c['gamma_d_mean'], '.3f')}, worst {c['worst_state']}"
+        f" ({c['time_degraded_s']:.0f} s SUSPECT/DEGRADED)"
+        for c in cyl.get("per_cylinder", [])
+    ]
+    hottest = cyl.get("hottest_s", {})
+    total = sum(hottest.values())
+    shares = ", ".join(f"{n} {100.0 * v / total:.0f} %" for n, v in sorted(hottest.items(), key=lambda kv: -kv[1]))
+    out.append(
+        f"       CHT spread max {_fmt(cyl.get('spread_max_c'), '.1f')} degC, spread alarm"
+        f" {cyl.get('spread_alarm_s', 0.0):.0f} s; hottest cylinder: {shares or '-'}"
+    )
+    return out
 
 
 def plot_history(histories: dict[str, list[FlightRecord]], out: Path) -> None:
@@ -143,6 +167,12 @@ def trend_figure(histories: dict[str, list[FlightRecord]]) -> Any:
         hours = [h for h, _ in points]
         ax_gamma.plot(hours, [r.gamma_q_mean for _, r in points], "o-", label=f"{serial} gamma_Q (flight mean)")
         ax_gamma.plot(hours, [r.gamma_d_mean for _, r in points], "s--", label=f"{serial} gamma_D (flight mean)")
+        count = max((len(r.cylinders.get("per_cylinder", [])) for _, r in points), default=0)
+        for n in range(count):  # an engine monitored per cylinder: each cylinder's gamma_Q, thin
+            ax_gamma.plot(hours, [_cylinder_value(r, n, "gamma_q_mean") for _, r in points], ".:", linewidth=0.8,
+                          label=f"{serial} cylinder {n + 1} gamma_Q (flight mean)")  # fmt: skip
+            ax_cht.plot(hours, [_cylinder_value(r, n, "max_cht_c") for _, r in points], ".:", linewidth=0.8,
+                        label=f"{serial} cylinder {n + 1} max CHT")  # fmt: skip
         ax_cht.plot(hours, [r.max_cht_c for _, r in points], "o-", label=f"{serial} max CHT")
         limits = sorted({r.cht_limit_c for _, r in points})
         for limit in limits:
@@ -177,6 +207,13 @@ def trend_figure(histories: dict[str, list[FlightRecord]]) -> Any:
         ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def _cylinder_value(record: FlightRecord, index: int, key: str) -> float:
+    """One cylinder's stored value for a flight (nan: none, or a flight without cylinders)."""
+    cylinders = record.cylinders.get("per_cylinder", [])
+    value = cylinders[index].get(key) if index < len(cylinders) else None
+    return float(value) if value is not None else math.nan
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -16,6 +16,8 @@ The heat map's axes default to throttle_pct,rpm; a log without throttle but with
 fuel_flow_lph,rpm (say it with ``--heat-axes``). Foreign CSVs load through ``--mapping`` (g1000).
 Give the engine's CHT limit with ``--cht-limit`` (the manufacturer's value, degC): it goes into
 model.yaml for headroom and monitoring, and identify warns when the flights exceed it.
+``--cylinder N`` identifies cylinder N's CHT (column ``chtN_c``); ``--cylinder all`` every cylinder
+of the flights, one model.yaml each (``model_cyl1.yaml`` ...), for the service's ``cylinders.models``.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from tqdm import tqdm
 
 from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import FlightLogError, ParameterError, UserInputError
-from ecu_monitor.flightlog import FlightLog, require_distinct
+from ecu_monitor.flightlog import FlightLog, cylinder_columns, require_distinct
 from ecu_monitor.identify import (
     DEFAULT_FREE,
     ErrorStats,
@@ -45,7 +47,7 @@ from ecu_monitor.identify.report import error_table, plot_cost, plot_flight, plo
 from ecu_monitor.identify.select import TERM_NAMES, CrossValidation, Selection, identify_flights, parse_terms
 from ecu_monitor.model import load_model, paper_table_a1, save_model
 
-__all__ = ["add_subparser", "parse_grid", "parse_heat_axes"]
+__all__ = ["add_subparser", "cylinder_output", "parse_cylinder", "parse_grid", "parse_heat_axes"]
 
 _DEFAULTS = PsoSettings()
 
@@ -86,6 +88,12 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--no-polish", action="store_true", help="skip the least-squares polish")
     parser.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR")
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for foreign CSVs")
+    parser.add_argument(
+        "--cylinder",
+        metavar="N|all",
+        help="identify cylinder N's CHT (column chtN_c) instead of cht_c; all: every cylinder the first flight"
+        " carries, one model each (OUT with _cylN before its suffix) for the service's cylinders.models",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(func=_run)
 
@@ -110,8 +118,22 @@ def parse_grid(text: str) -> tuple[int, int]:
     return n, m
 
 
-def _load(paths: list[str], mapping: str | None) -> list[FlightLog]:
-    return [load_flight(p, mapping=mapping) for p in paths]
+def _load(paths: list[str], mapping: str | None, cylinder: int | None = None) -> list[FlightLog]:
+    return [load_flight(p, mapping=mapping, cht=cylinder) for p in paths]
+
+
+def parse_cylinder(text: str | None) -> int | str | None:
+    """``--cylinder``: None, ``"all"`` or a cylinder number >= 1; UserInputError otherwise."""
+    if text is None or text.strip().lower() == "all":
+        return None if text is None else "all"
+    if not text.strip().isdigit() or int(text) < 1:
+        raise UserInputError(f"--cylinder: expected a cylinder number (1, 2, ...) or all, got {text!r}")
+    return int(text)
+
+
+def cylinder_output(out: Path, cylinder: int) -> Path:
+    """The model file of one cylinder for ``--cylinder all``: ``model.yaml`` -> ``model_cyl3.yaml``."""
+    return out.with_name(f"{out.stem}_cyl{cylinder}{out.suffix or '.yaml'}")
 
 
 def _choose_axes(arg: str | None, flights: list[FlightLog]) -> tuple[str, str]:
@@ -145,8 +167,29 @@ def _settings(args: argparse.Namespace) -> PsoSettings:
 
 
 def _run(args: argparse.Namespace) -> int:
-    settings = _settings(args)  # validate the numbers and the output places before the (slow) work
+    cylinder = parse_cylinder(args.cylinder)
     out = Path(args.out)
+    if cylinder != "all":
+        return _run_one(args, cylinder if isinstance(cylinder, int) else None, out)
+    require_distinct([*args.flights, *(args.validate or [])], "identify")
+    first = _load(args.flights[:1], args.mapping)[0]
+    numbers = [int(c[3:-2]) for c in cylinder_columns(first, "cht")]
+    if not numbers:
+        raise FlightLogError(f"{first.source}: --cylinder all: no per-cylinder CHT columns (cht1_c ..)")
+    written = []
+    for number in numbers:
+        print(f"== cylinder {number} of {len(numbers)} ==")
+        path = cylinder_output(out, number)
+        _run_one(args, number, path)
+        written.append(str(path))
+    print("for the service config (docs/service.md, Every cylinder):")
+    print(f"cylinders: {{models: [{', '.join(written)}]}}")
+    return 0
+
+
+def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
+    """Identify one model (of ``cht_c``, or of cylinder ``cylinder``'s CHT) into ``out``."""
+    settings = _settings(args)  # validate the numbers and the output places before the (slow) work
     if not out.parent.is_dir():
         raise UserInputError(f"{out}: the directory {out.parent} does not exist")
     if args.cht_limit is not None and not 20.0 <= args.cht_limit <= 500.0:
@@ -154,11 +197,12 @@ def _run(args: argparse.Namespace) -> int:
     terms: dict[str, bool] | str | None = None
     if args.effects:
         terms = "auto" if args.effects.strip() == "auto" else _parse_terms(args.effects)
-    if args.plots:
-        _make_dir(Path(args.plots))
+    plots = None if not args.plots else Path(args.plots) / (f"cyl{cylinder}" if cylinder is not None else "")
+    if plots is not None:
+        _make_dir(plots)
     require_distinct([*args.flights, *(args.validate or [])], "identify")
-    flights = _load(args.flights, args.mapping)
-    validation = _load(args.validate, args.mapping)
+    flights = _load(args.flights, args.mapping, cylinder)
+    validation = _load(args.validate, args.mapping, cylinder)
     axes = _choose_axes(args.heat_axes, flights)
     base = load_model(args.base) if args.base else paper_table_a1()
     if args.cht_limit is not None:
@@ -211,6 +255,7 @@ def _run(args: argparse.Namespace) -> int:
     bounds = [f"AT BOUND: {line}" for line in result.at_bounds] or ["no parameter ended within 1 % of a bound"]
     lines = [
         "Identified by: ecu-monitor identify " + " ".join(sys.argv[2:] if len(sys.argv) > 2 else args.flights),
+        *([f"cylinder {cylinder}: the CHT of column cht{cylinder}_c"] if cylinder is not None else []),
         summary,
         f"r_ce anchors the common scale of c_w, r_ce, alpha_r_e, heat map (kept at {params.r_ce:g});"
         f" radiated share at the reference point {space.radiation_share(params):.3f}",
@@ -236,10 +281,10 @@ def _run(args: argparse.Namespace) -> int:
         f"c_w {params.c_w:.4g} J/degC, r_ce {params.r_ce:.4g} degC/W, alpha_r_e {params.alpha_r_e:.4g},"
         f" tau_w {params.tau_w:.3g} s, a {params.a:.3g}, b {params.b:.3g}, CHT limit {params.cht_limit_c:g} degC;"
         f" heat map {params.heat_map.x_axis} x {params.heat_map.y_axis}"
-        f" {params.heat_map.shape[0]}x{params.heat_map.shape[1]} -> {args.out}"
+        f" {params.heat_map.shape[0]}x{params.heat_map.shape[1]} -> {out}"
     )
-    if args.plots:
-        _plots(Path(args.plots), result, flights, validation, rows)
+    if plots is not None:
+        _plots(plots, result, flights, validation, rows)
     return 0
 
 

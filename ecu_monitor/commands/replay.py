@@ -63,20 +63,23 @@ def _run(args: argparse.Namespace) -> int:
                 f"--estimator: unknown estimator {args.estimator!r} (known: {', '.join(sorted(ESTIMATORS))})"
             )
         config = config.replace(estimator_name=args.estimator)
-    params = load_model(args.model) if args.model else config.load_params()
+    models = (load_model(args.model),) * len(config.cylinder_inputs) if args.model else config.load_cylinder_params()
+    params = models[0]
     path = Path(args.log)
     if path.suffix.lower() in CAN_LOG_SUFFIXES:
         frames = read_frames(path)
     else:
-        frames = frames_from_flight(load_flight(path), config, (*model_input_names(params), "cht_c"))
+        frames = frames_from_flight(load_flight(path), config, (*model_input_names(params), *config.cylinder_inputs))
     result: ReplayResult = (
-        replay_live(config, params, frames.messages()) if args.live else replay_frames(config, params, frames)
+        replay_live(config, models, frames.messages()) if args.live else replay_frames(config, models, frames)
     )
     if len(result) == 0:
         span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
         raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
     rows = result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
+    for line in _cylinder_lines(result):
+        print(line)
     for line in fit_warnings(config, params, result):
         print(f"warning: {line}")
     return 0
@@ -108,6 +111,31 @@ def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayRes
             " calibrate it on nominal flights: ecu-monitor calibrate"
         )
     return out
+
+
+def _cylinder_lines(result: ReplayResult) -> list[str]:
+    """One line per cylinder of an engine monitored per cylinder: its states, first DEGRADED, the spread."""
+    count = result.cylinder_count
+    if count == 1:
+        return []
+    c = result.columns
+    time_s = c["time_s"]
+    lines = []
+    for n in range(1, count + 1):
+        codes = c[f"cyl{n}_state"]
+        counts = collections.Counter(STATES[code] for code in codes.tolist())
+        degraded = np.flatnonzero(codes == STATES.index("DEGRADED"))
+        detected = f", DEGRADED from t={time_s[degraded[0]] - time_s[0]:.1f} s" if degraded.size else ""
+        lines.append(f"cylinder {n}: {', '.join(f'{s} {k}' for s, k in counts.most_common())}{detected}")
+    spread = c["cht_spread_c"][np.isfinite(c["cht_spread_c"])]
+    hottest = collections.Counter(int(h) for h in c["hottest_cylinder"].tolist() if h)
+    if spread.size:
+        most = ", ".join(f"{h} ({100.0 * k / len(time_s):.0f} %)" for h, k in hottest.most_common())
+        lines.append(
+            f"CHT spread: median {np.median(spread):.1f} degC, max {spread.max():.1f} degC,"
+            f" alarm in {100.0 * np.mean(c['spread_alarm']):.1f} % of the rows; hottest cylinder {most}"
+        )
+    return lines
 
 
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:

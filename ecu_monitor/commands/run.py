@@ -148,11 +148,12 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.service.pipeline import Pipeline  # the estimator stack: imported only when running
 
     config = load_config(args.config)
-    params = config.load_params()
+    models = config.load_cylinder_params()  # one per cylinder (one for a single CHT channel)
+    params = models[0]
     if not args.min_flight_s >= 0.0:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
     _log_to_journal()
-    pipeline = Pipeline(config, params)
+    pipeline = Pipeline(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
         store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)

@@ -38,10 +38,13 @@ from ecu_monitor.shipped import resolve_file, shipped_dir
 from ecu_monitor.units import Unit, custom_unit
 
 __all__ = [
+    "CHT_INPUT",
+    "CYLINDER_HEALTH_MESSAGES",
     "CYLINDER_INPUT",
     "DEFAULT_CONFIG",
     "DRONECAN_ALTITUDE_FIELD",
     "HEALTH_MESSAGES",
+    "MAX_CYLINDERS",
     "MODEL_PRESETS",
     "PROTOCOLS",
     "REQUIRED_INPUTS",
@@ -60,14 +63,21 @@ __all__ = [
 DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
 #: Bus protocols of the inputs: DBC-described frames, or DroneCAN messages.
 PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
-#: Per-cylinder CHT inputs (``cht1_c`` .. ``cht16_c``, the flight-log column names): mapped and held
-#: beside the model inputs.
+#: Per-cylinder CHT inputs (``cht1_c`` .. ``cht16_c``, the flight-log column names). Two or more
+#: mapped: every cylinder is monitored (one estimator each; docs/service.md, "Every cylinder"), and a
+#: ``cht_c`` mapped beside them is held but not estimated; one alone is held beside ``cht_c``.
 CYLINDER_INPUT = re.compile(r"^cht([1-9]|1[0-6])_c$")
 #: DroneCAN: the field altitude_m is taken from when the config maps none (pressure altitude, Pa).
 DRONECAN_ALTITUDE_FIELD = "uavcan.equipment.air_data.StaticPressure.static_pressure"
 
 #: Inputs every configuration must map (the heat-map axes of the model come on top, checked by the pipeline).
 REQUIRED_INPUTS: tuple[str, ...] = ("cht_c", "oat_c", "altitude_m", "airspeed_mps")
+#: Health messages sent only when configured: the per-cylinder frames (health.dbc, docs/dbc.md).
+CYLINDER_HEALTH_MESSAGES: tuple[str, ...] = ("Health_Spread", "Health_Cylinder")
+#: The single-channel CHT input; an engine monitored per cylinder maps ``cht1_c .. chtN_c`` instead.
+CHT_INPUT = "cht_c"
+#: Most cylinders a configuration may monitor (the DroneCAN ICE status carries up to 16).
+MAX_CYLINDERS = 16
 #: Health messages the pipeline knows how to fill, with their default rates (Hz, health.dbc GenMsgCycleTime).
 HEALTH_MESSAGES: Mapping[str, float] = MappingProxyType(
     {"Health_Status": 10.0, "Health_Isolation": 2.0, "Health_Diag": 1.0}
@@ -91,6 +101,7 @@ _TOP_KEYS = (
     "model",
     "estimator",
     "detector",
+    "cylinders",
     "stale_predict_limit_s",
     "no_frames_warning_s",
     "state_dir",
@@ -197,11 +208,32 @@ class ServiceConfig:
     protocol: str = "dbc"
     #: the service as a DroneCAN node (used when protocol is dronecan)
     dronecan: DroneCanSettings = field(default_factory=DroneCanSettings)
+    #: ``cylinders.models``: one model (preset name or resolved file path) per cylinder, in cylinder
+    #: order; empty: every cylinder runs on ``model``.
+    cylinder_models: tuple[str, ...] = ()
+    #: ``cylinders.spread_limit_c``: the CHT spread (hottest minus coldest estimate, degC) above which
+    #: the service raises its spread alarm; None: no alarm.
+    spread_limit_c: float | None = None
 
     @property
     def input_names(self) -> tuple[str, ...]:
         """Names of the mapped inputs, in config order."""
         return tuple(spec.name for spec in self.inputs)
+
+    @property
+    def cylinder_inputs(self) -> tuple[str, ...]:
+        """The CHT input of each monitored cylinder, in cylinder order: ``("cht1_c", ..., "chtN_c")`` when
+        two or more are mapped, else ``("cht_c",)``."""
+        numbered = sorted(
+            (int(match.group(1)), spec.name) for spec in self.inputs if (match := CYLINDER_INPUT.match(spec.name))
+        )
+        return tuple(name for _, name in numbered) if len(numbered) > 1 else (CHT_INPUT,)
+
+    def load_cylinder_params(self) -> tuple[ThermalParams, ...]:
+        """The model of each cylinder (``cylinders.models``, else ``model`` for all), in cylinder order."""
+        if not self.cylinder_models:
+            return (self.load_params(),) * len(self.cylinder_inputs)
+        return tuple(self.replace(model=model, cylinder_models=()).load_params() for model in self.cylinder_models)
 
     def input(self, name: str) -> InputSpec:
         """The mapping of input ``name`` (KeyError if not mapped)."""
@@ -364,20 +396,19 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     sensor = _sensor_fault(sensor_node, databases, find)
 
     inputs = _inputs(top, databases, protocol)
+    if sensor.status_message is not None and _cylinder_count(inputs) > 1:
+        raise sensor_node.error(
+            "an ECU status signal reports one probe: not with cht1_c .. chtN_c (each cylinder's probe is"
+            " checked by range and the stuck test)",
+            "status_signal",
+        )
     estimator_name, estimator = _estimator(top)
     health = _health(top, health_db, estimator.dt_s)
 
-    model = top.raw("model", "paper_table_a1")
-    if not isinstance(model, str) or not model.strip():
-        presets = ", ".join(MODEL_PRESETS)
-        raise top.error(f"expected a preset name ({presets}) or a file path, got {_kind(model)}", "model")
-    if model not in MODEL_PRESETS:
-        model_path = _resolve(source, model)
-        if not model_path.is_file():
-            raise top.error(f"no such model file {model_path} (or a preset: {', '.join(MODEL_PRESETS)})", "model")
-        model = str(model_path)
+    model = _model_name(top, "model", top.raw("model", "paper_table_a1"))
 
     detector, symptom, calibrated_for = _detector(top)
+    cylinder_models, spread_limit = _cylinders(top, inputs)
 
     return ServiceConfig(
         source=source,
@@ -400,7 +431,36 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         detector_calibrated_for=calibrated_for,
         protocol=protocol,
         dronecan=dronecan,
+        cylinder_models=cylinder_models,
+        spread_limit_c=spread_limit,
     )
+
+
+def _model_name(node: _Node, key: str, value: Any) -> str:
+    """A ``model:`` value: a preset's name, or a model file (resolved against the config file)."""
+    if not isinstance(value, str) or not value.strip():
+        presets = ", ".join(MODEL_PRESETS)
+        raise node.error(f"expected a preset name ({presets}) or a file path, got {_kind(value)}", key)
+    if value in MODEL_PRESETS:
+        return value
+    path = _resolve(node.src, value)
+    if not path.is_file():
+        raise node.error(f"no such model file {path} (or a preset: {', '.join(MODEL_PRESETS)})", key)
+    return str(path)
+
+
+def _cylinders(top: _Node, inputs: tuple[InputSpec, ...]) -> tuple[tuple[str, ...], float | None]:
+    """``cylinders:``: one model per cylinder (optional) and the CHT spread limit (optional)."""
+    node = top.child("cylinders", ("models", "spread_limit_c"), {})
+    count = _cylinder_count(inputs)
+    models: tuple[str, ...] = ()
+    if node.has("models"):
+        items = node.raw("models")
+        if not isinstance(items, list) or len(items) != count:
+            raise node.error(f"expected a list of {count} models, one per cylinder, got {_kind(items)}", "models")
+        models = tuple(_model_name(node, f"models[{i}]", item) for i, item in enumerate(items))
+    limit = node.number("spread_limit_c", low=0.0, strict_low=True) if node.has("spread_limit_c") else None
+    return models, limit
 
 
 def _load(node: _Node, key: str, path: Path) -> Any:
@@ -529,11 +589,26 @@ def _inputs(top: _Node, databases: list[tuple[Path, Any]], protocol: str = "dbc"
         air = next(spec for spec in specs if spec.name == "airspeed_mps")
         message, signal = _find_field(node, "altitude_m", DRONECAN_ALTITUDE_FIELD, databases)
         specs.append(InputSpec("altitude_m", message, signal, "Pa", air.stale_after_s))
+    matches = [CYLINDER_INPUT.match(name) for name in node.data if isinstance(name, str)]
+    numbers = sorted(int(m.group(1)) for m in matches if m is not None)
+    if numbers and numbers != list(range(1, len(numbers) + 1)):
+        raise node.error(
+            f"cylinders must be numbered 1 .. N (N <= {MAX_CYLINDERS}) without gaps, got"
+            f" {', '.join(f'cht{n}_c' for n in numbers)}"
+        )
     mapped = {spec.name for spec in specs}
     for name in REQUIRED_INPUTS:
-        if name not in mapped:
-            raise node.error(f"missing (every configuration maps {', '.join(REQUIRED_INPUTS)})", name)
+        if name not in mapped and not (name == CHT_INPUT and len(numbers) > 1):
+            raise node.error(
+                f"missing (every configuration maps {', '.join(REQUIRED_INPUTS)}; cht_c or cht1_c .. chtN_c)", name
+            )
     return tuple(specs)
+
+
+def _cylinder_count(inputs: tuple[InputSpec, ...]) -> int:
+    """Cylinders monitored: the numbered CHT inputs when two or more are mapped, else 1 (``cht_c``)."""
+    count = sum(1 for spec in inputs if CYLINDER_INPUT.match(spec.name))
+    return count if count > 1 else 1
 
 
 def _is_pressure(value: Any) -> bool:
@@ -546,7 +621,7 @@ def _is_pressure(value: Any) -> bool:
 
 def _health(top: _Node, health_db: Any, dt_s: float) -> tuple[HealthRate, ...]:
     defaults = {name: {"rate_hz": rate} for name, rate in HEALTH_MESSAGES.items()}
-    node = top.child("health", tuple(HEALTH_MESSAGES), defaults)
+    node = top.child("health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), defaults)
     names = {m.name for m in health_db.messages}
     rates: list[HealthRate] = []
     for name in node.data:

@@ -367,6 +367,18 @@ class Daemon:
                     gamma_q=float(row.gamma_q),
                     gamma_d=float(row.gamma_d),
                     state=str(row.state),
+                    cylinders=tuple(
+                        (
+                            float(c.cht_meas_c if not c.sensor_fault and _finite(c.cht_meas_c) else c.cht_est_c),
+                            float(c.gamma_q),
+                            float(c.gamma_d),
+                            str(c.state),
+                        )
+                        for c in row.cylinders
+                    ),
+                    cht_spread_c=float(row.cht_spread_c),
+                    hottest_cylinder=int(row.hottest_cylinder),
+                    spread_alarm=bool(row.spread_alarm),
                 )
             )
         self.counters["rows_recorded"] += len(rows)

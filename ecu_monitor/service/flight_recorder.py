@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from typing import Any
 
 from ecu_monitor.service.persistence import FlightRecord, FlightRules, FlightSample, StateStore
 from ecu_monitor.service.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
@@ -92,6 +93,54 @@ class SignalMoments:
         return first, self.last, sv / n, max(max_p, self.maximum), slope
 
 
+class _CylinderFlight:
+    """One cylinder's aggregates of the flight in progress (engines monitored per cylinder)."""
+
+    def __init__(self, number: int) -> None:
+        self.number = number
+        self.max_cht_c = -math.inf
+        self.worst_state = "NOMINAL"
+        self.time_degraded_s = 0.0
+        self.gamma_q = SignalMoments()
+        self.gamma_d = SignalMoments()
+
+    def add(self, t_s: float, dt: float, cht_c: float, gamma_q: float, gamma_d: float, state: str) -> None:
+        if math.isfinite(cht_c):
+            self.max_cht_c = max(self.max_cht_c, cht_c)
+        if state in ("SUSPECT", "DEGRADED"):
+            self.time_degraded_s += dt
+        if _STATE_RANK.get(state, 0) > _STATE_RANK.get(self.worst_state, 0):
+            self.worst_state = state
+        self.gamma_q.add(t_s, gamma_q)
+        self.gamma_d.add(t_s, gamma_d)
+
+    def values(self) -> dict[str, object]:
+        out: dict[str, object] = {
+            "number": self.number,
+            "max_cht_c": self.max_cht_c if math.isfinite(self.max_cht_c) else None,
+            "worst_state": self.worst_state,
+            "time_degraded_s": self.time_degraded_s,
+        }
+        for name, moments in (("gamma_q", self.gamma_q), ("gamma_d", self.gamma_d)):
+            first, last, mean, top, slope = moments.summary()
+            out.update({f"{name}_start": first, f"{name}_end": last, f"{name}_mean": mean, f"{name}_max": top,
+                        f"{name}_slope_per_h": slope})  # fmt: skip
+        return out
+
+    @classmethod
+    def restore(cls, stored: dict[str, Any], span_h: float) -> _CylinderFlight:
+        """The aggregates of a flight cut by a restart, from its stored row."""
+        cyl = cls(int(stored["number"]))
+        cyl.max_cht_c = stored["max_cht_c"] if stored.get("max_cht_c") is not None else -math.inf
+        cyl.worst_state = str(stored["worst_state"])
+        cyl.time_degraded_s = float(stored["time_degraded_s"])
+        for name, moments in (("gamma_q", cyl.gamma_q), ("gamma_d", cyl.gamma_d)):
+            first, mean, top = stored.get(f"{name}_start"), stored.get(f"{name}_mean"), stored.get(f"{name}_max")
+            if first is not None and mean is not None and top is not None:
+                moments.prior = (first, mean, top, stored.get(f"{name}_slope_per_h"), span_h)
+        return cyl
+
+
 class _OpenFlight:
     """Aggregates of the flight in progress."""
 
@@ -110,6 +159,10 @@ class _OpenFlight:
         self.gamma_q = SignalMoments()
         self.gamma_d = SignalMoments()
         self.reversals = ReversalFilter(hysteresis)
+        self.cylinders: list[_CylinderFlight] = []  # engines monitored per cylinder
+        self.spread_max_c = -math.inf
+        self.spread_alarm_s = 0.0
+        self.hottest_s: dict[int, float] = {}
 
     @classmethod
     def resume(
@@ -132,6 +185,13 @@ class _OpenFlight:
         ):
             if first is not None and mean is not None and top is not None:
                 moments.prior = (first, mean, top, slope, span_h)
+        stored = record.cylinders
+        if stored:
+            flight.cylinders = [_CylinderFlight.restore(c, span_h) for c in stored.get("per_cylinder", [])]
+            spread = stored.get("spread_max_c")
+            flight.spread_max_c = float(spread) if spread is not None else -math.inf
+            flight.spread_alarm_s = float(stored.get("spread_alarm_s", 0.0))
+            flight.hottest_s = {int(k): float(v) for k, v in stored.get("hottest_s", {}).items()}
         return flight
 
     def values(self, end_running: bool) -> dict[str, object]:
@@ -160,8 +220,19 @@ class _OpenFlight:
             "time_degraded_s": self.time_degraded_s,
             "cycles_total": total,
             "cycles_json": json.dumps(histogram),
+            "cylinders_json": self._cylinders_json(),
             "reversals": pack_reversals(points),
         }
+
+    def _cylinders_json(self) -> str | None:
+        if not self.cylinders:
+            return None
+        return json.dumps({
+            "spread_max_c": self.spread_max_c if math.isfinite(self.spread_max_c) else None,
+            "spread_alarm_s": self.spread_alarm_s,
+            "hottest_s": {str(k): v for k, v in sorted(self.hottest_s.items())},
+            "per_cylinder": [c.values() for c in self.cylinders],
+        })  # fmt: skip
 
 
 class FlightRecorder:
@@ -248,6 +319,18 @@ class FlightRecorder:
             flight.worst_state = sample.state
         flight.gamma_q.add(sample.time_s - flight.start_time_s, sample.gamma_q)
         flight.gamma_d.add(sample.time_s - flight.start_time_s, sample.gamma_d)
+        if sample.cylinders:
+            if len(flight.cylinders) != len(sample.cylinders):
+                flight.cylinders = [_CylinderFlight(n) for n in range(1, len(sample.cylinders) + 1)]
+            t_s = sample.time_s - flight.start_time_s
+            for cyl, (cht_c, gamma_q, gamma_d, state) in zip(flight.cylinders, sample.cylinders, strict=True):
+                cyl.add(t_s, dt, cht_c, gamma_q, gamma_d, state)
+            if math.isfinite(sample.cht_spread_c):
+                flight.spread_max_c = max(flight.spread_max_c, sample.cht_spread_c)
+            if sample.spread_alarm:
+                flight.spread_alarm_s += dt
+            if sample.hottest_cylinder:
+                flight.hottest_s[sample.hottest_cylinder] = flight.hottest_s.get(sample.hottest_cylinder, 0.0) + dt
 
     def _finish(self, reason: str) -> int | None:
         flight = self._flight

@@ -1,8 +1,10 @@
-"""The health rows the service produces: :class:`HealthSnapshot` (one per health-status period), the
-columns of health.csv and their writers, :class:`ReplayResult` (a replay's rows as columns)."""
+"""The health rows the service produces: :class:`HealthSnapshot` (one per health-status period, with a
+:class:`CylinderSnapshot` per cylinder on an engine monitored per cylinder), the columns of health.csv
+and their writers, :class:`ReplayResult` (a replay's rows as columns)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 from collections.abc import Iterable
@@ -22,6 +24,28 @@ HEADROOM_NOT_LIMITED_S = DEFAULT_CAP_S
 
 
 @dataclass(frozen=True)
+class CylinderSnapshot:
+    """One cylinder at one instant (engines monitored per cylinder, ``cht1_c .. chtN_c``).
+
+    number: 1-based. The other fields mean what HealthSnapshot's do, for this cylinder alone.
+    """
+
+    number: int
+    cht_meas_c: float
+    cht_est_c: float
+    deviation: float
+    state: str
+    gamma_q: float
+    gamma_d: float
+    headroom_s: float
+
+    @property
+    def sensor_fault(self) -> bool:
+        """The cylinder's CHT probe is faulty."""
+        return self.state == "SENSOR_FAULT"
+
+
+@dataclass(frozen=True)
 class HealthSnapshot:
     """The service's view of the engine at one instant (one health-status period).
 
@@ -29,7 +53,13 @@ class HealthSnapshot:
     cht_est_c: estimate, degC (nan when UNAVAILABLE). deviation: model-deviation symptom, degC/s.
     state: one of STATES. gamma_q, gamma_d: isolation estimates (nan when UNAVAILABLE). headroom_s:
     time to the CHT limit at the present inputs, s (HEADROOM_NOT_LIMITED_S = not limited; nan when
-    UNAVAILABLE). stale_inputs: names of the stale inputs. sensor_fault: the CHT sensor is faulty.
+    UNAVAILABLE). stale_inputs: names of the stale inputs (a cylinder's ``chtN_c`` is reported as
+    ``cht_c``). sensor_fault: the CHT sensor is faulty.
+
+    Per cylinder (empty for a single CHT channel): ``cylinders``, one CylinderSnapshot each; the fields
+    above are then the lead cylinder's (:mod:`ecu_monitor.service.cylinders`, sensor_fault: any
+    cylinder's probe); ``cht_spread_c`` hottest minus coldest trusted estimate, degC (nan: fewer than
+    two); ``hottest_cylinder`` its number (0: none); ``spread_alarm``: the spread exceeds its limit.
     """
 
     time_s: float
@@ -42,6 +72,10 @@ class HealthSnapshot:
     headroom_s: float
     stale_inputs: tuple[str, ...]
     sensor_fault: bool
+    cylinders: tuple[CylinderSnapshot, ...] = ()
+    cht_spread_c: float = float("nan")
+    hottest_cylinder: int = 0
+    spread_alarm: bool = False
 
 
 #: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
@@ -58,6 +92,29 @@ HEALTH_COLUMNS: tuple[str, ...] = (
     "stale_inputs",
     "sensor_fault",
 )
+#: Per-cylinder columns of health.csv (engines monitored per cylinder), ``{n}`` = 1 .. N, after HEALTH_COLUMNS.
+CYLINDER_COLUMNS: tuple[str, ...] = (
+    "cyl{n}_cht_meas_c",
+    "cyl{n}_cht_est_c",
+    "cyl{n}_deviation",
+    "cyl{n}_state",
+    "cyl{n}_gamma_q",
+    "cyl{n}_gamma_d",
+    "cyl{n}_headroom_s",
+)
+#: Engine columns of health.csv after the per-cylinder ones: CHT spread (degC), hottest cylinder (1-based,
+#: empty: none), spread alarm (0/1).
+SPREAD_COLUMNS: tuple[str, ...] = ("cht_spread_c", "hottest_cylinder", "spread_alarm")
+#: Float fields of CylinderSnapshot, in CYLINDER_COLUMNS order (the state is the fourth column).
+_CYLINDER_FLOATS: tuple[str, ...] = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+
+
+def health_columns(cylinders: int) -> tuple[str, ...]:
+    """The columns of health.csv for an engine with ``cylinders`` CHT channels (1: HEALTH_COLUMNS alone)."""
+    if cylinders <= 1:
+        return HEALTH_COLUMNS
+    per = tuple(c.format(n=n) for n in range(1, cylinders + 1) for c in CYLINDER_COLUMNS)
+    return (*HEALTH_COLUMNS, *per, *SPREAD_COLUMNS)
 
 
 @dataclass(frozen=True)
@@ -65,7 +122,10 @@ class ReplayResult:
     """A replay's rows (one per health-status period) as columns, and the frame counters.
 
     columns: time_s, cht_meas_c, cht_est_c, deviation, gamma_q, gamma_d, headroom_s (float arrays),
-    state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool).
+    state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool);
+    per cylinder on an engine monitored per cylinder: ``cyl{n}_<field>`` for the float fields of
+    CylinderSnapshot and ``cyl{n}_state`` (int codes), then cht_spread_c (float), hottest_cylinder (int,
+    0: none), spread_alarm (bool).
     detector_feed (batch path only): per clock segment whose estimator started, what the detector was
     fed: (step times s from its start, symptom per step, nan where the supervisor was not NOMINAL).
     gaps (batch path only): (last frame time before, first after) of every hole in the frames longer
@@ -81,18 +141,41 @@ class ReplayResult:
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)
 
+    @property
+    def cylinder_count(self) -> int:
+        """CHT channels of the replayed engine (1: a single channel, no per-cylinder columns)."""
+        return sum(1 for key in self.columns if key.startswith("cyl") and key.endswith("_state")) or 1
+
     @functools.cached_property
     def rows(self) -> list[HealthSnapshot]:
         """The rows as HealthSnapshot objects (what Pipeline.drain_rows gives)."""
         c = self.columns
         names = _stale_names()
         floats = [c[k].tolist() for k in _FLOAT_COLUMNS]
-        return [
+        rows = [
             HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault)
             for t, meas, est, dev, gq, gd, head, state, stale, fault in zip(
                 *floats, c["state"].tolist(), c["stale"].tolist(), c["sensor_fault"].tolist(), strict=True
             )
         ]
+        count = self.cylinder_count
+        if count == 1:
+            return rows
+        per = []
+        for n in range(1, count + 1):
+            meas, est, dev, gq, gd, head = (c[f"cyl{n}_{k}"].tolist() for k in _CYLINDER_FLOATS)
+            states = [STATES[v] for v in c[f"cyl{n}_state"].tolist()]
+            per.append(
+                [CylinderSnapshot(n, *values) for values in zip(meas, est, dev, states, gq, gd, head, strict=True)]
+            )
+        return [
+            dataclasses.replace(row, cylinders=tuple(cyls), cht_spread_c=spread, hottest_cylinder=hottest,
+                                spread_alarm=alarm)
+            for row, spread, hottest, alarm, *cyls in zip(
+                rows, c["cht_spread_c"].tolist(), c["hottest_cylinder"].tolist(), c["spread_alarm"].tolist(), *per,
+                strict=True,
+            )
+        ]  # fmt: skip
 
     def write_csv(self, path: str | os.PathLike[str]) -> int:
         """Write health.csv (as :func:`write_health_csv`, from the columns at once); returns the row count."""
@@ -103,8 +186,19 @@ class ReplayResult:
         stale = [names[v] for v in c["stale"].tolist()]
         fault = [str(int(v)) for v in c["sensor_fault"].tolist()]
         t, meas, est, dev, gq, gd, head = cells
-        lines = [",".join(HEALTH_COLUMNS)]
-        lines += [",".join(row) for row in zip(t, meas, est, dev, state, gq, gd, head, stale, fault, strict=True)]
+        columns = [t, meas, est, dev, state, gq, gd, head, stale, fault]
+        count = self.cylinder_count
+        if count > 1:
+            for n in range(1, count + 1):
+                per = {k: [f"{v:.10g}" for v in c[f"cyl{n}_{k}"].tolist()] for k in _CYLINDER_FLOATS}
+                cyl_state = [STATES[v] for v in c[f"cyl{n}_state"].tolist()]
+                columns += [per["cht_meas_c"], per["cht_est_c"], per["deviation"], cyl_state, per["gamma_q"],
+                            per["gamma_d"], per["headroom_s"]]  # fmt: skip
+            columns.append([f"{v:.10g}" for v in c["cht_spread_c"].tolist()])
+            columns.append([str(v) if v else "" for v in c["hottest_cylinder"].tolist()])
+            columns.append([str(int(v)) for v in c["spread_alarm"].tolist()])
+        lines = [",".join(health_columns(count))]
+        lines += [",".join(row) for row in zip(*columns, strict=True)]
         return _write_lines(lines, path)
 
 
@@ -118,36 +212,62 @@ def _stale_names() -> tuple[tuple[str, ...], ...]:
     return tuple(tuple(n for i, n in enumerate(INPUT_NAMES) if bits >> i & 1) for bits in range(1 << len(INPUT_NAMES)))
 
 
-def empty_columns() -> dict[str, NDArray[Any]]:
-    """The columns of a replay without rows."""
+def empty_columns(cylinders: int = 1) -> dict[str, NDArray[Any]]:
+    """The columns of a replay without rows (of an engine with ``cylinders`` CHT channels)."""
     columns: dict[str, NDArray[Any]] = {k: np.zeros(0) for k in _FLOAT_COLUMNS}
     columns.update(state=np.zeros(0, dtype=np.int64), stale=np.zeros(0, dtype=np.int64),
                    sensor_fault=np.zeros(0, dtype=bool))  # fmt: skip
+    if cylinders > 1:
+        for n in range(1, cylinders + 1):
+            columns.update({f"cyl{n}_{k}": np.zeros(0) for k in _CYLINDER_FLOATS})
+            columns[f"cyl{n}_state"] = np.zeros(0, dtype=np.int64)
+        columns.update(cht_spread_c=np.zeros(0), hottest_cylinder=np.zeros(0, dtype=np.int64),
+                       spread_alarm=np.zeros(0, dtype=bool))  # fmt: skip
     return columns
 
 
-def rows_to_columns(rows: list[HealthSnapshot]) -> dict[str, NDArray[Any]]:
-    """HealthSnapshot rows as the columns of :class:`ReplayResult`."""
+def rows_to_columns(rows: list[HealthSnapshot], cylinders: int = 1) -> dict[str, NDArray[Any]]:
+    """HealthSnapshot rows as the columns of :class:`ReplayResult` (``cylinders``: CHT channels)."""
     if not rows:
-        return empty_columns()
+        return empty_columns(cylinders)
     columns: dict[str, NDArray[Any]] = {k: np.array([getattr(r, k) for r in rows], dtype=float) for k in _FLOAT_COLUMNS}
     columns["state"] = np.array([STATES.index(r.state) for r in rows], dtype=np.int64)
     columns["stale"] = np.array(
         [sum(1 << i for i, n in enumerate(INPUT_NAMES) if n in r.stale_inputs) for r in rows], dtype=np.int64
     )
     columns["sensor_fault"] = np.array([r.sensor_fault for r in rows], dtype=bool)
+    if cylinders > 1:
+        for i in range(cylinders):
+            n = i + 1
+            for k in _CYLINDER_FLOATS:
+                columns[f"cyl{n}_{k}"] = np.array([getattr(r.cylinders[i], k) for r in rows], dtype=float)
+            columns[f"cyl{n}_state"] = np.array([STATES.index(r.cylinders[i].state) for r in rows], dtype=np.int64)
+        columns["cht_spread_c"] = np.array([r.cht_spread_c for r in rows], dtype=float)
+        columns["hottest_cylinder"] = np.array([r.hottest_cylinder for r in rows], dtype=np.int64)
+        columns["spread_alarm"] = np.array([r.spread_alarm for r in rows], dtype=bool)
     return columns
 
 
 def write_health_csv(rows: Iterable[HealthSnapshot], path: str | os.PathLike[str]) -> int:
-    """Write health.csv (:data:`HEALTH_COLUMNS`, nan as an empty cell); returns the number of rows.
+    """Write health.csv (:func:`health_columns`, nan as an empty cell); returns the number of rows.
     FlightLogError if the file cannot be written."""
-    lines = [",".join(HEALTH_COLUMNS)]
+    rows = list(rows)
+    count = len(rows[0].cylinders) if rows and rows[0].cylinders else 1
+    lines = [",".join(health_columns(count))]
     for r in rows:
-        lines.append(
+        line = (
             f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
             f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)}"
         )
+        if count > 1:
+            per = "".join(
+                f",{c.cht_meas_c:.10g},{c.cht_est_c:.10g},{c.deviation:.10g},{c.state},{c.gamma_q:.10g},"
+                f"{c.gamma_d:.10g},{c.headroom_s:.10g}"
+                for c in r.cylinders
+            )
+            hottest = str(r.hottest_cylinder) if r.hottest_cylinder else ""
+            line += f"{per},{r.cht_spread_c:.10g},{hottest},{int(r.spread_alarm)}"
+        lines.append(line)
     return _write_lines(lines, path)
 
 

@@ -4,7 +4,10 @@ What is kept, per engine (its serial from the config) and per flight: start and 
 (hours), maximum CHT, time above the CHT limit, the degradation estimates (gamma_Q, gamma_D: start, end,
 mean, maximum and their slope within the flight per hour), the worst detector state and the time spent
 SUSPECT/DEGRADED, and the thermal cycles of the CHT history counted by rainflow (ASTM E1049, the
-``rainflow`` package) as a histogram of cycle ranges.
+``rainflow`` package) as a histogram of cycle ranges. An engine monitored per cylinder also keeps, in
+the same row (``cylinders_json``, written in the same transactions), each cylinder's maximum CHT, gamma
+statistics, worst state and time SUSPECT/DEGRADED, the largest CHT spread, the time with the spread
+alarm and how long each cylinder was the hottest.
 
 Flights are found from the engine speed: a flight starts when rpm reaches ``FlightRules.running_rpm``
 and ends when it has stayed below (or been stale) for ``end_after_s``; a run shorter than
@@ -40,8 +43,9 @@ import math
 import sqlite3
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from ecu_monitor.errors import ConfigError, EcuMonitorError
 from ecu_monitor.service.thermal_cycles import (
@@ -67,7 +71,7 @@ _log = logging.getLogger(__name__)
 
 #: File name of the database inside the state directory.
 DATABASE_NAME = "ecu-monitor.sqlite3"
-_SCHEMA_VERSION = 1
+_SCHEMA_VERSION = 2  # 2: flights.cylinders_json (engines monitored per cylinder); a version-1 file gains it
 
 
 @dataclass(frozen=True)
@@ -94,7 +98,9 @@ class FlightSample:
     """One health period of the live service, as the recorder needs it.
 
     ``time_s`` is the service's monotonic time (s), ``wall_time_s`` the matching UTC unix time (s);
-    ``rpm`` is None when the engine speed is stale; NaN values mean "not available".
+    ``rpm`` is None when the engine speed is stale; NaN values mean "not available". An engine
+    monitored per cylinder adds ``cylinders``: (CHT degC, gamma_Q, gamma_D, state) per cylinder in
+    cylinder order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
     """
 
     time_s: float
@@ -104,6 +110,10 @@ class FlightSample:
     gamma_q: float
     gamma_d: float
     state: str
+    cylinders: tuple[tuple[float, float, float, str], ...] = ()
+    cht_spread_c: float = math.nan
+    hottest_cylinder: int = 0
+    spread_alarm: bool = False
 
 
 @dataclass(frozen=True)
@@ -134,6 +144,11 @@ class FlightRecord:
     time_degraded_s: float
     cycles_total: float
     cycles_histogram: dict[str, float]
+    #: engines monitored per cylinder (else empty): ``spread_max_c``, ``spread_alarm_s`` (time with the
+    #: spread alarm), ``hottest_s`` (seconds each cylinder was the hottest, by number) and ``per_cylinder``
+    #: (one mapping each: ``number``, ``max_cht_c``, ``gamma_q_start/end/mean/max/slope_per_h``, the
+    #: same for gamma_d, ``worst_state``, ``time_degraded_s``)
+    cylinders: dict[str, Any] = field(default_factory=dict)
 
     @property
     def hours(self) -> float:
@@ -145,7 +160,7 @@ _FLIGHT_COLUMNS = (
     "id, engine_serial, status, end_reason, start_utc, end_utc, duration_s, max_cht_c, cht_limit_c, "
     "time_above_limit_s, gamma_q_start, gamma_q_end, gamma_q_mean, gamma_q_max, gamma_q_slope_per_h, "
     "gamma_d_start, gamma_d_end, gamma_d_mean, gamma_d_max, gamma_d_slope_per_h, worst_state, time_degraded_s, "
-    "cycles_total, cycles_json"
+    "cycles_total, cycles_json, cylinders_json"
 )
 
 _SCHEMA = """
@@ -168,6 +183,7 @@ CREATE TABLE IF NOT EXISTS flights (
     time_degraded_s REAL NOT NULL,
     cycles_total REAL NOT NULL,
     cycles_json TEXT NOT NULL,
+    cylinders_json TEXT,
     reversals BLOB,
     updated_utc REAL NOT NULL
 );
@@ -210,8 +226,11 @@ class StateStore:
         for statement in _SCHEMA.split(";"):
             if statement.strip():
                 self._conn.execute(statement)
+        columns = {row[1] for row in self._conn.execute("PRAGMA table_info(flights)")}
+        if "cylinders_json" not in columns:  # a version-1 database: flights gain the per-cylinder column
+            self._conn.execute("ALTER TABLE flights ADD COLUMN cylinders_json TEXT")
         self._conn.execute(
-            "INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(_SCHEMA_VERSION),)
+            "INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)", (str(_SCHEMA_VERSION),)
         )
 
     class _Txn:
@@ -338,8 +357,9 @@ class StateStore:
 
 def _record(row: tuple[object, ...]) -> FlightRecord:
     names = [item.name for item in fields(FlightRecord)]
-    values: dict[str, object] = dict(zip(names[:-1], row[:-1], strict=True))
-    values["cycles_histogram"] = json.loads(str(row[-1])) if row[-1] else {}
+    values: dict[str, object] = dict(zip(names[:-2], row[:-2], strict=True))
+    values["cycles_histogram"] = json.loads(str(row[-2])) if row[-2] else {}
+    values["cylinders"] = json.loads(str(row[-1])) if row[-1] else {}
     return FlightRecord(**values)  # type: ignore[arg-type]
 
 

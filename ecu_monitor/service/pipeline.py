@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
 import can
@@ -52,8 +53,9 @@ from ecu_monitor.estimation.headroom import thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
 from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.inputs import input_columns
-from ecu_monitor.service.config import ServiceConfig
-from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S, HealthSnapshot
+from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
+from ecu_monitor.service.cylinders import engine_view
+from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S, CylinderSnapshot, HealthSnapshot
 from ecu_monitor.service.schedule import FILTER_PERIOD_S, MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick, filter_period_steps
 from ecu_monitor.service.supervision import (
     ACTION_INITIALISE,
@@ -124,6 +126,55 @@ def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | Dr
     return Decoder(config.dbc_paths, specs)
 
 
+class _Cylinder:
+    """One cylinder's estimation: its CHT input, model, supervisor, filters, detector and held outputs."""
+
+    __slots__ = (
+        "coeffs", "detector", "detector_settings", "detector_started", "estimator", "headroom_s", "held",
+        "isolation", "name", "number", "params", "pending_reading", "readings", "readings_used", "reference",
+        "slot", "sv",
+    )  # fmt: skip
+
+    def __init__(self, number: int, name: str, slot: int, params: ThermalParams, config: ServiceConfig) -> None:
+        self.number = number  # 1-based
+        self.name = name  # its CHT input (cht_c, or cht<number>_c)
+        self.slot = slot  # its CHT value slot in the decoder
+        self.params = params
+        self.coeffs = coefficients(params)
+        self.detector_settings = config.detector
+        self.readings = 0  # valid CHT frames fed
+        self.readings_used = 0
+        self.stop()
+
+    def stop(self) -> None:
+        """Estimation and detection start afresh (at start and after a clock restart)."""
+        self.held = _NO_ESTIMATE
+        self.sv = initial_supervisor()
+        self.estimator: CHTEstimator | None = None
+        self.reference: CHTEstimator | None = None
+        self.isolation: IsolationFilter | None = None
+        self.detector = Detector(self.detector_settings)
+        self.detector_started = False
+        self.headroom_s = math.nan
+        self.pending_reading = False
+
+
+#: DegradationState code of each state name.
+_STATE_CODE = {name: code for code, name in enumerate(STATES)}
+
+
+def _cylinder_values(cyl: CylinderSnapshot) -> dict[str, float]:
+    """Health_Cylinder's signals for one cylinder (health.dbc; nan sent as the signal's idle value)."""
+    est = cyl.cht_est_c
+    return {
+        "CylinderNumber": cyl.number,
+        "CylChtEstimate": est if math.isfinite(est) else -40.0,
+        "CylState": _STATE_CODE[cyl.state],
+        "CylGammaQ": cyl.gamma_q if math.isfinite(cyl.gamma_q) else 1.0,
+        "CylGammaD": cyl.gamma_d if math.isfinite(cyl.gamma_d) else 1.0,
+    }
+
+
 def model_input_names(params: ThermalParams) -> tuple[str, ...]:
     """Inputs the model reads, in InputSeries order: the two heat-map axes, altitude, airspeed, OAT."""
     return (*params.heat_axes, *MODEL_INPUTS)
@@ -137,11 +188,27 @@ class Pipeline:
     may be incremented by the owner for events it sees (send_errors, bus_errors).
     """
 
-    def __init__(self, config: ServiceConfig, params: ThermalParams) -> None:
+    def __init__(self, config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams]) -> None:
+        """``params``: the model of every cylinder, or one per cylinder (``config.load_cylinder_params()``)."""
         self.config = config
-        self.params = params
-        self.model_inputs = model_input_names(params)
-        unfed = [name for name in input_columns(params) if name not in self.model_inputs]
+        cylinder_inputs = config.cylinder_inputs
+        models = (params,) * len(cylinder_inputs) if isinstance(params, ThermalParams) else tuple(params)
+        if len(models) != len(cylinder_inputs):
+            raise ConfigError(
+                f"{config.source}: {len(models)} models for {len(cylinder_inputs)} cylinders"
+                f" ({', '.join(cylinder_inputs)})"
+            )
+        self.params = models[0]
+        self.cylinder_params = models
+        self.model_inputs = model_input_names(self.params)
+        for number, model in enumerate(models[1:], start=2):
+            if model_input_names(model) != self.model_inputs:
+                raise ConfigError(
+                    f"{config.source}: cylinders.models: cylinder {number}'s model reads"
+                    f" {', '.join(model_input_names(model))}, cylinder 1's {', '.join(self.model_inputs)} (the inputs"
+                    " are shared: every cylinder's model must read the same)"
+                )
+        unfed = [name for name in input_columns(self.params) if name not in self.model_inputs]
         if unfed:  # the model's own list (model/inputs.py) names more than the pipeline feeds
             _log.warning(
                 "%s: the model's mixture_index effect reads %s, which the service does not feed: the effect is"
@@ -150,7 +217,7 @@ class Pipeline:
                 ", ".join(unfed),
             )
         mapped = set(config.input_names)
-        missing = [name for name in (*self.model_inputs, "cht_c") if name not in mapped]
+        missing = [name for name in (*self.model_inputs, *cylinder_inputs) if name not in mapped]
         if missing:
             raise ConfigError(
                 f"{config.source}: inputs: missing {', '.join(missing)} (the model reads "
@@ -171,13 +238,24 @@ class Pipeline:
         self._values = [math.nan] * len(names)
         self._stamps = [math.nan] * len(names)
         self._model_slots = [self._slot[n] for n in self.model_inputs]
-        self._needed = frozenset((*self.model_inputs, "cht_c"))  # a stale one of these stops the correction
-        self._cht_slot = self._slot["cht_c"]
         self._status_slot = self._slot.get(STATUS_INPUT, -1)
-        self._input_slots = [(n, self._slot[n]) for n in INPUT_NAMES if n in mapped]
+        # stale inputs in Health_Diag.StaleInputs order; a cylinder's CHT is reported as cht_c
+        self._input_slots: list[tuple[str, int]] = []
+        for n in INPUT_NAMES:
+            if n == CHT_INPUT:
+                self._input_slots += [(c, self._slot[c]) for c in cylinder_inputs]
+            elif n in mapped:
+                self._input_slots.append((n, self._slot[n]))
+        self._model_input_set = frozenset(self.model_inputs)
+        self._cylinders = [
+            _Cylinder(number, name, self._slot[name], model, config)
+            for number, (name, model) in enumerate(zip(cylinder_inputs, models, strict=True), start=1)
+        ]
+        self._per_cylinder = len(cylinder_inputs) > 1
+        self._single = self._cylinders[0]
+        self._cht_names = frozenset(cylinder_inputs)
+        self._cht_slots = {cyl.slot: cyl for cyl in self._cylinders}
         self._early: set[int] = set()  # slots fed before the first advance_to
-        self._readings = 0  # valid CHT frames fed
-        self._readings_used = 0
         self._dt = config.estimator.dt_s
         self._origin: float | None = None
         self._now = -math.inf
@@ -186,19 +264,14 @@ class Pipeline:
         self._frame_counters = dict.fromkeys(self._periods, 0)
         self._status_period = self._periods["Health_Status"]
         self._rows: list[HealthSnapshot] = []
-        self._sv = initial_supervisor()
-        self._estimator: CHTEstimator | None = None
-        self._reference: CHTEstimator | None = None
-        self._isolation: IsolationFilter | None = None
-        self._coeffs = coefficients(params)
-        self._detector = Detector(config.detector)
-        self._detector_started = False
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
-        self._headroom_s = math.nan
         self._filter_period = filter_period_steps(self._dt)
-        self._pending_reading = False
-        self._held = _NO_ESTIMATE
-        self._snapshot = self._empty_snapshot(math.nan)
+        self._snapshot: HealthSnapshot | None = self._empty_snapshot(math.nan)
+        self._last_step: tuple[float, list[tuple[float, float, float, int, float, float, float]], list[str]] = (
+            math.nan,
+            [],
+            [],
+        )
 
     # ------------------------------------------------------------------ public API
 
@@ -209,12 +282,15 @@ class Pipeline:
 
     def snapshot(self) -> HealthSnapshot:
         """The latest health snapshot (updated every step)."""
-        return self._snapshot
+        snap = self._snapshot
+        if snap is None:
+            snap = self._snapshot = self._build_snapshot(*self._last_step)
+        return snap
 
     def held_input(self, name: str) -> float | None:
         """The held (sample-and-hold) value of a mapped input, or None if never seen, stale or unmapped."""
         slot = self._slot.get(name)
-        if slot is None or name in self._snapshot.stale_inputs:
+        if slot is None or name in self.snapshot().stale_inputs:
             return None
         value = float(self._values[slot])
         return value if math.isfinite(value) else None
@@ -246,7 +322,7 @@ class Pipeline:
             filt.initialise(0.0, u, 100.0)
             for k, reading_c in enumerate((100.0, None, 101.0), start=1):
                 detector.update(k * step_s, filt.estimate(k * step_s, u, reading_c).deviation)
-        thermal_headroom(100.0, None, u, self.params, coeffs=self._coeffs)
+        thermal_headroom(100.0, None, u, self.params, coeffs=self._cylinders[0].coeffs)
         return time.perf_counter() - started
 
     def drain_rows(self) -> list[HealthSnapshot]:
@@ -275,8 +351,9 @@ class Pipeline:
             self._stamps[slot] = stamp
             if self._origin is None:
                 self._early.add(slot)
-            if slot == self._cht_slot:
-                self._readings += 1
+            cyl = self._cht_slots.get(slot)
+            if cyl is not None:
+                cyl.readings += 1
 
     def advance_to(self, t_s: float) -> list[can.Message]:
         """Run every fixed step at or before ``t_s`` (s); returns the health frames that fell due."""
@@ -331,31 +408,71 @@ class Pipeline:
 
     def _stop_estimation(self) -> None:
         """After a clock restart: estimation and detection start afresh."""
-        self._held = _NO_ESTIMATE
-        self._sv = initial_supervisor()
-        self._estimator = self._reference = self._isolation = None
-        self._detector = Detector(self.config.detector)
-        self._detector_started = False
-        self._headroom_s = math.nan
+        for cyl in self._cylinders:
+            cyl.stop()
 
     def _step(self, time_s: float, frames: list[can.Message]) -> None:
         self.counters["steps"] += 1
         stale = self._stale(time_s)
-        needed = self._needed
-        any_stale = any(name in needed for name in stale)
-        reading = self._values[self._cht_slot]
-        new_reading = self._readings > self._readings_used
-        self._readings_used = self._readings
-        reading_bad = not math.isnan(reading) and self._reading_bad(reading)
+        model_stale = not self._model_input_set.isdisjoint(stale)
         u = self._inputs()
-        call = self._sv.running and self._k % self._filter_period == 0
-        if call and self._reference is not None:
-            self._held = self._held._replace(model_c=self._reference.estimate(time_s, u, None).cht_c)
-        model_c = self._held.model_c if self._sv.running else reading
+        call = self._k % self._filter_period == 0
+        isolation_due = self._k % self._headroom_period == 0
+        if self._per_cylinder:
+            results = [
+                self._step_cylinder(cyl, time_s, u, model_stale or cyl.name in stale, call, isolation_due)
+                for cyl in self._cylinders
+            ]
+        else:
+            cyl = self._single
+            results = [self._step_cylinder(cyl, time_s, u, model_stale or cyl.name in stale, call, isolation_due)]
+        # the snapshot is built when a row or a frame needs it, or on snapshot(): not on every step
+        self._last_step = (time_s, results, stale)
+        self._snapshot = None
+        k = self._k
+        if k % self._status_period == 0:
+            self._rows.append(self.snapshot())
+        for message, period in self._periods.items():
+            if k % period == 0:
+                frames.extend(self._health_frames(message, self.snapshot()))
+
+    def _build_snapshot(
+        self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]], stale: list[str]
+    ) -> HealthSnapshot:
+        """The snapshot of one step from its cylinders' results (one cylinder: its own values)."""
+        if self._per_cylinder:
+            names = tuple(dict.fromkeys(CHT_INPUT if name in self._cht_names else name for name in stale))
+            return self._engine_snapshot(time_s, results, names)
+        reading, est_c, deviation, state, gamma_q, gamma_d, headroom = results[0]
+        return HealthSnapshot(
+            time_s=time_s,
+            cht_meas_c=reading,
+            cht_est_c=est_c,
+            deviation=deviation,
+            state=STATES[state],
+            gamma_q=gamma_q,
+            gamma_d=gamma_d,
+            headroom_s=headroom,
+            stale_inputs=tuple(stale),
+            sensor_fault=state == CODE_FAULT,
+        )
+
+    def _step_cylinder(
+        self, cyl: _Cylinder, time_s: float, u: InputSeries, any_stale: bool, call: bool, isolation_due: bool
+    ) -> tuple[float, float, float, int, float, float, float]:
+        """One step of one cylinder: (reading, estimate, deviation, state code, gamma_Q, gamma_D, headroom)."""
+        reading = self._values[cyl.slot]
+        new_reading = cyl.readings > cyl.readings_used
+        cyl.readings_used = cyl.readings
+        reading_bad = not math.isnan(reading) and self._reading_bad(reading)
+        call = call and cyl.sv.running
+        if call and cyl.reference is not None:
+            cyl.held = cyl.held._replace(model_c=cyl.reference.estimate(time_s, u, None).cht_c)
+        model_c = cyl.held.model_c if cyl.sv.running else reading
         cfg = self.config
         sf = cfg.sensor_fault
-        self._sv, code, action = supervise(
-            self._sv,
+        cyl.sv, code, action = supervise(
+            cyl.sv,
             time_s,
             any_stale,
             new_reading,
@@ -366,74 +483,89 @@ class Pipeline:
             sf.stuck_after_s,
             sf.stuck_change_c,
         )
-        self._pending_reading = self._pending_reading or new_reading
+        cyl.pending_reading = cyl.pending_reading or new_reading
         if action == ACTION_NONE:
-            self._estimator = self._reference = self._isolation = None
-            self._held = _NO_ESTIMATE
+            cyl.estimator = cyl.reference = cyl.isolation = None
+            cyl.held = _NO_ESTIMATE
         elif action == ACTION_INITIALISE:
-            self._estimator = make_estimator(cfg.estimator_name, self.params, cfg.estimator)
-            self._reference = make_estimator("ekf", self.params, cfg.estimator)
-            self._isolation = IsolationFilter(self.params, IsolationSettings(dt_s=self._dt))
-            for filt in (self._estimator, self._reference, self._isolation):
+            cyl.estimator = make_estimator(cfg.estimator_name, cyl.params, cfg.estimator)
+            cyl.reference = make_estimator("ekf", cyl.params, cfg.estimator)
+            cyl.isolation = IsolationFilter(cyl.params, IsolationSettings(dt_s=self._dt))
+            for filt in (cyl.estimator, cyl.reference, cyl.isolation):
                 filt.initialise(time_s, u, reading)
-            self._held = _Held(reading, 0.0, self._isolation.gamma_q, self._isolation.gamma_d, 0.0, reading)
-            self._pending_reading = False
-            self._headroom_s = math.nan
-            self._detector_started = True
-        elif call and self._estimator is not None and self._isolation is not None:
-            z = reading if self._pending_reading and code == CODE_NOMINAL else None
-            self._pending_reading = False
-            estimate = self._estimator.estimate(time_s, u, z)
-            iso_deviation = self._isolation.estimate(time_s, u, z).deviation
-            iso = self._isolation
-            self._held = _Held(estimate.cht_c, estimate.deviation, iso.gamma_q, iso.gamma_d, iso_deviation,
-                               self._held.model_c)  # fmt: skip
-        est_c, deviation, gamma_q, gamma_d, iso_deviation, _ = self._held
+            cyl.held = _Held(reading, 0.0, cyl.isolation.gamma_q, cyl.isolation.gamma_d, 0.0, reading)
+            cyl.pending_reading = False
+            cyl.headroom_s = math.nan
+            cyl.detector_started = True
+        elif call and cyl.estimator is not None and cyl.isolation is not None:
+            z = reading if cyl.pending_reading and code == CODE_NOMINAL else None
+            cyl.pending_reading = False
+            estimate = cyl.estimator.estimate(time_s, u, z)
+            iso_deviation = cyl.isolation.estimate(time_s, u, z).deviation
+            iso = cyl.isolation
+            cyl.held = _Held(estimate.cht_c, estimate.deviation, iso.gamma_q, iso.gamma_d, iso_deviation,
+                             cyl.held.model_c)  # fmt: skip
+        est_c, deviation, gamma_q, gamma_d, iso_deviation, _ = cyl.held
         state = code
-        if self._detector_started:
+        if cyl.detector_started:
             symptom = deviation if cfg.detector_symptom == "estimator" else iso_deviation
-            verdict = self._detector.update(time_s, symptom if code == CODE_NOMINAL else math.nan)
+            verdict = cyl.detector.update(time_s, symptom if code == CODE_NOMINAL else math.nan)
             if code == CODE_NOMINAL:
                 state = STATES.index(verdict.state)
         if action == ACTION_NONE or not (math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)):
-            self._headroom_s = math.nan
-        elif self._k % self._headroom_period == 0:
-            self._headroom_s = thermal_headroom(
-                est_c, None, u, self.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=self._coeffs
+            cyl.headroom_s = math.nan
+        elif isolation_due:
+            cyl.headroom_s = thermal_headroom(
+                est_c, None, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs
             ).time_to_limit_s
-        headroom = self._headroom_s
-        snap = HealthSnapshot(
-            time_s=time_s,
-            cht_meas_c=reading,
-            cht_est_c=est_c,
-            deviation=deviation,
-            state=STATES[state],
-            gamma_q=gamma_q,
-            gamma_d=gamma_d,
-            headroom_s=headroom,
-            stale_inputs=tuple(stale),
-            sensor_fault=code == CODE_FAULT,
+        return reading, est_c, deviation, state, gamma_q, gamma_d, cyl.headroom_s
+
+    def _engine_snapshot(
+        self,
+        time_s: float,
+        results: list[tuple[float, float, float, int, float, float, float]],
+        stale: tuple[str, ...],
+    ) -> HealthSnapshot:
+        """The engine's snapshot from its cylinders' (service/cylinders.py: lead cylinder, spread, hottest)."""
+        cylinders = tuple(
+            CylinderSnapshot(number, reading, est_c, deviation, STATES[state], gamma_q, gamma_d, headroom)
+            for number, (reading, est_c, deviation, state, gamma_q, gamma_d, headroom) in enumerate(results, start=1)
         )
-        self._snapshot = snap
-        if self._k % self._status_period == 0:
-            self._rows.append(snap)
-        for message, period in self._periods.items():
-            if self._k % period == 0:
-                frame = self._health_frame(message, snap, state)
-                if frame is not None:
-                    frames.append(frame)
+        view = engine_view(cylinders, self.config.spread_limit_c)
+        lead = cylinders[view.lead]
+        return HealthSnapshot(
+            time_s=time_s,
+            cht_meas_c=lead.cht_meas_c,
+            cht_est_c=lead.cht_est_c,
+            deviation=lead.deviation,
+            state=lead.state,
+            gamma_q=lead.gamma_q,
+            gamma_d=lead.gamma_d,
+            headroom_s=lead.headroom_s,
+            stale_inputs=stale,
+            sensor_fault=any(c.sensor_fault for c in cylinders),
+            cylinders=cylinders,
+            cht_spread_c=view.spread_c,
+            hottest_cylinder=view.hottest,
+            spread_alarm=view.alarm,
+        )
 
     # ------------------------------------------------------------------ health frames
 
-    def _health_frame(self, message: str, snap: HealthSnapshot, code: int) -> can.Message | None:
-        values = self._health_values(message, snap, code)
+    def _health_frames(self, message: str, snap: HealthSnapshot) -> list[can.Message]:
+        """The frames of ``message`` due now: one, or one per cylinder for Health_Cylinder."""
+        if message == "Health_Cylinder":
+            return [self._frame(message, snap.time_s, _cylinder_values(c)) for c in snap.cylinders]
+        return [self._frame(message, snap.time_s, self._health_values(message, snap, _STATE_CODE[snap.state]))]
+
+    def _frame(self, message: str, time_s: float, values: dict[str, float]) -> can.Message:
         counter = self._frame_counters[message]
         self._frame_counters[message] = (counter + 1) % 16
         data = self.encoder.encode(message, values, counter)
         definition = self.encoder.message(message)
         self.counters["health_frames"] += 1
         return can.Message(
-            timestamp=snap.time_s,
+            timestamp=time_s,
             arbitration_id=definition.frame_id,
             is_extended_id=bool(definition.is_extended_frame),
             data=data,
@@ -451,11 +583,27 @@ class Pipeline:
             }
         if message == "Health_Isolation":
             limit = self.params.cht_limit_c
+            margin = limit - snap.cht_est_c
+            if snap.cylinders:  # the smallest margin of any cylinder (each to its own model's limit)
+                margins = [self.cylinder_params[c.number - 1].cht_limit_c - c.cht_est_c for c in snap.cylinders]
+                margin = min((m for m in margins if math.isfinite(m)), default=math.nan)
             return {
                 "GammaQEstimate": finite(snap.gamma_q, 1.0),
                 "GammaDEstimate": finite(snap.gamma_d, 1.0),
                 "ThermalHeadroom": finite(snap.headroom_s, 0.0 if math.isnan(snap.cht_est_c) else 6000.0),
-                "ChtLimitMargin": finite(limit - snap.cht_est_c, 0.0),
+                "ChtLimitMargin": finite(margin, 0.0),
+            }
+        if message == "Health_Spread":
+            faulty = 0
+            for cyl in snap.cylinders:
+                if cyl.sensor_fault:
+                    faulty |= 1 << (cyl.number - 1)
+            return {
+                "ChtSpread": finite(snap.cht_spread_c, 0.0),
+                "HottestCylinder": snap.hottest_cylinder,
+                "SpreadAlarm": int(snap.spread_alarm),
+                "CylinderCount": len(snap.cylinders) or 1,
+                "FaultyCylinders": faulty,
             }
         bits = 0
         for bit, name in enumerate(INPUT_NAMES):
@@ -468,5 +616,9 @@ class Pipeline:
         }
 
     def _empty_snapshot(self, time_s: float) -> HealthSnapshot:
-        return HealthSnapshot(time_s, math.nan, math.nan, math.nan, STATES[CODE_UNAVAILABLE], math.nan, math.nan,
-                              math.nan, tuple(n for n, _ in self._input_slots), False)  # fmt: skip
+        stale = tuple(dict.fromkeys(CHT_INPUT if n in self._cht_names else n for n, _ in self._input_slots))
+        if not self._per_cylinder:
+            return HealthSnapshot(time_s, math.nan, math.nan, math.nan, STATES[CODE_UNAVAILABLE], math.nan, math.nan,
+                                  math.nan, stale, False)  # fmt: skip
+        nothing = (math.nan, math.nan, math.nan, CODE_UNAVAILABLE, math.nan, math.nan, math.nan)
+        return self._engine_snapshot(time_s, [nothing] * len(self._cylinders), stale)

@@ -23,9 +23,9 @@ from __future__ import annotations
 import itertools
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import can
 import numpy as np
@@ -47,7 +47,8 @@ from ecu_monitor.service.batch_steps import (
     hold_inputs,
     stretch_log,
 )
-from ecu_monitor.service.config import ServiceConfig
+from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
+from ecu_monitor.service.cylinders import engine_columns
 from ecu_monitor.service.flight_frames import frames_from_flight
 from ecu_monitor.service.health_rows import (
     HEALTH_COLUMNS,
@@ -73,7 +74,9 @@ __all__ = [
 ]
 
 
-def replay_live(config: ServiceConfig, params: ThermalParams, frames: Iterable[can.Message]) -> ReplayResult:
+def replay_live(
+    config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams], frames: Iterable[can.Message]
+) -> ReplayResult:
     """The reference replay: the live pipeline fed frame by frame."""
     pipeline = Pipeline(config, params)
     rows: list[HealthSnapshot] = []
@@ -81,22 +84,27 @@ def replay_live(config: ServiceConfig, params: ThermalParams, frames: Iterable[c
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
         rows.extend(pipeline.drain_rows())
-    return ReplayResult(rows_to_columns(rows), dict(pipeline.counters))
+    return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters))
 
 
-def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArrays) -> ReplayResult:
-    """The batch replay of ``frames`` (see the module docstring); rows equal to :func:`replay_live`."""
+def replay_frames(
+    config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams], frames: FrameArrays
+) -> ReplayResult:
+    """The batch replay of ``frames`` (see the module docstring); rows equal to :func:`replay_live`.
+    ``params``: the model of every cylinder, or one per cylinder (as :class:`Pipeline`)."""
     probe = Pipeline(config, params)  # validates the config against the model, builds the decoder
+    models = probe.cylinder_params
     decoder = probe.decoder
     counters = dict(probe.counters)
+    count = len(models)
     n = len(frames)
     if n == 0:
-        return ReplayResult(empty_columns(), counters)
+        return ReplayResult(empty_columns(count), counters)
     clock = np.where(np.isfinite(frames.time_s) & (np.abs(frames.time_s) < MAX_CLOCK_S), frames.time_s, -np.inf)
     stamps = np.maximum.accumulate(np.floor(clock * 1e6 + 0.5) / 1e6)  # clock_tick, as advance_to
     started = np.isfinite(stamps)
     if not started.any():
-        return ReplayResult(empty_columns(), counters)
+        return ReplayResult(empty_columns(count), counters)
     stamps[~started] = stamps[started][0]  # frames before the clock starts count at its start
     batch = decoder.decode_batch(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data, stamps,
                                  frames.ignored)  # fmt: skip
@@ -111,12 +119,12 @@ def replay_frames(config: ServiceConfig, params: ThermalParams, frames: FrameArr
     feeds: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
     steps_total = 0
     for a, b in itertools.pairwise(bounds):
-        seg_columns, steps, feed = _replay_segment(config, params, probe, batch.values, stamps, a, b)
+        seg_columns, steps, feed = _replay_segment(config, models, probe, batch.values, stamps, a, b)
         parts.append(seg_columns)
         feeds.extend([feed] if feed is not None else [])
         steps_total += steps
     counters["steps"] = steps_total
-    columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else empty_columns()
+    columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else empty_columns(count)
     return ReplayResult(columns, counters, tuple(feeds), tuple(time_gaps(stamps)))
 
 
@@ -126,7 +134,7 @@ def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:
 
 def _replay_segment(
     config: ServiceConfig,
-    params: ThermalParams,
+    params: tuple[ThermalParams, ...],
     probe: Pipeline,
     values: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]],
     stamps: NDArray[np.float64],
@@ -134,15 +142,17 @@ def _replay_segment(
     end: int,
 ) -> tuple[dict[str, NDArray[Any]], int, tuple[NDArray[np.float64], NDArray[np.float64]] | None]:
     dt = config.estimator.dt_s
+    cylinder_inputs = config.cylinder_inputs
+    count = len(cylinder_inputs)
     origin = float(stamps[first])
     last = float(stamps[end - 1])
-    count = max(0, math.floor((last - origin) / dt) + 2)
-    k = np.arange(1, count + 1, dtype=np.float64)
+    steps = max(0, math.floor((last - origin) / dt) + 2)
+    k = np.arange(1, steps + 1, dtype=np.float64)
     times = np.floor((origin + k * dt) * 1e6 + 0.5) / 1e6  # the same float arithmetic as Pipeline.advance_to
     times = times[times <= last]
     n = times.size
     if n == 0:
-        return empty_columns(), 0, None
+        return empty_columns(count), 0, None
     held: dict[str, HeldInput] = {}
     message_of = {spec.name: spec.message for spec in config.inputs}
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
@@ -159,23 +169,91 @@ def _replay_segment(
             cached = (frame_rows, np.searchsorted(frame_stamps, times, side="left") - 1)
             latest.setdefault(message, cached)
         held[name] = hold_inputs(frame_stamps, vals[inside], cached[1])
-    mapped = [name for name in INPUT_NAMES if name in config.input_names]
+    mapped = [name for name in INPUT_NAMES if name in config.input_names] + (list(cylinder_inputs) if count > 1 else [])
     stale = {
         name: np.isnan(held[name].stamp) | (times - held[name].stamp > config.input(name).stale_after_s)
         for name in mapped
     }
-    needed = {*model_input_names(params), "cht_c"}
-    any_stale = np.zeros(n, dtype=bool)
-    for name in needed:
-        any_stale |= stale[name]
-    cht = held["cht_c"]
+    model_stale = np.zeros(n, dtype=bool)
+    for name in model_input_names(params[0]):
+        model_stale |= stale[name]
+    inputs = {name: held[name].value for name in model_input_names(params[0])}
+    periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
+    step_numbers = np.arange(1, n + 1)
+    rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
+    status = held[STATUS_INPUT].value if STATUS_INPUT in held else None
+    cylinders = [
+        _replay_cylinder(config, model, times, inputs, held[name], model_stale | stale[name], status, periods)
+        for name, model in zip(cylinder_inputs, params, strict=True)
+    ]
+    bits = np.zeros(n, dtype=np.int64)
+    for name in mapped:
+        report = CHT_INPUT if name in cylinder_inputs else name
+        bits |= stale[name].astype(np.int64) << INPUT_NAMES.index(report)
+    fault = STATES.index("SENSOR_FAULT")
+    if count == 1:
+        cyl = cylinders[0]
+        out = {
+            "time_s": times[rows],
+            "cht_meas_c": cyl.reading[rows],
+            "cht_est_c": cyl.est[rows],
+            "deviation": cyl.deviation[rows],
+            "gamma_q": cyl.gamma_q[rows],
+            "gamma_d": cyl.gamma_d[rows],
+            "headroom_s": cyl.headroom[rows],
+            "state": cyl.state[rows].astype(np.int64),
+            "stale": bits[rows],
+            "sensor_fault": cyl.code[rows] == fault,
+        }
+        return out, n, cyl.feed
+    out = {"time_s": times[rows], "stale": bits[rows]}
+    for number, cyl in enumerate(cylinders, start=1):
+        out.update({
+            f"cyl{number}_cht_meas_c": cyl.reading[rows],
+            f"cyl{number}_cht_est_c": cyl.est[rows],
+            f"cyl{number}_deviation": cyl.deviation[rows],
+            f"cyl{number}_gamma_q": cyl.gamma_q[rows],
+            f"cyl{number}_gamma_d": cyl.gamma_d[rows],
+            f"cyl{number}_headroom_s": cyl.headroom[rows],
+            f"cyl{number}_state": cyl.state[rows].astype(np.int64),
+        })  # fmt: skip
+    out.update(engine_columns(out, count, config.spread_limit_c))
+    return out, n, cylinders[0].feed
+
+
+class _CylinderTrace(NamedTuple):
+    """One cylinder's per-step outputs over a clock segment of the batch replay."""
+
+    reading: NDArray[np.float64]
+    est: NDArray[np.float64]
+    deviation: NDArray[np.float64]
+    gamma_q: NDArray[np.float64]
+    gamma_d: NDArray[np.float64]
+    headroom: NDArray[np.float64]
+    state: NDArray[np.int64]  # final state code (the detector's verdict where NOMINAL)
+    code: NDArray[np.int64]  # the supervisor's code
+    feed: tuple[NDArray[np.float64], NDArray[np.float64]] | None  # what its detector was fed
+
+
+def _replay_cylinder(
+    config: ServiceConfig,
+    params: ThermalParams,
+    times: NDArray[np.float64],
+    inputs: dict[str, NDArray[np.float64]],
+    cht: HeldInput,
+    any_stale: NDArray[np.bool_],
+    status: NDArray[np.float64] | None,
+    periods: dict[str, int],
+) -> _CylinderTrace:
+    """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom."""
+    dt = config.estimator.dt_s
+    n = times.size
     reading = cht.value
     new_reading = np.diff(cht.frames_seen, prepend=0) > 0
     sf = config.sensor_fault
     with np.errstate(invalid="ignore"):
         reading_bad = ~np.isnan(reading) & ((reading < sf.min_c) | (reading > sf.max_c))
-    if STATUS_INPUT in held:
-        status = held[STATUS_INPUT].value
+    if status is not None:
         is_open = np.zeros(n, dtype=bool)
         for value in sf.open_values:
             is_open |= status == value
@@ -188,7 +266,6 @@ def _replay_segment(
     run(times, any_stale, new_reading, reading, reading_bad, reading, *args)
     stretches = estimator_stretches(action)
     period = filter_period_steps(dt)
-    inputs = {name: held[name].value for name in model_input_names(params)}
     model_c = np.full(n, np.nan)
     calls: list[np.ndarray] = []  # for each stretch: the filter call step of every step (held outputs)
     for a, b in stretches:
@@ -230,39 +307,25 @@ def _replay_segment(
         gamma_q[a:b] = iso.gamma_q[which]
         gamma_d[a:b] = iso.gamma_d[which]
         iso_dev[a:b] = iso.deviation[which]
-    periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     step_numbers = np.arange(1, n + 1)
     symptom = deviation if config.detector_symptom == "estimator" else iso_dev
     first, fed = detector_feed(code, symptom, stretches)
     state = detect_states(config, times, code, first, fed, stretches)
     feed = (times[first:], fed[first:]) if stretches else None
     headroom = held_headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
-                         periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
-    rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
-    bits = np.zeros(n, dtype=np.int64)
-    for name in mapped:
-        bits |= stale[name].astype(np.int64) << INPUT_NAMES.index(name)
-    out = {
-        "time_s": times[rows],
-        "cht_meas_c": reading[rows],
-        "cht_est_c": est[rows],
-        "deviation": deviation[rows],
-        "gamma_q": gamma_q[rows],
-        "gamma_d": gamma_d[rows],
-        "headroom_s": headroom[rows],
-        "state": state[rows].astype(np.int64),
-        "stale": bits[rows],
-        "sensor_fault": code[rows] == STATES.index("SENSOR_FAULT"),
-    }
-    return out, n, feed
+                             periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
+    return _CylinderTrace(reading, est, deviation, gamma_q, gamma_d, headroom, state, code, feed)
 
 
-def replay_file(path: str | os.PathLike[str], config: ServiceConfig, params: ThermalParams) -> ReplayResult:
+def replay_file(
+    path: str | os.PathLike[str], config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams]
+) -> ReplayResult:
     """Replay a python-can log or a canonical flight CSV through the batch path."""
     suffix = Path(path).suffix.lower()
     if suffix in CAN_LOG_SUFFIXES:
         return replay_frames(config, params, read_frames(path))
     if suffix == ".csv":
-        needed = (*model_input_names(params), "cht_c")
+        first = params if isinstance(params, ThermalParams) else params[0]
+        needed = (*model_input_names(first), *config.cylinder_inputs)
         return replay_frames(config, params, frames_from_flight(load_flight(path), config, needed))
     raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
