@@ -61,12 +61,15 @@ def test_the_shipped_four_cylinder_config_maps_four_cylinders() -> None:
     assert config.spread_limit_c == 30.0
     assert len(config.load_cylinder_params()) == 4
     assert load_config("example.yaml").cylinder_inputs == ("cht_c",)
+    both = copy.deepcopy(FOUR)  # a cht_c beside the cylinders (an ECU's mean) is held, not estimated
+    both["inputs"]["cht_c"] = {"signal": "ECU_Slow.CHT", "unit": "degC", "stale_after_s": 1.0}
+    assert parse_config(both, CONFIGS / "four_cylinders.yaml").cylinder_inputs == config.cylinder_inputs
 
 
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda d: d["inputs"].update(cht_c=d["inputs"]["cht1_c"]), "inputs.cht_c: map either cht_c"),
+        (lambda d: [d["inputs"].pop(f"cht{n}_c") for n in (2, 3, 4)], "inputs.cht_c: missing"),  # one: held beside
         (lambda d: d["inputs"].pop("cht2_c"), "cylinders must be numbered 1 .. N"),
         (lambda d: d["cylinders"].update(models=["paper_table_a1"]), "cylinders.models: expected a list of 4"),
         (lambda d: d["cylinders"].update(spread_limit_c=-1), "cylinders.spread_limit_c: expected a number > 0"),
