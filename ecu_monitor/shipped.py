@@ -18,7 +18,7 @@ from pathlib import Path, PurePosixPath
 
 from ecu_monitor.errors import ConfigError
 
-__all__ = ["KINDS", "resolve_file", "shipped_dir", "shipped_file", "shipped_files"]
+__all__ = ["DEFAULT_CONFIG", "KINDS", "resolve_file", "shipped_dir", "shipped_file", "shipped_files"]
 
 #: kind -> (folder under ecu_monitor/data, suffix a bare name is completed with, what it is)
 KINDS: dict[str, tuple[str, str, str]] = {
@@ -37,6 +37,10 @@ def shipped_dir(kind: str) -> Path:
     folder = resources.files("ecu_monitor").joinpath("data", KINDS[kind][0])
     # installed as plain files (pip, editable or not): the Traversable is a real path cantools can open
     return Path(str(folder))
+
+
+#: The service config the commands use when none is given: the shipped example for engine.dbc.
+DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
 
 
 def shipped_files(kind: str) -> tuple[str, ...]:

@@ -17,16 +17,16 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.errors import ConfigError, run_command
-from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
-from virtual_bus.busconfig import BusConfig, load_bus_config, open_bus
-from virtual_bus.cylinders import cylinder_models
-from virtual_bus.emitter import EmitStats, FrameEmitter, FrameEncoder
-from virtual_bus.missions import Mission, list_missions, load_mission
-from virtual_bus.plant import Degradation, iter_steps, parse_effects
-from virtual_bus.recorder import check_outputs, record
+from ecu_monitor.shipped import shipped_files
+
+if TYPE_CHECKING:  # the commands import these (numpy, python-can, the plant): --help stays light
+    from ecu_monitor.model import ThermalParams
+    from virtual_bus.busconfig import BusConfig
+    from virtual_bus.emitter import EmitStats
+    from virtual_bus.missions import Mission
 
 __all__ = ["build_parser", "main"]
 
@@ -59,11 +59,12 @@ class _Progress:
 
 
 def _add_flight_options(parser: argparse.ArgumentParser) -> None:
+    missions = ", ".join(name.removesuffix(".yaml") for name in shipped_files("mission"))  # list_missions(), light
     parser.add_argument(
         "--mission",
         default="default",
         metavar="FILE|NAME",
-        help=f"mission YAML or a shipped mission's name ({', '.join(list_missions())}); default: default",
+        help=f"mission YAML or a shipped mission's name ({missions}); default: default",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the pilot's variations and the sensor noise")
     parser.add_argument(
@@ -97,6 +98,11 @@ class _Flight:
     """The parsed flight options: mission, truth model, effects and degradation."""
 
     def __init__(self, args: argparse.Namespace) -> None:
+        from ecu_monitor.model import load_model, paper_table_a1
+        from virtual_bus.cylinders import cylinder_models
+        from virtual_bus.missions import load_mission
+        from virtual_bus.plant import Degradation, parse_effects
+
         self.mission: Mission = load_mission(args.mission)
         self.params: ThermalParams = load_model(args.model) if args.model else paper_table_a1()
         self.degradation = tuple(Degradation.parse(spec) for spec in args.degrade)
@@ -148,6 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _record(args: argparse.Namespace) -> int:
+    from virtual_bus.recorder import check_outputs, record
+
     outputs = check_outputs(args.out)
     flight = _Flight(args)
     progress = _Progress(f"virtual-ecu record {flight.mission.name}")
@@ -175,6 +183,8 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _bus_config(args: argparse.Namespace) -> BusConfig:
+    from virtual_bus.busconfig import BusConfig, load_bus_config
+
     if args.config:
         return load_bus_config(args.config).replace(args.interface, args.channel)
     if not (args.interface and args.channel):
@@ -183,6 +193,10 @@ def _bus_config(args: argparse.Namespace) -> BusConfig:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from virtual_bus.busconfig import open_bus
+    from virtual_bus.emitter import FrameEmitter, FrameEncoder
+    from virtual_bus.plant import iter_steps
+
     flight = _Flight(args)
     config = _bus_config(args)
     if not args.speed > 0.0:

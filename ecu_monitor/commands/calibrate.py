@@ -33,10 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
-from ecu_monitor.flightlog import require_distinct
-from ecu_monitor.model import load_model
-from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
-from ecu_monitor.shipped import resolve_file
+from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 
 __all__ = ["DEFAULT_OUT", "add_subparser", "candidate_table"]
 
@@ -83,7 +80,10 @@ def add_subparser(subparsers: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     config_path = resolve_file(args.config, "config") if args.config else DEFAULT_CONFIG
     out = _check(args, config_path)
+    from ecu_monitor.flightlog import require_distinct
+    from ecu_monitor.model import load_model
     from ecu_monitor.service.calibration import BASELINE_CANDIDATES_S
+    from ecu_monitor.service.config import load_config
 
     candidates = _candidates(args.candidates) if args.candidates else list(BASELINE_CANDIDATES_S)
     config = load_config(config_path)

@@ -25,16 +25,16 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
-
-import can
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.flightlog import FlightLog, write_csv
-from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
-from ecu_monitor.service.pipeline import STATES, HealthSnapshot, Pipeline
-from ecu_monitor.service.replay import write_health_csv
+from ecu_monitor.shipped import DEFAULT_CONFIG
+
+if TYPE_CHECKING:  # the run and the plots import these: --help stays light
+    import can
+
+    from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.service.pipeline import HealthSnapshot, Pipeline
 
 __all__ = ["DEFAULT_CONFIG", "ServiceListener", "add_subparser", "plot_report"]
 
@@ -57,10 +57,16 @@ def add_subparser(subparsers: Any) -> None:
     parser.set_defaults(func=_run)
 
 
-class ServiceListener(can.Listener):
-    """The service side of the demo: pipeline.advance_to + feed per frame, health frames sent back."""
+class ServiceListener:
+    """The service side of the demo: pipeline.advance_to + feed per frame, health frames sent back.
+
+    A python-can message recipient: can.Notifier calls it with each frame, and ``on_error`` on a bus error.
+    """
 
     def __init__(self, pipeline: Pipeline, bus: can.BusABC) -> None:
+        import can
+
+        self.send_error = can.CanError
         self.pipeline = pipeline
         self.bus = bus
         self.lock = threading.Lock()
@@ -77,14 +83,22 @@ class ServiceListener(can.Listener):
         for frame in due:
             try:
                 self.bus.send(frame)
-            except can.CanError:
+            except self.send_error:
                 self.pipeline.counters["send_errors"] += 1
+
+    __call__ = on_message_received
 
     def on_error(self, exc: Exception) -> None:
         self.errors.append(f"{type(exc).__name__}: {exc}")
 
 
 def _run(args: argparse.Namespace) -> int:
+    import can
+
+    from ecu_monitor.flightlog import write_csv
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.replay import write_health_csv
     from virtual_bus.emitter import FrameEncoder
     from virtual_bus.missions import load_mission
     from virtual_bus.plant import Degradation, collect, iter_steps, record_every
@@ -197,6 +211,9 @@ def plot_report(
 ) -> None:
     """The four demo plots (time in minutes): cht.png, detection.png, gammas.png, headroom.png."""
     import matplotlib
+    import numpy as np
+
+    from ecu_monitor.service.pipeline import STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

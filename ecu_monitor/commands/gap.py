@@ -30,16 +30,17 @@ import shlex
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.commands.identify import parse_heat_axes
+from ecu_monitor.commands.names import GAP_CANDIDATE_IDS as CANDIDATE_IDS
+from ecu_monitor.commands.names import GAP_DEFAULT_CANDIDATE_IDS as DEFAULT_CANDIDATE_IDS
 from ecu_monitor.errors import ConfigError, UserInputError
-from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap import CANDIDATE_IDS, GapSettings, cross_validate, diagnose, write_report
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidates_for
-from ecu_monitor.identify import PsoSettings, identify, model_inputs
-from ecu_monitor.model import ThermalParams, load_model
+
+if TYPE_CHECKING:  # the run imports these: --help stays light
+    from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.gap import GapSettings
+    from ecu_monitor.model import ThermalParams
 
 __all__ = ["add_subparser"]
 
@@ -96,6 +97,8 @@ def _say(message: str) -> None:
 
 
 def _flights(args: argparse.Namespace) -> tuple[list[FlightLog], list[FlightLog]]:
+    from ecu_monitor.bus.canlog import load_flight
+
     if not args.train:
         raise UserInputError("gap: --train is required (or --blind N)")
     if args.test_first and args.split_at is None:
@@ -154,6 +157,8 @@ def _candidate_ids(args: argparse.Namespace) -> tuple[str, ...] | None:
 
 
 def _settings(args: argparse.Namespace, candidates: tuple[str, ...] | None = None) -> GapSettings:
+    from ecu_monitor.gap import GapSettings
+
     mode = args.refit or ("local" if args.model or args.blind is not None else "reidentify")
     ids = _candidate_ids(args) or candidates
     return GapSettings(refit_mode=mode) if ids is None else GapSettings(candidates=ids, refit_mode=mode)
@@ -230,6 +235,8 @@ def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
 
 def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> ThermalParams:
     """The nominal model identified on ``flights`` (PSO), with progress on stderr."""
+    from ecu_monitor.identify import PsoSettings, identify
+
     names = ", ".join(log.source for log in flights)
     _say(f"{label}no --model: identifying the nominal model on {names} (PSO, heat axes {','.join(axes)})")
     pso = PsoSettings()
@@ -245,6 +252,11 @@ def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> Th
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.gap import cross_validate, diagnose, write_report
+    from ecu_monitor.gap.library import candidates_for
+    from ecu_monitor.identify import model_inputs
+    from ecu_monitor.model import load_model
+
     if args.blind is not None:
         return _run_blind(args, _settings(args))
     _candidate_ids(args)  # a bad --candidates fails before the flights are read

@@ -26,30 +26,19 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from tqdm import tqdm
-
-from ecu_monitor.bus.canlog import load_flight
+from ecu_monitor.commands.names import IDENTIFY_DEFAULT_FREE as DEFAULT_FREE
+from ecu_monitor.commands.names import IDENTIFY_TERM_NAMES as TERM_NAMES
+from ecu_monitor.commands.names import PSO_DT_S, PSO_ITERATIONS, PSO_PARTICLES
 from ecu_monitor.errors import FlightLogError, ParameterError, UserInputError
-from ecu_monitor.flightlog import FlightLog, cylinder_columns, require_distinct
-from ecu_monitor.identify import (
-    DEFAULT_FREE,
-    ErrorStats,
-    PsoSettings,
-    default_space,
-    flight_errors,
-    model_inputs,
-    simulate_flight,
-)
-from ecu_monitor.identify.report import error_table, plot_cost, plot_flight, plot_heat_map
-from ecu_monitor.identify.select import TERM_NAMES, CrossValidation, Selection, identify_flights, parse_terms
-from ecu_monitor.model import load_model, paper_table_a1, save_model
+
+if TYPE_CHECKING:  # the run imports these: --help stays light
+    from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.identify import ErrorStats, PsoSettings
+    from ecu_monitor.identify.select import CrossValidation, Selection
 
 __all__ = ["add_subparser", "cylinder_output", "parse_cylinder", "parse_grid", "parse_heat_axes"]
-
-_DEFAULTS = PsoSettings()
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -81,10 +70,10 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--cht-limit", type=float, metavar="C", help="the engine's CHT limit, degC (into model.yaml)")
     parser.add_argument("--no-lofo", action="store_true", help="skip the leave-one-flight-out check (2+ flights)")
-    parser.add_argument("--particles", type=int, default=_DEFAULTS.particles, metavar="N", help="swarm size")
-    parser.add_argument("--iterations", type=int, default=_DEFAULTS.iterations, metavar="N", help="PSO iterations")
+    parser.add_argument("--particles", type=int, default=PSO_PARTICLES, metavar="N", help="swarm size")
+    parser.add_argument("--iterations", type=int, default=PSO_ITERATIONS, metavar="N", help="PSO iterations")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
-    parser.add_argument("--dt", type=float, default=_DEFAULTS.dt_s, metavar="S", help="integration step, s")
+    parser.add_argument("--dt", type=float, default=PSO_DT_S, metavar="S", help="integration step, s")
     parser.add_argument("--no-polish", action="store_true", help="skip the least-squares polish")
     parser.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR")
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for foreign CSVs")
@@ -119,6 +108,8 @@ def parse_grid(text: str) -> tuple[int, int]:
 
 
 def _load(paths: list[str], mapping: str | None, cylinder: int | None = None) -> list[FlightLog]:
+    from ecu_monitor.bus.canlog import load_flight
+
     return [load_flight(p, mapping=mapping, cht=cylinder) for p in paths]
 
 
@@ -157,6 +148,8 @@ def _progress_bar(bar: Any) -> Callable[[int, float, float], None]:
 
 
 def _settings(args: argparse.Namespace) -> PsoSettings:
+    from ecu_monitor.identify import PsoSettings
+
     return PsoSettings(
         particles=args.particles,
         iterations=args.iterations,
@@ -167,6 +160,8 @@ def _settings(args: argparse.Namespace) -> PsoSettings:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.flightlog import cylinder_columns, require_distinct
+
     cylinder = parse_cylinder(args.cylinder)
     out = Path(args.out)
     if cylinder != "all":
@@ -189,6 +184,14 @@ def _run(args: argparse.Namespace) -> int:
 
 def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     """Identify one model (of ``cht_c``, or of cylinder ``cylinder``'s CHT) into ``out``."""
+    from tqdm import tqdm
+
+    from ecu_monitor.flightlog import require_distinct
+    from ecu_monitor.identify import default_space, flight_errors, model_inputs
+    from ecu_monitor.identify.report import error_table
+    from ecu_monitor.identify.select import identify_flights
+    from ecu_monitor.model import load_model, paper_table_a1, save_model
+
     settings = _settings(args)  # validate the numbers and the output places before the (slow) work
     if not out.parent.is_dir():
         raise UserInputError(f"{out}: the directory {out.parent} does not exist")
@@ -289,6 +292,8 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
 
 
 def _parse_terms(text: str) -> dict[str, bool]:
+    from ecu_monitor.identify.select import parse_terms
+
     try:
         return parse_terms(text)
     except ParameterError as exc:
@@ -318,6 +323,8 @@ def _lofo_lines(cv: CrossValidation | None) -> list[str]:
 
 def _limit_warnings(flights: list[FlightLog], limit_c: float, given: bool) -> list[str]:
     """One line per flight whose measured CHT exceeds the model's CHT limit."""
+    import numpy as np
+
     out = []
     for log in flights:
         if not log.has("cht_c"):
@@ -345,6 +352,11 @@ def _plots(
     validation: list[FlightLog],
     rows: list[tuple[str, str, ErrorStats]],
 ) -> None:
+    import numpy as np
+
+    from ecu_monitor.identify import simulate_flight
+    from ecu_monitor.identify.report import plot_cost, plot_flight, plot_heat_map
+
     params = result.params
     for k, (log, (role, name, errors)) in enumerate(zip([*flights, *validation], rows, strict=True)):
         path = directory / f"cht_{role}_{k + 1}_{Path(name).stem}.png"

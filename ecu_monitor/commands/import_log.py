@@ -21,9 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.errors import UserInputError
-from ecu_monitor.flightlog import describe_cht, parse_cht_choice, write_csv
 from ecu_monitor.shipped import resolve_file
 
 __all__ = ["add_subparser"]
@@ -100,6 +98,9 @@ def _targets(args: argparse.Namespace) -> list[tuple[str, Path]]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.flightlog import describe_cht, parse_cht_choice, write_csv
+
     cht = None if args.cht is None else parse_cht_choice(args.cht)
     signals = _signal_map(args.signal)
     dbc_paths = [resolve_file(name, "dbc") for name in args.dbc] if args.dbc else None

@@ -20,18 +20,16 @@ import argparse
 import collections
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
+from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.errors import ConfigError, FlightLogError
-from ecu_monitor.estimation import ESTIMATORS
-from ecu_monitor.model import ThermalParams, load_model
-from ecu_monitor.service.calibration import model_fingerprint
-from ecu_monitor.service.config import DEFAULT_CONFIG, ServiceConfig, load_config
-from ecu_monitor.service.pipeline import STATES, model_input_names
-from ecu_monitor.service.replay import ReplayResult, frames_from_flight, replay_frames, replay_live
+from ecu_monitor.shipped import DEFAULT_CONFIG
+
+if TYPE_CHECKING:  # the run imports these: --help stays light
+    from ecu_monitor.model import ThermalParams
+    from ecu_monitor.service.config import ServiceConfig
+    from ecu_monitor.service.replay import ReplayResult
 
 __all__ = ["DEFAULT_CONFIG", "add_subparser", "fit_warnings"]
 
@@ -47,7 +45,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the config's model)")
     parser.add_argument("--config", metavar="CONFIG.yaml", help=f"service config (default: {DEFAULT_CONFIG.name})")
     parser.add_argument(
-        "--estimator", metavar="NAME", help=f"estimator: {', '.join(sorted(ESTIMATORS))} (default: the config's)"
+        "--estimator", metavar="NAME", help=f"estimator: {', '.join(sorted(ESTIMATOR_NAMES))} (default: the config's)"
     )
     parser.add_argument("--out", required=True, metavar="HEALTH.csv", help="output CSV")
     parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
@@ -55,6 +53,15 @@ def add_subparser(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
+    from ecu_monitor.estimation import ESTIMATORS
+    from ecu_monitor.model import load_model
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.pipeline import model_input_names
+    from ecu_monitor.service.replay import frames_from_flight, replay_frames, replay_live
+
     started = time.perf_counter()
     config = load_config(args.config or DEFAULT_CONFIG)
     if args.estimator is not None:
@@ -88,6 +95,10 @@ def _run(args: argparse.Namespace) -> int:
 def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayResult) -> list[str]:
     """One line per setting that does not fit the replayed engine: the model's CHT limit below the
     measured CHT, and a detector threshold not calibrated for ``params`` (by its fingerprint)."""
+    import numpy as np
+
+    from ecu_monitor.service.calibration import model_fingerprint
+
     out = []
     cht = np.asarray(result.columns["cht_meas_c"], dtype=float)
     cht = cht[np.isfinite(cht)]
@@ -115,6 +126,10 @@ def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayRes
 
 def _cylinder_lines(result: ReplayResult) -> list[str]:
     """One line per cylinder of an engine monitored per cylinder: its states, first DEGRADED, the spread."""
+    import numpy as np
+
+    from ecu_monitor.service.pipeline import STATES
+
     count = result.cylinder_count
     if count == 1:
         return []
@@ -139,6 +154,10 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
 
 
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
+    import numpy as np
+
+    from ecu_monitor.service.pipeline import STATES
+
     c = result.counters
     time_s = result.columns["time_s"]
     codes = result.columns["state"]

@@ -19,16 +19,15 @@ import socket
 import sys
 from collections.abc import Callable
 from types import FrameType
-from typing import Any
-
-import can
+from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.config import ServiceConfig, load_config
-from ecu_monitor.service.daemon import Daemon, DaemonSettings
-from ecu_monitor.service.flight_recorder import FlightRecorder
-from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
-from ecu_monitor.service.persistence import FlightRules, StateStore
+from ecu_monitor.service.persistence import FlightRules
+
+if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help stays light
+    import can
+
+    from ecu_monitor.service.config import ServiceConfig
 
 __all__ = ["add_subparser", "bus_opener", "engine_speed_of", "unsupported_on_host"]
 
@@ -90,6 +89,8 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
     ConfigError; a device that is not there yet (any other OSError or CanInitializationError) is left to
     the daemon's backoff.
     """
+    import can
+
     options = dict(config.bus)
     interface = options.get("interface")
     if interface not in can.interfaces.VALID_INTERFACES:
@@ -145,6 +146,11 @@ def unsupported_on_host(exc: BaseException) -> bool:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.daemon import Daemon, DaemonSettings
+    from ecu_monitor.service.flight_recorder import FlightRecorder
+    from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
+    from ecu_monitor.service.persistence import StateStore
     from ecu_monitor.service.pipeline import Pipeline  # the estimator stack: imported only when running
 
     config = load_config(args.config)

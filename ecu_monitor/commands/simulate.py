@@ -13,13 +13,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-import numpy as np
-
-from ecu_monitor.bus.canlog import load_flight
+from ecu_monitor.commands.names import SIMULATE_DT_S
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.flightlog import FlightLog, write_csv
-from ecu_monitor.identify import REFERENCE_DT_S, ErrorStats, simulate_flight
-from ecu_monitor.model import load_model, paper_table_a1
 
 __all__ = ["SIM_COLUMNS", "add_subparser"]
 
@@ -38,11 +33,18 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the paper's Table A1)")
     parser.add_argument("--out", required=True, metavar="SIM.csv", help="output CSV")
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for a foreign CSV")
-    parser.add_argument("--dt", type=float, default=REFERENCE_DT_S, metavar="S", help="integration step, s (0.02)")
+    parser.add_argument("--dt", type=float, default=SIMULATE_DT_S, metavar="S", help="integration step, s (0.02)")
     parser.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.flightlog import FlightLog, write_csv
+    from ecu_monitor.identify import ErrorStats, simulate_flight
+    from ecu_monitor.model import load_model, paper_table_a1
+
     params = load_model(args.model) if args.model else paper_table_a1()
     log = load_flight(args.flight, mapping=args.mapping)
     if not log.has("cht_c"):

@@ -34,7 +34,7 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
-from ecu_monitor.shipped import resolve_file, shipped_dir
+from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 from ecu_monitor.units import Unit, custom_unit
 
 __all__ = [
@@ -59,8 +59,6 @@ __all__ = [
     "parse_config",
 ]
 
-#: The config the commands use when none is given: the shipped example for engine.dbc.
-DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
 #: Bus protocols of the inputs: DBC-described frames, or DroneCAN messages.
 PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
 #: Per-cylinder CHT inputs (``cht1_c`` .. ``cht16_c``, the flight-log column names). Two or more
