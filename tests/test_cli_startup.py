@@ -76,11 +76,11 @@ def test_help_lists_equal_their_sources() -> None:
     assert names.IDENTIFY_TERM_NAMES == TERM_NAMES
     assert names.IDENTIFY_DEFAULT_FREE == DEFAULT_FREE
     defaults = PsoSettings()
-    assert (names.PSO_PARTICLES, names.PSO_ITERATIONS, names.PSO_DT_S) == (
+    assert (
         defaults.particles,
         defaults.iterations,
         defaults.dt_s,
-    )
+    ) == (names.PSO_PARTICLES, names.PSO_ITERATIONS, names.PSO_DT_S)
     assert names.SIMULATE_DT_S == REFERENCE_DT_S
 
 
