@@ -342,6 +342,9 @@ def test_a_silent_bus_is_warned_once_per_silence(tmp_path: Path, caplog: pytest.
     stop.supervisor = thread
     try:
         with caplog.at_level("INFO", logger="ecu_monitor.service.daemon"):
+            # the supervisor's first wait comes after run() started the silence at the first open
+            # (bus_opens, which run_daemon_thread waits for, is counted just before): no race with it
+            assert wait_until(lambda: len(stop.waits) > 0, 30.0)
             offset[0] += limit_s / 2  # half the limit: real time (a loaded machine) cannot make up the rest
             polls = len(stop.waits)
             assert wait_until(lambda: len(stop.waits) > polls + 3, 30.0)  # the supervisor looked
