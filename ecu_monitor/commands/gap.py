@@ -33,8 +33,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.identify import parse_heat_axes
-from ecu_monitor.commands.names import GAP_CANDIDATE_IDS as CANDIDATE_IDS
-from ecu_monitor.commands.names import GAP_DEFAULT_CANDIDATE_IDS as DEFAULT_CANDIDATE_IDS
 from ecu_monitor.errors import ConfigError, UserInputError
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
@@ -71,9 +69,9 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument(
         "--candidates",
         metavar="IDS",
-        help=f"comma-separated candidate effects (default {','.join(DEFAULT_CANDIDATE_IDS)},"
-        " no_altitude_factor with a heat map on fuel flow and mixture_index when every flight logs egt_c;"
-        f" known: {','.join(CANDIDATE_IDS)})",
+        help="comma-separated candidate effects (default: the library's default set, plus the ones the logged"
+        " columns call for: no_altitude_factor with a heat map on fuel flow, mixture_index when every flight logs"
+        " egt_c; an unknown name lists the known)",
     )
     parser.add_argument(
         "--refit",
@@ -150,6 +148,8 @@ def _candidate_ids(args: argparse.Namespace) -> tuple[str, ...] | None:
     if not args.candidates:
         return None
     ids = tuple(c.strip() for c in args.candidates.split(",") if c.strip())
+    from ecu_monitor.gap import CANDIDATE_IDS
+
     unknown = [c for c in ids if c not in CANDIDATE_IDS]
     if unknown or not ids:
         raise UserInputError(f"--candidates: unknown effect(s) {unknown or ids} (known: {', '.join(CANDIDATE_IDS)})")

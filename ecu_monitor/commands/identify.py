@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.names import IDENTIFY_DEFAULT_FREE as DEFAULT_FREE
-from ecu_monitor.commands.names import IDENTIFY_TERM_NAMES as TERM_NAMES
 from ecu_monitor.commands.names import PSO_DT_S, PSO_ITERATIONS, PSO_PARTICLES
 from ecu_monitor.errors import FlightLogError, ParameterError, UserInputError
 
@@ -64,9 +63,9 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument(
         "--effects",
         metavar="NAMES|auto",
-        help="terms to fit with the model, comma-separated (a leading '-' removes one): "
-        + ", ".join(TERM_NAMES)
-        + "; auto keeps those that lower the held-out error (other flights, or the halves of one)",
+        help="terms to fit with the model, comma-separated (a leading '-' removes one; an unknown name lists the"
+        " known, e.g. airspeed_cooling, sensor_lag); auto keeps those that lower the held-out error (other flights,"
+        " or the halves of one)",
     )
     parser.add_argument("--cht-limit", type=float, metavar="C", help="the engine's CHT limit, degC (into model.yaml)")
     parser.add_argument("--no-lofo", action="store_true", help="skip the leave-one-flight-out check (2+ flights)")
@@ -301,7 +300,7 @@ def _parse_terms(text: str) -> dict[str, bool]:
 
 
 def _terms_label(params: Any) -> str:
-    from ecu_monitor.identify.select import term_is_on
+    from ecu_monitor.identify.select import TERM_NAMES, term_is_on
 
     return ", ".join(f"{'+' if term_is_on(params, n) else '-'}{n}" for n in TERM_NAMES)
 

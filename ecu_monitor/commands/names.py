@@ -3,17 +3,15 @@
 ``ecu-monitor --help`` and each subcommand's help build their parsers without importing numpy,
 numba, scipy or matplotlib (the command's run imports them). The lists below are copies of the
 values their own modules define; tests/test_cli_startup.py checks each copy equals its source, so a
-change there fails a test that names this file.
+change there fails a test that names this file. Lists that grow often (the gap's candidate effects,
+identification's terms) are not copied: their help says an unknown name lists them.
 """
 
 from __future__ import annotations
 
 __all__ = [
     "ESTIMATOR_NAMES",
-    "GAP_CANDIDATE_IDS",
-    "GAP_DEFAULT_CANDIDATE_IDS",
     "IDENTIFY_DEFAULT_FREE",
-    "IDENTIFY_TERM_NAMES",
     "PSO_DT_S",
     "PSO_ITERATIONS",
     "PSO_PARTICLES",
@@ -22,26 +20,7 @@ __all__ = [
 
 #: ecu_monitor.estimation.ESTIMATORS (the shipped estimators; register_estimator may add more).
 ESTIMATOR_NAMES: tuple[str, ...] = ("ekf", "cbekf", "cbekf-au", "cbekf-iso")
-#: ecu_monitor.gap.library.CANDIDATE_IDS and DEFAULT_CANDIDATE_IDS.
-GAP_CANDIDATE_IDS: tuple[str, ...] = (
-    "airspeed_cooling",
-    "density_cooling",
-    "sensor_lag",
-    "mixture_cooling",
-    "heat_altitude_scaling",
-    "no_altitude_factor",
-)
-GAP_DEFAULT_CANDIDATE_IDS: tuple[str, ...] = ("airspeed_cooling", "density_cooling", "sensor_lag", "mixture_cooling")
-#: ecu_monitor.identify.select.TERM_NAMES and ecu_monitor.identify.DEFAULT_FREE.
-IDENTIFY_TERM_NAMES: tuple[str, ...] = (
-    "airspeed_cooling",
-    "density_cooling",
-    "sensor_lag",
-    "mixture_cooling",
-    "mixture_index",
-    "altitude_factor",
-    "radiation_kelvin",
-)
+#: ecu_monitor.identify.DEFAULT_FREE.
 IDENTIFY_DEFAULT_FREE: tuple[str, ...] = ("c_w", "tau_w", "alpha_r_e", "heat_map")
 #: ecu_monitor.identify.PsoSettings() defaults: swarm size, iterations, integration step (s).
 PSO_PARTICLES = 48
