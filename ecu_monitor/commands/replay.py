@@ -5,7 +5,9 @@ machine allows: python-can logs (.asc, .blf, .log, .trc) are decoded through the
 a canonical flight CSV is turned into the frames the ECU would have sent (each mapped message at its
 DBC rate) and goes through the same path. Writes one row per health-status period (100 ms):
 ``time_s, cht_meas_c, cht_est_c, deviation, state, gamma_q, gamma_d, headroom_s, stale_inputs,
-sensor_fault`` (deviation = the model-deviation symptom, degC/s; state = the Health_Status verdict).
+sensor_fault`` (deviation = the model-deviation symptom, degC/s; state = the Health_Status verdict);
+``--out`` ending in .parquet, .arrow or .feather writes the same columns as Parquet or Arrow IPC
+(needs pyarrow: ``pip install 'ecu-monitor[arrow]'``).
 Prints one summary line, then one ``warning:`` line for each setting that does not fit the engine:
 the model's CHT limit below what the engine read (the headroom is 0 there), and a detector threshold
 not calibrated for this model (``detector.calibrated_for`` absent from the config or naming another
@@ -47,7 +49,12 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument(
         "--estimator", metavar="NAME", help=f"estimator: {', '.join(sorted(ESTIMATOR_NAMES))} (default: the config's)"
     )
-    parser.add_argument("--out", required=True, metavar="HEALTH.csv", help="output CSV")
+    parser.add_argument(
+        "--out",
+        required=True,
+        metavar="HEALTH.csv",
+        help="output: .csv, or .parquet / .arrow / .feather (pip install 'ecu-monitor[arrow]')",
+    )
     parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
     parser.set_defaults(func=_run)
 
@@ -59,10 +66,12 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.estimation import ESTIMATORS
     from ecu_monitor.model import load_model
     from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.health_table import check_table_path
     from ecu_monitor.service.pipeline import model_input_names
     from ecu_monitor.service.replay import frames_from_flight, replay_frames, replay_live
 
     started = time.perf_counter()
+    check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
     config = load_config(args.config or DEFAULT_CONFIG)
     if args.estimator is not None:
         if args.estimator not in ESTIMATORS:

@@ -1,6 +1,8 @@
 """The health rows the service produces: :class:`HealthSnapshot` (one per health-status period, with a
 :class:`CylinderSnapshot` per cylinder on an engine monitored per cylinder), the columns of health.csv
-and their writers, :class:`ReplayResult` (a replay's rows as columns)."""
+and their layout (:func:`health_table_columns`; the bytes are written from whole columns by
+:mod:`ecu_monitor.service.health_table`: CSV, Parquet, Arrow), :class:`ReplayResult` (a replay's rows
+as columns)."""
 
 from __future__ import annotations
 
@@ -15,8 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES
-from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation.headroom import DEFAULT_CAP_S
+from ecu_monitor.service.health_table import TableColumn, write_health_table
 from ecu_monitor.service.supervision import STATES
 
 #: ThermalHeadroom meaning "not limited" (health.dbc; the headroom module's cap).
@@ -178,28 +180,30 @@ class ReplayResult:
         ]  # fmt: skip
 
     def write_csv(self, path: str | os.PathLike[str]) -> int:
-        """Write health.csv (as :func:`write_health_csv`, from the columns at once); returns the row count."""
-        c = self.columns
-        names = ["+".join(n) for n in _stale_names()]
-        cells = [[f"{v:.10g}" for v in c[k].tolist()] for k in _FLOAT_COLUMNS]
-        state = [STATES[v] for v in c["state"].tolist()]
-        stale = [names[v] for v in c["stale"].tolist()]
-        fault = [str(int(v)) for v in c["sensor_fault"].tolist()]
-        t, meas, est, dev, gq, gd, head = cells
-        columns = [t, meas, est, dev, state, gq, gd, head, stale, fault]
-        count = self.cylinder_count
-        if count > 1:
-            for n in range(1, count + 1):
-                per = {k: [f"{v:.10g}" for v in c[f"cyl{n}_{k}"].tolist()] for k in _CYLINDER_FLOATS}
-                cyl_state = [STATES[v] for v in c[f"cyl{n}_state"].tolist()]
-                columns += [per["cht_meas_c"], per["cht_est_c"], per["deviation"], cyl_state, per["gamma_q"],
-                            per["gamma_d"], per["headroom_s"]]  # fmt: skip
-            columns.append([f"{v:.10g}" for v in c["cht_spread_c"].tolist()])
-            columns.append([str(v) if v else "" for v in c["hottest_cylinder"].tolist()])
-            columns.append([str(int(v)) for v in c["spread_alarm"].tolist()])
-        lines = [",".join(health_columns(count))]
-        lines += [",".join(row) for row in zip(*columns, strict=True)]
-        return _write_lines(lines, path)
+        """Write the rows to ``path``: health.csv, or Parquet / Arrow by the suffix
+        (:func:`~ecu_monitor.service.health_table.write_health_table`); returns the row count."""
+        return write_health_table(health_table_columns(self.columns, self.cylinder_count), path)
+
+
+def health_table_columns(columns: dict[str, NDArray[Any]], cylinders: int = 1) -> list[TableColumn]:
+    """The columns of :func:`health_columns` from a replay's columns, as the table writer takes them."""
+    bit = ("0", "1")
+    table = [TableColumn(k, columns[k]) for k in ("time_s", "cht_meas_c", "cht_est_c", "deviation")]
+    table.append(TableColumn("state", columns["state"], STATES))
+    table += [TableColumn(k, columns[k]) for k in ("gamma_q", "gamma_d", "headroom_s")]
+    table.append(TableColumn("stale_inputs", columns["stale"], tuple("+".join(n) for n in _stale_names())))
+    table.append(TableColumn("sensor_fault", columns["sensor_fault"].astype(np.int64), bit))
+    if cylinders > 1:
+        for n in range(1, cylinders + 1):
+            for name in CYLINDER_COLUMNS:
+                key = name.format(n=n)
+                labels = STATES if name.endswith("_state") else None
+                table.append(TableColumn(key, columns[key], labels))
+        hottest = ("", *(str(n) for n in range(1, cylinders + 1)))
+        table.append(TableColumn("cht_spread_c", columns["cht_spread_c"]))
+        table.append(TableColumn("hottest_cylinder", columns["hottest_cylinder"], hottest))
+        table.append(TableColumn("spread_alarm", columns["spread_alarm"].astype(np.int64), bit))
+    return table
 
 
 #: Float columns of ReplayResult.columns, in health.csv order.
@@ -249,33 +253,8 @@ def rows_to_columns(rows: list[HealthSnapshot], cylinders: int = 1) -> dict[str,
 
 
 def write_health_csv(rows: Iterable[HealthSnapshot], path: str | os.PathLike[str]) -> int:
-    """Write health.csv (:func:`health_columns`, nan as an empty cell); returns the number of rows.
-    FlightLogError if the file cannot be written."""
+    """Write health.csv (:func:`health_columns`, numbers as ``%.10g``, nan as an empty cell; or Parquet /
+    Arrow by the suffix); returns the number of rows. FlightLogError if the file cannot be written."""
     rows = list(rows)
     count = len(rows[0].cylinders) if rows and rows[0].cylinders else 1
-    lines = [",".join(health_columns(count))]
-    for r in rows:
-        line = (
-            f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
-            f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)}"
-        )
-        if count > 1:
-            per = "".join(
-                f",{c.cht_meas_c:.10g},{c.cht_est_c:.10g},{c.deviation:.10g},{c.state},{c.gamma_q:.10g},"
-                f"{c.gamma_d:.10g},{c.headroom_s:.10g}"
-                for c in r.cylinders
-            )
-            hottest = str(r.hottest_cylinder) if r.hottest_cylinder else ""
-            line += f"{per},{r.cht_spread_c:.10g},{hottest},{int(r.spread_alarm)}"
-        lines.append(line)
-    return _write_lines(lines, path)
-
-
-def _write_lines(lines: list[str], path: str | os.PathLike[str]) -> int:
-    text = "\n".join(lines).replace(",nan", ",").replace(",-inf", ",").replace(",inf", ",") + "\n"
-    try:
-        with open(path, "w", newline="", encoding="utf-8") as handle:
-            handle.write(text)
-    except OSError as exc:
-        raise FlightLogError(f"{path}: cannot write ({exc.strerror or exc})") from None
-    return len(lines) - 1
+    return write_health_table(health_table_columns(rows_to_columns(rows, count), count), path)

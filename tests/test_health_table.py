@@ -1,0 +1,147 @@
+"""The bulk health writers: numbers byte-equal to ``%.10g``, the CSV equal to a row-by-row reference,
+Parquet / Arrow with the same columns, and one line (exit 2) when pyarrow is missing."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ecu_monitor.bus.codec import INPUT_NAMES
+from ecu_monitor.cli import main
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.service import health_table
+from ecu_monitor.service.health_rows import ReplayResult, health_columns, health_table_columns, write_health_csv
+from ecu_monitor.service.health_table import check_table_path, csv_bytes, format_g10
+from ecu_monitor.service.supervision import STATES
+
+FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+CYLINDER_FLOATS = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+
+
+def _boundary_values() -> np.ndarray:
+    """Values whose 10th significant digit is followed by exactly 5 (the rounding ties of the scaled
+    float), their neighbours, powers of ten, carries (9.9999999995) and the extremes."""
+    rng = np.random.default_rng(12)
+    ties = (rng.integers(10**9, 10**10, 4000) + 0.5) * 10.0 ** rng.integers(-14, 14, 4000)
+    spread = rng.normal(0.0, 1.0, 4000) * 10.0 ** rng.integers(-40, 40, 4000)
+    special = [0.0, -0.0, 5e-324, 2.2250738585072014e-308, 1.7976931348623157e308, 1e22, 1e23, 1e-4, 9.9999e-5,
+               1e10, 9999999999.5, 999999999.95, 9.9999999995, 0.1, 3600.0, 150.0, 1234.5]  # fmt: skip
+    powers = 10.0 ** np.arange(-30, 31)
+    base = np.concatenate([ties, spread, special, powers])
+    with np.errstate(over="ignore"):
+        near = np.concatenate([np.nextafter(base, np.inf), np.nextafter(base, -np.inf)])
+    values = np.concatenate([base, -base, near])
+    return values[np.isfinite(values)]
+
+
+def test_numbers_are_byte_equal_to_percent_10g_on_boundaries() -> None:
+    values = _boundary_values()
+    assert format_g10(values) == [f"{v:.10g}" for v in values.tolist()]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=1, max_size=40))
+def test_numbers_are_byte_equal_to_percent_10g(values: list[float]) -> None:
+    assert format_g10(values) == [f"{v:.10g}" for v in values]
+
+
+def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:
+    rng = np.random.default_rng(seed)
+
+    def floats(name: str) -> np.ndarray:
+        if name == "time_s":
+            return 1000.0 + 0.1 * np.arange(n)
+        values = rng.normal(150.0, 20.0, n) * 10.0 ** rng.integers(-6, 3, n)
+        values[rng.random(n) < 0.1] = math.nan
+        values[rng.random(n) < 0.03] = math.inf
+        values[rng.random(n) < 0.03] = -0.0
+        return values
+
+    columns: dict[str, Any] = {k: floats(k) for k in FLOAT_COLUMNS}
+    columns.update(state=rng.integers(0, len(STATES), n), stale=rng.integers(0, 1 << len(INPUT_NAMES), n),
+                   sensor_fault=rng.random(n) < 0.2)  # fmt: skip
+    if cylinders > 1:
+        for c in range(1, cylinders + 1):
+            columns.update({f"cyl{c}_{k}": floats(k) for k in CYLINDER_FLOATS})
+            columns[f"cyl{c}_state"] = rng.integers(0, len(STATES), n)
+        columns.update(cht_spread_c=floats("cht_spread_c"), hottest_cylinder=rng.integers(0, cylinders + 1, n),
+                       spread_alarm=rng.random(n) < 0.3)  # fmt: skip
+    return columns
+
+
+def _reference_csv(result: ReplayResult) -> bytes:
+    """health.csv row by row with Python's formatter (the writer before the bulk one)."""
+    rows = result.rows
+    count = result.cylinder_count
+    lines = [",".join(health_columns(count))]
+    for r in rows:
+        line = (
+            f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
+            f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)}"
+        )
+        if count > 1:
+            per = "".join(
+                f",{c.cht_meas_c:.10g},{c.cht_est_c:.10g},{c.deviation:.10g},{c.state},{c.gamma_q:.10g},"
+                f"{c.gamma_d:.10g},{c.headroom_s:.10g}"
+                for c in r.cylinders
+            )
+            hottest = str(r.hottest_cylinder) if r.hottest_cylinder else ""
+            line += f"{per},{r.cht_spread_c:.10g},{hottest},{int(r.spread_alarm)}"
+        lines.append(line)
+    text = "\n".join(lines).replace(",nan", ",").replace(",-inf", ",").replace(",inf", ",") + "\n"
+    return text.encode("ascii")
+
+
+@pytest.mark.parametrize(("n", "cylinders"), [(0, 1), (1, 1), (3000, 1), (1000, 4)])
+def test_csv_equals_the_row_by_row_reference(n: int, cylinders: int, tmp_path: Path) -> None:
+    result = ReplayResult(_columns(n, seed=n, cylinders=cylinders), {})
+    reference = _reference_csv(result)
+    assert csv_bytes(health_table_columns(result.columns, result.cylinder_count)) == reference
+    out = tmp_path / "health.csv"
+    assert result.write_csv(out) == n
+    assert out.read_bytes() == reference
+    assert write_health_csv(result.rows, tmp_path / "live.csv") == n  # the live path's writer: the same bytes
+    assert (tmp_path / "live.csv").read_bytes() == reference
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".arrow", ".feather"])
+def test_parquet_and_arrow_hold_the_csv_columns(suffix: str, tmp_path: Path) -> None:
+    pa_feather = pytest.importorskip("pyarrow.feather")
+    pq = pytest.importorskip("pyarrow.parquet")
+    columns = _columns(500, seed=3, cylinders=2)
+    out = tmp_path / f"health{suffix}"
+    assert ReplayResult(columns, {}).write_csv(out) == 500
+    table = pq.read_table(out) if suffix == ".parquet" else pa_feather.read_table(out)
+    assert tuple(table.column_names) == health_columns(2)
+    for name in FLOAT_COLUMNS:
+        np.testing.assert_array_equal(table.column(name).to_numpy(), columns[name])
+    assert table.column("state").to_pylist() == [STATES[c] for c in columns["state"].tolist()]
+    stale = table.column("stale_inputs").to_pylist()
+    assert stale == ["+".join(n for b, n in enumerate(INPUT_NAMES) if c >> b & 1) for c in columns["stale"].tolist()]
+    assert table.column("sensor_fault").to_pylist() == columns["sensor_fault"].tolist()
+    assert table.column("cyl2_state").to_pylist() == [STATES[c] for c in columns["cyl2_state"].tolist()]
+    np.testing.assert_array_equal(table.column("cyl1_gamma_q").to_numpy(), columns["cyl1_gamma_q"])
+
+
+def test_a_missing_pyarrow_or_an_unknown_suffix_is_one_line_exit_2(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        health_table.importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a)
+    )
+    with pytest.raises(ConfigError, match=r"needs pyarrow: pip install 'ecu-monitor\[arrow\]'"):
+        check_table_path(tmp_path / "h.parquet")
+    assert check_table_path(tmp_path / "h.CSV") == "csv"
+    log = tmp_path / "missing.blf"  # the output is checked before the log is read
+    for out, words in (("h.parquet", "needs pyarrow"), ("h.xlsx", "unknown output format '.xlsx'")):
+        assert main(["replay", str(log), "--out", str(tmp_path / out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and out in err[0]
