@@ -59,6 +59,7 @@ __all__ = [
     "block_means",
     "calibrate_threshold",
     "count_alarms",
+    "cusum_blocks",
     "cusum_path",
     "hourly_maxima",
     "overlay_degradation",
@@ -294,13 +295,28 @@ def cusum_path(
     ends, means = block_means(time_s, symptom, settings)
     if ends.size == 0:
         return ends, means, np.empty(0)
-    if steady is None:
-        block_steady = np.ones(ends.size, dtype=np.bool_)
-    else:
+    block_steady = None
+    if steady is not None:
         _, fraction = block_means(time_s, np.asarray(steady, dtype=float), settings)
         block_steady = ~(fraction < 1.0)  # nan (no sample) counts as steady: nothing to hold
-    stat, alarm_index = _cusum(
-        means,
+    stat, alarm_index = cusum_blocks(means, settings, restart=restart, steady=block_steady)
+    return ends, stat, ends[alarm_index]
+
+
+def cusum_blocks(
+    means: NDArray[np.float64],
+    settings: DetectorSettings,
+    *,
+    restart: bool = False,
+    steady: NDArray[np.bool_] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The CUSUM over given block means (nan = a block without a sample), compiled: (statistic after
+    each block, indices of the blocks that raised an alarm). The statistic :class:`Detector` holds
+    after closing the same blocks; restart and steady (per block) as in :func:`cusum_path`."""
+    m = np.ascontiguousarray(means, dtype=np.float64)
+    block_steady = np.ones(m.size, dtype=np.bool_) if steady is None else np.asarray(steady, dtype=np.bool_)
+    return _cusum(
+        m,
         block_steady,
         settings.reference,
         settings.threshold,
@@ -310,7 +326,6 @@ def cusum_path(
         restart,
         settings.baseline_freeze,
     )
-    return ends, stat, ends[alarm_index]
 
 
 def count_alarms(flights: Sequence[tuple[NDArray[Any], ...]], settings: DetectorSettings) -> tuple[int, float]:

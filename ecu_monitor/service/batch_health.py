@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.estimation.detection import Detector
+from ecu_monitor.estimation.detection import cusum_blocks
 from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
 from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S
@@ -43,8 +43,10 @@ def detect_states(
     Equal to the live pipeline's per-step Detector.update (started at the first initialisation, fed
     NaN off NOMINAL steps): the symptom is averaged here over the very blocks Detector forms (block
     m holds the steps from the one that closed block m-1 up to the step before the first at or after
-    its end), and a real Detector gets one sample per block, the block's mean, at the block's first
-    step (the mean of one sample is itself), so its CUSUM runs exactly as live, once per block.
+    its end; a block no step falls in is an empty block, as live), and the detector's compiled CUSUM
+    (:func:`cusum_blocks`, the update Detector makes when a block closes) runs over those means. A
+    step in block b sees the statistic after blocks 0..b-1 closed (the live Detector closes a block
+    at the first sample of the next), DEGRADED from the block after the first alarm on (latched).
     """
     state = code.copy()
     if not stretches:
@@ -66,12 +68,19 @@ def detect_states(
     finite = np.isfinite(fed)
     sums = np.add.reduceat(np.where(finite, fed, 0.0), starts)
     counts = np.add.reduceat(finite.astype(np.int64), starts)
-    detector = Detector(s)
-    detector.update(t0, math.nan)
-    block_state = np.empty(starts.size, dtype=np.int64)
-    for i, (lo, total, k) in enumerate(zip(starts.tolist(), sums.tolist(), counts.tolist(), strict=True)):
-        out = detector.update(float(times[lo]), total / k if k else math.nan)
-        block_state[i] = STATES.index(out.state)
+    block = np.searchsorted(ends - 1e-9, times[starts], side="right")  # the block each start opens
+    means = np.full(int(block[-1]) + 1, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means[block] = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    statistic, alarms = cusum_blocks(means, s)
+    closed = block - 1  # the last block closed when the start's step arrives (-1: none yet)
+    seen = np.where(closed >= 0, statistic[np.maximum(closed, 0)], 0.0)
+    first_alarm = int(alarms[0]) if alarms.size else means.size
+    block_state = np.where(
+        closed >= first_alarm,
+        STATES.index("DEGRADED"),
+        np.where(seen >= s.suspect_fraction * s.threshold, STATES.index("SUSPECT"), STATES.index("NOMINAL")),
+    )
     verdicts = np.zeros(n, dtype=np.int64)
     which = np.searchsorted(starts, np.arange(n), side="right") - 1
     verdicts[which >= 0] = block_state[which[which >= 0]]

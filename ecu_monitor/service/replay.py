@@ -299,11 +299,12 @@ def _replay_cylinder(
         deviation[a:b] = trace.deviation[call - a]
         # the isolation filter on the call steps only: each row integrates the steps since the previous
         # call (run_isolation's sub-steps) with that call's inputs, as the live filter does
-        at_calls = np.unique(call)
+        new_call = np.concatenate(([True], call[1:] != call[:-1]))  # call never decreases
+        at_calls = call[new_call]
         at_inputs = {k: v[at_calls] for k, v in inputs.items()}
         calls_log = FlightLog({"time_s": times[at_calls], **at_inputs, "cht_c": z[at_calls - a]}, source="replay")
         iso = run_isolation(calls_log, params, IsolationSettings(dt_s=dt))
-        which = np.searchsorted(at_calls, call)
+        which = np.cumsum(new_call) - 1
         gamma_q[a:b] = iso.gamma_q[which]
         gamma_d[a:b] = iso.gamma_d[which]
         iso_dev[a:b] = iso.deviation[which]
