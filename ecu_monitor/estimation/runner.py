@@ -57,6 +57,7 @@ __all__ = [
     "FixedStepFlight",
     "fixed_step_flight",
     "run_estimator",
+    "run_estimator_on_steps",
     "sample_indices",
     "trace_loop",
 ]
@@ -330,4 +331,27 @@ def run_estimator(
     flight = fixed_step_flight(log, params, settings.dt_s)
     if isinstance(estimator, ThermalEKF):
         return _run_compiled(flight, params, settings, estimator, compiled)
+    return _run_stepwise(flight, estimator, name)
+
+
+def run_estimator_on_steps(
+    time_s: NDArray[np.float64],
+    inputs: InputSeries,
+    z_c: NDArray[np.float64],
+    params: ThermalParams,
+    name: str,
+    settings: EstimatorSettings | None = None,
+) -> EstimateTrace:
+    """:func:`run_estimator` on a flight already on the fixed step: ``time_s`` every ``settings.dt_s``,
+    ``inputs`` held per step, ``z_c`` the reading of each step (nan: none; z_c[0] finite). Nothing is
+    resampled (the replay's batch path: its steps are the live pipeline's)."""
+    settings = settings if settings is not None else EstimatorSettings()
+    estimator = make_estimator(name, params, settings)
+    z = np.asarray(z_c, dtype=np.float64)
+    if not math.isfinite(float(z[0])):
+        raise FlightLogError("run_estimator_on_steps: no reading at the first step")
+    columns = InputSeries(*(np.ascontiguousarray(v, dtype=np.float64) for v in inputs))
+    flight = FixedStepFlight(np.asarray(time_s, dtype=np.float64), columns, z, np.isfinite(z), np.arange(z.size))
+    if isinstance(estimator, ThermalEKF):
+        return _run_compiled(flight, params, settings, estimator, True)
     return _run_stepwise(flight, estimator, name)

@@ -82,7 +82,9 @@ def detect_states(
         np.where(seen >= s.suspect_fraction * s.threshold, STATES.index("SUSPECT"), STATES.index("NOMINAL")),
     )
     verdicts = np.zeros(n, dtype=np.int64)
-    which = np.searchsorted(starts, np.arange(n), side="right") - 1
+    opens = np.zeros(n, dtype=np.int64)
+    opens[starts] = 1
+    which = np.cumsum(opens) - 1  # the block of each step (-1: before the first)
     verdicts[which >= 0] = block_state[which[which >= 0]]
     nominal = code == 0
     state[nominal] = verdicts[nominal]

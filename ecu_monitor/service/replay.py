@@ -36,6 +36,7 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation import run_estimator
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
+from ecu_monitor.estimation.runner import run_estimator_on_steps
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.compiled import simulate_compiled
@@ -293,8 +294,12 @@ def _replay_cylinder(
         use = is_call & window & (code[a:b] == 0)
         z = np.where(use, reading[a:b], np.nan)
         z[0] = reading[a]
-        log = stretch_log(times, {k: v[call] for k, v in inputs.items()}, z, a, b)
-        trace = run_estimator(log, params, config.estimator_name, config.estimator)
+        if params.effects.mixture_index is None:  # the inputs as they are, on the steps
+            series = InputSeries(*(v[call] for v in inputs.values()))
+            trace = run_estimator_on_steps(times[a:b], series, z, params, config.estimator_name, config.estimator)
+        else:  # the mixture index is built from the flight's columns
+            log = stretch_log(times, {k: v[call] for k, v in inputs.items()}, z, a, b)
+            trace = run_estimator(log, params, config.estimator_name, config.estimator)
         est[a:b] = trace.cht_est_c[call - a]
         deviation[a:b] = trace.deviation[call - a]
         # the isolation filter on the call steps only: each row integrates the steps since the previous
