@@ -807,6 +807,9 @@ def write_report(
         "Method and reasoning: [docs/detection_isolation.md](../detection_isolation.md).",
         "On a real engine (N550ND, leave-one-flight-out, `calibrate`'s choice of the detector settings):"
         " [detection_real.md](detection_real.md) (written by `benchmarks/bench_detect_real.py`, not by `evaluate`).",
+        "The limit of the adaptive baseline (the smallest symptom step it lets through, Delta*; detection"
+        " probability vs gamma_Q and time since engine start; why gamma_Q = 1.15 at 30 000 s of the 16 h replay"
+        " stays SUSPECT): [detection_limit.md](detection_limit.md) (written by `benchmarks/bench_detect_limit.py`).",
         "",
         "## Flights",
         "",
