@@ -206,6 +206,16 @@ def main() -> None:
           f"{t_naive_full / t_full:.1f}x); pipeline {span / t_full:.0f}x faster than real time")  # fmt: skip
     print(f"pipeline: {result.counters['steps']} steps, {rows} health rows, malformed {result.counters['malformed']}, "
           f"DEGRADED from t = {alarm - t0:.0f} s (gamma_Q 1.15 injected at 30000 s)")  # fmt: skip
+    from ecu_monitor.research.detection_limit import limit_step
+
+    feed_t, feed_v = result.detector_feed[0]
+    onset = 30000.0  # the log's gamma_Q step, s after its first frame
+    rel = feed_t - t0
+    step = float(np.nanmean(feed_v[(rel >= onset) & (rel < onset + 60.0)])
+                 - np.nanmean(feed_v[(rel >= onset - 300.0) & (rel < onset)]))  # fmt: skip
+    suspect_s = float(np.count_nonzero(result.columns["state"] == 1)) * 0.1  # STATES.index("SUSPECT"), 10 Hz rows
+    print(f"detector at the onset: symptom step {step:.3f} degC/s against Delta* {limit_step(config.detector):.3f}"
+          f" (research.detection_limit); SUSPECT for {suspect_s:.0f} s in all")  # fmt: skip
     print(f"naive baseline: {naive_steps} filter steps, {t_naive / max(naive_steps, 1) * 1e6:.0f} us per step")
 
 
