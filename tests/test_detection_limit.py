@@ -33,8 +33,12 @@ def test_steps_above_delta_star_alarm_and_below_do_not(settings: DetectorSetting
     assert _alarms(1.04 * star, settings) == 1
 
 
-def test_without_a_baseline_any_step_above_k_alarms() -> None:
-    plain = DetectorSettings(baseline_s=0.0, baseline_delay_s=0.0)
-    assert limit_step(plain) == plain.reference
-    assert _alarms(1.2 * plain.reference, plain) == 1
-    assert _alarms(0.9 * plain.reference, plain) == 0
+@pytest.mark.parametrize(
+    "settings",
+    [DetectorSettings(baseline_s=0.0, baseline_delay_s=0.0), DetectorSettings(baseline_freeze=True)],
+    ids=["no baseline", "frozen while suspected"],
+)
+def test_without_a_learning_baseline_any_step_above_k_alarms(settings: DetectorSettings) -> None:
+    assert limit_step(settings) == settings.reference
+    assert _alarms(1.2 * settings.reference, settings) == 1
+    assert _alarms(0.9 * settings.reference, settings) == 0

@@ -12,7 +12,9 @@ and the step is DEGRADED only if G(Delta) >= h: :func:`limit_step` gives Delta*.
 baseline has absorbed the step, whatever the degradation still does: a step smaller than Delta* is
 never detected later in the flight. The symptom's step is about (gamma_Q - 1) times the heat going
 in over the head's heat capacity, so the same gamma_Q is detected at high power and missed at low
-power; the time since engine start matters only through the warm-up and the flight phase.
+power; the time since engine start matters only through the warm-up and the flight phase. With
+``baseline_freeze`` the baseline holds while the statistic is above 0, so any step above k keeps
+accumulating to h (Delta* = k), at the price the detection docs state.
 
 :func:`detection_case` flies one case on the virtual ECU through the shipped service's estimator and
 detector settings; ``benchmarks/bench_detect_limit.py`` runs the grid and writes
@@ -36,14 +38,14 @@ def step_gain(step: float, settings: DetectorSettings) -> float:
     k, tau, d = settings.reference, settings.baseline_s, settings.baseline_delay_s
     if step <= k:
         return 0.0
-    if tau <= 0.0:
-        return math.inf  # the plain test: a step above k accumulates for ever
+    if tau <= 0.0 or settings.baseline_freeze:
+        return math.inf  # the plain test, or a baseline that holds while S > 0: a step above k accumulates
     return (d + tau) * (step - k) - k * tau * math.log(step / k)
 
 
 def limit_step(settings: DetectorSettings) -> float:
     """Delta*: the smallest symptom step the detector turns DEGRADED (G(Delta*) = h; k without a baseline)."""
-    if settings.baseline_s <= 0.0:
+    if settings.baseline_s <= 0.0 or settings.baseline_freeze:
         return settings.reference
     lo, hi = settings.reference, 2.0 * settings.reference + settings.threshold
     while step_gain(hi, settings) < settings.threshold:
