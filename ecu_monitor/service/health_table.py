@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -81,6 +83,12 @@ def format_g10(values: Sequence[float] | NDArray[np.float64]) -> list[str]:
     return out
 
 
+@functools.cache
+def _compiled_writer() -> _Writer:
+    """The compiled kernels (module level, so numba caches them on disk)."""
+    return _Writer(_digits_of, _number, _rows)
+
+
 class _Writer:
     """The compiled pieces: ``digits`` splits values, ``number`` writes one value, ``rows`` the whole table."""
 
@@ -90,152 +98,146 @@ class _Writer:
         self.rows = rows
 
 
-@functools.cache
-def _compiled_writer() -> _Writer:
-    import math
-
-    import numba
-
-    @numba.njit(cache=True, nogil=True)
-    def digits_of(values: Any, powers: Any, digits: Any, exponent: Any, kind: Any, doubtful: Any) -> None:
-        """decimal_digits' compiled pass (its docstring); ``doubtful`` marks the values left to Python."""
-        for j in range(values.size):
-            x = abs(values[j])
-            if math.isnan(x):
-                kind[j] = 2
-                continue
-            if math.isinf(x):
-                kind[j] = 3 if values[j] > 0 else 4
-                continue
-            if x == 0.0:
-                kind[j] = 1
-                continue
-            e = math.floor(math.log10(x))
-            scaled = 0.0
-            for _ in range(3):  # log10 may be one off next to a power of ten
-                k = 9 - e
-                if k > 22 or k < -22:
-                    break
-                scaled = x * powers[k] if k >= 0 else x / powers[-k]
-                if scaled < 1e9:
-                    e -= 1
-                elif scaled >= 1e10:
-                    e += 1
-                else:
-                    break
-            if not 1e9 <= scaled < 1e10 or abs(scaled - math.floor(scaled) - 0.5) < 1e-5:
-                doubtful[j] = True
-                continue
-            rounded = math.floor(scaled + 0.5)
-            if rounded >= 10_000_000_000:  # 9999999999.5 -> 1.000000000e(e+1)
-                rounded = 1_000_000_000
+@numba.njit(cache=True, nogil=True)
+def _digits_of(values: Any, powers: Any, digits: Any, exponent: Any, kind: Any, doubtful: Any) -> None:
+    """decimal_digits' compiled pass (its docstring); ``doubtful`` marks the values left to Python."""
+    for j in range(values.size):
+        x = abs(values[j])
+        if math.isnan(x):
+            kind[j] = 2
+            continue
+        if math.isinf(x):
+            kind[j] = 3 if values[j] > 0 else 4
+            continue
+        if x == 0.0:
+            kind[j] = 1
+            continue
+        e = math.floor(math.log10(x))
+        scaled = 0.0
+        for _ in range(3):  # log10 may be one off next to a power of ten
+            k = 9 - e
+            if k > 22 or k < -22:
+                break
+            scaled = x * powers[k] if k >= 0 else x / powers[-k]
+            if scaled < 1e9:
+                e -= 1
+            elif scaled >= 1e10:
                 e += 1
-            digits[j] = rounded
-            exponent[j] = e
-
-    @numba.njit(cache=True, nogil=True)
-    def number(out: Any, pos: int, digits: int, exponent: int, kind: int, negative: bool, spelled: bool, d: Any) -> int:
-        """Write one value at ``pos`` (``d``: 10 bytes of scratch); returns the new end. Non-finite:
-        nothing, or with ``spelled`` nan, inf, -inf."""
-        if kind >= 2:
-            if not spelled:
-                return pos
-            if kind == 4:
-                out[pos] = 45
-                pos += 1
-            word = (110, 97, 110) if kind == 2 else (105, 110, 102)  # nan, inf
-            for ch in word:
-                out[pos] = ch
-                pos += 1
-            return pos
-        if negative:
-            out[pos] = 45  # '-'
-            pos += 1
-        if kind == 1:
-            out[pos] = 48
-            return pos + 1
-        rest = digits
-        for i in range(9, -1, -1):
-            d[i] = 48 + rest % 10
-            rest //= 10
-        last = 9
-        while last > 0 and d[last] == 48:
-            last -= 1
-        if -4 <= exponent < 10:
-            if exponent >= 0:
-                for i in range(exponent + 1):
-                    out[pos] = d[i] if i <= 9 else 48
-                    pos += 1
-                if last > exponent:
-                    out[pos] = 46  # '.'
-                    pos += 1
-                    for i in range(exponent + 1, last + 1):
-                        out[pos] = d[i]
-                        pos += 1
             else:
-                out[pos] = 48
-                out[pos + 1] = 46
-                pos += 2
-                for _ in range(-exponent - 1):
-                    out[pos] = 48
-                    pos += 1
-                for i in range(last + 1):
+                break
+        if not 1e9 <= scaled < 1e10 or abs(scaled - math.floor(scaled) - 0.5) < 1e-5:
+            doubtful[j] = True
+            continue
+        rounded = math.floor(scaled + 0.5)
+        if rounded >= 10_000_000_000:  # 9999999999.5 -> 1.000000000e(e+1)
+            rounded = 1_000_000_000
+            e += 1
+        digits[j] = rounded
+        exponent[j] = e
+
+
+@numba.njit(cache=True, nogil=True)
+def _number(out: Any, pos: int, digits: int, exponent: int, kind: int, negative: bool, spelled: bool, d: Any) -> int:
+    """Write one value at ``pos`` (``d``: 10 bytes of scratch); returns the new end. Non-finite:
+    nothing, or with ``spelled`` nan, inf, -inf."""
+    if kind >= 2:
+        if not spelled:
+            return pos
+        if kind == 4:
+            out[pos] = 45
+            pos += 1
+        word = (110, 97, 110) if kind == 2 else (105, 110, 102)  # nan, inf
+        for ch in word:
+            out[pos] = ch
+            pos += 1
+        return pos
+    if negative:
+        out[pos] = 45  # '-'
+        pos += 1
+    if kind == 1:
+        out[pos] = 48
+        return pos + 1
+    rest = digits
+    for i in range(9, -1, -1):
+        d[i] = 48 + rest % 10
+        rest //= 10
+    last = 9
+    while last > 0 and d[last] == 48:
+        last -= 1
+    if -4 <= exponent < 10:
+        if exponent >= 0:
+            for i in range(exponent + 1):
+                out[pos] = d[i] if i <= 9 else 48
+                pos += 1
+            if last > exponent:
+                out[pos] = 46  # '.'
+                pos += 1
+                for i in range(exponent + 1, last + 1):
                     out[pos] = d[i]
                     pos += 1
-            return pos
-        out[pos] = d[0]
-        pos += 1
-        if last > 0:
-            out[pos] = 46
-            pos += 1
-            for i in range(1, last + 1):
+        else:
+            out[pos] = 48
+            out[pos + 1] = 46
+            pos += 2
+            for _ in range(-exponent - 1):
+                out[pos] = 48
+                pos += 1
+            for i in range(last + 1):
                 out[pos] = d[i]
                 pos += 1
-        out[pos] = 101  # 'e'
-        out[pos + 1] = 45 if exponent < 0 else 43
-        pos += 2
-        e = -exponent if exponent < 0 else exponent
-        width = 2 if e < 100 else 3
-        for i in range(width - 1, -1, -1):
-            out[pos + i] = 48 + e % 10
-            e //= 10
-        return pos + width
-
-    @numba.njit(cache=True, nogil=True)
-    def rows(
-        out: Any,
-        layout: Any,
-        digits: Any,
-        exponent: Any,
-        kind: Any,
-        negative: Any,
-        codes: Any,
-        text: Any,
-        text_start: Any,
-        table_first: Any,
-    ) -> int:
-        """Every row after the header into ``out``; returns the bytes written. ``layout[c]`` >= 0: float
-        column layout[c] (digits, exponent, kind, negative; the first column of the table spells nan/inf),
-        < 0: text column -layout[c]-1 (codes into its table, entries table_first[j] + code of text_start)."""
-        pos = 0
-        scratch = np.empty(10, dtype=np.uint8)
-        last = layout.size - 1
-        for r in range(codes.shape[1] if codes.shape[0] else digits.shape[1]):
-            for c in range(layout.size):
-                col = layout[c]
-                if col >= 0:
-                    pos = number(out, pos, digits[col, r], exponent[col, r], kind[col, r], negative[col, r], c == 0,
-                                 scratch)  # fmt: skip
-                else:
-                    entry = table_first[-col - 1] + codes[-col - 1, r]
-                    for i in range(text_start[entry], text_start[entry + 1]):
-                        out[pos] = text[i]
-                        pos += 1
-                out[pos] = 10 if c == last else 44  # newline or comma
-                pos += 1
         return pos
+    out[pos] = d[0]
+    pos += 1
+    if last > 0:
+        out[pos] = 46
+        pos += 1
+        for i in range(1, last + 1):
+            out[pos] = d[i]
+            pos += 1
+    out[pos] = 101  # 'e'
+    out[pos + 1] = 45 if exponent < 0 else 43
+    pos += 2
+    e = -exponent if exponent < 0 else exponent
+    width = 2 if e < 100 else 3
+    for i in range(width - 1, -1, -1):
+        out[pos + i] = 48 + e % 10
+        e //= 10
+    return pos + width
 
-    return _Writer(digits_of, number, rows)
+
+@numba.njit(cache=True, nogil=True)
+def _rows(
+    out: Any,
+    layout: Any,
+    digits: Any,
+    exponent: Any,
+    kind: Any,
+    negative: Any,
+    codes: Any,
+    text: Any,
+    text_start: Any,
+    table_first: Any,
+) -> int:
+    """Every row after the header into ``out``; returns the bytes written. ``layout[c]`` >= 0: float
+    column layout[c] (digits, exponent, kind, negative; the first column of the table spells nan/inf),
+    < 0: text column -layout[c]-1 (codes into its table, entries table_first[j] + code of text_start)."""
+    pos = 0
+    scratch = np.empty(10, dtype=np.uint8)
+    last = layout.size - 1
+    for r in range(codes.shape[1] if codes.shape[0] else digits.shape[1]):
+        for c in range(layout.size):
+            col = layout[c]
+            if col >= 0:
+                pos = _number(out, pos, digits[col, r], exponent[col, r], kind[col, r], negative[col, r], c == 0,
+                             scratch)  # fmt: skip
+            else:
+                entry = table_first[-col - 1] + codes[-col - 1, r]
+                for i in range(text_start[entry], text_start[entry + 1]):
+                    out[pos] = text[i]
+                    pos += 1
+            out[pos] = 10 if c == last else 44  # newline or comma
+            pos += 1
+    return pos
 
 
 class TableColumn(NamedTuple):
