@@ -19,6 +19,7 @@ import math
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -62,9 +63,25 @@ def load_dir(data: Path, pattern: str) -> list[FlightLog]:
     return out
 
 
+def twin_engines(data: Path) -> list[FlightLog]:
+    """Each engine of the NGAFID processed twin logs (ngafid_pa44_*.csv, mapping auto), as its own flight."""
+    out = []
+    for path in sorted(data.glob("ngafid_pa44_*.csv")):
+        for engine in (1, 2):
+            try:
+                log = load_flight(path, engine=engine)
+                out.append(replace(log, source=f"{path.with_suffix('')}_e{engine}.csv"))
+            except EcuMonitorError as exc:
+                print(f"skipped {path.name} engine {engine}: {exc}", file=sys.stderr)
+    return out
+
+
 def with_cht(log: FlightLog, column: str) -> FlightLog:
-    """The flight with ``column`` (one cylinder) as the measured CHT."""
-    return log.with_columns(cht_c=np.asarray(log[column], dtype=float))
+    """The flight with ``column`` (one cylinder, chtK_c) as the measured CHT and, where the log has it,
+    the same cylinder's EGT (egtK_c) as its mixture index: each cylinder runs at its own mixture."""
+    egt = column.replace("cht", "egt")
+    extra = {"egt_c": np.asarray(log[egt], dtype=float)} if column != "cht_c" and log.has(egt) else {}
+    return log.with_columns(cht_c=np.asarray(log[column], dtype=float), **extra)
 
 
 def terms_of(text: str) -> dict[str, bool] | str:
@@ -120,7 +137,12 @@ def main() -> int:
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "real", help="real logs")
     parser.add_argument("--quick", action="store_true", help="fewer PSO iterations (a smoke run)")
     parser.add_argument("--variants", help="comma-separated indices of VARIANTS to run (default all)")
+    parser.add_argument("--out", type=Path, default=OUT_MD, help="markdown to write (default docs/results/real.md)")
+    parser.add_argument(
+        "--sections", default="plots,timings,per_cylinder,other_aircraft", help="sections after the table"
+    )
     args = parser.parse_args()
+    out_md: Path = args.out
     settings = PsoSettings(particles=24, iterations=10 if args.quick else 30, polish_evaluations=100, dt_s=1.0)
     n550 = load_dir(args.data, "ngafid_c172s_n550nd_*.csv")
     if len(n550) < 2:
@@ -169,7 +191,7 @@ def main() -> int:
             + f" | {cpu:.0f} |"
         )
         print(md[-1], flush=True)
-        OUT_MD.write_text("\n".join(md) + "\n", encoding="utf-8")  # partial results survive an interruption
+        out_md.write_text("\n".join(md) + "\n", encoding="utf-8")  # partial results survive an interruption
         if effects == "auto":
             md_auto = [
                 f"- held out {name_of(log)}: " + ", ".join(n for n in _term_names() if term_is_on(p, n))
@@ -188,18 +210,20 @@ def main() -> int:
     assert best is not None
     mean, index, folds = best
     label, effects = VARIANTS[index]
-    md += [f"## Measured vs model per flight ({label})", ""]
-    for log, (_params, sim) in zip(n550, folds, strict=True):
-        errors = ErrorStats.from_series(sim, np.asarray(log["cht_c"]))
-        path = PLOTS / f"lofo_{name_of(log)}.png"
-        plot_flight(log, sim, path, f"held out: {name_of(log)} (model identified on the other three)", errors)
-        md.append(f"![{name_of(log)}](real/{path.name})")
-    md.append("")
-    for section in (timings, per_cylinder, other_aircraft):
-        OUT_MD.write_text("\n".join(md) + "\n", encoding="utf-8")
+    sections = set(args.sections.split(","))
+    if "plots" in sections:
+        md += [f"## Measured vs model per flight ({label})", ""]
+        for log, (_params, sim) in zip(n550, folds, strict=True):
+            errors = ErrorStats.from_series(sim, np.asarray(log["cht_c"]), np.asarray(log["oat_c"]))
+            path = PLOTS / f"lofo_{name_of(log)}.png"
+            plot_flight(log, sim, path, f"held out: {name_of(log)} (model identified on the other three)", errors)
+            md.append(f"![{name_of(log)}](real/{path.name})")
+        md.append("")
+    for section in (s for s in (timings, per_cylinder, other_aircraft) if s.__name__ in sections):
+        out_md.write_text("\n".join(md) + "\n", encoding="utf-8")
         md += section(args.data, n550, effects, settings, label)
-    OUT_MD.write_text("\n".join(md) + "\n", encoding="utf-8")
-    print(f"wrote {OUT_MD}")
+    out_md.write_text("\n".join(md) + "\n", encoding="utf-8")
+    print(f"wrote {out_md}")
     return 0
 
 
@@ -256,7 +280,7 @@ def timings(_data: Path, n550: list[FlightLog], effects: str, settings: PsoSetti
 
 def other_aircraft(data: Path, n550: list[FlightLog], effects: str, settings: PsoSettings, _label: str) -> list[str]:
     """Other aircraft: the N550ND model as is (a different engine), and each flight split in halves."""
-    others = load_dir(data, "cafuc_*.csv") + load_dir(data.parent / "g1000", "log_*.csv")
+    others = load_dir(data, "cafuc_*.csv") + load_dir(data.parent / "g1000", "log_*.csv") + twin_engines(data)
     md = ["## Other aircraft", ""]
     if not others:
         return [*md, "No other aircraft's log could be read.", ""]
@@ -264,7 +288,8 @@ def other_aircraft(data: Path, n550: list[FlightLog], effects: str, settings: Ps
     save_model(model, PLOTS / "n550nd_model.yaml", comment="bench_real.py: identified on the four N550ND flights")
     md += [
         "Two checks per flight: the model identified on all four N550ND flights applied as is (another airframe and"
-        " engine: transfer), and a model identified on the flight's first half predicting its second half.",
+        " engine: transfer), and a model of the same form identified on the flight's first half predicting its"
+        " second half.",
         "",
         "| flight | N550ND model, RMS degC | own first half -> second half, RMS degC |",
         "|---|---:|---:|",
@@ -276,7 +301,7 @@ def other_aircraft(data: Path, n550: list[FlightLog], effects: str, settings: Ps
             half = t[0] + 0.5 * (t[-1] - t[0])
             first = log.select(t[0], half)
             second = log.select(half + 1e-6, t[-1])
-            own = fit([first], "-altitude_factor,airspeed_cooling,sensor_lag", settings)
+            own = fit([first], effects if effects != "auto" else VARIANTS[4][1], settings)
             split = float(np.sqrt(np.mean((simulate_flight(own, second) - second["cht_c"]) ** 2)))
             md.append(f"| {name_of(log)} | {as_is:.2f} | {split:.2f} |")
         except EcuMonitorError as exc:

@@ -157,6 +157,10 @@ def test_error_stats_by_hand():
     e = ErrorStats.from_series(np.array([101.0, 99.0, 100.0, 104.0]), np.array([100.0, 100.0, 100.0, 100.0]))
     assert (e.mean_c, e.peak_c, e.rms_c) == (1.5, 4.0, pytest.approx(math.sqrt(18 / 4)))
     assert (e.mean_pct, e.peak_pct) == (pytest.approx(1.5), pytest.approx(4.0))
+    assert math.isnan(e.peak_rise_pct)
+    # against the rise above OAT: mean CHT - OAT = 80 degC, so 1.5 / 80 and 4 / 80
+    r = ErrorStats.from_series(np.array([101.0, 99.0, 100.0, 104.0]), np.full(4, 100.0), np.full(4, 20.0))
+    assert (r.mean_rise_pct, r.peak_rise_pct) == (pytest.approx(1.875), pytest.approx(5.0))
 
 
 def test_simulate_flight_matches_the_truth_and_steps_converge():
@@ -372,5 +376,13 @@ def test_terms_switch_on_and_off_and_parse():
     assert space.radiation_share(kelvin) == pytest.approx(space.radiation_share(paper_table_a1()), rel=1e-9)
     first, second = split_halves(log)
     assert len(first) + len(second) == len(log) and first.time_s[-1] < second.time_s[0]
+    # the mixture index switched on for a fuel-flow heat map starting from a throttle-axis base (the
+    # base's axes are not the flight's: the index reads only its own columns)
+    fuel = log.with_columns(fuel_flow_lph=0.3 * np.asarray(log["throttle_pct"]), egt_c=600.0 + log["throttle_pct"])
+    fuel = fuel.with_columns(throttle_pct=np.full(len(log), np.nan))
+    mixed, names = model_form(paper_table_a1(), [fuel], {"mixture_index": True})
+    mixture = mixed.effects.mixture_index
+    assert mixture is not None and mixture.source == "egt_c" and "effects.mixture_index.gain" in names
+    assert mixture.reference == pytest.approx(float(np.median(fuel["egt_c"])))
     with pytest.raises(ParameterError, match="needs"):
         split_halves(_synthetic_flight(13, 600))

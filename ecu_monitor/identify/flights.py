@@ -47,8 +47,12 @@ class ErrorStats:
     """Model error on one flight: |simulated - measured| CHT.
 
     mean_c, peak_c, rms_c: mean, largest and RMS absolute error, degC.
-    mean_pct, peak_pct: mean and largest error in percent of the measured CHT in degC (as the paper;
-    the measured value is floored at 1 degC).
+    mean_pct, peak_pct: mean and largest error in percent of the measured CHT in degC, sample by sample
+        (the paper's metric; the measured value is floored at 1 degC). Undefined in spirit near 0 degC:
+        a cold start at a few degC turns 1-2 degC of error into tens of percent.
+    mean_rise_pct, peak_rise_pct: mean and largest error in percent of the flight's mean temperature
+        rise above OAT (mean of measured CHT - OAT, floored at 1 degC): one scale per flight, so a
+        cold start weighs what it weighs in degC. NaN when no OAT is given.
     """
 
     mean_c: float
@@ -56,21 +60,34 @@ class ErrorStats:
     rms_c: float
     mean_pct: float
     peak_pct: float
+    mean_rise_pct: float = math.nan
+    peak_rise_pct: float = math.nan
 
     @classmethod
-    def from_series(cls, simulated_c: NDArray[np.float64], measured_c: NDArray[np.float64]) -> ErrorStats:
-        """Error statistics of a simulated against a measured CHT series (same samples)."""
+    def from_series(
+        cls,
+        simulated_c: NDArray[np.float64],
+        measured_c: NDArray[np.float64],
+        ambient_c: NDArray[np.float64] | None = None,
+    ) -> ErrorStats:
+        """Error statistics of a simulated against a measured CHT series (same samples); ambient_c
+        (OAT, degC, same samples) gives the rise-relative percentages."""
         error = np.abs(np.asarray(simulated_c, dtype=float) - np.asarray(measured_c, dtype=float))
         if error.size == 0 or not np.all(np.isfinite(error)):
             nan = math.nan
             return cls(nan, nan, nan, nan, nan)
         pct = 100.0 * error / np.maximum(np.abs(measured_c), PCT_FLOOR_C)
+        rise = math.nan
+        if ambient_c is not None:
+            rise = max(float(np.mean(np.asarray(measured_c, dtype=float) - np.asarray(ambient_c, dtype=float))), 1.0)
         return cls(
             mean_c=float(error.mean()),
             peak_c=float(error.max()),
             rms_c=float(np.sqrt(np.mean(error**2))),
             mean_pct=float(pct.mean()),
             peak_pct=float(pct.max()),
+            mean_rise_pct=100.0 * float(error.mean()) / rise,
+            peak_rise_pct=100.0 * float(error.max()) / rise,
         )
 
 
@@ -162,4 +179,5 @@ def simulate_flight(params: ThermalParams, log: FlightLog, dt_s: float | None = 
 
 def flight_errors(params: ThermalParams, log: FlightLog, dt_s: float | None = None) -> ErrorStats:
     """Error statistics of the open-loop model against the log's measured CHT."""
-    return ErrorStats.from_series(simulate_flight(params, log, dt_s), measured_cht(log))
+    oat = np.asarray(log["oat_c"], dtype=float) if log.has("oat_c") else None
+    return ErrorStats.from_series(simulate_flight(params, log, dt_s), measured_cht(log), oat)

@@ -49,8 +49,8 @@ from ecu_monitor.model import (
     air_density_kg_m3,
     isa_pressure_pa,
 )
-from ecu_monitor.model.effects import MIXTURE_SOURCES, MixtureIndex
-from ecu_monitor.model.inputs import read_inputs
+from ecu_monitor.model.effects import MixtureIndex
+from ecu_monitor.model.inputs import MIXTURE_COLUMNS, mixture_index
 
 __all__ = [
     "MIN_GAIN",
@@ -148,12 +148,16 @@ def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[Flig
         effect = SensorLag(time_constant_s=10.0)
     elif name == "mixture_index":
         source = "egt_c" if all(log.has("egt_c") for log in flights) else "fuel_per_rev"
-        probe = MixtureIndex(source=source, gain=0.0, reference=MIXTURE_SOURCES[source][1])
-        index = np.concatenate([np.asarray(read_inputs(log, params.heat_axes, probe).mixture_index) for log in flights])
+        index = np.concatenate([_mixture_of(log, source) for log in flights])
         effect = MixtureIndex(source=source, gain=0.0, reference=float(np.nanmedian(index)))
     else:
         effect = MixtureCooling()
     return params.replace(effects=params.effects.replace(name, effect))
+
+
+def _mixture_of(log: FlightLog, source: str) -> NDArray[np.float64]:
+    """The flight's lean/rich index of ``source`` (its columns only: the heat-map axes may not be set yet)."""
+    return mixture_index(source, {name: np.asarray(log[name], dtype=float) for name in MIXTURE_COLUMNS[source]})
 
 
 def _switch_radiation_units(params: ThermalParams, kelvin: bool, flights: Sequence[FlightLog]) -> ThermalParams:

@@ -23,12 +23,20 @@ from ecu_monitor.model.effects import MixtureIndex
 from ecu_monitor.model.params import ThermalParams
 from ecu_monitor.model.thermal import InputSeries
 
-__all__ = ["AMBIENT_COLUMNS", "ColumnSource", "flight_inputs", "input_columns", "mixture_index", "read_inputs"]
+__all__ = [
+    "AMBIENT_COLUMNS",
+    "MIXTURE_COLUMNS",
+    "ColumnSource",
+    "flight_inputs",
+    "input_columns",
+    "mixture_index",
+    "read_inputs",
+]
 
 #: Flight columns every model reads besides its heat-map axes (InputSeries order).
 AMBIENT_COLUMNS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 #: Columns each mixture-index source is computed from.
-_MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
+MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
     "egt_c": ("egt_c",),
     "fuel_per_rev": ("fuel_flow_lph", "rpm"),
 }
@@ -59,7 +67,7 @@ def input_columns(params: ThermalParams) -> tuple[str, ...]:
 def _columns(heat_axes: tuple[str, str], mixture: MixtureIndex | None) -> tuple[str, ...]:
     names = [*heat_axes, *AMBIENT_COLUMNS]
     if mixture is not None:
-        names.extend(_MIXTURE_COLUMNS[mixture.source])
+        names.extend(MIXTURE_COLUMNS[mixture.source])
     return tuple(dict.fromkeys(names))
 
 

@@ -10,7 +10,12 @@ tabulated on a finer 9 x 9 grid than the 5 x 5 map identification fits. The plan
 mission (train) and another (held out) through the virtual ECU (noise, 1 degC quantiser);
 identification sees only the train flight, from the paper's Table A1 as the start (the radiation
 form, degC or kelvin, chosen by ``--effects auto`` on the flight's two halves), and is scored on the
-held-out one. The paper's own criterion: mean error < 1 %, peak < 5 % of the measured CHT.
+held-out one. The paper's own criterion: mean error < 1 %, peak < 5 % of the measured CHT, sample by
+sample. Near 0 degC that criterion is not defined (a cold start at a few degC makes 1-2 degC of
+quantisation and noise tens of percent; the true model itself misses it there), so each outcome also
+reports the errors in percent of the flight's mean temperature rise above OAT (one scale per flight:
+:class:`ecu_monitor.identify.ErrorStats`) and :attr:`PlantOutcome.passed_rise` applies the same
+thresholds to those.
 """
 
 from __future__ import annotations
@@ -108,6 +113,11 @@ class PlantOutcome:
     def passed(self) -> bool:
         """The paper's criterion on the held-out flight: mean < 1 %, peak < 5 %."""
         return self.held_out.mean_pct < 1.0 and self.held_out.peak_pct < 5.0
+
+    @property
+    def passed_rise(self) -> bool:
+        """The same thresholds against the flight's mean rise above OAT: mean < 1 %, peak < 5 %."""
+        return self.held_out.mean_rise_pct < 1.0 and self.held_out.peak_rise_pct < 5.0
 
 
 def run_plant(plant: RandomPlant, duration_s: float = 3600.0, settings: PsoSettings | None = None) -> PlantOutcome:
