@@ -386,3 +386,11 @@ def test_terms_switch_on_and_off_and_parse():
     assert mixture.reference == pytest.approx(float(np.median(fuel["egt_c"])))
     with pytest.raises(ParameterError, match="needs"):
         split_halves(_synthetic_flight(13, 600))
+
+
+def test_to_params_keeps_altitude_exponents_when_the_term_is_off():
+    log = _synthetic_flight(14, 600)
+    base = paper_table_a1().replace(terms_off=("altitude_scaling",))
+    space = default_space([log], base=base)
+    params = space.to_params(space.from_params(space.base))
+    assert (params.a, params.b) == (base.a, base.b) and params.terms_off == ("altitude_scaling",)

@@ -243,9 +243,9 @@ class ParameterSpace:
     def to_params(self, vector: NDArray[np.float64]) -> ThermalParams:
         """The ThermalParams of one coordinate vector (raises ParameterError if outside physical ranges)."""
         c = self.coefficient_arrays(np.asarray(vector, dtype=float)[None, :])
-        changes: dict[str, Any] = {
-            name: float(np.asarray(getattr(c, name))[0]) for name in ("c_w", "r_ce", "tau_w", "a", "b")
-        }
+        changes: dict[str, Any] = {name: float(np.asarray(getattr(c, name))[0]) for name in ("c_w", "r_ce", "tau_w")}
+        # a and b: searched, or the base's own (the kernel's 0 when the altitude term is off is not the model's value)
+        changes.update({name: float(vector[self._index[name]]) for name in ("a", "b") if name in self._index})
         changes.update(
             {
                 "heat_map": self.base.heat_map.with_values(np.maximum(c.heat_values_w[0], 0.0)),
