@@ -34,7 +34,7 @@ _EFFECT_FIELDS: dict[str, tuple[str, float, float, bool]] = {
     "effects.mixture_cooling.fraction": ("mixture_fraction", 0.0, 0.6, False),
     "effects.mixture_cooling.onset": ("mixture_onset", 0.0, 0.95, False),
     "effects.airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0, 60.0, False),
-    "effects.mixture_index.gain": ("mixture_gain", -0.01, 0.01, False),  # per degC of EGT; H4b: per source
+    "effects.mixture_index.gain": ("mixture_gain", -0.01, 0.01, False),  # default_space: per source
     "effects.mixture_index.reference": ("mixture_reference", 0.0, 1200.0, False),
 }
 _EFFECT_TYPES: dict[str, type] = EFFECT_TYPES
