@@ -2,6 +2,18 @@
 attribution of a one-cylinder degradation.
 
     nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py [--flights 8] [--hours 1] [--models truth|identified]
+    nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py --cost
+    PYTHONPATH=TREE .venv/bin/python benchmarks/bench_cylinders.py --one-channel LOG.blf
+
+``--cost``: what each extra cylinder costs. One four-cylinder flight (``short_hop``, 18 min) replayed by
+the live pipeline (frame by frame) and by the batch replay, with ``example.yaml`` (one channel, the
+cylinders' mean, the frames the same) and with ``four_cylinders.yaml``; CPU time (process time, so a
+loaded machine's other work does not count), best of 3; prints us per live step and batch seconds per
+flight hour, and the cost of one extra cylinder as a share of the one-channel cost.
+
+``--one-channel LOG``: the single-channel pipeline's live CPU us/step and batch CPU s over LOG
+(``example.yaml``), using only APIs older than the per-cylinder pipeline: run it alternately with
+``PYTHONPATH`` on two trees to compare them.
 
 Each flight: a random mission (``virtual_bus.random_missions.random_mission(seed)``) flown by a
 four-cylinder engine whose cylinders differ (``virtual_bus.cylinders.cylinder_models``: heat +-8 %,
@@ -65,7 +77,7 @@ def _identified(seed: int, hours: float, models: tuple) -> tuple:
     out = []
     for n in range(1, CYLINDERS + 1):
         one = log.with_columns(cht_c=log[f"cht{n}_c"])
-        result, _, _ = identify_flights([one], base=paper_table_a1(), heat_axes=("throttle_pct", "rpm"),
+        result, _, _ = identify_flights([one], base=paper_table_a1(), heat_axes=("throttle_pct", "rpm"), grid=None,
                                         settings=PsoSettings(seed=n), lofo=False)  # fmt: skip
         out.append(result.params)
     return tuple(out)
@@ -76,7 +88,15 @@ def main() -> None:
     parser.add_argument("--flights", type=int, default=8)
     parser.add_argument("--hours", type=float, default=1.0)
     parser.add_argument("--models", choices=("truth", "identified"), default="truth")
+    parser.add_argument("--cost", action="store_true", help="measure the cost per extra cylinder instead")
+    parser.add_argument("--one-channel", metavar="LOG", help="CPU time of a one-channel replay of LOG, live and batch")
     args = parser.parse_args()
+    if args.cost:
+        cost()
+        return
+    if args.one_channel:
+        one_channel(args.one_channel)
+        return
 
     from ecu_monitor.flightlog import read_csv
     from ecu_monitor.model import paper_table_a1
@@ -131,6 +151,72 @@ def main() -> None:
           f" {np.median(delays) if delays else float('nan'):.0f} s, max {max(delays) if delays else float('nan'):.0f} s"
           f" (target 120 s); another cylinder DEGRADED in {misattributed} flight(s); an alarm before the onset in"
           f" {false_alarms} flight(s)")  # fmt: skip
+
+
+def one_channel(path: str) -> None:
+    """Live us/step and batch s of ``example.yaml`` over ``path`` (CPU time, best of 3); only APIs that
+    predate every cylinder, so ``PYTHONPATH=<older tree>`` measures an older pipeline the same way."""
+    from ecu_monitor.bus.canlog import read_frames
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.replay import replay_frames, replay_live
+
+    config = load_config("example.yaml")
+    params = config.load_params()
+    frames = read_frames(path)
+    messages = list(frames.messages())
+    replay_live(config, params, messages[:3000])
+    replay_frames(config, params, frames)
+    live = batch = float("inf")
+    for _ in range(3):
+        t = time.process_time()
+        steps = replay_live(config, params, messages).counters["steps"]
+        live = min(live, (time.process_time() - t) / steps * 1e6)
+        t = time.process_time()
+        replay_frames(config, params, frames)
+        batch = min(batch, time.process_time() - t)
+    print(f"one channel: live {live:.2f} us/step ({steps} steps), batch {batch:.3f} s CPU")
+
+
+def cost() -> None:
+    """The live and batch cost of one extra cylinder (module docstring, --cost)."""
+    from ecu_monitor.bus.canlog import read_frames
+    from ecu_monitor.model import paper_table_a1
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.replay import replay_frames, replay_live
+    from virtual_bus.cylinders import cylinder_models
+    from virtual_bus.missions import load_mission
+    from virtual_bus.recorder import record
+
+    path = bench_dir() / "cost_short_hop.blf"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        record(load_mission("short_hop"), [path], paper_table_a1(), seed=5,
+               cylinders=cylinder_models(paper_table_a1(), CYLINDERS, seed=5))  # fmt: skip
+    frames = read_frames(path)
+    messages = list(frames.messages())
+    hours = float(frames.time_s[-1] - frames.time_s[0]) / 3600.0
+    results = {}
+    for name in ("example.yaml", "four_cylinders.yaml"):
+        config = load_config(name)
+        models = config.load_cylinder_params()
+        replay_live(config, models, messages[:3000])  # numba load
+        replay_frames(config, models, frames.take(np.arange(len(frames)) < 3000))
+        live = batch = float("inf")
+        for _ in range(3):
+            t = time.process_time()
+            steps = replay_live(config, models, messages).counters["steps"]
+            live = min(live, (time.process_time() - t) / steps * 1e6)
+            t = time.process_time()
+            replay_frames(config, models, frames)
+            batch = min(batch, (time.process_time() - t) / hours)
+        results[name] = (live, batch)
+        print(f"{name}: {len(models)} cylinder(s): live {live:.1f} us/step, batch {batch:.2f} s CPU per flight hour")
+    (l1, b1), (l4, b4) = results["example.yaml"], results["four_cylinders.yaml"]
+    print(
+        f"one extra cylinder: live +{(l4 - l1) / (CYLINDERS - 1):.1f} us/step"
+        f" ({100.0 * (l4 - l1) / (CYLINDERS - 1) / l1:.0f} % of one channel), batch"
+        f" +{(b4 - b1) / (CYLINDERS - 1):.2f} s per flight hour ({100.0 * (b4 - b1) / (CYLINDERS - 1) / b1:.0f} %)"
+    )
 
 
 if __name__ == "__main__":

@@ -256,3 +256,12 @@ def test_a_degradation_in_one_cylinder_changes_that_cylinder_alone(tmp_path: Pat
     assert len(carried) == pytest.approx(len(degraded), rel=0.01)
     assert {c["CHT4"] for c in carried} == {-40.0}
     assert np.allclose([c["CHT2"] for c in carried[10:20]], degraded["cht2_c"][10:20], atol=0.051)
+
+
+def test_the_demo_config_for_n_cylinders() -> None:
+    from ecu_monitor.commands.demo import cylinder_config
+
+    assert cylinder_config(2).cylinder_inputs == ("cht1_c", "cht2_c")
+    assert cylinder_config(4).cylinder_inputs == load_config("four_cylinders.yaml").cylinder_inputs
+    with pytest.raises(ConfigError, match="--cylinders: expected 1 to 4"):
+        cylinder_config(5)

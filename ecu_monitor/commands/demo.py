@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
 
     from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.service.config import ServiceConfig
     from ecu_monitor.service.pipeline import HealthSnapshot, Pipeline
 
 __all__ = ["DEFAULT_CONFIG", "ServiceListener", "add_subparser", "plot_report"]
@@ -54,6 +55,14 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--inject-at", type=float, default=1800.0, metavar="S", help="injection time, s (1800)")
     parser.add_argument("--gamma-q", type=float, default=1.2, metavar="G", help="injected gamma_Q (default 1.2)")
     parser.add_argument("--mission", default="default", metavar="NAME", help="mission name or YAML file")
+    parser.add_argument(
+        "--cylinders",
+        type=int,
+        default=1,
+        metavar="N",
+        help="an engine with N (2-4) cylinders whose models differ, monitored per cylinder (four_cylinders.yaml's"
+        " frames); gamma_Q is injected in cylinder 1 alone (default 1: one CHT channel)",
+    )
     parser.set_defaults(func=_run)
 
 
@@ -99,6 +108,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.pipeline import Pipeline
     from ecu_monitor.service.replay import write_health_csv
+    from virtual_bus.cylinders import cylinder_models
     from virtual_bus.emitter import FrameEncoder
     from virtual_bus.missions import load_mission
     from virtual_bus.plant import Degradation, collect, iter_steps, record_every
@@ -109,16 +119,17 @@ def _run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
     mission = load_mission(args.mission)
-    config = load_config(DEFAULT_CONFIG)
+    config = load_config(DEFAULT_CONFIG) if args.cylinders == 1 else cylinder_config(args.cylinders)
     params = config.load_params()
-    injection = Degradation("gamma_q", args.gamma_q, args.inject_at)
-    pipeline = Pipeline(config, params)
+    heads = cylinder_models(params, args.cylinders, seed=args.seed) if args.cylinders > 1 else ()
+    injection = Degradation("gamma_q", args.gamma_q, args.inject_at, cylinder=1 if heads else None)
+    pipeline = Pipeline(config, heads or params)
     channel = f"ecu-monitor-demo-{os.getpid()}"
     ecu_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     service_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     listener = ServiceListener(pipeline, service_bus)
     notifier = can.Notifier(service_bus, [listener], timeout=0.1)
-    encoder = FrameEncoder(cht_limit_c=params.cht_limit_c)
+    encoder = FrameEncoder(cht_limit_c=params.cht_limit_c, cylinders=len(heads) or 1)
     tty = sys.stderr.isatty()
     started = time.perf_counter()
     counts = {"sent": 0, "health_back": 0}
@@ -136,7 +147,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"\r{line}" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
 
     def fly() -> Iterator[Any]:
-        for block in iter_steps(mission, params, degradation=(injection,), seed=args.seed):
+        for block in iter_steps(mission, params, degradation=(injection,), seed=args.seed, cylinders=heads):
             for msg in encoder.frames(block):
                 while counts["sent"] - listener.processed > _MAX_BACKLOG:
                     time.sleep(0.0005)
@@ -168,7 +179,7 @@ def _run(args: argparse.Namespace) -> int:
     suspect = _first(rows, "SUSPECT")
     try:
         plot_report(log, rows, out, params.cht_limit_c, args.inject_at, args.gamma_q, detected)
-        plots = ", cht.png, detection.png, gammas.png, headroom.png"
+        plots = ", cht.png, detection.png, gammas.png, headroom.png" + (", cylinders.png" if heads else "")
     except ModuleNotFoundError as exc:  # the daemon's lean install: CSVs only
         if exc.name != "matplotlib":
             raise
@@ -194,6 +205,22 @@ def _run(args: argparse.Namespace) -> int:
         print(f"bus errors in the service listener: {len(listener.errors)} (first: {listener.errors[0]})")
     print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows){plots}")
     return 0
+
+
+def cylinder_config(count: int) -> ServiceConfig:
+    """The shipped four_cylinders.yaml for an engine of ``count`` (2-4) cylinders: cht1_c .. cht<count>_c."""
+    import yaml
+
+    from ecu_monitor.service.config import parse_config
+    from ecu_monitor.shipped import resolve_file
+
+    if not 2 <= count <= 4:
+        raise ConfigError(f"--cylinders: expected 1 to 4 (the cylinders of ECU_Cht1to4), got {count}")
+    path = resolve_file("four_cylinders.yaml", "config")
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    for n in range(count + 1, 5):
+        del data["inputs"][f"cht{n}_c"]
+    return parse_config(data, path)
 
 
 def _first(rows: list[HealthSnapshot], state: str) -> float | None:
@@ -276,6 +303,9 @@ def plot_report(
     fig.savefig(out / "gammas.png", dpi=110)
     plt.close(fig)
 
+    if rows and rows[0].cylinders:
+        _plot_cylinders(log, rows, out, marks)
+
     fig, ax = plt.subplots(figsize=(11, 4.5))
     headroom = column("headroom_s")
     ax.plot(t, np.where(headroom >= 6000.0, np.nan, headroom), lw=1.0, color="tab:red",
@@ -289,4 +319,42 @@ def plot_report(
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "headroom.png", dpi=110)
+    plt.close(fig)
+
+
+def _plot_cylinders(log: FlightLog, rows: list[HealthSnapshot], out: Path, marks: Any) -> None:
+    """cylinders.png: each cylinder's CHT estimate (and truth), the CHT spread and hottest cylinder, each
+    cylinder's gamma_Q estimate (and truth)."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    t_log = log.time_s / 60.0
+    t = np.array([r.time_s for r in rows]) / 60.0
+    count = len(rows[0].cylinders)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(11, 9), sharex=True, height_ratios=(2, 1, 1.3))
+    for i in range(count):
+        colour = colours[i % len(colours)]
+        ax1.plot(t, [r.cylinders[i].cht_est_c for r in rows], lw=0.9, color=colour, label=f"cylinder {i + 1} estimate")
+        if log.has(f"cyl{i + 1}_cht_true_c"):
+            ax1.plot(t_log, log[f"cyl{i + 1}_cht_true_c"], lw=0.6, ls=":", color=colour)
+        ax3.plot(t, [r.cylinders[i].gamma_q for r in rows], lw=0.9, color=colour, label=f"cylinder {i + 1} gamma_Q")
+        if log.has(f"cyl{i + 1}_gamma_q"):
+            ax3.plot(t_log, log[f"cyl{i + 1}_gamma_q"], lw=1.2, ls=":", color=colour)
+    ax1.set_ylabel("CHT (degC)")
+    ax1.set_title("Every cylinder: CHT estimates (dotted: truth), spread and hottest cylinder, gamma_Q (dotted: truth)")
+    ax1.legend(loc="lower center", fontsize=8, ncol=count)
+    ax2.plot(t, [r.cht_spread_c for r in rows], lw=0.9, color="black", label="CHT spread (hottest - coldest estimate)")
+    hottest = ax2.twinx()
+    hottest.step(t, [r.hottest_cylinder for r in rows], where="post", lw=0.8, color="tab:red")
+    hottest.set_ylabel("hottest cylinder", color="tab:red")
+    hottest.set_yticks(range(1, count + 1))
+    ax2.set_ylabel("spread (degC)")
+    ax2.legend(loc="upper left", fontsize=8)
+    ax3.set_ylabel("gamma_Q")
+    ax3.legend(loc="upper left", fontsize=8)
+    for ax in (ax1, ax2, ax3):
+        marks(ax)
+    fig.tight_layout()
+    fig.savefig(out / "cylinders.png", dpi=110)
     plt.close(fig)
