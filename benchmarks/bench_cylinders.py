@@ -2,6 +2,7 @@
 attribution of a one-cylinder degradation.
 
     nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py [--flights 8] [--hours 1] [--models truth|identified]
+        [--protocol dbc|dronecan]
     nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py --cost
     PYTHONPATH=TREE .venv/bin/python benchmarks/bench_cylinders.py --one-channel LOG.blf
 
@@ -20,7 +21,9 @@ four-cylinder engine whose cylinders differ (``virtual_bus.cylinders.cylinder_mo
 wall mass +-5 %, drawn from the flight's seed), gamma_Q = 1.2 stepped up in ONE cylinder (cylinder
 ``seed % 4 + 1``) at half the flight, recorded as a .blf (the frames of engine.dbc + cylinders.dbc)
 and a CSV (the per-cylinder truth), then replayed by ``ecu-monitor``'s batch replay with the shipped
-``four_cylinders.yaml`` (one estimator per cylinder, the shipped detector). The cylinder models:
+``four_cylinders.yaml`` (one estimator per cylinder, the shipped detector); with ``--protocol dronecan``
+the log carries the DroneCAN ICE status (one CylinderStatus per cylinder) and the air data instead,
+replayed with the shipped dronecan.yaml whose cht1_c .. cht4_c are cylinder_status[0..3]. The models:
 
 * ``truth``: each cylinder's own truth model (what identification would give with perfect data);
 * ``identified``: each cylinder identified (``identify --cylinder all``'s path: PSO + polish) on a
@@ -52,7 +55,7 @@ def bench_dir() -> Path:
     return root / "cylinders"
 
 
-def _record(path: Path, seed: int, hours: float, models: tuple, degradation: list) -> None:
+def _record(path: Path, seed: int, hours: float, models: tuple, degradation: list, protocol: str = "dbc") -> None:
     from ecu_monitor.model import paper_table_a1
     from virtual_bus.random_missions import random_mission
     from virtual_bus.recorder import record
@@ -61,7 +64,7 @@ def _record(path: Path, seed: int, hours: float, models: tuple, degradation: lis
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     record(random_mission(seed, duration_s=hours * 3600.0), [path.with_suffix(".blf"), path.with_suffix(".csv")],
-           paper_table_a1(), degradation=degradation, seed=seed, cylinders=models)  # fmt: skip
+           paper_table_a1(), degradation=degradation, seed=seed, cylinders=models, protocol=protocol)  # fmt: skip
 
 
 def _identified(seed: int, hours: float, models: tuple) -> tuple:
@@ -88,6 +91,9 @@ def main() -> None:
     parser.add_argument("--flights", type=int, default=8)
     parser.add_argument("--hours", type=float, default=1.0)
     parser.add_argument("--models", choices=("truth", "identified"), default="truth")
+    parser.add_argument(
+        "--protocol", choices=("dbc", "dronecan"), default="dbc", help="the bus the flights are logged on"
+    )
     parser.add_argument("--cost", action="store_true", help="measure the cost per extra cylinder instead")
     parser.add_argument("--one-channel", metavar="LOG", help="CPU time of a one-channel replay of LOG, live and batch")
     args = parser.parse_args()
@@ -106,7 +112,7 @@ def main() -> None:
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.plant import Degradation
 
-    config = load_config("four_cylinders.yaml")
+    config = load_config("four_cylinders.yaml") if args.protocol == "dbc" else dronecan_config()
     degraded_code = STATES.index("DEGRADED")
     worst_rms, delays, misattributed, false_alarms, missed = 0.0, [], 0, 0, 0
     print("| flight | degraded cylinder | onset s | RMS per cylinder, degC | delay s | other cylinder DEGRADED |"
@@ -116,8 +122,10 @@ def main() -> None:
         truth_models = cylinder_models(paper_table_a1(), CYLINDERS, seed=seed)
         target = seed % CYLINDERS + 1
         onset = round(args.hours * 3600.0 / 2.0)
-        path = bench_dir() / f"flight_{seed}_{args.hours:g}h.blf"
-        _record(path, seed, args.hours, truth_models, [Degradation("gamma_q", 1.2, onset, cylinder=target)])
+        tag = "" if args.protocol == "dbc" else "_dronecan"
+        path = bench_dir() / f"flight_{seed}_{args.hours:g}h{tag}.blf"
+        _record(path, seed, args.hours, truth_models, [Degradation("gamma_q", 1.2, onset, cylinder=target)],
+                args.protocol)  # fmt: skip
         models = truth_models if args.models == "truth" else _identified(seed, args.hours, truth_models)
         started = time.perf_counter()
         result = replay_file(path, config, models)
@@ -151,6 +159,21 @@ def main() -> None:
           f" {np.median(delays) if delays else float('nan'):.0f} s, max {max(delays) if delays else float('nan'):.0f} s"
           f" (target 120 s); another cylinder DEGRADED in {misattributed} flight(s); an alarm before the onset in"
           f" {false_alarms} flight(s)")  # fmt: skip
+
+
+def dronecan_config() -> object:
+    """The shipped dronecan.yaml with the four cylinders of the ICE status mapped to cht1_c .. cht4_c."""
+    import yaml
+
+    from ecu_monitor.service.config import parse_config
+    from ecu_monitor.shipped import resolve_file
+
+    path = resolve_file("dronecan.yaml", "config")
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    field = data["inputs"]["cht1_c"]["field"]
+    for n in range(1, CYLINDERS + 1):
+        data["inputs"][f"cht{n}_c"] = {"field": field.replace("[0]", f"[{n - 1}]"), "unit": "K", "stale_after_s": 1.0}
+    return parse_config(data, path)
 
 
 def one_channel(path: str) -> None:
