@@ -394,3 +394,24 @@ def test_to_params_keeps_altitude_exponents_when_the_term_is_off():
     space = default_space([log], base=base)
     params = space.to_params(space.from_params(space.base))
     assert (params.a, params.b) == (base.a, base.b) and params.terms_off == ("altitude_scaling",)
+
+
+def test_a_time_scale_at_its_bound_is_flagged_for_a_second_search():
+    from ecu_monitor.identify.fit import _time_scale_at_bound
+    from ecu_monitor.identify.select import model_form
+
+    log = _synthetic_flight(15, 600)
+    form, names = model_form(paper_table_a1(), [log], {"sensor_lag": True})
+    space = default_space([log], base=form, free=names)
+    unit = space.to_unit(space.from_params(space.base))
+    k_tc, k_lag = space.names.index("time_constant_s"), space.names.index("effects.sensor_lag.time_constant_s")
+    inside = unit.copy()
+    inside[k_tc], inside[k_lag] = 0.5, 0.5
+    assert not _time_scale_at_bound(space, inside)
+    no_lag = inside.copy()
+    no_lag[k_lag] = 0.0  # a probe without lag is an answer, not a wrong basin
+    assert not _time_scale_at_bound(space, no_lag)
+    for k, edge in ((k_tc, 0.0), (k_tc, 1.0), (k_lag, 1.0)):
+        hit = inside.copy()
+        hit[k] = edge
+        assert _time_scale_at_bound(space, hit)
