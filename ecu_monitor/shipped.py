@@ -18,7 +18,7 @@ from pathlib import Path, PurePosixPath
 
 from ecu_monitor.errors import ConfigError
 
-__all__ = ["DEFAULT_CONFIG", "KINDS", "resolve_file", "shipped_dir", "shipped_file", "shipped_files"]
+__all__ = ["DEFAULT_CONFIG", "DRONECAN_CONFIG", "KINDS", "resolve_file", "shipped_dir", "shipped_file", "shipped_files"]
 
 #: kind -> (folder under ecu_monitor/data, suffix a bare name is completed with, what it is)
 KINDS: dict[str, tuple[str, str, str]] = {
@@ -41,6 +41,8 @@ def shipped_dir(kind: str) -> Path:
 
 #: The service config the commands use when none is given: the shipped example for engine.dbc.
 DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
+#: The shipped config of a DroneCAN bus (replay takes it by default for a log that looks like DroneCAN).
+DRONECAN_CONFIG = shipped_dir("config") / "dronecan.yaml"
 
 
 def shipped_files(kind: str) -> tuple[str, ...]:

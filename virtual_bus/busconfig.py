@@ -24,7 +24,7 @@ import yaml
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import resolve_file
 
-__all__ = ["BusConfig", "load_bus_config", "open_bus"]
+__all__ = ["BusConfig", "config_protocol", "load_bus_config", "open_bus"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,19 @@ def load_bus_config(path: str | Path) -> BusConfig:
             raise ConfigError(f"{path}: bus.{key}: missing")
     interface, channel = bus.pop("interface"), bus.pop("channel")
     return BusConfig(interface, str(channel) if isinstance(channel, int) else channel, bus, str(path))
+
+
+def config_protocol(path: str | Path) -> str:
+    """The ``protocol:`` of a YAML config (``dbc`` when absent): what a service config's bus speaks."""
+    path = resolve_file(path, "config")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):
+        return "dbc"  # load_bus_config reports the file's problem
+    protocol = data.get("protocol", "dbc") if isinstance(data, dict) else "dbc"
+    if protocol not in ("dbc", "dronecan"):
+        raise ConfigError(f"{path}: protocol: expected dbc or dronecan, got {protocol!r}")
+    return str(protocol)
 
 
 def open_bus(config: BusConfig) -> can.BusABC:

@@ -3,8 +3,12 @@
     virtual-ecu record --mission FILE|NAME --out f.csv|f.asc|f.blf|f.log [--out ...] [--seed N]
                        [--degrade gamma_q=1.2@1800] [--degrade gamma_d=1.1@600:ramp=300]
                        [--effect airspeed_cooling] [--effect sensor_lag:time_constant_s=12] [--model model.yaml]
+                       [--protocol dbc|dronecan]
     virtual-ecu run --config FILE | --interface NAME --channel CH  --mission FILE|NAME
                     [--degrade ...] [--effect ...] [--realtime] [--speed X]
+
+``--protocol``: engine.dbc frames (dbc, the default) or DroneCAN messages (virtual_bus/dronecan_emitter.py);
+``run --config`` takes the config's own ``protocol:`` when the option is not given.
 
 Errors (bad mission file, bad --degrade syntax, unknown effect, bus that cannot open) print one line
 and exit 2, as ``ecu-monitor`` does; ``--debug`` shows the traceback.
@@ -92,6 +96,11 @@ def _add_flight_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--model", metavar="model.yaml", help="truth model (default: the paper's Table A1)")
     parser.add_argument("--dt", type=float, default=0.02, help="integration step, s (default 0.02)")
+    parser.add_argument(
+        "--protocol",
+        choices=("dbc", "dronecan"),  # virtual_bus.recorder.PROTOCOLS (not imported: --help stays light)
+        help="frames of engine.dbc (dbc) or DroneCAN messages (dronecan); default dbc, or run --config's protocol",
+    )
 
 
 class _Flight:
@@ -170,6 +179,7 @@ def _record(args: argparse.Namespace) -> int:
         record_dt_s=args.record_dt,
         progress=lambda t: progress(f"t = {t:.0f} s"),
         cylinders=flight.cylinders,
+        protocol=args.protocol or "dbc",
     )
     progress.done()
     print(f"{flight.describe()}")
@@ -193,9 +203,10 @@ def _bus_config(args: argparse.Namespace) -> BusConfig:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from virtual_bus.busconfig import open_bus
-    from virtual_bus.emitter import FrameEmitter, FrameEncoder
+    from virtual_bus.busconfig import config_protocol, open_bus
+    from virtual_bus.emitter import FrameEmitter
     from virtual_bus.plant import iter_steps
+    from virtual_bus.recorder import frame_encoder
 
     flight = _Flight(args)
     config = _bus_config(args)
@@ -226,7 +237,10 @@ def _run(args: argparse.Namespace) -> int:
         cylinders=flight.cylinders,
     )
     count = len(flight.cylinders) or 1
-    encoder = FrameEncoder(cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time, cylinders=count)
+    protocol = args.protocol or (config_protocol(args.config) if args.config else "dbc")
+    encoder = frame_encoder(
+        protocol, cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time, cylinders=count
+    )
     with open_bus(config) as bus:
         emitter = FrameEmitter(bus, encoder, realtime=args.realtime, speed=args.speed, progress=show)
         stats = emitter.emit(blocks)

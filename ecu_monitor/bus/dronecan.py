@@ -461,15 +461,22 @@ def _compound(dronecan: Any, dtype: Any, values: Mapping[str, Any]) -> Any:
         if hasattr(ftype, "value_type"):
             if isinstance(value, str):
                 setattr(out, name, value.encode("ascii", "replace")[: ftype.max_size].decode("ascii"))
+            elif isinstance(ftype.value_type, primitive):
+                setattr(out, name, [_number(ftype.value_type, item) for item in value][: ftype.max_size])
             else:
                 setattr(out, name, [_compound(dronecan, ftype.value_type, item) for item in value][: ftype.max_size])
         elif hasattr(ftype, "fields"):
             setattr(out, name, _compound(dronecan, ftype, value))
-        elif kind == primitive.KIND_FLOAT:
-            setattr(out, name, float(value))
-        elif kind == primitive.KIND_BOOLEAN:
-            setattr(out, name, bool(value))
         else:
-            number = float(value)
-            setattr(out, name, round(number) if math.isfinite(number) else 0)
+            setattr(out, name, _number(ftype, value))
     return out
+
+
+def _number(ftype: Any, value: Any) -> float | int | bool:
+    """``value`` as the Python number a primitive DSDL field takes (integers rounded, non-finite 0)."""
+    if ftype.kind == ftype.KIND_FLOAT:
+        return float(value)
+    if ftype.kind == ftype.KIND_BOOLEAN:
+        return bool(value)
+    number = float(value)
+    return round(number) if math.isfinite(number) else 0

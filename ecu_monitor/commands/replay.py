@@ -14,6 +14,11 @@ not calibrated for this model (``detector.calibrated_for`` absent from the confi
 model; ``ecu-monitor calibrate`` writes it). Defaults: config example.yaml (shipped), the model it
 names (or --model), its estimator (or --estimator). ``--live`` feeds the frames one by one through
 the live path instead of the batch path (same rows, slower; for checking).
+
+The protocol comes from the config (``protocol: dbc|dronecan``). Without --config, a CAN log whose
+frames look like DroneCAN (29-bit ids with DroneCAN tail bytes, ``bus.dronecan.looks_like_dronecan``)
+is replayed with the shipped dronecan.yaml, any other log with example.yaml; when no frame of the log
+decodes and the log looks like the other protocol, a ``warning:`` line says which config to give.
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.errors import ConfigError, FlightLogError
-from ecu_monitor.shipped import DEFAULT_CONFIG
+from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
+    from ecu_monitor.bus.canlog import FrameArrays
     from ecu_monitor.model import ThermalParams
     from ecu_monitor.service.config import ServiceConfig
     from ecu_monitor.service.replay import ReplayResult
@@ -72,7 +78,12 @@ def _run(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
-    config = load_config(args.config or DEFAULT_CONFIG)
+    path = Path(args.log)
+    given = load_config(args.config) if args.config else None
+    log_frames = read_frames(path) if path.suffix.lower() in CAN_LOG_SUFFIXES else None
+    config = given or load_config(
+        DRONECAN_CONFIG if log_frames is not None and _is_dronecan(log_frames) else DEFAULT_CONFIG
+    )
     if args.estimator is not None:
         if args.estimator not in ESTIMATORS:
             raise ConfigError(
@@ -81,9 +92,8 @@ def _run(args: argparse.Namespace) -> int:
         config = config.replace(estimator_name=args.estimator)
     models = (load_model(args.model),) * len(config.cylinder_inputs) if args.model else config.load_cylinder_params()
     params = models[0]
-    path = Path(args.log)
-    if path.suffix.lower() in CAN_LOG_SUFFIXES:
-        frames = read_frames(path)
+    if log_frames is not None:
+        frames = log_frames
     else:
         frames = frames_from_flight(load_flight(path), config, (*model_input_names(params), *config.cylinder_inputs))
     result: ReplayResult = (
@@ -96,9 +106,22 @@ def _run(args: argparse.Namespace) -> int:
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
     for line in _cylinder_lines(result):
         print(line)
+    if log_frames is not None and result.counters.get("ok", 0) == 0:
+        dronecan = _is_dronecan(log_frames)
+        if dronecan != (config.protocol == "dronecan"):
+            other = "a DroneCAN config (protocol: dronecan, e.g. dronecan.yaml)" if dronecan else "a DBC config"
+            kind = "DroneCAN" if dronecan else "DBC frames"
+            print(f"warning: no frame of {path.name} decoded with {config.source} (protocol {config.protocol});"
+                  f" the log looks like {kind}: give --config with {other}")  # fmt: skip
     for line in fit_warnings(config, params, result):
         print(f"warning: {line}")
     return 0
+
+
+def _is_dronecan(frames: FrameArrays) -> bool:
+    from ecu_monitor.bus.dronecan import looks_like_dronecan
+
+    return looks_like_dronecan(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data)
 
 
 def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayResult) -> list[str]:

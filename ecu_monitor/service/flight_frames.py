@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,9 +29,13 @@ def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable
     apart): the ECU was silent there, so the replay sees the inputs go stale (and, past the
     pipeline's clock-restart limit, a new segment), and the frames are proportional to the data. A
     log of fewer than 2 rows is a FlightLogError.
+
+    With ``protocol: dronecan`` the frames are DroneCAN transfers instead (:func:`dronecan_frames_from_flight`).
     """
     if len(log) < 2:
         raise FlightLogError(f"{log.source}: at least 2 rows are needed to replay (the log has {len(log)})")
+    if config.protocol == "dronecan":
+        return dronecan_frames_from_flight(log, config, required)
     encoder = Encoder(config.dbc_paths)
     by_message: dict[str, list[tuple[str, str]]] = {}
     for spec in config.inputs:
@@ -72,3 +77,103 @@ def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable
     )
     return FrameArrays(time_s[sort], ids[sort].astype(np.int64), ext[sort], lengths[sort].astype(np.int64),
                        data[sort], np.zeros(time_s.size, dtype=bool))  # fmt: skip
+
+
+#: DroneCAN: every mapped message is sent at this period, s (the virtual ECU's 10 Hz).
+DRONECAN_PERIOD_S = 0.1
+#: DroneCAN: the node the frames of a flight log come from when the config accepts any node.
+DRONECAN_SOURCE_NODE = 20
+
+
+def dronecan_frames_from_flight(
+    log: FlightLog, config: ServiceConfig, required: Iterable[str] | None = None
+) -> FrameArrays:
+    """The DroneCAN frames an engine and an air-data node would have sent for a flight log: each message
+    type the config's inputs use, every :data:`DRONECAN_PERIOD_S` (outside the log's holes), its mapped
+    fields from the latest row (converted back from the canonical unit; a pressure altitude back to
+    its standard pressure), every other float field NaN (DSDL: unknown), sent by the first of
+    ``dronecan.source_node_ids`` (else node :data:`DRONECAN_SOURCE_NODE`) through the one DroneCAN
+    encoder. An array element named by a reduction (``cylinder_status[mean]``) is element 0, unless a
+    column the log carries names elements of that array itself (``cht1_c`` -> ``cylinder_status[0]``).
+    ``required`` as for :func:`frames_from_flight`.
+    """
+    from ecu_monitor.bus.dronecan import DroneCanEncoder, parse_field
+    from ecu_monitor.units import standard_pressure_kpa
+
+    needed = set(required) if required is not None else {s.name for s in config.inputs} - {"fuel_flow_lph"}
+    missing = [spec.name for spec in config.inputs if not log.has(spec.name) and spec.name in needed]
+    if missing:
+        raise FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}")
+    sources = config.dronecan.source_node_ids
+    encoder = DroneCanEncoder(sources[0] if sources else DRONECAN_SOURCE_NODE)
+    by_type: dict[str, list[tuple[tuple[str | int, ...], np.ndarray]]] = {}
+    explicit: set[tuple[str, tuple[str | int, ...]]] = set()  # arrays whose elements a present column names
+    for spec in config.inputs:
+        if not log.has(spec.name):
+            continue
+        path = parse_field(f"{spec.message}.{spec.signal}")
+        unit = spec.signal_spec().conversion()
+        column = np.asarray(log[spec.name], dtype=float)
+        if unit.quantity == "pressure" and spec.name == "altitude_m":
+            column = standard_pressure_kpa(column)
+        by_type.setdefault(path.type_name, []).append((path.steps, unit.from_canonical(column)))
+        for i, step in enumerate(path.steps):
+            if isinstance(step, int):
+                explicit.add((path.type_name, path.steps[:i]))
+    t = log.time_s
+    holes = np.flatnonzero(np.diff(t) > GAP_S)
+    runs = list(zip([0, *(holes + 1).tolist()], [*holes.tolist(), t.size - 1], strict=True))
+    stamps = np.concatenate(
+        [
+            t[a] + DRONECAN_PERIOD_S * np.arange(math.floor((t[b] - t[a]) / DRONECAN_PERIOD_S + 1e-9) + 1)
+            for a, b in runs
+        ]
+    )
+    rows = np.searchsorted(t, stamps + 1e-9, side="right") - 1
+    frames: list[tuple[float, int, bytes]] = []
+    for stamp, row in zip(stamps.tolist(), rows.tolist(), strict=True):
+        for type_name, fields in by_type.items():
+            values: dict[str, object] = {}
+            for steps, column in fields:
+                if any(s in ("mean", "max", "min") for s in steps) and any(
+                    (type_name, steps[:i]) in explicit for i, s in enumerate(steps) if s in ("mean", "max", "min")
+                ):
+                    continue  # the log's own cylinders fill that array
+                _put(values, steps, float(column[row]))
+            for msg in encoder.frames(type_name, values, stamp):
+                frames.append((stamp, msg.arbitration_id, bytes(msg.data)))
+    n = len(frames)
+    data = np.zeros((n, 8), dtype=np.uint8)
+    for i, (_, _, payload) in enumerate(frames):
+        data[i, : len(payload)] = np.frombuffer(payload, dtype=np.uint8)
+    return FrameArrays(
+        np.array([f[0] for f in frames], dtype=np.float64),
+        np.array([f[1] for f in frames], dtype=np.int64),
+        np.ones(n, dtype=bool),
+        np.array([len(f[2]) for f in frames], dtype=np.int64),
+        data,
+        np.zeros(n, dtype=bool),
+    )
+
+
+def _put(values: dict[str, object], steps: tuple[str | int, ...], value: float) -> None:
+    """Set ``value`` at ``steps`` in nested field mappings (array steps: lists of mappings; a
+    reduction step is element 0)."""
+    node: Any = values
+    for i, step in enumerate(steps):
+        last = i == len(steps) - 1
+        if isinstance(step, str) and step not in ("mean", "max", "min"):
+            if last:
+                node[step] = value
+            elif isinstance(steps[i + 1], int) or steps[i + 1] in ("mean", "max", "min"):
+                node = node.setdefault(step, [])
+            else:
+                node = node.setdefault(step, {})
+        else:
+            index = step if isinstance(step, int) else 0
+            while len(node) <= index:
+                node.append(math.nan if last else {})
+            if last:
+                node[index] = value
+            else:
+                node = node[index]

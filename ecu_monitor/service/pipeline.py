@@ -55,6 +55,7 @@ from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.inputs import input_columns
 from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
 from ecu_monitor.service.cylinders import engine_view
+from ecu_monitor.service.dronecan_node import DroneCanNode
 from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S, CylinderSnapshot, HealthSnapshot
 from ecu_monitor.service.schedule import FILTER_PERIOD_S, MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick, filter_period_steps
 from ecu_monitor.service.supervision import (
@@ -266,6 +267,13 @@ class Pipeline:
         self._rows: list[HealthSnapshot] = []
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
         self._filter_period = filter_period_steps(self._dt)
+        # protocol dronecan: the service is a DroneCAN node (service/dronecan_node.py, called each health-status
+        # period); its health.dbc frames go out only if asked for (dronecan.dbc_health_frames)
+        self._node: DroneCanNode | None = None
+        self._dbc_health = config.protocol == "dbc" or config.dronecan.dbc_health_frames
+        if config.protocol == "dronecan":
+            self._node = DroneCanNode(config.dronecan, min(m.cht_limit_c for m in self.cylinder_params))
+            self.counters["dronecan_frames"] = 0
         self._snapshot: HealthSnapshot | None = self._empty_snapshot(math.nan)
         self._last_step: tuple[float, list[tuple[float, float, float, int, float, float, float]], list[str]] = (
             math.nan,
@@ -432,9 +440,14 @@ class Pipeline:
         k = self._k
         if k % self._status_period == 0:
             self._rows.append(self.snapshot())
-        for message, period in self._periods.items():
-            if k % period == 0:
-                frames.extend(self._health_frames(message, self.snapshot()))
+            if self._node is not None:
+                published = self._node.frames(time_s, self.snapshot())
+                self.counters["dronecan_frames"] += len(published)
+                frames.extend(published)
+        if self._dbc_health:
+            for message, period in self._periods.items():
+                if k % period == 0:
+                    frames.extend(self._health_frames(message, self.snapshot()))
 
     def _build_snapshot(
         self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]], stale: list[str]

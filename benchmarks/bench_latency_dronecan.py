@@ -1,0 +1,148 @@
+"""Live latency and CPU on a DroneCAN bus against the DBC bus, in one run (issue 14's target).
+
+    .venv/bin/python benchmarks/bench_latency_dronecan.py [--seconds 20] [--traffic 4000] [--repeat 2]
+
+The measurement of benchmarks/bench_latency.py (its ``run_case``: the daemon under test in one process on
+python-can's ``virtual`` interface, ``--traffic`` frames/s of other ids, the 20 ms tick off, so every health
+frame leaves inside the Notifier callback of the engine frame whose step fell due), run twice under the same
+traffic, alternating:
+
+* ``dbc``: the shipped example.yaml; the ECU sends ECU_Fast at 50 Hz and ECU_Slow/AirData at 10 Hz;
+* ``dronecan``: the shipped dronecan.yaml (the service decoding with the ``dronecan`` package, and
+  publishing as a DroneCAN node: NodeStatus and KeyValue at 1 Hz) with ``dbc_health_frames`` on, so
+  the frame timed on the way out is the same Health_Status at 10 Hz; the ECU sends the ICE status at
+  50 Hz (one cylinder: a 7-frame transfer) and the three air-data messages at 10 Hz, as node 20 and 21.
+  The latency is timed from the send of the last frame of an ICE status transfer (its 7 frames go back
+  to back; the step falls due on the first frame received after the step time). The daemon's
+  "health sent" counts the node's DroneCAN frames too; the receiver counts the Health_* frames.
+
+Prints p50/p99/max latency, the daemon threads' CPU share, the frames in and out, and the ratios
+dronecan/dbc of the same run (a loaded machine moves both). The DroneCAN case's extra cost is the
+``dronecan`` package's reassembly and DSDL unpacking (Python, bit strings): ~0.3-0.6 ms per ICE status
+transfer here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import bench_latency  # this folder's module (run as a script): run_case and its helpers
+import can
+import yaml
+
+from ecu_monitor.bus.dronecan import DroneCanEncoder
+from ecu_monitor.service.config import parse_config
+
+REPO = Path(__file__).resolve().parent.parent
+STATUS = "uavcan.equipment.ice.reciprocating.Status"
+STATUS_VALUES = {
+    "state": 2,
+    "engine_speed_rpm": 5500,
+    "throttle_position_percent": 60,
+    "fuel_consumption_rate_cm3pm": 10.0,
+    "atmospheric_pressure_kpa": 84.0,
+    "cylinder_status": [{"cylinder_head_temperature": 160.0 + 273.15}],
+}
+AIR_DATA = {
+    "uavcan.equipment.air_data.StaticPressure": {"static_pressure": 84000.0},
+    "uavcan.equipment.air_data.IndicatedAirspeed": {"indicated_airspeed": 23.0},
+    "uavcan.equipment.air_data.StaticTemperature": {"static_temperature": 288.15},
+}
+
+
+def _dronecan_config(channel: str) -> Any:
+    data = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "dronecan.yaml").read_text())
+    data["bus"] = {"interface": "virtual", "channel": channel, "receive_own_messages": False}
+    data["dronecan"]["dbc_health_frames"] = True  # the same Health_Status frames are timed on the way out
+    data["health_dbc"] = str(REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc")
+    data["state_dir"] = "/tmp/ecu-monitor-bench-unused"
+    return parse_config(data, REPO / "ecu_monitor" / "data" / "configs" / "bench-dronecan.yaml")
+
+
+def _dronecan_sender(bus: can.BusABC, sent_at: list[float], counts: dict[str, int]) -> Callable[[int], None]:
+    """The ICE status at 50 Hz (node 20), the air data at 10 Hz (node 21): transfers built once per period
+    by the one DroneCAN encoder (transfer ids advance as on a real bus)."""
+    engine, air = DroneCanEncoder(20), DroneCanEncoder(21)
+
+    def step(k: int) -> None:
+        frames = engine.frames(STATUS, STATUS_VALUES, 0.0, priority=16)
+        for i, msg in enumerate(frames):
+            if i == len(frames) - 1:  # the frame that completes the transfer: its callback runs the step
+                sent_at.append(time.perf_counter())
+            bus.send(msg)
+        counts["ecu"] += len(frames)
+        if k % 5 == 0:
+            for name, values in AIR_DATA.items():
+                for msg in air.frames(name, values, 0.0):
+                    bus.send(msg)
+                    counts["ecu"] += 1
+
+    return step
+
+
+class _FilteredDaemon(bench_latency.PhaseTimedDaemon):
+    """bench_latency's timed daemon with the decoder's own receive filters (a DroneCAN type under a mask)."""
+
+    def __init__(self, pipeline: Any, *args: Any, **kwargs: Any) -> None:
+        kwargs.pop("receive_ids", None)
+        super().__init__(pipeline, *args, receive_filters=pipeline.decoder.can_filters(), **kwargs)
+
+
+def run(protocol: str, seconds: float, traffic_hz: float) -> dict[str, Any]:
+    """One case of bench_latency.run_case on ``protocol``'s config and engine frames."""
+    saved = (bench_latency._config, bench_latency._ecu_sender, bench_latency.PhaseTimedDaemon)
+    if protocol == "dronecan":
+        bench_latency._config = _dronecan_config
+        bench_latency._ecu_sender = _dronecan_sender
+    bench_latency.PhaseTimedDaemon = _FilteredDaemon
+    try:
+        return bench_latency.run_case(protocol, seconds, traffic_hz, with_pipeline=True)
+    finally:
+        bench_latency._config, bench_latency._ecu_sender, bench_latency.PhaseTimedDaemon = saved
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n", 1)[0])
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--traffic", type=float, default=4000.0, help="other frames/s on the bus")
+    parser.add_argument("--repeat", type=int, default=2, help="rounds of (dbc, dronecan)")
+    parser.add_argument("--json", action="store_true", help="one JSON line per case")
+    args = parser.parse_args()
+    results: dict[str, list[dict[str, Any]]] = {"dbc": [], "dronecan": []}
+    for _ in range(args.repeat):
+        for protocol in ("dbc", "dronecan"):
+            result = run(protocol, args.seconds, args.traffic)
+            results[protocol].append(result)
+            if args.json:
+                print(json.dumps(result), flush=True)
+            else:
+                print(
+                    f"{protocol:9s} p50 {result['p50_us']:7.0f} us  p99 {result['p99_us']:7.0f} us  max "
+                    f"{result['max_us']:7.0f} us  CPU {result['cpu_pct']:5.1f} %  engine frames {result['ecu_sent']}"
+                    f" sent / {result['ecu_in']} in, health {result['out_sent']} sent / {result['out_received']}"
+                    f" received ({result['samples']} timed); {result['phases']}",
+                    flush=True,
+                )
+    med = {
+        p: {k: statistics.median(r[k] for r in rs) for k in ("p50_us", "p99_us", "cpu_pct")}
+        for p, rs in results.items()
+    }
+    ratio = {k: med["dronecan"][k] / med["dbc"][k] for k in ("p50_us", "p99_us", "cpu_pct")}
+    print(
+        f"medians over {args.repeat} rounds: dbc p50 {med['dbc']['p50_us']:.0f} us, p99 {med['dbc']['p99_us']:.0f} us,"
+        f" CPU {med['dbc']['cpu_pct']:.1f} %; dronecan p50 {med['dronecan']['p50_us']:.0f} us, p99"
+        f" {med['dronecan']['p99_us']:.0f} us, CPU {med['dronecan']['cpu_pct']:.1f} %; ratios dronecan/dbc: p50"
+        f" {ratio['p50_us']:.2f}, p99 {ratio['p99_us']:.2f}, CPU {ratio['cpu_pct']:.2f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,174 @@
+"""The service as a DroneCAN node (protocol: dronecan; docs/service.md, "DroneCAN"): what it publishes.
+
+The pipeline calls :meth:`DroneCanNode.frames` once per health-status period (the 10 Hz health rows)
+with that period's snapshot; it returns the frames of the transfers due (built by
+:class:`ecu_monitor.bus.dronecan.DroneCanEncoder`, source node ``dronecan.node_id``, priority
+``dronecan.priority``):
+
+* ``uavcan.protocol.NodeStatus`` every second, and at once when the health or the mode changes.
+  ``health`` follows the engine (:func:`node_health`): OK while NOMINAL; WARNING while SUSPECT,
+  INPUT_STALE or UNAVAILABLE (the monitor cannot vouch for the engine); ERROR while DEGRADED or
+  SENSOR_FAULT; CRITICAL whenever the CHT (the estimate, else the reading) is at or above the model's
+  CHT limit. ``mode`` is INITIALIZATION until the estimator has run once, OPERATIONAL after.
+  ``uptime_sec``: whole seconds since the node's first step. ``vendor_specific_status_code``: the
+  state's code (Health_Status.DegradationState: 0 NOMINAL .. 5 UNAVAILABLE) in bits 0-3 and the
+  stale inputs (Health_Diag.StaleInputs bits) from bit 4.
+* ``uavcan.protocol.debug.KeyValue`` at ``dronecan.key_value_hz``: one transfer per key of
+  :data:`KEY_VALUES` (keys of at most 10 characters, so MAVLink's NAMED_VALUE_FLOAT can relay them);
+  NaN when the value is unknown (no estimate yet). An engine monitored per cylinder adds
+  ``spread`` (degC), ``hottest`` (its number) and, per cylinder n, ``cyl<n>_est`` (degC),
+  ``cyl<n>_gq`` (gamma_Q) and ``cyl<n>_st`` (its state's code).
+* ``uavcan.protocol.debug.LogMessage`` when the state changes (and once at start), source
+  ``ecu-monitor``, level INFO for NOMINAL, WARNING for SUSPECT, INPUT_STALE and UNAVAILABLE, ERROR for
+  DEGRADED and SENSOR_FAULT; at most one a second: a change within a second of the last message is
+  told when the second is up, if the state still differs from the one last told. Per cylinder, the
+  state is the engine's (its lead cylinder's) and the text names that cylinder.
+"""
+
+from __future__ import annotations
+
+import math
+
+import can
+
+from ecu_monitor.bus.codec import INPUT_NAMES
+from ecu_monitor.bus.dronecan import DroneCanEncoder
+from ecu_monitor.service.config import DroneCanSettings
+from ecu_monitor.service.health_rows import HealthSnapshot
+from ecu_monitor.service.supervision import STATES
+
+__all__ = ["HEALTH_CODES", "KEY_VALUES", "LOG_LEVELS", "DroneCanNode", "key_values", "node_health"]
+
+#: NodeStatus.health values (DSDL constants of uavcan.protocol.NodeStatus)
+HEALTH_CODES = {"OK": 0, "WARNING": 1, "ERROR": 2, "CRITICAL": 3}
+_MODE_OPERATIONAL, _MODE_INITIALIZATION = 0, 1
+#: state -> NodeStatus health (without the CHT limit, which makes any state CRITICAL)
+_STATE_HEALTH = {
+    "NOMINAL": "OK",
+    "SUSPECT": "WARNING",
+    "INPUT_STALE": "WARNING",
+    "UNAVAILABLE": "WARNING",
+    "DEGRADED": "ERROR",
+    "SENSOR_FAULT": "ERROR",
+}
+#: state -> LogMessage level (uavcan.protocol.debug.LogLevel: 0 DEBUG, 1 INFO, 2 WARNING, 3 ERROR)
+LOG_LEVELS = {"NOMINAL": 1, "SUSPECT": 2, "INPUT_STALE": 2, "UNAVAILABLE": 2, "DEGRADED": 3, "SENSOR_FAULT": 3}
+#: KeyValue key -> HealthSnapshot field (units: degC, degC/s, -, -, s) or "state" (the state's code)
+KEY_VALUES: dict[str, str] = {
+    "cht_est": "cht_est_c",
+    "cht_meas": "cht_meas_c",
+    "cht_dev": "deviation",
+    "gamma_q": "gamma_q",
+    "gamma_d": "gamma_d",
+    "headroom": "headroom_s",
+    "state": "state",
+}
+_NODE_STATUS = "uavcan.protocol.NodeStatus"
+_KEY_VALUE = "uavcan.protocol.debug.KeyValue"
+_LOG_MESSAGE = "uavcan.protocol.debug.LogMessage"
+_LOG_SOURCE = "ecu-monitor"
+_LOG_EVERY_S = 1.0
+_SLACK_S = 1e-3  # periods are counted on the health-status instants, rounded to the microsecond
+
+
+def node_health(state: str, cht_c: float, cht_limit_c: float) -> int:
+    """NodeStatus.health of an engine in ``state`` whose CHT is ``cht_c`` (degC; NaN: unknown)."""
+    if math.isfinite(cht_c) and cht_c >= cht_limit_c:
+        return HEALTH_CODES["CRITICAL"]
+    return HEALTH_CODES[_STATE_HEALTH[state]]
+
+
+class DroneCanNode:
+    """The publications of the service's DroneCAN node (module docstring), one health-status period at a time."""
+
+    def __init__(self, settings: DroneCanSettings, cht_limit_c: float) -> None:
+        self.settings = settings
+        self.cht_limit_c = cht_limit_c
+        self.encoder = DroneCanEncoder(settings.node_id)
+        rate = settings.key_value_hz
+        self._key_value_every_s = 1.0 / rate if rate > 0.0 else math.inf
+        self._first_s: float | None = None
+        self._status: tuple[int, int] | None = None  # (health, mode) last published
+        self._status_s = -math.inf
+        self._key_value_s = -math.inf
+        self._estimated = False
+        self._told: str | None = None  # the state the last LogMessage told
+        self._told_s = -math.inf
+
+    def frames(self, time_s: float, snap: HealthSnapshot) -> list[can.Message]:
+        """The frames due at ``time_s`` (s) for that health-status period's snapshot."""
+        if self._first_s is None:
+            self._first_s = time_s
+        out: list[can.Message] = []
+        cht = snap.cht_est_c if math.isfinite(snap.cht_est_c) else snap.cht_meas_c
+        if snap.cylinders:
+            finite = [c.cht_est_c for c in snap.cylinders if math.isfinite(c.cht_est_c)]
+            cht = max(finite) if finite else cht
+        self._estimated = self._estimated or math.isfinite(snap.cht_est_c)
+        status = (
+            node_health(snap.state, cht, self.cht_limit_c),
+            _MODE_OPERATIONAL if self._estimated else _MODE_INITIALIZATION,
+        )
+        if _due(time_s, self._status_s, 1.0) or status != self._status:
+            out += self._node_status(time_s, snap, status)
+        if _due(time_s, self._key_value_s, self._key_value_every_s):
+            self._key_value_s = time_s
+            priority = self.settings.priority
+            for key, value in key_values(snap):
+                out += self.encoder.frames(_KEY_VALUE, {"key": key, "value": value}, time_s, priority)
+        if self.settings.log_messages and snap.state != self._told and time_s - self._told_s >= _LOG_EVERY_S - _SLACK_S:
+            out += self._log_message(time_s, snap)
+        return out
+
+    def _node_status(self, time_s: float, snap: HealthSnapshot, status: tuple[int, int]) -> list[can.Message]:
+        self._status, self._status_s = status, time_s
+        stale = sum(1 << bit for bit, name in enumerate(INPUT_NAMES) if name in snap.stale_inputs)
+        values = {
+            "uptime_sec": math.floor(time_s - (self._first_s or time_s) + _SLACK_S),
+            "health": status[0],
+            "mode": status[1],
+            "sub_mode": 0,
+            "vendor_specific_status_code": STATES.index(snap.state) | stale << 4,
+        }
+        return self.encoder.frames(_NODE_STATUS, values, time_s, self.settings.priority)
+
+    def _log_message(self, time_s: float, snap: HealthSnapshot) -> list[can.Message]:
+        was = f" (was {self._told})" if self._told is not None else ""
+        text = f"CHT {snap.state}{was}"
+        lead = _lead(snap)
+        if lead:
+            text += f" cyl {lead}"
+        if math.isfinite(snap.cht_est_c):
+            text += f": est {snap.cht_est_c:.1f} C, gamma_Q {snap.gamma_q:.2f}"
+        self._told, self._told_s = snap.state, time_s
+        values = {"level": {"value": LOG_LEVELS[snap.state]}, "source": _LOG_SOURCE, "text": text}
+        return self.encoder.frames(_LOG_MESSAGE, values, time_s, self.settings.priority)
+
+
+def key_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
+    """The KeyValue pairs of one snapshot (module docstring): the engine's, then per cylinder."""
+    out = [(key, float(STATES.index(snap.state)) if name == "state" else float(getattr(snap, name)))
+           for key, name in KEY_VALUES.items()]  # fmt: skip
+    if snap.cylinders:
+        out += [("spread", float(snap.cht_spread_c)), ("hottest", float(snap.hottest_cylinder))]
+        for cyl in snap.cylinders:
+            n = cyl.number
+            out += [
+                (f"cyl{n}_est", cyl.cht_est_c),
+                (f"cyl{n}_gq", cyl.gamma_q),
+                (f"cyl{n}_st", float(STATES.index(cyl.state))),
+            ]
+    return out
+
+
+def _lead(snap: HealthSnapshot) -> int:
+    """The number of the cylinder whose values the engine's are (0: one CHT channel)."""
+    for cyl in snap.cylinders:
+        same = cyl.cht_est_c == snap.cht_est_c or (math.isnan(cyl.cht_est_c) and math.isnan(snap.cht_est_c))
+        if cyl.state == snap.state and same:
+            return cyl.number
+    return 0
+
+
+def _due(time_s: float, last_s: float, every_s: float) -> bool:
+    return time_s - last_s >= every_s - _SLACK_S
