@@ -325,3 +325,84 @@ def test_receive_filters_pass_the_mapped_types_of_any_node_and_priority_only() -
         assert [m.arbitration_id for m in got if m is not None] == [wanted.arbitration_id]
     finally:
         bus.shutdown()
+
+
+# --------------------------------------------------------------------------------------------------
+# The service as a DroneCAN node
+# --------------------------------------------------------------------------------------------------
+
+
+def _engine_frames(t0: float, seconds: float, cht_c: float = 120.0, node: int = 20) -> list[can.Message]:
+    """Steady engine and air data at 10 Hz, built with the dronecan package's own types."""
+    air = dronecan.uavcan.equipment.air_data
+    out: list[can.Message] = []
+    for i in range(round(seconds * 10)):
+        t = t0 + 0.1 * i
+        out += _frames(_status(rpm=5000, chts_k=(cht_c + 273.15,)), node=node, transfer_id=i % 32, time_s=t)
+        out += _frames(air.StaticPressure(static_pressure=95000.0), node=node + 1, transfer_id=i % 32, time_s=t)
+        out += _frames(air.IndicatedAirspeed(indicated_airspeed=22.0), node=node + 1, transfer_id=i % 32, time_s=t)
+        out += _frames(air.StaticTemperature(static_temperature=290.0), node=node + 1, transfer_id=i % 32, time_s=t)
+    return out
+
+
+def _published(frames: list[can.Message]) -> list[tuple[float, str, Any]]:
+    """(time, data type, payload) of every transfer in ``frames``, reassembled by the dronecan package."""
+    manager = dronecan.transport.TransferManager()
+    out = []
+    for msg in frames:
+        assert msg.is_extended_id and msg.arbitration_id & 0x7F == 100  # the configured node id
+        done = manager.receive_frame(dronecan.transport.Frame(msg.arbitration_id, msg.data))
+        if done:
+            transfer = dronecan.transport.Transfer()
+            transfer.from_frames(done)
+            out.append((msg.timestamp, dronecan.get_dronecan_data_type(transfer.payload).full_name, transfer.payload))
+    return out
+
+
+def _run_pipeline(frames: list[can.Message], until_s: float) -> list[can.Message]:
+    from ecu_monitor.service.pipeline import Pipeline
+
+    config = load_config("dronecan.yaml")
+    pipeline = Pipeline(config, config.load_params())
+    out: list[can.Message] = []
+    for msg in frames:
+        out += pipeline.advance_to(msg.timestamp)
+        pipeline.feed(msg)
+    out += pipeline.advance_to(until_s)
+    assert pipeline.counters["dronecan_frames"] == len(out) and pipeline.counters["health_frames"] == 0
+    return out
+
+
+def test_node_status_follows_the_engine_state_and_state_changes_are_logged() -> None:
+    out = _published(_run_pipeline(_engine_frames(0.0, 4.0), until_s=8.0))  # inputs stop at 4 s
+    status = [(t, p.health, p.mode, p.uptime_sec, p.vendor_specific_status_code) for t, n, p in out
+              if n == "uavcan.protocol.NodeStatus"]  # fmt: skip
+    periodic = [s for s in status if abs(s[0] - round(s[0])) < 1e-6]
+    assert [round(s[0]) for s in periodic] == [1, 2, 3, 4, 5, 6, 7, 8]  # 1 Hz
+    assert [s[3] for s in periodic] == [0, 1, 2, 3, 4, 5, 6, 7]  # uptime, whole seconds from the first step
+    early = [s for s in status if 1.0 <= s[0] <= 4.0]
+    assert all(s[1] == 0 and s[2] == 0 and s[4] == 0 for s in early)  # OK, OPERATIONAL, state NOMINAL
+    late = [s for s in status if s[0] >= 6.0]
+    assert all(s[1] == 1 and s[4] & 0x0F == 3 and s[4] >> 4 == 0b1111111 for s in late)  # WARNING, INPUT_STALE
+    changed = [s for s in status if 4.0 < s[0] < 6.0 and s not in periodic]
+    assert changed and changed[0][1] == 1  # the change of health is published at once
+    logs = [(t, p.level.value, p.source.decode(), p.text.decode()) for t, n, p in out if n.endswith("LogMessage")]
+    assert [(level, text.split(":")[0]) for _, level, _, text in logs] == [
+        (1, "CHT NOMINAL"), (2, "CHT INPUT_STALE (was NOMINAL)")]  # fmt: skip
+    assert all(source == "ecu-monitor" for _, _, source, _ in logs)
+    values = [(t, p.key.decode(), p.value) for t, n, p in out if n.endswith("KeyValue")]
+    keys = {key for _, key, _ in values}
+    assert keys == {"cht_est", "cht_meas", "cht_dev", "gamma_q", "gamma_d", "headroom", "state"}
+    at_3 = {key: value for t, key, value in values if abs(t - 3.0) < 1e-6}
+    assert at_3["cht_meas"] == pytest.approx(120.0, abs=0.25) and at_3["state"] == 0.0
+    assert abs(at_3["cht_est"] - 120.0) < 2.0
+
+
+def test_node_health_mapping() -> None:
+    from ecu_monitor.service.dronecan_node import node_health
+
+    assert [node_health(s, 100.0, 150.0) for s in ("NOMINAL", "SUSPECT", "INPUT_STALE", "UNAVAILABLE")] == [0, 1, 1, 1]
+    assert [node_health(s, 100.0, 150.0) for s in ("DEGRADED", "SENSOR_FAULT")] == [2, 2]
+    assert node_health("NOMINAL", 150.0, 150.0) == 3 and node_health("DEGRADED", math.nan, 150.0) == 2
+    out = _published(_run_pipeline(_engine_frames(0.0, 3.0, cht_c=155.0), until_s=3.0))  # above the 150 degC limit
+    assert {p.health for t, n, p in out if n.endswith("NodeStatus") and t >= 1.0} == {3}

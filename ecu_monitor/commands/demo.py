@@ -1,4 +1,4 @@
-"""``ecu-monitor demo [--out DIR] [--seed N] [--inject-at S] [--gamma-q G] [--mission NAME]``: the main job.
+"""``ecu-monitor demo [--out DIR] [--seed N] [--inject-at S] [--gamma-q G] [--mission NAME] [--protocol P]``.
 
 The virtual ECU flies the default step-climb mission (the shipped mission default.yaml) through its
 truth plant with a heat-input degradation gamma_Q = 1.2 injected mid-flight (t = 1800 s), and sends
@@ -8,7 +8,10 @@ python-can Notifier: each frame goes into the service pipeline (the shipped exam
 frames that fall due (health.dbc) go back onto the bus, where the ECU side counts them as the
 autopilot would. The virtual clock runs as fast as the machine allows (mission time is carried in the
 frame timestamps); a progress line shows mission time, CHT measured and estimated and the health
-state; the detection time is printed at the end.
+state; the detection time is printed at the end. ``--protocol dronecan``: the virtual ECU speaks
+DroneCAN instead (an engine node's ICE status and an air-data node's messages, 10 Hz), the service
+reads them through the shipped dronecan.yaml and answers as a DroneCAN node (NodeStatus, KeyValue,
+LogMessage), which the ECU side counts as the autopilot would.
 
 Writes into DIR (default demo-out): flight.csv (the virtual ECU's canonical log with the truth:
 cht_true_c, gamma_q, gamma_d), health.csv (the service's rows, 10 Hz), and the plots cht.png (CHT
@@ -28,7 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.shipped import DEFAULT_CONFIG
+from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
 
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
@@ -62,6 +65,12 @@ def add_subparser(subparsers: Any) -> None:
         metavar="N",
         help="an engine with N (2-4) cylinders whose models differ, monitored per cylinder (four_cylinders.yaml's"
         " frames); gamma_Q is injected in cylinder 1 alone (default 1: one CHT channel)",
+    )
+    parser.add_argument(
+        "--protocol",
+        choices=("dbc", "dronecan"),
+        default="dbc",
+        help="what the virtual ECU and the service speak: engine.dbc/health.dbc frames (dbc, default) or DroneCAN",
     )
     parser.set_defaults(func=_run)
 
@@ -109,9 +118,9 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.service.pipeline import Pipeline
     from ecu_monitor.service.replay import write_health_csv
     from virtual_bus.cylinders import cylinder_models
-    from virtual_bus.emitter import FrameEncoder
     from virtual_bus.missions import load_mission
     from virtual_bus.plant import Degradation, collect, iter_steps, record_every
+    from virtual_bus.recorder import frame_encoder
 
     out = Path(args.out)
     try:
@@ -119,7 +128,10 @@ def _run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
     mission = load_mission(args.mission)
-    config = load_config(DEFAULT_CONFIG) if args.cylinders == 1 else cylinder_config(args.cylinders)
+    if args.cylinders == 1:
+        config = load_config(DRONECAN_CONFIG if args.protocol == "dronecan" else DEFAULT_CONFIG)
+    else:
+        config = cylinder_config(args.cylinders, args.protocol)
     params = config.load_params()
     heads = cylinder_models(params, args.cylinders, seed=args.seed) if args.cylinders > 1 else ()
     injection = Degradation("gamma_q", args.gamma_q, args.inject_at, cylinder=1 if heads else None)
@@ -129,7 +141,7 @@ def _run(args: argparse.Namespace) -> int:
     service_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     listener = ServiceListener(pipeline, service_bus)
     notifier = can.Notifier(service_bus, [listener], timeout=0.1)
-    encoder = FrameEncoder(cht_limit_c=params.cht_limit_c, cylinders=len(heads) or 1)
+    encoder = frame_encoder(args.protocol, cht_limit_c=params.cht_limit_c, cylinders=len(heads) or 1)
     tty = sys.stderr.isatty()
     started = time.perf_counter()
     counts = {"sent": 0, "health_back": 0}
@@ -185,10 +197,11 @@ def _run(args: argparse.Namespace) -> int:
             raise
         plots = "; no plots: pip install 'ecu-monitor[tools]' for them"
     c = pipeline.counters
+    back = "DroneCAN node" if args.protocol == "dronecan" else "health"
     print(
         f"flew {log.duration_s / 60.0:.1f} min of mission {mission.name} in {wall:.1f} s "
         f"({log.duration_s / wall:.0f}x real time); {counts['sent']} frames over the virtual bus, "
-        f"{c['ok']} decoded, {c['malformed']} malformed, {counts['health_back']} health frames back"
+        f"{c['ok']} decoded, {c['malformed']} malformed, {counts['health_back']} {back} frames back"
     )
     if detected is None:
         print(
@@ -207,8 +220,10 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def cylinder_config(count: int) -> ServiceConfig:
-    """The shipped four_cylinders.yaml for an engine of ``count`` (2-4) cylinders: cht1_c .. cht<count>_c."""
+def cylinder_config(count: int, protocol: str = "dbc") -> ServiceConfig:
+    """The shipped four_cylinders.yaml for an engine of ``count`` (2-4) cylinders: cht1_c .. cht<count>_c;
+    ``protocol="dronecan"``: the shipped dronecan.yaml with those inputs on ``cylinder_status[0..count-1]``
+    and four_cylinders.yaml's cylinders and health sections."""
     import yaml
 
     from ecu_monitor.service.config import parse_config
@@ -220,7 +235,16 @@ def cylinder_config(count: int) -> ServiceConfig:
     data = yaml.safe_load(path.read_text(encoding="utf-8"))
     for n in range(count + 1, 5):
         del data["inputs"][f"cht{n}_c"]
-    return parse_config(data, path)
+    if protocol != "dronecan":
+        return parse_config(data, path)
+    dronecan_path = resolve_file("dronecan.yaml", "config")
+    dronecan = yaml.safe_load(dronecan_path.read_text(encoding="utf-8"))
+    inputs = {name: spec for name, spec in dronecan["inputs"].items() if not name.startswith("cht")}
+    field = "uavcan.equipment.ice.reciprocating.Status.cylinder_status[{}].cylinder_head_temperature"
+    for n in range(1, count + 1):
+        inputs[f"cht{n}_c"] = {"field": field.format(n - 1), "unit": "K", "stale_after_s": 1.0}
+    dronecan.update(inputs=inputs, cylinders=data["cylinders"], health=data["health"])
+    return parse_config(dronecan, dronecan_path)
 
 
 def _first(rows: list[HealthSnapshot], state: str) -> float | None:
