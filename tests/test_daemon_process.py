@@ -34,6 +34,7 @@ from ecu_monitor.service.daemon import SEND_FAILURES_TO_REOPEN, Daemon, DaemonSe
 from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate, watchdog_period_s
 from ecu_monitor.service.persistence import DATABASE_NAME
 from ecu_monitor.service.pipeline import Pipeline
+from ecu_monitor.service.schedule import MAX_CLOCK_GAP_S
 
 REPO = Path(__file__).resolve().parent.parent
 ENGINE_DBC = REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
@@ -323,7 +324,11 @@ def test_a_silent_bus_is_warned_once_per_silence(tmp_path: Path, caplog: pytest.
     The daemon's clock is the test's: a silence is a jump of that clock, not a sleep."""
     channel = f"silent-{uuid.uuid4().hex}"
     offset = [0.0]
-    limit_s = 1000.0  # far beyond any real delay of a loaded machine: only the clock jumps reach it
+    # far beyond any real delay of a loaded machine: only the clock jumps reach it; each jump (limit_s / 2 and
+    # more) is longer than the pipeline's MAX_CLOCK_GAP_S, so it restarts the schedule rather than run every step
+    # of the jump under the lock (500 s were 25,000 steps: more than the 30 s wait on a machine at load 25)
+    limit_s = 1400.0
+    assert limit_s / 2 > MAX_CLOCK_GAP_S
 
     def clock() -> float:
         return time.monotonic() + offset[0]
