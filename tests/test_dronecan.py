@@ -377,23 +377,31 @@ def test_node_status_follows_the_engine_state_and_state_changes_are_logged() -> 
     out = _published(_run_pipeline(_engine_frames(0.0, 4.0), until_s=8.0))  # inputs stop at 4 s
     status = [(t, p.health, p.mode, p.uptime_sec, p.vendor_specific_status_code) for t, n, p in out
               if n == "uavcan.protocol.NodeStatus"]  # fmt: skip
-    periodic = [s for s in status if abs(s[0] - round(s[0])) < 1e-6]
-    assert [round(s[0]) for s in periodic] == [1, 2, 3, 4, 5, 6, 7, 8]  # 1 Hz
-    assert [s[3] for s in periodic] == [0, 1, 2, 3, 4, 5, 6, 7]  # uptime, whole seconds from the first step
+    times = [s[0] for s in status]
+    assert times[0] == pytest.approx(0.1) and max(np.diff(times)) <= 1.0 + 1e-6  # >= 1 Hz
+    assert 8 <= len(status) <= 10
+    assert all(s[3] == math.floor(s[0] - 0.1 + 1e-3) for s in status)  # uptime: whole seconds from the first step
     early = [s for s in status if 1.0 <= s[0] <= 4.0]
-    assert all(s[1] == 0 and s[2] == 0 and s[4] == 0 for s in early)  # OK, OPERATIONAL, state NOMINAL
+    assert early and all(s[1] == 0 and s[2] == 0 and s[4] == 0 for s in early)  # OK, OPERATIONAL, state NOMINAL
     late = [s for s in status if s[0] >= 6.0]
-    assert all(s[1] == 1 and s[4] & 0x0F == 3 and s[4] >> 4 == 0b1111111 for s in late)  # WARNING, INPUT_STALE
-    changed = [s for s in status if 4.0 < s[0] < 6.0 and s not in periodic]
-    assert changed and changed[0][1] == 1  # the change of health is published at once
+    assert late and all(s[1] == 1 and s[4] & 0x0F == 3 and s[4] >> 4 == 0b1111111 for s in late)  # WARNING, STALE
     logs = [(t, p.level.value, p.source.decode(), p.text.decode()) for t, n, p in out if n.endswith("LogMessage")]
     assert [(level, text.split(":")[0]) for _, level, _, text in logs] == [
         (1, "CHT NOMINAL"), (2, "CHT INPUT_STALE (was NOMINAL)")]  # fmt: skip
     assert all(source == "ecu-monitor" for _, _, source, _ in logs)
+    warned = next(s for s in status if s[1] == 1)
+    assert warned[0] == logs[1][0] and 4.0 < warned[0] < 6.0  # the change of health is published at once
     values = [(t, p.key.decode(), p.value) for t, n, p in out if n.endswith("KeyValue")]
-    keys = {key for _, key, _ in values}
-    assert keys == {"cht_est", "cht_meas", "cht_dev", "gamma_q", "gamma_d", "headroom", "state"}
-    at_3 = {key: value for t, key, value in values if abs(t - 3.0) < 1e-6}
+    assert {key for _, key, _ in values} == {
+        "cht_est",
+        "cht_meas",
+        "cht_dev",
+        "gamma_q",
+        "gamma_d",
+        "headroom",
+        "state",
+    }
+    at_3 = {key: value for t, key, value in values if abs(t - 3.1) < 1e-6}
     assert at_3["cht_meas"] == pytest.approx(120.0, abs=0.25) and at_3["state"] == 0.0
     assert abs(at_3["cht_est"] - 120.0) < 2.0
 
@@ -406,3 +414,18 @@ def test_node_health_mapping() -> None:
     assert node_health("NOMINAL", 150.0, 150.0) == 3 and node_health("DEGRADED", math.nan, 150.0) == 2
     out = _published(_run_pipeline(_engine_frames(0.0, 3.0, cht_c=155.0), until_s=3.0))  # above the 150 degC limit
     assert {p.health for t, n, p in out if n.endswith("NodeStatus") and t >= 1.0} == {3}
+
+
+def test_key_values_of_an_engine_monitored_per_cylinder() -> None:
+    from ecu_monitor.service.dronecan_node import key_values
+    from ecu_monitor.service.health_rows import CylinderSnapshot, HealthSnapshot
+
+    cylinders = (
+        CylinderSnapshot(1, 120.0, 121.0, 0.0, "NOMINAL", 1.0, 1.0, 6000.0),
+        CylinderSnapshot(2, 140.0, 141.0, 0.3, "DEGRADED", 1.2, 1.0, 900.0),
+    )
+    snap = HealthSnapshot(10.0, 140.0, 141.0, 0.3, "DEGRADED", 1.2, 1.0, 900.0, (), False, cylinders, 20.0, 2, False)
+    pairs = dict(key_values(snap))
+    assert pairs["state"] == 2.0 and pairs["spread"] == 20.0 and pairs["hottest"] == 2.0
+    assert (pairs["cyl1_st"], pairs["cyl2_st"], pairs["cyl2_gq"], pairs["cyl1_est"]) == (0.0, 2.0, 1.2, 121.0)
+    assert all(len(key) <= 10 for key in pairs)

@@ -545,7 +545,7 @@ def _dronecan(top: _Node) -> DroneCanSettings:
         node_id=node_id,
         source_node_ids=tuple(sources),
         priority=priority,
-        key_value_hz=node.number("key_value_hz", 1.0, low=0.0, high=50.0),
+        key_value_hz=node.number("key_value_hz", 1.0, low=0.0, high=10.0),
         **flags,
     )
 
