@@ -72,15 +72,27 @@ class HeldInput(NamedTuple):
     frames_seen: NDArray[np.int64]
 
 
-def hold_inputs(frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64]) -> HeldInput:
+def hold_inputs(
+    frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64], like: HeldInput | None = None
+) -> HeldInput:
     """Values held at each step from ``j`` (index of the latest valid frame stamped strictly before the
-    step, -1: none yet; a frame fed after advance_to(t) is stamped t)."""
+    step, -1: none yet; a frame fed after advance_to(t) is stamped t).
+
+    ``like``: an input already held from the same frames and the same ``j`` (another field of the
+    message); its stamp and frames_seen arrays are shared, not made again (16 h: 23 MB each). The
+    returned arrays are not to be written to."""
     if not values.size:
         nothing = np.full(j.size, np.nan)
         return HeldInput(nothing, nothing, j + 1)
-    jj = np.maximum(j, 0)
-    seen = j >= 0
-    return HeldInput(np.where(seen, values[jj], np.nan), np.where(seen, frame_stamps[jj], np.nan), j + 1)
+    unseen = j < 0
+    latest = np.maximum(j, 0)
+    value = values[latest]
+    value[unseen] = np.nan
+    if like is not None:
+        return HeldInput(value, like.stamp, like.frames_seen)
+    stamp = frame_stamps[latest]
+    stamp[unseen] = np.nan
+    return HeldInput(value, stamp, j + 1)
 
 
 def estimator_stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:

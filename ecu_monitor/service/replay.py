@@ -158,18 +158,22 @@ def _replay_segment(
     message_of = {spec.name: spec.message for spec in config.inputs}
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
     # per message: its frames and the latest of them before each step (a DroneCAN field sent as NaN leaves
-    # its value out of one message's frames: then that value has its own)
-    latest: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
+    # its value out of one message's frames: then that value has its own); the values held on the same
+    # frames share one stamp and frames_seen array
+    latest: dict[str, tuple[NDArray[np.int64], NDArray[np.int64], HeldInput | None]] = {}
     for name, (rows, vals) in values.items():
         inside = (rows >= first) & (rows < end)
         frame_rows = rows[inside]
         frame_stamps = stamps[frame_rows]
         message = message_of[name]
         cached = latest.get(message)
-        if cached is None or not np.array_equal(cached[0], frame_rows):
-            cached = (frame_rows, np.searchsorted(frame_stamps, times, side="left") - 1)
-            latest.setdefault(message, cached)
-        held[name] = hold_inputs(frame_stamps, vals[inside], cached[1])
+        if cached is not None and np.array_equal(cached[0], frame_rows):
+            held[name] = hold_inputs(frame_stamps, vals[inside], cached[1], cached[2])
+            continue
+        j = np.searchsorted(frame_stamps, times, side="left") - 1
+        held[name] = hold_inputs(frame_stamps, vals[inside], j)
+        if cached is None:
+            latest[message] = (frame_rows, j, held[name] if vals[inside].size else None)
     mapped = [name for name in INPUT_NAMES if name in config.input_names] + (list(cylinder_inputs) if count > 1 else [])
     stale = {
         name: np.isnan(held[name].stamp) | (times - held[name].stamp > config.input(name).stale_after_s)
