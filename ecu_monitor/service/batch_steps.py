@@ -12,7 +12,6 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.service import supervision
 from ecu_monitor.service.supervision import ACTION_INITIALISE, ACTION_NONE
 
@@ -104,11 +103,3 @@ def estimator_stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:
         after = stops[stops > a]
         out.append((a, int(after[0]) if after.size else action.size))
     return out
-
-
-def stretch_log(
-    times: NDArray[np.float64], inputs: dict[str, NDArray[np.float64]], z: NDArray[np.float64], a: int, b: int
-) -> FlightLog:
-    """A stretch [a, b) of steps as the flight log the estimator runs on (CHT readings ``z``)."""
-    columns = {"time_s": times[a:b], **{name: col[a:b] for name, col in inputs.items()}, "cht_c": z}
-    return FlightLog(columns, source="replay")

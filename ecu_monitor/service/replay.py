@@ -24,6 +24,7 @@ import itertools
 import math
 import os
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -34,7 +35,6 @@ from numpy.typing import NDArray
 from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, FrameArrays, load_flight, read_frames, time_gaps
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.estimation import run_estimator
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.estimation.runner import run_estimator_on_steps
 from ecu_monitor.flightlog import FlightLog
@@ -46,7 +46,6 @@ from ecu_monitor.service.batch_steps import (
     compiled_supervisor,
     estimator_stretches,
     hold_inputs,
-    stretch_log,
 )
 from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
 from ecu_monitor.service.cylinders import engine_columns
@@ -251,6 +250,8 @@ def _replay_cylinder(
     periods: dict[str, int],
 ) -> _CylinderTrace:
     """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom."""
+    if params.effects.mixture_index is not None:  # the service feeds no mixture index: its factor is 1, as
+        params = replace(params, effects=params.effects.replace("mixture_index", None))  # live (NaN index)
     dt = config.estimator.dt_s
     n = times.size
     reading = cht.value
@@ -298,12 +299,10 @@ def _replay_cylinder(
         use = is_call & window & (code[a:b] == 0)
         z = np.where(use, reading[a:b], np.nan)
         z[0] = reading[a]
-        if params.effects.mixture_index is None:  # the inputs as they are, on the steps
-            series = InputSeries(*(v[call] for v in inputs.values()))
-            trace = run_estimator_on_steps(times[a:b], series, z, params, config.estimator_name, config.estimator)
-        else:  # the mixture index is built from the flight's columns
-            log = stretch_log(times, {k: v[call] for k, v in inputs.items()}, z, a, b)
-            trace = run_estimator(log, params, config.estimator_name, config.estimator)
+        # the inputs as they are, on the steps; the service feeds no mixture index (NaN: the mixture_index
+        # effect's factor is 1, as in the live pipeline, which warns about it at start-up)
+        series = InputSeries(*(v[call] for v in inputs.values()))
+        trace = run_estimator_on_steps(times[a:b], series, z, params, config.estimator_name, config.estimator)
         est[a:b] = trace.cht_est_c[call - a]
         deviation[a:b] = trace.deviation[call - a]
         # the isolation filter on the call steps only: each row integrates the steps since the previous
