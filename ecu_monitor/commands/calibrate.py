@@ -54,6 +54,13 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--model", metavar="MODEL.yaml", help="thermal model (default: the config's model)")
     parser.add_argument(
+        "--models",
+        nargs="+",
+        metavar="MODEL.yaml",
+        help="one model per cylinder, in cylinder order, for a config that monitors every cylinder"
+        " (default: its cylinders.models, else its model)",
+    )
+    parser.add_argument(
         "--rate", type=float, default=1.0, help="false alarms per 100 flight hours to calibrate for (default 1)"
     )
     parser.add_argument(
@@ -89,33 +96,101 @@ def _run(args: argparse.Namespace) -> int:
     config = load_config(config_path)
     if args.baseline_s is not None:
         _with_baseline(config.detector, args.baseline_s)  # bad value: one line before any work
+    if args.model and len(config.cylinder_inputs) > 1:
+        raise ParameterError("--model: the config monitors every cylinder; give one model per cylinder with --models")
     params = load_model(args.model) if args.model else config.load_params()
     require_distinct(args.flights, "calibrate")
     for flight in args.flights:
         if not Path(flight).is_file():
             raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")
 
+    from ecu_monitor.service.calibration import config_copy_yaml, detector_fragment_yaml, model_fingerprint
+
+    sources = [str(Path(p).resolve()) for p in args.flights]
+    if len(config.cylinder_inputs) > 1:
+        return _run_cylinders(args, config, config_path, out, candidates, sources)
+    if args.models:
+        raise ParameterError("--models: the config monitors one CHT channel (cht_c); give its model with --model")
+    result, flights = _calibrate_channel(args, config, params, candidates)
+    if args.write_config:
+        text = config_copy_yaml(config_path, result, args.rate, sources, model_fingerprint(params), args.model)
+    else:
+        text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
+    _write(out, text)
+    print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
+    if args.plot:
+        _plot(flights, config.detector.threshold, result.calibration.threshold, Path(args.plot))
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _run_cylinders(
+    args: argparse.Namespace, config: Any, config_path: Path, out: Path, candidates: list[float], sources: list[str]
+) -> int:
+    """Every cylinder of an engine monitored per cylinder calibrated on its own CHT (``cht<n>_c``) and
+    model, the same procedure as one channel; writes ``cylinders.detectors``."""
+    from ecu_monitor.model import load_model
+    from ecu_monitor.service.calibration import (
+        config_copy_yaml,
+        cylinder_config,
+        cylinders_fragment_yaml,
+        model_fingerprint,
+    )
+
+    count = len(config.cylinder_inputs)
+    if args.models and len(args.models) != count:
+        raise ParameterError(f"--models: the config monitors {count} cylinders, got {len(args.models)} models")
+    if args.plot:
+        raise ParameterError("--plot: draws one channel; not with a config that monitors every cylinder")
+    models = [str(resolve_file(m, "model")) for m in args.models] if args.models else [None] * count
+    views = [cylinder_config(config, n, m) for n, m in enumerate(models, start=1)]
+    params = [load_model(m) if m else view.load_params() for m, view in zip(models, views, strict=True)]
+    results = []
+    for number, (view, model) in enumerate(zip(views, params, strict=True), start=1):
+        print(f"== cylinder {number} of {count} ({config.cylinder_inputs[number - 1]}) ==")
+        results.append(_calibrate_channel(args, view, model, candidates, cylinder=number)[0])
+    fingerprints = [model_fingerprint(p) for p in params]
+    if args.write_config:
+        text = config_copy_yaml(
+            config_path,
+            results[0],
+            args.rate,
+            sources,
+            fingerprints[0],
+            cylinders=list(zip(results, fingerprints, strict=True)),
+            cylinder_models=list(args.models or ()),
+        )
+    else:
+        text = cylinders_fragment_yaml(results, args.rate, sources, fingerprints)
+    _write(out, text)
+    what = "full config" if args.write_config else "cylinders.detectors fragment"
+    print(f"wrote {out} ({what}: one detector per cylinder)")
+    return 0
+
+
+def _calibrate_channel(
+    args: argparse.Namespace, config: Any, params: Any, candidates: list[float], cylinder: int | None = None
+) -> tuple[Any, list[Any]]:
+    """One CHT channel: the baseline choice and the threshold on the flights (prints the tables);
+    ``cylinder``: the flights' ``cht<cylinder>_c`` is the channel (``config`` maps it as ``cht_c``)."""
     from tqdm import tqdm
 
     from ecu_monitor.service.calibration import (
         SettingsChoice,
         calibrate_flights,
         choose_settings,
-        config_copy_yaml,
         cross_validation_blocker,
-        detector_fragment_yaml,
         flight_feeds,
-        model_fingerprint,
     )
 
     feeds = []
     for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
-        feeds.append(flight_feeds(path, config, params, overlays=False))
+        feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder))
     choose = args.baseline_s is None
     if choose and cross_validation_blocker(feeds, config.detector) is None:  # replay again with the overlays
         feeds = []
         for path in tqdm(args.flights, desc="overlays", unit="flight", file=sys.stderr, leave=False, disable=None):
-            feeds.append(flight_feeds(path, config, params))
+            feeds.append(flight_feeds(path, config, params, cylinder=cylinder))
     if choose:
         choice = choose_settings(feeds, config.detector, args.rate, candidates)
         for line in candidate_table(choice):
@@ -130,15 +205,6 @@ def _run(args: argparse.Namespace) -> int:
     for line in _table(flights, config.detector.threshold, settings.block_s):
         print(line)
     result = calibrate_flights(flights, args.rate, settings, choice)
-    sources = [str(Path(p).resolve()) for p in args.flights]
-    if args.write_config:
-        text = config_copy_yaml(config_path, result, args.rate, sources, model_fingerprint(params), args.model)
-    else:
-        text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
-    try:
-        out.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot write ({exc.strerror or exc})") from None
     c = result.calibration
     print(
         f"threshold h = {c.threshold:.3f} for {args.rate:g} false alarm(s) per 100 h"
@@ -154,11 +220,14 @@ def _run(args: argparse.Namespace) -> int:
             f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest statistic"
             f" seen ({c.empirical_max:.3f})"
         )
-    print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
-    if args.plot:
-        _plot(flights, config.detector.threshold, c.threshold, Path(args.plot))
-        print(f"wrote {args.plot}")
-    return 0
+    return result, flights
+
+
+def _write(out: Path, text: str) -> None:
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{out}: cannot write ({exc.strerror or exc})") from None
 
 
 def _with_baseline(settings: Any, baseline_s: float) -> Any:

@@ -65,7 +65,13 @@ from ecu_monitor.service.calibration_replays import (
     overlay_replays,
     statistic_paths,
 )
-from ecu_monitor.service.config import MODEL_PRESETS
+from ecu_monitor.service.config import (
+    CHT_INPUT,
+    CYLINDER_HEALTH_MESSAGES,
+    CYLINDER_INPUT,
+    MODEL_PRESETS,
+    ServiceConfig,
+)
 from ecu_monitor.shipped import resolve_file, shipped_file
 
 __all__ = [
@@ -92,6 +98,8 @@ __all__ = [
     "choose_settings",
     "config_copy_yaml",
     "cross_validation_blocker",
+    "cylinder_config",
+    "cylinders_fragment_yaml",
     "detector_fragment_yaml",
     "flight_feeds",
     "flight_statistic",
@@ -413,10 +421,14 @@ def config_copy_yaml(
     sources: Sequence[str],
     calibrated_for: str,
     model_path: str | os.PathLike[str] | None = None,
+    cylinders: Sequence[tuple[CalibrationResult, str]] = (),
+    cylinder_models: Sequence[str | os.PathLike[str]] = (),
 ) -> str:
     """The service config at ``config_path`` with ``detector.threshold`` replaced, ``detector.calibrated_for``
     set (the :func:`model_fingerprint` of the model used) and ``model`` set to ``model_path`` if given, the
-    model the threshold was calibrated with. Relative file paths (dbc,
+    model the threshold was calibrated with. With ``cylinders`` (per cylinder its result and model
+    fingerprint; ``result`` is then the first cylinder's), ``cylinders.detectors`` is written instead
+    and ``detector`` kept, and ``cylinders.models`` set to ``cylinder_models`` if given. Relative file paths (dbc,
     health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
     DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
     src = resolve_file(config_path, "config")
@@ -450,6 +462,21 @@ def config_copy_yaml(
         data["model"] = str(Path(model_path).resolve())
     elif isinstance(data.get("model"), str) and data["model"] not in MODEL_PRESETS:
         data["model"] = absolute(data["model"])
+    if cylinders:
+        section = data.get("cylinders")
+        section = dict(section) if isinstance(section, dict) else {}
+        if cylinder_models:
+            section["models"] = [str(Path(m).resolve()) for m in cylinder_models]
+        elif isinstance(section.get("models"), list):
+            section["models"] = [m if m in MODEL_PRESETS else absolute(m) for m in section["models"]]
+        section["detectors"] = [_cylinder_entry(r, c) for r, c in cylinders]
+        data["cylinders"] = section
+        header = _cylinder_headers([r for r, _ in cylinders], rate_per_100h, sources)
+        header.append(
+            f"# copy of {src.resolve()} with cylinders.detectors (one calibrated detector per cylinder) written"
+            " (comments of the original not kept)"
+        )
+        return "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
     detector = data.get("detector")
     detector = dict(detector) if isinstance(detector, dict) else {}
     detector["threshold"] = _rounded(result.calibration.threshold)
@@ -464,6 +491,57 @@ def config_copy_yaml(
         " (comments of the original not kept)"
     )
     return "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+
+
+def cylinder_config(config: ServiceConfig, number: int, model: str | None = None) -> ServiceConfig:
+    """``config`` monitoring cylinder ``number`` (1-based) alone, as a single-channel engine: its CHT
+    input mapped as ``cht_c``, its model (``model``, else its ``cylinders.models`` entry, else
+    ``model``), its detector (:meth:`ServiceConfig.cylinder_detector`); the other cylinders' inputs,
+    the per-cylinder health frames and the spread alarm dropped. What ``calibrate`` replays per cylinder
+    with the flight's ``cht<number>_c`` as its CHT."""
+    name = config.cylinder_inputs[number - 1]
+    inputs = tuple(
+        dataclasses.replace(spec, name=CHT_INPUT) if spec.name == name else spec
+        for spec in config.inputs
+        if spec.name == name or not (spec.name == CHT_INPUT or CYLINDER_INPUT.match(spec.name))
+    )
+    if model is None:
+        model = config.cylinder_models[number - 1] if config.cylinder_models else config.model
+    return config.replace(
+        inputs=inputs,
+        model=model,
+        cylinder_models=(),
+        cylinder_detectors=(),
+        detector=config.cylinder_detector(number),
+        health=tuple(h for h in config.health if h.message not in CYLINDER_HEALTH_MESSAGES),
+        spread_limit_c=None,
+    )
+
+
+def _cylinder_entry(result: CalibrationResult, calibrated_for: str) -> dict[str, Any]:
+    """One ``cylinders.detectors`` entry: the settings it was calibrated with and its model's fingerprint."""
+    settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
+    return {**dataclasses.asdict(settings), "calibrated_for": calibrated_for}
+
+
+def _cylinder_headers(results: Sequence[CalibrationResult], rate_per_100h: float, sources: Sequence[str]) -> list[str]:
+    lines: list[str] = []
+    for number, result in enumerate(results, start=1):
+        lines.append(f"# cylinder {number}:")
+        lines += [f"#  {line[1:]}" for line in _header(result, rate_per_100h, sources)]
+    return lines
+
+
+def cylinders_fragment_yaml(
+    results: Sequence[CalibrationResult], rate_per_100h: float, sources: Sequence[str], calibrated_for: Sequence[str]
+) -> str:
+    """A ``cylinders: detectors:`` YAML fragment, one detector per cylinder in cylinder order (each with
+    every setting it was calibrated with and ``calibrated_for``, its model's :func:`model_fingerprint`),
+    to put into the service config's ``cylinders:`` section beside ``models``; comments per cylinder."""
+    lines = _cylinder_headers(results, rate_per_100h, sources)
+    entries = [_cylinder_entry(r, c) for r, c in zip(results, calibrated_for, strict=True)]
+    body = yaml.safe_dump({"cylinders": {"detectors": entries}}, sort_keys=False, default_flow_style=None)
+    return "\n".join(lines) + "\n" + body
 
 
 def _rounded(value: float) -> float:

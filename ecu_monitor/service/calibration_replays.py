@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from ecu_monitor.bus.canlog import FrameArrays, load_flight, read_frames
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation.detection import DetectorSettings, cusum_path, overlay_degradation
-from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.flightlog import FlightLog, choose_cht
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.pipeline import model_input_names
@@ -208,15 +208,26 @@ def overlay_replays(
 
 
 def flight_feeds(
-    path: str | os.PathLike[str], config: ServiceConfig, params: ThermalParams, *, overlays: bool = True
+    path: str | os.PathLike[str],
+    config: ServiceConfig,
+    params: ThermalParams,
+    *,
+    overlays: bool = True,
+    cylinder: int | None = None,
 ) -> FlightFeeds:
     """Replay one nominal flight (canonical CSV or CAN log, decoded with the config's DBCs) nominal and,
-    if ``overlays``, with each gain of :data:`OVERLAY_TARGETS_S` at each of :func:`airborne_onsets`."""
+    if ``overlays``, with each gain of :data:`OVERLAY_TARGETS_S` at each of :func:`airborne_onsets`.
+    ``cylinder``: the log's ``cht<cylinder>_c`` is its CHT (``config`` then maps that cylinder's probe
+    as ``cht_c``, see :func:`ecu_monitor.service.calibration.cylinder_config`)."""
     if Path(path).suffix.lower() == ".csv":
         log = load_flight(path)
+        if cylinder is not None:
+            log = choose_cht(log, cylinder)
         frames = frames_from_flight(log, config, (*model_input_names(params), "cht_c"))
     else:  # the log's own frames for the nominal replay; its decoded signals for the overlays
         log = load_flight(path, dbc_paths=config.dbc_paths)
+        if cylinder is not None:
+            log = choose_cht(log, cylinder)
         frames = read_frames(path)
     result = replay_frames(config, params, frames)
     nominal_feeds(path, result, math.nan, ())  # a log the estimator never starts on: one line, before the overlays

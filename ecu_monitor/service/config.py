@@ -212,6 +212,14 @@ class ServiceConfig:
     #: ``cylinders.spread_limit_c``: the CHT spread (hottest minus coldest estimate, degC) above which
     #: the service raises its spread alarm; None: no alarm.
     spread_limit_c: float | None = None
+    #: ``cylinders.detectors``: one detector per cylinder, in cylinder order (each ``detector:`` with the
+    #: entry's keys replaced, as ``ecu-monitor calibrate`` writes them); empty: every cylinder runs ``detector``.
+    cylinder_detectors: tuple[DetectorSettings, ...] = ()
+
+    def cylinder_detector(self, number: int) -> DetectorSettings:
+        """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
+        ``detector``."""
+        return self.cylinder_detectors[number - 1] if self.cylinder_detectors else self.detector
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -406,7 +414,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     model = _model_name(top, "model", top.raw("model", "paper_table_a1"))
 
     detector, symptom, calibrated_for = _detector(top)
-    cylinder_models, spread_limit = _cylinders(top, inputs)
+    cylinder_models, spread_limit, cylinder_detectors = _cylinders(top, inputs, detector)
 
     return ServiceConfig(
         source=source,
@@ -431,6 +439,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         dronecan=dronecan,
         cylinder_models=cylinder_models,
         spread_limit_c=spread_limit,
+        cylinder_detectors=cylinder_detectors,
     )
 
 
@@ -447,9 +456,12 @@ def _model_name(node: _Node, key: str, value: Any) -> str:
     return str(path)
 
 
-def _cylinders(top: _Node, inputs: tuple[InputSpec, ...]) -> tuple[tuple[str, ...], float | None]:
-    """``cylinders:``: one model per cylinder (optional) and the CHT spread limit (optional)."""
-    node = top.child("cylinders", ("models", "spread_limit_c"), {})
+def _cylinders(
+    top: _Node, inputs: tuple[InputSpec, ...], detector: DetectorSettings
+) -> tuple[tuple[str, ...], float | None, tuple[DetectorSettings, ...]]:
+    """``cylinders:``: one model per cylinder (optional), the CHT spread limit (optional) and one
+    detector per cylinder (optional; each entry replaces keys of ``detector``)."""
+    node = top.child("cylinders", ("models", "spread_limit_c", "detectors"), {})
     count = _cylinder_count(inputs)
     models: tuple[str, ...] = ()
     if node.has("models"):
@@ -458,7 +470,38 @@ def _cylinders(top: _Node, inputs: tuple[InputSpec, ...]) -> tuple[tuple[str, ..
             raise node.error(f"expected a list of {count} models, one per cylinder, got {_kind(items)}", "models")
         models = tuple(_model_name(node, f"models[{i}]", item) for i, item in enumerate(items))
     limit = node.number("spread_limit_c", low=0.0, strict_low=True) if node.has("spread_limit_c") else None
-    return models, limit
+    detectors: tuple[DetectorSettings, ...] = ()
+    if node.has("detectors"):
+        items = node.raw("detectors")
+        if count < 2 or not isinstance(items, list) or len(items) != count:
+            raise node.error(
+                f"expected a list of {count} detectors, one per cylinder (cht1_c .. chtN_c), got {_kind(items)}",
+                "detectors",
+            )
+        detectors = tuple(
+            _cylinder_detector(_Node(node.src, f"{node.key('detectors')}[{i}]", item), detector)
+            for i, item in enumerate(items)
+        )
+    return models, limit, detectors
+
+
+def _cylinder_detector(node: _Node, detector: DetectorSettings) -> DetectorSettings:
+    """One ``cylinders.detectors`` entry: ``detector`` with the entry's keys replaced (``calibrated_for``,
+    the fingerprint of the cylinder's model, is checked and kept only as a record)."""
+    known = {f.name for f in dataclasses.fields(DetectorSettings)}
+    kwargs = {}
+    for key, value in node.data.items():
+        if key == "calibrated_for":
+            if not (isinstance(value, str) and re.fullmatch(r"[0-9a-f]{16}", value)):
+                raise node.error(f"expected 16 hex digits (a model fingerprint), got {_kind(value)}", key)
+            continue
+        if key not in known:
+            raise node.error(f"unknown key '{key}' (known: calibrated_for, {', '.join(sorted(known))})", key)
+        kwargs[key] = value
+    try:
+        return dataclasses.replace(detector, **kwargs)
+    except ConfigError as exc:
+        raise node.error(str(exc)) from None
 
 
 def _load(node: _Node, key: str, path: Path) -> Any:

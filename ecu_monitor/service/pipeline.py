@@ -142,7 +142,7 @@ class _Cylinder:
         self.slot = slot  # its CHT value slot in the decoder
         self.params = params
         self.coeffs = coefficients(params)
-        self.detector_settings = config.detector
+        self.detector_settings = config.cylinder_detector(number)
         self.readings = 0  # valid CHT frames fed
         self.readings_used = 0
         self.stop()

@@ -187,8 +187,17 @@ def _replay_segment(
     rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
     status = held[STATUS_INPUT].value if STATUS_INPUT in held else None
     cylinders = [
-        _replay_cylinder(config, model, times, inputs, held[name], model_stale | stale[name], status, periods)
-        for name, model in zip(cylinder_inputs, params, strict=True)
+        _replay_cylinder(
+            config.replace(detector=config.cylinder_detector(number)),
+            model,
+            times,
+            inputs,
+            held[name],
+            model_stale | stale[name],
+            status,
+            periods,
+        )
+        for number, (name, model) in enumerate(zip(cylinder_inputs, params, strict=True), start=1)
     ]
     bits = np.zeros(n, dtype=np.int64)
     for name in mapped:
