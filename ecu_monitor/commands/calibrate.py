@@ -23,6 +23,10 @@ current threshold would raise; then the new threshold. Writes --out: a ``detecto
 to merge into the service config, or with --write-config a full copy of the config with the
 threshold and baseline settings replaced (the input config is never overwritten). --plot draws the statistic
 of each flight with both thresholds.
+
+A config that monitors every cylinder (cht1_c .. chtN_c): each cylinder is calibrated as above on its own
+CHT column of the same flights and its own model (--models, one per cylinder; default the config's
+cylinders.models, else its model); --out gets ``cylinders: detectors:``, one detector per cylinder.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ def add_subparser(subparsers: Any) -> None:
     """Register the ``calibrate`` subcommand."""
     parser = subparsers.add_parser(
         "calibrate",
-        help="calibrate the detector threshold on your own nominal flights -> detector.yaml",
+        help="calibrate the detector threshold on your own nominal flights (per cylinder) -> detector.yaml",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
     parser.add_argument("flights", nargs="+", metavar="FLIGHT", help="nominal flight: canonical .csv or CAN log")
