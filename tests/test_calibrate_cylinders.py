@@ -21,6 +21,7 @@ import pytest
 import yaml
 
 from ecu_monitor.cli import main
+from ecu_monitor.commands.replay import fit_warnings
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import load_model, paper_table_a1, save_model
@@ -126,6 +127,11 @@ def test_the_service_runs_each_cylinder_on_its_own_detector(calibrated: dict[str
     result = replay_file(flight, tiny, tiny.load_cylinder_params())
     assert not np.any(result.columns["cyl1_state"] == degraded)
     assert np.any(result.columns["cyl2_state"] == degraded)
+    # replay's warning checks each cylinder's threshold against its own model
+    models = config.load_cylinder_params()
+    assert not [w for w in fit_warnings(config, models[0], result, models) if "calibrated" in w]
+    swapped = [w for w in fit_warnings(config, models[0], result, models[::-1]) if "calibrated" in w]
+    assert [w.split("'")[0] for w in swapped] == ["cylinder 1", "cylinder 2"]
 
 
 def test_cylinder_detectors_config_is_checked() -> None:

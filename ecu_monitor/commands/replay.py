@@ -34,6 +34,8 @@ from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
+    from collections.abc import Sequence
+
     from ecu_monitor.bus.canlog import FrameArrays
     from ecu_monitor.model import ThermalParams
     from ecu_monitor.service.config import ServiceConfig
@@ -113,7 +115,7 @@ def _run(args: argparse.Namespace) -> int:
             kind = "DroneCAN" if dronecan else "DBC frames"
             print(f"warning: no frame of {path.name} decoded with {config.source} (protocol {config.protocol});"
                   f" the log looks like {kind}: give --config with {other}")  # fmt: skip
-    for line in fit_warnings(config, params, result):
+    for line in fit_warnings(config, params, result, models):
         print(f"warning: {line}")
     return 0
 
@@ -124,7 +126,9 @@ def _is_dronecan(frames: FrameArrays) -> bool:
     return looks_like_dronecan(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data)
 
 
-def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayResult) -> list[str]:
+def fit_warnings(
+    config: ServiceConfig, params: ThermalParams, result: ReplayResult, models: Sequence[ThermalParams] = ()
+) -> list[str]:
     """One line per setting that does not fit the replayed engine: the model's CHT limit below the
     measured CHT, and a detector threshold not calibrated for ``params`` (by its fingerprint)."""
     import numpy as np
@@ -141,6 +145,17 @@ def fit_warnings(config: ServiceConfig, params: ThermalParams, result: ReplayRes
             f"the model's CHT limit {limit:g} degC is below what the engine read (up to {float(cht.max()):.1f} degC,"
             f" {share:.0f} % of the rows above): headroom is 0 there; set the engine's cht_limit_c in the model"
         )
+    if config.cylinder_detectors and models:  # one detector per cylinder: each checked against its model
+        for number, (model, calibrated_for) in enumerate(
+            zip(models, config.cylinder_calibrated_for, strict=True), start=1
+        ):
+            if calibrated_for != model_fingerprint(model):
+                out.append(
+                    f"cylinder {number}'s detector threshold {config.cylinder_detector(number).threshold:g} was not"
+                    f" calibrated for its model ({calibrated_for or 'no calibrated_for'}, this model is"
+                    f" {model_fingerprint(model)}); calibrate it on nominal flights: ecu-monitor calibrate"
+                )
+        return out
     fingerprint = model_fingerprint(params)
     calibrated = config.detector_calibrated_for
     if calibrated != fingerprint:

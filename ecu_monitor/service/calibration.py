@@ -512,6 +512,7 @@ def cylinder_config(config: ServiceConfig, number: int, model: str | None = None
         model=model,
         cylinder_models=(),
         cylinder_detectors=(),
+        cylinder_calibrated_for=(),
         detector=config.cylinder_detector(number),
         health=tuple(h for h in config.health if h.message not in CYLINDER_HEALTH_MESSAGES),
         spread_limit_c=None,

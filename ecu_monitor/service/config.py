@@ -215,6 +215,8 @@ class ServiceConfig:
     #: ``cylinders.detectors``: one detector per cylinder, in cylinder order (each ``detector:`` with the
     #: entry's keys replaced, as ``ecu-monitor calibrate`` writes them); empty: every cylinder runs ``detector``.
     cylinder_detectors: tuple[DetectorSettings, ...] = ()
+    #: each ``cylinders.detectors`` entry's ``calibrated_for`` (its model's fingerprint; None: not given)
+    cylinder_calibrated_for: tuple[str | None, ...] = ()
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
@@ -414,7 +416,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     model = _model_name(top, "model", top.raw("model", "paper_table_a1"))
 
     detector, symptom, calibrated_for = _detector(top)
-    cylinder_models, spread_limit, cylinder_detectors = _cylinders(top, inputs, detector)
+    cylinder_models, spread_limit, cylinder_detectors, cylinder_calibrated_for = _cylinders(top, inputs, detector)
 
     return ServiceConfig(
         source=source,
@@ -440,6 +442,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         cylinder_models=cylinder_models,
         spread_limit_c=spread_limit,
         cylinder_detectors=cylinder_detectors,
+        cylinder_calibrated_for=cylinder_calibrated_for,
     )
 
 
@@ -458,7 +461,7 @@ def _model_name(node: _Node, key: str, value: Any) -> str:
 
 def _cylinders(
     top: _Node, inputs: tuple[InputSpec, ...], detector: DetectorSettings
-) -> tuple[tuple[str, ...], float | None, tuple[DetectorSettings, ...]]:
+) -> tuple[tuple[str, ...], float | None, tuple[DetectorSettings, ...], tuple[str | None, ...]]:
     """``cylinders:``: one model per cylinder (optional), the CHT spread limit (optional) and one
     detector per cylinder (optional; each entry replaces keys of ``detector``)."""
     node = top.child("cylinders", ("models", "spread_limit_c", "detectors"), {})
@@ -478,11 +481,11 @@ def _cylinders(
                 f"expected a list of {count} detectors, one per cylinder (cht1_c .. chtN_c), got {_kind(items)}",
                 "detectors",
             )
-        detectors = tuple(
-            _cylinder_detector(_Node(node.src, f"{node.key('detectors')}[{i}]", item), detector)
-            for i, item in enumerate(items)
-        )
-    return models, limit, detectors
+        entries = [_Node(node.src, f"{node.key('detectors')}[{i}]", item) for i, item in enumerate(items)]
+        detectors = tuple(_cylinder_detector(entry, detector) for entry in entries)
+        calibrated_for = tuple(entry.data.get("calibrated_for") for entry in entries)
+        return models, limit, detectors, calibrated_for
+    return models, limit, detectors, ()
 
 
 def _cylinder_detector(node: _Node, detector: DetectorSettings) -> DetectorSettings:
