@@ -7,6 +7,7 @@ exits 2. Any other ``EcuMonitorError`` is an internal failure (exit 1).
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable
 
@@ -60,7 +61,8 @@ def run_command(prog: str, command: Callable[[], int | None], debug: bool = Fals
     """Run one CLI command and turn our errors into the contract's exit codes.
 
     UserInputError -> its one-line message, exit 2; any other EcuMonitorError -> one line, exit 1; a
-    missing module of the ``tools`` extra -> one line saying how to install it, exit 1; Ctrl-C -> 130.
+    missing module of the ``tools`` extra -> one line saying how to install it, exit 1; Ctrl-C -> 130;
+    a closed output pipe (``| head``) -> 141, silently.
     With ``debug`` the exception propagates (traceback). Shared by ``ecu-monitor`` and ``virtual-ecu``.
     """
     try:
@@ -83,3 +85,7 @@ def run_command(prog: str, command: Callable[[], int | None], debug: bool = Fals
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of our output went away (``| head``): stop quietly, as SIGPIPE would
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # Python's own flush at exit must not raise again
+        return 141

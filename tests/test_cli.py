@@ -53,3 +53,17 @@ def test_results_and_evaluate_default_to_a_new_folder_not_docs_results(name, fol
     args = build_parser(only=name).parse_args([name])
     assert args.out == folder
     assert "docs" not in args.out
+
+
+def test_output_into_a_closed_pipe_ends_quietly() -> None:
+    """``ecu-monitor files | head -1``: the reader closes the pipe early; no traceback, exit 141."""
+    import subprocess
+    import sys
+
+    script = "import sys; from ecu_monitor.cli import main; sys.exit(main(['files']))"
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before the command writes: every write of its list meets a closed pipe
+    stderr = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) in (0, 141), stderr
+    assert "Traceback" not in stderr
