@@ -73,7 +73,7 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None]) -> Any:
     if overlays is None:
         return flight_feeds(flight, config, params), {"training_s": time.perf_counter() - began}
     log = load_flight(flight)
-    nominal = frames_from_flight(log, config, (*model_input_names(params), "cht_c"))
+    nominal = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
     timing = {"all_frames_s": time.perf_counter() - began}
     began = time.perf_counter()
     out = [(math.nan, 0.0, float(log.time_s[0]), replay_frames(config, params, nominal).detector_feed)]

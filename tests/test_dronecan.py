@@ -429,3 +429,33 @@ def test_key_values_of_an_engine_monitored_per_cylinder() -> None:
     assert pairs["state"] == 2.0 and pairs["spread"] == 20.0 and pairs["hottest"] == 2.0
     assert (pairs["cyl1_st"], pairs["cyl2_st"], pairs["cyl2_gq"], pairs["cyl1_est"]) == (0.0, 2.0, 1.2, 121.0)
     assert all(len(key) <= 10 for key in pairs)
+
+
+def test_the_mean_exhaust_temperature_feeds_a_model_with_the_mixture_index(tmp_path: Path) -> None:
+    """egt_c mapped to the ICE status's mean exhaust gas temperature (kelvin): a model whose mixture_index
+    effect reads the EGT gets it (degC) as an input of its own, reported stale like any other."""
+    from ecu_monitor.model.effects import Effects, MixtureIndex
+    from ecu_monitor.service.pipeline import Pipeline
+
+    data = _shipped()
+    data["inputs"]["egt_c"] = {
+        "field": f"{STATUS}.cylinder_status[mean].exhaust_gas_temperature",
+        "unit": "K",
+        "stale_after_s": 1.0,
+    }
+    config = parse_config(data, tmp_path / "x.yaml")
+    params = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("egt_c", 0.001, 600.0)))
+    pipeline = Pipeline(config, params)
+    assert pipeline.model_inputs[-1] == "egt_c"
+    air = dronecan.uavcan.equipment.air_data
+    for t in (0.1, 0.2):
+        frames = _frames(_status(), node=20, transfer_id=int(t * 10), time_s=t)
+        frames += _frames(air.StaticPressure(static_pressure=70108.0), node=21, transfer_id=int(t * 10), time_s=t)
+        frames += _frames(air.IndicatedAirspeed(indicated_airspeed=23.5), node=21, transfer_id=int(t * 10), time_s=t)
+        frames += _frames(air.StaticTemperature(static_temperature=280.0), node=21, transfer_id=int(t * 10), time_s=t)
+        for msg in frames:
+            pipeline.feed(msg)
+        pipeline.advance_to(t)
+    assert pipeline.held_input("egt_c") == pytest.approx(900.0 - 273.15)
+    pipeline.advance_to(1.5)  # no frame for 1.3 s: every input stale, the EGT named with them
+    assert "egt_c" in pipeline.snapshot().stale_inputs

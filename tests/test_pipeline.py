@@ -423,17 +423,23 @@ def test_a_vendor_dbc_by_config_only(tmp_path: Path) -> None:
 
 
 def test_a_model_reading_what_the_service_does_not_feed_is_warned(caplog: pytest.LogCaptureFixture) -> None:
-    """The model's own list of its inputs (model/inputs.py) decides: a mixture_index effect reads a column
-    the pipeline does not feed, so the service runs it off (factor 1) and says so."""
+    """The model's own list of its inputs (model/inputs.py) decides: a mixture_index effect on the EGT,
+    which the example config does not map, runs off (factor 1) and the service says so; on the fuel per
+    revolution, whose columns (fuel_flow_lph, rpm) it maps, it is fed and nothing is said."""
     import logging
 
     from ecu_monitor.model.effects import Effects, MixtureIndex
 
-    params = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("fuel_per_rev", -2.0, 0.25)))
+    on_egt = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("egt_c", 0.001, 700.0)))
     with caplog.at_level(logging.WARNING, logger="ecu_monitor.service.pipeline"):
-        Pipeline(_config(), params)
-    assert "mixture_index effect reads fuel_flow_lph, which the service does not feed: the effect is off" in caplog.text
+        pipeline = Pipeline(_config(), on_egt)
+    assert "mixture_index effect reads egt_c, which the config's inputs do not map: the effect is off" in caplog.text
+    assert "egt_c" not in pipeline.model_inputs
     caplog.clear()
+    on_fuel = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("fuel_per_rev", -2.0, 0.25)))
     with caplog.at_level(logging.WARNING, logger="ecu_monitor.service.pipeline"):
-        Pipeline(_config(), paper_table_a1())
+        fed = Pipeline(_config(), on_fuel)
+        plain = Pipeline(_config(), paper_table_a1())
     assert not caplog.text
+    assert {"fuel_flow_lph", "rpm"} <= set(fed.model_inputs)
+    assert plain.model_inputs == (*paper_table_a1().heat_axes, "altitude_m", "airspeed_mps", "oat_c")

@@ -242,9 +242,10 @@ def test_batch_equals_live_across_a_hole_that_restarts_the_clock(flight: dict[st
 
 
 def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str, Path]) -> None:
-    """A model with the mixture index (fuel per revolution, built from the logged columns) over a flight
-    whose second stretch starts after a restart: the batch path cuts each stretch's inputs once and
-    gives the live pipeline's rows."""
+    """A model with the mixture index (fuel per revolution, from the fuel flow and rpm the config maps)
+    over a flight whose second stretch starts after a restart: the batch path cuts each stretch's inputs
+    once and gives the live pipeline's rows, and the index is fed (the estimate differs from the same
+    model's without the effect)."""
     from ecu_monitor.model import MixtureIndex
 
     config = load_config(flight["config"])
@@ -258,6 +259,8 @@ def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str
     batch = replay_frames(config, params, both)
     live = replay_live(config, params, both.messages())
     b, v = _columns(batch.rows), _columns(live.rows)
+    without = _columns(replay_frames(config, base, both).rows)
+    assert np.nanmax(np.abs(b["cht_est_c"] - without["cht_est_c"])) > 0.01
     assert np.array_equal(b["time_s"], v["time_s"])
     for name in NUMERIC:
         assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name

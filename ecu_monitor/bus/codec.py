@@ -68,7 +68,8 @@ __all__ = [
     "SignalSpec",
 ]
 
-#: Model inputs the service knows, in the bit order of Health_Diag.StaleInputs (bit0 rpm ... bit6 fuel flow).
+#: Model inputs the service knows, in the bit order of Health_Diag.StaleInputs (bit0 rpm ... bit6 fuel flow,
+#: bit7 the exhaust gas temperature a model with the mixture_index effect reads).
 INPUT_NAMES: tuple[str, ...] = (
     "rpm",
     "throttle_pct",
@@ -77,6 +78,7 @@ INPUT_NAMES: tuple[str, ...] = (
     "altitude_m",
     "airspeed_mps",
     "fuel_flow_lph",
+    "egt_c",
 )
 
 #: A silence longer than this (s) resynchronises the rolling-counter check of a message.

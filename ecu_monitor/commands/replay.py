@@ -97,7 +97,8 @@ def _run(args: argparse.Namespace) -> int:
     if log_frames is not None:
         frames = log_frames
     else:
-        frames = frames_from_flight(load_flight(path), config, (*model_input_names(params), *config.cylinder_inputs))
+        needed = (*model_input_names(params, config.input_names), *config.cylinder_inputs)
+        frames = frames_from_flight(load_flight(path), config, needed)
     result: ReplayResult = (
         replay_live(config, models, frames.messages()) if args.live else replay_frames(config, models, frames)
     )

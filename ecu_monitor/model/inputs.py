@@ -13,6 +13,8 @@ The log is anything with ``has(name)``, ``log[name]``, ``names`` and ``source`` 
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from typing import Any, Protocol
 
 import numpy as np
@@ -31,6 +33,7 @@ __all__ = [
     "input_columns",
     "mixture_index",
     "read_inputs",
+    "series_of",
 ]
 
 #: Flight columns every model reads besides its heat-map axes (InputSeries order).
@@ -71,7 +74,7 @@ def _columns(heat_axes: tuple[str, str], mixture: MixtureIndex | None) -> tuple[
     return tuple(dict.fromkeys(names))
 
 
-def mixture_index(source: str, columns: dict[str, NDArray[np.float64]]) -> NDArray[np.float64]:
+def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64]:
     """The lean/rich index of ``source`` from its columns: EGT (degC) as logged, or the fuel per
     revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h)."""
     if source == "egt_c":
@@ -102,9 +105,22 @@ def read_inputs(log: ColumnSource, heat_axes: tuple[str, str], mixture: MixtureI
         if not np.all(np.isfinite(values)):
             raise FlightLogError(f"{log.source}: model input '{name}' holds blank or non-finite values")
         columns[name] = values
+    if mixture is None:
+        columns["mixture_index"] = np.full(columns[heat_axes[0]].size, np.nan)
+    return series_of(columns, heat_axes, mixture)
+
+
+def series_of(columns: Mapping[str, Any], heat_axes: tuple[str, str], mixture: MixtureIndex | None) -> InputSeries:
+    """The model's inputs from columns already read and checked (arrays, or floats for one step): the
+    heat-map axes, altitude_m, airspeed_mps, oat_c and the mixture index computed from its columns
+    (without the mixture_index effect: ``columns["mixture_index"]`` if given, else NaN)."""
     x_axis, y_axis = heat_axes
-    n = columns[x_axis].size
-    index = mixture_index(mixture.source, columns) if mixture is not None else np.full(n, np.nan)
+    if mixture is not None:
+        index: Any = mixture_index(mixture.source, {name: columns[name] for name in MIXTURE_COLUMNS[mixture.source]})
+        if np.ndim(index) == 0:
+            index = float(index)  # one step: a float, as the live filters take it
+    else:
+        index = columns.get("mixture_index", math.nan)
     return InputSeries(
         columns[x_axis], columns[y_axis], columns["altitude_m"], columns["airspeed_mps"], columns["oat_c"], index
     )

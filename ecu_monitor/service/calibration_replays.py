@@ -190,7 +190,7 @@ def overlay_replays(
     re-encoded from the overlaid log (with every signal it holds) and merged back in time order, so an
     overlay costs one replay and one message's encoding, not the whole flight's."""
     if nominal is None:
-        nominal = frames_from_flight(log, config, (*model_input_names(params), "cht_c"))
+        nominal = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
     cht_message = config.input("cht_c").message
     with_cht = [spec.name for spec in config.inputs if spec.message == cht_message and log.has(spec.name)]
     probe = FlightLog({"time_s": log.time_s[:2], "cht_c": log["cht_c"][:2]})
@@ -223,7 +223,7 @@ def flight_feeds(
         log = load_flight(path)
         if cylinder is not None:
             log = choose_cht(log, cylinder)
-        frames = frames_from_flight(log, config, (*model_input_names(params), "cht_c"))
+        frames = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
     else:  # the log's own frames for the nominal replay; its decoded signals for the overlays
         log = load_flight(path, dbc_paths=config.dbc_paths)
         if cylinder is not None:

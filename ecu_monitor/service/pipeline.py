@@ -38,7 +38,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
 import can
@@ -52,7 +52,8 @@ from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.headroom import thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
 from ecu_monitor.model import InputSeries, ThermalParams, coefficients
-from ecu_monitor.model.inputs import input_columns
+from ecu_monitor.model.effects import MixtureIndex
+from ecu_monitor.model.inputs import MIXTURE_COLUMNS, input_columns, series_of
 from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
 from ecu_monitor.service.cylinders import engine_view
 from ecu_monitor.service.dronecan_node import DroneCanNode
@@ -88,6 +89,7 @@ __all__ = [
     "Pipeline",
     "SupervisorState",
     "clock_tick",
+    "fed_mixture",
     "filter_period_steps",
     "initial_supervisor",
     "make_decoder",
@@ -176,9 +178,24 @@ def _cylinder_values(cyl: CylinderSnapshot) -> dict[str, float]:
     }
 
 
-def model_input_names(params: ThermalParams) -> tuple[str, ...]:
-    """Inputs the model reads, in InputSeries order: the two heat-map axes, altitude, airspeed, OAT."""
-    return (*params.heat_axes, *MODEL_INPUTS)
+def model_input_names(params: ThermalParams, mapped: Collection[str] = ()) -> tuple[str, ...]:
+    """Inputs the service feeds the model: the two heat-map axes, altitude, airspeed, OAT, then the
+    columns of its mixture index (egt_c, or fuel_flow_lph and rpm) when the model has the mixture_index
+    effect and ``mapped`` (the config's input names) holds them all; otherwise the index is not fed and
+    the effect's factor is 1."""
+    names = (*params.heat_axes, *MODEL_INPUTS)
+    mixture = params.effects.mixture_index
+    if mixture is None or not all(name in mapped for name in MIXTURE_COLUMNS[mixture.source]):
+        return names
+    return tuple(dict.fromkeys((*names, *MIXTURE_COLUMNS[mixture.source])))
+
+
+def fed_mixture(params: ThermalParams, mapped: Collection[str]) -> MixtureIndex | None:
+    """The model's mixture_index effect if the service feeds its index (see :func:`model_input_names`)."""
+    mixture = params.effects.mixture_index
+    if mixture is None or not all(name in mapped for name in MIXTURE_COLUMNS[mixture.source]):
+        return None
+    return mixture
 
 
 class Pipeline:
@@ -201,23 +218,24 @@ class Pipeline:
             )
         self.params = models[0]
         self.cylinder_params = models
-        self.model_inputs = model_input_names(self.params)
+        mapped = set(config.input_names)
+        self.model_inputs = model_input_names(self.params, mapped)
         for number, model in enumerate(models[1:], start=2):
-            if model_input_names(model) != self.model_inputs:
+            if input_columns(model) != input_columns(self.params):
                 raise ConfigError(
                     f"{config.source}: cylinders.models: cylinder {number}'s model reads"
-                    f" {', '.join(model_input_names(model))}, cylinder 1's {', '.join(self.model_inputs)} (the inputs"
-                    " are shared: every cylinder's model must read the same)"
+                    f" {', '.join(input_columns(model))}, cylinder 1's {', '.join(input_columns(self.params))} (the"
+                    " inputs are shared: every cylinder's model must read the same)"
                 )
+        self._mixture = fed_mixture(self.params, mapped)
         unfed = [name for name in input_columns(self.params) if name not in self.model_inputs]
-        if unfed:  # the model's own list (model/inputs.py) names more than the pipeline feeds
+        if unfed:  # the model's own list (model/inputs.py) names more than the config maps
             _log.warning(
-                "%s: the model's mixture_index effect reads %s, which the service does not feed: the effect is"
-                " off here (factor 1, the model's rule for an index not logged)",
+                "%s: the model's mixture_index effect reads %s, which the config's inputs do not map: the effect"
+                " is off here (factor 1, the model's rule for an index not logged)",
                 config.source,
                 ", ".join(unfed),
             )
-        mapped = set(config.input_names)
         missing = [name for name in (*self.model_inputs, *cylinder_inputs) if name not in mapped]
         if missing:
             raise ConfigError(
@@ -403,7 +421,10 @@ class Pipeline:
     def _inputs(self) -> InputSeries:
         v = self._values
         s = self._model_slots
-        return InputSeries(v[s[0]], v[s[1]], v[s[2]], v[s[3]], v[s[4]])
+        if self._mixture is None:
+            return InputSeries(v[s[0]], v[s[1]], v[s[2]], v[s[3]], v[s[4]])
+        columns = {name: v[slot] for name, slot in zip(self.model_inputs, s, strict=True)}
+        return series_of(columns, self.params.heat_axes, self._mixture)
 
     def _reading_bad(self, reading: float) -> bool:
         sf = self.config.sensor_fault

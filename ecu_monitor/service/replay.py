@@ -38,8 +38,9 @@ from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.estimation.runner import run_estimator_on_steps
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import InputSeries, ThermalParams, coefficients
+from ecu_monitor.model import ThermalParams, coefficients
 from ecu_monitor.model.compiled import simulate_compiled
+from ecu_monitor.model.inputs import series_of
 from ecu_monitor.service.batch_health import detect_states, detector_feed, headroom_batch, held_headroom
 from ecu_monitor.service.batch_steps import (
     HeldInput,
@@ -58,7 +59,7 @@ from ecu_monitor.service.health_rows import (
     rows_to_columns,
     write_health_csv,
 )
-from ecu_monitor.service.pipeline import STATUS_INPUT, Pipeline, model_input_names
+from ecu_monitor.service.pipeline import STATUS_INPUT, Pipeline, fed_mixture, model_input_names
 from ecu_monitor.service.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, filter_period_steps
 from ecu_monitor.service.supervision import STATES
 
@@ -178,10 +179,11 @@ def _replay_segment(
         name: np.isnan(held[name].stamp) | (times - held[name].stamp > config.input(name).stale_after_s)
         for name in mapped
     }
+    fed = model_input_names(params[0], config.input_names)
     model_stale = np.zeros(n, dtype=bool)
-    for name in model_input_names(params[0]):
+    for name in fed:
         model_stale |= stale[name]
-    inputs = {name: held[name].value for name in model_input_names(params[0])}
+    inputs = {name: held[name].value for name in fed}
     periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     step_numbers = np.arange(1, n + 1)
     rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
@@ -259,8 +261,10 @@ def _replay_cylinder(
     periods: dict[str, int],
 ) -> _CylinderTrace:
     """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom."""
-    if params.effects.mixture_index is not None:  # the service feeds no mixture index: its factor is 1, as
-        params = replace(params, effects=params.effects.replace("mixture_index", None))  # live (NaN index)
+    if fed_mixture(params, inputs) is None and params.effects.mixture_index is not None:
+        # the config maps no mixture index: its factor is 1, as live (NaN index; the pipeline warns)
+        params = replace(params, effects=params.effects.replace("mixture_index", None))
+    mixture = params.effects.mixture_index
     dt = config.estimator.dt_s
     n = times.size
     reading = cht.value
@@ -288,7 +292,7 @@ def _replay_cylinder(
         call = np.maximum(a, period * ((np.arange(a, b) + 1) // period) - 1)
         calls.append(call)
         # the open-loop reference: the nominal model from the first reading, the filters' inputs
-        series = InputSeries(*(inputs[name][call] for name in inputs))
+        series = series_of({name: v[call] for name, v in inputs.items()}, params.heat_axes, mixture)
         reference = simulate_compiled(series, coefficients(params), dt, float(reading[a])).cht_c
         model_c[a:b] = reference[call - a]
     # pass 2: with the open-loop model, the states and the estimator's actions
@@ -308,9 +312,8 @@ def _replay_cylinder(
         use = is_call & window & (code[a:b] == 0)
         z = np.where(use, reading[a:b], np.nan)
         z[0] = reading[a]
-        # the inputs as they are, on the steps; the service feeds no mixture index (NaN: the mixture_index
-        # effect's factor is 1, as in the live pipeline, which warns about it at start-up)
-        series = InputSeries(*(v[call] for v in inputs.values()))
+        # the inputs as they are, on the steps (the mixture index only if the config maps its columns)
+        series = series_of({name: v[call] for name, v in inputs.items()}, params.heat_axes, mixture)
         trace = run_estimator_on_steps(times[a:b], series, z, params, config.estimator_name, config.estimator)
         est[a:b] = trace.cht_est_c[call - a]
         deviation[a:b] = trace.deviation[call - a]
@@ -344,6 +347,6 @@ def replay_file(
         return replay_frames(config, params, read_frames(path))
     if suffix == ".csv":
         first = params if isinstance(params, ThermalParams) else params[0]
-        needed = (*model_input_names(first), *config.cylinder_inputs)
+        needed = (*model_input_names(first, config.input_names), *config.cylinder_inputs)
         return replay_frames(config, params, frames_from_flight(load_flight(path), config, needed))
     raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
