@@ -26,7 +26,10 @@ kept, so the CUSUM of each detector variant (calibrate's choice, the config's de
 ``--variant baseline_s:delay_s:reference[:freeze]``) is evaluated on the same feeds, each with its
 own calibrated threshold. Inputs may be canonical CSVs or foreign CSVs with ``--mapping`` (e.g. raw
 G1000 exports). Work files go to a temporary folder. Prints calibrate's table per fold and one table per
-variant; ``--json`` keeps every delay.
+variant; ``--json`` keeps every delay. ``--replays R.pkl`` keeps every replay (keyed by flight, model
+content and config) and reuses those it holds, so detector variants are compared on the same replays
+without replaying; ``--plot-misses`` draws each counted onset calibrate's choice detects late (the
+flight's CHT and power, the symptom with the baseline, the statistic with h).
 """
 
 from __future__ import annotations
@@ -87,6 +90,51 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None]) -> Any:
     return out, timing
 
 
+def _replay_key(job: tuple[str, str, str, Any]) -> tuple[str, str, str]:
+    """A job's flight (file name), model (file content) and config: what its replays depend on."""
+    flight, model, config_path, _ = job
+    return Path(flight).name, Path(model).read_text(encoding="utf-8"), config_path
+
+
+def _load_replays(path: str | None) -> dict[Any, Any]:
+    if not path or not Path(path).exists():
+        return {}
+    import pickle
+
+    with open(path, "rb") as f:
+        return dict(pickle.load(f))
+
+
+def _cached(cache: dict[Any, Any], job: tuple[str, str, str, Any]) -> Any:
+    """The cached result of a job (training: its FlightFeeds; held out: the nominal replay and those of
+    the overlays asked), or None when the cache lacks any of it."""
+    entry = cache.get(_replay_key(job))
+    overlays = job[3]
+    if entry is None:
+        return None
+    if overlays is None:
+        return (entry["training"], {}) if "training" in entry else None
+    runs = entry.get("held_out", {})
+    keys = [(math.nan, 0.0), *overlays]
+    if not all((round(o, 3), g) in runs for o, g in keys if math.isfinite(o)) or "nominal" not in entry:
+        return None
+    return [entry["nominal"], *(runs[(round(o, 3), g)] for o, g in overlays)], {}
+
+
+def _save_replays(path: str, cache: dict[Any, Any], jobs: list[Any], results: list[Any]) -> None:
+    import pickle
+
+    for job, (result, _) in zip(jobs, results, strict=True):
+        entry = cache.setdefault(_replay_key(job), {})
+        if job[3] is None:
+            entry["training"] = result
+        else:
+            entry["nominal"] = result[0]
+            entry.setdefault("held_out", {}).update({(round(r[0], 3), r[1]): r for r in result[1:]})
+    with open(path, "wb") as f:
+        pickle.dump(cache, f)
+
+
 def _identify(train: list[str], held_out: Path, model: Path, options: list[str]) -> None:
     """``ecu-monitor identify`` (skipped when ``model`` exists); prints its error table."""
     if model.exists():
@@ -144,6 +192,81 @@ def _plot(
     plt.close(fig)
 
 
+def _baseline_path(t: Any, x: Any, settings: Any) -> tuple[Any, Any, Any, Any]:
+    """(block end times, block means, statistic, baseline) of the detector over a feed segment: the
+    compiled CUSUM's own statistic, and its baseline re-traced in Python (the compiled test does not
+    return it)."""
+    from ecu_monitor.estimation.detection import block_means, cusum_blocks
+
+    ends, means = block_means(t, x, settings)
+    stat, _ = cusum_blocks(means, dataclasses.replace(settings, threshold=UNBOUNDED))
+    baseline = np.full(means.size, np.nan)
+    b = math.nan
+    for n in range(means.size):
+        lagged = means[n - settings.delay_blocks] if n >= settings.delay_blocks else math.nan
+        if not math.isnan(lagged):
+            if math.isnan(b):
+                b = lagged
+            elif not (settings.baseline_freeze and stat[n] > 0.0):
+                b += settings.block_s / settings.baseline_s * (lagged - b)
+        baseline[n] = b
+    return ends, means, stat, baseline
+
+
+def _plot_misses(path: Path, flights: list[Path], feeds: dict[Any, Any], misses: list[Any]) -> None:
+    """One column per missed counted onset of calibrate's choice: CHT and CHT - OAT; fuel flow and
+    airspeed; the symptom (30 s mean) nominal and overlaid with the overlaid run's baseline; the
+    statistic nominal and overlaid with h; onset (dotted) and target time (dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ecu_monitor.bus.canlog import load_flight
+
+    if not misses:
+        return
+    fig, axes = plt.subplots(4, len(misses), figsize=(4.2 * len(misses), 10), squeeze=False)
+    for c, (i, onset, gain, delay, settings) in enumerate(misses):
+        log = load_flight(flights[i])
+        minutes = (log.time_s - log.time_s[0]) / 60.0
+        runs = feeds[(i, i)]
+        nominal = next(r for r in runs if not math.isfinite(r[0]))
+        overlaid = next(r for r in runs if r[0] == onset and r[1] == gain)
+        top, power, symptom, statistic = axes[:, c]
+        top.plot(minutes, log["cht_c"], "0.3", lw=0.8, label="CHT")
+        top.plot(minutes, log["cht_c"] - log["oat_c"], "tab:purple", lw=0.8, label="CHT - OAT")
+        top.set_title(f"{flights[i].stem[-13:]}, k = {gain:g} from {onset / 60:.0f} min: {delay:.0f} s", fontsize=9)
+        power.plot(minutes, log["fuel_flow_lph"], "tab:green", lw=0.7, label="fuel flow (l/h)")
+        power.plot(minutes, log["airspeed_mps"], "tab:cyan", lw=0.7, label="airspeed (m/s)")
+        for run, colour, label in ((nominal, "0.5", "nominal"), (overlaid, "tab:red", f"k = {gain:g}")):
+            for n, (t, x) in enumerate(run[3]):
+                ends, means, stat, baseline = _baseline_path(t, x, settings)
+                m = (ends - run[2]) / 60.0
+                smooth = np.convolve(np.nan_to_num(means), np.ones(30) / 30.0, mode="same")
+                symptom.plot(m, smooth, colour, lw=0.8, label=label if n == 0 else None)
+                statistic.plot(m, stat, colour, lw=0.8, label=label if n == 0 else None)
+                if run is overlaid:
+                    symptom.plot(m, baseline, "k", lw=0.9, label="baseline (overlaid)" if n == 0 else None)
+        statistic.axhline(settings.threshold, color="k", ls="--", lw=1.0, label=f"h = {settings.threshold:.1f}")
+        symptom.set_ylim(-0.3, 0.4)
+        statistic.set_ylim(0.0, 1.5 * settings.threshold)
+        for ax in (top, power, symptom, statistic):
+            ax.axvline(onset / 60.0, color="tab:red", ls=":", lw=1.0)
+            ax.axvline((onset + LIMITS[gain]) / 60.0, color="tab:red", ls="--", lw=0.6)
+            ax.set_xlim(onset / 60.0 - 15.0, onset / 60.0 + 25.0)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=6, loc="upper left")
+        if c == 0:
+            top.set_ylabel("degC")
+            symptom.set_ylabel("symptom (degC/s)")
+            statistic.set_ylabel("CUSUM statistic (degC)")
+        statistic.set_xlabel("time since the start of the log (min)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("flights", nargs="+", help="nominal flights of one engine (at least 3)")
@@ -172,7 +295,16 @@ def main(argv: list[str] | None = None) -> int:
         help="PNG: per held-out flight, the statistic nominal and with the k = 0.1 overlay at the second onset",
     )
     parser.add_argument(
+        "--plot-misses",
+        help="PNG: per counted onset calibrate's choice detects late, the flight, the symptom, baseline and statistic",
+    )
+    parser.add_argument(
         "--work", help="folder for the work files (default: a new temporary folder); models found there are reused"
+    )
+    parser.add_argument(
+        "--replays",
+        help="pickle of the replays (detector feeds): reused for the jobs it holds, written with any new ones"
+        " (detector variants evaluated on the same replays without replaying again)",
     )
     args = parser.parse_args(argv)
 
@@ -247,8 +379,13 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 overlays = None
             jobs.append((i, j, (str(flights[j]), str(models[i]), args.config, overlays)))
+    cache = _load_replays(args.replays)
+    todo = [job[2] for job in jobs if _cached(cache, job[2]) is None]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        results = list(pool.map(_feeds, [job[2] for job in jobs]))
+        fresh = iter(list(pool.map(_feeds, todo)))
+    results = [_cached(cache, job[2]) or next(fresh) for job in jobs]
+    if args.replays and todo:
+        _save_replays(args.replays, cache, [job[2] for job in jobs], results)
     feeds = {(i, j): r for (i, j, _), (r, _) in zip(jobs, results, strict=True)}
     timings = [t for _, t in results]
     # calibrate's choice, nested: made on the three training flights of each fold only
@@ -262,6 +399,7 @@ def main(argv: list[str] | None = None) -> int:
     fold_variants = [("calibrate's choice", [c.settings for c in chosen])]
     fold_variants += [(name, [settings] * n) for name, settings in variants]
     report: dict[str, Any] = {"choices": [c.reason for c in chosen]}
+    misses: list[Any] = []  # calibrate's choice: (flight, onset, gain, delay, settings with h) of late counted onsets
     thresholds: dict[str, list[float]] = {}
     for name, per_fold in fold_variants:
         first = per_fold[0]
@@ -301,6 +439,8 @@ def main(argv: list[str] | None = None) -> int:
                 totals[f"all {gain}"][1] += every.size
                 delays = np.array([d for t0, d in pairs if first <= t0 <= last], dtype=float)
                 hit = int(np.sum(delays <= limit))
+                if name == "calibrate's choice":
+                    misses += [(i, t0, gain, d, tuned) for t0, d in pairs if first <= t0 <= last and not d <= limit]
                 totals[gain][0] += hit
                 totals[gain][1] += delays.size
                 med = np.median(delays[np.isfinite(delays)]) if np.isfinite(delays).any() else math.inf
@@ -320,14 +460,18 @@ def main(argv: list[str] | None = None) -> int:
     held = [t for t in timings if "all_frames_s" in t]
     training = [t["training_s"] for t in timings if "training_s" in t]
     print(f"\n{len(jobs)} jobs, {time.perf_counter() - started:.0f} s in all; work files in {work}")
-    print(
-        f"median per held-out flight: frames of the whole flight {np.median([t['all_frames_s'] for t in held]):.1f} s,"
-        f" nominal replay {np.median([t['replay_s'] for t in held]):.1f} s, an overlay (CHT message re-encoded +"
-        f" replay) {np.median([t['overlay_s'] for t in held]):.1f} s; a training flight as calibrate replays it"
-        f" (nominal + 6 overlays) {np.median(training):.1f} s"
-    )
+    if held and training:  # replays run now (not all from --replays)
+        print(
+            f"median per held-out flight: frames of the whole flight"
+            f" {np.median([t['all_frames_s'] for t in held]):.1f} s,"
+            f" nominal replay {np.median([t['replay_s'] for t in held]):.1f} s, an overlay (CHT message re-encoded +"
+            f" replay) {np.median([t['overlay_s'] for t in held]):.1f} s; a training flight as calibrate replays it"
+            f" (nominal + 6 overlays) {np.median(training):.1f} s"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1, default=float), encoding="utf-8")
+    if args.plot_misses:
+        _plot_misses(Path(args.plot_misses), flights, feeds, misses)
     if args.plot:
         _plot(Path(args.plot), flights, feeds, fold_variants, thresholds)
     return 0
