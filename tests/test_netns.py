@@ -222,6 +222,16 @@ class Setup:
             time.sleep(0.05)
         return any(text in m for m in list(self.notifications))
 
+    def wait_state(self, state: str, timeout_s: float) -> bool:
+        """Wait until a Health_Status frame reports ``state`` (True) or ``timeout_s`` passes (False)."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            status = [f for f in self.health() if f.name == "Health_Status"]
+            if status and status[-1].values["DegradationState"] == STATE_CODES[state]:
+                return True
+            time.sleep(0.1)
+        return False
+
     def start_emulator(self, speed: float = 1.0) -> None:
         self.emulator = self.ns.popen(
             [sys.executable, "-m", "virtual_bus.cli", "run", "--config", str(self.config), "--mission", "default",
@@ -286,7 +296,9 @@ def test_health_frames_over_multicast_then_sigterm_keeps_the_flight(setup: Setup
     assert setup.wait_notification("READY=1", 25), f"no READY=1: {setup.notifications}"
     setup.start_emulator()
     assert setup.wait_notification("WATCHDOG=1", 10)
-    time.sleep(2.0)  # the estimator starts once every input has been heard
+    # the estimator starts once every input has been heard: wait for it (a loaded machine starts the
+    # emulator's process late), then measure
+    assert setup.wait_state("NOMINAL", 30), [f.values["DegradationState"] for f in setup.health()][-5:]
     start = setup.now()
     time.sleep(5.0)
     frames = setup.health(since_s=start)
@@ -295,7 +307,9 @@ def test_health_frames_over_multicast_then_sigterm_keeps_the_flight(setup: Setup
     assert rate_hz(frames, "Health_Status") == pytest.approx(10.0, rel=0.1)
     assert rate_hz(frames, "Health_Isolation") == pytest.approx(2.0, rel=0.25)
     assert len([f for f in frames if f.name == "Health_Diag"]) >= 4
-    assert all(f.values["DegradationState"] == STATE_CODES["NOMINAL"] for f in status)
+    assert all(f.values["DegradationState"] == STATE_CODES["NOMINAL"] for f in status), [
+        f.values["DegradationState"] for f in status
+    ]
     assert all(0.0 < f.values["ChtEstimate"] < 150.0 for f in status), [f.values for f in status[:3]]  # warm-up
     diag = [f for f in frames if f.name == "Health_Diag"]
     assert all(f.values["StaleInputs"] == 0 and f.values["BusErrors"] == 0 for f in diag)
