@@ -1,6 +1,7 @@
 """Live latency: ECU frame -> the health frame it causes, p50/p99, with 4,000 frames/s of other traffic.
 
     .venv/bin/python benchmarks/bench_latency.py [--seconds 30] [--traffic 4000] [--pace-study] [--gc-study]
+        [--switch-interval MS]
     sudo .venv/bin/python benchmarks/bench_latency.py --netns [--seconds 30] [--nice -10]   # across processes
 
 In one process (default), on python-can's ``virtual`` interface (three bus objects on one channel):
@@ -182,9 +183,12 @@ def _percentiles(values_us: list[float]) -> tuple[float, float, float]:
     return q[49], q[98], ordered[-1]
 
 
-def _stats(name: str, sent_at: list[float], got: list[tuple[float, int]]) -> dict[str, Any]:
+def _stats(name: str, sent_at: list[float], got: list[tuple[float, int]], since: float = -math.inf) -> dict[str, Any]:
+    """Latencies of the frames received from ``since`` on (perf_counter, s): the first second is the start-up."""
     latencies_us = []
     for received, _ in got:
+        if received < since:
+            continue
         index = bisect.bisect_left(sent_at, received) - 1
         if index >= 0:
             latencies_us.append((received - sent_at[index]) * 1e6)
@@ -239,10 +243,23 @@ class PhaseTimedDaemon(Daemon):
         return ", ".join(parts)
 
 
+#: Seconds after the ECU starts sending before latencies count: the daemon's first frame runs the steps
+#: missed since it started (its tick is off here), a start-up transient, not the steady state.
+SETTLE_S = 1.0
+
+
 def run_case(
-    name: str, seconds: float, traffic_hz: float, with_pipeline: bool, freeze_heap: bool = True
+    name: str,
+    seconds: float,
+    traffic_hz: float,
+    with_pipeline: bool,
+    freeze_heap: bool = True,
+    switch_interval_s: float | None = DaemonSettings().switch_interval_s,
 ) -> dict[str, Any]:
-    """One measurement: the daemon (with_pipeline) or the bare echo listener under the same traffic."""
+    """One measurement: the daemon (with_pipeline) or the bare echo listener under the same traffic.
+
+    ``switch_interval_s``: the daemon's setting (DaemonSettings); the echo case runs with the process
+    switched to the same interval, so both share one GIL regime (None: the interpreter's default)."""
     channel = f"bench-{uuid.uuid4().hex}"
     # one sending bus for the ECU and the traffic threads: a virtual bus queues every frame the others
     # send, so a second never-read bus would pile up 4,000 frames/s on this process's heap
@@ -265,7 +282,7 @@ def run_case(
         daemon = PhaseTimedDaemon(
             pipeline,
             lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False),
-            settings=DaemonSettings(tick_s=3600.0, freeze_heap=freeze_heap),
+            settings=DaemonSettings(tick_s=3600.0, freeze_heap=freeze_heap, switch_interval_s=switch_interval_s),
             receive_ids=pipeline.decoder.frame_ids,
         )
         daemon.phases = []
@@ -279,6 +296,9 @@ def run_case(
         threads = [t.native_id for t in (daemon_thread, tick) if t is not None and t.native_id is not None]
         threads += _notifier_threads(daemon._can_notifier)
     else:
+        default_interval = sys.getswitchinterval()
+        if switch_interval_s is not None:
+            sys.setswitchinterval(switch_interval_s)
         echo_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         echo_bus.set_filters([{"can_id": i, "can_mask": 0x7FF} for i in (0x100, 0x101, 0x200)])
         reply = can.Message(arbitration_id=0x300, is_extended_id=False, data=bytes(8))
@@ -299,6 +319,7 @@ def run_case(
     ecu = Periodic(0.02, _ecu_sender(ecu_bus, sent_at, counts))
     traffic.start()
     ecu.start()
+    settled = time.perf_counter() + SETTLE_S
     cpu_before, wall_before = thread_cpu_s(threads), time.monotonic()
     time.sleep(seconds)
     cpu_pct = 100.0 * (thread_cpu_s(threads) - cpu_before) / (time.monotonic() - wall_before)
@@ -318,11 +339,12 @@ def run_case(
         assert echo_notifier is not None and echo_bus is not None
         echo_notifier.stop()
         echo_bus.shutdown()
+        sys.setswitchinterval(default_interval)
         frames_in, health_sent = echo_in[0], echo_sent[0]
     for bus in (ecu_bus, rx_bus):
         bus.shutdown()
     return {
-        **_stats(name, sent_at, got),
+        **_stats(name, sent_at, got, since=settled),
         "ecu_sent": counts["ecu"],
         "ecu_in": frames_in,
         "out_sent": health_sent,
@@ -487,6 +509,7 @@ def measure_inner(port: int, seconds: float, name: str) -> None:
     receiver = _receiver(rx_bus, stop_rx, got)
     ecu = Periodic(0.02, _ecu_sender(ecu_bus, sent_at, counts))
     ecu.start()
+    settled = time.perf_counter() + SETTLE_S
     time.sleep(seconds)
     ecu.stop_event.set()
     ecu.join()
@@ -495,7 +518,9 @@ def measure_inner(port: int, seconds: float, name: str) -> None:
     receiver.join()
     ecu_bus.shutdown()
     rx_bus.shutdown()
-    print(json.dumps({**_stats(name, sent_at, got), "ecu_sent": counts["ecu"], "out_received": len(got)}))
+    print(
+        json.dumps({**_stats(name, sent_at, got, since=settled), "ecu_sent": counts["ecu"], "out_received": len(got)})
+    )
 
 
 def _socket_drops(ns: str, pid: int) -> int:
@@ -614,15 +639,23 @@ def main() -> None:
     parser.add_argument("--gc-study", action="store_true", help="also run the daemon without gc.freeze")
     parser.add_argument("--nice", type=int, default=0, help="with --netns: run the daemon and the echo at this nice")
     parser.add_argument("--pace-study", action="store_true", help="also time the pipeline alone under other pacings")
+    parser.add_argument(
+        "--switch-interval",
+        type=float,
+        default=(DaemonSettings().switch_interval_s or 0.0) * 1e3,
+        help="ms: the daemon's DaemonSettings.switch_interval_s, the echo's too (0: the interpreter's default)",
+    )
     args = parser.parse_args()
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)
         title = f"udp_multicast across processes in a netns (nice {args.nice}), {args.seconds:g} s per case"
         report(f"{title}, other traffic {daemon['traffic_hz']:.0f} frames/s", baseline, daemon, across=True)
         return
-    baseline = run_case("bare Notifier echo (baseline)", args.seconds, args.traffic, with_pipeline=False)
-    daemon = run_case("daemon + pipeline", args.seconds, args.traffic, with_pipeline=True)
-    title = f"virtual interface, one process, {args.seconds:g} s per case"
+    interval = args.switch_interval * 1e-3 if args.switch_interval > 0 else None
+    baseline = run_case("bare Notifier echo (baseline)", args.seconds, args.traffic, False, switch_interval_s=interval)
+    daemon = run_case("daemon + pipeline", args.seconds, args.traffic, True, switch_interval_s=interval)
+    shown = f"{args.switch_interval:g} ms" if interval else f"the interpreter's {sys.getswitchinterval() * 1e3:g} ms"
+    title = f"virtual interface, one process, {args.seconds:g} s per case, switch interval {shown}"
     cost_p50, cost_p99 = pipeline_cost()
     paced_p50, paced_p99 = pipeline_cost(steps=600, pace_s=0.02)
     print(

@@ -7,6 +7,8 @@
   (values -> payloads with rolling counter and checksum; health frames, the virtual ECU's frames and
   replayed CSV rows alike);
 * ``checksum``: the frame checksum (CRC-8/SAE-J1850 over bytes 0..6), see docs/dbc.md;
+* ``kernel_filter``: receive filters in the kernel for python-can's ``udp_multicast`` (a BPF socket
+  filter on the CAN id; socketcan filters in the kernel by itself);
 * ``canlog``: the one CAN-log reader (any python-can log -> arrays) and the import of a CAN log
   into a flight log; ``load_flight`` for any supported log.
 

@@ -31,6 +31,12 @@ Then automatic collection is switched off and the supervisor collects every peri
 generation every 0.1 s, generation 1 every second, a full collection every minute): a collection is
 work that can wait, so it never starts inside the callback of a frame on the bus thread.
 
+GIL: a thread that wants the interpreter while another runs Python waits until that one blocks, or
+for the switch interval (5 ms by default) and then asks it to let go; with several threads passing the
+GIL between them, a waiting thread can wait several intervals. ``DaemonSettings.switch_interval_s``
+(None: the interpreter's) sets the interval while :meth:`Daemon.run` runs and restores it after
+(docs/performance.md, "Live path", measures both).
+
 :meth:`Daemon._guarded` holds the codebase's only broad ``except Exception``: whatever a frame or a tick
 raises is logged and counted (``daemon_errors``), and the daemon keeps running; the watchdog then
 decides, from the pipeline's progress, whether the process is still useful.
@@ -41,6 +47,7 @@ from __future__ import annotations
 import gc
 import logging
 import math
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -50,6 +57,7 @@ from typing import Any, Protocol, TypeVar
 import can
 from can.interfaces.virtual import VirtualBus
 
+from ecu_monitor.bus.kernel_filter import attach_kernel_filter
 from ecu_monitor.service.flight_recorder import FlightRecorder
 from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate
 from ecu_monitor.service.persistence import FlightSample
@@ -98,6 +106,7 @@ class DaemonSettings:
     freeze_heap: bool = True  # gc.freeze() the start-up heap (module docstring, "Garbage collection")
     collect_in_supervisor: bool = True  # with freeze_heap: gc.disable(), the supervisor collects instead
     no_frames_warning_s: float = 10.0  # warn once when the bus carries no engine frame this long
+    switch_interval_s: float | None = None  # sys.setswitchinterval while running (module docstring, "GIL")
 
 
 class SilenceWatch:
@@ -151,7 +160,8 @@ class Daemon:
     ``engine_speed()`` (called under the pipeline lock) gives the engine speed held by the pipeline,
     rev/min, or None when it is stale: the recorder finds flights from it. ``receive_ids`` (the
     decoder's frame ids) become the bus's receive filter, so other traffic (kernel-filtered on
-    socketcan) and our own health frames never reach the pipeline lock; ``receive_filters`` (python-can
+    socketcan, and on udp_multicast by a socket filter: :mod:`ecu_monitor.bus.kernel_filter`) and our own
+    health frames never reach the pipeline lock; ``receive_filters`` (python-can
     filters, the decoder's ``can_filters()``: DroneCAN matches a data type id under a mask) replace them.
     ``stop()`` is safe from a signal handler; :meth:`run` returns once everything is flushed.
     """
@@ -193,6 +203,7 @@ class Daemon:
         self._heap_frozen_running = False
         self._collections = 0  # supervisor periods since the start (the collections it ran)
         self._manual_gc = False  # automatic collection switched off by run()
+        self._switch_interval_before: float | None = None  # the interpreter's, while run() has its own
         self._silence = SilenceWatch(self.settings.no_frames_warning_s, clock())
         self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
@@ -314,6 +325,8 @@ class Daemon:
                 bus.set_filters(self._filters)
             except (can.CanError, OSError, ValueError, NotImplementedError) as exc:
                 _log.warning("bus filters not set (%s): every frame goes through the pipeline's id check", exc)
+            if attach_kernel_filter(bus, self._filters):  # udp_multicast: other ids dropped by the kernel too
+                _log.info("udp_multicast: receive filter attached in the kernel (%d ids)", len(self._filters))
         with self._lock:
             self._bus = bus
             self._send_failures_in_row = 0
@@ -442,6 +455,9 @@ class Daemon:
             self._silence.frame(self._clock())  # the silence counts from the first open, not from the warm-up
         with self._lock:
             self.pipeline.advance_to(self._clock())
+        if settings.switch_interval_s is not None:
+            self._switch_interval_before = sys.getswitchinterval()
+            sys.setswitchinterval(settings.switch_interval_s)
         if settings.freeze_heap:
             gc.collect()  # once, before READY: then the start-up heap leaves the collector's sight
             gc.freeze()
@@ -481,6 +497,9 @@ class Daemon:
             self._manual_gc = False
         if self.settings.freeze_heap:
             gc.unfreeze()  # back to normal collection for whoever runs on in this process (tests, benchmarks)
+        if self._switch_interval_before is not None:
+            sys.setswitchinterval(self._switch_interval_before)
+            self._switch_interval_before = None
         _log.info("stopped: %s", ", ".join(f"{k} {v}" for k, v in self.counters.items()))
         return 0
 
