@@ -70,6 +70,7 @@ from ecu_monitor.service.pipeline import Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 HEALTH_IDS = (0x300, 0x301, 0x302)
+ECU_FAST_ID = 0x100
 ECU_VALUES = {
     "ECU_Fast": {"EngineSpeed": 5500.0, "ThrottlePos": 60.0, "FuelFlow": 0.6},
     "ECU_Slow": {"CHT": 160.0, "OAT": 15.0, "EcuStatus": 0},
@@ -219,8 +220,14 @@ class PhaseTimedDaemon(Daemon):
     """The daemon with its frame callback timed by phase, for the frames whose step emits health frames."""
 
     phases: list[tuple[float, float, float]]
+    #: per ECU_Fast callback: perf_counter at entry, after the lock, feed, advance_to and send, the
+    #: thread's CPU time in the callback (s), the ids of the frames sent
+    timeline: list[tuple[float, float, float, float, float, float, tuple[int, ...]]]
+    emitted: list[int]  # per health frame sent, in order: the index of its ECU_Fast callback in timeline
+    events: list[tuple[float, float, str]]  # (start, end, what) of the supervisor's periods
 
     def _on_frame(self, msg: can.Message) -> None:  # same steps as Daemon._on_frame, with clocks between
+        entered, cpu = time.perf_counter(), time.thread_time()
         now = self._clock()
         msg.timestamp = now
         with self._lock:
@@ -234,6 +241,15 @@ class PhaseTimedDaemon(Daemon):
             sent = time.perf_counter()
         if frames:
             self.phases.append(((fed - started) * 1e6, (advanced - fed) * 1e6, (sent - advanced) * 1e6))
+        if msg.arbitration_id == ECU_FAST_ID:
+            ids = tuple(f.arbitration_id for f in frames)
+            self.timeline.append((entered, started, fed, advanced, sent, time.thread_time() - cpu, ids))
+            self.emitted.extend([len(self.timeline) - 1] * len(frames))
+
+    def _supervise_once(self, now: float) -> None:
+        started = time.perf_counter()
+        super()._supervise_once(now)
+        self.events.append((started, time.perf_counter(), "supervisor period"))
 
     def phase_summary(self) -> str:
         parts = []
@@ -254,7 +270,7 @@ def run_case(
     traffic_hz: float,
     with_pipeline: bool,
     freeze_heap: bool = True,
-    switch_interval_s: float | None = DaemonSettings().switch_interval_s,
+    switch_interval_s: float | None = None,
 ) -> dict[str, Any]:
     """One measurement: the daemon (with_pipeline) or the bare echo listener under the same traffic.
 
@@ -282,10 +298,15 @@ def run_case(
         daemon = PhaseTimedDaemon(
             pipeline,
             lambda: can.Bus(interface="virtual", channel=channel, receive_own_messages=False),
-            settings=DaemonSettings(tick_s=3600.0, freeze_heap=freeze_heap, switch_interval_s=switch_interval_s),
+            settings=DaemonSettings(
+                tick_s=3600.0,
+                freeze_heap=freeze_heap,
+                # only when asked: this script also measures older checkouts, whose daemon has no such setting
+                **({"switch_interval_s": switch_interval_s} if switch_interval_s is not None else {}),
+            ),
             receive_ids=pipeline.decoder.frame_ids,
         )
-        daemon.phases = []
+        daemon.phases, daemon.timeline, daemon.emitted, daemon.events = [], [], [], []
         daemon_thread = threading.Thread(target=daemon.run, daemon=True)
         daemon_thread.start()
         deadline = time.monotonic() + 120.0
@@ -353,7 +374,44 @@ def run_case(
         "cpu_pct": cpu_pct,
         "gc": gc_pauses.summary(),
         "phases": daemon.phase_summary() if isinstance(daemon, PhaseTimedDaemon) else "",
+        "anatomy": anatomy(daemon, sent_at, got, settled) if isinstance(daemon, PhaseTimedDaemon) else "",
     }
+
+
+def anatomy(daemon: PhaseTimedDaemon, sent_at: list[float], got: list[tuple[float, int]], since: float) -> str:
+    """What each health frame's latency is made of, exactly (each frame matched to the ECU_Fast callback that
+    sent it; the virtual bus keeps order and loses nothing): send -> callback entry (the Notifier thread's
+    wake-up, the GIL, the frames queued before it), the callback's phases and its thread CPU time (wall
+    minus CPU: time the thread waited), callback end -> recv (the receiver's wake-up and GIL). The slowest
+    1 % are listed with the step's frames and the supervisor periods and collections overlapping them."""
+    if len(got) != len(daemon.emitted):
+        return f"anatomy skipped: {len(got)} health frames received, {len(daemon.emitted)} sent"
+    rows = []
+    for (received, frame_id), index in zip(got, daemon.emitted, strict=True):
+        entered, started, fed, advanced, sent, cpu_s, ids = daemon.timeline[index]
+        if received < since:
+            continue
+        ecu_sent = sent_at[index]
+        rows.append({
+            "latency": received - ecu_sent, "to callback": entered - ecu_sent, "feed": fed - started,
+            "advance_to": advanced - fed, "send": sent - advanced, "callback CPU": cpu_s, "to recv": received - sent,
+            "id": frame_id, "ids": ids, "from": ecu_sent, "until": received,
+        })  # fmt: skip
+    lines = ["| part (us) | p50 | p99 |", "|---|---|---|"]
+    for key in ("latency", "to callback", "feed", "advance_to", "send", "callback CPU", "to recv"):
+        values = sorted(row[key] * 1e6 for row in rows)
+        lines.append(f"| {key} | {values[len(values) // 2]:.0f} | {values[int(0.99 * (len(values) - 1))]:.0f} |")
+    lines.append("\nslowest 1 % (us): latency = to callback + callback (feed, advance_to, send; its CPU) + to recv")
+    for row in sorted(rows, key=lambda r: -r["latency"])[: max(3, len(rows) // 100)]:
+        overlapping = [what for start, end, what in daemon.events if end > row["from"] and start < row["until"]]
+        lines.append(
+            f"- {row['latency'] * 1e6:.0f} = {row['to callback'] * 1e6:.0f} + ({row['feed'] * 1e6:.0f}, "
+            f"{row['advance_to'] * 1e6:.0f}, {row['send'] * 1e6:.0f}; CPU {row['callback CPU'] * 1e6:.0f}) + "
+            f"{row['to recv'] * 1e6:.0f}: frame 0x{row['id']:X} of a step sending "
+            f"{', '.join(f'0x{i:X}' for i in row['ids'])}, {row['from'] - sent_at[0]:.2f} s after the first ECU frame;"
+            f" overlapping: {', '.join(overlapping) or 'nothing'}"
+        )
+    return "\n".join(lines)
 
 
 def pace_study(steps: int = 600) -> None:
@@ -610,11 +668,16 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
     print(f"\nratio daemon / baseline: p50 {daemon['p50_us'] / baseline['p50_us']:.2f}x, p99 {p99_ratio:.2f}x")
     for row in (baseline, daemon):
         if "socket_drops" in row:
-            print(f"{row['case']}: {row['socket_drops']} datagrams dropped by the kernel on its socket (queue full)")
+            print(
+                f"{row['case']}: {row['socket_drops']} datagrams dropped by the kernel on its socket (a full queue, or"
+                " the daemon's receive filter: bus/kernel_filter.py)"
+            )
         if row.get("phases"):
             print(f"{row['case']}: callback of a frame whose step emits health frames: {row['phases']}")
         if "gc" in row:
             print(f"{row['case']}: garbage collections in the process during the run: {row['gc']}")
+        if row.get("anatomy"):
+            print(f"\n{row['case']}, what its latency is made of:\n\n{row['anatomy']}\n")
     lost = daemon["ecu_sent"] - daemon["ecu_in"] + daemon["out_sent"] - daemon["out_received"]
     print(f"frames lost: {lost}")
     if across:
@@ -642,7 +705,7 @@ def main() -> None:
     parser.add_argument(
         "--switch-interval",
         type=float,
-        default=(DaemonSettings().switch_interval_s or 0.0) * 1e3,
+        default=(getattr(DaemonSettings(), "switch_interval_s", None) or 0.0) * 1e3,
         help="ms: the daemon's DaemonSettings.switch_interval_s, the echo's too (0: the interpreter's default)",
     )
     args = parser.parse_args()
