@@ -341,7 +341,8 @@ def test_health_frames_over_multicast_then_sigterm_keeps_the_flight(setup: Setup
 def test_emulator_killed_mid_flight_inputs_reported_stale_daemon_stays_up(setup: Setup) -> None:
     assert setup.wait_notification("READY=1", 25)
     setup.start_emulator(speed=2.0)
-    time.sleep(6.0)
+    assert setup.wait_state("NOMINAL", 30), [f.values["DegradationState"] for f in setup.health()][-5:]
+    time.sleep(1.0)
     assert setup.emulator is not None
     setup.emulator.send_signal(signal.SIGKILL)
     killed = setup.now()
