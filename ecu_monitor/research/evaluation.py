@@ -806,7 +806,10 @@ def write_report(
         f"Regenerate: `{command}` ({elapsed_s / 60.0:.1f} min on this machine).",
         "Method and reasoning: [docs/detection_isolation.md](../detection_isolation.md).",
         "On a real engine (N550ND, leave-one-flight-out, `calibrate`'s choice of the detector settings):"
-        " [detection_real.md](detection_real.md) (written by `benchmarks/bench_detect_real.py`, not by `evaluate`).",
+        " [detection_real.md](detection_real.md) (written by `benchmarks/bench_detect_real.py`, not by `evaluate`):"
+        " no false DEGRADED on the four held-out flights; a CHT rise k (CHT - OAT) overlaid, k = 0.2 detected"
+        " within 300 s at 26 of 28 airborne onsets and k = 0.1 within 600 s at 25 of 28 (every other one late,"
+        " 305-728 s, none missed; why, and what was tried against it, there).",
         "The limit of the adaptive baseline (the smallest symptom step it lets through, Delta*; detection"
         " probability vs gamma_Q and time since engine start; why gamma_Q = 1.15 at 30 000 s of the 16 h replay"
         " stays SUSPECT): [detection_limit.md](detection_limit.md) (written by `benchmarks/bench_detect_limit.py`).",
