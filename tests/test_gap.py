@@ -11,6 +11,7 @@ import pytest
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
+from ecu_monitor.gap.diagnose import train_led_shares
 from ecu_monitor.gap.diagnose import EffectScore, _material_lead
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
@@ -104,6 +105,20 @@ def test_improvement_test_resamples_whole_flights() -> None:
     assert blocks_only.p_value < pooled.p_value
     with pytest.raises(ParameterError):
         improvement_test(flights, mixed[:2], 1.0)
+
+
+def test_train_led_alpha_shares_sum_to_one_and_favour_the_best_train_fit() -> None:
+    shares = train_led_shares([4.0, 2.5, 3.0, 9.0])
+    assert shares == pytest.approx([0.5 / 3, 0.5, 0.5 / 3, 0.5 / 3])
+    assert sum(shares) == pytest.approx(1.0)
+    assert train_led_shares([1.0]) == [1.0]
+    # the level of a test is alpha over its weight: the lead's test is at alpha / 2
+    rng = np.random.default_rng(3)
+    base = np.cumsum(rng.normal(0.0, 0.1, 3600))
+    lead = improvement_test(base, 0.5 * base, 1.0, n_tests=1.0 / shares[1])
+    other = improvement_test(base, 0.5 * base, 1.0, n_tests=1.0 / shares[0])
+    assert lead.level == pytest.approx(0.025) and other.level == pytest.approx(0.05 / 6)
+    assert lead.lower_bound_c2 >= other.lower_bound_c2
 
 
 def test_ljung_box_and_lag_signature() -> None:

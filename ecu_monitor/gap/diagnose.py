@@ -56,6 +56,7 @@ __all__ = [
     "HeldOutFlight",
     "cross_validate",
     "diagnose",
+    "train_led_shares",
 ]
 
 Progress = Callable[[str], None]
@@ -141,6 +142,26 @@ def cross_validate(
     return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress)
 
 
+def _train_cost(fits: Sequence[FitResult]) -> float:
+    """Mean squared train residual over the folds (degC^2): how well a candidate fits the flights it
+    was refitted on, never the held-out ones."""
+    return float(np.mean([fit.train_rms_c**2 for fit in fits]))
+
+
+def train_led_shares(train_costs: Sequence[float]) -> list[float]:
+    """Each single candidate's share of the family-wise alpha (weighted Bonferroni, shares sum to 1):
+    half to the candidate that fits the TRAIN flights best, the other half spread evenly over the rest.
+
+    The order comes from the train flights only, so it is independent of the held-out flights' noise
+    and the family-wise error stays at alpha; the test gains power where it matters (the effect that
+    is in the data also fits the train flights best) and loses a little on the others."""
+    n = len(train_costs)
+    if n == 1:
+        return [1.0]
+    lead = int(np.argmin(train_costs))
+    return [0.5 if k == lead else 0.5 / (n - 1) for k in range(n)]
+
+
 def _material_lead(singles: Sequence[EffectScore]) -> EffectScore | None:
     """When no single effect counts: the best one whose held-out gain over the control is material but
     not significant (it may hold on some test flights and fail on others, where a second effect is
@@ -209,10 +230,15 @@ def _diagnose(
     say(f"refit: control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note})")
     control = score(fit_candidates([]), "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
-    singles: list[EffectScore] = []
+    single_fits: list[list[FitResult]] = []
     for number, cid in enumerate(settings.candidates, start=1):
         say(f"refit: {cid} ({number}/{len(settings.candidates)})")
-        singles.append(score(fit_candidates([candidate(cid)]), "single", control, n_tests, settings.significance))
+        single_fits.append(fit_candidates([candidate(cid)]))
+    shares = train_led_shares([_train_cost(fits) for fits in single_fits])
+    singles = [
+        score(fits, "single", control, 1.0 / share, settings.significance)
+        for fits, share in zip(single_fits, shares, strict=True)
+    ]
     counting = [s for s in singles if s.counts]
     winner = min(counting, key=lambda s: s.test_rms_c) if counting else None
     lead = winner if winner is not None else _material_lead(singles)

@@ -69,6 +69,7 @@ def _effect_entry(score: EffectScore) -> dict[str, Any]:
         "compared_with": "control" if score.role in ("single", "pair_vs_control") else "+".join(score.fit.ids[:1]),
         "shrink_vs_reference_pct": v.shrink_pct if v else None,
         "p_value": v.p_value if v else None,
+        "test_level": v.level if v else None,
         "bootstrap_significant": v.significant if v else None,
         "material": v.material if v else None,
         "converged": score.fit.converged,
@@ -447,11 +448,12 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
         "single effect for a pair, the control for a pair tried when no single effect counts) is significant "
         "in a bootstrap that resamples whole test flights and blocks "
         "within them "
-        f"({diag.settings.significance.block_s:.0f} s blocks, family-wise alpha {diag.settings.significance.alpha}) "
+        f"({diag.settings.significance.block_s:.0f} s blocks, family-wise alpha {diag.settings.significance.alpha}: "
+        "half of it to the single effect that fits the train flights best, the rest shared by the others) "
         f"and material (>= {diag.settings.significance.min_shrink_pct:.0f} % and "
         f">= {diag.settings.significance.min_rms_drop_c} degC).",
         "",
-        "| effect | test RMS, degC | peak, degC | shrink vs baseline | vs reference | p | counts"
+        "| effect | test RMS, degC | peak, degC | shrink vs baseline | vs reference | p / level | counts"
         " | parameters (+- 1 sigma) |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -460,7 +462,8 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
         label = score.label + (" (vs control)" if score.role == "pair_vs_control" else "")
         lines.append(
             f"| {label} | {score.test_rms_c:.2f} | {score.test_peak_c:.1f} | {score.shrink_pct:+.0f} % | "
-            f"{(v.shrink_pct if v else 0.0):+.0f} % | {_fmt(v.p_value if v else None, 2)} | "
+            f"{(v.shrink_pct if v else 0.0):+.0f} % | {_fmt(v.p_value if v else None, 2)}"
+            f"{f' / {v.level:.2g}' if v else ''} | "
             f"{'yes' if score.counts else 'no'} | {_params_text(score)} |"
         )
     lines += ["", "## Plots", ""]

@@ -46,10 +46,11 @@ def score_fits(
     engine: str,
     role: str,
     reference: EffectScore | None,
-    n_tests: int,
+    n_tests: float,
     significance: SignificanceSettings,
 ) -> EffectScore:
-    """Each fold's fit simulated on that fold's test flights; residuals in the order of ``tests``."""
+    """Each fold's fit simulated on that fold's test flights; residuals in the order of ``tests``
+    (``n_tests``: the test is at level alpha / n_tests)."""
     by_flight: dict[int, np.ndarray] = {}
     for fit, fold in zip(fits, folds, strict=True):
         for k in fold.tests:

@@ -13,7 +13,9 @@ pooled mean over the samples drawn. With one test flight it is the plain block b
 A candidate counts only when it is both
 
 - *significant*: the one-sided lower confidence bound of mean(d) at level ``alpha / n_tests``
-  (Bonferroni over the candidates tried) is above zero, and
+  (Bonferroni over the candidates tried; the diagnosis weights the single candidates, half of alpha
+  to the one that fits the train flights best, :func:`ecu_monitor.gap.diagnose.train_led_shares`)
+  is above zero, and
 - *material*: it shrinks the test RMS relative to the control by at least ``min_shrink_pct`` and by
   at least ``min_rms_drop_c`` degC in absolute terms (a tenth of the 1 degC quantisation step would
   not change any decision an engineer makes).
@@ -73,6 +75,7 @@ class ImprovementTest:
     p_value: float  # bootstrap share of resampled means <= 0
     significant: bool
     material: bool
+    level: float = 0.05  # the one-sided level of this test (alpha over the family's weight)
 
     @property
     def counts(self) -> bool:
@@ -103,7 +106,7 @@ def improvement_test(
     reference_residual: np.ndarray | Sequence[np.ndarray],
     candidate_residual: np.ndarray | Sequence[np.ndarray],
     dt_s: float,
-    n_tests: int = 1,
+    n_tests: float = 1,
     settings: SignificanceSettings | None = None,
 ) -> ImprovementTest:
     """Bootstrap test that ``candidate_residual`` beats ``reference_residual`` (degC): each one (N,)
@@ -133,7 +136,7 @@ def improvement_test(
     ref = np.concatenate(refs)
     cand = np.concatenate(cands)
     gain = np.concatenate(gains)
-    level = settings.alpha / max(n_tests, 1)
+    level = settings.alpha / max(float(n_tests), 1.0)
     lower = float(np.quantile(means, level))
     mean_gain = float(gain.mean())
     ref_rms = float(np.sqrt(np.mean(ref**2)))
@@ -149,4 +152,5 @@ def improvement_test(
         p_value=float(np.mean(means <= 0.0)),
         significant=lower > 0.0,
         material=material,
+        level=level,
     )

@@ -110,6 +110,7 @@ class FormResult:
                     "test_rms_c": e.test_rms_c,
                     "shrink_vs_reference_pct": e.versus.shrink_pct if e.versus else None,
                     "p_value": e.versus.p_value if e.versus else None,
+                    "test_level": e.versus.level if e.versus else None,
                     "counts": e.counts,
                 }
                 for e in d.effects
