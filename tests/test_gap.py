@@ -11,8 +11,7 @@ import pytest
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
-from ecu_monitor.gap.diagnose import train_led_shares
-from ecu_monitor.gap.diagnose import EffectScore, _material_lead
+from ecu_monitor.gap.diagnose import EffectScore, _material_lead, train_led_shares
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
 from ecu_monitor.gap.refit import FitResult, prepare_flight, refit, simulate_probe

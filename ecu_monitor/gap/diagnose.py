@@ -223,7 +223,7 @@ def _diagnose(
     def fit_candidates(entries: list[Candidate]) -> list[FitResult]:
         return [fit_one(fold, entries) for fold in folds]
 
-    def score(fits: list[FitResult], role: str, reference: EffectScore | None, n: int, test: Any) -> EffectScore:
+    def score(fits: list[FitResult], role: str, reference: EffectScore | None, n: float, test: Any) -> EffectScore:
         return score_fits(fits, folds, tests, baseline_rms, engine, role, reference, n, test)
 
     fold_note = f", {len(folds)} folds" if len(folds) > 1 else ""
