@@ -150,8 +150,8 @@ CANDIDATES: tuple[Candidate, ...] = (
         "nominal",
         "altitude exponents a, b of the heat into the head re-fitted (heat map on fuel flow)",
         (
-            FreeParameter("a", 1.55, -1.0, 4.0, "-"),
-            FreeParameter("b", 2.0, -2.0, 4.0, "-"),
+            FreeParameter("a", 1.55, 0.0, 4.0, "-"),
+            FreeParameter("b", 2.0, 0.0, 4.0, "-"),
         ),
     ),
     Candidate(
