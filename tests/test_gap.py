@@ -166,6 +166,19 @@ def test_refit_recovers_a_mixture_effect_read_from_the_logged_egt() -> None:
     assert fit.train_rms_c < 0.1
 
 
+def test_nominal_candidates_search_only_values_the_model_accepts() -> None:
+    # a refit reaching a bound must still build a valid model (a, b >= 0 since model.yaml checks them)
+    from ecu_monitor.gap.library import CANDIDATES
+
+    nominal = paper_table_a1()
+    for entry in CANDIDATES:
+        if entry.effect != "nominal":
+            continue
+        for free in entry.free:
+            for value in (free.low, free.high):
+                nominal.replace(**{free.name: value})  # raises ParameterError outside the accepted range
+
+
 def test_gap_settings_reject_unknown_candidates() -> None:
     with pytest.raises(ParameterError):
         GapSettings(candidates=("no_such_effect",))
