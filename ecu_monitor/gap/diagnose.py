@@ -8,7 +8,9 @@
    a candidate counts when its held-out gain over the control is significant and material
    (:mod:`ecu_monitor.gap.significance`). The best counting candidate is kept; when it leaves a
    structured residual (test RMS above ``pair_threshold_c``), pairs with it are tried greedily and a
-   pair counts only if it beats the single effect by the same test. When no single effect counts but
+   pair counts only if it beats the single effect by the same test and also shrinks the single's
+   TRAIN RMS materially (a second effect must explain the flights it was fitted on, not only some
+   accident of the held-out ones). When no single effect counts but
    the best one's gain is material (large, not significant: it holds on some test flights and fails
    on others), pairs with it are tried too, each tested against the control (alpha spread over the
    singles and the pairs): two effects that each hold where the other fails count only together.
@@ -19,6 +21,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -57,6 +60,7 @@ __all__ = [
     "cross_validate",
     "diagnose",
     "train_led_shares",
+    "train_shrink_pct",
 ]
 
 Progress = Callable[[str], None]
@@ -146,6 +150,14 @@ def _train_cost(fits: Sequence[FitResult]) -> float:
     """Mean squared train residual over the folds (degC^2): how well a candidate fits the flights it
     was refitted on, never the held-out ones."""
     return float(np.mean([fit.train_rms_c**2 for fit in fits]))
+
+
+def train_shrink_pct(score: EffectScore, reference: EffectScore) -> float:
+    """How much ``score`` shrinks the TRAIN RMS of ``reference`` (%, pooled over the folds): a pair must
+    explain the flights its second effect was fitted on, not only the held-out ones."""
+    mine = _train_cost(score.fold_fits or (score.fit,))
+    theirs = _train_cost(reference.fold_fits or (reference.fit,))
+    return 100.0 * (1.0 - math.sqrt(mine / theirs)) if theirs > 0 else 0.0
 
 
 def train_led_shares(train_costs: Sequence[float]) -> list[float]:
@@ -256,7 +268,14 @@ def _diagnose(
             say(f"refit: pair {first}+{cid}")
             fits = fit_candidates([candidate(first), candidate(cid)])
             pairs.append(score(fits, role, reference, n_pair_tests, pair_test))
-        better = [p for p in pairs if p.counts and second_effect_acts(p, folds, tests, engine, settings)]
+        train_bar = settings.significance.min_shrink_pct
+        better = [
+            p
+            for p in pairs
+            if p.counts
+            and second_effect_acts(p, folds, tests, engine, settings)
+            and train_shrink_pct(p, reference) >= train_bar
+        ]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)
     effects = sorted(singles + pairs, key=lambda s: s.test_rms_c)

@@ -111,6 +111,7 @@ class FormResult:
                     "shrink_vs_reference_pct": e.versus.shrink_pct if e.versus else None,
                     "p_value": e.versus.p_value if e.versus else None,
                     "test_level": e.versus.level if e.versus else None,
+                    "train_rms_c": e.fit.train_rms_c,
                     "counts": e.counts,
                 }
                 for e in d.effects
