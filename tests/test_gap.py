@@ -11,7 +11,7 @@ import pytest
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
-from ecu_monitor.gap.diagnose import EffectScore, _material_lead, train_led_shares
+from ecu_monitor.gap.diagnose import EffectScore, _material_lead, train_led_shares, train_shrink_pct
 from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
 from ecu_monitor.gap.refit import FitResult, prepare_flight, refit, simulate_probe
@@ -265,3 +265,18 @@ def test_pairs_start_from_a_material_single_effect_when_none_counts() -> None:
     lag = score(("sensor_lag",), 7.9, significant=False, material=False)
     assert _material_lead([airspeed, density, lag]) is airspeed
     assert _material_lead([density, lag]) is None
+
+
+def test_a_pair_must_also_shrink_the_train_rms_of_its_reference() -> None:
+    # the pair's train RMS (per fold) against the single's: 7 % is an accident of the held-out flight
+    def score(ids: tuple[str, ...], train_rms: tuple[float, ...]) -> EffectScore:
+        fits = tuple(FitResult(ids, paper_table_a1(), {}, {}, {}, r, 1, 0, True) for r in train_rms)
+        return EffectScore(fits[0], (np.zeros(3),), 1.0, 1.0, 0.0, None, "pair", fits if len(fits) > 1 else ())
+
+    single = score(("airspeed_cooling",), (0.842,))
+    assert train_shrink_pct(score(("airspeed_cooling", "mixture_cooling"), (0.782,)), single) == pytest.approx(
+        7.1, abs=0.1
+    )
+    assert train_shrink_pct(score(("airspeed_cooling", "mixture_cooling"), (0.421,)), single) == pytest.approx(50.0)
+    # folds pooled as a mean square: sqrt(mean(3^2, 4^2) / mean(6^2, 8^2)) = 0.5
+    assert train_shrink_pct(score(("a",), (3.0, 4.0)), score(("b",), (6.0, 8.0))) == pytest.approx(50.0)
