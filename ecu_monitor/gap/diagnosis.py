@@ -48,7 +48,9 @@ class GapSettings:
     a pair must beat the single effect (or, when no single counts, the control) by
     ``pair_min_shrink_pct`` (a higher bar than a single effect
     against the control: the second effect of a pair is fitted to what the first one leaves, small
-    structured remainders such as a slightly wrong nominal altitude exponent included)."""
+    structured remainders such as a slightly wrong nominal altitude exponent included), and must also
+    shrink its reference's TRAIN RMS by ``significance.min_shrink_pct``: a second effect has to explain
+    the flights it was fitted on, not only an accident of the held-out ones."""
 
     candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
     refit: RefitSettings = field(default_factory=RefitSettings)
