@@ -1,11 +1,14 @@
 """DroneCAN (UAVCAN v0) on the CAN bus: message fields in, the service's node publications out.
 
-The message layouts, the transfer CRC and the frame reassembly are the ``dronecan`` package's (its DSDL
-definitions, :class:`dronecan.transport.TransferManager` and :meth:`dronecan.transport.Transfer.from_frames`);
-this module adds what a monitor needs around them: the choice of frames, a source-node filter, a
-timeout for transfers left half-way, counts of every frame by what became of it, field paths and unit
-conversion. ``dronecan`` is imported on first use (``import dronecan`` parses its DSDL tree, ~0.3 s), so
-the DBC path of the service never pays for it.
+The message layouts are the ``dronecan`` package's DSDL definitions, prepared once per data type into
+:class:`ecu_monitor.bus.dronecan_codec.MessageCodec` (integer and struct arithmetic, checked bit for bit
+against the package), and so are the data type ids and the transfer CRC seeds. The frames are reassembled
+here as the package's ``TransferManager`` and ``Transfer.from_frames`` do (a transfer keyed by CAN id and
+transfer id, restarted by a start frame, ended by an end frame, toggle bits alternating from 0, the transfer
+CRC of a multi-frame transfer), without their per-frame objects. This module adds what a monitor needs
+around them: the choice of frames, a source-node filter, a timeout for transfers left half-way, counts of
+every frame by what became of it, field paths and unit conversion. ``dronecan`` is imported on first use
+(``import dronecan`` parses its DSDL tree, ~0.3 s), so the DBC path of the service never pays for it.
 
 * :class:`DroneCanDecoder` (the counterpart of :class:`ecu_monitor.bus.codec.Decoder`, same interface):
   a value is ``Type.field.path`` of a broadcast message, e.g.
@@ -23,11 +26,13 @@ the DBC path of the service never pays for it.
   first frame), ``transfer_timeout`` (the frames of a transfer that did not end within
   :data:`TRANSFER_TIMEOUT_S`, or pushed out by more than :data:`MAX_PENDING_TRANSFERS` in progress),
   ``bad_toggle`` (toggle bit out of sequence: a frame lost or repeated), ``bad_crc`` (transfer CRC of a
-  multi-frame transfer), ``bad_transfer`` (other tail-byte errors) and ``decode_error`` (the payload
-  does not unpack). A completed transfer counts its frames ``ok``. A field that is NaN or infinite
-  (DSDL: unknown) gives no value (counted ``unknown_value``, not malformed), so that input goes stale
-  rather than take a made-up number. Transfers are keyed by CAN id (priority, type, source node) and
-  5-bit transfer id, so transfers of several nodes interleave and the transfer id wraps 31 -> 0.
+  multi-frame transfer), ``bad_transfer`` (other tail-byte errors: kept among the keys, the reassembly
+  cannot produce them) and ``decode_error`` (the payload does not unpack: too short for its fields, a
+  multi-frame transfer shorter than its CRC, an array longer than its DSDL capacity). A completed
+  transfer counts its frames ``ok``. A field that is NaN or infinite (DSDL: unknown) gives no value
+  (counted ``unknown_value``, not malformed), so that input goes stale rather than take a made-up
+  number. Transfers are keyed by CAN id (priority, type, source node) and 5-bit transfer id, so
+  transfers of several nodes interleave and the transfer id wraps 31 -> 0.
 
 * :class:`DroneCanEncoder`: values -> the frames of one transfer (the service's NodeStatus, KeyValue
   and LogMessage; the virtual ECU's engine and air-data messages), transfer id per data type.
@@ -35,8 +40,6 @@ the DBC path of the service never pays for it.
 
 from __future__ import annotations
 
-import functools
-import logging
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -49,6 +52,14 @@ if TYPE_CHECKING:
     from can.typechecking import CanFilter
 
 from ecu_monitor.bus.codec import MALFORMED_REASONS, BatchDecoded, SignalSpec
+from ecu_monitor.bus.dronecan_codec import (
+    MessageCodec,
+    PayloadError,
+    dronecan_module,
+    message_codec,
+    transfer_crc,
+    transfer_frames,
+)
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.units import QUANTITY_OF_COLUMN, Unit, pressure_altitude_m
 
@@ -81,19 +92,6 @@ DRONECAN_REASONS: tuple[str, ...] = (
 _REDUCTIONS = ("mean", "max", "min")
 _STEP = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+|mean|max|min)\])?$")
 _CAN_ID_MASK = 0x1FFFFFFF
-
-
-@functools.cache
-def dronecan_module() -> Any:
-    """The ``dronecan`` package, imported on first use (it parses its DSDL tree on import)."""
-    quiet = logging.Filter("-")  # drops every record: the import's note that its SLCAN driver lacks pyserial
-    driver_log = logging.getLogger("dronecan.driver.slcan")
-    driver_log.addFilter(quiet)
-    try:
-        import dronecan
-    finally:
-        driver_log.removeFilter(quiet)
-    return dronecan
 
 
 class FieldPath(NamedTuple):
@@ -163,7 +161,7 @@ def parse_field(ref: str) -> FieldPath:
 
 
 def _value(node: Any, steps: tuple[str | int, ...]) -> float:
-    """The number at ``steps`` below a decoded value (NaN if absent or not finite)."""
+    """The number at ``steps`` below a decoded value (field name -> value; NaN if absent or not finite)."""
     for i, step in enumerate(steps):
         if isinstance(step, int):
             if step >= len(node):
@@ -178,7 +176,7 @@ def _value(node: Any, steps: tuple[str | int, ...]) -> float:
                 return math.fsum(values) / len(values)
             return max(values) if step == "max" else min(values)
         else:
-            node = getattr(node, step)
+            node = node[step]
     value = float(node)
     return value if math.isfinite(value) else math.nan
 
@@ -192,9 +190,9 @@ class _Field(NamedTuple):
 
 @dataclass
 class _Reassembly:
-    """Transfers in progress: the package's TransferManager plus the frame time each one started."""
+    """Transfers in progress: (CAN id, transfer id) -> the frames so far, and the frame time each one started."""
 
-    manager: Any
+    active: dict[tuple[int, int], list[bytes]]
     started: dict[tuple[int, int], float]
 
 
@@ -211,7 +209,6 @@ class DroneCanDecoder:
         self.names: tuple[str, ...] = tuple(s.name for s in specs)
         if len(set(self.names)) != len(self.names):
             raise ConfigError(f"duplicate value names in {self.names}")
-        self._dronecan = dronecan_module()
         plans: dict[int, list[_Field]] = {}
         self._type_names: dict[int, str] = {}
         for index, spec in enumerate(specs):
@@ -224,6 +221,7 @@ class DroneCanDecoder:
             plans.setdefault(path.data_type_id, []).append(_Field(index, path.steps, unit, to_altitude))
             self._type_names[path.data_type_id] = path.type_name
         self._plans = {dtid: tuple(fields) for dtid, fields in plans.items()}
+        self._codecs: dict[int, MessageCodec] = {dtid: message_codec(name) for dtid, name in self._type_names.items()}
         self.source_node_ids: frozenset[int] = frozenset(int(n) for n in source_node_ids)
         for node in self.source_node_ids:
             if not 1 <= node <= 127:
@@ -241,8 +239,9 @@ class DroneCanDecoder:
         node; the node filter is the decoder's)."""
         return [{"can_id": dtid << 8, "can_mask": 0x00FFFF80, "extended": True} for dtid in self.frame_ids]
 
-    def _new_reassembly(self) -> _Reassembly:
-        return _Reassembly(self._dronecan.transport.TransferManager(), {})
+    @staticmethod
+    def _new_reassembly() -> _Reassembly:
+        return _Reassembly({}, {})
 
     def decode(
         self, arbitration_id: int, is_extended: bool, data: bytes | bytearray, time_s: float
@@ -266,52 +265,64 @@ class DroneCanDecoder:
         if not payload:
             _malformed(counts, "bad_dlc")
             return None
-        transport = self._dronecan.transport
-        frame = transport.Frame(can_id & _CAN_ID_MASK, payload)
-        key = frame.transfer_key
-        active = state.manager.active_transfers
-        if frame.start_of_transfer:
+        tail = payload[-1]
+        key = (can_id & _CAN_ID_MASK, tail & 0x1F)
+        active = state.active
+        if tail & 0x80:  # start of transfer
             if key in active:  # a new start replaces the unfinished transfer
-                _malformed(counts, "transfer_timeout", len(active[key]))
-                del active[key]
+                _malformed(counts, "transfer_timeout", len(active.pop(key)))
             state.started[key] = time_s
             if len(active) >= MAX_PENDING_TRANSFERS:
                 oldest = min(state.started, key=lambda k: state.started[k] if k in active else math.inf)
                 if oldest in active:
                     _malformed(counts, "transfer_timeout", len(active.pop(oldest)))
                     state.started.pop(oldest, None)
-                    state.manager.active_transfer_timestamps.pop(oldest, None)
+            if not tail & 0x40:
+                active[key] = [payload]
+                return None
+            frames = [payload]
         elif key not in active:
             _malformed(counts, "orphan_frame")
             return None
         elif time_s - state.started.get(key, time_s) > TRANSFER_TIMEOUT_S:
             _malformed(counts, "transfer_timeout", len(active.pop(key)) + 1)
             state.started.pop(key, None)
-            state.manager.active_transfer_timestamps.pop(key, None)
             return None
-        frames = state.manager.receive_frame(frame)
-        if frames is None:
-            return None
+        else:
+            frames = active[key]
+            frames.append(payload)
+            if not tail & 0x40:
+                return None
+            del active[key]
         state.started.pop(key, None)
-        transfer = transport.Transfer()
+        # a start frame restarts and an end frame ends the transfer, so only the toggle bits can be out of order
+        for i, frame in enumerate(frames):
+            if (frame[-1] & 0x20) != (i & 1) << 5:
+                _malformed(counts, "bad_toggle", len(frames))
+                return None
+        codec = self._codecs[key[0] >> 8 & 0xFFFF]
+        if len(frames) == 1:
+            body = payload[:-1]
+        else:
+            body = b"".join([frame[:-1] for frame in frames])
+            if len(body) < 2:
+                _malformed(counts, "decode_error", len(frames))
+                return None
+            if transfer_crc(body[2:], codec.base_crc or 0) != body[0] | body[1] << 8:
+                _malformed(counts, "bad_crc", len(frames))
+                return None
+            body = body[2:]
         try:
-            transfer.from_frames(frames)
-        except transport.TransferError as exc:
-            text = str(exc)
-            reason = (
-                "bad_crc" if text.startswith("CRC") else "bad_toggle" if text.startswith("Toggle") else "bad_transfer"
-            )
-            _malformed(counts, reason, len(frames))
-            return None
-        except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError, ZeroDivisionError):
+            message = codec.decode(body)
+        except PayloadError:
             _malformed(counts, "decode_error", len(frames))
             return None
         counts["ok"] += len(frames)
         out: list[tuple[int, float]] = []
         for f in fields:
             try:
-                raw = _value(transfer.payload, f.steps)
-            except (ValueError, IndexError, TypeError, AttributeError, OverflowError):
+                raw = _value(message, f.steps)
+            except (ValueError, IndexError, KeyError, TypeError, OverflowError):
                 raw = math.nan
             if math.isnan(raw):
                 counts["unknown_value"] += 1
@@ -405,78 +416,37 @@ def looks_like_dronecan(
 
 
 class DroneCanEncoder:
-    """Values -> the frames of one broadcast transfer, through the DSDL definitions.
+    """Values -> the frames of one broadcast transfer, through the DSDL definitions (prepared once per type,
+    :class:`~ecu_monitor.bus.dronecan_codec.MessageCodec`).
 
     ``node_id``: the sending node (1..127). :meth:`frames` keeps one transfer id per data type
     (+1 modulo 32 per transfer). Values are given as a mapping of field name -> number, string (byte
     arrays: text, cut to the array's capacity), nested mapping (a compound field) or list of mappings
     (an array of compounds). A float field not given is NaN (DSDL: unknown); an integer field not
-    given is 0; numbers beyond an integer field's range saturate (the DSDL cast).
+    given is 0; numbers beyond a field's range are cast as DSDL says (saturated: clamped).
     """
 
     def __init__(self, node_id: int) -> None:
         if not (isinstance(node_id, int) and 1 <= node_id <= 127):
             raise ConfigError(f"DroneCAN node id {node_id!r}: expected 1..127")
         self.node_id = node_id
-        self._dronecan = dronecan_module()
         self._transfer_ids: dict[str, int] = {}
 
-    def payload(self, type_name: str, values: Mapping[str, Any]) -> Any:
-        """The message ``type_name`` filled from ``values`` (a dronecan CompoundValue)."""
-        return _compound(self._dronecan, self._dronecan.TYPENAMES[type_name], values)
+    def payload(self, type_name: str, values: Mapping[str, Any]) -> bytes:
+        """The payload bytes of the message ``type_name`` filled from ``values`` (without the transfer CRC)."""
+        return message_codec(type_name).encode(values)
 
     def frames(self, type_name: str, values: Mapping[str, Any], time_s: float, priority: int = 24) -> list[Any]:
         """The ``can.Message`` frames of one transfer of ``type_name`` stamped ``time_s`` (s)."""
         import can
 
+        codec = message_codec(type_name)
+        if codec.data_type_id is None or codec.base_crc is None:
+            raise ValueError(f"{type_name}: not a broadcast message with a data type id")
         transfer_id = self._transfer_ids.get(type_name, 0)
         self._transfer_ids[type_name] = (transfer_id + 1) % 32
-        transfer = self._dronecan.transport.Transfer(
-            transfer_id=transfer_id,
-            source_node_id=self.node_id,
-            payload=self.payload(type_name, values),
-            transfer_priority=priority,
-        )
+        can_id = (priority & 0x1F) << 24 | codec.data_type_id << 8 | self.node_id
         return [
-            can.Message(timestamp=time_s, arbitration_id=f.message_id, is_extended_id=True, data=bytes(f.bytes))
-            for f in transfer.to_frames()
+            can.Message(timestamp=time_s, arbitration_id=can_id, is_extended_id=True, data=data)
+            for data in transfer_frames(codec.encode(values), transfer_id, codec.base_crc)
         ]
-
-
-def _compound(dronecan: Any, dtype: Any, values: Mapping[str, Any]) -> Any:
-    """A CompoundValue of ``dtype`` from ``values`` (see :class:`DroneCanEncoder`)."""
-    primitive = dronecan.dsdl.PrimitiveType
-    out = dronecan.transport.CompoundValue(dtype)
-    fields = {f.name: f.type for f in dtype.fields if f.name}
-    for name in values:
-        if name not in fields:
-            raise KeyError(f"{dtype.full_name} has no field {name!r}")
-    for name, ftype in fields.items():
-        value = values.get(name)
-        kind = getattr(ftype, "kind", None)
-        if value is None:
-            if kind == primitive.KIND_FLOAT:
-                setattr(out, name, math.nan)
-            continue
-        if hasattr(ftype, "value_type"):
-            if isinstance(value, str):
-                setattr(out, name, value.encode("ascii", "replace")[: ftype.max_size].decode("ascii"))
-            elif isinstance(ftype.value_type, primitive):
-                setattr(out, name, [_number(ftype.value_type, item) for item in value][: ftype.max_size])
-            else:
-                setattr(out, name, [_compound(dronecan, ftype.value_type, item) for item in value][: ftype.max_size])
-        elif hasattr(ftype, "fields"):
-            setattr(out, name, _compound(dronecan, ftype, value))
-        else:
-            setattr(out, name, _number(ftype, value))
-    return out
-
-
-def _number(ftype: Any, value: Any) -> float | int | bool:
-    """``value`` as the Python number a primitive DSDL field takes (integers rounded, non-finite 0)."""
-    if ftype.kind == ftype.KIND_FLOAT:
-        return float(value)
-    if ftype.kind == ftype.KIND_BOOLEAN:
-        return bool(value)
-    number = float(value)
-    return round(number) if math.isfinite(number) else 0
