@@ -459,16 +459,17 @@ class Pipeline:
         self._last_step = (time_s, results, stale)
         self._snapshot = None
         k = self._k
-        if k % self._status_period == 0:
+        status_due = k % self._status_period == 0
+        if status_due:
             self._rows.append(self.snapshot())
-            if self._node is not None:
-                published = self._node.frames(time_s, self.snapshot())
-                self.counters["dronecan_frames"] += len(published)
-                frames.extend(published)
         if self._dbc_health:
             for message, period in self._periods.items():
                 if k % period == 0:
                     frames.extend(self._health_frames(message, self.snapshot()))
+        if status_due and self._node is not None:  # after the health.dbc frames: a KeyValue burst never delays them
+            published = self._node.frames(time_s, self.snapshot())
+            self.counters["dronecan_frames"] += len(published)
+            frames.extend(published)
 
     def _build_snapshot(
         self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]], stale: list[str]
