@@ -23,6 +23,7 @@ from ecu_monitor.estimation import (
 )
 from ecu_monitor.estimation.ekf import scalar_drive
 from ecu_monitor.estimation.quantiser import quantise, reset_value
+from ecu_monitor.estimation.runner import run_estimator_on_calls, run_estimator_on_steps
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import (
     Drive,
@@ -284,6 +285,29 @@ def test_python_and_compiled_trace_loops_agree():
     assert np.max(np.abs(fast.cht_est_c - slow.cht_est_c)) < 1e-9
     assert np.array_equal(fast.reset, slow.reset)
     assert np.nanmax(np.abs(fast.nis - slow.nis)) < 1e-9
+
+
+@pytest.mark.parametrize("name", ["ekf", "cbekf", "cbekf-au", "cbekf-iso"])
+def test_estimator_on_calls_equals_the_steps_with_inputs_held(name):
+    """The replay's call-level runner makes the very filter steps of the per-step runner: inputs held
+    between irregular calls, readings only at some calls, equal bit for bit at every call."""
+    log, _ = _flight(120.0, gamma_q=1.25, inject_s=40.0, vary=True)
+    n = len(log)
+    rng = np.random.default_rng(3)
+    calls = np.concatenate(([0], np.sort(rng.choice(np.arange(1, n), size=n // 5, replace=False))))
+    which = np.repeat(np.arange(calls.size), np.diff(calls, append=n))
+    names = ("throttle_pct", "rpm", "altitude_m", "airspeed_mps", "oat_c")
+    columns = [np.asarray(log[c])[calls] for c in names]
+    z = np.where(rng.random(calls.size) < 0.7, np.asarray(log["cht_c"])[calls], np.nan)
+    z[0] = log["cht_c"][0]
+    per_step_z = np.full(n, np.nan)
+    per_step_z[calls] = z
+    settings = EstimatorSettings()
+    steps = run_estimator_on_steps(log.time_s, InputSeries(*(v[which] for v in columns)), per_step_z, PARAMS, name,
+                                   settings)  # fmt: skip
+    on_calls = run_estimator_on_calls(log.time_s, calls, InputSeries(*columns), z, PARAMS, name, settings)
+    assert np.array_equal(on_calls.cht_est_c, steps.cht_est_c[calls])
+    assert np.array_equal(on_calls.deviation, steps.deviation[calls])
 
 
 # --- contract and errors -------------------------------------------------------------------------

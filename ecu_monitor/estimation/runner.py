@@ -25,7 +25,7 @@ import math
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,6 +40,7 @@ from ecu_monitor.estimation.ekf import (
     ThermalEKF,
     compiled_filter,
     filter_step,
+    filter_steps,
     scalar_coefficients,
 )
 from ecu_monitor.estimation.quantiser import level_of
@@ -53,10 +54,12 @@ from ecu_monitor.model.kernels import fingerprint, jit
 
 __all__ = [
     "INPUT_COLUMNS",
+    "CallTrace",
     "EstimateTrace",
     "FixedStepFlight",
     "fixed_step_flight",
     "run_estimator",
+    "run_estimator_on_calls",
     "run_estimator_on_steps",
     "sample_indices",
     "trace_loop",
@@ -213,6 +216,57 @@ def trace_loop(
         out_reset[k] = did_reset
 
 
+def calls_loop(
+    q_sl0_w: NDArray[np.float64],
+    altitude_gain: NDArray[np.float64],
+    ambient_c: NDArray[np.float64],
+    conductance_w_per_c: NDArray[np.float64],
+    heat_gain: NDArray[np.float64],
+    z_c: NDArray[np.float64],
+    measured: NDArray[np.bool_],
+    substeps: NDArray[np.int64],
+    coeffs: Coefficients,
+    initial_var: float,
+    dt: float,
+    Q: float,
+    R: float,
+    a: float,
+    b: float,
+    c: float,
+    tau: float,
+    use_deviation: bool,
+    reset_code: int,
+    out_x: NDArray[np.float64],
+    out_delta: NDArray[np.float64],
+) -> None:
+    """:func:`trace_loop` recorded at filter calls only: call i >= 1 makes ``substeps[i]`` fixed steps
+    with call i-1's drive, the reading z_c[i] on the last (:func:`ecu_monitor.estimation.ekf.filter_steps`,
+    the live filter's own loop). The very filter steps :func:`trace_loop` makes on inputs held between
+    calls, without a drive or an output per step. Call 0 initialises from z_c[0]."""
+    z0 = z_c[0]
+    state = FilterState(z0, initial_var, 2.0 * q_sl0_w[0], 0.0, z0, 0.0, level_of(z0, c))
+    out_x[0] = z0
+    out_delta[0] = 0.0
+    for k in range(1, z_c.shape[0]):
+        drive = Drive(
+            q_sl0_w[k - 1], altitude_gain[k - 1], ambient_c[k - 1], conductance_w_per_c[k - 1], heat_gain[k - 1]
+        )
+        state, _, _, _ = filter_steps(
+            state, drive, z_c[k], measured[k], coeffs, dt, Q, R, a, b, c, tau, use_deviation, reset_code, substeps[k]
+        )
+        out_x[k] = state.x
+        out_delta[k] = state.delta if use_deviation else 0.0
+
+
+@functools.cache
+def _compiled_calls_loop() -> Callable[..., None]:
+    """numba twin of :func:`calls_loop`, calling the compiled filter steps (cached on disk)."""
+    filter_ = compiled_filter()
+    tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, _ekf_module, sys.modules[__name__])])
+    loop: Callable[..., None] = jit(calls_loop, tag, filter_steps=filter_.steps, level_of=filter_.level_of)
+    return loop
+
+
 @functools.cache
 def _compiled_loop() -> Callable[..., None]:
     """numba twin of :func:`trace_loop`, calling the compiled filter step (cached on disk)."""
@@ -286,7 +340,7 @@ def _run_stepwise(flight: FixedStepFlight, estimator: Any, name: str) -> Estimat
     n = flight.time_s.size
     out = {key: np.full(n, np.nan) for key in ("x", "P", "dev", "inn", "nis")}
     reset = np.zeros(n, dtype=np.bool_)
-    columns = [np.asarray(v, dtype=float) for v in flight.inputs]
+    columns = [np.broadcast_to(np.asarray(v, dtype=float), (n,)) for v in flight.inputs]  # a float: every step
 
     def inputs_at(k: int) -> InputSeries:
         return InputSeries(*(float(col[k]) for col in columns))
@@ -355,3 +409,53 @@ def run_estimator_on_steps(
     if isinstance(estimator, ThermalEKF):
         return _run_compiled(flight, params, settings, estimator, True)
     return _run_stepwise(flight, estimator, name)
+
+
+class CallTrace(NamedTuple):
+    """The estimate and the model deviation at each filter call (:func:`run_estimator_on_calls`):
+    cht_est_c degC, deviation Delta/dt degC/s."""
+
+    cht_est_c: NDArray[np.float64]
+    deviation: NDArray[np.float64]
+
+
+def run_estimator_on_calls(
+    time_s: NDArray[np.float64],
+    calls: NDArray[np.int64],
+    inputs: InputSeries,
+    z_c: NDArray[np.float64],
+    params: ThermalParams,
+    name: str,
+    settings: EstimatorSettings | None = None,
+) -> CallTrace:
+    """:func:`run_estimator_on_steps` with the inputs held between filter calls, recorded at the calls
+    only (the replay's batch path). ``time_s``: every step (every ``settings.dt_s``); ``calls``: the
+    steps the filter is called on (increasing, calls[0] == 0); ``inputs`` and ``z_c`` per call (the
+    inputs used by the steps up to the next call; the reading applied at the call, nan: none; z_c[0]
+    finite). Equal to :func:`run_estimator_on_steps` over the steps with those inputs held, taken at
+    the calls; the built-in filters compute the model's drive per call instead of per step."""
+    settings = settings if settings is not None else EstimatorSettings()
+    estimator = make_estimator(name, params, settings)
+    z = np.ascontiguousarray(z_c, dtype=np.float64)
+    if not math.isfinite(float(z[0])):
+        raise FlightLogError("run_estimator_on_calls: no reading at the first call")
+    at = np.asarray(calls, dtype=np.int64)
+    if not isinstance(estimator, ThermalEKF):  # step by step through estimate(), the inputs held per step
+        held = np.repeat(np.arange(at.size), np.diff(at, append=len(time_s)))
+        per_step = np.full(len(time_s), np.nan)
+        per_step[at] = z
+        series = InputSeries(*(np.broadcast_to(np.asarray(v, dtype=np.float64), (at.size,))[held] for v in inputs))
+        trace = run_estimator_on_steps(time_s, series, per_step, params, name, settings)
+        return CallTrace(trace.cht_est_c[at], trace.deviation[at])
+    coeffs = scalar_coefficients(coefficients(params))
+    drive = compute_drive_compiled(InputSeries(*(np.ascontiguousarray(v, dtype=np.float64) for v in inputs)), coeffs)
+    n = z.size
+    arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
+    out_x, out_delta = np.empty(n), np.empty(n)
+    s = settings
+    _compiled_calls_loop()(
+        *arrays, z, np.isfinite(z), np.diff(at, prepend=0), coeffs, s.initial_var, s.dt_s, s.process_var,
+        s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, estimator.use_deviation,
+        _RESET_CODES[estimator.reset_mode], out_x, out_delta,
+    )  # fmt: skip
+    return CallTrace(out_x, out_delta / s.dt_s)

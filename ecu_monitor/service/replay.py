@@ -36,9 +36,9 @@ from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, FrameArrays, load_flight, r
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
-from ecu_monitor.estimation.runner import run_estimator_on_steps
+from ecu_monitor.estimation.runner import run_estimator_on_calls
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import ThermalParams, coefficients
+from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.compiled import simulate_compiled
 from ecu_monitor.model.inputs import series_of
 from ecu_monitor.service.batch_health import detect_states, detector_feed, headroom_batch, held_headroom
@@ -201,10 +201,10 @@ def _replay_segment(
         )
         for number, (name, model) in enumerate(zip(cylinder_inputs, params, strict=True), start=1)
     ]
-    bits = np.zeros(n, dtype=np.int64)
+    bits = np.zeros(rows.size, dtype=np.int64)  # the stale bits of each health row
     for name in mapped:
         report = CHT_INPUT if name in cylinder_inputs else name
-        bits |= stale[name].astype(np.int64) << INPUT_NAMES.index(report)
+        bits |= stale[name][rows].astype(np.int64) << INPUT_NAMES.index(report)
     fault = STATES.index("SENSOR_FAULT")
     if count == 1:
         cyl = cylinders[0]
@@ -217,11 +217,11 @@ def _replay_segment(
             "gamma_d": cyl.gamma_d[rows],
             "headroom_s": cyl.headroom[rows],
             "state": cyl.state[rows].astype(np.int64),
-            "stale": bits[rows],
+            "stale": bits,
             "sensor_fault": cyl.code[rows] == fault,
         }
         return out, n, cyl.feed
-    out = {"time_s": times[rows], "stale": bits[rows]}
+    out = {"time_s": times[rows], "stale": bits}
     for number, cyl in enumerate(cylinders, start=1):
         out.update({
             f"cyl{number}_cht_meas_c": cyl.reading[rows],
@@ -286,15 +286,20 @@ def _replay_cylinder(
     stretches = estimator_stretches(action)
     period = filter_period_steps(dt)
     model_c = np.full(n, np.nan)
-    calls: list[np.ndarray] = []  # for each stretch: the filter call step of every step (held outputs)
+    # per stretch: the filter call steps (the steps k, 1-based, with k % period == 0, and the
+    # initialisation), the inputs held at them, and for each step of the stretch its call
+    plans: list[tuple[NDArray[np.int64], NDArray[np.int64], dict[str, NDArray[np.float64]], InputSeries]] = []
     for a, b in stretches:
-        # filter calls on the steps k (1-based) with k % period == 0, and at the initialisation
-        call = np.maximum(a, period * ((np.arange(a, b) + 1) // period) - 1)
-        calls.append(call)
-        # the open-loop reference: the nominal model from the first reading, the filters' inputs
-        series = series_of({name: v[call] for name, v in inputs.items()}, params.heat_axes, mixture)
+        at_calls = np.concatenate(([a], np.arange(period * ((a + 1) // period + 1) - 1, b, period)))
+        which = np.repeat(np.arange(at_calls.size), np.diff(at_calls, append=b))
+        at_inputs = {name: held[at_calls] for name, held in inputs.items()}
+        # the model's inputs at the calls (the mixture index only if the config maps its columns)
+        at_series = series_of(at_inputs, params.heat_axes, mixture)
+        plans.append((at_calls, which, at_inputs, at_series))
+        # the open-loop reference: the nominal model from the first reading, the filters' inputs held
+        series = InputSeries(*(np.broadcast_to(v, (at_calls.size,))[which] for v in at_series))
         reference = simulate_compiled(series, coefficients(params), dt, float(reading[a])).cht_c
-        model_c[a:b] = reference[call - a]
+        model_c[a:b] = reference[at_calls - a][which]
     # pass 2: with the open-loop model, the states and the estimator's actions
     run(times, any_stale, new_reading, reading, reading_bad, np.where(np.isnan(model_c), reading, model_c), *args)
     if estimator_stretches(action) != stretches:  # the stuck test never starts or stops the estimator
@@ -305,26 +310,19 @@ def _replay_cylinder(
     gamma_d = np.full(n, np.nan)
     iso_dev = np.full(n, np.nan)
     arrivals = np.concatenate(([0], np.cumsum(new_reading)))  # readings arrived in steps [0, j)
-    for (a, b), call in zip(stretches, calls, strict=True):
-        steps = np.arange(a, b)
-        is_call = (call == steps) & (steps > a)
-        window = arrivals[steps + 1] - arrivals[np.maximum(steps - period, a) + 1] > 0
-        use = is_call & window & (code[a:b] == 0)
-        z = np.where(use, reading[a:b], np.nan)
-        z[0] = reading[a]
-        # the inputs as they are, on the steps (the mixture index only if the config maps its columns)
-        series = series_of({name: v[call] for name, v in inputs.items()}, params.heat_axes, mixture)
-        trace = run_estimator_on_steps(times[a:b], series, z, params, config.estimator_name, config.estimator)
-        est[a:b] = trace.cht_est_c[call - a]
-        deviation[a:b] = trace.deviation[call - a]
-        # the isolation filter on the call steps only: each row integrates the steps since the previous
-        # call (run_isolation's sub-steps) with that call's inputs, as the live filter does
-        new_call = np.concatenate(([True], call[1:] != call[:-1]))  # call never decreases
-        at_calls = call[new_call]
-        at_inputs = {k: v[at_calls] for k, v in inputs.items()}
-        calls_log = FlightLog({"time_s": times[at_calls], **at_inputs, "cht_c": z[at_calls - a]}, source="replay")
+    for (a, b), (at_calls, which, at_inputs, at_series) in zip(stretches, plans, strict=True):
+        # a reading is applied at a call if one arrived since the previous call and the step is NOMINAL
+        later = at_calls[1:]
+        window = arrivals[later + 1] - arrivals[np.maximum(later - period, a) + 1] > 0
+        z = np.concatenate(([reading[a]], np.where(window & (code[later] == 0), reading[later], np.nan)))
+        trace = run_estimator_on_calls(times[a:b], at_calls - a, at_series, z, params, config.estimator_name,
+                                       config.estimator)  # fmt: skip
+        est[a:b] = trace.cht_est_c[which]
+        deviation[a:b] = trace.deviation[which]
+        # the isolation filter on the call steps: each call integrates the steps since the previous one
+        # (run_isolation's sub-steps) with that call's inputs, as the live filter does
+        calls_log = FlightLog({"time_s": times[at_calls], **at_inputs, "cht_c": z}, source="replay")
         iso = run_isolation(calls_log, params, IsolationSettings(dt_s=dt))
-        which = np.cumsum(new_call) - 1
         gamma_q[a:b] = iso.gamma_q[which]
         gamma_d[a:b] = iso.gamma_d[which]
         iso_dev[a:b] = iso.deviation[which]
