@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from ecu_monitor.estimation.detection import cusum_blocks
 from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
 from ecu_monitor.model.inputs import series_of
+from ecu_monitor.service.batch_steps import HeldInput
 from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S
 from ecu_monitor.service.supervision import ACTION_INITIALISE, ACTION_NONE, STATES
@@ -95,7 +96,7 @@ def detect_states(
 def held_headroom(
     params: ThermalParams,
     times: NDArray[np.float64],
-    inputs: dict[str, NDArray[np.float64]],
+    inputs: dict[str, HeldInput],
     est: NDArray[np.float64],
     gamma_q: NDArray[np.float64],
     gamma_d: NDArray[np.float64],
@@ -109,7 +110,7 @@ def held_headroom(
     running = action != ACTION_NONE
     due = running & (step_numbers % period == 0)
     idx = np.flatnonzero(due)
-    series = series_of({name: v[idx] for name, v in inputs.items()}, params.heat_axes, params.effects.mixture_index)
+    series = series_of({name: v.at(idx) for name, v in inputs.items()}, params.heat_axes, params.effects.mixture_index)
     computed = headroom_batch(params, series, est[idx], gamma_q[idx], gamma_d[idx])
     # hold: last computation since the last (re)initialisation, nan after a stop or before the first
     value = np.full(n, np.nan)

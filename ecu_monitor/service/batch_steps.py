@@ -52,34 +52,46 @@ def compiled_supervisor() -> Callable[..., None]:
 
 
 class HeldInput(NamedTuple):
-    """An input sampled and held on the steps: value, stamp of the frame (nan: none), frames seen."""
+    """An input sampled and held on the steps: the frames' values, the index of the latest frame before
+    each step (-1: none yet), its stamp per step (nan: none) and the frames seen per step. The held
+    values are taken at the steps asked for (:meth:`at`), not made for every step."""
 
-    value: NDArray[np.float64]
+    values: NDArray[np.float64]
+    latest: NDArray[np.int64]
     stamp: NDArray[np.float64]
     frames_seen: NDArray[np.int64]
+
+    def at(self, steps: NDArray[np.intp] | slice) -> NDArray[np.float64]:
+        """The value held at ``steps`` (nan before the first frame)."""
+        j = self.latest[steps]
+        if not self.values.size:
+            return np.full(j.shape, np.nan)
+        value = self.values[np.maximum(j, 0)]
+        value[j < 0] = np.nan
+        return value
+
+    @property
+    def value(self) -> NDArray[np.float64]:
+        """The value held at every step."""
+        return self.at(slice(None))
 
 
 def hold_inputs(
     frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64], like: HeldInput | None = None
 ) -> HeldInput:
-    """Values held at each step from ``j`` (index of the latest valid frame stamped strictly before the
-    step, -1: none yet; a frame fed after advance_to(t) is stamped t).
+    """``values`` held on the steps from ``j`` (index of the latest valid frame stamped strictly before
+    the step, -1: none yet; a frame fed after advance_to(t) is stamped t).
 
     ``like``: an input already held from the same frames and the same ``j`` (another field of the
     message); its stamp and frames_seen arrays are shared, not made again (16 h: 23 MB each). The
     returned arrays are not to be written to."""
-    if not values.size:
-        nothing = np.full(j.size, np.nan)
-        return HeldInput(nothing, nothing, j + 1)
-    unseen = j < 0
-    latest = np.maximum(j, 0)
-    value = values[latest]
-    value[unseen] = np.nan
     if like is not None:
-        return HeldInput(value, like.stamp, like.frames_seen)
-    stamp = frame_stamps[latest]
-    stamp[unseen] = np.nan
-    return HeldInput(value, stamp, j + 1)
+        return HeldInput(values, j, like.stamp, like.frames_seen)
+    if not values.size:
+        return HeldInput(values, j, np.full(j.size, np.nan), j + 1)
+    stamp = frame_stamps[np.maximum(j, 0)]
+    stamp[j < 0] = np.nan
+    return HeldInput(values, j, stamp, j + 1)
 
 
 def estimator_stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:
