@@ -16,6 +16,7 @@ import yaml
 from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.cli import main
 from ecu_monitor.model import InputSeries, paper_table_a1
+from ecu_monitor.service.batch_steps import latest_before
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.replay import headroom_batch, replay_file, replay_frames, replay_live
 
@@ -265,3 +266,12 @@ def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str
     for name in NUMERIC:
         assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
         assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name
+
+
+def test_latest_frame_before_each_step_is_the_binary_search():
+    """The replay's merge of frame stamps and step times equals searchsorted, ties and gaps included."""
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        frames = np.sort(np.round(rng.random(rng.integers(0, 40)) * 10.0, 1))  # repeated stamps too
+        steps = np.unique(np.round(rng.random(rng.integers(1, 60)) * 12.0, 1))
+        assert np.array_equal(latest_before(frames, steps), np.searchsorted(frames, steps, side="left") - 1)

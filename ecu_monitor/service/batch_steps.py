@@ -51,6 +51,31 @@ def compiled_supervisor() -> Callable[..., None]:
     return loop
 
 
+def _latest_before_loop(frame_stamps: NDArray[np.float64], times: NDArray[np.float64], out: NDArray[np.int64]) -> None:
+    j = 0
+    m = frame_stamps.shape[0]
+    for k in range(times.shape[0]):
+        t = times[k]
+        while j < m and frame_stamps[j] < t:
+            j += 1
+        out[k] = j - 1
+
+
+@functools.cache
+def _compiled_latest_before() -> Callable[..., None]:
+    loop: Callable[..., None] = jit(_latest_before_loop, fingerprint([__file__]))
+    return loop
+
+
+def latest_before(frame_stamps: NDArray[np.float64], times: NDArray[np.float64]) -> NDArray[np.int64]:
+    """For each step time, the index of the last frame stamped strictly before it (-1: none):
+    ``np.searchsorted(frame_stamps, times, side="left") - 1`` for non-decreasing ``frame_stamps`` and
+    increasing ``times``, as one merge of the two (compiled) instead of a binary search per step."""
+    out = np.empty(times.size, dtype=np.int64)
+    _compiled_latest_before()(np.ascontiguousarray(frame_stamps), np.ascontiguousarray(times), out)
+    return out
+
+
 class HeldInput(NamedTuple):
     """An input sampled and held on the steps: the frames' values, the index of the latest frame before
     each step (-1: none yet), its stamp per step (nan: none) and the frames seen per step. The held

@@ -48,6 +48,7 @@ from ecu_monitor.service.batch_steps import (
     compiled_supervisor,
     estimator_stretches,
     hold_inputs,
+    latest_before,
 )
 from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
 from ecu_monitor.service.cylinders import engine_columns
@@ -199,7 +200,7 @@ def _replay_segment(
         if cached is not None and np.array_equal(cached[0], frame_rows):
             held[name] = hold_inputs(frame_stamps, vals[inside], cached[1], cached[2])
             continue
-        j = np.searchsorted(frame_stamps, times, side="left") - 1
+        j = latest_before(frame_stamps, times)
         held[name] = hold_inputs(frame_stamps, vals[inside], j)
         if cached is None:
             latest[message] = (frame_rows, j, held[name] if vals[inside].size else None)
