@@ -178,9 +178,15 @@ def _replay_segment(
     origin = float(stamps[first])
     last = float(stamps[end - 1])
     steps = max(0, math.floor((last - origin) / dt) + 2)
-    k = np.arange(1, steps + 1, dtype=np.float64)
-    times = np.floor((origin + k * dt) * 1e6 + 0.5) / 1e6  # the same float arithmetic as Pipeline.advance_to
-    times = times[times <= last]
+    # floor((origin + k dt) 1e6 + 0.5) / 1e6 for k = 1.., the float arithmetic of Pipeline.advance_to, in place
+    times = np.arange(1, steps + 1, dtype=np.float64)
+    times *= dt
+    times += origin
+    times *= 1e6
+    times += 0.5
+    np.floor(times, out=times)
+    times /= 1e6
+    times = times[: int(np.searchsorted(times, last, side="right"))]  # the steps up to the last frame
     n = times.size
     if n == 0:
         return empty_columns(count), 0, None
@@ -218,8 +224,7 @@ def _replay_segment(
         model_stale |= stale[name]
     inputs = {name: held[name] for name in fed}  # taken at the filter calls
     periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
-    step_numbers = np.arange(1, n + 1)
-    rows = np.flatnonzero(step_numbers % periods["Health_Status"] == 0)
+    rows = np.arange(periods["Health_Status"] - 1, n, periods["Health_Status"])  # steps k (1-based), k % period == 0
     status = held[STATUS_INPUT].value if STATUS_INPUT in held else None
     cylinders = [
         _replay_cylinder(
