@@ -24,6 +24,7 @@ cache) on a short warm-up replay first and that time is reported apart.
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import os
 import tempfile
@@ -132,12 +133,44 @@ def naive_baseline(path: Path, minutes: float) -> tuple[float, float, int, int]:
     return time.perf_counter() - started, last - first, frames, steps
 
 
+def phases(log: Path) -> None:
+    """Read, replay and health.csv in a fresh process without a warm-up (numba's import and cache loads
+    fall in the replay, as in ``ecu-monitor replay``): CPU user + system of each phase."""
+    from ecu_monitor.bus.canlog import read_frames
+    from ecu_monitor.service.config import load_config
+    from ecu_monitor.service.replay import replay_frames
+
+    root = Path(__file__).resolve().parents[1]
+    config = load_config(root / "ecu_monitor" / "data" / "configs" / "example.yaml")
+    params = config.load_cylinder_params()
+    marks = [os.times()]
+    frames = read_frames(log)
+    marks.append(os.times())
+    result = replay_frames(config, params, frames)
+    marks.append(os.times())
+    result.write_csv(bench_dir() / "health16h_phases.csv")
+    marks.append(os.times())
+    cpu = [(b.user - a.user, b.system - a.system) for a, b in itertools.pairwise(marks)]
+    for name, (user, system) in zip(("read_frames", "replay_frames", "health.csv"), cpu, strict=True):
+        print(f"{name:14s} CPU {user:.2f} + {system:.2f} = {user + system:.2f} s")
+    total = sum(u + s for u, s in cpu)
+    print(f"read + replay + health.csv over read: {total / sum(cpu[0]):.2f}x CPU")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--log", type=Path, default=bench_dir() / "flight16h.blf")
     parser.add_argument("--baseline-minutes", type=float, default=30.0)
+    parser.add_argument(
+        "--phases",
+        action="store_true",
+        help="only read, replay, health.csv in a fresh process, no warm-up (as ecu-monitor replay)",
+    )
     args = parser.parse_args()
     ensure_log(args.log)
+    if args.phases:
+        phases(args.log)
+        return
 
     import can
 
