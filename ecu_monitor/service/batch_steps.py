@@ -110,10 +110,10 @@ def hold_inputs(
     ``like``: an input already held from the same frames and the same ``j`` (another field of the
     message); its stamp and frames_seen arrays are shared, not made again (16 h: 23 MB each). The
     returned arrays are not to be written to."""
-    if like is not None:
-        return HeldInput(values, j, like.stamp, like.frames_seen)
     if not values.size:
         return HeldInput(values, j, np.full(j.size, np.nan), j + 1)
+    if like is not None:
+        return HeldInput(values, j, like.stamp, like.frames_seen)
     stamp = frame_stamps[np.maximum(j, 0)]
     stamp[j < 0] = np.nan
     return HeldInput(values, j, stamp, j + 1)
