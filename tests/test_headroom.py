@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from ecu_monitor.errors import EstimationError
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
-from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1
+from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom, time_to_limit_s
+from ecu_monitor.model import Drive, InputSeries, coefficients, compute_drive, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
 
 FULL_THROTTLE = InputSeries(100.0, 9030.0, 300.0, 23.0, 13.0)
@@ -80,3 +80,27 @@ def test_time_to_limit_matches_the_virtual_ecu_truth_plant() -> None:
     actual = crossing - float(t[k])
     assert actual > 20.0
     assert room.time_to_limit_s == pytest.approx(actual, rel=0.05, abs=5.0)
+
+
+def test_time_to_limit_equals_the_full_headroom_with_or_without_a_drive_at_hand() -> None:
+    """The live pipeline's time_to_limit_s (convective bound first, drive passed in) gives exactly what
+    thermal_headroom gives, at operating points on both sides of the limit and at it."""
+    params = paper_table_a1()
+    coeffs = coefficients(params)
+    rng = np.random.default_rng(13)
+    lo = np.array([20.0, 2000.0, 0.0, 10.0, -20.0])
+    hi = np.array([100.0, 9500.0, 4000.0, 60.0, 40.0])
+    outcomes = set()
+    for _ in range(300):
+        u = InputSeries(*(float(v) for v in rng.uniform(lo, hi)))
+        cht = float(rng.uniform(60.0, params.cht_limit_c + 10.0))
+        gamma_q, gamma_d = (float(v) for v in rng.uniform(0.8, 1.4, size=2))
+        full = thermal_headroom(cht, None, u, params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=coeffs)
+        drive = Drive(*(float(v) for v in compute_drive(u, coeffs)))
+        for given in (None, drive):
+            got = time_to_limit_s(cht, u, params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=coeffs, drive=given)
+            assert got == full.time_to_limit_s
+        outcomes.add("at the limit" if full.time_to_limit_s == 0.0 else "limited" if full.limited else "not limited")
+    assert outcomes == {"at the limit", "limited", "not limited"}
+    with pytest.raises(EstimationError):
+        time_to_limit_s(float("nan"), FULL_THROTTLE, params, gamma_q=1.0, gamma_d=1.0, coeffs=coeffs)

@@ -429,6 +429,16 @@ class ThermalEKF:
             return FilterState(*self._state_vec.tolist())
         return self._state
 
+    @property
+    def held_drive(self) -> Drive | None:
+        """The model's drive at the inputs of the latest initialise() or estimate() (held for the next
+        call; floats, equal bit for bit to ``compute_drive`` of those inputs); None before initialise()."""
+        if self._drive is None:
+            return None
+        if self.compiled:
+            return Drive(*self._drive_vec.tolist())
+        return self._drive
+
     def initialise(self, t_s: float, u: InputSeries, z_cht_c: float) -> None:
         """Start at time t_s from a first reading: x = z, P = initial_var, Pade state in steady state."""
         if not math.isfinite(z_cht_c):

@@ -29,7 +29,7 @@ from ecu_monitor.model import (
     steady_state_cht,
 )
 
-__all__ = ["DEFAULT_CAP_S", "Headroom", "thermal_headroom"]
+__all__ = ["DEFAULT_CAP_S", "Headroom", "thermal_headroom", "time_to_limit_s"]
 
 #: Headroom reported when the limit is not reached (100 min): "not limited at this power".
 DEFAULT_CAP_S = 6000.0
@@ -58,18 +58,17 @@ def thermal_headroom(
     cap_s: float = DEFAULT_CAP_S,
     step_s: float = 2.0,
     coeffs: Coefficients | None = None,
+    drive: Drive | None = None,
 ) -> Headroom:
     """Headroom at the held ``inputs`` (floats) from the state (cht_c degC, pade_w W; None = the
     heat path in steady state at these inputs). ``limit_c`` defaults to ``params.cht_limit_c``;
-    pass ``coeffs`` (= coefficients(params)) to skip recomputing them at every call."""
-    if not (math.isfinite(cht_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)) or gamma_d <= 0.0:
-        raise EstimationError(f"thermal_headroom: bad state (cht {cht_c!r}, gamma_q {gamma_q!r}, gamma_d {gamma_d!r})")
-    if not (cap_s > 0.0 and step_s > 0.0):
-        raise EstimationError("thermal_headroom: cap_s and step_s must be positive")
+    pass ``coeffs`` (= coefficients(params)) to skip recomputing them at every call, and ``drive``
+    (the model's drive at ``inputs``, floats) when it is at hand."""
+    _check(cht_c, gamma_q, gamma_d, cap_s, step_s)
     coeffs = coeffs if coeffs is not None else coefficients(params)
     limit = params.cht_limit_c if limit_c is None else float(limit_c)
-    d = compute_drive(inputs, coeffs)
-    drive = Drive(*(float(v) for v in d))
+    if drive is None:
+        drive = _drive_at(inputs, coeffs)
     steady = float(steady_state_cht(drive, coeffs, gamma_q, gamma_d))
     margin = limit - cht_c
     if margin <= 0.0:
@@ -91,3 +90,50 @@ def thermal_headroom(
         temp = new_temp
         elapsed += step_s
     return Headroom(cap_s, steady, margin, False)
+
+
+def time_to_limit_s(
+    cht_c: float,
+    inputs: InputSeries,
+    params: ThermalParams,
+    *,
+    gamma_q: float,
+    gamma_d: float,
+    coeffs: Coefficients,
+    drive: Drive | None = None,
+    cap_s: float = DEFAULT_CAP_S,
+    step_s: float = 2.0,
+) -> float:
+    """``thermal_headroom(...).time_to_limit_s`` (heat path in steady state), s, computing only what it needs.
+
+    When the convective-only solution (ambient + heat / conductance, an upper bound of the steady
+    state: radiation only takes heat out) is below the limit, the answer is ``cap_s`` without Newton's
+    iterations: the test the batch path makes (``service.batch_health.headroom_batch``). ``drive``: the
+    model's drive at ``inputs`` when it is at hand (the live pipeline takes the one its estimator's
+    compiled call has just computed from the same inputs, equal bit for bit to ``compute_drive``).
+    """
+    _check(cht_c, gamma_q, gamma_d, cap_s, step_s)
+    if drive is None:
+        drive = _drive_at(inputs, coeffs)
+    limit = params.cht_limit_c
+    if limit - cht_c > 0.0:
+        heat = gamma_q * gamma_d * drive.heat_gain * drive.altitude_gain * drive.q_sl0_w
+        conductance = drive.conductance_w_per_c
+        if heat >= 0.0 and conductance != 0.0 and drive.ambient_c + heat / conductance < limit:
+            return cap_s
+    return thermal_headroom(
+        cht_c, None, inputs, params, gamma_q=gamma_q, gamma_d=gamma_d, cap_s=cap_s, step_s=step_s, coeffs=coeffs,
+        drive=drive,
+    ).time_to_limit_s  # fmt: skip
+
+
+def _check(cht_c: float, gamma_q: float, gamma_d: float, cap_s: float, step_s: float) -> None:
+    if not (math.isfinite(cht_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)) or gamma_d <= 0.0:
+        raise EstimationError(f"thermal_headroom: bad state (cht {cht_c!r}, gamma_q {gamma_q!r}, gamma_d {gamma_d!r})")
+    if not (cap_s > 0.0 and step_s > 0.0):
+        raise EstimationError("thermal_headroom: cap_s and step_s must be positive")
+
+
+def _drive_at(inputs: InputSeries, coeffs: Coefficients) -> Drive:
+    """The model's drive at one operating point, as floats."""
+    return Drive(*(float(v) for v in compute_drive(inputs, coeffs)))

@@ -49,7 +49,8 @@ from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import CHTEstimator, make_estimator
 from ecu_monitor.estimation.detection import Detector
-from ecu_monitor.estimation.headroom import thermal_headroom
+from ecu_monitor.estimation.ekf import ThermalEKF
+from ecu_monitor.estimation.headroom import thermal_headroom, time_to_limit_s
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
 from ecu_monitor.model import InputSeries, ThermalParams, coefficients
 from ecu_monitor.model.effects import MixtureIndex
@@ -519,6 +520,7 @@ class Pipeline:
             sf.stuck_change_c,
         )
         cyl.pending_reading = cyl.pending_reading or new_reading
+        ran = False  # the estimator ran on this step's inputs u (its held drive is the model's drive at u)
         if action == ACTION_NONE:
             cyl.estimator = cyl.reference = cyl.isolation = None
             cyl.held = _NO_ESTIMATE
@@ -532,6 +534,7 @@ class Pipeline:
             cyl.pending_reading = False
             cyl.headroom_s = math.nan
             cyl.detector_started = True
+            ran = True
         elif call and cyl.estimator is not None and cyl.isolation is not None:
             z = reading if cyl.pending_reading and code == CODE_NOMINAL else None
             cyl.pending_reading = False
@@ -540,6 +543,7 @@ class Pipeline:
             iso = cyl.isolation
             cyl.held = _Held(estimate.cht_c, estimate.deviation, iso.gamma_q, iso.gamma_d, iso_deviation,
                              cyl.held.model_c)  # fmt: skip
+            ran = True
         est_c, deviation, gamma_q, gamma_d, iso_deviation, _ = cyl.held
         state = code
         if cyl.detector_started:
@@ -549,10 +553,11 @@ class Pipeline:
                 state = STATES.index(verdict.state)
         if action == ACTION_NONE or not (math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)):
             cyl.headroom_s = math.nan
-        elif isolation_due:
-            cyl.headroom_s = thermal_headroom(
-                est_c, None, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs
-            ).time_to_limit_s
+        elif isolation_due:  # the drive the estimator's compiled call has just computed at u, not again
+            drive = cyl.estimator.held_drive if ran and isinstance(cyl.estimator, ThermalEKF) else None
+            cyl.headroom_s = time_to_limit_s(
+                est_c, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs, drive=drive
+            )
         return reading, est_c, deviation, state, gamma_q, gamma_d, cyl.headroom_s
 
     def _engine_snapshot(
