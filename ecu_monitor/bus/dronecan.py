@@ -55,9 +55,11 @@ from ecu_monitor.bus.codec import MALFORMED_REASONS, BatchDecoded, SignalSpec
 from ecu_monitor.bus.dronecan_codec import (
     MessageCodec,
     PayloadError,
+    column_values,
     dronecan_module,
     message_codec,
     transfer_crc,
+    transfer_crc_rows,
     transfer_frames,
 )
 from ecu_monitor.errors import ConfigError
@@ -346,8 +348,10 @@ class DroneCanDecoder:
         ignored: np.ndarray | None = None,
     ) -> BatchDecoded:
         """:meth:`decode` over a whole log (frames in log order), with its own reassembly state and counts
-        (the live ones untouched). Frames of other types are counted with numpy; the frames of the
-        mapped types go through the same per-frame code as :meth:`decode`."""
+        (the live ones untouched): the same values and counts. Frames of other types are counted with
+        numpy. A clean log (see :meth:`_clean_log`) is reassembled, checked and unpacked with numpy,
+        transfers of one type and length at once; any other goes frame by frame through the code of
+        :meth:`decode`."""
         n = len(arbitration_ids)
         ids = np.asarray(arbitration_ids, dtype=np.int64)
         ext = np.asarray(is_extended, dtype=bool)
@@ -362,6 +366,9 @@ class DroneCanDecoder:
         wanted &= np.isin((ids >> 8) & 0xFFFF, np.asarray(self.frame_ids, dtype=np.int64))
         counts["unknown_id"] = int(np.count_nonzero(~wanted & ~skip))
         found: list[list[tuple[int, float]]] = [[] for _ in self.names]
+        fast = self._clean_log(ids, lengths, payloads, times, wanted, counts)
+        if fast is not None:
+            return BatchDecoded(fast, counts)
         state = self._new_reassembly()
         rows = np.flatnonzero(wanted)
         id_list = ids[rows].tolist()
@@ -381,11 +388,222 @@ class DroneCanDecoder:
             )
         return BatchDecoded(values, counts)
 
+    def _clean_log(
+        self,
+        ids: np.ndarray,
+        lengths: np.ndarray,
+        payloads: np.ndarray,
+        times: np.ndarray,
+        wanted: np.ndarray,
+        counts: dict[str, int],
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]] | None:
+        """The values of a log whose transfers the per-frame reassembly would all complete, or None.
+
+        Clean: every frame has a tail byte and a finite time; per transfer key (CAN id, transfer id) the
+        frames run start ... end, transfer after transfer, toggles alternating from 0, no frame later
+        than :data:`TRANSFER_TIMEOUT_S` after its transfer's first, never :data:`MAX_PENDING_TRANSFERS`
+        in progress at once. Then no frame is orphaned, timed out or out of toggle, and each transfer
+        is checked (CRC) and unpacked (:meth:`MessageCodec.layout`, :func:`column_values`) with numpy,
+        those whose layout depends on their content one by one through :meth:`MessageCodec.decode`.
+        ``counts`` is filled only when the log is clean."""
+        rows = np.flatnonzero(wanted)
+        source = ids[rows] & 0x7F
+        if self.source_node_ids:
+            keep = np.isin(source, np.asarray(sorted(self.source_node_ids), dtype=np.int64))
+            filtered = int(np.count_nonzero(~keep))
+            rows = rows[keep]
+        else:
+            filtered = 0
+        n_rows = len(rows)
+        length = lengths[rows]
+        if n_rows == 0 or np.any(length < 1) or not np.all(np.isfinite(times[rows])):
+            return None
+        tail = payloads[rows, length - 1].astype(np.int64)
+        key = (ids[rows] & _CAN_ID_MASK) << 5 | (tail & 0x1F)
+        order = np.argsort(key, kind="stable")  # frames of one key together, in log order
+        key_s, tail_s = key[order], tail[order]
+        start, end = (tail_s & 0x80) != 0, (tail_s & 0x40) != 0
+        first = np.ones(n_rows, dtype=bool)
+        first[1:] = key_s[1:] != key_s[:-1]
+        last = np.ones(n_rows, dtype=bool)
+        last[:-1] = first[1:]
+        after_end = np.ones(n_rows, dtype=bool)  # the key's previous frame ended a transfer (or there is none)
+        after_end[1:] = end[:-1]
+        after_end |= first
+        if not (np.array_equal(start, after_end) and np.all(end[last])):
+            return None
+        starts = np.flatnonzero(start)
+        ends = np.flatnonzero(end)
+        transfer = np.cumsum(start) - 1
+        position = np.arange(n_rows) - starts[transfer]
+        if np.any(((tail_s & 0x20) != 0) != ((position & 1) == 1)):
+            return None
+        time_s = times[rows][order]
+        if np.any(time_s - time_s[starts][transfer] > TRANSFER_TIMEOUT_S):
+            return None
+        frames_per = ends - starts + 1
+        multi = frames_per > 1
+        pending = np.zeros(n_rows, dtype=np.int64)  # transfers in progress, in log order
+        pending[order[starts[multi]]] += 1
+        pending[order[ends[multi]]] -= 1
+        if len(pending) and int(np.cumsum(pending).max()) >= MAX_PENDING_TRANSFERS:
+            return None
+        # clean: assemble each transfer's bytes (the frames' data without tail bytes, in order)
+        counts["filtered_node"] += filtered
+        data_s = payloads[rows[order]]
+        body_len = length[order] - 1
+        flat = data_s[np.arange(8) < body_len[:, None]]
+        byte_end = np.cumsum(np.add.reduceat(body_len, starts))
+        sizes = np.add.reduceat(body_len, starts)
+        offset = byte_end - sizes
+        done_row = rows[order[ends]]  # the log row of the frame that completes each transfer
+        dtid = (key_s[starts] >> 13) & 0xFFFF
+        found: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in self.names]
+        too_short = multi & (sizes < 2)
+        _malformed(counts, "decode_error", int(frames_per[too_short].sum()))
+        body_start = offset + np.where(multi, 2, 0)
+        body_size = sizes - np.where(multi, 2, 0)
+        groups = np.flatnonzero(~too_short)
+        group_key = (dtid[groups] << 32) | (multi[groups].astype(np.int64) << 31) | body_size[groups]  # size < 2**31
+        group_order = np.argsort(group_key, kind="stable")
+        bounds = np.flatnonzero(np.diff(group_key[group_order])) + 1
+        for part in np.split(group_order, bounds) if len(groups) else []:
+            sel = groups[part]
+            head = int(sel[0])
+            type_id, is_multi, size = int(dtid[head]), bool(multi[head]), int(body_size[head])
+            codec = self._codecs[type_id]
+            body = flat[body_start[sel][:, None] + np.arange(size)] if size else np.zeros((len(sel), 0), np.uint8)
+            if is_multi:
+                sent_crc = flat[offset[sel]].astype(np.uint32) | flat[offset[sel] + 1].astype(np.uint32) << 8
+                good = transfer_crc_rows(body, codec.base_crc or 0) == sent_crc
+                _malformed(counts, "bad_crc", int(frames_per[sel[~good]].sum()))
+                sel, body = sel[good], body[good]
+            self._columns(codec, type_id, sel, body, size, frames_per, done_row, counts, found)
+        values: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for index, name in enumerate(self.names):
+            parts = found[index]
+            at = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
+            value = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, dtype=np.float64)
+            sort = np.argsort(at, kind="stable")
+            values[name] = (at[sort].astype(np.int64), value[sort].astype(np.float64))
+        return values
+
+    def _columns(
+        self,
+        codec: MessageCodec,
+        type_id: int,
+        sel: np.ndarray,
+        body: np.ndarray,
+        size: int,
+        frames_per: np.ndarray,
+        done_row: np.ndarray,
+        counts: dict[str, int],
+        found: list[list[tuple[np.ndarray, np.ndarray]]],
+    ) -> None:
+        """The mapped values of the transfers ``sel`` of one data type whose payloads (``body`` rows)
+        all have ``size`` bytes, appended to ``found`` as (log rows, values); counts as :meth:`_take`."""
+        try:
+            layout = codec.layout(size)
+        except PayloadError:
+            _malformed(counts, "decode_error", int(frames_per[sel].sum()))
+            return
+        fields = self._plans[type_id]
+        raws: list[np.ndarray | None] = [None] * len(fields)
+        if layout is not None:
+            raws = [_column(layout, f.steps, body) for f in fields]
+        if layout is None or any(r is None for r in raws):  # by content: one transfer at a time
+            raws = [np.empty(len(sel)) for _ in fields]
+            keep = np.ones(len(sel), dtype=bool)
+            for i, payload in enumerate(body):
+                try:
+                    message = codec.decode(payload.tobytes())
+                except PayloadError:
+                    keep[i] = False
+                    continue
+                for raw, f in zip(raws, fields, strict=True):
+                    try:
+                        raw[i] = _value(message, f.steps)  # type: ignore[index]
+                    except (ValueError, IndexError, KeyError, TypeError, OverflowError):
+                        raw[i] = math.nan  # type: ignore[index]
+            _malformed(counts, "decode_error", int(frames_per[sel[~keep]].sum()))
+            sel = sel[keep]
+            raws = [r[keep] for r in raws]  # type: ignore[index]
+        counts["ok"] += int(frames_per[sel].sum())
+        for f, raw in zip(fields, raws, strict=True):
+            assert raw is not None
+            value = raw * f.unit.scale + f.unit.offset
+            if f.to_altitude:
+                value = np.array([pressure_altitude_m(v) if not math.isnan(v) else math.nan for v in value.tolist()])
+            ok = np.isfinite(value)
+            counts["unknown_value"] += int(np.count_nonzero(~ok))
+            found[f.output].append((done_row[sel[ok]], value[ok]))
+
 
 def _new_counts() -> dict[str, int]:
     counts = dict.fromkeys(("frames", "ok", "unknown_id", "ignored", "malformed", "filtered_node", "unknown_value"), 0)
     counts.update(dict.fromkeys((*MALFORMED_REASONS, *DRONECAN_REASONS), 0))
     return counts
+
+
+def _column(layout: Any, steps: tuple[str | int, ...], body: np.ndarray) -> np.ndarray | None:
+    """The raw number at ``steps`` of every payload row of one layout, NaN where absent or not finite
+    (:func:`_value` on each row); None where :func:`column_values` cannot read it (then row by row)."""
+    node = layout
+    for i, step in enumerate(steps):
+        if isinstance(step, int):
+            if step >= len(node):
+                return np.full(len(body), math.nan)
+            node = node[step]
+        elif step in _REDUCTIONS:
+            rest = steps[i + 1 :]
+            if not node:
+                return np.full(len(body), math.nan)
+            items = [_column(item, rest, body) for item in node]
+            if any(item is None for item in items):
+                return None
+            leaf = _leaf(node[0], rest)
+            table = np.stack(items, axis=1)  # type: ignore[arg-type]
+            finite = np.isfinite(table)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                if step == "max":
+                    out = np.where(finite, table, -np.inf).max(axis=1)
+                elif step == "min":
+                    out = np.where(finite, table, np.inf).min(axis=1)
+                elif len(node) == 1 or _exact_sum(leaf, len(node)):
+                    out = np.where(finite, table, 0.0).sum(axis=1) / finite.sum(axis=1)
+                else:  # math.fsum row by row, as _value
+                    out = np.array([math.fsum(r[np.isfinite(r)]) / max(np.isfinite(r).sum(), 1) for r in table])
+            out[~finite.any(axis=1)] = math.nan
+            return out
+        else:
+            node = node[step]
+    values = column_values(body, node)
+    if values is not None:
+        values[~np.isfinite(values)] = math.nan
+    return values
+
+
+def _leaf(node: Any, steps: tuple[str | int, ...]) -> Any:
+    """The primitive node at ``steps`` below a layout (any element of an array; None if one is empty)."""
+    for step in steps:
+        if isinstance(node, list):
+            if not node:
+                return None
+            node = node[0]
+        else:
+            node = node[step]
+    return node[1]
+
+
+def _exact_sum(leaf: Any, count: int) -> bool:
+    """True when any sum of ``count`` values of this primitive is exact in float64 (so numpy's sum is
+    math.fsum's): float16 (multiples of 2**-24 below 2**16) and integers of up to 32 bits."""
+    if leaf is None:
+        return False
+    kind, bits = leaf.kind, leaf.bits
+    if kind == 3:
+        return bits == 16 and count <= 1 << 12
+    return bits <= 32 and count <= 1 << 20
 
 
 def _malformed(counts: dict[str, int], reason: str, frames: int = 1) -> None:

@@ -38,12 +38,16 @@ import struct
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 __all__ = [
     "MessageCodec",
     "PayloadError",
+    "column_values",
     "dronecan_module",
     "message_codec",
     "transfer_crc",
+    "transfer_crc_rows",
     "transfer_frames",
 ]
 
@@ -170,6 +174,14 @@ class _Primitive:
     def write(self, acc: int, nbits: int, value: Any, tao: bool) -> tuple[int, int]:
         return _put(acc, self.raw(value), self.bits, self.full_bytes, self.rest), nbits + self.bits
 
+    def layout(self, total: int, pos: int, tao: bool) -> tuple[Any, int]:
+        if pos + self.bits > total:
+            raise PayloadError("payload too short")
+        return (pos, self), pos + self.bits
+
+    def fixed_bits(self) -> int | None:
+        return self.bits
+
 
 def _take(big: int, total: int, pos: int, bits: int, full_bytes: int, rest: int) -> int:
     """The unsigned value of the ``bits`` bits at ``pos`` of the stream ``big`` (``total`` bits), package bit order."""
@@ -193,6 +205,12 @@ class _Void:
 
     def write(self, acc: int, nbits: int, value: Any, tao: bool) -> tuple[int, int]:
         return acc << self.bits, nbits + self.bits
+
+    def layout(self, total: int, pos: int, tao: bool) -> tuple[Any, int]:
+        return None, pos + self.bits
+
+    def fixed_bits(self) -> int | None:
+        return self.bits
 
 
 class _Array:
@@ -243,6 +261,29 @@ class _Array:
             out.append(value)
         return out, pos
 
+    def layout(self, total: int, pos: int, tao: bool) -> tuple[Any, int]:
+        """The elements' layouts, when the element count follows from the payload length alone."""
+        item = self.item
+        if self.static:
+            out = []
+            for i in range(self.capacity):
+                node, pos = item.layout(total, pos, tao and i == self.capacity - 1)
+                out.append(node)
+            return out, pos
+        if not (tao and self.tao_ok) or item.fixed_bits() is None:
+            raise _ContentDependentError
+        out = []
+        while total - pos >= 8:
+            if len(out) == self.capacity:
+                raise PayloadError("array longer than its capacity")
+            node, pos = item.layout(total, pos, False)
+            out.append(node)
+        return out, max(pos, total)
+
+    def fixed_bits(self) -> int | None:
+        bits = self.item.fixed_bits()
+        return None if bits is None or not self.static else bits * self.capacity
+
     def write(self, acc: int, nbits: int, value: Any, tao: bool) -> tuple[int, int]:
         if value is None:
             items: list[Any] = []
@@ -267,6 +308,10 @@ class _Array:
         return acc, nbits
 
 
+class _ContentDependentError(Exception):
+    """A layout that depends on the payload's content (a length prefix, a union tag), not only its length."""
+
+
 class _Compound:
     """A message or nested type: its fields in order (byte-aligned runs of struct fields at once), or a union."""
 
@@ -289,8 +334,10 @@ class _Compound:
                 plan.extend(("one", name, n) for name, n in run)
             run.clear()
 
+        self.all_nodes: list[Any] = []  # every field's node, voids included
         for field in fields:
             node = _node(field.type, transport)
+            self.all_nodes.append(node)
             if field.name:
                 self.nodes[field.name] = node
             structable = (isinstance(node, _Primitive) and node.code is not None) or (
@@ -337,6 +384,30 @@ class _Compound:
                 if name:
                     out[name] = value
         return out, pos
+
+    def layout(self, total: int, pos: int, tao: bool) -> tuple[Any, int]:
+        if self.union:
+            raise _ContentDependentError
+        out: dict[str, Any] = {}
+        last = self.last
+        for i, step in enumerate(self.plan):
+            parts = step[4] if step[0] == "run" else ((step[1], step[2]),)
+            for name, node in parts:
+                sub, pos = node.layout(total, pos, tao and i == last)
+                if name:
+                    out[name] = sub
+        return out, pos
+
+    def fixed_bits(self) -> int | None:
+        if self.union:
+            return None
+        total = 0
+        for node in self.all_nodes:
+            bits = node.fixed_bits()
+            if bits is None:
+                return None
+            total += bits
+        return total
 
     def write(self, acc: int, nbits: int, value: Mapping[str, Any] | None, tao: bool) -> tuple[int, int]:
         if value is None:
@@ -391,6 +462,18 @@ class MessageCodec:
         result: dict[str, Any] = value
         return result
 
+    def layout(self, nbytes: int) -> dict[str, Any] | None:
+        """Where each field lies in every payload of ``nbytes`` bytes: the structure :meth:`decode` gives,
+        with ``(bit offset, node)`` for each number (``None`` for a void) and one entry per array element;
+        None when the layout depends on the content (a length-prefixed array, a union); PayloadError when
+        no payload of that length unpacks (the same payloads :meth:`decode` refuses)."""
+        try:
+            out, _ = self._root.layout(8 * nbytes, 0, True)
+        except _ContentDependentError:
+            return None
+        result: dict[str, Any] = out
+        return result
+
     def encode(self, values: Mapping[str, Any]) -> bytes:
         """Field name -> value -> the payload bytes. A compound is a mapping, an array a sequence (a byte array
         may be a str: ASCII, '?' for other characters), cut to its capacity; a field not given is NaN if a
@@ -398,6 +481,56 @@ class MessageCodec:
         acc, nbits = self._root.write(0, 0, values, True)
         pad = -nbits % 8
         return (acc << pad).to_bytes((nbits + pad) // 8, "big")
+
+
+def column_values(payloads: np.ndarray, leaf: tuple[int, Any]) -> np.ndarray | None:
+    """The number at ``leaf`` (``(bit offset, node)`` of :meth:`MessageCodec.layout`) of every row of
+    ``payloads`` (uint8, one payload per row, all of the layout's length), as float64: the value
+    :meth:`MessageCodec.decode` gives, as a float. None for a field spread over more than 8 bytes."""
+    pos, node = leaf
+    bits = node.bits
+    first, last = pos >> 3, (pos + bits - 1) >> 3
+    if last - first >= 8:
+        return None
+    segment = np.zeros(len(payloads), dtype=np.uint64)
+    for b in range(first, last + 1):
+        segment = (segment << np.uint64(8)) | payloads[:, b].astype(np.uint64)
+    segment >>= np.uint64(8 * (last + 1) - (pos + bits))
+    if bits < 64:
+        segment &= np.uint64((1 << bits) - 1)
+    full_bytes, rest = divmod(bits, 8)
+    raw = np.zeros(len(payloads), dtype=np.uint64)
+    for i in range(full_bytes):  # the package's bit order: the value's little-endian bytes, the top bits last
+        raw |= ((segment >> np.uint64(bits - 8 * (i + 1))) & np.uint64(0xFF)) << np.uint64(8 * i)
+    if rest:
+        raw |= (segment & np.uint64((1 << rest) - 1)) << np.uint64(8 * full_bytes)
+    kind = node.kind
+    if kind == _UNSIGNED:
+        return raw.astype(np.float64)
+    if kind == _BOOLEAN:
+        return (raw != 0).astype(np.float64)
+    if kind == _SIGNED:
+        signed = raw.view(np.int64)
+        if bits < 64:
+            signed = np.where(raw >= np.uint64(1 << (bits - 1)), signed - (1 << bits), signed)
+        return signed.astype(np.float64)
+    if bits == 16:
+        return raw.astype(np.uint16).view(np.float16).astype(np.float64)
+    if bits == 32:
+        return raw.astype(np.uint32).view(np.float32).astype(np.float64)
+    return raw.view(np.float64).copy()
+
+
+#: CRC-16-CCITT (polynomial 0x1021, unreflected) of each byte value, for :func:`transfer_crc_rows`
+_CRC_TABLE = np.array([binascii.crc_hqx(bytes((b,)), 0) for b in range(256)], dtype=np.uint32)
+
+
+def transfer_crc_rows(payloads: np.ndarray, base_crc: int) -> np.ndarray:
+    """:func:`transfer_crc` of every row of ``payloads`` (uint8, equal lengths), vectorised over the rows."""
+    crc = np.full(len(payloads), base_crc, dtype=np.uint32)
+    for column in range(payloads.shape[1]):
+        crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[((crc >> 8) ^ payloads[:, column]) & 0xFF]
+    return crc
 
 
 @functools.cache
