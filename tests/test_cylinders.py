@@ -204,6 +204,59 @@ def test_four_cylinder_health_frames(live_run: tuple[Any, Any, list[Any], Replay
     assert cyls[-2]["CylState"] == 4 and cyls[-1]["CylState"] != 4
 
 
+ONSET_S = 150.0  # gamma_Q 1.5 in cylinder 2 from here
+
+
+def test_the_cross_cylinder_detector_live_equals_batch_and_flags_the_one_cylinder(tmp_path: Path) -> None:
+    from virtual_bus.cylinders import cylinder_models
+    from virtual_bus.missions import mission_from_dict
+    from virtual_bus.plant import Degradation
+    from virtual_bus.recorder import record
+
+    models = cylinder_models(paper_table_a1(), 4, seed=11)
+    path = tmp_path / "flight.csv"
+    record(mission_from_dict(SHORT_MISSION), [path], paper_table_a1(), seed=11, cylinders=models,
+           degradation=[Degradation("gamma_q", 1.5, ONSET_S, cylinder=2)])  # fmt: skip
+    cross = {"threshold": 1.0, "warmup_s": 30.0}
+    config = _config(cylinders={"cross_detector": cross})
+    assert config.cross_detector(2) == config.cross_detector(4) and config.cross_detector(1).threshold == 1.0
+    frames = frames_from_flight(read_csv(path), config)
+    batch = replay_frames(config, models, frames)
+    pipeline = Pipeline(config, models)
+    rows = []
+    for msg in frames.messages():
+        pipeline.advance_to(msg.timestamp)
+        pipeline.feed(msg)
+        rows.extend(pipeline.drain_rows())
+    live = rows_to_columns(rows, 4)
+    for key in ("state", *(f"cyl{n}_state" for n in range(1, 5))):
+        assert np.array_equal(batch.columns[key], live[key]), key
+    degraded = 2  # STATES.index("DEGRADED")
+    c = batch.columns
+    hit = c["time_s"][c["cyl2_state"] == degraded]
+    assert hit.size and ONSET_S < hit[0] < ONSET_S + 60.0
+    assert not any(np.any(c[f"cyl{n}_state"] == degraded) for n in (1, 3, 4))
+    # the own-symptom detectors alone (the shipped threshold) see it later
+    own = replay_frames(_config(), models, frames).columns
+    own_hit = own["time_s"][own["cyl2_state"] == degraded]
+    assert not own_hit.size or own_hit[0] > hit[0] + 5.0, (own_hit[:1], hit[0])
+
+
+def test_bad_cross_detector_configs_name_the_key() -> None:
+    with pytest.raises(ConfigError, match=r"cylinders\.cross_detector\.treshold: unknown key"):
+        _config(cylinders={"cross_detector": {"treshold": 1.0}})
+    with pytest.raises(ConfigError, match=r"cylinders\.cross_detectors: expected a list of 4"):
+        _config(cylinders={"cross_detectors": [{"threshold": 1.0}]})
+    with pytest.raises(ConfigError, match=r"cylinders\.cross_detectors\[1\]: detector\.threshold: expected a finite"):
+        _config(cylinders={"cross_detectors": [{"threshold": 1.0}, {"threshold": "x"}, {}, {}]})
+    single = yaml.safe_load((CONFIGS / "example.yaml").read_text(encoding="utf-8"))
+    single["cylinders"] = {"cross_detector": {"threshold": 1.0}}
+    with pytest.raises(ConfigError, match=r"cylinders\.cross_detector: compares cylinders"):
+        parse_config(single, CONFIGS / "example.yaml")
+    per = _config(cylinders={"cross_detector": {"threshold": 2.0}, "cross_detectors": [{}, {"threshold": 3.0}, {}, {}]})
+    assert [per.cross_detector(n).threshold for n in (1, 2)] == [2.0, 3.0] and _config().cross_detector(1) is None
+
+
 # --------------------------------------------------------------------------------------------------
 # the virtual ECU: N differing cylinders, degradation per cylinder, frames and CSV columns
 # --------------------------------------------------------------------------------------------------

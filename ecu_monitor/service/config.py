@@ -217,11 +217,21 @@ class ServiceConfig:
     cylinder_detectors: tuple[DetectorSettings, ...] = ()
     #: each ``cylinders.detectors`` entry's ``calibrated_for`` (its model's fingerprint; None: not given)
     cylinder_calibrated_for: tuple[str | None, ...] = ()
+    #: ``cylinders.cross_detector`` / ``cross_detectors``: one more detector per cylinder, on the
+    #: cross-cylinder symptom (its symptom minus the median of the others', estimation/cross_cylinder.py);
+    #: empty: off. Each cylinder's state is the more severe of its two detectors' verdicts.
+    cross_detectors: tuple[DetectorSettings, ...] = ()
+    #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
+    cross_calibrated_for: tuple[str | None, ...] = ()
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
         ``detector``."""
         return self.cylinder_detectors[number - 1] if self.cylinder_detectors else self.detector
+
+    def cross_detector(self, number: int) -> DetectorSettings | None:
+        """The cross-cylinder detector of cylinder ``number`` (1-based), None when off."""
+        return self.cross_detectors[number - 1] if self.cross_detectors else None
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -417,6 +427,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
 
     detector, symptom, calibrated_for = _detector(top)
     cylinder_models, spread_limit, cylinder_detectors, cylinder_calibrated_for = _cylinders(top, inputs, detector)
+    cross_detectors, cross_calibrated_for = _cross_detectors(top, inputs)
 
     return ServiceConfig(
         source=source,
@@ -443,6 +454,8 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         spread_limit_c=spread_limit,
         cylinder_detectors=cylinder_detectors,
         cylinder_calibrated_for=cylinder_calibrated_for,
+        cross_detectors=cross_detectors,
+        cross_calibrated_for=cross_calibrated_for,
     )
 
 
@@ -464,7 +477,7 @@ def _cylinders(
 ) -> tuple[tuple[str, ...], float | None, tuple[DetectorSettings, ...], tuple[str | None, ...]]:
     """``cylinders:``: one model per cylinder (optional), the CHT spread limit (optional) and one
     detector per cylinder (optional; each entry replaces keys of ``detector``)."""
-    node = top.child("cylinders", ("models", "spread_limit_c", "detectors"), {})
+    node = top.child("cylinders", ("models", "spread_limit_c", "detectors", "cross_detector", "cross_detectors"), {})
     count = _cylinder_count(inputs)
     models: tuple[str, ...] = ()
     if node.has("models"):
@@ -486,6 +499,35 @@ def _cylinders(
         calibrated_for = tuple(entry.data.get("calibrated_for") for entry in entries)
         return models, limit, detectors, calibrated_for
     return models, limit, detectors, ()
+
+
+def _cross_detectors(
+    top: _Node, inputs: tuple[InputSpec, ...]
+) -> tuple[tuple[DetectorSettings, ...], tuple[str | None, ...]]:
+    """``cylinders.cross_detector`` (the cross-cylinder detector of every cylinder: DetectorSettings'
+    defaults with the keys given replaced) and ``cylinders.cross_detectors`` (one per cylinder, each
+    replacing keys of ``cross_detector``, as ``ecu-monitor calibrate`` writes them); either turns it on."""
+    node = top.child("cylinders", None, {})
+    if not (node.has("cross_detector") or node.has("cross_detectors")):
+        return (), ()
+    count = _cylinder_count(inputs)
+    if count < 2:
+        key = "cross_detector" if node.has("cross_detector") else "cross_detectors"
+        raise node.error("compares cylinders: needs two or more CHT channels (cht1_c .. chtN_c)", key)
+    base = DetectorSettings()
+    if node.has("cross_detector"):
+        base = _cylinder_detector(node.child("cross_detector"), base)
+    if not node.has("cross_detectors"):
+        return (base,) * count, (None,) * count
+    items = node.raw("cross_detectors")
+    if not isinstance(items, list) or len(items) != count:
+        raise node.error(
+            f"expected a list of {count} detectors, one per cylinder (cht1_c .. chtN_c), got {_kind(items)}",
+            "cross_detectors",
+        )
+    entries = [_Node(node.src, f"{node.key('cross_detectors')}[{i}]", item) for i, item in enumerate(items)]
+    detectors = tuple(_cylinder_detector(entry, base) for entry in entries)
+    return detectors, tuple(entry.data.get("calibrated_for") for entry in entries)
 
 
 def _cylinder_detector(node: _Node, detector: DetectorSettings) -> DetectorSettings:

@@ -133,12 +133,15 @@ class ReplayResult:
     gaps (batch path only): (last frame time before, first after) of every hole in the frames longer
     than :data:`~ecu_monitor.bus.canlog.GAP_S`; holes longer than the pipeline's MAX_CLOCK_GAP_S
     restart the clock (``counters["clock_restarts"]``): no step runs inside them.
+    cross_feeds (batch path, cross-cylinder detectors on): per cylinder, per clock segment, what its
+    cross-cylinder detector was fed (as detector_feed).
     """
 
     columns: dict[str, NDArray[Any]]
     counters: dict[str, int]
     detector_feed: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
     gaps: tuple[tuple[float, float], ...] = ()
+    cross_feeds: tuple[tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)

@@ -48,6 +48,7 @@ if TYPE_CHECKING:
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import CHTEstimator, make_estimator
+from ecu_monitor.estimation.cross_cylinder import cross_cylinder_step
 from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.ekf import ThermalEKF
 from ecu_monitor.estimation.headroom import thermal_headroom, time_to_limit_s
@@ -134,9 +135,9 @@ class _Cylinder:
     """One cylinder's estimation: its CHT input, model, supervisor, filters, detector and held outputs."""
 
     __slots__ = (
-        "coeffs", "detector", "detector_settings", "detector_started", "estimator", "headroom_s", "held",
-        "isolation", "name", "number", "params", "pending_reading", "readings", "readings_used", "reference",
-        "slot", "sv",
+        "coeffs", "cross_detector", "cross_settings", "detector", "detector_settings", "detector_started",
+        "estimator", "headroom_s", "held", "isolation", "name", "number", "params", "pending_reading", "readings",
+        "readings_used", "reference", "slot", "sv",
     )  # fmt: skip
 
     def __init__(self, number: int, name: str, slot: int, params: ThermalParams, config: ServiceConfig) -> None:
@@ -146,6 +147,7 @@ class _Cylinder:
         self.params = params
         self.coeffs = coefficients(params)
         self.detector_settings = config.cylinder_detector(number)
+        self.cross_settings = config.cross_detector(number)  # None: no cross-cylinder detector
         self.readings = 0  # valid CHT frames fed
         self.readings_used = 0
         self.stop()
@@ -158,6 +160,7 @@ class _Cylinder:
         self.reference: CHTEstimator | None = None
         self.isolation: IsolationFilter | None = None
         self.detector = Detector(self.detector_settings)
+        self.cross_detector = None if self.cross_settings is None else Detector(self.cross_settings)
         self.detector_started = False
         self.headroom_s = math.nan
         self.pending_reading = False
@@ -165,6 +168,8 @@ class _Cylinder:
 
 #: DegradationState code of each state name.
 _STATE_CODE = {name: code for code, name in enumerate(STATES)}
+#: State codes 0 .. this are the detector's verdicts (NOMINAL, SUSPECT, DEGRADED): the supervisor said NOMINAL.
+_LAST_VERDICT = _STATE_CODE["DEGRADED"]
 
 
 def _cylinder_values(cyl: CylinderSnapshot) -> dict[str, float]:
@@ -272,6 +277,7 @@ class Pipeline:
             for number, (name, model) in enumerate(zip(cylinder_inputs, models, strict=True), start=1)
         ]
         self._per_cylinder = len(cylinder_inputs) > 1
+        self._cross = bool(config.cross_detectors)
         self._single = self._cylinders[0]
         self._cht_names = frozenset(cylinder_inputs)
         self._cht_slots = {cyl.slot: cyl for cyl in self._cylinders}
@@ -453,6 +459,8 @@ class Pipeline:
                 self._step_cylinder(cyl, time_s, u, model_stale or cyl.name in stale, call, isolation_due)
                 for cyl in self._cylinders
             ]
+            if self._cross:
+                self._cross_step(time_s, results)
         else:
             cyl = self._single
             results = [self._step_cylinder(cyl, time_s, u, model_stale or cyl.name in stale, call, isolation_due)]
@@ -559,6 +567,23 @@ class Pipeline:
                 est_c, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs, drive=drive
             )
         return reading, est_c, deviation, state, gamma_q, gamma_d, cyl.headroom_s
+
+    def _cross_step(self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]]) -> None:
+        """The cross-cylinder detectors (estimation/cross_cylinder.py) on this step's symptoms: each
+        cylinder's state (in ``results``, in place) becomes the more severe of its two detectors' verdicts."""
+        estimator_symptom = self.config.detector_symptom == "estimator"
+        symptoms = [
+            (cyl.held.deviation if estimator_symptom else cyl.held.iso_deviation)
+            if cyl.detector_started and result[3] <= _LAST_VERDICT
+            else math.nan
+            for cyl, result in zip(self._cylinders, results, strict=True)
+        ]
+        for i, (cyl, cross) in enumerate(zip(self._cylinders, cross_cylinder_step(symptoms), strict=True)):
+            if not cyl.detector_started or cyl.cross_detector is None:
+                continue
+            verdict = STATES.index(cyl.cross_detector.update(time_s, cross).state)
+            if results[i][3] < verdict <= _LAST_VERDICT:
+                results[i] = (*results[i][:3], verdict, *results[i][4:])
 
     def _engine_snapshot(
         self,

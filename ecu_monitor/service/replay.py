@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, FrameArrays, load_flight, read_frames, time_gaps
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.errors import FlightLogError
+from ecu_monitor.estimation.cross_cylinder import cross_cylinder_symptoms
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.estimation.runner import run_estimator_on_calls
 from ecu_monitor.flightlog import FlightLog
@@ -148,15 +149,19 @@ def _replay_frames(
     counters["clock_restarts"] = len(restarts)
     parts: list[dict[str, NDArray[Any]]] = []
     feeds: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+    cross_feeds: list[list[tuple[NDArray[np.float64], NDArray[np.float64]]]] = [[] for _ in models]
     steps_total = 0
     for a, b in itertools.pairwise(bounds):
-        seg_columns, steps, feed = _replay_segment(config, models, probe, batch.values, stamps, a, b)
+        seg_columns, steps, feed, seg_cross = _replay_segment(config, models, probe, batch.values, stamps, a, b)
         parts.append(seg_columns)
         feeds.extend([feed] if feed is not None else [])
+        for cylinder, cross_feed in zip(cross_feeds, seg_cross, strict=False):
+            cylinder.extend([cross_feed] if cross_feed is not None else [])
         steps_total += steps
     counters["steps"] = steps_total
     columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else empty_columns(count)
-    return ReplayResult(columns, counters, tuple(feeds), tuple(time_gaps(stamps)))
+    cross = tuple(tuple(c) for c in cross_feeds) if config.cross_detectors else ()
+    return ReplayResult(columns, counters, tuple(feeds), tuple(time_gaps(stamps)), cross)
 
 
 def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:
@@ -171,7 +176,12 @@ def _replay_segment(
     stamps: NDArray[np.float64],
     first: int,
     end: int,
-) -> tuple[dict[str, NDArray[Any]], int, tuple[NDArray[np.float64], NDArray[np.float64]] | None]:
+) -> tuple[
+    dict[str, NDArray[Any]],
+    int,
+    tuple[NDArray[np.float64], NDArray[np.float64]] | None,
+    tuple[tuple[NDArray[np.float64], NDArray[np.float64]] | None, ...],
+]:
     dt = config.estimator.dt_s
     cylinder_inputs = config.cylinder_inputs
     count = len(cylinder_inputs)
@@ -189,7 +199,7 @@ def _replay_segment(
     times = times[: int(np.searchsorted(times, last, side="right"))]  # the steps up to the last frame
     n = times.size
     if n == 0:
-        return empty_columns(count), 0, None
+        return empty_columns(count), 0, None, ()
     held: dict[str, HeldInput] = {}
     message_of = {spec.name: spec.message for spec in config.inputs}
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
@@ -239,6 +249,9 @@ def _replay_segment(
         )
         for number, (name, model) in enumerate(zip(cylinder_inputs, params, strict=True), start=1)
     ]
+    cross_feeds: tuple[tuple[NDArray[np.float64], NDArray[np.float64]] | None, ...] = ()
+    if config.cross_detectors:
+        cylinders, cross_feeds = _cross_states(config, times, cylinders)
     bits = np.zeros(rows.size, dtype=np.int64)  # the stale bits of each health row
     for name in mapped:
         report = CHT_INPUT if name in cylinder_inputs else name
@@ -258,7 +271,7 @@ def _replay_segment(
             "stale": bits,
             "sensor_fault": cyl.code[rows] == fault,
         }
-        return out, n, cyl.feed
+        return out, n, cyl.feed, ()
     out = {"time_s": times[rows], "stale": bits}
     for number, cyl in enumerate(cylinders, start=1):
         out.update({
@@ -271,7 +284,32 @@ def _replay_segment(
             f"cyl{number}_state": cyl.state[rows].astype(np.int64),
         })  # fmt: skip
     out.update(engine_columns(out, count, config.spread_limit_c))
-    return out, n, cylinders[0].feed
+    return out, n, cylinders[0].feed, cross_feeds
+
+
+def _cross_states(
+    config: ServiceConfig, times: NDArray[np.float64], cylinders: list[_CylinderTrace]
+) -> tuple[list[_CylinderTrace], tuple[tuple[NDArray[np.float64], NDArray[np.float64]] | None, ...]]:
+    """Each cylinder's state with its cross-cylinder detector's verdict folded in (the more severe of the
+    two), as Pipeline._cross_step does per step: the detector is fed the cylinder's symptom minus the
+    median of the others' (estimation/cross_cylinder.py) from the cylinder's first initialisation.
+    Also what each cross detector was fed: (step times s, cross symptom) from its start, None if never."""
+    cross = cross_cylinder_symptoms(np.stack([cyl.fed for cyl in cylinders]))
+    out = []
+    feeds: list[tuple[NDArray[np.float64], NDArray[np.float64]] | None] = []
+    for number, (cyl, symptom) in enumerate(zip(cylinders, cross, strict=True), start=1):
+        settings = config.cross_detector(number)
+        if settings is None or not cyl.stretches:
+            out.append(cyl)
+            feeds.append(None)
+            continue
+        verdict = detect_states(config.replace(detector=settings), times, cyl.code, cyl.first, symptom, cyl.stretches)
+        nominal = cyl.code == 0
+        state = cyl.state.copy()
+        state[nominal] = np.maximum(state[nominal], verdict[nominal])
+        out.append(cyl._replace(state=state))
+        feeds.append((times[cyl.first :], symptom[cyl.first :]))
+    return out, tuple(feeds)
 
 
 class _CylinderTrace(NamedTuple):
@@ -286,6 +324,9 @@ class _CylinderTrace(NamedTuple):
     state: NDArray[np.int64]  # final state code (the detector's verdict where NOMINAL)
     code: NDArray[np.int64]  # the supervisor's code
     feed: tuple[NDArray[np.float64], NDArray[np.float64]] | None  # what its detector was fed
+    fed: NDArray[np.float64]  # the symptom its detector was fed per step (nan: not fed)
+    first: int  # the step its detector starts at (its first initialisation)
+    stretches: list[tuple[int, int]]  # where its estimator runs
 
 
 def _replay_cylinder(
@@ -372,7 +413,7 @@ def _replay_cylinder(
     feed = (times[first:], fed[first:]) if stretches else None
     headroom = held_headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
                              periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
-    return _CylinderTrace(reading, est, deviation, gamma_q, gamma_d, headroom, state, code, feed)
+    return _CylinderTrace(reading, est, deviation, gamma_q, gamma_d, headroom, state, code, feed, fed, first, stretches)
 
 
 def replay_file(
