@@ -1,8 +1,8 @@
 """Every cylinder on the virtual ECU (issue 14 targets): per-cylinder CHT estimate error and the
 attribution of a one-cylinder degradation.
 
-    nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py [--flights 8] [--hours 1] [--models truth|identified]
-        [--protocol dbc|dronecan]
+    nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py [--flights 8] [--first-seed 1] [--hours 1]
+        [--models truth|identified] [--protocol dbc|dronecan] [--no-cross]
     nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py --cost
     PYTHONPATH=TREE .venv/bin/python benchmarks/bench_cylinders.py --one-channel LOG.blf
 
@@ -34,6 +34,8 @@ Per flight it prints, per cylinder, the RMS of the CHT estimate against the true
 onset) and whether any other cylinder went DEGRADED (misattribution), or any cylinder before the onset
 (false alarm). Targets (issue 14): RMS <= 1 degC per cylinder; detected within 120 s, on that cylinder
 alone. Flights are recorded into $ECU_MONITOR_BENCH_DIR or /tmp/ecu-monitor-bench/cylinders, once.
+``--no-cross``: without the shipped config's cross-cylinder detectors (``cylinders.cross_detector``), i.e.
+each cylinder's own-symptom detector alone, for comparison.
 """
 
 from __future__ import annotations
@@ -89,6 +91,8 @@ def _identified(seed: int, hours: float, models: tuple) -> tuple:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--flights", type=int, default=8)
+    parser.add_argument("--first-seed", type=int, default=1, help="the first flight's random_mission seed")
+    parser.add_argument("--no-cross", action="store_true", help="without the cross-cylinder detectors")
     parser.add_argument("--hours", type=float, default=1.0)
     parser.add_argument("--models", choices=("truth", "identified"), default="truth")
     parser.add_argument(
@@ -113,12 +117,15 @@ def main() -> None:
     from virtual_bus.plant import Degradation
 
     config = load_config("four_cylinders.yaml") if args.protocol == "dbc" else dronecan_config()
+    if args.no_cross:
+        config = config.replace(cross_detectors=(), cross_calibrated_for=())
+    cross = bool(config.cross_detectors)
     degraded_code = STATES.index("DEGRADED")
     worst_rms, delays, misattributed, false_alarms, missed = 0.0, [], 0, 0, 0
     print("| flight | degraded cylinder | onset s | RMS per cylinder, degC | delay s | other cylinder DEGRADED |"
           " alarm before onset |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")
-    for seed in range(1, args.flights + 1):
+    for seed in range(args.first_seed, args.first_seed + args.flights):
         truth_models = cylinder_models(paper_table_a1(), CYLINDERS, seed=seed)
         target = seed % CYLINDERS + 1
         onset = round(args.hours * 3600.0 / 2.0)
@@ -158,11 +165,12 @@ def main() -> None:
           f" detected {len(delays)} of {args.flights} (missed {missed}), delay median"
           f" {np.median(delays) if delays else float('nan'):.0f} s, max {max(delays) if delays else float('nan'):.0f} s"
           f" (target 120 s); another cylinder DEGRADED in {misattributed} flight(s); an alarm before the onset in"
-          f" {false_alarms} flight(s)")  # fmt: skip
+          f" {false_alarms} flight(s); cross-cylinder detectors {'on' if cross else 'off'}")  # fmt: skip
 
 
 def dronecan_config() -> object:
-    """The shipped dronecan.yaml with the four cylinders of the ICE status mapped to cht1_c .. cht4_c."""
+    """The shipped dronecan.yaml with the four cylinders of the ICE status mapped to cht1_c .. cht4_c and
+    four_cylinders.yaml's ``cylinders`` section (spread limit, cross-cylinder detectors)."""
     import yaml
 
     from ecu_monitor.service.config import parse_config
@@ -173,6 +181,8 @@ def dronecan_config() -> object:
     field = data["inputs"]["cht1_c"]["field"]
     for n in range(1, CYLINDERS + 1):
         data["inputs"][f"cht{n}_c"] = {"field": field.replace("[0]", f"[{n - 1}]"), "unit": "K", "stale_after_s": 1.0}
+    four = yaml.safe_load(resolve_file("four_cylinders.yaml", "config").read_text(encoding="utf-8"))
+    data["cylinders"] = four["cylinders"]
     return parse_config(data, path)
 
 

@@ -154,6 +154,7 @@ def _run_cylinders(
         print(f"== cylinder {number} of {count} ({config.cylinder_inputs[number - 1]}) ==")
         results.append(_calibrate_channel(args, view, model, candidates, cylinder=number)[0])
     fingerprints = [model_fingerprint(p) for p in params]
+    cross = _calibrate_cross(args, config, params) if config.cross_detectors else []
     if args.write_config:
         text = config_copy_yaml(
             config_path,
@@ -163,13 +164,37 @@ def _run_cylinders(
             fingerprints[0],
             cylinders=list(zip(results, fingerprints, strict=True)),
             cylinder_models=list(args.models or ()),
+            cross=list(zip(cross, fingerprints, strict=False)),
         )
     else:
-        text = cylinders_fragment_yaml(results, args.rate, sources, fingerprints)
+        text = cylinders_fragment_yaml(results, args.rate, sources, fingerprints, cross)
     _write(out, text)
     what = "full config" if args.write_config else "cylinders.detectors fragment"
     print(f"wrote {out} ({what}: one detector per cylinder)")
     return 0
+
+
+def _calibrate_cross(args: argparse.Namespace, config: Any, params: list[Any]) -> list[Any]:
+    """The cross-cylinder detectors (cylinders.cross_detector): one replay of each flight with every
+    cylinder, each cylinder's threshold from its cross-cylinder statistic; prints the per-flight maxima
+    and the leave-one-flight-out check (service/calibration_cross.py)."""
+    from ecu_monitor.service.calibration_cross import calibrate_cross, cross_feeds, leave_one_out
+
+    print("== cross-cylinder detectors (each cylinder's symptom minus the median of the others') ==")
+    feeds = cross_feeds(args.flights, config, params)
+    results = calibrate_cross(feeds, config, args.rate)
+    held = leave_one_out(feeds, config, args.rate)
+    width = max(len(f.name) for f in feeds[0])
+    print(f"{'cylinder':>8}  {'h':>8}  per flight: max statistic / h without it / alarms held out")
+    for number, (result, check) in enumerate(zip(results, held, strict=True), start=1):
+        cells = [
+            f"{f.name:<{width}} {f.max_statistic:7.3f} / {h:7.3f} / {a}"
+            for f, h, a in zip(result.flights, check.thresholds, check.false_alarms, strict=True)
+        ]
+        print(f"{number:8d}  {result.calibration.threshold:8.3f}  " + "; ".join(cells))
+    total = sum(sum(c.false_alarms) for c in held)
+    print(f"leave one flight out: {total} false alarm(s) on the held-out flights over {len(held)} cylinders")
+    return results
 
 
 def _calibrate_channel(

@@ -423,12 +423,14 @@ def config_copy_yaml(
     model_path: str | os.PathLike[str] | None = None,
     cylinders: Sequence[tuple[CalibrationResult, str]] = (),
     cylinder_models: Sequence[str | os.PathLike[str]] = (),
+    cross: Sequence[tuple[CalibrationResult, str]] = (),
 ) -> str:
     """The service config at ``config_path`` with ``detector.threshold`` replaced, ``detector.calibrated_for``
     set (the :func:`model_fingerprint` of the model used) and ``model`` set to ``model_path`` if given, the
     model the threshold was calibrated with. With ``cylinders`` (per cylinder its result and model
     fingerprint; ``result`` is then the first cylinder's), ``cylinders.detectors`` is written instead
-    and ``detector`` kept, and ``cylinders.models`` set to ``cylinder_models`` if given. Relative file paths (dbc,
+    and ``detector`` kept, and ``cylinders.models`` set to ``cylinder_models`` if given; with ``cross``
+    (the same, for the cross-cylinder detectors) ``cylinders.cross_detectors`` too. Relative file paths (dbc,
     health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
     DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
     src = resolve_file(config_path, "config")
@@ -470,8 +472,11 @@ def config_copy_yaml(
         elif isinstance(section.get("models"), list):
             section["models"] = [m if m in MODEL_PRESETS else absolute(m) for m in section["models"]]
         section["detectors"] = [_cylinder_entry(r, c) for r, c in cylinders]
+        if cross:
+            section["cross_detectors"] = [_cylinder_entry(r, c) for r, c in cross]
         data["cylinders"] = section
         header = _cylinder_headers([r for r, _ in cylinders], rate_per_100h, sources)
+        header += _cylinder_headers([r for r, _ in cross], rate_per_100h, sources, "cross-cylinder detector")
         header.append(
             f"# copy of {src.resolve()} with cylinders.detectors (one calibrated detector per cylinder) written"
             " (comments of the original not kept)"
@@ -527,23 +532,34 @@ def _cylinder_entry(result: CalibrationResult, calibrated_for: str) -> dict[str,
     return {**dataclasses.asdict(settings), "calibrated_for": calibrated_for}
 
 
-def _cylinder_headers(results: Sequence[CalibrationResult], rate_per_100h: float, sources: Sequence[str]) -> list[str]:
+def _cylinder_headers(
+    results: Sequence[CalibrationResult], rate_per_100h: float, sources: Sequence[str], what: str = ""
+) -> list[str]:
     lines: list[str] = []
     for number, result in enumerate(results, start=1):
-        lines.append(f"# cylinder {number}:")
+        lines.append(f"# cylinder {number}{', ' + what if what else ''}:")
         lines += [f"#  {line[1:]}" for line in _header(result, rate_per_100h, sources)]
     return lines
 
 
 def cylinders_fragment_yaml(
-    results: Sequence[CalibrationResult], rate_per_100h: float, sources: Sequence[str], calibrated_for: Sequence[str]
+    results: Sequence[CalibrationResult],
+    rate_per_100h: float,
+    sources: Sequence[str],
+    calibrated_for: Sequence[str],
+    cross: Sequence[CalibrationResult] = (),
 ) -> str:
     """A ``cylinders: detectors:`` YAML fragment, one detector per cylinder in cylinder order (each with
     every setting it was calibrated with and ``calibrated_for``, its model's :func:`model_fingerprint`),
-    to put into the service config's ``cylinders:`` section beside ``models``; comments per cylinder."""
+    to put into the service config's ``cylinders:`` section beside ``models``; comments per cylinder.
+    ``cross``: the cross-cylinder detectors' results, written as ``cross_detectors`` the same way."""
     lines = _cylinder_headers(results, rate_per_100h, sources)
+    lines += _cylinder_headers(cross, rate_per_100h, sources, "cross-cylinder detector")
     entries = [_cylinder_entry(r, c) for r, c in zip(results, calibrated_for, strict=True)]
-    body = yaml.safe_dump({"cylinders": {"detectors": entries}}, sort_keys=False, default_flow_style=None)
+    section: dict[str, Any] = {"detectors": entries}
+    if cross:
+        section["cross_detectors"] = [_cylinder_entry(r, c) for r, c in zip(cross, calibrated_for, strict=True)]
+    body = yaml.safe_dump({"cylinders": section}, sort_keys=False, default_flow_style=None)
     return "\n".join(lines) + "\n" + body
 
 
