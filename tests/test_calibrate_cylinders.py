@@ -110,6 +110,30 @@ def test_each_cylinder_is_calibrated_on_its_own_channel_and_model(calibrated: di
     assert [e["calibrated_for"] for e in entries] == [model_fingerprint(load_model(m)) for m in calibrated["models"]]
 
 
+def test_the_cross_cylinder_detectors_are_calibrated_per_cylinder(calibrated: dict[str, Any]) -> None:
+    from ecu_monitor.service.calibration import calibrate_flights
+    from ecu_monitor.service.calibration_cross import cross_feeds, leave_one_out
+
+    printed = calibrated["printed"]
+    assert "== cross-cylinder detectors" in printed and "leave one flight out:" in printed
+    config = load_config(calibrated["written"])
+    assert len(config.cross_detectors) == 2
+    # each cylinder's threshold is the single-channel procedure on what its cross-cylinder detector is fed
+    shipped = parse_config(_two_cylinder_data(), CONFIGS / "x.yaml")
+    feeds = cross_feeds(calibrated["flights"], shipped, [load_model(m) for m in calibrated["models"]])
+    for number, flights in enumerate(feeds, start=1):
+        settings = shipped.cross_detector(number)
+        assert settings is not None
+        expected = calibrate_flights([f.statistic_for(settings) for f in flights], 1.0, settings).calibration
+        assert config.cross_detector(number).threshold == pytest.approx(expected.threshold, abs=1e-4)
+        assert config.cross_detector(number).baseline_s == settings.baseline_s
+    # two cylinders: each one's cross symptom is the other's negated, so their statistics differ
+    assert config.cross_detector(1).threshold != config.cross_detector(2).threshold
+    checks = leave_one_out(feeds, shipped, 1.0)
+    assert [len(c.thresholds) for c in checks] == [2, 2]  # one whole hour per flight: too few to hold one out
+    assert all(np.isnan(h) for c in checks for h in c.thresholds)
+
+
 def test_the_service_runs_each_cylinder_on_its_own_detector(calibrated: dict[str, Any], tmp_path: Path) -> None:
     config = load_config(calibrated["written"])
     pipeline = Pipeline(config, config.load_cylinder_params())

@@ -33,3 +33,26 @@ def test_the_batch_form_equals_the_live_step_bit_for_bit() -> None:
         assert np.array_equal(batch[np.isfinite(batch)], live[np.isfinite(live)])
     with pytest.raises(ParameterError, match="cylinders, steps"):
         cross_cylinder_symptoms(np.zeros(3))
+
+
+def test_calibrate_keeps_a_cylinders_cross_detector_only_if_no_held_out_flight_alarms() -> None:
+    from ecu_monitor.service.calibration_cross import calibrate_cross, leave_one_out
+    from ecu_monitor.service.calibration_replays import FlightFeeds
+    from ecu_monitor.service.config import load_config
+
+    config = load_config("four_cylinders.yaml")
+    rng = np.random.default_rng(8)
+    t = np.arange(0.0, 2.5 * 3600.0, 1.0)
+    feeds: list[list[FlightFeeds]] = [[], []]
+    for flight in range(3):
+        for cylinder in range(2):
+            symptom = rng.normal(0.0, 0.02, t.size)
+            if cylinder == 1 and flight == 2:  # an excursion the other flights never show
+                symptom[4000:4300] += 0.3
+            feed = ((t, symptom),)
+            feeds[cylinder].append(FlightFeeds(f"f{flight}", feed, 0.0, float(t[-1]), math.nan, ()))
+    checks = leave_one_out(feeds, config, 1.0)
+    assert sum(checks[0].false_alarms) == 0 and checks[1].false_alarms[:2] == (0, 0) and checks[1].false_alarms[2] > 0
+    kept, dropped = calibrate_cross(feeds, config, 1.0)
+    assert dropped is None and kept is not None
+    assert kept.calibration.threshold >= 1.0 and kept.current == config.cross_detector(1)

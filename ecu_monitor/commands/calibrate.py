@@ -164,7 +164,7 @@ def _run_cylinders(
             fingerprints[0],
             cylinders=list(zip(results, fingerprints, strict=True)),
             cylinder_models=list(args.models or ()),
-            cross=list(zip(cross, fingerprints, strict=False)),
+            cross=list(zip(cross, fingerprints, strict=True)) if cross else [],
         )
     else:
         text = cylinders_fragment_yaml(results, args.rate, sources, fingerprints, cross)
@@ -176,24 +176,32 @@ def _run_cylinders(
 
 def _calibrate_cross(args: argparse.Namespace, config: Any, params: list[Any]) -> list[Any]:
     """The cross-cylinder detectors (cylinders.cross_detector): one replay of each flight with every
-    cylinder, each cylinder's threshold from its cross-cylinder statistic; prints the per-flight maxima
-    and the leave-one-flight-out check (service/calibration_cross.py)."""
+    cylinder, each cylinder's threshold from its cross-cylinder statistic, kept only where no held-out
+    flight alarms (service/calibration_cross.py); prints the per-flight maxima and that check."""
     from ecu_monitor.service.calibration_cross import calibrate_cross, cross_feeds, leave_one_out
 
     print("== cross-cylinder detectors (each cylinder's symptom minus the median of the others') ==")
     feeds = cross_feeds(args.flights, config, params)
-    results = calibrate_cross(feeds, config, args.rate)
-    held = leave_one_out(feeds, config, args.rate)
-    width = max(len(f.name) for f in feeds[0])
-    print(f"{'cylinder':>8}  {'h':>8}  per flight: max statistic / h without it / alarms held out")
-    for number, (result, check) in enumerate(zip(results, held, strict=True), start=1):
+    checks = leave_one_out(feeds, config, args.rate)
+    results = calibrate_cross(feeds, config, args.rate, checks)
+    print(f"{'cylinder':>8}  {'h':>8}  per flight: max statistic / h without it / alarms when held out")
+    for number, (result, check, flights) in enumerate(zip(results, checks, feeds, strict=True), start=1):
+        settings = config.cross_detector(number)
+        if settings is None:
+            print(f"{number:8d}  {'-':>8}  (none in the config)")
+            continue
         cells = [
-            f"{f.name:<{width}} {f.max_statistic:7.3f} / {h:7.3f} / {a}"
-            for f, h, a in zip(result.flights, check.thresholds, check.false_alarms, strict=True)
+            f"{f.name} {f.statistic_for(settings).max_statistic:.3f} / {h:.3f} / {a}"
+            for f, h, a in zip(flights, check.thresholds, check.false_alarms, strict=True)
         ]
-        print(f"{number:8d}  {result.calibration.threshold:8.3f}  " + "; ".join(cells))
-    total = sum(sum(c.false_alarms) for c in held)
-    print(f"leave one flight out: {total} false alarm(s) on the held-out flights over {len(held)} cylinders")
+        h_text = f"{result.calibration.threshold:8.3f}" if result is not None else f"{'off':>8}"
+        print(f"{number:8d}  {h_text}  " + "; ".join(cells))
+    off = [n for n, r in enumerate(results, start=1) if r is None and config.cross_detector(n) is not None]
+    if off:
+        print(
+            f"cylinder(s) {', '.join(map(str, off))}: a held-out flight alarmed; no cross-cylinder detector written"
+            " there (null), its own-symptom detector keeps watching it"
+        )
     return results
 
 

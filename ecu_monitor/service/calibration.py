@@ -423,7 +423,7 @@ def config_copy_yaml(
     model_path: str | os.PathLike[str] | None = None,
     cylinders: Sequence[tuple[CalibrationResult, str]] = (),
     cylinder_models: Sequence[str | os.PathLike[str]] = (),
-    cross: Sequence[tuple[CalibrationResult, str]] = (),
+    cross: Sequence[tuple[CalibrationResult | None, str]] = (),
 ) -> str:
     """The service config at ``config_path`` with ``detector.threshold`` replaced, ``detector.calibrated_for``
     set (the :func:`model_fingerprint` of the model used) and ``model`` set to ``model_path`` if given, the
@@ -473,7 +473,7 @@ def config_copy_yaml(
             section["models"] = [m if m in MODEL_PRESETS else absolute(m) for m in section["models"]]
         section["detectors"] = [_cylinder_entry(r, c) for r, c in cylinders]
         if cross:
-            section["cross_detectors"] = [_cylinder_entry(r, c) for r, c in cross]
+            section["cross_detectors"] = [None if r is None else _cylinder_entry(r, c) for r, c in cross]
         data["cylinders"] = section
         header = _cylinder_headers([r for r, _ in cylinders], rate_per_100h, sources)
         header += _cylinder_headers([r for r, _ in cross], rate_per_100h, sources, "cross-cylinder detector")
@@ -533,11 +533,14 @@ def _cylinder_entry(result: CalibrationResult, calibrated_for: str) -> dict[str,
 
 
 def _cylinder_headers(
-    results: Sequence[CalibrationResult], rate_per_100h: float, sources: Sequence[str], what: str = ""
+    results: Sequence[CalibrationResult | None], rate_per_100h: float, sources: Sequence[str], what: str = ""
 ) -> list[str]:
     lines: list[str] = []
     for number, result in enumerate(results, start=1):
         lines.append(f"# cylinder {number}{', ' + what if what else ''}:")
+        if result is None:
+            lines.append("#   off: a nominal flight held out raised an alarm (leave-one-flight-out check)")
+            continue
         lines += [f"#  {line[1:]}" for line in _header(result, rate_per_100h, sources)]
     return lines
 
@@ -547,18 +550,21 @@ def cylinders_fragment_yaml(
     rate_per_100h: float,
     sources: Sequence[str],
     calibrated_for: Sequence[str],
-    cross: Sequence[CalibrationResult] = (),
+    cross: Sequence[CalibrationResult | None] = (),
 ) -> str:
     """A ``cylinders: detectors:`` YAML fragment, one detector per cylinder in cylinder order (each with
     every setting it was calibrated with and ``calibrated_for``, its model's :func:`model_fingerprint`),
     to put into the service config's ``cylinders:`` section beside ``models``; comments per cylinder.
-    ``cross``: the cross-cylinder detectors' results, written as ``cross_detectors`` the same way."""
+    ``cross``: the cross-cylinder detectors' results, written as ``cross_detectors`` the same way (None:
+    written null, no cross-cylinder detector on that cylinder)."""
     lines = _cylinder_headers(results, rate_per_100h, sources)
     lines += _cylinder_headers(cross, rate_per_100h, sources, "cross-cylinder detector")
     entries = [_cylinder_entry(r, c) for r, c in zip(results, calibrated_for, strict=True)]
     section: dict[str, Any] = {"detectors": entries}
     if cross:
-        section["cross_detectors"] = [_cylinder_entry(r, c) for r, c in zip(cross, calibrated_for, strict=True)]
+        section["cross_detectors"] = [
+            None if r is None else _cylinder_entry(r, c) for r, c in zip(cross, calibrated_for, strict=True)
+        ]
     body = yaml.safe_dump({"cylinders": section}, sort_keys=False, default_flow_style=None)
     return "\n".join(lines) + "\n" + body
 

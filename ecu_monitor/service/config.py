@@ -220,7 +220,7 @@ class ServiceConfig:
     #: ``cylinders.cross_detector`` / ``cross_detectors``: one more detector per cylinder, on the
     #: cross-cylinder symptom (its symptom minus the median of the others', estimation/cross_cylinder.py);
     #: empty: off. Each cylinder's state is the more severe of its two detectors' verdicts.
-    cross_detectors: tuple[DetectorSettings, ...] = ()
+    cross_detectors: tuple[DetectorSettings | None, ...] = ()
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
     cross_calibrated_for: tuple[str | None, ...] = ()
 
@@ -230,7 +230,7 @@ class ServiceConfig:
         return self.cylinder_detectors[number - 1] if self.cylinder_detectors else self.detector
 
     def cross_detector(self, number: int) -> DetectorSettings | None:
-        """The cross-cylinder detector of cylinder ``number`` (1-based), None when off."""
+        """The cross-cylinder detector of cylinder ``number`` (1-based), None when off (on that cylinder)."""
         return self.cross_detectors[number - 1] if self.cross_detectors else None
 
     @property
@@ -503,10 +503,11 @@ def _cylinders(
 
 def _cross_detectors(
     top: _Node, inputs: tuple[InputSpec, ...]
-) -> tuple[tuple[DetectorSettings, ...], tuple[str | None, ...]]:
+) -> tuple[tuple[DetectorSettings | None, ...], tuple[str | None, ...]]:
     """``cylinders.cross_detector`` (the cross-cylinder detector of every cylinder: DetectorSettings'
     defaults with the keys given replaced) and ``cylinders.cross_detectors`` (one per cylinder, each
-    replacing keys of ``cross_detector``, as ``ecu-monitor calibrate`` writes them); either turns it on."""
+    replacing keys of ``cross_detector``, or null: none on that cylinder, as ``ecu-monitor calibrate``
+    writes them); either turns it on."""
     node = top.child("cylinders", None, {})
     if not (node.has("cross_detector") or node.has("cross_detectors")):
         return (), ()
@@ -525,9 +526,13 @@ def _cross_detectors(
             f"expected a list of {count} detectors, one per cylinder (cht1_c .. chtN_c), got {_kind(items)}",
             "cross_detectors",
         )
-    entries = [_Node(node.src, f"{node.key('cross_detectors')}[{i}]", item) for i, item in enumerate(items)]
-    detectors = tuple(_cylinder_detector(entry, base) for entry in entries)
-    return detectors, tuple(entry.data.get("calibrated_for") for entry in entries)
+    detectors: list[DetectorSettings | None] = []
+    calibrated_for: list[str | None] = []
+    for i, item in enumerate(items):  # null: no cross-cylinder detector on this cylinder
+        entry = None if item is None else _Node(node.src, f"{node.key('cross_detectors')}[{i}]", item)
+        detectors.append(None if entry is None else _cylinder_detector(entry, base))
+        calibrated_for.append(None if entry is None else entry.data.get("calibrated_for"))
+    return tuple(detectors), tuple(calibrated_for)
 
 
 def _cylinder_detector(node: _Node, detector: DetectorSettings) -> DetectorSettings:
