@@ -93,6 +93,7 @@ def main() -> None:
     parser.add_argument("--flights", type=int, default=8)
     parser.add_argument("--first-seed", type=int, default=1, help="the first flight's random_mission seed")
     parser.add_argument("--no-cross", action="store_true", help="without the cross-cylinder detectors")
+    parser.add_argument("--plot", help="draw the first flight's degraded cylinder: own vs cross-cylinder symptom, PNG")
     parser.add_argument("--hours", type=float, default=1.0)
     parser.add_argument("--models", choices=("truth", "identified"), default="truth")
     parser.add_argument(
@@ -157,6 +158,8 @@ def main() -> None:
         early = [n for n in range(1, CYLINDERS + 1) if np.any((c[f"cyl{n}_state"] == degraded_code) & (t < onset))]
         misattributed += bool(others)
         false_alarms += bool(early)
+        if args.plot and seed == args.first_seed and result.cross_feeds:
+            plot_flight(args.plot, seed, result, config, target, onset)
         print(f"| {seed} | {target} | {onset} | {' / '.join(f'{r:.2f}' for r in rms)} |"
               f" {'missed' if delay is None else f'{delay:.0f}'} | {others or 'none'} | {early or 'none'} |"
               f" <!-- replay {wall:.1f} s -->")  # fmt: skip
@@ -166,6 +169,47 @@ def main() -> None:
           f" {np.median(delays) if delays else float('nan'):.0f} s, max {max(delays) if delays else float('nan'):.0f} s"
           f" (target 120 s); another cylinder DEGRADED in {misattributed} flight(s); an alarm before the onset in"
           f" {false_alarms} flight(s); cross-cylinder detectors {'on' if cross else 'off'}")  # fmt: skip
+
+
+def plot_flight(path: str, seed: int, result: object, config: object, target: int, onset: float) -> None:
+    """The degraded cylinder's own and cross-cylinder symptoms (1 s block means) and their CUSUMs with
+    their thresholds, around the onset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ecu_monitor.estimation.detection import block_means, cusum_path
+
+    c = result.columns  # type: ignore[attr-defined]
+    t0 = c["time_s"][0]
+    own_symptom = np.where(c[f"cyl{target}_state"] <= 2, c[f"cyl{target}_deviation"], np.nan)
+    (cross_t, cross_symptom), *_ = result.cross_feeds[target - 1]  # type: ignore[attr-defined]
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for label, t, x, settings, color in (
+        ("own symptom", c["time_s"], own_symptom, config.cylinder_detector(target), "tab:blue"),  # type: ignore[attr-defined]
+        ("cross-cylinder symptom", cross_t, cross_symptom, config.cross_detector(target), "tab:red"),  # type: ignore[attr-defined]
+    ):
+        ends, means = block_means(t, x, settings)
+        axes[0].plot(ends - t0 - onset, means, lw=0.6, color=color, label=label)
+        ends, stat, alarms = cusum_path(t, x, settings)
+        axes[1].plot(ends - t0 - onset, stat, lw=1.0, color=color, label=f"{label}: CUSUM")
+        axes[1].axhline(settings.threshold, color=color, ls="--", lw=0.8, label=f"h = {settings.threshold:g}")
+        if alarms.size:
+            axes[1].axvline(alarms[0] - t0 - onset, color=color, ls=":", lw=1.0)
+    for ax in axes:
+        ax.axvline(0.0, color="black", lw=0.8)
+        ax.set_xlim(-900, 600)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    axes[0].set_ylabel("1 s block mean, degC/s")
+    axes[0].set_title(f"flight {seed}: gamma_Q 1.2 in cylinder {target} at t = 0 (the onset)")
+    axes[1].set_ylabel("CUSUM statistic, degC")
+    axes[1].set_ylim(0.0, 1.5 * config.cylinder_detector(target).threshold)  # type: ignore[attr-defined]
+    axes[1].set_xlabel("time from the onset, s (dotted: first alarm)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def dronecan_config() -> object:

@@ -47,7 +47,9 @@ def main() -> None:
     record_dbc = bench_cylinders._record
     where = bench_cylinders.bench_dir()
 
-    def record_dronecan(path: Path, seed: int, hours: float, models: tuple, degradation: list) -> None:
+    def record_dronecan(
+        path: Path, seed: int, hours: float, models: tuple, degradation: list, protocol: str = "dronecan"
+    ) -> None:
         from ecu_monitor.model import paper_table_a1
         from virtual_bus.random_missions import random_mission
         from virtual_bus.recorder import record
