@@ -66,7 +66,7 @@ def _block_sd(feed: Any, settings: Any) -> float:
 def real(args: argparse.Namespace) -> None:
     from ecu_monitor.model import load_model
     from ecu_monitor.service.calibration import calibrate_flights
-    from ecu_monitor.service.calibration_cross import calibrate_cross, cross_feeds
+    from ecu_monitor.service.calibration_cross import calibrate_cross
     from ecu_monitor.service.calibration_replays import FlightFeeds
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.replay import replay_file
@@ -81,17 +81,20 @@ def real(args: argparse.Namespace) -> None:
     print("| held-out flight | cylinder | cross h (train) | cross max held out | cross alarm | own h (train) |"
           " own max held out | own alarm |")  # fmt: skip
     print("|---|---:|---:|---:|---|---:|---:|---|")
-    for held in args.flights:
+    for held in args.held_out or args.flights:
         fold = Path(args.models_dir) / f"fold_{_stem(held).split('_', 3)[-1]}"
         models = [load_model(next(iter(sorted(fold.glob(f"*_cyl{n}.yaml"))))) for n in range(1, count + 1)]
         train = [f for f in args.flights if f != held]
-        cross = cross_feeds([*train, held], config, models)
+        cross: list[list[FlightFeeds]] = [[] for _ in range(count)]
         own: list[list[FlightFeeds]] = [[] for _ in range(count)]
-        for path in [*train, held]:
+        for path in [*train, held]:  # one replay per flight: what each cylinder's two detectors are fed
             result = replay_file(path, config, models)
             t = result.columns["time_s"]
             for n, feed in enumerate(_own_feeds(result, count)):
                 own[n].append(FlightFeeds(Path(path).name, feed, float(t[0]), float(t[-1]), math.nan, ()))
+                cross[n].append(
+                    FlightFeeds(Path(path).name, result.cross_feeds[n], float(t[0]), float(t[-1]), math.nan, ())
+                )
         results = calibrate_cross([c[:-1] for c in cross], config, args.rate)
         for n in range(count):
             settings = config.cross_detector(n + 1)
@@ -113,7 +116,7 @@ def real(args: argparse.Namespace) -> None:
                 plot_data = (held, own[n][-1], cross[n][-1], own_settings, settings, n + 1)
     print()
     print(f"held-out flights x cylinders: cross-cylinder detector alarms {cross_alarms}, own symptom (same"
-          f" settings, h from the training flights) alarms {own_alarms}, of {len(args.flights) * count};"
+          f" settings, h from the training flights) alarms {own_alarms}, of {len(sd_own)};"
           f" median 1 s block-mean SD own {np.nanmedian(sd_own):.4f}, cross {np.nanmedian(sd_cross):.4f}")  # fmt: skip
     if args.plot and plot_data is not None:
         _plot(args.plot, *plot_data)
@@ -226,6 +229,7 @@ def main() -> None:
     r.add_argument("--models-dir", required=True)
     r.add_argument("--rate", type=float, default=1.0)
     r.add_argument("--plot")
+    r.add_argument("--held-out", nargs="+", help="hold out only these flights (default: each in turn)")
     v = sub.add_parser("virtual")
     v.add_argument("--flights", type=int, default=4)
     v.add_argument("--rate", type=float, default=1.0)

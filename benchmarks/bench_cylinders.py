@@ -2,7 +2,7 @@
 attribution of a one-cylinder degradation.
 
     nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py [--flights 8] [--first-seed 1] [--hours 1]
-        [--models truth|identified] [--protocol dbc|dronecan] [--no-cross]
+        [--models truth|identified] [--protocol dbc|dronecan] [--no-cross] [--effects none|residual]
     nice -n 10 .venv/bin/python benchmarks/bench_cylinders.py --cost
     PYTHONPATH=TREE .venv/bin/python benchmarks/bench_cylinders.py --one-channel LOG.blf
 
@@ -34,6 +34,10 @@ Per flight it prints, per cylinder, the RMS of the CHT estimate against the true
 onset) and whether any other cylinder went DEGRADED (misattribution), or any cylinder before the onset
 (false alarm). Targets (issue 14): RMS <= 1 degC per cylinder; detected within 120 s, on that cylinder
 alone. Flights are recorded into $ECU_MONITOR_BENCH_DIR or /tmp/ecu-monitor-bench/cylinders, once.
+``--effects residual``: the truth plant has the evaluation's residual unmodelled effects
+(``research.evaluation.residual_effects(seed)``, the ones the shipped thresholds were calibrated on) in
+every cylinder, the monitor runs the cylinders' models without them: the model error is then common to
+the cylinders, as on a real engine whose cylinders share the inputs.
 ``--no-cross``: without the shipped config's cross-cylinder detectors (``cylinders.cross_detector``), i.e.
 each cylinder's own-symptom detector alone, for comparison.
 """
@@ -93,6 +97,13 @@ def main() -> None:
     parser.add_argument("--flights", type=int, default=8)
     parser.add_argument("--first-seed", type=int, default=1, help="the first flight's random_mission seed")
     parser.add_argument("--no-cross", action="store_true", help="without the cross-cylinder detectors")
+    parser.add_argument(
+        "--effects",
+        choices=("none", "residual"),
+        default="none",
+        help="residual: the evaluation's residual unmodelled effects (research.evaluation.residual_effects(seed)) in"
+        " every cylinder of the truth plant, the monitor's models without them (a model error common to the cylinders)",
+    )
     parser.add_argument("--plot", help="draw the first flight's degraded cylinder: own vs cross-cylinder symptom, PNG")
     parser.add_argument("--hours", type=float, default=1.0)
     parser.add_argument("--models", choices=("truth", "identified"), default="truth")
@@ -130,9 +141,14 @@ def main() -> None:
         truth_models = cylinder_models(paper_table_a1(), CYLINDERS, seed=seed)
         target = seed % CYLINDERS + 1
         onset = round(args.hours * 3600.0 / 2.0)
-        tag = "" if args.protocol == "dbc" else "_dronecan"
+        tag = ("" if args.protocol == "dbc" else "_dronecan") + ("" if args.effects == "none" else "_residual")
         path = bench_dir() / f"flight_{seed}_{args.hours:g}h{tag}.blf"
-        _record(path, seed, args.hours, truth_models, [Degradation("gamma_q", 1.2, onset, cylinder=target)],
+        plant = truth_models
+        if args.effects == "residual":
+            from ecu_monitor.research.evaluation import residual_effects
+
+            plant = tuple(m.replace(effects=residual_effects(seed)) for m in truth_models)
+        _record(path, seed, args.hours, plant, [Degradation("gamma_q", 1.2, onset, cylinder=target)],
                 args.protocol)  # fmt: skip
         models = truth_models if args.models == "truth" else _identified(seed, args.hours, truth_models)
         started = time.perf_counter()
