@@ -35,25 +35,26 @@ from ecu_monitor.errors import ParameterError
 __all__ = ["cross_cylinder_step", "cross_cylinder_symptoms"]
 
 
-def _median_sorted(values: list[float]) -> float:
-    n = len(values)
-    if n == 0:
-        return math.nan
-    mid = n // 2
-    return values[mid] if n % 2 else (values[mid - 1] + values[mid]) * 0.5
-
-
 def cross_cylinder_step(symptoms: Sequence[float]) -> list[float]:
     """Each cylinder's symptom minus the median of the other cylinders' finite symptoms (nan where the
     cylinder's own symptom is nan or no other cylinder has one); one instant, any number of cylinders."""
-    out = []
-    for i, own in enumerate(symptoms):
-        if own != own:  # nan
-            out.append(math.nan)
-            continue
-        others = sorted(x for j, x in enumerate(symptoms) if j != i and x == x)
-        reference = _median_sorted(others)
-        out.append(own - reference if reference == reference else math.nan)
+    usable = sorted((x, i) for i, x in enumerate(symptoms) if x == x)  # x == x: not nan
+    ordered = [x for x, _ in usable]
+    position = {i: p for p, (_, i) in enumerate(usable)}
+    others = len(ordered) - 1
+    out = [math.nan] * len(symptoms)
+    if others < 1:
+        return out
+    mid = others // 2
+    for i, p in position.items():
+        # the others, sorted, are ``ordered`` without position p: their k-th is ordered[k + (k >= p)]
+        upper = ordered[mid + (mid >= p)]
+        if others % 2:
+            reference = upper
+        else:
+            lower = ordered[mid - 1 + (mid - 1 >= p)]
+            reference = (lower + upper) * 0.5
+        out[i] = ordered[p] - reference
     return out
 
 
