@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.flightlog import FlightLog, read_csv
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.service.config import load_config, parse_config
@@ -237,7 +238,7 @@ def test_the_cross_cylinder_detector_live_equals_batch_and_flags_the_one_cylinde
     assert hit.size and ONSET_S < hit[0] < ONSET_S + 60.0
     assert not any(np.any(c[f"cyl{n}_state"] == degraded) for n in (1, 3, 4))
     # the own-symptom detectors alone (the shipped threshold) see it later
-    own = replay_frames(_config(), models, frames).columns
+    own = replay_frames(_config(cylinders={}), models, frames).columns
     own_hit = own["time_s"][own["cyl2_state"] == degraded]
     assert not own_hit.size or own_hit[0] > hit[0] + 5.0, (own_hit[:1], hit[0])
 
@@ -254,7 +255,10 @@ def test_bad_cross_detector_configs_name_the_key() -> None:
     with pytest.raises(ConfigError, match=r"cylinders\.cross_detector: compares cylinders"):
         parse_config(single, CONFIGS / "example.yaml")
     per = _config(cylinders={"cross_detector": {"threshold": 2.0}, "cross_detectors": [{}, {"threshold": 3.0}, {}, {}]})
-    assert [per.cross_detector(n).threshold for n in (1, 2)] == [2.0, 3.0] and _config().cross_detector(1) is None
+    assert [per.cross_detector(n).threshold for n in (1, 2)] == [2.0, 3.0]
+    assert _config(cylinders={}).cross_detector(1) is None and _config().cross_detector(1) is not None  # shipped on
+    off = _config(cylinders={"cross_detectors": [{"threshold": 2.0}, None, {}, {}]})
+    assert off.cross_detector(2) is None and off.cross_detector(3) == DetectorSettings()
 
 
 # --------------------------------------------------------------------------------------------------
