@@ -114,12 +114,12 @@ def real(args: argparse.Namespace) -> None:
                   f" {held_own:.2f} | {'**yes**' if held_own >= h_own else 'no'} |")  # fmt: skip
             if plot_data is None:
                 plot_data = (held, own[n][-1], cross[n][-1], own_settings, settings, n + 1)
+                if args.plot:  # drawn at once: the first held-out flight, cylinder 1
+                    _plot(args.plot, *plot_data)
     print()
     print(f"held-out flights x cylinders: cross-cylinder detector alarms {cross_alarms}, own symptom (same"
           f" settings, h from the training flights) alarms {own_alarms}, of {len(sd_own)};"
           f" median 1 s block-mean SD own {np.nanmedian(sd_own):.4f}, cross {np.nanmedian(sd_cross):.4f}")  # fmt: skip
-    if args.plot and plot_data is not None:
-        _plot(args.plot, *plot_data)
 
 
 def _plot(path: str, flight: str, own: Any, cross: Any, own_settings: Any, cross_settings: Any, number: int) -> None:
