@@ -76,7 +76,7 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     written = folder / "calibrated.yaml"
     code, printed = _calibrate(
         [*flights, "--config", str(config_path), "--models", str(true_model), str(wrong_model),
-         "--baseline-s", "600", "--write-config", "--out", str(written)]
+         "--baseline-s", "600", "--cross", "--write-config", "--out", str(written)]
     )  # fmt: skip
     single = folder / "cylinder2.yaml"
     one_channel = _two_cylinder_data()  # the same engine monitored on cylinder 2's probe alone
