@@ -190,8 +190,8 @@ def model_input_names(params: ThermalParams, mapped: Collection[str] = ()) -> tu
     effect and ``mapped`` (the config's input names) holds them all; otherwise the index is not fed and
     the effect's factor is 1."""
     names = (*params.heat_axes, *MODEL_INPUTS)
-    mixture = params.effects.mixture_index
-    if mixture is None or not all(name in mapped for name in MIXTURE_COLUMNS[mixture.source]):
+    mixture = fed_mixture(params, mapped)
+    if mixture is None:
         return names
     return tuple(dict.fromkeys((*names, *MIXTURE_COLUMNS[mixture.source])))
 

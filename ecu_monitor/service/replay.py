@@ -340,10 +340,10 @@ def _replay_cylinder(
     periods: dict[str, int],
 ) -> _CylinderTrace:
     """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom."""
-    if fed_mixture(params, inputs) is None and params.effects.mixture_index is not None:
+    mixture = fed_mixture(params, config.input_names)
+    if mixture is None and params.effects.mixture_index is not None:
         # the config maps no mixture index: its factor is 1, as live (NaN index; the pipeline warns)
         params = replace(params, effects=params.effects.replace("mixture_index", None))
-    mixture = params.effects.mixture_index
     dt = config.estimator.dt_s
     n = times.size
     reading = cht.value
