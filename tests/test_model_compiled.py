@@ -69,3 +69,39 @@ def test_unstable_particle_is_flagged_not_hidden():
     run = simulate_compiled(_series(400), swarm, 1.0, 80.0)
     assert list(run.failed) == [False, True]
     assert np.isnan(run.probe_c[-1, 1]) and np.isfinite(run.probe_c[:, 0]).all()
+
+
+def test_packed_coefficients_unpack_to_the_same_fields_in_python_and_compiled():
+    """pack_coefficients / unpack_coefficients (the live filters' compiled calls) lose no field and move none:
+    the model's coefficients with every effect on, and distinct values in every scalar slot, compared field by
+    field in Python and after numba's unpack."""
+    from ecu_monitor.model import (
+        Coefficients,
+        kernels,
+        pack_coefficients,
+        scalar_coefficients,
+        thermal,
+        unpack_coefficients,
+    )
+
+    params = paper_table_a1().replace(
+        effects=Effects(
+            airspeed_cooling=AirspeedCooling(),
+            density_cooling=DensityCooling(),
+            sensor_lag=SensorLag(5.0),
+            mixture_cooling=MixtureCooling(0.2, 0.5),
+        )
+    )
+    original = scalar_coefficients(coefficients(params))
+    packed = pack_coefficients(original)
+    assert len(packed.scalars) == len(Coefficients._fields) - 3  # every field but the heat map and its breakpoints
+    distinct = packed._replace(scalars=np.arange(len(packed.scalars)) + 0.5)
+    compiled = kernels.jit(thermal.unpack_coefficients, "test")
+    for unpack in (unpack_coefficients, compiled):
+        unpacked = unpack(*packed)
+        assert unpacked._fields == original._fields
+        for name in original._fields:
+            np.testing.assert_array_equal(getattr(unpacked, name), getattr(original, name), err_msg=name)
+        slots = unpack(*distinct)
+        for index, name in enumerate(Coefficients._fields[: len(packed.scalars)]):
+            assert getattr(slots, name) == index + 0.5, name

@@ -58,8 +58,10 @@ from ecu_monitor.model import (
     coefficients,
     compute_drive,
     initial_pade_state,
+    pack_coefficients,
     rk4_step,
     scalar_coefficients,
+    unpack_coefficients,
 )
 from ecu_monitor.model import compiled as _compiled_model
 from ecu_monitor.model import thermal as _thermal
@@ -328,7 +330,10 @@ def live_steps(
     mixture_index: float,
     z: float,
     measured: bool,
-    coeffs: Coefficients,
+    coeff_scalars: Any,
+    heat_values_w: Any,
+    x_breakpoints: Any,
+    y_breakpoints: Any,
     dt: float,
     Q: float,
     R: float,
@@ -344,7 +349,9 @@ def live_steps(
     (the FilterState fields, float64[7], updated in place) with the drive held in ``drive`` (the Drive
     fields, float64[5]); then the drive of this call's inputs (the model's compiled drive kernel, equal
     bit for bit to :func:`scalar_drive`) replaces it for the next call. ``inputs`` (6, 1) and
-    ``drive_rows`` (4, 1) are scratch; ``out`` gets (innovation, nis, reset as 0/1)."""
+    ``drive_rows`` (4, 1) are scratch; ``out`` gets (innovation, nis, reset as 0/1). The model's coefficients
+    come packed (``ecu_monitor.model.pack_coefficients``: four arrays, cheap for numba's dispatcher to type)."""
+    coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     held = FilterState(state[0], state[1], state[2], state[3], state[4], state[5], state[6])
     new, innovation, nis, did_reset = filter_steps(
         held, Drive(drive[0], drive[1], drive[2], drive[3], drive[4]), z, measured, coeffs, dt, Q, R, a, b, c, tau,
@@ -408,6 +415,7 @@ class ThermalEKF:
         self._coeffs = coefficients(params)
         self.compiled = compiled
         self._compiled_coeffs = scalar_coefficients(self._coeffs)
+        self._packed_coeffs = pack_coefficients(self._coeffs)
         self._steps: Any = None  # filter_steps, or its numba twin (loaded on first use)
         self._live: Any = None  # live_steps compiled (compiled=True; loaded on first use)
         self._state: FilterState | None = None
@@ -461,7 +469,8 @@ class ThermalEKF:
 
     def estimate(self, t_s: float, u: InputSeries, z_cht_c: float | None) -> Estimate:
         """Advance to t_s (one fixed step, or several if t_s is later) and correct with z (None: no reading)."""
-        state = self.state
+        if self._state is None:
+            raise EstimationError(f"{self.name}: estimate() called before initialise()")
         s = self.settings
         steps = round((t_s - self._time_s) / s.dt_s)
         if steps < 1:
@@ -478,7 +487,7 @@ class ThermalEKF:
         if self._steps is None:
             self._steps = _live_steps(self.compiled)
         state, innovation, nis, did_reset = self._steps(
-            state,
+            self._state,
             drive,
             z,
             measured,
@@ -519,7 +528,7 @@ class ThermalEKF:
         out = self._out
         self._live(
             state, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
-            float(u[3]), float(u[4]), float(u[5]), z, measured, self._compiled_coeffs, s.dt_s, s.process_var,
+            float(u[3]), float(u[4]), float(u[5]), z, measured, *self._packed_coeffs, s.dt_s, s.process_var,
             s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, self.use_deviation,
             _RESET_CODES[self.reset_mode], steps,
         )  # fmt: skip
@@ -574,5 +583,8 @@ def compiled_filter() -> SimpleNamespace:
         reset_value=reset_value_,
     )
     steps = compile_(filter_steps, filter_step=step)
-    live = jit(live_steps, tag, nogil=False, filter_steps=steps, drive_kernel=_compiled_model.drive_kernel())
+    live = jit(
+        live_steps, tag, nogil=False, filter_steps=steps, drive_kernel=_compiled_model.drive_kernel(),
+        unpack_coefficients=compile_(_thermal.unpack_coefficients),
+    )  # fmt: skip
     return SimpleNamespace(step=step, steps=steps, live=live, level_of=level_of_)

@@ -51,8 +51,18 @@ from numpy.typing import NDArray
 from ecu_monitor.errors import ConfigError, EstimationError
 from ecu_monitor.estimation.ekf import Estimate, scalar_drive
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, scalar_coefficients
+from ecu_monitor.model import (
+    Coefficients,
+    Drive,
+    InputSeries,
+    ThermalParams,
+    coefficients,
+    pack_coefficients,
+    scalar_coefficients,
+    unpack_coefficients,
+)
 from ecu_monitor.model import compiled as _compiled_model
+from ecu_monitor.model import thermal as _thermal
 from ecu_monitor.model.compiled import compute_drive_compiled
 from ecu_monitor.model.inputs import flight_inputs
 from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
@@ -277,11 +287,16 @@ def _live(
     steps: int,
     model: NDArray[np.float64],
     cfg: NDArray[np.float64],
-    coeffs: Any,
+    coeff_scalars: NDArray[np.float64],
+    heat_values_w: NDArray[np.float64],
+    x_breakpoints: NDArray[np.float64],
+    y_breakpoints: NDArray[np.float64],
 ) -> None:
     """One live call in one compiled call: ``steps`` predictions with the held drive (``drive``, the
     Drive fields), the update with z when measured, the deviation; then the drive of this call's inputs
-    (the model's compiled drive kernel) is held for the next call. out = (innovation, NIS, deviation)."""
+    (the model's compiled drive kernel) is held for the next call. out = (innovation, NIS, deviation). The
+    model's coefficients come packed (``ecu_monitor.model.pack_coefficients``)."""
+    coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     q0 = drive[0]
     hg = drive[4] * drive[1]
     g = drive[3]
@@ -322,13 +337,14 @@ deviation: Any = None
 def compiled_kernels() -> SimpleNamespace:
     """The filter's core compiled by numba with the model's compiled equations (cached on disk)."""
     equations = compiled_equations(False)
-    tag = fingerprint([__file__, str(_compiled_model.__file__)])
+    tag = fingerprint([__file__, str(_compiled_model.__file__), str(_thermal.__file__)])
     predict_ = jit(_predict, tag, derivatives=equations.derivatives, rk4=equations.rk4)
     correct_ = jit(_correct, tag)
     deviation_ = jit(_deviation, tag, derivatives=equations.derivatives)
     run = jit(_run, tag, predict=predict_, correct=correct_, deviation=deviation_)
     live = jit(_live, tag, nogil=False, predict=predict_, correct=correct_, deviation=deviation_,
-               drive_kernel=_compiled_model.drive_kernel())  # fmt: skip
+               drive_kernel=_compiled_model.drive_kernel(),
+               unpack_coefficients=jit(_thermal.unpack_coefficients, tag))  # fmt: skip
     return SimpleNamespace(predict=predict_, correct=correct_, deviation=deviation_, run=run, live=live)
 
 
@@ -370,7 +386,7 @@ class IsolationFilter:
         self.params = params
         self.settings = settings or IsolationSettings()
         self._coeffs = coefficients(params)
-        self._compiled_coeffs = scalar_coefficients(self._coeffs)
+        self._packed_coeffs = pack_coefficients(self._coeffs)
         self._model = _model_vector(self._coeffs)
         self._kernels: SimpleNamespace | None = None  # compiled on first use
         self._cfg = self.settings.vector()
@@ -440,7 +456,7 @@ class IsolationFilter:
         out = self._out
         self._kernels.live(
             s, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
-            float(u[3]), float(u[4]), float(u[5]), z, measured, steps, self._model, self._cfg, self._compiled_coeffs,
+            float(u[3]), float(u[4]), float(u[5]), z, measured, steps, self._model, self._cfg, *self._packed_coeffs,
         )  # fmt: skip
         innovation, nis, deviation = float(out[0]), float(out[1]), float(out[2])
         self._time_s = float(t_s)

@@ -25,16 +25,19 @@ from ecu_monitor.model.thermal import (
     Coefficients,
     Drive,
     InputSeries,
+    PackedCoefficients,
     coefficients,
     compute_drive,
     derivatives,
     initial_pade_state,
+    pack_coefficients,
     rk4_step,
     scalar_coefficients,
     sensor_step,
     simulate,
     stack_coefficients,
     steady_state_cht,
+    unpack_coefficients,
 )
 
 __all__ = [
@@ -54,6 +57,7 @@ __all__ = [
     "InputSeries",
     "MixtureCooling",
     "MixtureIndex",
+    "PackedCoefficients",
     "SensorLag",
     "ThermalParams",
     "air_density_kg_m3",
@@ -66,6 +70,7 @@ __all__ = [
     "input_columns",
     "isa_pressure_pa",
     "load_model",
+    "pack_coefficients",
     "paper_table_a1",
     "reference_heat_map",
     "rk4_step",
@@ -75,4 +80,5 @@ __all__ = [
     "simulate",
     "stack_coefficients",
     "steady_state_cht",
+    "unpack_coefficients",
 ]

@@ -47,17 +47,20 @@ __all__ = [
     "Coefficients",
     "Drive",
     "InputSeries",
+    "PackedCoefficients",
     "Real",
     "coefficients",
     "compute_drive",
     "derivatives",
     "initial_pade_state",
+    "pack_coefficients",
     "rk4_step",
     "scalar_coefficients",
     "sensor_step",
     "simulate",
     "stack_coefficients",
     "steady_state_cht",
+    "unpack_coefficients",
 ]
 
 STATE_NAMES = ("cht_c", "pade_w", "probe_c")
@@ -125,6 +128,48 @@ def scalar_coefficients(coeffs: Coefficients) -> Coefficients:
         for name, value in coeffs._asdict().items()
     }
     return Coefficients(**fields)
+
+
+class PackedCoefficients(NamedTuple):
+    """The coefficients of one parameter set as four contiguous float64 arrays, as the live filters pass
+    them to their compiled calls: numba types a namedtuple argument in Python at every call (tens of
+    microseconds when the caches are cold, docs/performance.md), four arrays in its C dispatcher.
+    :func:`unpack_coefficients` rebuilds the :class:`Coefficients` inside the compiled code."""
+
+    scalars: NDArray[np.float64]  # every field before heat_values_w, in Coefficients order
+    heat_values_w: NDArray[np.float64]
+    x_breakpoints: NDArray[np.float64]
+    y_breakpoints: NDArray[np.float64]
+
+
+#: Coefficients fields held in PackedCoefficients.scalars (the parameter fields, then radiation_offset_c).
+_SCALAR_FIELDS = Coefficients._fields[: Coefficients._fields.index("heat_values_w")]
+
+
+def pack_coefficients(coeffs: Coefficients) -> PackedCoefficients:
+    """The coefficients of one parameter set (floats, not a swarm) as :class:`PackedCoefficients`."""
+    scalar = scalar_coefficients(coeffs)
+    return PackedCoefficients(
+        np.array([getattr(scalar, name) for name in _SCALAR_FIELDS], dtype=np.float64),
+        scalar.heat_values_w,
+        scalar.x_breakpoints,
+        scalar.y_breakpoints,
+    )
+
+
+def unpack_coefficients(
+    scalars: NDArray[np.float64],
+    heat_values_w: NDArray[np.float64],
+    x_breakpoints: NDArray[np.float64],
+    y_breakpoints: NDArray[np.float64],
+) -> Coefficients:
+    """The :class:`Coefficients` that :func:`pack_coefficients` packed (compiled by numba inside the live
+    filters' calls; equal to ``scalar_coefficients`` of the original, field for field)."""
+    s = scalars
+    return Coefficients(
+        s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12], s[13], s[14], s[15],
+        s[16], s[17], heat_values_w, x_breakpoints, y_breakpoints,
+    )  # fmt: skip
 
 
 def stack_coefficients(params: Sequence[ThermalParams]) -> Coefficients:
