@@ -187,14 +187,27 @@ def _percentiles(values_us: list[float]) -> tuple[float, float, float]:
 def _stats(name: str, sent_at: list[float], got: list[tuple[float, int]], since: float = -math.inf) -> dict[str, Any]:
     """Latencies of the frames received from ``since`` on (perf_counter, s): the first second is the start-up."""
     latencies_us = []
-    for received, _ in got:
+    by_id: dict[int, list[float]] = {}
+    for received, frame_id in got:
         if received < since:
             continue
         index = bisect.bisect_left(sent_at, received) - 1
         if index >= 0:
             latencies_us.append((received - sent_at[index]) * 1e6)
+            by_id.setdefault(frame_id, []).append(latencies_us[-1])
     p50, p99, worst = _percentiles(latencies_us)
-    return {"case": name, "p50_us": p50, "p99_us": p99, "max_us": worst, "samples": len(latencies_us)}
+    per_frame = {
+        f"0x{frame_id:X}": {
+            "samples": len(values),
+            **dict(zip(("p50_us", "p99_us", "max_us"), _percentiles(values), strict=True)),
+        }
+        for frame_id, values in sorted(by_id.items())
+        if len(values) > 1
+    }
+    return {
+        "case": name, "p50_us": p50, "p99_us": p99, "max_us": worst, "samples": len(latencies_us),
+        "per_frame": per_frame,
+    }  # fmt: skip
 
 
 class GcPauses:
@@ -664,6 +677,16 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
             f"{row['samples']} | {row['ecu_sent']} / {row['ecu_in']} | {row['out_sent']} / {row['out_received']} | "
             f"{row.get('cpu_pct', math.nan):.2f} |"
         )
+    for row in (baseline, daemon):
+        per_frame = row.get("per_frame", {})
+        if len(per_frame) > 1:  # every health frame id the step sends, each with its own latency
+            print(
+                f"\n{row['case']}, each frame id (samples, p50 / p99 / max, us): "
+                + "; ".join(
+                    f"{name} ({v['samples']}) {v['p50_us']:.0f} / {v['p99_us']:.0f} / {v['max_us']:.0f}"
+                    for name, v in per_frame.items()
+                )
+            )
     p99_ratio = daemon["p99_us"] / baseline["p99_us"]
     print(f"\nratio daemon / baseline: p50 {daemon['p50_us'] / baseline['p50_us']:.2f}x, p99 {p99_ratio:.2f}x")
     for row in (baseline, daemon):
