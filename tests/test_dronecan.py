@@ -17,6 +17,7 @@ import yaml
 from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.bus.codec import SignalSpec
 from ecu_monitor.bus.dronecan import TRANSFER_TIMEOUT_S, DroneCanDecoder, looks_like_dronecan, parse_field
+from ecu_monitor.bus.dronecan_codec import message_codec, transfer_frames
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.service.config import load_config, parse_config
@@ -284,6 +285,16 @@ def test_shipped_config_loads_and_bad_keys_name_the_file_and_key(tmp_path: Path)
             parse_config(data, src)
 
 
+def test_the_pressure_altitude_of_a_float_is_numpys_of_that_one_value() -> None:
+    """The decoder's per-message altitude (a float: Python's power) is bit for bit the numpy one of the value."""
+    rng = np.random.default_rng(1021)
+    pressures = [*rng.uniform(0.1, 120.0, 20000).tolist(), *rng.uniform(60.0, 105.0, 20000).astype(np.float32).tolist()]
+    pressures += [101.325, 1e-300, 5e-324, 1e300, math.inf, 0.0, -0.0, -1.0, -math.inf, math.nan]
+    for kpa in pressures:
+        one, numpy_one = pressure_altitude_m(kpa), pressure_altitude_m(np.asarray(kpa))
+        assert type(one) is float and (one == numpy_one or (math.isnan(one) and math.isnan(numpy_one))), kpa
+
+
 def test_altitude_not_sent_is_the_pressure_altitude_of_the_static_pressure(tmp_path: Path) -> None:
     data = _shipped()
     del data["inputs"]["altitude_m"]
@@ -437,7 +448,11 @@ def test_node_status_follows_the_engine_state_and_state_changes_are_logged() -> 
         "headroom",
         "state",
     }
-    at_3 = {key: value for t, key, value in values if abs(t - 3.1) < 1e-6}
+    # the set due at 3.1 s goes out one key a 20 ms step over the seven steps after it that carry no health status
+    sent = [round(t, 6) for t, _, _ in values if 3.1 < t < 3.3]
+    assert sent == [3.12, 3.14, 3.16, 3.18, 3.22, 3.24, 3.26]
+    assert not any(abs(t * 10 - round(t * 10)) < 1e-6 for t, _, _ in values)
+    at_3 = {key: value for t, key, value in values if 3.1 < t < 3.3}
     assert at_3["cht_meas"] == pytest.approx(120.0, abs=0.25) and at_3["state"] == 0.0
     assert abs(at_3["cht_est"] - 120.0) < 2.0
 
@@ -495,3 +510,61 @@ def test_the_mean_exhaust_temperature_feeds_a_model_with_the_mixture_index(tmp_p
     assert pipeline.held_input("egt_c") == pytest.approx(900.0 - 273.15)
     pipeline.advance_to(1.5)  # no frame for 1.3 s: every input stale, the EGT named with them
     assert "egt_c" in pipeline.snapshot().stale_inputs
+
+
+def test_field_readers_give_what_the_whole_payload_decode_gives(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The live decoder reads the mapped fields where the payload's length puts them (bit-aligned or not, an
+    array element, a reduction); the same values and counts as decoding the whole payload and walking it, for
+    transfers built by the dronecan package and for random payloads of every length, and a layout that
+    depends on the content (a length-prefixed array before the field) falls back to the whole decode."""
+    ice = dronecan.uavcan.equipment.ice.reciprocating
+    ahrs = "uavcan.equipment.ahrs.Solution"
+    fields = [
+        "state", "flags", "engine_load_percent", "engine_speed_rpm", "spark_dwell_time_ms", "throttle_position_percent",
+        "ecu_index", "fuel_consumption_rate_cm3pm", "cylinder_status[0].cylinder_head_temperature",
+        "cylinder_status[2].ignition_timing_deg", "cylinder_status[15].exhaust_gas_temperature",
+        "cylinder_status[mean].cylinder_head_temperature", "cylinder_status[max].exhaust_gas_temperature",
+        "cylinder_status[min].injection_time_ms",
+    ]  # fmt: skip
+    specs = [SignalSpec(f"v{i}", STATUS, field, "raw") for i, field in enumerate(fields)]
+    specs += [SignalSpec("rate_x", ahrs, "angular_velocity[0]", "raw")]
+    rng = np.random.default_rng(14)
+    special = np.array([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e6, 6.1e-5])
+    frames: list[can.Message] = []
+    for i in range(160):
+        n = i % 17
+        values = np.where(rng.random(4 * n) < 0.2, rng.choice(special, 4 * n), rng.normal(400.0, 200.0, 4 * n))
+        msg = ice.Status(
+            state=int(rng.integers(0, 4)), flags=int(rng.integers(0, 2**30)),
+            engine_load_percent=int(rng.integers(0, 128)), engine_speed_rpm=int(rng.integers(0, 2**17)),
+            spark_dwell_time_ms=float(rng.normal(2.0, 1.0)),
+            throttle_position_percent=int(rng.integers(0, 128)), ecu_index=int(rng.integers(0, 64)),
+            fuel_consumption_rate_cm3pm=float(values[0]) if n else math.nan,
+        )  # fmt: skip
+        for k in range(n):
+            msg.cylinder_status.append(
+                ice.CylinderStatus(
+                    cylinder_head_temperature=float(values[4 * k]), ignition_timing_deg=float(values[4 * k + 1]),
+                    exhaust_gas_temperature=float(values[4 * k + 2]), injection_time_ms=float(values[4 * k + 3]),
+                )
+            )  # fmt: skip
+        frames += _frames(msg, node=20, transfer_id=i % 32, time_s=0.01 * i)
+        solution = dronecan.uavcan.equipment.ahrs.Solution(angular_velocity=[float(x) for x in rng.normal(0, 9, 3)])
+        solution.orientation_covariance = [float(x) for x in rng.normal(0, 1, int(rng.integers(0, 10)))]
+        frames += _frames(solution, node=21, transfer_id=i % 32, time_s=0.01 * i)
+        body = rng.integers(0, 256, int(rng.integers(0, 80)), dtype=np.uint8).tobytes()  # random, CRC made good
+        for data in transfer_frames(body, i % 32, message_codec(STATUS).base_crc or 0):
+            frames.append(can.Message(timestamp=0.01 * i, arbitration_id=frames[0].arbitration_id, is_extended_id=True,
+                                      data=data))  # fmt: skip
+    read = DroneCanDecoder(specs)
+    whole = DroneCanDecoder(specs)
+    monkeypatch.setattr(whole, "_prepare_readers", lambda *args: ())  # every payload decoded whole
+    for m in frames:
+        assert repr(read.decode(m.arbitration_id, True, m.data, m.timestamp)) == repr(
+            whole.decode(m.arbitration_id, True, m.data, m.timestamp)
+        )
+    assert read.counters == whole.counters
+    assert read.counters["ok"] > 0 and read.counters["decode_error"] > 0 and read.counters["unknown_value"] > 0
+    status_id = message_codec(STATUS).data_type_id
+    assert all(read._readers[(status_id, 35 + 10 * n)] for n in range(17))  # 0-16 cylinders: read in place
+    assert not any(r for (dtid, _), r in read._readers.items() if dtid == message_codec(ahrs).data_type_id)

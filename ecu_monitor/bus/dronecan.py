@@ -42,7 +42,8 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping, Sequence
+import struct
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -58,6 +59,7 @@ from ecu_monitor.bus.dronecan_codec import (
     column_values,
     dronecan_module,
     message_codec,
+    take_bits,
     transfer_crc,
     transfer_crc_rows,
     transfer_frames,
@@ -94,6 +96,8 @@ DRONECAN_REASONS: tuple[str, ...] = (
 _REDUCTIONS = ("mean", "max", "min")
 _STEP = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+|mean|max|min)\])?$")
 _CAN_ID_MASK = 0x1FFFFFFF
+#: payload lengths per data type for which the live decoder keeps field readers (beyond: decoded whole)
+_MAX_READER_SIZES = 256
 
 
 class FieldPath(NamedTuple):
@@ -230,6 +234,9 @@ class DroneCanDecoder:
                 raise ConfigError(f"source node id {node}: expected 1..127")
         self._live = self._new_reassembly()
         self.counters: dict[str, int] = _new_counts()
+        # (data type id, payload bytes) -> a reader per mapped field (:meth:`_prepare_readers`); () where the
+        # layout depends on the content or the length does not unpack (then the whole payload is decoded)
+        self._readers: dict[tuple[int, int], tuple[Callable[[bytes], float], ...]] = {}
 
     @property
     def frame_ids(self) -> tuple[int, ...]:
@@ -302,7 +309,8 @@ class DroneCanDecoder:
             if (frame[-1] & 0x20) != (i & 1) << 5:
                 _malformed(counts, "bad_toggle", len(frames))
                 return None
-        codec = self._codecs[key[0] >> 8 & 0xFFFF]
+        type_id = key[0] >> 8 & 0xFFFF
+        codec = self._codecs[type_id]
         if len(frames) == 1:
             body = payload[:-1]
         else:
@@ -314,18 +322,26 @@ class DroneCanDecoder:
                 _malformed(counts, "bad_crc", len(frames))
                 return None
             body = body[2:]
-        try:
-            message = codec.decode(body)
-        except PayloadError:
-            _malformed(counts, "decode_error", len(frames))
-            return None
+        readers = self._readers.get((type_id, len(body)))
+        if readers is None:
+            readers = self._prepare_readers(type_id, codec, len(body))
+        if readers:  # the mapped fields read where this payload length puts them
+            raws = [read(body) for read in readers]
+        else:  # a layout that depends on the content, or a length that does not unpack
+            try:
+                message = codec.decode(body)
+            except PayloadError:
+                _malformed(counts, "decode_error", len(frames))
+                return None
+            raws = []
+            for f in fields:
+                try:
+                    raws.append(_value(message, f.steps))
+                except (ValueError, IndexError, KeyError, TypeError, OverflowError):
+                    raws.append(math.nan)
         counts["ok"] += len(frames)
         out: list[tuple[int, float]] = []
-        for f in fields:
-            try:
-                raw = _value(message, f.steps)
-            except (ValueError, IndexError, KeyError, TypeError, OverflowError):
-                raw = math.nan
+        for f, raw in zip(fields, raws, strict=True):
             if math.isnan(raw):
                 counts["unknown_value"] += 1
                 continue
@@ -337,6 +353,24 @@ class DroneCanDecoder:
             else:
                 counts["unknown_value"] += 1
         return out
+
+    def _prepare_readers(self, type_id: int, codec: MessageCodec, size: int) -> tuple[Callable[[bytes], float], ...]:
+        """The readers of the mapped fields of ``type_id`` in a payload of ``size`` bytes, built once per length
+        from :meth:`MessageCodec.layout` (each gives what :func:`_value` gives on the decoded payload: the raw
+        number, NaN if absent or not finite); () when the layout depends on the content or no payload of that
+        length unpacks. At most :data:`_MAX_READER_SIZES` lengths are kept (garbage cannot grow the cache)."""
+        try:
+            layout = codec.layout(size)
+        except PayloadError:
+            layout = None
+        readers: tuple[Callable[[bytes], float], ...] = ()
+        if layout is not None:
+            made = [_reader(layout, f.steps) for f in self._plans[type_id]]
+            if all(r is not None for r in made):
+                readers = tuple(r for r in made if r is not None)
+        if len(self._readers) < _MAX_READER_SIZES:
+            self._readers[(type_id, size)] = readers
+        return readers
 
     def decode_batch(
         self,
@@ -581,6 +615,74 @@ def _column(layout: Any, steps: tuple[str | int, ...], body: np.ndarray) -> np.n
     if values is not None:
         values[~np.isfinite(values)] = math.nan
     return values
+
+
+def _reader(layout: Any, steps: tuple[str | int, ...]) -> Callable[[bytes], float] | None:
+    """A function of a payload (of the layout's length) -> the raw number at ``steps``, as :func:`_value` gives it
+    on the decoded payload; None when a step cannot be followed in the layout (then the payload is decoded)."""
+    node = layout
+    for i, step in enumerate(steps):
+        if isinstance(step, int):
+            if not isinstance(node, list):
+                return None
+            if step >= len(node):
+                return _absent
+            node = node[step]
+        elif step in _REDUCTIONS:
+            if not isinstance(node, list):
+                return None
+            items = [_reader(item, steps[i + 1 :]) for item in node]
+            if any(item is None for item in items):
+                return None
+            return _reduction(step, tuple(item for item in items if item is not None))
+        elif isinstance(node, dict) and step in node:
+            node = node[step]
+        else:
+            return None
+    if not (isinstance(node, tuple) and len(node) == 2):
+        return None
+    pos, prim = node
+    if prim.code is not None and not pos & 7:  # byte-aligned: one struct unpack
+        unpack_from, offset = struct.Struct("<" + prim.code).unpack_from, pos >> 3
+
+        def aligned(body: bytes) -> float:
+            value = float(unpack_from(body, offset)[0])
+            return value if math.isfinite(value) else math.nan
+
+        return aligned
+    bits, (full_bytes, rest) = prim.bits, divmod(prim.bits, 8)
+
+    def unaligned(body: bytes) -> float:
+        total = 8 * len(body)
+        raw = take_bits(int.from_bytes(body, "big"), total, pos, bits, full_bytes, rest)
+        value = float(prim.value(raw))
+        return value if math.isfinite(value) else math.nan
+
+    return unaligned
+
+
+def _absent(body: bytes) -> float:
+    """The reader of an array element the payload does not carry."""
+    return math.nan
+
+
+def _reduction(step: str | int, items: tuple[Callable[[bytes], float], ...]) -> Callable[[bytes], float]:
+    """The reader of ``name[mean|max|min]`` over the elements' readers, as :func:`_value` reduces (one element:
+    its own reader, NaN when not finite; an empty array: NaN)."""
+    if len(items) == 1:
+        return items[0]
+    if not items:
+        return _absent
+
+    def reduce(body: bytes) -> float:
+        values = [v for v in (read(body) for read in items) if math.isfinite(v)]
+        if not values:
+            return math.nan
+        if step == "mean":
+            return math.fsum(values) / len(values)
+        return max(values) if step == "max" else min(values)
+
+    return reduce
 
 
 def _leaf(node: Any, steps: tuple[str | int, ...]) -> Any:

@@ -46,6 +46,7 @@ __all__ = [
     "column_values",
     "dronecan_module",
     "message_codec",
+    "take_bits",
     "transfer_crc",
     "transfer_crc_rows",
     "transfer_frames",
@@ -188,6 +189,10 @@ def _take(big: int, total: int, pos: int, bits: int, full_bytes: int, rest: int)
     segment = (big >> (total - pos - bits)) & ((1 << bits) - 1)
     low = int.from_bytes((segment >> rest).to_bytes(full_bytes, "big"), "little") if full_bytes else 0
     return low | (segment & ((1 << rest) - 1)) << (8 * full_bytes)
+
+
+#: the public name of :func:`_take` (the live decoder's field readers use it)
+take_bits = _take
 
 
 def _put(acc: int, raw: int, bits: int, full_bytes: int, rest: int) -> int:

@@ -1,9 +1,9 @@
 """The service as a DroneCAN node (protocol: dronecan; docs/service.md, "DroneCAN"): what it publishes.
 
 The pipeline calls :meth:`DroneCanNode.frames` once per health-status period (the 10 Hz health rows)
-with that period's snapshot; it returns the frames of the transfers due (built by
-:class:`ecu_monitor.bus.dronecan.DroneCanEncoder`, source node ``dronecan.node_id``, priority
-``dronecan.priority``):
+with that period's snapshot, and :meth:`DroneCanNode.step_frames` on each of its other steps; they return
+the frames of the transfers due (built by :class:`ecu_monitor.bus.dronecan.DroneCanEncoder`, source node
+``dronecan.node_id``, priority ``dronecan.priority``):
 
 * ``uavcan.protocol.NodeStatus`` every second, and at once when the health or the mode changes.
   ``health`` follows the engine (:func:`node_health`): OK while NOMINAL; WARNING while SUSPECT,
@@ -15,7 +15,11 @@ with that period's snapshot; it returns the frames of the transfers due (built b
   stale inputs (Health_Diag.StaleInputs bits) from bit 4.
 * ``uavcan.protocol.debug.KeyValue`` at ``dronecan.key_value_hz``: one transfer per key of
   :data:`KEY_VALUES` (keys of at most 10 characters, so MAVLink's NAMED_VALUE_FLOAT can relay them);
-  NaN when the value is unknown (no estimate yet). An engine monitored per cylinder adds
+  NaN when the value is unknown (no estimate yet). The set is the snapshot of the health-status period
+  in which it fell due, sent over the steps that follow until the next one is due, a few keys a step
+  (:meth:`DroneCanNode.step_frames`; one a step for one channel at 1 Hz), never in a health-status step:
+  a burst of KeyValue frames would hold the bus thread behind the step's health frames (two frames per
+  key, 14 or more a set). An engine monitored per cylinder adds
   ``spread`` (degC), ``hottest`` (its number) and, per cylinder n, ``cyl<n>_est`` (degC),
   ``cyl<n>_gq`` (gamma_Q) and ``cyl<n>_st`` (its state's code).
 * ``uavcan.protocol.debug.LogMessage`` when the state changes (and once at start), source
@@ -81,12 +85,20 @@ def node_health(state: str, cht_c: float, cht_limit_c: float) -> int:
 class DroneCanNode:
     """The publications of the service's DroneCAN node (module docstring), one health-status period at a time."""
 
-    def __init__(self, settings: DroneCanSettings, cht_limit_c: float) -> None:
+    def __init__(
+        self, settings: DroneCanSettings, cht_limit_c: float, status_every_s: float, steps_per_status: int
+    ) -> None:
+        """``status_every_s``: the health-status period (s), made of ``steps_per_status`` pipeline steps."""
         self.settings = settings
         self.cht_limit_c = cht_limit_c
         self.encoder = DroneCanEncoder(settings.node_id)
         rate = settings.key_value_hz
         self._key_value_every_s = 1.0 / rate if rate > 0.0 else math.inf
+        # the steps between two KeyValue sets that carry no health-status period: a set is spread over them
+        periods = math.ceil(self._key_value_every_s / status_every_s - _SLACK_S) if rate > 0.0 else 1
+        self._spread_steps = max(1, periods) * (steps_per_status - 1)
+        self._pending: list[tuple[str, float]] = []  # the KeyValue pairs of the current set not yet sent, last first
+        self._per_step = 1
         self._first_s: float | None = None
         self._status: tuple[int, int] | None = None  # (health, mode) last published
         self._status_s = -math.inf
@@ -113,11 +125,27 @@ class DroneCanNode:
             out += self._node_status(time_s, snap, status)
         if _due(time_s, self._key_value_s, self._key_value_every_s):
             self._key_value_s = time_s
-            priority = self.settings.priority
-            for key, value in key_values(snap):
-                out += self.encoder.frames(_KEY_VALUE, {"key": key, "value": value}, time_s, priority)
+            out += self._key_values(time_s, len(self._pending))  # what is left of the last set (never, as spread)
+            self._pending = key_values(snap)[::-1]
+            if self._spread_steps < 1:  # a health-status period every step: nothing to spread over
+                out += self._key_values(time_s, len(self._pending))
+            self._per_step = math.ceil(len(self._pending) / self._spread_steps) if self._spread_steps else 0
         if self.settings.log_messages and snap.state != self._told and time_s - self._told_s >= _LOG_EVERY_S - _SLACK_S:
             out += self._log_message(time_s, snap)
+        return out
+
+    def step_frames(self, time_s: float) -> list[can.Message]:
+        """The frames due at a step (``time_s``, s) that is not a health-status period's: the next keys of the
+        current KeyValue set."""
+        return self._key_values(time_s, self._per_step) if self._pending else []
+
+    def _key_values(self, time_s: float, count: int) -> list[can.Message]:
+        """The frames of the next ``count`` pending KeyValue pairs."""
+        out: list[can.Message] = []
+        pending, priority = self._pending, self.settings.priority
+        for _ in range(min(count, len(pending))):
+            key, value = pending.pop()
+            out += self.encoder.frames(_KEY_VALUE, {"key": key, "value": value}, time_s, priority)
         return out
 
     def _node_status(self, time_s: float, snap: HealthSnapshot, status: tuple[int, int]) -> list[can.Message]:

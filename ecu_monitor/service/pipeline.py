@@ -292,12 +292,18 @@ class Pipeline:
         self._rows: list[HealthSnapshot] = []
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
         self._filter_period = filter_period_steps(self._dt)
-        # protocol dronecan: the service is a DroneCAN node (service/dronecan_node.py, called each health-status
-        # period); its health.dbc frames go out only if asked for (dronecan.dbc_health_frames)
+        # protocol dronecan: the service is a DroneCAN node (service/dronecan_node.py, called each step: the
+        # health-status periods' snapshots, and the steps between); its health.dbc frames go out only if asked
+        # for (dronecan.dbc_health_frames)
         self._node: DroneCanNode | None = None
         self._dbc_health = config.protocol == "dbc" or config.dronecan.dbc_health_frames
         if config.protocol == "dronecan":
-            self._node = DroneCanNode(config.dronecan, min(m.cht_limit_c for m in self.cylinder_params))
+            self._node = DroneCanNode(
+                config.dronecan,
+                min(m.cht_limit_c for m in self.cylinder_params),
+                self._status_period * self._dt,
+                self._status_period,
+            )
             self.counters["dronecan_frames"] = 0
         self._snapshot: HealthSnapshot | None = self._empty_snapshot(math.nan)
         self._last_step: tuple[float, list[tuple[float, float, float, int, float, float, float]], list[str]] = (
@@ -475,10 +481,11 @@ class Pipeline:
             for message, period in self._periods.items():
                 if k % period == 0:
                     frames.extend(self._health_frames(message, self.snapshot()))
-        if status_due and self._node is not None:  # after the health.dbc frames: a KeyValue burst never delays them
-            published = self._node.frames(time_s, self.snapshot())
-            self.counters["dronecan_frames"] += len(published)
-            frames.extend(published)
+        if self._node is not None:  # after the health.dbc frames; a KeyValue set goes out over the other steps
+            published = self._node.frames(time_s, self.snapshot()) if status_due else self._node.step_frames(time_s)
+            if published:
+                self.counters["dronecan_frames"] += len(published)
+                frames.extend(published)
 
     def _build_snapshot(
         self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]], stale: list[str]
