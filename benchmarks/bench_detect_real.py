@@ -30,6 +30,16 @@ variant; ``--json`` keeps every delay. ``--replays R.pkl`` keeps every replay (k
 content and config) and reuses those it holds, so detector variants are compared on the same replays
 without replaying; ``--plot-misses`` draws each counted onset calibrate's choice detects late (the
 flight's CHT and power, the symptom with the baseline, the statistic with h).
+
+Two offline analyses on the same replays (nothing in the service changes): ``--oracle`` adds per
+variant the counts with h set to 1.01 x the held-out flight's own nominal maximum, the lowest h that
+raises no false DEGRADED on it (what no calibration can know: an upper bound on what a better
+calibration of h could reach with this symptom and these settings); ``--heat-rate-floor F``
+(repeatable) evaluates calibrate's choice, nested as above, and each ``--variant`` on the symptom
+divided by the model's heat-input rate (the steady Q_in / C of the fold's model at the flight's
+logged inputs, relative to its median over the training flights' airborne part, floored at F x that
+median): the overlay adds k Q_in / C to the symptom, so the normalised symptom gains about k x the
+median rate at every power.
 """
 
 from __future__ import annotations
@@ -133,6 +143,50 @@ def _save_replays(path: str, cache: dict[Any, Any], jobs: list[Any], results: li
             entry.setdefault("held_out", {}).update({(round(r[0], 3), r[1]): r for r in result[1:]})
     with open(path, "wb") as f:
         pickle.dump(cache, f)
+
+
+def _heat_rate(model: Path, flight: Path) -> tuple[Any, Any, Any]:
+    """(log times s, the model's steady heat-input rate Q_in / C in degC/s at the logged inputs, airborne
+    mask): g(z) x the effects' heat factor x Q_SL0 / C_w (the Pade state at its steady value 2 Q_SL0)."""
+    from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.model import load_model
+    from ecu_monitor.model.inputs import flight_inputs
+    from ecu_monitor.model.thermal import coefficients, compute_drive
+    from ecu_monitor.service.calibration import AIRBORNE_MPS
+
+    params = load_model(model)
+    log = load_flight(flight)
+    c = coefficients(params)
+    d = compute_drive(flight_inputs(log, params), c)
+    rate = np.asarray(d.altitude_gain) * np.asarray(d.heat_gain) * np.asarray(d.q_sl0_w) / float(c.c_w)
+    return log.time_s, rate, np.nan_to_num(log["airspeed_mps"], nan=0.0) >= AIRBORNE_MPS
+
+
+def _heat_rate_feeds(feeds: dict[Any, Any], models: list[Path], flights: list[Path], floor: float) -> dict[Any, Any]:
+    """The replays' detector feeds with the symptom divided by the fold model's heat-input rate relative
+    to its median over the fold's training flights' airborne part, the rate floored at ``floor`` x that
+    median (the same weight for the nominal and the overlaid replays of a flight)."""
+    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+
+    n = len(flights)
+    out: dict[Any, Any] = {}
+    for i in range(n):
+        rates = [_heat_rate(models[i], flights[j]) for j in range(n)]
+        median = float(np.median(np.concatenate([r[mask] for j, (_, r, mask) in enumerate(rates) if j != i])))
+        for j in range(n):
+            t_log, rate, _ = rates[j]
+            weight = median / np.maximum(rate, floor * median)
+
+            def weigh(feed: Any, t_log: Any = t_log, weight: Any = weight) -> Any:
+                return tuple((t, x * np.interp(t, t_log, weight)) for t, x in feed)
+
+            f = feeds[(i, j)]
+            if j == i:
+                out[(i, j)] = [(onset, gain, start, weigh(feed)) for onset, gain, start, feed in f]
+            else:
+                runs = tuple(OverlayRun(r.onset_s, r.gain, weigh(r.feed)) for r in f.overlays)
+                out[(i, j)] = FlightFeeds(f.name, weigh(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
+    return out
 
 
 def _identify(train: list[str], held_out: Path, model: Path, options: list[str]) -> None:
@@ -267,6 +321,24 @@ def _plot_misses(path: Path, flights: list[Path], feeds: dict[Any, Any], misses:
     plt.close(fig)
 
 
+def _count_oracle(counts: dict[float, list[int]], runs: Any, unbounded: Any, span: Any, cusum_path: Any) -> float:
+    """Add to ``counts`` (gain -> [in time, counted]) the held-out flight's counted onsets detected in time
+    with h = 1.01 x the largest statistic of its own nominal replay (the lowest h without a false DEGRADED
+    on it); returns that h."""
+    nominal = next(feed for onset, _, _, feed in runs if not math.isfinite(onset))
+    h = 1.01 * max((float(np.max(cusum_path(t, x, unbounded)[1], initial=0.0)) for t, x in nominal), default=0.0)
+    tuned = dataclasses.replace(unbounded, threshold=max(h, 1e-9))
+    first, last = span
+    for onset, gain, start, feed in runs:
+        if not (math.isfinite(onset) and first <= onset <= last):
+            continue
+        alarms = [a - start for t, x in feed for a in cusum_path(t, x, tuned)[2]]
+        after = [a for a in alarms if a >= onset]
+        counts[gain][1] += 1
+        counts[gain][0] += bool(after) and not any(a < onset for a in alarms) and after[0] - onset <= LIMITS[gain]
+    return h
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("flights", nargs="+", help="nominal flights of one engine (at least 3)")
@@ -306,7 +378,22 @@ def main(argv: list[str] | None = None) -> int:
         help="pickle of the replays (detector feeds): reused for the jobs it holds, written with any new ones"
         " (detector variants evaluated on the same replays without replaying again)",
     )
+    parser.add_argument(
+        "--oracle",
+        action="store_true",
+        help="also count with h = 1.01 x the held-out flight's own nominal maximum (an upper bound, not a method)",
+    )
+    parser.add_argument(
+        "--heat-rate-floor",
+        type=float,
+        action="append",
+        default=[],
+        help="also evaluate calibrate's choice on the symptom divided by the model's Q_in/C, floored at this"
+        " fraction of its airborne median (repeatable; offline, on the same replays)",
+    )
     args = parser.parse_args(argv)
+    if not all(0.0 < f < 1.0 for f in args.heat_rate_floor):
+        parser.error("--heat-rate-floor: expected a fraction of the median rate in (0, 1)")
 
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.commands.calibrate import candidate_table
@@ -388,20 +475,32 @@ def main(argv: list[str] | None = None) -> int:
         _save_replays(args.replays, cache, [job[2] for job in jobs], results)
     feeds = {(i, j): r for (i, j, _), (r, _) in zip(jobs, results, strict=True)}
     timings = [t for _, t in results]
+
     # calibrate's choice, nested: made on the three training flights of each fold only
-    chosen = []
-    for i in range(n):
-        training = [feeds[(i, j)] for j in range(n) if j != i]
-        choice = choose_settings(training, config.detector, args.rate)
-        print(f"\nfold without {flights[i].name}: calibrate's cross-validation on the {n - 1} others")
-        print(*candidate_table(choice), f"chosen: {choice.reason}", sep="\n")
-        chosen.append(choice)
-    fold_variants = [("calibrate's choice", [c.settings for c in chosen])]
-    fold_variants += [(name, [settings] * n) for name, settings in variants]
+    def nested_choice(feeds: dict[Any, Any], label: str) -> list[Any]:
+        chosen = []
+        for i in range(n):
+            training = [feeds[(i, j)] for j in range(n) if j != i]
+            choice = choose_settings(training, config.detector, args.rate)
+            print(f"\nfold without {flights[i].name}: calibrate's cross-validation on the {n - 1} others{label}")
+            print(*candidate_table(choice), f"chosen: {choice.reason}", sep="\n")
+            chosen.append(choice)
+        return chosen
+
+    chosen = nested_choice(feeds, "")
+    fold_variants = [("calibrate's choice", [c.settings for c in chosen], feeds)]
+    fold_variants += [(name, [settings] * n, feeds) for name, settings in variants]
+    for floor in args.heat_rate_floor:
+        weighted = _heat_rate_feeds(feeds, models, flights, floor)
+        label = f"calibrate's choice, symptom / heat rate (floor {floor:g})"
+        fold_variants.append((label, [c.settings for c in nested_choice(weighted, f" ({label})")], weighted))
+        fold_variants += [(f"{name}, heat rate (floor {floor:g})", [v] * n, weighted) for name, v in variants[1:]]
     report: dict[str, Any] = {"choices": [c.reason for c in chosen]}
     misses: list[Any] = []  # calibrate's choice: (flight, onset, gain, delay, settings with h) of late counted onsets
     thresholds: dict[str, list[float]] = {}
-    for name, per_fold in fold_variants:
+    for name, per_fold, variant_feeds in fold_variants:
+        oracle = {0.2: [0, 0], 0.1: [0, 0]}  # counted onsets with h = 1.01 x the held-out nominal maximum
+        oracle_h = []
         first = per_fold[0]
         baselines = ", ".join(f"{s.baseline_s:g}" for s in per_fold)
         delays = ", ".join(f"{s.baseline_delay_s:g}" for s in per_fold)
@@ -414,12 +513,12 @@ def main(argv: list[str] | None = None) -> int:
         for i in range(n):
             settings = per_fold[i]
             unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
-            paths = [cusum_path(t, x, unbounded)[1] for j in range(n) if j != i for t, x in feeds[(i, j)].feed]
+            paths = [cusum_path(t, x, unbounded)[1] for j in range(n) if j != i for t, x in variant_feeds[(i, j)].feed]
             h = calibrate_threshold(paths, args.rate, sample_period_s=settings.block_s).threshold
             tuned = dataclasses.replace(settings, threshold=h)
             entry: dict[str, Any] = {"flight": flights[i].name, "baseline_s": settings.baseline_s, "threshold": h}
             entry["delays"] = {}
-            for onset, gain, start, feed in feeds[(i, i)]:
+            for onset, gain, start, feed in variant_feeds[(i, i)]:
                 alarms = [a - start for t, x in feed for a in cusum_path(t, x, tuned)[2]]
                 if not math.isfinite(onset):
                     entry["false_alarm_s"] = alarms[0] if alarms else None
@@ -430,6 +529,8 @@ def main(argv: list[str] | None = None) -> int:
                 entry["delays"].setdefault(str(gain), []).append((onset, delay))
             false = entry["false_alarm_s"]
             totals["false"] += false is not None
+            if args.oracle:
+                oracle_h.append(_count_oracle(oracle, variant_feeds[(i, i)], unbounded, spans[i], cusum_path))
             cells = []
             first, last = spans[i]
             for gain, limit in LIMITS.items():
@@ -453,6 +554,11 @@ def main(argv: list[str] | None = None) -> int:
         every_2, every_1 = totals["all 0.2"], totals["all 0.1"]
         print(f"{'total (all onsets, ground and landing too)':<40} {'':>8}  {'':>18}    "
               f"{every_2[0]:>3}/{every_2[1]:<10} {every_1[0]:>3}/{every_1[1]}")  # fmt: skip
+        if args.oracle:
+            print(f"{'oracle h (1.01 x held-out nominal max)':<40} {'':>8}  {'':>18}    "
+                  f"{oracle[0.2][0]:>3}/{oracle[0.2][1]:<10} {oracle[0.1][0]:>3}/{oracle[0.1][1]}"
+                  f"   (h {', '.join(f'{v:.1f}' for v in oracle_h)})")  # fmt: skip
+            report.setdefault("oracle", {})[name] = {str(k): v for k, v in oracle.items()}
         report.setdefault("totals", {})[name] = {str(k): v for k, v in totals.items()}
         report[name] = {"settings": [dataclasses.asdict(s) for s in per_fold], "flights": per_flight}
         thresholds[name] = [entry["threshold"] for entry in per_flight]
@@ -471,9 +577,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1, default=float), encoding="utf-8")
     if args.plot_misses:
-        _plot_misses(Path(args.plot_misses), flights, feeds, misses)
+        _plot_misses(Path(args.plot_misses), flights, fold_variants[0][2], misses)
     if args.plot:
-        _plot(Path(args.plot), flights, feeds, fold_variants, thresholds)
+        raw = [(name, per_fold) for name, per_fold, _ in fold_variants if "heat rate" not in name]
+        _plot(Path(args.plot), flights, fold_variants[0][2], raw, thresholds)
     return 0
 
 
