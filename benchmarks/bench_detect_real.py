@@ -39,7 +39,8 @@ calibration of h could reach with this symptom and these settings); ``--heat-rat
 divided by the model's heat-input rate (the steady Q_in / C of the fold's model at the flight's
 logged inputs, relative to its median over the training flights' airborne part, floored at F x that
 median): the overlay adds k Q_in / C to the symptom, so the normalised symptom gains about k x the
-median rate at every power.
+median rate at every power. ``--rise-profile`` prints how the overlay moves the symptom over the
+windows after its onsets (the overlaid minus the nominal replay), beside k Q_in / C.
 """
 
 from __future__ import annotations
@@ -339,6 +340,46 @@ def _count_oracle(counts: dict[float, list[int]], runs: Any, unbounded: Any, spa
     return h
 
 
+#: Windows after an onset over which --rise-profile averages the overlay's effect on the symptom, s.
+RISE_WINDOWS_S = ((0.0, 30.0), (30.0, 120.0), (120.0, 240.0), (240.0, 420.0), (420.0, 600.0))
+
+
+def _rise_profile(feeds: dict[Any, Any], models: list[Path], flights: list[Path], spans: list[Any]) -> None:
+    """Print, per gain, the overlaid minus the nominal symptom averaged over :data:`RISE_WINDOWS_S` after
+    each counted onset of the held-out flights (median and 10-90 % over the onsets), beside k x the fold
+    model's heat-input rate Q_in / C over the same windows: the shape a test matched to the rise would use."""
+    for gain in LIMITS:
+        rises, rates = [], []
+        for i in range(len(flights)):
+            runs = feeds[(i, i)]
+            nominal = next(feed for onset, _, _, feed in runs if not math.isfinite(onset))
+            t_nom = np.concatenate([t for t, _ in nominal])
+            x_nom = np.concatenate([x for _, x in nominal])
+            t_nom, x_nom = t_nom[np.isfinite(x_nom)], x_nom[np.isfinite(x_nom)]
+            t_log, rate, _ = _heat_rate(models[i], flights[i])
+            first, last = spans[i]
+            for onset, g, start, feed in runs:
+                if g != gain or not (math.isfinite(onset) and first <= onset <= last):
+                    continue
+                t = np.concatenate([t for t, _ in feed])
+                x = np.concatenate([x for _, x in feed])
+                t, x = t[np.isfinite(x)], x[np.isfinite(x)]
+                after = t - start - onset
+                excess = x - np.interp(t, t_nom, x_nom)
+                windows = [(after >= a) & (after < b) for a, b in RISE_WINDOWS_S]
+                rises.append([float(np.mean(excess[w])) for w in windows])
+                rates.append([gain * float(np.mean(np.interp(t[w], t_log, rate))) for w in windows])
+        if not rises:
+            continue
+        r, q = np.array(rises), np.array(rates)
+        spans_s = ", ".join(f"{a:g}-{b:g}" for a, b in RISE_WINDOWS_S)
+        print(f"\nk = {gain:g}: overlaid minus nominal symptom (degC/s) over {spans_s} s after {len(r)} counted onsets")
+        print("  median      ", " ".join(f"{v:6.3f}" for v in np.median(r, axis=0)))
+        print("  10 %        ", " ".join(f"{v:6.3f}" for v in np.percentile(r, 10, axis=0)))
+        print("  90 %        ", " ".join(f"{v:6.3f}" for v in np.percentile(r, 90, axis=0)))
+        print("  k Q_in / C  ", " ".join(f"{v:6.3f}" for v in np.median(q, axis=0)), "(median, the model's)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("flights", nargs="+", help="nominal flights of one engine (at least 3)")
@@ -390,6 +431,11 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         help="also evaluate calibrate's choice on the symptom divided by the model's Q_in/C, floored at this"
         " fraction of its airborne median (repeatable; offline, on the same replays)",
+    )
+    parser.add_argument(
+        "--rise-profile",
+        action="store_true",
+        help="print how the overlay moves the symptom over the windows after its onsets (held-out flights)",
     )
     args = parser.parse_args(argv)
     if not all(0.0 < f < 1.0 for f in args.heat_rate_floor):
@@ -563,6 +609,8 @@ def main(argv: list[str] | None = None) -> int:
         report[name] = {"settings": [dataclasses.asdict(s) for s in per_fold], "flights": per_flight}
         thresholds[name] = [entry["threshold"] for entry in per_flight]
     report["counted_onsets_s"] = spans
+    if args.rise_profile:
+        _rise_profile(fold_variants[0][2], models, flights, spans)
     held = [t for t in timings if "all_frames_s" in t]
     training = [t["training_s"] for t in timings if "training_s" in t]
     print(f"\n{len(jobs)} jobs, {time.perf_counter() - started:.0f} s in all; work files in {work}")
