@@ -1,6 +1,7 @@
 """Live latency and CPU on a DroneCAN bus against the DBC bus, in one run (issue 14's target).
 
     .venv/bin/python benchmarks/bench_latency_dronecan.py [--seconds 20] [--traffic 4000] [--repeat 3]
+    sudo .venv/bin/python benchmarks/bench_latency_dronecan.py --netns [--seconds 20] [--repeat 3]  # across processes
 
 The measurement of benchmarks/bench_latency.py (its ``run_case``: the daemon under test in one process on
 python-can's ``virtual`` interface, ``--traffic`` frames/s of other ids, the 20 ms tick off, so every health
@@ -9,7 +10,8 @@ round under the same traffic: ``dbc``, ``dronecan``, ``dbc'`` (A B A):
 
 * ``dbc``: the shipped example.yaml; the ECU sends ECU_Fast at 50 Hz and ECU_Slow/AirData at 10 Hz;
 * ``dronecan``: the shipped dronecan.yaml (the service decoding with the ``dronecan`` package, and
-  publishing as a DroneCAN node: NodeStatus and KeyValue at 1 Hz) with ``dbc_health_frames`` on, so
+  publishing as a DroneCAN node: NodeStatus at 1 Hz, the KeyValue set once a second spread over the
+  steps between health-status periods) with ``dbc_health_frames`` on, so
   the frame timed on the way out is the same Health_Status at 10 Hz; the ECU sends the ICE status at
   50 Hz (one cylinder: a 7-frame transfer) and the three air-data messages at 10 Hz, as node 20 and 21.
   The latency is timed from the send of the last frame of an ICE status transfer (its 7 frames go back
@@ -21,6 +23,13 @@ per metric (p50, p99, CPU) the A/A ratios dbc'/dbc of the rounds (the run-to-run
 benchmark: the noise), the DroneCAN/DBC ratios, and whether their median lies within that spread
 (:func:`verdict` defines it). A loaded machine moves every case; run it under ``chrt -f 50`` on a shared
 machine to keep other processes from preempting its threads.
+
+``--netns``: the same rounds across processes, as ``bench_latency.py --netns`` measures the DBC bus: in a
+network namespace made for the run, on udp_multicast, the daemon (Daemon + Pipeline, its receive filters
+in the kernel: :mod:`ecu_monitor.bus.kernel_filter`) one process, the other traffic a second, the ECU
+sender and the health receiver a third (one clock). No interpreter lock is shared between the daemon and
+the receiver there, so the frames the daemon handles after the health frame no longer delay its
+reception. The CPU figure is the whole daemon process's. Needs root.
 
 ``--pipeline``: the pipeline alone on the same frames (no bus, no thread), ``feed`` then
 ``advance_to`` per frame as the daemon does, alternating the two buses: CPU per 20 ms step, and the
@@ -34,7 +43,10 @@ import argparse
 import bisect
 import json
 import math
+import os
+import signal
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -44,6 +56,7 @@ from typing import Any
 import bench_latency  # this folder's module (run as a script): run_case and its helpers
 import can
 import yaml
+from netns import multicast_namespace
 
 from ecu_monitor.bus.dronecan import DroneCanEncoder
 from ecu_monitor.service.config import parse_config
@@ -65,11 +78,17 @@ AIR_DATA = {
 }
 
 
-def _dronecan_config(channel: str) -> Any:
-    data = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "dronecan.yaml").read_text())
-    data["bus"] = {"interface": "virtual", "channel": channel, "receive_own_messages": False}
-    data["dronecan"]["dbc_health_frames"] = True  # the same Health_Status frames are timed on the way out
+def _dronecan_data() -> dict[str, Any]:
+    """The shipped dronecan.yaml with ``dbc_health_frames`` on: the same Health_Status frames are timed."""
+    data: dict[str, Any] = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "dronecan.yaml").read_text())
+    data["dronecan"]["dbc_health_frames"] = True
     data["health_dbc"] = str(REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc")
+    return data
+
+
+def _dronecan_config(channel: str) -> Any:
+    data = _dronecan_data()
+    data["bus"] = {"interface": "virtual", "channel": channel, "receive_own_messages": False}
     data["state_dir"] = "/tmp/ecu-monitor-bench-unused"
     return parse_config(data, REPO / "ecu_monitor" / "data" / "configs" / "bench-dronecan.yaml")
 
@@ -106,25 +125,126 @@ class _FilteredDaemon(bench_latency.PhaseTimedDaemon):
 def run(protocol: str, seconds: float, traffic_hz: float) -> dict[str, Any]:
     """One case of bench_latency.run_case on ``protocol``'s config and engine frames; ``latencies_us``: every
     latency timed (bench_latency._stats's, kept for the pooled percentiles)."""
-    saved = (bench_latency._config, bench_latency._ecu_sender, bench_latency.PhaseTimedDaemon, bench_latency._stats)
+    saved = (bench_latency._config, bench_latency._ecu_sender, bench_latency.PhaseTimedDaemon)
     if protocol == "dronecan":
         bench_latency._config = _dronecan_config
         bench_latency._ecu_sender = _dronecan_sender
     bench_latency.PhaseTimedDaemon = _FilteredDaemon
-    kept: list[float] = []
+    undo = _keep_latencies([])
+    try:
+        return bench_latency.run_case(protocol, seconds, traffic_hz, with_pipeline=True)
+    finally:
+        undo()
+        bench_latency._config, bench_latency._ecu_sender, bench_latency.PhaseTimedDaemon = saved
+
+
+def _keep_latencies(kept: list[float]) -> Callable[[], None]:
+    """bench_latency._stats made to also keep every latency it times in ``kept``; returns the undo."""
+    original = bench_latency._stats
 
     def stats(name: str, sent_at: list[float], got: list[tuple[float, int]], since: float) -> dict[str, Any]:
         for received, _ in got:  # as bench_latency._stats
             index = bisect.bisect_left(sent_at, received) - 1
             if received >= since and index >= 0:
                 kept.append((received - sent_at[index]) * 1e6)
-        return saved[3](name, sent_at, got, since)
+        return {**original(name, sent_at, got, since), "latencies_us": kept}
 
     bench_latency._stats = stats
-    try:
-        return {**bench_latency.run_case(protocol, seconds, traffic_hz, with_pipeline=True), "latencies_us": kept}
-    finally:
-        bench_latency._config, bench_latency._ecu_sender, bench_latency.PhaseTimedDaemon, bench_latency._stats = saved
+
+    def undo() -> None:
+        bench_latency._stats = original
+
+    return undo
+
+
+# --- across processes (--netns): udp_multicast in a network namespace, as bench_latency.py --netns ----------
+
+#: bench_latency's daemon process with the decoder's own receive filters (DroneCAN: a data type under a mask)
+_DAEMON = bench_latency._DAEMON.replace(
+    "receive_ids=pipeline.decoder.frame_ids", "receive_filters=pipeline.decoder.can_filters()"
+)
+
+
+def run_netns(seconds: float, traffic_hz: float, repeat: int) -> list[dict[str, dict[str, Any]]]:
+    """Rounds of (dbc, dronecan, dbc') across processes in one network namespace: the daemon one process
+    (``ecu-monitor``'s Daemon and Pipeline on udp_multicast, the kernel filter attached), the other traffic
+    another, the ECU sender and health receiver a third (bench_latency.measure_inner, one clock)."""
+    port = 45000 + os.getpid() % 1000
+    procs: list[subprocess.Popen[str]] = []
+    rounds: list[dict[str, dict[str, Any]]] = []
+    with multicast_namespace(bench_latency.GROUP, port, "--netns") as space:
+        ns = space.name
+        data = _dronecan_data()
+        data["bus"] = {"interface": "udp_multicast", "channel": bench_latency.GROUP, "port": port}
+        data["state_dir"] = str(space.tmp / "state-dronecan")
+        dronecan_yaml = space.tmp / "dronecan.yaml"
+        dronecan_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
+        configs = {"dbc": (bench_latency._DAEMON, space.config), "dronecan": (_DAEMON, dronecan_yaml)}
+
+        def start(argv: list[str]) -> subprocess.Popen[str]:
+            proc = subprocess.Popen(["ip", "netns", "exec", ns, *argv], stdout=subprocess.PIPE, text=True)
+            procs.append(proc)
+            return proc
+
+        try:
+            per_burst = round(traffic_hz * 0.0025)
+            for _ in range(repeat):
+                round_results: dict[str, dict[str, Any]] = {}
+                for case, protocol in CASES:
+                    script, config = configs[protocol]
+                    peer = start([sys.executable, "-c", script, str(config)])
+                    assert peer.stdout is not None
+                    if peer.stdout.readline().strip() != "ready":
+                        sys.exit(f"{case}: the daemon did not start")
+                    traffic = start([sys.executable, "-c", bench_latency._TRAFFIC, bench_latency.GROUP, str(port),
+                                     str(per_burst)])  # fmt: skip
+                    time.sleep(1.0)
+                    inner = start([sys.executable, __file__, "--inner", str(port), str(seconds), case, protocol])
+                    time.sleep(1.0)  # the measuring process's start-up
+                    cpu_before, wall_before = bench_latency.process_cpu_s(peer.pid), time.monotonic()
+                    time.sleep(max(0.0, seconds - 2.0))
+                    cpu_pct = (
+                        100.0 * (bench_latency.process_cpu_s(peer.pid) - cpu_before) / (time.monotonic() - wall_before)
+                    )
+                    out, _ = inner.communicate(timeout=seconds + 60)
+                    drops = bench_latency._socket_drops(ns, peer.pid)
+                    traffic.kill()
+                    traffic.wait(timeout=10)
+                    peer.send_signal(signal.SIGTERM)
+                    peer_out, _ = peer.communicate(timeout=30)
+                    counts = json.loads(peer_out.strip().splitlines()[-1])
+                    row = json.loads(out.strip().splitlines()[-1])
+                    row.update(
+                        ecu_in=counts["in"], out_sent=counts["out"], cpu_pct=cpu_pct, socket_drops=drops, phases=""
+                    )
+                    round_results[case] = row
+                    _print_case(case, row)
+                rounds.append(round_results)
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait(timeout=10)
+    return rounds
+
+
+def _inner(port: int, seconds: float, case: str, protocol: str) -> None:
+    """The measuring process of --netns: bench_latency.measure_inner with ``protocol``'s ECU sender."""
+    if protocol == "dronecan":
+        bench_latency._ecu_sender = _dronecan_sender
+    _keep_latencies([])
+    bench_latency.measure_inner(port, seconds, case)
+
+
+def _print_case(case: str, result: dict[str, Any]) -> None:
+    drops = f", socket drops {result['socket_drops']}" if "socket_drops" in result else ""
+    print(
+        f"{case:9s} p50 {result['p50_us']:7.0f} us  p99 {result['p99_us']:7.0f} us  max "
+        f"{result['max_us']:7.0f} us  CPU {result['cpu_pct']:5.1f} %  engine frames {result['ecu_sent']}"
+        f" sent / {result['ecu_in']} in, health {result['out_sent']} sent / {result['out_received']}"
+        f" received ({result['samples']} timed){drops}; {result['phases']}",
+        flush=True,
+    )
 
 
 def pipeline_cost(protocol: str, steps: int) -> tuple[float, list[float]]:
@@ -225,13 +345,21 @@ def verdict(rounds: list[dict[str, dict[str, Any]]]) -> list[str]:
 
 
 def main() -> int:
+    if len(sys.argv) == 6 and sys.argv[1] == "--inner":  # the measuring process of --netns
+        _inner(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4], sys.argv[5])
+        return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n", 1)[0])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--traffic", type=float, default=4000.0, help="other frames/s on the bus")
     parser.add_argument("--repeat", type=int, default=3, help="rounds of (dbc, dronecan, dbc')")
     parser.add_argument("--json", action="store_true", help="one JSON line per case")
     parser.add_argument("--pipeline", action="store_true", help="the pipeline alone on the same frames (no bus)")
+    parser.add_argument("--netns", action="store_true", help="across processes on udp_multicast in a netns (root)")
     args = parser.parse_args()
+    if args.netns:
+        for line in verdict(run_netns(args.seconds, args.traffic, args.repeat)):
+            print(line)
+        return 0
     if args.pipeline:
         steps = max(500, round(args.seconds * 50))
         pipeline_cost("dbc", 200)  # warm up (numba kernels, first-call imports)
@@ -254,13 +382,7 @@ def main() -> int:
             if args.json:
                 print(json.dumps({**result, "case": case, "latencies_us": None}), flush=True)
             else:
-                print(
-                    f"{case:9s} p50 {result['p50_us']:7.0f} us  p99 {result['p99_us']:7.0f} us  max "
-                    f"{result['max_us']:7.0f} us  CPU {result['cpu_pct']:5.1f} %  engine frames {result['ecu_sent']}"
-                    f" sent / {result['ecu_in']} in, health {result['out_sent']} sent / {result['out_received']}"
-                    f" received ({result['samples']} timed); {result['phases']}",
-                    flush=True,
-                )
+                _print_case(case, result)
         rounds.append(round_results)
     for line in verdict(rounds):
         print(line)
