@@ -358,18 +358,25 @@ def test_replay_of_a_dronecan_blf_follows_the_truth_and_batch_equals_live(dronec
     assert np.array_equal(batch.columns["state"][:n], live.columns["state"])
 
 
-def test_receive_filters_pass_the_mapped_types_of_any_node_and_priority_only() -> None:
-    decoder = DroneCanDecoder(SPECS)
-    bus = can.Bus(interface="virtual", channel="dronecan-filters", receive_own_messages=True)
+@pytest.mark.parametrize("nodes", [(), (77, 21)])
+def test_receive_filters_pass_the_mapped_types_of_any_priority_from_the_accepted_nodes_only(
+    nodes: tuple[int, ...],
+) -> None:
+    decoder = DroneCanDecoder(SPECS, source_node_ids=nodes)
+    bus = can.Bus(interface="virtual", channel=f"dronecan-filters-{len(nodes)}", receive_own_messages=True)
     try:
         bus.set_filters(decoder.can_filters())
         wanted = _frames(_status(), node=77, priority=3)[0]
+        air = _frames(dronecan.uavcan.equipment.air_data.StaticPressure(static_pressure=9e4), node=21, priority=30)[0]
+        other_node = _frames(_status(), node=78)[0]
         foreign = _frames(dronecan.uavcan.protocol.NodeStatus(uptime_sec=1), node=20)[0]
         service = can.Message(arbitration_id=wanted.arbitration_id | 0x80, is_extended_id=True, data=b"\xc0")
-        for msg in (foreign, service, wanted):
+        for msg in (foreign, service, other_node, wanted, air):
             bus.send(msg)
-        got = [bus.recv(0.5) for _ in range(3)]
-        assert [m.arbitration_id for m in got if m is not None] == [wanted.arbitration_id]
+        got = [bus.recv(0.2) for _ in range(5)]
+        passed = [m.arbitration_id for m in got if m is not None]
+        expected = [other_node.arbitration_id] if not nodes else []
+        assert passed == [*expected, wanted.arbitration_id, air.arbitration_id]
     finally:
         bus.shutdown()
 

@@ -244,8 +244,15 @@ class DroneCanDecoder:
         return tuple(sorted(self._plans))
 
     def can_filters(self) -> list[CanFilter]:
-        """python-can receive filters: 29-bit message frames of the mapped data types (any priority and
-        node; the node filter is the decoder's)."""
+        """python-can receive filters: 29-bit message frames of the mapped data types, any priority; from
+        any node, or with ``source_node_ids`` from those nodes only (one exact filter per type and node, so
+        the frames of other nodes stop at the bus, in the kernel where it filters)."""
+        if self.source_node_ids:
+            return [
+                {"can_id": dtid << 8 | node, "can_mask": 0x00FFFFFF, "extended": True}
+                for dtid in self.frame_ids
+                for node in sorted(self.source_node_ids)
+            ]
         return [{"can_id": dtid << 8, "can_mask": 0x00FFFF80, "extended": True} for dtid in self.frame_ids]
 
     @staticmethod
