@@ -14,8 +14,12 @@ round under the same traffic: ``dbc``, ``dronecan``, ``dbc'`` (A B A):
   steps between health-status periods) with ``dbc_health_frames`` on, so
   the frame timed on the way out is the same Health_Status at 10 Hz; the ECU sends the ICE status at
   50 Hz (one cylinder: a 7-frame transfer) and the three air-data messages at 10 Hz, as node 20 and 21.
-  The latency is timed from the send of the last frame of an ICE status transfer (its 7 frames go back
-  to back; the step falls due on the first frame received after the step time). The daemon's
+  The latency is timed from the send of the last frame of an ICE status transfer (the frame that
+  completes the message; its 7 frames go back to back), or with ``--time-from first`` from its first
+  frame: the step falls due on the first frame received after the step time, which is the first frame of
+  a transfer, so a health frame may leave before the transfer it follows is complete (across processes:
+  DroneCAN's latency from the last frame is then shorter than DBC's from ECU_Fast, which both completes
+  its message and runs the step). The daemon's
   "health sent" counts the node's DroneCAN frames too; the receiver counts the Health_* frames.
 
 Prints p50/p99/max latency, the daemon threads' CPU share and the frames in and out of each case, then
@@ -93,15 +97,22 @@ def _dronecan_config(channel: str) -> Any:
     return parse_config(data, REPO / "ecu_monitor" / "data" / "configs" / "bench-dronecan.yaml")
 
 
+#: which frame of an ICE status transfer the latency is timed from: "last" (the one that completes the message)
+#: or "first" (the one whose callback runs the step that falls due: the first received after the step time)
+TIME_FROM = {"from": "last"}
+
+
 def _dronecan_sender(bus: can.BusABC, sent_at: list[float], counts: dict[str, int]) -> Callable[[int], None]:
     """The ICE status at 50 Hz (node 20), the air data at 10 Hz (node 21): transfers built once per period
     by the one DroneCAN encoder (transfer ids advance as on a real bus)."""
     engine, air = DroneCanEncoder(20), DroneCanEncoder(21)
+    first = TIME_FROM["from"] == "first"
 
     def step(k: int) -> None:
         frames = engine.frames(STATUS, STATUS_VALUES, 0.0, priority=16)
+        timed = 0 if first else len(frames) - 1
         for i, msg in enumerate(frames):
-            if i == len(frames) - 1:  # the frame that completes the transfer: its callback runs the step
+            if i == timed:
                 sent_at.append(time.perf_counter())
             bus.send(msg)
         counts["ecu"] += len(frames)
@@ -199,7 +210,8 @@ def run_netns(seconds: float, traffic_hz: float, repeat: int) -> list[dict[str, 
                     traffic = start([sys.executable, "-c", bench_latency._TRAFFIC, bench_latency.GROUP, str(port),
                                      str(per_burst)])  # fmt: skip
                     time.sleep(1.0)
-                    inner = start([sys.executable, __file__, "--inner", str(port), str(seconds), case, protocol])
+                    inner_argv = ["--inner", str(port), str(seconds), case, protocol, TIME_FROM["from"]]
+                    inner = start([sys.executable, __file__, *inner_argv])
                     time.sleep(1.0)  # the measuring process's start-up
                     cpu_before, wall_before = bench_latency.process_cpu_s(peer.pid), time.monotonic()
                     time.sleep(max(0.0, seconds - 2.0))
@@ -345,7 +357,8 @@ def verdict(rounds: list[dict[str, dict[str, Any]]]) -> list[str]:
 
 
 def main() -> int:
-    if len(sys.argv) == 6 and sys.argv[1] == "--inner":  # the measuring process of --netns
+    if len(sys.argv) == 7 and sys.argv[1] == "--inner":  # the measuring process of --netns
+        TIME_FROM["from"] = sys.argv[6]
         _inner(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4], sys.argv[5])
         return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n", 1)[0])
@@ -355,7 +368,14 @@ def main() -> int:
     parser.add_argument("--json", action="store_true", help="one JSON line per case")
     parser.add_argument("--pipeline", action="store_true", help="the pipeline alone on the same frames (no bus)")
     parser.add_argument("--netns", action="store_true", help="across processes on udp_multicast in a netns (root)")
+    parser.add_argument(
+        "--time-from",
+        choices=("last", "first"),
+        default="last",
+        help="time DroneCAN's latency from the last frame of the ICE status transfer (default) or its first",
+    )
     args = parser.parse_args()
+    TIME_FROM["from"] = args.time_from
     if args.netns:
         for line in verdict(run_netns(args.seconds, args.traffic, args.repeat)):
             print(line)
