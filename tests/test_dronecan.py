@@ -575,3 +575,66 @@ def test_field_readers_give_what_the_whole_payload_decode_gives(monkeypatch: pyt
     status_id = message_codec(STATUS).data_type_id
     assert all(read._readers[(status_id, 35 + 10 * n)] for n in range(17))  # 0-16 cylinders: read in place
     assert not any(r for (dtid, _), r in read._readers.items() if dtid == message_codec(ahrs).data_type_id)
+
+
+def test_the_node_answers_get_node_info_as_the_package_reads_it() -> None:
+    """A GetNodeInfo request built by the dronecan package, to the node (100) from node 42, is answered with
+    the next step's frames: a response the package reassembles and decodes, to 42, at the request's priority
+    and transfer id, with the node's status as it broadcasts it, the version and the name; a request to
+    another node is not taken (it counts as a foreign frame)."""
+    from ecu_monitor import __version__
+    from ecu_monitor.service.dronecan_node import NODE_NAME
+    from ecu_monitor.service.pipeline import Pipeline
+
+    def request(dest: int, transfer_id: int, time_s: float) -> can.Message:
+        transfer = dronecan.transport.Transfer(
+            transfer_id=transfer_id, source_node_id=42, dest_node_id=dest, transfer_priority=20,
+            payload=dronecan.uavcan.protocol.GetNodeInfo.Request(), service_not_message=True,
+            request_not_response=True,
+        )  # fmt: skip
+        (frame,) = transfer.to_frames()
+        return can.Message(
+            timestamp=time_s, arbitration_id=frame.message_id, is_extended_id=True, data=bytes(frame.bytes)
+        )
+
+    config = load_config("dronecan.yaml")
+    pipeline = Pipeline(config, config.load_params())
+    assert pipeline.receive_filters()[-1] == {"can_id": 1 << 16 | 1 << 15 | 100 << 8 | 0x80, "can_mask": 0x00FFFF80,
+                                              "extended": True}  # fmt: skip
+    frames = _engine_frames(0.0, 3.0)
+    frames += [request(100, 7, 2.505), request(99, 8, 2.505)]
+    frames.sort(key=lambda m: m.timestamp)
+    out: list[can.Message] = []
+    sent_by: dict[int, float] = {}  # frame -> the time of the advance_to that returned it
+    ticks: list[tuple[float, can.Message | None]] = [(2.519, None), (2.52, None), (3.0, None)]  # a tick: no frame
+    for t, msg in sorted([*((m.timestamp, m) for m in frames), *ticks], key=lambda item: item[0]):
+        got = pipeline.advance_to(t)
+        sent_by.update((id(m), t) for m in got)
+        out += got
+        if msg is not None:
+            pipeline.feed(msg)
+    assert pipeline.counters["dronecan_requests"] == 1
+    replies = [m for m in out if m.arbitration_id & 0x80]
+    assert replies and all(sent_by[id(m)] == 2.52 for m in replies)  # with the next 20 ms step (2.52 s)
+    reply_id = replies[0].arbitration_id
+    assert (reply_id >> 24, reply_id >> 16 & 0xFF, reply_id >> 15 & 1, reply_id >> 8 & 0x7F, reply_id & 0x7F) == (
+        20, 1, 0, 42, 100)  # fmt: skip
+    manager = dronecan.transport.TransferManager()
+    done = None
+    for msg in replies:
+        assert msg.data[-1] & 0x1F == 7  # the request's transfer id
+        done = manager.receive_frame(dronecan.transport.Frame(msg.arbitration_id, msg.data)) or done
+    assert done is not None
+    transfer = dronecan.transport.Transfer()
+    transfer.from_frames(done)
+    info = transfer.payload
+    assert dronecan.get_dronecan_data_type(info).full_name == "uavcan.protocol.GetNodeInfo"
+    assert bytes(info.name).decode() == NODE_NAME
+    assert (info.software_version.major, info.software_version.minor) == tuple(
+        int(v) for v in __version__.split(".")[:2]
+    )
+    status = [p for t, n, p in _published([m for m in out if not m.arbitration_id & 0x80]) if n.endswith("NodeStatus")]
+    last = status[-1]  # the NodeStatus broadcast before the reply (OK, OPERATIONAL, 2 s up at 2.1 s)
+    assert (info.status.health, info.status.mode, info.status.vendor_specific_status_code) == (
+        last.health, last.mode, last.vendor_specific_status_code)  # fmt: skip
+    assert info.status.uptime_sec == 2 and last.uptime_sec == 2

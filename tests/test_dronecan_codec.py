@@ -21,6 +21,7 @@ from ecu_monitor.bus.dronecan_codec import (
     PayloadError,
     column_values,
     message_codec,
+    service_codec,
     transfer_crc,
     transfer_crc_rows,
     transfer_frames,
@@ -71,7 +72,13 @@ def _random(dtype: Any, rng: random.Random) -> Any:
 def _package_value(dtype: Any, plain: dict[str, Any]) -> Any:
     """The package's CompoundValue holding ``plain``."""
     out = T.CompoundValue(dtype)
-    types = {f.name: f.type for f in dtype.fields if f.name}
+    _fill(out, dtype.fields, plain)
+    return out
+
+
+def _fill(out: Any, fields: Any, plain: dict[str, Any]) -> None:
+    """Set the fields of the package's value ``out`` (of DSDL ``fields``) from ``plain``."""
+    types = {f.name: f.type for f in fields if f.name}
     for name, value in plain.items():
         ftype = types[name]
         if ftype.category == ftype.CATEGORY_ARRAY:
@@ -87,7 +94,6 @@ def _package_value(dtype: Any, plain: dict[str, Any]) -> Any:
             setattr(out, name, _package_value(ftype, value))
         else:
             setattr(out, name, value)
-    return out
 
 
 def _package_bytes(value: Any) -> bytes:
@@ -219,3 +225,32 @@ def test_over_capacity_arrays_and_bad_union_tags_are_payload_errors() -> None:
         log.decode(bytes([0b00111111, 0xFF, 0, 0]))
     with pytest.raises(KeyError, match="has no field 'nope'"):
         status.encode({"nope": 1})
+
+
+SERVICE_TYPES = sorted((t for t in dronecan.TYPENAMES.values() if t.kind == t.KIND_SERVICE), key=lambda t: t.full_name)
+
+
+class _Part:
+    """A service type's request or response fields, shaped for :func:`_random` (a compound of those fields)."""
+
+    CATEGORY_PRIMITIVE, CATEGORY_ARRAY, category = "primitive", "array", "compound"
+
+    def __init__(self, dtype: Any, part: str) -> None:
+        self.fields, self.union = getattr(dtype, f"{part}_fields"), getattr(dtype, f"{part}_union")
+
+
+@pytest.mark.parametrize("part", ["request", "response"])
+@pytest.mark.parametrize("dtype", SERVICE_TYPES, ids=lambda t: t.full_name)
+def test_every_service_request_and_response_decodes_and_encodes_as_the_package(dtype: Any, part: str) -> None:
+    codec = service_codec(dtype.full_name, part)
+    assert (codec.data_type_id, codec.base_crc) == (dtype.default_dtid, dtype.base_crc)
+    rng = random.Random(f"{dtype.full_name}.{part}")
+    for _ in range(4):
+        plain = _random(_Part(dtype, part), rng)
+        value = T.CompoundValue(dtype, _mode=part)
+        _fill(value, getattr(dtype, f"{part}_fields"), plain)
+        payload = _package_bytes(value)
+        decoded = T.CompoundValue(dtype, _mode=part)
+        decoded._unpack(T.bits_from_bytes(payload), True)
+        assert _same(codec.decode(payload), _plain(decoded)), (dtype.full_name, part, plain)
+        assert codec.encode(plain) == payload, (dtype.full_name, part, plain)

@@ -59,6 +59,7 @@ from ecu_monitor.bus.dronecan_codec import (
     column_values,
     dronecan_module,
     message_codec,
+    service_codec,
     take_bits,
     transfer_crc,
     transfer_crc_rows,
@@ -773,6 +774,23 @@ class DroneCanEncoder:
         transfer_id = self._transfer_ids.get(type_name, 0)
         self._transfer_ids[type_name] = (transfer_id + 1) % 32
         can_id = (priority & 0x1F) << 24 | codec.data_type_id << 8 | self.node_id
+        return [
+            can.Message(timestamp=time_s, arbitration_id=can_id, is_extended_id=True, data=data)
+            for data in transfer_frames(codec.encode(values), transfer_id, codec.base_crc)
+        ]
+
+    def response_frames(
+        self, type_name: str, values: Mapping[str, Any], time_s: float, request_id: int, transfer_id: int
+    ) -> list[Any]:
+        """The frames of the response of service ``type_name`` to the request whose CAN id is ``request_id``
+        (from its source node, at its priority) and transfer id ``transfer_id``, stamped ``time_s`` (s)."""
+        import can
+
+        codec = service_codec(type_name, "response")
+        if codec.data_type_id is None or codec.base_crc is None:
+            raise ValueError(f"{type_name}: not a service with a data type id")
+        requester = request_id & 0x7F
+        can_id = (request_id >> 24 & 0x1F) << 24 | codec.data_type_id << 16 | requester << 8 | 0x80 | self.node_id
         return [
             can.Message(timestamp=time_s, arbitration_id=can_id, is_extended_id=True, data=data)
             for data in transfer_frames(codec.encode(values), transfer_id, codec.base_crc)

@@ -46,6 +46,7 @@ __all__ = [
     "column_values",
     "dronecan_module",
     "message_codec",
+    "service_codec",
     "take_bits",
     "transfer_crc",
     "transfer_crc_rows",
@@ -445,20 +446,32 @@ def _node(dtype: Any, transport: Any) -> Any:
     return _Compound(dtype, transport)
 
 
-class MessageCodec:
-    """One DSDL message type prepared for :meth:`decode` and :meth:`encode` (module docstring).
+class _ServicePart:
+    """The request or the response of a DSDL service type, shaped as a compound type for :class:`_Compound`."""
 
-    ``data_type_id`` and ``base_crc`` (the transfer CRC's seed, from the data type signature) are the package's
-    (both None for a nested type).
+    def __init__(self, dtype: Any, part: str) -> None:
+        self.full_name = f"{dtype.full_name}.{part.capitalize()}"
+        self.fields = getattr(dtype, f"{part}_fields")
+        self.union = getattr(dtype, f"{part}_union")
+
+
+class MessageCodec:
+    """One DSDL message type, or the request or response of a service type (``part``: "request" or
+    "response"), prepared for :meth:`decode` and :meth:`encode` (module docstring).
+
+    ``data_type_id`` (the message or service type id) and ``base_crc`` (the transfer CRC's seed, from the data
+    type signature) are the package's (both None for a nested type).
     """
 
-    def __init__(self, dtype: Any) -> None:
-        if dtype.kind != dtype.KIND_MESSAGE:
+    def __init__(self, dtype: Any, part: str | None = None) -> None:
+        if part is None and dtype.kind != dtype.KIND_MESSAGE:
             raise ValueError(f"{dtype.full_name}: not a message type")
+        if part is not None and (dtype.kind != dtype.KIND_SERVICE or part not in ("request", "response")):
+            raise ValueError(f"{dtype.full_name}: not a service type, or {part!r} not one of request, response")
         self.full_name: str = dtype.full_name
         self.data_type_id: int | None = dtype.default_dtid
         self.base_crc: int | None = getattr(dtype, "base_crc", None)  # None: a nested type, never sent alone
-        self._root = _Compound(dtype, dronecan_module().transport)
+        self._root = _Compound(dtype if part is None else _ServicePart(dtype, part), dronecan_module().transport)
 
     def decode(self, payload: bytes) -> dict[str, Any]:
         """A transfer's payload (without the transfer CRC) -> field name -> value; PayloadError if it cannot be."""
@@ -542,6 +555,12 @@ def transfer_crc_rows(payloads: np.ndarray, base_crc: int) -> np.ndarray:
 def message_codec(type_name: str) -> MessageCodec:
     """The prepared codec of the message ``type_name`` (KeyError if the package has no such type)."""
     return MessageCodec(dronecan_module().TYPENAMES[type_name])
+
+
+@functools.cache
+def service_codec(type_name: str, part: str) -> MessageCodec:
+    """The prepared codec of the ``part`` ("request" or "response") of the service ``type_name``."""
+    return MessageCodec(dronecan_module().TYPENAMES[type_name], part)
 
 
 def transfer_crc(payload: bytes, base_crc: int) -> int:

@@ -181,7 +181,7 @@ def _run(args: argparse.Namespace) -> int:
             notifier=notifier,
             recorder=recorder,
             engine_speed=engine_speed_of(pipeline),
-            receive_filters=pipeline.decoder.can_filters(),
+            receive_filters=pipeline.receive_filters(),
         )
 
         def on_signal(signum: int, _frame: FrameType | None) -> None:

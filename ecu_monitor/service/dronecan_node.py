@@ -27,6 +27,12 @@ the frames of the transfers due (built by :class:`ecu_monitor.bus.dronecan.Drone
   DEGRADED and SENSOR_FAULT; at most one a second: a change within a second of the last message is
   told when the second is up, if the state still differs from the one last told. Per cylinder, the
   state is the engine's (its lead cylinder's) and the text names that cylinder.
+
+It answers ``uavcan.protocol.GetNodeInfo`` requests addressed to it (:meth:`DroneCanNode.take_request`,
+called by the pipeline for every frame it is fed): the response, sent with the frames of the next step
+(within 20 ms; a requester waits up to a second), carries the NodeStatus as it would be sent now, the
+software version (ecu_monitor's major and minor), no hardware version and the name :data:`NODE_NAME`.
+The node answers no other service.
 """
 
 from __future__ import annotations
@@ -34,14 +40,16 @@ from __future__ import annotations
 import math
 
 import can
+from can.typechecking import CanFilter
 
+from ecu_monitor import __version__
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.dronecan import DroneCanEncoder
 from ecu_monitor.service.config import DroneCanSettings
 from ecu_monitor.service.health_rows import HealthSnapshot
 from ecu_monitor.service.supervision import STATES
 
-__all__ = ["HEALTH_CODES", "KEY_VALUES", "LOG_LEVELS", "DroneCanNode", "key_values", "node_health"]
+__all__ = ["HEALTH_CODES", "KEY_VALUES", "LOG_LEVELS", "NODE_NAME", "DroneCanNode", "key_values", "node_health"]
 
 #: NodeStatus.health values (DSDL constants of uavcan.protocol.NodeStatus)
 HEALTH_CODES = {"OK": 0, "WARNING": 1, "ERROR": 2, "CRITICAL": 3}
@@ -68,9 +76,14 @@ KEY_VALUES: dict[str, str] = {
     "state": "state",
 }
 _NODE_STATUS = "uavcan.protocol.NodeStatus"
+_GET_NODE_INFO = "uavcan.protocol.GetNodeInfo"
+_GET_NODE_INFO_ID = 1  # its service type id (uavcan.protocol.GetNodeInfo's DSDL)
+#: GetNodeInfo's node name (DroneCAN: a reverse internet domain name, lower case)
+NODE_NAME = "org.ecu-monitor.cht"
 _KEY_VALUE = "uavcan.protocol.debug.KeyValue"
 _LOG_MESSAGE = "uavcan.protocol.debug.LogMessage"
 _LOG_SOURCE = "ecu-monitor"
+_VERSION = tuple(int(part) for part in __version__.split(".")[:2])
 _LOG_EVERY_S = 1.0
 _SLACK_S = 1e-3  # periods are counted on the health-status instants, rounded to the microsecond
 
@@ -99,6 +112,10 @@ class DroneCanNode:
         self._spread_steps = max(1, periods) * (steps_per_status - 1)
         self._pending: list[tuple[str, float]] = []  # the KeyValue pairs of the current set not yet sent, last first
         self._per_step = 1
+        self._replies: list[can.Message] = []  # service responses, sent with the next step's frames
+        # a GetNodeInfo request to this node: its CAN id under the mask (any priority and requester)
+        self._request_id = _GET_NODE_INFO_ID << 16 | 1 << 15 | settings.node_id << 8 | 0x80
+        self._status_values: dict[str, int] = {"mode": _MODE_INITIALIZATION}  # the NodeStatus fields last published
         self._first_s: float | None = None
         self._status: tuple[int, int] | None = None  # (health, mode) last published
         self._status_s = -math.inf
@@ -121,6 +138,8 @@ class DroneCanNode:
             node_health(snap.state, cht, self.cht_limit_c),
             _MODE_OPERATIONAL if self._estimated else _MODE_INITIALIZATION,
         )
+        if self._replies:
+            out += self._take_replies()
         if _due(time_s, self._status_s, 1.0) or status != self._status:
             out += self._node_status(time_s, snap, status)
         if _due(time_s, self._key_value_s, self._key_value_every_s):
@@ -135,9 +154,38 @@ class DroneCanNode:
         return out
 
     def step_frames(self, time_s: float) -> list[can.Message]:
-        """The frames due at a step (``time_s``, s) that is not a health-status period's: the next keys of the
-        current KeyValue set."""
-        return self._key_values(time_s, self._per_step) if self._pending else []
+        """The frames due at a step (``time_s``, s) that is not a health-status period's: service responses
+        and the next keys of the current KeyValue set."""
+        out = self._take_replies() if self._replies else []
+        return out + self._key_values(time_s, self._per_step) if self._pending else out
+
+    def take_request(self, msg: can.Message, time_s: float) -> bool:
+        """True when ``msg`` (received at ``time_s``, s) is a service request to this node, taken here (the
+        decoder never sees it); a GetNodeInfo request is answered with the next step's frames. A request
+        frame carries the tail byte alone (GetNodeInfo's request has no fields); anything else is not taken."""
+        can_id = msg.arbitration_id
+        if not (msg.is_extended_id and can_id & 0x00FFFF80 == self._request_id and can_id & 0x7F):
+            return False
+        data = msg.data
+        if data is not None and len(data) == 1 and data[0] & 0xC0 == 0xC0:  # one frame: start and end
+            values = {
+                "status": {**self._status_values, "uptime_sec": self._uptime(time_s)},
+                "software_version": {"major": _VERSION[0], "minor": _VERSION[1]},
+                "name": NODE_NAME,
+            }
+            self._replies += self.encoder.response_frames(_GET_NODE_INFO, values, time_s, can_id, data[0] & 0x1F)
+        return True
+
+    def request_filter(self) -> CanFilter:
+        """The python-can receive filter of the service requests to this node."""
+        return {"can_id": self._request_id, "can_mask": 0x00FFFF80, "extended": True}
+
+    def _take_replies(self) -> list[can.Message]:
+        out, self._replies = self._replies, []
+        return out
+
+    def _uptime(self, time_s: float) -> int:
+        return max(0, math.floor(time_s - (self._first_s if self._first_s is not None else time_s) + _SLACK_S))
 
     def _key_values(self, time_s: float, count: int) -> list[can.Message]:
         """The frames of the next ``count`` pending KeyValue pairs."""
@@ -158,6 +206,7 @@ class DroneCanNode:
             "sub_mode": 0,
             "vendor_specific_status_code": STATES.index(snap.state) | stale << 4,
         }
+        self._status_values = values
         return self.encoder.frames(_NODE_STATUS, values, time_s, self.settings.priority)
 
     def _log_message(self, time_s: float, snap: HealthSnapshot) -> list[can.Message]:

@@ -44,6 +44,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import can
 
 if TYPE_CHECKING:
+    from can.typechecking import CanFilter
+
     from ecu_monitor.bus.dronecan import DroneCanDecoder
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
@@ -305,6 +307,7 @@ class Pipeline:
                 self._status_period,
             )
             self.counters["dronecan_frames"] = 0
+            self.counters["dronecan_requests"] = 0
         self._snapshot: HealthSnapshot | None = self._empty_snapshot(math.nan)
         self._last_step: tuple[float, list[tuple[float, float, float, int, float, float, float]], list[str]] = (
             math.nan,
@@ -364,6 +367,14 @@ class Pipeline:
         thermal_headroom(100.0, None, u, self.params, coeffs=self._cylinders[0].coeffs)
         return time.perf_counter() - started
 
+    def receive_filters(self) -> list[CanFilter]:
+        """python-can receive filters of the frames the pipeline reads: the decoder's, and on DroneCAN the
+        service requests to the node."""
+        filters = list(self.decoder.can_filters())
+        if self._node is not None:
+            filters.append(self._node.request_filter())
+        return filters
+
     def drain_rows(self) -> list[HealthSnapshot]:
         """Snapshots of the health-status periods since the last call (oldest first)."""
         rows, self._rows = self._rows, []
@@ -381,6 +392,9 @@ class Pipeline:
             self.counters["ignored"] += 1
             return
         stamp = self._now if self._origin is not None else math.nan
+        if self._node is not None and msg.arbitration_id & 0x80 and self._node.take_request(msg, self._now):
+            self.counters["dronecan_requests"] += 1  # a service request to the node (GetNodeInfo), not an input
+            return
         data = msg.data if msg.data is not None else b""
         decoded = self.decoder.decode(int(msg.arbitration_id), bool(msg.is_extended_id), data, stamp)
         if decoded is None:
