@@ -1,7 +1,8 @@
 """The daemon on a DroneCAN bus as a separate process (python-can udp_multicast inside a network namespace,
 as tests/test_netns.py): DroneCAN in from the virtual ECU (``virtual-ecu run`` with the config's
 ``protocol: dronecan``), NodeStatus, KeyValue and LogMessage out, read by a listener that reassembles
-them with the ``dronecan`` package. Skipped without root and ``ip netns`` (the reason is given)."""
+them with the ``dronecan`` package, and a GetNodeInfo request of the listener's answered. Skipped without
+root and ``ip netns`` (the reason is given)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ _LISTENER = textwrap.dedent(
     import sys, time, can, dronecan
     bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]))
     manager = dronecan.transport.TransferManager()
+    asked = False  # a GetNodeInfo request sent (as node 42) once the node is operational
     print("listening", flush=True)
     while True:
         msg = bus.recv(0.5)
@@ -42,6 +44,16 @@ _LISTENER = textwrap.dedent(
         name = dronecan.get_dronecan_data_type(p).full_name.rsplit(".", 1)[1]
         if name == "NodeStatus":
             fields = f"{p.health} {p.mode} {p.uptime_sec} {p.vendor_specific_status_code}"
+            if p.mode == 0 and not asked:
+                asked = True
+                request = dronecan.transport.Transfer(
+                    transfer_id=9, source_node_id=42, dest_node_id=int(sys.argv[3]), transfer_priority=30,
+                    payload=dronecan.uavcan.protocol.GetNodeInfo.Request(), service_not_message=True,
+                    request_not_response=True)
+                for f in request.to_frames():
+                    bus.send(can.Message(arbitration_id=f.message_id, is_extended_id=True, data=bytes(f.bytes)))
+        elif name == "GetNodeInfo":
+            fields = f"{bytes(p.name).decode()} {p.status.mode} {p.software_version.major}.{p.software_version.minor}"
         elif name == "KeyValue":
             fields = f"{p.key.decode()} {p.value}"
         else:
@@ -96,6 +108,8 @@ def test_dronecan_in_node_status_out_across_processes(ns: Namespace) -> None:
     values = {p[2]: float(p[3]) for p in _lines(listener, "KeyValue", since_s=running)}
     assert 0.0 < values["cht_est"] < 150.0 and values["state"] == 0.0 and 0.9 < values["gamma_q"] < 1.1
     assert any(p[3].startswith("CHT_NOMINAL") for p in _lines(listener, "LogMessage"))
+    # the GetNodeInfo request sent by the listener once the node was operational, through the daemon's filters
+    assert [p[2:4] for p in _lines(listener, "GetNodeInfo")] == [["org.ecu-monitor.cht", "0"]]
     emulator.send_signal(signal.SIGKILL)
     killed = time.monotonic()
     stale_told = lambda _: any(p[3].startswith("CHT_INPUT_STALE") for p in _lines(listener, "LogMessage", killed))  # noqa: E731
