@@ -160,9 +160,10 @@ class DroneCanNode:
         return out + self._key_values(time_s, self._per_step) if self._pending else out
 
     def take_request(self, msg: can.Message, time_s: float) -> bool:
-        """True when ``msg`` (received at ``time_s``, s) is a service request to this node, taken here (the
-        decoder never sees it); a GetNodeInfo request is answered with the next step's frames. A request
-        frame carries the tail byte alone (GetNodeInfo's request has no fields); anything else is not taken."""
+        """True when ``msg`` (received at ``time_s``, s) is a GetNodeInfo request to this node (from any node, at
+        any priority), taken here: the decoder never sees it. It is answered with the next step's frames when
+        it is one frame holding the tail byte alone (the request has no fields: a single-frame transfer);
+        any other frame is not taken (a request of another service goes on to the decoder: a foreign id)."""
         can_id = msg.arbitration_id
         if not (msg.is_extended_id and can_id & 0x00FFFF80 == self._request_id and can_id & 0x7F):
             return False
