@@ -444,6 +444,64 @@ def pace_study(steps: int = 600) -> None:
     print()
 
 
+def dispatch_study(calls: int = 300, pace_s: float = 0.02) -> None:
+    """What entering a compiled (numba) function costs, by argument list, warm and one call per 20 ms asleep
+    (cold, as live): functions whose body is one store, called with the live filter call's arguments as they
+    were (five arrays, 18 scalars and the model's Coefficients namedtuple, which numba types in Python at every
+    call), as they are (the coefficients as four arrays: ``ecu_monitor.model.pack_coefficients``), and with
+    three arrays only."""
+    import numba
+    import numpy as np
+
+    from ecu_monitor.model import coefficients, pack_coefficients, scalar_coefficients
+
+    config = _config("unused")
+    coeffs = scalar_coefficients(coefficients(config.load_params()))
+    packed = pack_coefficients(coeffs)
+
+    @numba.njit
+    def with_namedtuple(s, d, i, r, o, a1, a2, a3, a4, a5, a6, z, m, co, dt, q, rr, a, b, c, tau, ud, rc, st):  # type: ignore[no-untyped-def]
+        o[0] = s[0] + co.c_w
+
+    @numba.njit
+    def with_packed(s, d, i, r, o, a1, a2, a3, a4, a5, a6, z, m, cs, hv, xb, yb, dt, q, rr, a, b, c, tau, ud, rc, st):  # type: ignore[no-untyped-def]
+        o[0] = s[0] + cs[0]
+
+    @numba.njit
+    def three_arrays(s, d, i):  # type: ignore[no-untyped-def]
+        s[0] = d[0] + i[0]
+
+    s, d, i, r, o = np.zeros(7), np.zeros(5), np.zeros((6, 1)), np.zeros((4, 1)), np.zeros(3)
+    scalars = (0.02, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, True, 0, 5)
+    cases = {
+        "5 arrays, 18 scalars, Coefficients namedtuple (before)": (
+            with_namedtuple,
+            (s, d, i, r, o, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1.0, True, coeffs, *scalars),
+        ),
+        "5 arrays, 18 scalars, coefficients as 4 arrays (now)": (
+            with_packed,
+            (s, d, i, r, o, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1.0, True, *packed, *scalars),
+        ),
+        "3 arrays": (three_arrays, (s, d, d)),
+    }
+    for function, arguments in cases.values():
+        function(*arguments)  # compiled before timing
+    print("| compiled function entered with | warm p50 | one call per 20 ms, p50 |")
+    print("|---|---|---|")
+    for name, (function, arguments) in cases.items():
+        timings: dict[bool, list[float]] = {False: [], True: []}
+        for k in range(2 * calls):
+            paced = k % 2 == 1
+            if paced:
+                time.sleep(pace_s)
+            started = time.perf_counter()
+            function(*arguments)
+            timings[paced].append((time.perf_counter() - started) * 1e6)
+        warm, cold = (statistics.median(timings[paced]) for paced in (False, True))
+        print(f"| {name} | {warm:.1f} us | {cold:.1f} us |", flush=True)
+    print()
+
+
 def full_collection_ms() -> tuple[float, float, int]:
     """A full gc.collect() in a process holding the daemon's modules and a running pipeline, ms:
     (heap as is, after gc.freeze() and 20 s more of pipeline steps, objects tracked before the freeze)."""
@@ -726,12 +784,18 @@ def main() -> None:
     parser.add_argument("--nice", type=int, default=0, help="with --netns: run the daemon and the echo at this nice")
     parser.add_argument("--pace-study", action="store_true", help="also time the pipeline alone under other pacings")
     parser.add_argument(
+        "--dispatch-study", action="store_true", help="only: what entering a compiled function costs, by argument list"
+    )
+    parser.add_argument(
         "--switch-interval",
         type=float,
         default=(getattr(DaemonSettings(), "switch_interval_s", None) or 0.0) * 1e3,
         help="ms: the daemon's DaemonSettings.switch_interval_s, the echo's too (0: the interpreter's default)",
     )
     args = parser.parse_args()
+    if args.dispatch_study:
+        dispatch_study()
+        return
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)
         title = f"udp_multicast across processes in a netns (nice {args.nice}), {args.seconds:g} s per case"
