@@ -502,6 +502,81 @@ def dispatch_study(calls: int = 300, pace_s: float = 0.02) -> None:
     print()
 
 
+def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
+    """The pipeline alone, one frame per ``pace_s`` asleep (as live): each part of a step timed by wrapping
+    the function that does it (p50 / p99 over the steps after the estimator's start; the wrappers add ~1 us
+    each). The two ThermalEKF calls of a step are the open-loop reference (first) and the estimator."""
+    from ecu_monitor.bus import codec
+    from ecu_monitor.estimation import detection, ekf, isolation
+    from ecu_monitor.service import pipeline as pipeline_module
+
+    timings: dict[str, list[float]] = {}
+    originals: list[tuple[Any, str, Any]] = []
+
+    def wrap(owner: Any, attribute: str, label: str) -> None:
+        function = getattr(owner, attribute)
+        originals.append((owner, attribute, function))
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            started = time.perf_counter()
+            result = function(*args, **kwargs)
+            timings.setdefault(label, []).append((time.perf_counter() - started) * 1e6)
+            return result
+
+        setattr(owner, attribute, timed)
+
+    for owner, attribute, label in (
+        (codec.Decoder, "decode", "decode (one frame)"),
+        (pipeline_module.Pipeline, "_stale", "staleness"),
+        (pipeline_module, "supervise", "supervision"),
+        (ekf.ThermalEKF, "estimate", "ThermalEKF call"),
+        (isolation.IsolationFilter, "estimate", "isolation filter call"),
+        (detection.Detector, "update", "detector"),
+        (pipeline_module, "time_to_limit_s", "headroom"),
+        (pipeline_module.Pipeline, "_build_snapshot", "snapshot"),
+        (pipeline_module.Pipeline, "_frame", "one health frame (encode, can.Message)"),
+    ):
+        wrap(owner, attribute, label)
+    try:
+        config = _config("unused")
+        pipeline = Pipeline(config, config.load_params())
+        encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
+        counters = dict.fromkeys(ECU_VALUES, 0)
+        t = 0.0
+        pipeline.advance_to(t)
+        totals: dict[int, list[float]] = {}
+        for k in range(steps):
+            t += 0.02
+            time.sleep(pace_s)
+            if k == 100:  # after the estimator's start
+                timings.clear()
+                totals.clear()
+            for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
+                data = encoder.encode(name, ECU_VALUES[name], counters[name])
+                counters[name] += 1
+                msg = can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data)
+                started = time.perf_counter()
+                pipeline.feed(msg)
+                frames = pipeline.advance_to(t)
+                if frames:
+                    totals.setdefault(len(frames), []).append((time.perf_counter() - started) * 1e6)
+    finally:
+        for owner, attribute, function in originals:
+            setattr(owner, attribute, function)
+    calls = timings.pop("ThermalEKF call", [])
+    timings["ThermalEKF call, first of the step (open-loop reference)"] = calls[0::2]
+    timings["ThermalEKF call, second (estimator)"] = calls[1::2]
+    print(f"| pipeline alone, one frame per {pace_s * 1e3:g} ms: part of a step | calls | p50 | p99 |")
+    print("|---|---|---|---|")
+    for label, values in timings.items():
+        p50, p99, _ = _percentiles(values)
+        print(f"| {label} | {len(values)} | {p50:.1f} us | {p99:.1f} us |")
+    for count, values in sorted(totals.items()):
+        p50, p99, _ = _percentiles(values)
+        print(f"| feed + advance_to of a step sending {count} frame(s) | {len(values)} | {p50:.0f} us | {p99:.0f} us |")
+    print()
+
+
 def full_collection_ms() -> tuple[float, float, int]:
     """A full gc.collect() in a process holding the daemon's modules and a running pipeline, ms:
     (heap as is, after gc.freeze() and 20 s more of pipeline steps, objects tracked before the freeze)."""
@@ -784,6 +859,9 @@ def main() -> None:
     parser.add_argument("--nice", type=int, default=0, help="with --netns: run the daemon and the echo at this nice")
     parser.add_argument("--pace-study", action="store_true", help="also time the pipeline alone under other pacings")
     parser.add_argument(
+        "--step-profile", action="store_true", help="only: each part of a paced step of the pipeline alone, timed"
+    )
+    parser.add_argument(
         "--dispatch-study", action="store_true", help="only: what entering a compiled function costs, by argument list"
     )
     parser.add_argument(
@@ -795,6 +873,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.dispatch_study:
         dispatch_study()
+        return
+    if args.step_profile:
+        step_profile()
         return
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)
