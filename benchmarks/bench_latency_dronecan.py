@@ -128,9 +128,19 @@ def _dronecan_sender(bus: can.BusABC, sent_at: list[float], counts: dict[str, in
 class _FilteredDaemon(bench_latency.PhaseTimedDaemon):
     """bench_latency's timed daemon with the decoder's own receive filters (a DroneCAN type under a mask)."""
 
+    #: --yield-after-send (an experiment, not the service's behaviour): after sending a step's frames the bus
+    #: thread lets go of the interpreter lock once (``time.sleep(0)``), so a thread of the same process
+    #: waiting for it (the benchmark's receiver) may run before the rest of the burst is handled
+    yield_after_send = False
+
     def __init__(self, pipeline: Any, *args: Any, **kwargs: Any) -> None:
         kwargs.pop("receive_ids", None)
         super().__init__(pipeline, *args, receive_filters=pipeline.decoder.can_filters(), **kwargs)
+
+    def _send_locked(self, frames: list[can.Message]) -> None:
+        super()._send_locked(frames)
+        if frames and self.yield_after_send:
+            time.sleep(0)
 
 
 def run(protocol: str, seconds: float, traffic_hz: float) -> dict[str, Any]:
@@ -374,8 +384,14 @@ def main() -> int:
         default="last",
         help="time DroneCAN's latency from the last frame of the ICE status transfer (default) or its first",
     )
+    parser.add_argument(
+        "--yield-after-send",
+        action="store_true",
+        help="experiment: the daemon's bus thread lets go of the interpreter lock after sending (both buses)",
+    )
     args = parser.parse_args()
     TIME_FROM["from"] = args.time_from
+    _FilteredDaemon.yield_after_send = args.yield_after_send
     if args.netns:
         for line in verdict(run_netns(args.seconds, args.traffic, args.repeat)):
             print(line)
