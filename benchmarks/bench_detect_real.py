@@ -66,6 +66,38 @@ UNBOUNDED = 1e300
 EFFECT_STARTS = {"airspeed_cooling": {"gain_per_mps": 0.01}, "density_cooling": {"exponent": 0.3}}
 
 
+#: The frame --egt adds to the bus: the mean EGT (degC), 100 ms (the DBC's default cycle in flight_frames).
+EGT_DBC = """VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: ECU EcuMonitor
+
+BO_ 258 ECU_Exhaust: 8 ECU
+ SG_ EGT : 0|16@1+ (0.1,-40) [-40|1200] "degC" EcuMonitor
+"""
+
+
+def _config_with_egt(config_path: str, work: Path) -> str:
+    """A copy of the config (written to ``work``) whose bus also carries the mean EGT: :data:`EGT_DBC` added to
+    its DBCs and ``egt_c`` mapped to it, so a model with the mixture index is fed. Returns the copy's path."""
+    import yaml
+
+    from ecu_monitor.service.config import load_config
+
+    config = load_config(config_path)
+    raw = yaml.safe_load(config.source.read_text(encoding="utf-8"))
+    dbc = work / "egt.dbc"
+    dbc.write_text(EGT_DBC, encoding="utf-8")
+    raw["dbc"] = [str(path) for path in config.dbc_paths] + [str(dbc)]
+    raw["inputs"]["egt_c"] = {"signal": "ECU_Exhaust.EGT", "unit": "degC", "stale_after_s": 1.0}
+    out = work / f"{config.source.stem}_egt.yaml"
+    out.write_text(yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+    return str(out)
+
+
 def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None]) -> Any:
     """Replay one flight nominal (onset nan) and with each overlay; returns the detector feeds and timings.
 
@@ -393,6 +425,12 @@ def main(argv: list[str] | None = None) -> int:
         "--identify-args", default="", help='more options for ecu-monitor identify, e.g. "--base B.yaml --free ..."'
     )
     parser.add_argument("--config", default="example.yaml")  # a path, or a shipped config's name
+    parser.add_argument(
+        "--egt",
+        action="store_true",
+        help="put the flights' mean EGT (egt_c) on the bus as a frame of its own (a one-message DBC and a copy of"
+        " the config mapping it, written to the work folder): what a model with the mixture index needs",
+    )
     parser.add_argument("--onset-every", type=float, default=900.0, help="spacing of the overlay onsets, s")
     parser.add_argument(
         "--first-onset", type=float, help="first overlay onset, s after the log's start (default: end of the warm-up)"
@@ -467,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="bench-detect-real-"))
     work.mkdir(parents=True, exist_ok=True)
+    if args.egt:
+        args.config = _config_with_egt(args.config, work)
+        config = load_config(args.config)
     flights = []
     for path in args.flights:
         log = import_mapped_csv(path, resolve_mapping(args.mapping)) if args.mapping else load_flight(path)
