@@ -148,8 +148,9 @@ def test_filter_kernels_predict_with_the_reference_model(kelvin: bool) -> None:
     s = EstimatorSettings(dt_s=DT)
     for loop in (_compiled_loop(), trace_loop):
         outs = [np.empty(400) for _ in range(5)] + [np.zeros(400, dtype=np.bool_)]
-        loop(*drive, z, np.isfinite(z), scalar_coefficients(coeffs), s.initial_var, DT, s.process_var,
-             s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, False, 0, *outs)  # fmt: skip
+        loop(*drive, z, np.isfinite(z), np.ones(400, dtype=np.int64), scalar_coefficients(coeffs), s.initial_var,
+             DT, s.process_var, s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s,
+             False, 0, *outs)  # fmt: skip
         assert np.max(np.abs(outs[0] - ref_cht)) < 1e-9 * scale
     # isolation filter: readings ignored (huge R), gammas frozen
     columns = {"time_s": DT * np.arange(400), "z": z}

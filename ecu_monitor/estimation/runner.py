@@ -7,7 +7,8 @@ step at once (:func:`ecu_monitor.model.compiled.compute_drive_compiled`, equal b
 live filter's per-step drive), and runs the scalar filter loop compiled with numba.
 
 One source of truth: the compiled loop is :func:`trace_loop` below calling
-:func:`ecu_monitor.estimation.ekf.filter_step`, which calls the model's own ``rk4_step``; numba gets
+:func:`ecu_monitor.estimation.ekf.filter_steps` (its ``filter_step`` over substeps), which calls the
+model's own ``rk4_step``; numba gets
 those very functions, each re-bound so that its callees are the compiled twins (no equation is written
 twice; :mod:`ecu_monitor.model.kernels`). ``trace_loop`` also runs as plain Python (the reference in
 the tests). Estimators that are not a :class:`ThermalEKF` (the isolation filter) run step by step
@@ -39,7 +40,6 @@ from ecu_monitor.estimation.ekf import (
     FilterState,
     ThermalEKF,
     compiled_filter,
-    filter_step,
     filter_steps,
     scalar_coefficients,
 )
@@ -170,6 +170,7 @@ def trace_loop(
     heat_gain: NDArray[np.float64],
     z_c: NDArray[np.float64],
     measured: NDArray[np.bool_],
+    substeps: NDArray[np.int64],
     coeffs: Coefficients,
     initial_var: float,
     dt: float,
@@ -188,9 +189,12 @@ def trace_loop(
     out_nis: NDArray[np.float64],
     out_reset: NDArray[np.bool_],
 ) -> None:
-    """The filter over a flight: step k uses the drive of step k-1 and the reading at step k.
+    """The filter over a flight, recorded at each call: call k >= 1 makes ``substeps[k]`` fixed steps with
+    the drive of call k-1, the reading z_c[k] on the last (:func:`ecu_monitor.estimation.ekf.filter_steps`,
+    the live filter's own loop). On the fixed-step grid every ``substeps[k]`` is 1; the replay's calls hold
+    their inputs between calls.
 
-    Step 0 initialises from z_c[0] (x = z, P = initial_var, Pade state in steady state), exactly as
+    Call 0 initialises from z_c[0] (x = z, P = initial_var, Pade state in steady state), exactly as
     :meth:`ThermalEKF.initialise`. Plain Python here; :func:`_compiled_loop` compiles it.
     """
     z0 = z_c[0]
@@ -205,8 +209,8 @@ def trace_loop(
         drive = Drive(
             q_sl0_w[k - 1], altitude_gain[k - 1], ambient_c[k - 1], conductance_w_per_c[k - 1], heat_gain[k - 1]
         )
-        state, innovation, nis, did_reset = filter_step(
-            state, drive, z_c[k], measured[k], coeffs, dt, Q, R, a, b, c, tau, use_deviation, reset_code
+        state, innovation, nis, did_reset = filter_steps(
+            state, drive, z_c[k], measured[k], coeffs, dt, Q, R, a, b, c, tau, use_deviation, reset_code, substeps[k]
         )
         out_x[k] = state.x
         out_P[k] = state.P
@@ -216,63 +220,12 @@ def trace_loop(
         out_reset[k] = did_reset
 
 
-def calls_loop(
-    q_sl0_w: NDArray[np.float64],
-    altitude_gain: NDArray[np.float64],
-    ambient_c: NDArray[np.float64],
-    conductance_w_per_c: NDArray[np.float64],
-    heat_gain: NDArray[np.float64],
-    z_c: NDArray[np.float64],
-    measured: NDArray[np.bool_],
-    substeps: NDArray[np.int64],
-    coeffs: Coefficients,
-    initial_var: float,
-    dt: float,
-    Q: float,
-    R: float,
-    a: float,
-    b: float,
-    c: float,
-    tau: float,
-    use_deviation: bool,
-    reset_code: int,
-    out_x: NDArray[np.float64],
-    out_delta: NDArray[np.float64],
-) -> None:
-    """:func:`trace_loop` recorded at filter calls only: call i >= 1 makes ``substeps[i]`` fixed steps
-    with call i-1's drive, the reading z_c[i] on the last (:func:`ecu_monitor.estimation.ekf.filter_steps`,
-    the live filter's own loop). The very filter steps :func:`trace_loop` makes on inputs held between
-    calls, without a drive or an output per step. Call 0 initialises from z_c[0]."""
-    z0 = z_c[0]
-    state = FilterState(z0, initial_var, 2.0 * q_sl0_w[0], 0.0, z0, 0.0, level_of(z0, c))
-    out_x[0] = z0
-    out_delta[0] = 0.0
-    for k in range(1, z_c.shape[0]):
-        drive = Drive(
-            q_sl0_w[k - 1], altitude_gain[k - 1], ambient_c[k - 1], conductance_w_per_c[k - 1], heat_gain[k - 1]
-        )
-        state, _, _, _ = filter_steps(
-            state, drive, z_c[k], measured[k], coeffs, dt, Q, R, a, b, c, tau, use_deviation, reset_code, substeps[k]
-        )
-        out_x[k] = state.x
-        out_delta[k] = state.delta if use_deviation else 0.0
-
-
-@functools.cache
-def _compiled_calls_loop() -> Callable[..., None]:
-    """numba twin of :func:`calls_loop`, calling the compiled filter steps (cached on disk)."""
-    filter_ = compiled_filter()
-    tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, _ekf_module, sys.modules[__name__])])
-    loop: Callable[..., None] = jit(calls_loop, tag, filter_steps=filter_.steps, level_of=filter_.level_of)
-    return loop
-
-
 @functools.cache
 def _compiled_loop() -> Callable[..., None]:
-    """numba twin of :func:`trace_loop`, calling the compiled filter step (cached on disk)."""
+    """numba twin of :func:`trace_loop`, calling the compiled filter steps (cached on disk)."""
     filter_ = compiled_filter()
     tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, _ekf_module, sys.modules[__name__])])
-    loop: Callable[..., None] = jit(trace_loop, tag, filter_step=filter_.step, level_of=filter_.level_of)
+    loop: Callable[..., None] = jit(trace_loop, tag, filter_steps=filter_.steps, level_of=filter_.level_of)
     return loop
 
 
@@ -297,6 +250,7 @@ def _run_compiled(
         *arrays,
         flight.z_c,
         flight.measured,
+        np.ones(n, dtype=np.int64),
         coeffs,
         s.initial_var,
         s.dt_s,
@@ -451,11 +405,12 @@ def run_estimator_on_calls(
     drive = compute_drive_compiled(InputSeries(*(np.ascontiguousarray(v, dtype=np.float64) for v in inputs)), coeffs)
     n = z.size
     arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
-    out_x, out_delta = np.empty(n), np.empty(n)
+    out_x, out_P, out_delta, out_innovation, out_nis = (np.empty(n) for _ in range(5))
     s = settings
-    _compiled_calls_loop()(
+    _compiled_loop()(
         *arrays, z, np.isfinite(z), np.diff(at, prepend=0), coeffs, s.initial_var, s.dt_s, s.process_var,
         s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, estimator.use_deviation,
-        _RESET_CODES[estimator.reset_mode], out_x, out_delta,
+        _RESET_CODES[estimator.reset_mode], out_x, out_P, out_delta, out_innovation, out_nis,
+        np.zeros(n, dtype=np.bool_),
     )  # fmt: skip
     return CallTrace(out_x, out_delta / s.dt_s)
