@@ -16,15 +16,20 @@ from ecu_monitor.model.compiled import simulate_compiled
 @pytest.fixture()
 def flight_csv(tmp_path):
     """A 120 s cruise at 10 Hz with gamma_Q = 1.2 from 30 s; readings rounded to 1 degC."""
+    return _cruise(tmp_path, 120.0, 30.0)
+
+
+def _cruise(tmp_path, seconds, onset_s):
+    """A cruise of ``seconds`` logged at 10 Hz, gamma_Q = 1.2 from ``onset_s``; (flight CSV, model YAML)."""
     params = paper_table_a1()
     coeffs = coefficients(params)
     dt = 0.02
-    n = 6001
+    n = round(seconds / dt) + 1
     t = dt * np.arange(n)
     one = np.ones(n)
     inputs = InputSeries(60.0 * one, 6500.0 * one, 500.0 * one, 23.0 * one, 12.0 * one)
     start = steady_state_cht(compute_drive(InputSeries(60.0, 6500.0, 500.0, 23.0, 12.0), coeffs), coeffs)
-    truth = simulate_compiled(inputs, coeffs, dt, start, np.where(t >= 30.0, 1.2, 1.0)).cht_c
+    truth = simulate_compiled(inputs, coeffs, dt, start, np.where(t >= onset_s, 1.2, 1.0)).cht_c
     rng = np.random.default_rng(3)
     keep = slice(None, None, 5)
     log = FlightLog(
@@ -173,3 +178,30 @@ def test_replay_of_a_one_row_csv_exits_2_as_simulate_does(flight_csv, tmp_path, 
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "one.csv: at least 2" in err[0]
         assert not out.exists()
+
+
+def test_replay_plot_draws_the_replay_with_its_states(tmp_path, capsys, monkeypatch):
+    """--plot: one figure of the replay; the DEGRADED stretch (gamma_Q = 1.2 after the detector's warm-up)
+    is shaded and named in the legend; the CSV is written as without --plot."""
+    import matplotlib
+
+    monkeypatch.setitem(matplotlib.rcParams, "svg.fonttype", "none")  # text as text, to read the legend
+    path, model = _cruise(tmp_path, 1000.0, 700.0)
+    out, plot = tmp_path / "health.csv", tmp_path / "replay.svg"
+    assert main(["replay", str(path), "--model", str(model), "--out", str(out), "--plot", str(plot)]) == 0
+    printed = capsys.readouterr().out.strip().splitlines()
+    assert printed[-1] == f"plot: {plot}" and "DEGRADED from" in printed[0], printed
+    svg = plot.read_text(encoding="utf-8")
+    assert "DEGRADED" in svg and "CHT estimated" in svg and "gamma_Q (heat in)" in svg
+    assert out.stat().st_size > 0
+
+
+@pytest.mark.parametrize("name", ["replay.txt", "absent/replay.png"])
+def test_replay_plot_path_is_checked_before_the_replay(flight_csv, tmp_path, capsys, name):
+    path, model = flight_csv
+    out = tmp_path / "health.csv"
+    code = main(["replay", str(path), "--model", str(model), "--out", str(out), "--plot", str(tmp_path / name)])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--plot" in err[0]
+    assert not out.exists()

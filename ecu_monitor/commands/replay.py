@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.names import ESTIMATOR_NAMES
-from ecu_monitor.errors import ConfigError, FlightLogError
+from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
@@ -64,6 +64,12 @@ def add_subparser(subparsers: Any) -> None:
         help="output: .csv, or .parquet / .arrow / .feather (pip install 'ecu-monitor[arrow]')",
     )
     parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
+    parser.add_argument(
+        "--plot",
+        metavar="HEALTH.png",
+        help="also draw the replay: CHT measured and estimated, the deviation symptom, gamma_Q/gamma_D and the"
+        " headroom over time, the service's state shaded behind (needs the tools extra)",
+    )
     parser.set_defaults(func=_run)
 
 
@@ -80,6 +86,8 @@ def _run(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
+    if args.plot:
+        _check_plot_path(Path(args.plot))
     path = Path(args.log)
     given = load_config(args.config) if args.config else None
     log_frames = read_frames(path) if path.suffix.lower() in CAN_LOG_SUFFIXES else None
@@ -118,7 +126,105 @@ def _run(args: argparse.Namespace) -> int:
                   f" the log looks like {kind}: give --config with {other}")  # fmt: skip
     for line in fit_warnings(config, params, result, models):
         print(f"warning: {line}")
+    if args.plot:
+        plot_replay(result, Path(args.plot), title=path.name, cht_limit_c=params.cht_limit_c)
+        print(f"plot: {args.plot}")
     return 0
+
+
+def _check_plot_path(path: Path) -> None:
+    """Refuse a --plot path that cannot be written, before the replay runs."""
+    import matplotlib  # the tools extra: a missing one is reported by the CLI as one line
+
+    del matplotlib
+    if path.suffix.lower() not in {".png", ".svg", ".pdf"}:
+        raise ParameterError(f"--plot: {path} must end in .png, .svg or .pdf")
+    if path.parent != Path("") and not path.parent.is_dir():
+        raise ParameterError(f"--plot: no such folder {path.parent}")
+
+
+#: Background colour of each non-NOMINAL state in the replay plot.
+_STATE_SHADES = {
+    "SUSPECT": "gold",
+    "DEGRADED": "tab:red",
+    "INPUT_STALE": "grey",
+    "SENSOR_FAULT": "tab:purple",
+    "UNAVAILABLE": "black",
+}
+
+#: Headroom at or above this (s) is drawn as "not limited" (the service's cap for a steady state below the limit).
+_HEADROOM_CAP_S = 6000.0
+
+
+def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float) -> None:
+    """One figure of a replay (time in minutes from the first row): CHT measured and estimated (every
+    cylinder on an engine monitored per cylinder) with the model's CHT limit, the deviation symptom
+    (degC/s), gamma_Q and gamma_D, and the thermal headroom (s); each panel shaded where the service's
+    state was not NOMINAL."""
+    import matplotlib
+    import numpy as np
+
+    from ecu_monitor.service.pipeline import STATES
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = result.columns
+    time_s = np.asarray(c["time_s"], dtype=float)
+    t = (time_s - time_s[0]) / 60.0
+    count = result.cylinder_count
+    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=True, height_ratios=(2.2, 1.2, 1.2, 1.0))
+    ax_cht, ax_dev, ax_gamma, ax_head = axes
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    if count == 1:
+        ax_cht.plot(t, c["cht_meas_c"], lw=0.7, color="tab:orange", label="CHT measured")
+        ax_cht.plot(t, c["cht_est_c"], lw=0.9, color="tab:blue", ls="--", label="CHT estimated")
+        ax_dev.plot(t, c["deviation"], lw=0.6, color="tab:blue", label="deviation symptom")
+        ax_gamma.plot(t, c["gamma_q"], lw=0.9, color="tab:blue", label="gamma_Q (heat in)")
+        ax_gamma.plot(t, c["gamma_d"], lw=0.9, color="tab:green", label="gamma_D (dissipation)")
+    else:
+        for n in range(1, count + 1):
+            colour = colours[(n - 1) % len(colours)]
+            ax_cht.plot(t, c[f"cyl{n}_cht_meas_c"], lw=0.6, color=colour, label=f"cylinder {n} measured")
+            ax_cht.plot(t, c[f"cyl{n}_cht_est_c"], lw=0.8, color=colour, ls="--")
+            ax_dev.plot(t, c[f"cyl{n}_deviation"], lw=0.5, color=colour, label=f"cylinder {n}")
+            ax_gamma.plot(t, c[f"cyl{n}_gamma_q"], lw=0.8, color=colour, label=f"cylinder {n} gamma_Q")
+            ax_gamma.plot(t, c[f"cyl{n}_gamma_d"], lw=0.8, color=colour, ls=":")
+        ax_cht.plot([], [], color="black", ls="--", lw=0.8, label="estimated (dashed)")
+        ax_gamma.plot([], [], color="black", ls=":", lw=0.8, label="gamma_D (dotted)")
+    measured = np.asarray(c["cht_meas_c"], dtype=float)
+    top = float(np.nanmax(measured)) if np.isfinite(measured).any() else cht_limit_c
+    if cht_limit_c <= top + 30.0:
+        ax_cht.axhline(cht_limit_c, color="tab:red", ls="--", lw=1.0, label=f"model's CHT limit {cht_limit_c:g} degC")
+    ax_cht.set_ylabel("CHT (degC)")
+    ax_dev.axhline(0.0, color="grey", lw=0.6)
+    ax_dev.set_ylabel("deviation (degC/s)")
+    ax_gamma.axhline(1.0, color="grey", lw=0.6)
+    ax_gamma.set_ylabel("degradation factor")
+    headroom = np.asarray(c["headroom_s"], dtype=float)
+    ax_head.plot(t, np.where(headroom >= _HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
+                 label="time to the CHT limit at the present power")  # fmt: skip
+    ax_head.set_ylabel("headroom (s)")
+    ax_head.set_xlabel("time from the first health row (min)")
+    states = np.asarray(c["state"])
+    for name, colour in _STATE_SHADES.items():
+        inside = states == STATES.index(name)
+        if not inside.any():
+            continue
+        for i, ax in enumerate(axes):
+            ax.fill_between(t, 0, 1, where=inside, step="post", color=colour, alpha=0.15, lw=0,
+                            transform=ax.get_xaxis_transform(), label=name if i == 0 else None)  # fmt: skip
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=7, ncol=2 if count > 1 else 1)
+    ax_cht.set_title(f"{title}: the service's replay (shaded: state not NOMINAL)")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+    finally:
+        plt.close(fig)
 
 
 def _is_dronecan(frames: FrameArrays) -> bool:
