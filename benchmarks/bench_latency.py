@@ -537,6 +537,9 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
         (pipeline_module.Pipeline, "_frame", "one health frame (encode, can.Message)"),
     ):
         wrap(owner, attribute, label)
+    live_call = getattr(pipeline_module, "LiveCall", None)  # older checkouts: three calls, no LiveCall
+    if live_call is not None:
+        wrap(live_call, "call", "one compiled call: reference, supervision, estimator, isolation")
     try:
         config = _config("unused")
         pipeline = Pipeline(config, config.load_params())
@@ -564,11 +567,14 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
         for owner, attribute, function in originals:
             setattr(owner, attribute, function)
     calls = timings.pop("ThermalEKF call", [])
-    timings["ThermalEKF call, first of the step (open-loop reference)"] = calls[0::2]
-    timings["ThermalEKF call, second (estimator)"] = calls[1::2]
+    if calls:
+        timings["ThermalEKF call, first of the step (open-loop reference)"] = calls[0::2]
+        timings["ThermalEKF call, second (estimator)"] = calls[1::2]
     print(f"| pipeline alone, one frame per {pace_s * 1e3:g} ms: part of a step | calls | p50 | p99 |")
     print("|---|---|---|---|")
     for label, values in timings.items():
+        if len(values) < 2:
+            continue
         p50, p99, _ = _percentiles(values)
         print(f"| {label} | {len(values)} | {p50:.1f} us | {p99:.1f} us |")
     for count, values in sorted(totals.items()):

@@ -62,6 +62,7 @@ from ecu_monitor.service.config import CHT_INPUT, ServiceConfig
 from ecu_monitor.service.cylinders import engine_view
 from ecu_monitor.service.dronecan_node import DroneCanNode
 from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S, CylinderSnapshot, HealthSnapshot
+from ecu_monitor.service.live_call import LiveCall
 from ecu_monitor.service.schedule import FILTER_PERIOD_S, MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick, filter_period_steps
 from ecu_monitor.service.supervision import (
     ACTION_INITIALISE,
@@ -138,8 +139,8 @@ class _Cylinder:
 
     __slots__ = (
         "coeffs", "cross_detector", "cross_settings", "detector", "detector_settings", "detector_started",
-        "estimator", "headroom_s", "held", "isolation", "name", "number", "params", "pending_reading", "readings",
-        "readings_used", "reference", "slot", "sv",
+        "estimator", "headroom_s", "held", "isolation", "live", "name", "number", "params", "pending_reading",
+        "readings", "readings_used", "reference", "slot", "sv",
     )  # fmt: skip
 
     def __init__(self, number: int, name: str, slot: int, params: ThermalParams, config: ServiceConfig) -> None:
@@ -161,6 +162,7 @@ class _Cylinder:
         self.estimator: CHTEstimator | None = None
         self.reference: CHTEstimator | None = None
         self.isolation: IsolationFilter | None = None
+        self.live: LiveCall | None = None  # the three filters and the supervision as one compiled call
         self.detector = Detector(self.detector_settings)
         self.cross_detector = None if self.cross_settings is None else Detector(self.cross_settings)
         self.detector_started = False
@@ -365,6 +367,12 @@ class Pipeline:
             for k, reading_c in enumerate((100.0, None, 101.0), start=1):
                 detector.update(k * step_s, filt.estimate(k * step_s, u, reading_c).deviation)
         thermal_headroom(100.0, None, u, self.params, coeffs=self._cylinders[0].coeffs)
+        sf = self.config.sensor_fault
+        live = LiveCall.of(filters[1], filters[0], filters[2], self._cylinders[0].coeffs, 3 * step_s,
+                           self.config.stale_predict_limit_s, sf.stuck_after_s, sf.stuck_change_c)  # fmt: skip
+        if live is not None:
+            sv = SupervisorState(True, math.nan, 0.0, 100.0, 100.0, 100.0)
+            live.call(4 * step_s, u, False, True, 101.0, False, True, sv)
         return time.perf_counter() - started
 
     def receive_filters(self) -> list[CanFilter]:
@@ -531,27 +539,34 @@ class Pipeline:
         cyl.readings_used = cyl.readings
         reading_bad = not math.isnan(reading) and self._reading_bad(reading)
         call = call and cyl.sv.running
-        if call and cyl.reference is not None:
-            cyl.held = cyl.held._replace(model_c=cyl.reference.estimate(time_s, u, None).cht_c)
-        model_c = cyl.held.model_c if cyl.sv.running else reading
         cfg = self.config
-        sf = cfg.sensor_fault
-        cyl.sv, code, action = supervise(
-            cyl.sv,
-            time_s,
-            any_stale,
-            new_reading,
-            reading,
-            reading_bad,
-            model_c,
-            cfg.stale_predict_limit_s,
-            sf.stuck_after_s,
-            sf.stuck_change_c,
-        )
-        cyl.pending_reading = cyl.pending_reading or new_reading
-        ran = False  # the estimator ran on this step's inputs u (its held drive is the model's drive at u)
+        live = cyl.live if call else None
+        drive = None  # the model's drive at u if the estimator has just computed it (for the headroom)
+        if live is not None:  # reference, supervision, estimator and isolation filter in one compiled call
+            cyl.pending_reading = cyl.pending_reading or new_reading
+            cyl.sv, code, action, model_c, est_c, deviation, gamma_q, gamma_d, iso_deviation = live.call(
+                time_s, u, any_stale, new_reading, reading, reading_bad, cyl.pending_reading, cyl.sv
+            )
+        else:
+            if call and cyl.reference is not None:
+                cyl.held = cyl.held._replace(model_c=cyl.reference.estimate(time_s, u, None).cht_c)
+            model_c = cyl.held.model_c if cyl.sv.running else reading
+            sf = cfg.sensor_fault
+            cyl.sv, code, action = supervise(
+                cyl.sv,
+                time_s,
+                any_stale,
+                new_reading,
+                reading,
+                reading_bad,
+                model_c,
+                cfg.stale_predict_limit_s,
+                sf.stuck_after_s,
+                sf.stuck_change_c,
+            )
+            cyl.pending_reading = cyl.pending_reading or new_reading
         if action == ACTION_NONE:
-            cyl.estimator = cyl.reference = cyl.isolation = None
+            cyl.estimator = cyl.reference = cyl.isolation = cyl.live = None
             cyl.held = _NO_ESTIMATE
         elif action == ACTION_INITIALISE:
             cyl.estimator = make_estimator(cfg.estimator_name, cyl.params, cfg.estimator)
@@ -563,7 +578,17 @@ class Pipeline:
             cyl.pending_reading = False
             cyl.headroom_s = math.nan
             cyl.detector_started = True
-            ran = True
+            if isolation_due and isinstance(cyl.estimator, ThermalEKF):
+                drive = cyl.estimator.held_drive
+            sf = cfg.sensor_fault
+            cyl.live = LiveCall.of(cyl.reference, cyl.estimator, cyl.isolation, cyl.coeffs, time_s,
+                                   cfg.stale_predict_limit_s, sf.stuck_after_s, sf.stuck_change_c)  # fmt: skip
+            if cyl.live is not None:  # the call holds the filters' state from now on
+                cyl.estimator = cyl.reference = cyl.isolation = None
+        elif live is not None:
+            cyl.pending_reading = False
+            cyl.held = _Held(est_c, deviation, gamma_q, gamma_d, iso_deviation, model_c)
+            drive = live.estimator_drive() if isolation_due else None
         elif call and cyl.estimator is not None and cyl.isolation is not None:
             z = reading if cyl.pending_reading and code == CODE_NOMINAL else None
             cyl.pending_reading = False
@@ -572,7 +597,8 @@ class Pipeline:
             iso = cyl.isolation
             cyl.held = _Held(estimate.cht_c, estimate.deviation, iso.gamma_q, iso.gamma_d, iso_deviation,
                              cyl.held.model_c)  # fmt: skip
-            ran = True
+            if isolation_due and isinstance(cyl.estimator, ThermalEKF):
+                drive = cyl.estimator.held_drive
         est_c, deviation, gamma_q, gamma_d, iso_deviation, _ = cyl.held
         state = code
         if cyl.detector_started:
@@ -583,7 +609,6 @@ class Pipeline:
         if action == ACTION_NONE or not (math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)):
             cyl.headroom_s = math.nan
         elif isolation_due:  # the drive the estimator's compiled call has just computed at u, not again
-            drive = cyl.estimator.held_drive if ran and isinstance(cyl.estimator, ThermalEKF) else None
             cyl.headroom_s = time_to_limit_s(
                 est_c, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs, drive=drive
             )

@@ -1,0 +1,77 @@
+"""service/live_call.py: the one compiled call per filter period (reference, supervision, estimator,
+isolation filter) gives the pipeline's health rows and frames bit for bit as the three separate filter
+calls and the Python supervision do, through every supervisor branch."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from test_pipeline import SteadyEcu, _config, _run
+
+from ecu_monitor.model import paper_table_a1
+from ecu_monitor.service import live_call
+from ecu_monitor.service.pipeline import Pipeline
+
+
+def _scenario(estimator: dict[str, Any], fused: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[str, list[Any], int]:
+    """A steady engine, a stuck probe, stale air data (predicting, then UNAVAILABLE), recovery, an open probe,
+    a clock restart: (repr of every health row, the health frames, filter periods run by LiveCall)."""
+    calls = [0]
+    original_call = live_call.LiveCall.call
+
+    def counted(self: live_call.LiveCall, *args: Any) -> Any:
+        calls[0] += 1
+        return original_call(self, *args)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(live_call.LiveCall, "call", counted)
+        if not fused:
+            patch.setattr(live_call.LiveCall, "of", staticmethod(lambda *args: None))
+        config = _config(estimator=estimator, stale_predict_limit_s=5.0, sensor_fault__stuck_after_s=10.0,
+                         detector={"symptom": "estimator", "warmup_s": 5.0, "block_s": 2.0})  # fmt: skip
+        pipeline = Pipeline(config, paper_table_a1())
+        ecu = SteadyEcu()
+        frames = _run(pipeline, ecu.frames(15.0))
+        ecu.values.update(throttle_pct=100.0, rpm=8000.0)  # the model heats up, the reading stays: stuck
+        frames += _run(pipeline, ecu.frames(40.0))
+        ecu.values["cht_c"] += 7.0  # moving again; the detector sees a deviation
+        frames += _run(pipeline, ecu.frames(45.0))
+        frames += _run(pipeline, ecu.frames(53.0, silent=("AirData",)))  # stale, then UNAVAILABLE after 5 s
+        frames += _run(pipeline, ecu.frames(60.0))  # recovered: initialised again
+        ecu.values.update(status=3, cht_c=-40.0)  # probe open
+        frames += _run(pipeline, ecu.frames(63.0))
+        ecu.values.update(status=0, cht_c=ecu.values["cht_c"] if ecu.values["cht_c"] > 0 else 250.0)
+        frames += _run(pipeline, ecu.frames(66.0))
+        ecu.next_t = {name: t + 700.0 for name, t in ecu.next_t.items()}  # a jump that restarts the clock
+        frames += _run(pipeline, ecu.frames(775.0))
+    rows = pipeline.drain_rows()
+    assert {r.state for r in rows} >= {"NOMINAL", "SENSOR_FAULT", "INPUT_STALE", "UNAVAILABLE"}
+    assert pipeline.counters["clock_restarts"] == 1
+    return repr(rows), [(f.arbitration_id, bytes(f.data)) for f in frames], calls[0]
+
+
+@pytest.mark.parametrize(
+    "estimator",
+    [
+        {"name": "cbekf-au", "dt_s": 0.02},
+        {"name": "cbekf-au", "dt_s": 0.02, "reset": "midpoint"},
+        {"name": "cbekf", "dt_s": 0.02},
+        {"name": "ekf", "dt_s": 0.02},
+    ],
+)
+def test_one_compiled_call_equals_the_separate_calls_bit_for_bit(
+    estimator: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rows, frames, calls = _scenario(estimator, True, monkeypatch)
+    rows_apart, frames_apart, calls_apart = _scenario(estimator, False, monkeypatch)
+    assert calls > 500 and calls_apart == 0
+    assert len(frames) > 800 and frames == frames_apart
+    assert rows == rows_apart  # repr: the shortest round-trip form of every float, so equal means bit-equal
+
+
+def test_the_isolation_filter_as_estimator_keeps_the_separate_calls(monkeypatch: pytest.MonkeyPatch) -> None:
+    pipeline = Pipeline(_config(estimator={"name": "cbekf-iso", "dt_s": 0.02}), paper_table_a1())
+    _run(pipeline, SteadyEcu().frames(5.0))
+    assert pipeline.snapshot().state == "NOMINAL"
+    assert pipeline._single.live is None and pipeline._single.estimator is not None
