@@ -222,6 +222,16 @@ def _heat_rate_feeds(feeds: dict[Any, Any], models: list[Path], flights: list[Pa
     return out
 
 
+def _learned_floor(training: list[Any], detector: Any, scale_s: float) -> float:
+    """The self-normalised detector's ``scale_floor`` learned from training flights: the median of its online
+    spread (``detection.scale_blocks``, the excess weighed in full while learning) over their nominal replays."""
+    from ecu_monitor.estimation.detection import block_means, scale_blocks
+
+    probe = dataclasses.replace(detector, scale_s=scale_s, scale_floor=UNBOUNDED)
+    spreads = [scale_blocks(block_means(t, x, probe)[1], probe) for f in training for t, x in f.feed]
+    return float(np.nanmedian(np.concatenate(spreads)))
+
+
 def _identify(train: list[str], held_out: Path, model: Path, options: list[str]) -> None:
     """``ecu-monitor identify`` (skipped when ``model`` exists); prints its error table."""
     if model.exists():
@@ -471,6 +481,15 @@ def main(argv: list[str] | None = None) -> int:
         " fraction of its airborne median (repeatable; offline, on the same replays)",
     )
     parser.add_argument(
+        "--scale",
+        type=float,
+        action="append",
+        default=[],
+        help="also evaluate calibrate's choice (nested) and each --variant with the self-normalised symptom:"
+        " detector.scale_s this (s), scale_floor per fold the median of the online spread over the training"
+        " flights' nominal replays (repeatable; on the same replays)",
+    )
+    parser.add_argument(
         "--rise-profile",
         action="store_true",
         help="print how the overlay moves the symptom over the windows after its onsets (held-out flights)",
@@ -564,11 +583,11 @@ def main(argv: list[str] | None = None) -> int:
     timings = [t for _, t in results]
 
     # calibrate's choice, nested: made on the three training flights of each fold only
-    def nested_choice(feeds: dict[Any, Any], label: str) -> list[Any]:
+    def nested_choice(feeds: dict[Any, Any], label: str, current: list[Any] | None = None) -> list[Any]:
         chosen = []
         for i in range(n):
             training = [feeds[(i, j)] for j in range(n) if j != i]
-            choice = choose_settings(training, config.detector, args.rate)
+            choice = choose_settings(training, config.detector if current is None else current[i], args.rate)
             print(f"\nfold without {flights[i].name}: calibrate's cross-validation on the {n - 1} others{label}")
             print(*candidate_table(choice), f"chosen: {choice.reason}", sep="\n")
             chosen.append(choice)
@@ -582,6 +601,19 @@ def main(argv: list[str] | None = None) -> int:
         label = f"calibrate's choice, symptom / heat rate (floor {floor:g})"
         fold_variants.append((label, [c.settings for c in nested_choice(weighted, f" ({label})")], weighted))
         fold_variants += [(f"{name}, heat rate (floor {floor:g})", [v] * n, weighted) for name, v in variants[1:]]
+    for scale_s in args.scale:
+        floors = [
+            _learned_floor([feeds[(i, j)] for j in range(n) if j != i], config.detector, scale_s) for i in range(n)
+        ]
+        current = [dataclasses.replace(config.detector, scale_s=scale_s, scale_floor=f) for f in floors]
+        label = f"calibrate's choice, self-normalised (scale {scale_s:g} s)"
+        shown = ", ".join(f"{f:.4f}" for f in floors)
+        print(f"\nself-normalised, scale_s {scale_s:g} s: floor per fold (training median spread) {shown}")
+        fold_variants.append((label, [c.settings for c in nested_choice(feeds, f" ({label})", current)], feeds))
+        fold_variants += [
+            (f"{name}, self-normalised (scale {scale_s:g} s)", [dataclasses.replace(v, scale_s=scale_s, scale_floor=f)
+             for f in floors], feeds) for name, v in variants[1:]
+        ]  # fmt: skip
     report: dict[str, Any] = {"choices": [c.reason for c in chosen]}
     misses: list[Any] = []  # calibrate's choice: (flight, onset, gain, delay, settings with h) of late counted onsets
     thresholds: dict[str, list[float]] = {}
@@ -668,7 +700,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.plot_misses:
         _plot_misses(Path(args.plot_misses), flights, fold_variants[0][2], misses)
     if args.plot:
-        raw = [(name, per_fold) for name, per_fold, _ in fold_variants if "heat rate" not in name]
+        raw = [
+            (name, per_fold) for name, per_fold, _ in fold_variants if "heat rate" not in name and "self-" not in name
+        ]
         _plot(Path(args.plot), flights, fold_variants[0][2], raw, thresholds)
     return 0
 

@@ -12,10 +12,12 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation.detection import (
     Detector,
     DetectorSettings,
+    block_means,
     calibrate_threshold,
     count_alarms,
     cusum_path,
     hourly_maxima,
+    scale_blocks,
 )
 
 HOUR = 3600.0
@@ -63,11 +65,18 @@ def test_live_detector_equals_the_vectorised_path() -> None:
     rng = np.random.default_rng(2)
     t = np.arange(0.0, 1500.0, 0.1)
     x = 0.02 * rng.standard_normal(t.size) + np.where(t > 900.0, 0.15, 0.0)
-    cases = ((0.0, 0.0, False), (200.0, 0.0, False), (200.0, 30.0, False), (200.0, 30.0, True))
-    for baseline_s, delay_s, freeze in cases:
+    cases = (
+        (0.0, 0.0, False, 0.0),
+        (200.0, 0.0, False, 0.0),
+        (200.0, 30.0, False, 0.0),
+        (200.0, 30.0, True, 0.0),
+        (200.0, 30.0, True, 300.0),  # self-normalised: the noise's spread (~0.016) above the floor
+        (200.0, 30.0, False, 300.0),
+    )
+    for baseline_s, delay_s, freeze, scale_s in cases:
         settings = DetectorSettings(
             threshold=5.0, reference=0.05, warmup_s=100.0, block_s=1.0, baseline_s=baseline_s,
-            baseline_delay_s=delay_s, baseline_freeze=freeze,
+            baseline_delay_s=delay_s, baseline_freeze=freeze, scale_s=scale_s, scale_floor=0.01 if scale_s else 0.0,
         )  # fmt: skip
         ends, stat, alarms = cusum_path(t, x, settings)
         det = Detector(settings)
@@ -116,6 +125,30 @@ def test_baseline_absorbs_a_constant_offset_but_not_a_step() -> None:
     alarm = cusum_path(t, small, frozen)[2]
     assert alarm.size == 1
     assert alarm[0] - 2000.0 == pytest.approx(500.0, abs=5.0)
+
+
+def test_self_normalised_excess_is_weighed_by_floor_over_the_spread() -> None:
+    """scale_s on: the excess counts floor / spread of its size when the symptom's running spread about its
+    baseline is above the floor, in full at or below it; the spread does not learn while S > 0."""
+    t = np.arange(0.0, 4000.0, 1.0)
+    rough = np.where(t.astype(int) % 2 == 0, 0.04, -0.04)  # |x - baseline| = 0.04 every block
+    step = rough + np.where(t >= 2000.0, 0.15, 0.0)
+    frozen = DetectorSettings(threshold=20.0, reference=0.05, warmup_s=0.0, baseline_s=600.0, baseline_delay_s=0.0,
+                              baseline_freeze=True)  # fmt: skip
+    plain_alarm = cusum_path(t, step, frozen)[2]
+    weighed = dataclasses.replace(frozen, scale_s=600.0, scale_floor=0.02)
+    spread = scale_blocks(block_means(t, step, weighed)[1], weighed)
+    assert spread[1500] == pytest.approx(0.04, rel=0.05)
+    assert spread[2400] == pytest.approx(spread[1990], rel=0.05)  # frozen while the step is tested
+    half_alarm = cusum_path(t, step, weighed)[2]
+    assert plain_alarm.size == half_alarm.size == 1
+    # the step's excess 0.10 (0.15 - k) counts 0.05 per s: h = 20 in ~400 s instead of ~200 s
+    assert plain_alarm[0] - 2000.0 == pytest.approx(200.0, abs=15.0)
+    assert half_alarm[0] - 2000.0 == pytest.approx(400.0, abs=30.0)
+    at_floor = dataclasses.replace(weighed, scale_floor=0.05)  # the spread under the floor: counted in full
+    assert np.array_equal(cusum_path(t, step, at_floor)[1], cusum_path(t, step, frozen)[1])
+    with pytest.raises(ConfigError, match="scale_floor"):
+        DetectorSettings(scale_s=600.0)
 
 
 def test_calibration_gives_the_intended_rate_on_synthetic_data() -> None:

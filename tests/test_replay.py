@@ -97,21 +97,25 @@ def test_batch_equals_live_with_the_baseline_frozen_while_suspected(flight: dict
     """The detector with ``baseline_freeze`` (what calibrate may choose): the batch replay's states equal
     the live pipeline's. With h = 48: the learning baseline (120 s, delay 60 s) absorbs the gamma_Q = 1.2
     step before its statistic gets there (it levels off near 40, ~180 s after the onset, as the step is
-    learned), the frozen one keeps the whole step in the test to the end of the flight (near 58)."""
+    learned), the frozen one keeps the whole step in the test to the end of the flight (near 58). The
+    self-normalised detector (``scale_s``) too."""
     import dataclasses
 
     config = load_config(flight["config"])
     params = config.load_params()
     frames = read_frames(flight["blf"])
     states = {}
-    for freeze in (False, True):
-        settings = dataclasses.replace(config.detector, threshold=48.0, baseline_freeze=freeze)
+    # the self-normalised detector (scale_s on, floor under the symptom's spread so the weighing acts) too
+    for freeze, scale_s in ((False, 0.0), (True, 0.0), (True, 600.0)):
+        settings = dataclasses.replace(
+            config.detector, threshold=48.0, baseline_freeze=freeze, scale_s=scale_s, scale_floor=0.001 * bool(scale_s)
+        )
         frozen = dataclasses.replace(config, detector=settings)
         batch = replay_frames(frozen, params, frames)
         live = replay_live(frozen, params, frames.messages())
-        states[freeze] = [r.state for r in batch.rows]
-        assert states[freeze] == [r.state for r in live.rows]
-    assert "DEGRADED" not in states[False] and "DEGRADED" in states[True]
+        states[freeze, scale_s] = [r.state for r in batch.rows]
+        assert states[freeze, scale_s] == [r.state for r in live.rows]
+    assert "DEGRADED" not in states[False, 0.0] and "DEGRADED" in states[True, 0.0]
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:

@@ -19,6 +19,12 @@ over flights, must catch those). With ``baseline_freeze`` the baseline stops lea
 being absorbed after a few baseline time constants; the baseline learns again once S is back at 0.
 On a real engine, whose model error moves with the flight phase, this lets a short baseline follow
 the phases and still see a degradation of the size k = 0.1 (docs/results/detection_real.md).
+With ``scale_s`` on (the self-normalised test, off by default) each block's excess is weighed by
+``scale_floor / max(scale_floor, spread)``, spread the running mean absolute deviation of the block
+means from the baseline (time constant ``scale_s``; it does not learn while S > 0): h is then in units of
+the flight's own nominal spread wherever that exceeds the floor. Measured on a real engine, it does not
+help there (the flights whose nominal statistic peaks highest are not the ones with the larger spread;
+docs/results/detection_real.md), so ``ecu-monitor calibrate`` does not choose it.
 
 k (``reference``) is the drift allowance: about half the symptom of the smallest degradation to
 detect; h (``threshold``) is set from nominal flights by :func:`calibrate_threshold` for a target
@@ -38,6 +44,7 @@ shorter than 100/r hours).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -63,6 +70,7 @@ __all__ = [
     "cusum_path",
     "hourly_maxima",
     "overlay_degradation",
+    "scale_blocks",
 ]
 
 #: Detector states, in order of severity.
@@ -83,6 +91,10 @@ class DetectorSettings:
     baseline_s: time constant of the adaptive baseline subtracted from the symptom, s (0 = none).
     baseline_delay_s: age of the newest block mean the baseline may use, s (0 = up to the previous block).
     baseline_freeze: the baseline holds while the statistic is above 0 (a change suspected).
+    scale_s: time constant of the online spread of the symptom about its baseline, s (0 = off: every
+        block's excess counts in full).
+    scale_floor: the spread at and below which a block's excess counts in full, symptom unit (> 0 when
+        scale_s is on); above it the excess is weighed by scale_floor / spread.
 
     The defaults are the variant kept by ``ecu-monitor evaluate`` for the CBEKF's model deviation on the
     paper's Table A1 model (docs/results/detection.md: h calibrated on 53 nominal flight hours for 1
@@ -98,11 +110,23 @@ class DetectorSettings:
     baseline_s: float = 120.0
     baseline_delay_s: float = 60.0
     baseline_freeze: bool = False
+    scale_s: float = 0.0
+    scale_floor: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.baseline_freeze, bool):
             raise ConfigError(f"detector.baseline_freeze: expected true or false, got {self.baseline_freeze!r}")
-        names = ("threshold", "reference", "warmup_s", "suspect_fraction", "block_s", "baseline_s", "baseline_delay_s")
+        names = (
+            "threshold",
+            "reference",
+            "warmup_s",
+            "suspect_fraction",
+            "block_s",
+            "baseline_s",
+            "baseline_delay_s",
+            "scale_s",
+            "scale_floor",
+        )
         for name in names:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
@@ -116,6 +140,10 @@ class DetectorSettings:
             raise ConfigError(f"detector.baseline_delay_s: expected 0-3600 s, got {self.baseline_delay_s!r}")
         if not 0.0 < self.suspect_fraction < 1.0:
             raise ConfigError(f"detector.suspect_fraction: expected a value in (0, 1), got {self.suspect_fraction!r}")
+        if self.scale_s < 0.0 or 0.0 < self.scale_s < self.block_s or self.scale_floor < 0.0:
+            raise ConfigError("detector.scale_s: expected 0 (off) or at least block_s; scale_floor >= 0")
+        if self.scale_s > 0.0 and self.scale_floor <= 0.0:
+            raise ConfigError("detector.scale_floor: expected > 0 with scale_s on (ecu-monitor calibrate learns it)")
 
     @property
     def delay_blocks(self) -> int:
@@ -153,6 +181,8 @@ class Detector:
         self._count = 0
         self._statistic = 0.0
         self._baseline = math.nan
+        self._scale = math.nan
+        self._learned = 0.0
         self._recent: deque[float] = deque()  # block means not yet old enough for the baseline
         self._steady = True  # every sample of the current block was steady
         self._alarm_time_s = math.nan
@@ -187,9 +217,10 @@ class Detector:
             for mean in means:  # blocks without a sample (a gap) count as empty, as in block_means
                 self._recent.append(mean)
                 lagged = self._recent.popleft() if len(self._recent) > s.delay_blocks else math.nan
-                self._statistic, self._baseline = _cusum_step(
-                    self._statistic, self._baseline, mean, lagged, s.reference, s.block_s, s.baseline_s,
-                    self._steady or math.isnan(mean), s.baseline_freeze,
+                self._statistic, self._baseline, self._scale, self._learned = _cusum_step(
+                    self._statistic, self._baseline, self._scale, self._learned, mean, lagged, s.reference,
+                    s.block_s, s.baseline_s, self._steady or math.isnan(mean), s.baseline_freeze, s.scale_s,
+                    s.scale_floor,
                 )  # fmt: skip
                 self._steady = True
                 if self._statistic >= s.threshold and math.isnan(self._alarm_time_s):
@@ -232,41 +263,64 @@ def block_means(
 
 
 @numba.njit(cache=True)
-def _cusum_step(statistic: float, baseline: float, mean: float, lagged: float, k: float, block_s: float,
-                baseline_s: float, steady: bool, freeze: bool) -> tuple[float, float]:  # fmt: skip
-    """One CUSUM update: (new statistic, new baseline). mean: this block's mean (nan = empty block);
-    lagged: the block mean leaving the delay line now, which enters the baseline after the test
-    (nan = none); baseline nan = not started yet (the statistic stays 0 until it has a value).
-    steady False: the statistic is held (a transient of the inputs), the baseline still learns.
-    freeze: a started baseline does not learn while the (new) statistic is above 0."""
+def _cusum_step(statistic: float, baseline: float, scale: float, learned: float, mean: float, lagged: float,
+                k: float, block_s: float, baseline_s: float, steady: bool, freeze: bool, scale_s: float,
+                floor: float) -> tuple[float, float, float, float]:  # fmt: skip
+    """One CUSUM update: (new statistic, new baseline, new scale, blocks the scale has learned). mean:
+    this block's mean (nan = empty block); lagged: the block mean leaving the delay line now, which
+    enters the baseline after the test (nan = none); baseline nan = not started yet (the statistic
+    stays 0 until it has a value). steady False: the statistic is held (a transient of the inputs),
+    the baseline still learns. freeze: a started baseline does not learn while the (new) statistic is
+    above 0. scale_s > 0: the excess is weighed by floor / max(floor, scale), scale the running mean
+    absolute deviation of the lagged block means from the baseline (time constant scale_s, a plain mean
+    over its first scale_s; nan before its first block), which never learns while the statistic is
+    above 0."""
     if baseline_s <= 0.0:
-        if math.isnan(mean) or not steady:
-            return statistic, 0.0
-        return max(0.0, statistic + (mean - k) * block_s), 0.0
+        baseline = 0.0
+    weight = 1.0
+    if scale_s > 0.0 and not math.isnan(scale) and scale > floor:
+        weight = floor / scale
     if steady and not math.isnan(mean) and not math.isnan(baseline):
-        statistic = max(0.0, statistic + (mean - baseline - k) * block_s)
+        statistic = max(0.0, statistic + (mean - baseline - k) * block_s * weight)
     if math.isnan(lagged):
-        return statistic, baseline
+        return statistic, baseline, scale, learned
     if math.isnan(baseline):
-        return statistic, lagged
-    if freeze and statistic > 0.0:
-        return statistic, baseline
-    return statistic, baseline + (block_s / baseline_s) * (lagged - baseline)
+        return statistic, lagged, scale, learned
+    if statistic > 0.0 and (freeze or scale_s > 0.0):
+        if freeze or baseline_s <= 0.0:
+            return statistic, baseline, scale, learned
+        return statistic, baseline + (block_s / baseline_s) * (lagged - baseline), scale, learned
+    if scale_s > 0.0:
+        deviation = abs(lagged - baseline)
+        learned += 1.0
+        if math.isnan(scale):
+            scale = deviation
+        else:
+            scale += max(block_s / scale_s, 1.0 / learned) * (deviation - scale)
+    if baseline_s <= 0.0:
+        return statistic, baseline, scale, learned
+    return statistic, baseline + (block_s / baseline_s) * (lagged - baseline), scale, learned
 
 
 @numba.njit(cache=True)
 def _cusum(means: NDArray[np.float64], steady: NDArray[np.bool_], k: float, h: float, block_s: float,
-           baseline_s: float, delay: int, restart: bool,
-           freeze: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
+           baseline_s: float, delay: int, restart: bool, freeze: bool, scale_s: float,
+           floor: float) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:  # fmt: skip
     stat = np.empty(means.shape[0])
+    scales = np.empty(means.shape[0])
     alarms = np.empty(means.shape[0], dtype=np.int64)
     n_alarms = 0
     s = 0.0
     baseline = np.nan
+    scale = np.nan
+    learned = 0.0
     for i in range(means.shape[0]):
         lagged = means[i - delay] if i >= delay else np.nan
-        s, baseline = _cusum_step(s, baseline, means[i], lagged, k, block_s, baseline_s, steady[i], freeze)
+        s, baseline, scale, learned = _cusum_step(
+            s, baseline, scale, learned, means[i], lagged, k, block_s, baseline_s, steady[i], freeze, scale_s, floor
+        )
         stat[i] = s
+        scales[i] = scale
         if s >= h:
             alarms[n_alarms] = i
             n_alarms += 1
@@ -274,7 +328,7 @@ def _cusum(means: NDArray[np.float64], steady: NDArray[np.bool_], k: float, h: f
                 s = 0.0
             else:
                 h = np.inf
-    return stat, alarms[:n_alarms]
+    return stat, alarms[:n_alarms], scales
 
 
 def cusum_path(
@@ -313,6 +367,19 @@ def cusum_blocks(
     """The CUSUM over given block means (nan = a block without a sample), compiled: (statistic after
     each block, indices of the blocks that raised an alarm). The statistic :class:`Detector` holds
     after closing the same blocks; restart and steady (per block) as in :func:`cusum_path`."""
+    stat, alarms, _ = _cusum_compiled(means, settings, restart, steady)
+    return stat, alarms
+
+
+def scale_blocks(means: NDArray[np.float64], settings: DetectorSettings) -> NDArray[np.float64]:
+    """The detector's online spread (``scale_s`` on) after each of the given block means, symptom unit
+    (nan before its first block): what ``ecu-monitor calibrate`` learns ``scale_floor`` from."""
+    return _cusum_compiled(means, dataclasses.replace(settings, threshold=1e300), False, None)[2]
+
+
+def _cusum_compiled(
+    means: NDArray[np.float64], settings: DetectorSettings, restart: bool, steady: NDArray[np.bool_] | None
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
     m = np.ascontiguousarray(means, dtype=np.float64)
     block_steady = np.ones(m.size, dtype=np.bool_) if steady is None else np.asarray(steady, dtype=np.bool_)
     return _cusum(
@@ -325,6 +392,8 @@ def cusum_blocks(
         settings.delay_blocks,
         restart,
         settings.baseline_freeze,
+        settings.scale_s,
+        settings.scale_floor,
     )
 
 
