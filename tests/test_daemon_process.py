@@ -286,6 +286,54 @@ def test_receive_failure_reopens_the_bus_with_backoff(tmp_path: Path) -> None:
         sender_bus.shutdown()
 
 
+class BuggyRecvBus(FlakyBus):
+    """A bus whose recv raises what python-can's contract does not name (a bug in an interface), once."""
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.fail_recv():
+            raise RuntimeError("a bug in the interface (test)")
+        return super()._recv_internal(timeout)
+
+
+def test_any_error_of_recv_is_a_receive_error_and_reopens_the_bus(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    channel = f"recv-bug-{uuid.uuid4().hex}"
+    opened: list[can.BusABC] = []
+    received = threading.Event()
+    raised = threading.Event()
+
+    def raise_once() -> bool:
+        if received.is_set() and not raised.is_set():
+            raised.set()
+            return True
+        return False
+
+    def open_bus() -> can.BusABC:
+        opened.append(BuggyRecvBus(channel, lambda: False, raise_once if not opened else lambda: False))
+        return opened[-1]
+
+    pipeline = _pipeline(tmp_path, channel)
+    daemon = Daemon(pipeline, open_bus, settings=DaemonSettings(backoff_initial_s=0.05, backoff_max_s=0.2))
+    sender_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    thread, result = run_daemon_thread(daemon)
+    try:
+        with EcuSender(sender_bus):
+            assert wait_until(lambda: daemon.counters["frames_in"] > 0, 30.0)
+            received.set()
+            assert wait_until(lambda: len(opened) >= 2, 30.0)  # handled as python-can's Notifier would: reopen
+            before = daemon.counters["frames_in"]
+            assert wait_until(lambda: daemon.counters["frames_in"] > before + 50, 30.0)  # frames flow again
+        assert thread.is_alive()
+        assert daemon.counters["receive_errors"] == 1
+        assert daemon.counters["daemon_errors"] == 1
+        logged = [r for r in caplog.records if "unexpected error in the receive path" in r.getMessage()]
+        assert len(logged) == 1 and logged[0].exc_info
+    finally:
+        stop_daemon(daemon, thread, result)
+        sender_bus.shutdown()
+
+
 def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -1,20 +1,22 @@
-"""The live service: a python-can Notifier feeding the pipeline, health frames back onto the bus.
+"""The live service: a receive thread feeding the pipeline, health frames back onto the bus.
 
 Three threads share one :class:`~ecu_monitor.service.pipeline.Pipeline` under one lock:
 
-* the Notifier's receive thread: each frame is stamped with the daemon's monotonic clock, fed to the
-  pipeline, and ``advance_to(now)`` runs at once, so a health frame that falls due is sent within the
-  same callback (the low-latency path);
+* the receive thread: it calls the bus's ``recv`` itself (no python-can Notifier: the Notifier's lock
+  and listener dispatch cost ~1-3 us a frame, docs/performance.md "DroneCAN"), each frame is stamped with
+  the daemon's monotonic clock, fed to the pipeline, and ``advance_to(now)`` runs at once, so a health
+  frame that falls due is sent within the handling of that frame (the low-latency path);
 * the tick thread: every 20 ms ``advance_to(now)``, so the 50 Hz steps and the health frames go on when
   the frames stop (that is how staleness gets reported);
 * the supervisor (the thread that calls :meth:`Daemon.run`): reopens a failed bus with backoff, feeds
   the health rows to the flight recorder (SQLite writes stay off the frame path), pings the systemd
   watchdog only while ``pipeline.steps_done`` grows, updates ``STATUS=`` and the log.
 
-Bus failures never end the process: a receive error (reported by the Notifier through
-``Listener.on_error``), a failed open, and every failed send count one bus error (shown in
-Health_Diag.BusErrors); a receive error, or ``SEND_FAILURES_TO_REOPEN`` sends failing in a row, closes
-the bus and reopens it after ``initial``, ``2*initial``, ... up to ``max`` seconds.
+Bus failures never end the process: a receive error (python-can's ``CanError`` or ``OSError`` from
+``recv``, or anything else ``recv`` raises, logged by :meth:`Daemon._guarded`), a failed open, and every
+failed send count one bus error (shown in Health_Diag.BusErrors); a receive error, or
+``SEND_FAILURES_TO_REOPEN`` sends failing in a row, closes the bus and reopens it after ``initial``,
+``2*initial``, ... up to ``max`` seconds.
 
 A bus that carries no engine frame for ``no_frames_warning_s`` gets one warning (:class:`SilenceWatch`),
 and one more each time frames come back and stop again: a daemon and a sender that cannot reach each
@@ -70,6 +72,8 @@ _log = logging.getLogger(__name__)
 SEND_FAILURES_TO_REOPEN = 20
 #: Send timeout, s: a full transmit queue must not stall the receive path.
 _SEND_TIMEOUT_S = 0.01
+#: Receive timeout, s: how soon the receive thread sees that it is asked to stop.
+_RECEIVE_TIMEOUT_S = 0.2
 
 _T = TypeVar("_T")
 
@@ -139,19 +143,6 @@ class SilenceWatch:
         return None
 
 
-class _Listener(can.Listener):
-    """Hands frames and receive errors of the Notifier to the daemon."""
-
-    def __init__(self, daemon: Daemon) -> None:
-        self._daemon = daemon
-
-    def on_message_received(self, msg: can.Message) -> None:
-        self._daemon._guarded("frame", self._daemon._on_frame, msg)
-
-    def on_error(self, exc: Exception) -> None:
-        self._daemon._on_receive_error(exc)
-
-
 class Daemon:
     """The bus loop around one pipeline (see the module docstring).
 
@@ -197,7 +188,8 @@ class Daemon:
         self._stop = threading.Event()
         self._bus_failed = threading.Event()
         self._bus: can.BusABC | None = None
-        self._can_notifier: can.Notifier | None = None
+        self._receiver: threading.Thread | None = None  # the receive thread of the open bus
+        self._receiver_stop = threading.Event()
         self._tick_thread: threading.Thread | None = None
         self._send_failures_in_row = 0
         self._heap_frozen_running = False
@@ -243,6 +235,29 @@ class Daemon:
             return None
 
     # --- frame path and tick ------------------------------------------------------------------------
+
+    def _receive_loop(self, bus: can.BusABC, stop: threading.Event) -> None:
+        """The receive thread of one open bus, until ``stop``: each frame to :meth:`_on_frame` (whatever that
+        raises is counted under "frame" and the next frame taken); a receive error to :meth:`_on_receive_error`,
+        and so is anything else ``recv`` raises (after :meth:`_guarded` has logged it), as python-can's
+        Notifier would hand it to ``on_error``."""
+        while not stop.is_set():
+            if self._guarded("receive", self._receive_frames, bus, stop) is None:
+                self._on_receive_error(can.CanOperationError("the bus's recv raised (logged above)"))
+
+    def _receive_frames(self, bus: can.BusABC, stop: threading.Event) -> bool:
+        """Receive and handle frames until ``stop`` (returns True); a python-can or OS error of ``recv`` goes to
+        :meth:`_on_receive_error` and the loop goes on (the supervisor reopens the bus and stops this thread)."""
+        recv, guarded, on_frame, stopped = bus.recv, self._guarded, self._on_frame, stop.is_set
+        while not stopped():
+            try:
+                msg = recv(_RECEIVE_TIMEOUT_S)
+            except (can.CanError, OSError) as exc:
+                self._on_receive_error(exc)
+                continue
+            if msg is not None:
+                guarded("frame", on_frame, msg)
+        return True
 
     def _on_frame(self, msg: can.Message) -> None:
         now = self._clock()
@@ -300,9 +315,9 @@ class Daemon:
             pipeline_counters["send_errors"] = pipeline_counters.get("send_errors", 0) + 1
 
     def _on_receive_error(self, exc: Exception) -> None:
-        """The Notifier's receive thread hit an error: count it once, ask the supervisor to reopen."""
+        """The receive thread hit an error: count it once, ask the supervisor to reopen."""
         if self._bus_failed.is_set():
-            self._stop.wait(0.05)  # the Notifier retries at once: do not spin while the supervisor reopens
+            self._stop.wait(0.05)  # the receive loop retries at once: do not spin while the supervisor reopens
             return
         with self._lock:
             self._count_bus_error("receive_errors")
@@ -312,7 +327,7 @@ class Daemon:
     # --- bus lifecycle --------------------------------------------------------------------------------
 
     def _attach(self) -> bool:
-        """Open the bus and start its Notifier; False (counted) when the bus cannot be opened."""
+        """Open the bus and start its receive thread; False (counted) when the bus cannot be opened."""
         try:
             bus = self._open_bus()
         except (can.CanError, OSError, ValueError) as exc:
@@ -332,15 +347,20 @@ class Daemon:
             self._send_failures_in_row = 0
             self.counters["bus_opens"] += 1
         self._bus_failed.clear()
-        self._can_notifier = can.Notifier(bus, [_Listener(self)], timeout=0.2)
+        self._receiver_stop = threading.Event()
+        self._receiver = threading.Thread(
+            target=self._receive_loop, args=(bus, self._receiver_stop), name="ecu-monitor receive", daemon=True
+        )
+        self._receiver.start()
         _log.info("bus open: %s", bus.channel_info)
         return True
 
     def _detach(self) -> None:
-        """Stop the Notifier and shut the bus down (idempotent)."""
-        if self._can_notifier is not None:
-            self._can_notifier.stop(timeout=2.0)
-            self._can_notifier = None
+        """Stop the receive thread and shut the bus down (idempotent)."""
+        if self._receiver is not None:
+            self._receiver_stop.set()
+            self._receiver.join(timeout=2.0)
+            self._receiver = None
         with self._lock:
             bus, self._bus = self._bus, None
         if bus is not None:
