@@ -35,6 +35,15 @@ sender and the health receiver a third (one clock). No interpreter lock is share
 the receiver there, so the frames the daemon handles after the health frame no longer delay its
 reception. The CPU figure is the whole daemon process's. Needs root.
 
+``--breakdown``: where the daemon's CPU per frame goes, per layer, on udp_multicast in a network namespace
+(root): python-can's ``recv`` (the socket's ``select`` and ``recvmsg``, msgpack and the checked
+``can.Message`` of ``unpack_message``, its Python-side filter match) on datagrams already queued, the
+daemon's handling of a frame (``Daemon._on_frame`` through its keep-alive guard: the lock, the pipeline's
+``feed`` and ``advance_to`` with the steps and the node's publications that fall due), and the send of a
+frame; each over the frames of 1,000 steps of the engine data of both buses, the bus unpaced (caches warm:
+a lower bound of the paced figures). Then the same daemon process as ``--netns`` for ``--seconds``, the CPU
+of each of its threads (/proc/<pid>/task).
+
 ``--pipeline``: the pipeline alone on the same frames (no bus, no thread), ``feed`` then
 ``advance_to`` per frame as the daemon does, alternating the two buses: CPU per 20 ms step, and the
 median ``feed`` of each frame of an ICE status transfer (the continuation frames, the last one that
@@ -306,6 +315,166 @@ def pipeline_cost(protocol: str, steps: int) -> tuple[float, list[float]]:
     return per_step_us, [statistics.median(f) * 1e6 for f in feed_s]
 
 
+def _frames_of(protocol: str, steps: int) -> list[list[can.Message]]:
+    """The engine and air-data frames of ``steps`` 20 ms steps of ``protocol``'s ECU sender, one list per step."""
+    bursts: list[list[can.Message]] = []
+
+    class Collect:  # a bus that keeps what the sender sends
+        def send(self, msg: can.Message) -> None:
+            bursts[-1].append(msg)
+
+    make_sender = _dronecan_sender if protocol == "dronecan" else bench_latency._ecu_sender
+    sender = make_sender(Collect(), [], {"ecu": 0})  # type: ignore[arg-type]
+    for k in range(steps):
+        bursts.append([])
+        sender(k)
+    return bursts
+
+
+def _per_frame_us(func: Callable[[], int]) -> float:
+    """Thread CPU time of ``func()`` per item it reports, us."""
+    started = time.thread_time()
+    items = func()
+    return (time.thread_time() - started) / max(items, 1) * 1e6
+
+
+def breakdown_inner(port: int, steps: int = 1000) -> None:
+    """Inside the namespace (--breakdown): per layer, CPU us per frame of each bus (see the module docstring)."""
+    for protocol in ("dbc", "dronecan"):
+        _breakdown_one(protocol, port, steps)
+
+
+def _breakdown_one(protocol: str, port: int, steps: int) -> None:
+    """One bus of :func:`breakdown_inner`: one line, CPU us per frame of each layer."""
+    from can.interfaces.udp_multicast.utils import pack_message, unpack_message
+
+    from ecu_monitor.bus.kernel_filter import attach_kernel_filter
+    from ecu_monitor.service.daemon import Daemon, DaemonSettings
+    from ecu_monitor.service.pipeline import Pipeline
+
+    batch = 100  # datagrams queued at a time (well inside the socket's receive buffer)
+    config = _dronecan_config("unused") if protocol == "dronecan" else bench_latency._config("unused")
+    pipeline = Pipeline(config, config.load_params())
+    pipeline.warm_up()
+    bursts = _frames_of(protocol, steps)
+    frames = [msg for burst in bursts for msg in burst]
+    filters = pipeline.decoder.can_filters() if protocol == "dronecan" else [
+        {"can_id": i, "can_mask": 0x1FFFFFFF} for i in pipeline.decoder.frame_ids
+    ]  # fmt: skip
+    rx = can.Bus(interface="udp_multicast", channel=bench_latency.GROUP, port=port)
+    tx = can.Bus(interface="udp_multicast", channel=bench_latency.GROUP, port=port)
+    rx.set_filters(filters)
+    attach_kernel_filter(rx, filters)
+    row: dict[str, float] = {}
+
+    def queued(read: Callable[[], object]) -> int:  # CPU of ``read`` only, over every frame queued batch-wise
+        done = 0
+        for i in range(0, len(frames), batch):
+            for msg in frames[i : i + batch]:
+                tx.send(msg)
+            time.sleep(0.005)
+            started = time.thread_time()
+            done += sum(read() is not None for _ in frames[i : i + batch])
+            spent[0] += time.thread_time() - started
+        return done
+
+    spent = [0.0]
+    got = queued(lambda: rx._multicast.recv(0.05))
+    row["socket select + recvmsg"] = spent[0] / got * 1e6
+    packed = [pack_message(msg) for msg in frames]
+    row["unpack_message (msgpack, checked Message)"] = _per_frame_us(
+        lambda: len([unpack_message(d, replace={"timestamp": 1.0}, check=True) for d in packed])
+    )
+    received = [unpack_message(d, replace={"timestamp": 1.0}, check=True) for d in packed]
+    row["python-can filter match"] = _per_frame_us(lambda: sum(rx._matches_filters(m) for m in received))
+    spent = [0.0]
+    got = queued(lambda: rx.recv(0.05))
+    row["bus.recv, all of it"] = spent[0] / got * 1e6
+    clock = [1000.0]
+    daemon = Daemon(pipeline, lambda: rx, settings=DaemonSettings(), clock=lambda: clock[0])
+    pipeline.advance_to(clock[0])
+
+    def handle() -> int:
+        for k, burst in enumerate(bursts):
+            for i, msg in enumerate(burst):
+                clock[0] = 1000.0 + 0.02 * (k + 1) + 1e-5 * i
+                daemon._guarded("frame", daemon._on_frame, msg)
+        return len(frames)
+
+    row["daemon: guard, lock, feed, advance_to (steps, node)"] = _per_frame_us(handle)
+    health = [m for m in frames[:200]]
+    row["bus.send of a frame"] = _per_frame_us(lambda: len([tx.send(m) for m in health]))
+    per_s = len(frames) / (steps * 0.02)
+    handled = row["bus.recv, all of it"] + row["daemon: guard, lock, feed, advance_to (steps, node)"]
+    print(
+        f"{protocol}: {per_s:.0f} engine frames/s; per frame, us: "
+        + "; ".join(f"{name} {us:.2f}" for name, us in row.items())
+        + f"; recv + daemon {handled:.1f} us x {per_s:.0f}/s = {handled * per_s / 1e4:.2f} % of a core"
+        f" (health frames dropped: {daemon.counters['health_dropped']}, not sent)",
+        flush=True,
+    )
+    rx.shutdown()
+    tx.shutdown()
+
+
+def thread_split(seconds: float) -> None:
+    """The --netns daemon process of each bus for ``seconds`` (engine frames and 4,000 frames/s of other traffic):
+    the CPU of each of its threads, % of one core (the receive thread is the busiest)."""
+    port = 45000 + os.getpid() % 1000
+    with multicast_namespace(bench_latency.GROUP, port, "--breakdown") as space:
+        subprocess.run(["ip", "netns", "exec", space.name, sys.executable, __file__, "--breakdown-inner", str(port)],
+                       check=True)  # fmt: skip
+        data = _dronecan_data()
+        data["bus"] = {"interface": "udp_multicast", "channel": bench_latency.GROUP, "port": port}
+        data["state_dir"] = str(space.tmp / "state-dronecan")
+        dronecan_yaml = space.tmp / "dronecan.yaml"
+        dronecan_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
+        for protocol, (script, config) in (("dbc", (bench_latency._DAEMON, space.config)),
+                                           ("dronecan", (_DAEMON, dronecan_yaml))):  # fmt: skip
+            argv = ["ip", "netns", "exec", space.name]
+            peer = subprocess.Popen(
+                [*argv, sys.executable, "-c", script, str(config)], stdout=subprocess.PIPE, text=True
+            )
+            assert peer.stdout is not None and peer.stdout.readline().strip() == "ready"
+            traffic = subprocess.Popen([*argv, sys.executable, "-c", bench_latency._TRAFFIC, bench_latency.GROUP,
+                                        str(port), "10"])  # fmt: skip
+            inner = subprocess.Popen([*argv, sys.executable, __file__, "--inner", str(port), str(seconds + 3), protocol,
+                                      protocol, "last"], stdout=subprocess.PIPE, text=True)  # fmt: skip
+            time.sleep(2.0)
+            before, wall = _threads_cpu_s(peer.pid), time.monotonic()
+            time.sleep(seconds)
+            after, wall = _threads_cpu_s(peer.pid), time.monotonic() - wall
+            inner.communicate(timeout=60)
+            traffic.kill()
+            traffic.wait(timeout=10)
+            peer.send_signal(signal.SIGTERM)
+            peer.communicate(timeout=30)
+            use = sorted(((after[t][0] - before[t][0], after[t][1] - before[t][1], t) for t in after if t in before),
+                         reverse=True)  # fmt: skip
+            total = sum(u + s for u, s, _ in use)
+            print(
+                f"{protocol} daemon process, {seconds:.0f} s: CPU {100 * total / wall:.2f} % of a core; its threads "
+                "(user + system): "
+                + ", ".join(
+                    f"{100 * (u + s) / wall:.2f} % ({100 * u / wall:.2f} + {100 * s / wall:.2f})"
+                    for u, s, _ in use
+                    if u + s > 0
+                ),
+                flush=True,
+            )
+
+
+def _threads_cpu_s(pid: int) -> dict[str, tuple[float, float]]:
+    """(utime, stime), s, of each thread of process ``pid``."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+        fields = stat[stat.rindex(")") + 2 :].split()
+        out[tid] = (int(fields[11]) / tick, int(fields[12]) / tick)
+    return out
+
+
 #: one round: the DBC bus, the DroneCAN bus, the DBC bus again (A B A): the two DBC runs of a round are the
 #: A/A pair that shows the run-to-run spread, the DroneCAN run between them meets the same machine state
 CASES = (("dbc", "dbc"), ("dronecan", "dronecan"), ("dbc'", "dbc"))
@@ -367,6 +536,9 @@ def verdict(rounds: list[dict[str, dict[str, Any]]]) -> list[str]:
 
 
 def main() -> int:
+    if len(sys.argv) == 3 and sys.argv[1] == "--breakdown-inner":  # inside the namespace of --breakdown
+        breakdown_inner(int(sys.argv[2]))
+        return 0
     if len(sys.argv) == 7 and sys.argv[1] == "--inner":  # the measuring process of --netns
         TIME_FROM["from"] = sys.argv[6]
         _inner(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4], sys.argv[5])
@@ -378,6 +550,9 @@ def main() -> int:
     parser.add_argument("--json", action="store_true", help="one JSON line per case")
     parser.add_argument("--pipeline", action="store_true", help="the pipeline alone on the same frames (no bus)")
     parser.add_argument("--netns", action="store_true", help="across processes on udp_multicast in a netns (root)")
+    parser.add_argument(
+        "--breakdown", action="store_true", help="the daemon's CPU per frame by layer, and per thread (netns, root)"
+    )
     parser.add_argument(
         "--time-from",
         choices=("last", "first"),
@@ -392,6 +567,9 @@ def main() -> int:
     args = parser.parse_args()
     TIME_FROM["from"] = args.time_from
     _FilteredDaemon.yield_after_send = args.yield_after_send
+    if args.breakdown:
+        thread_split(args.seconds)
+        return 0
     if args.netns:
         for line in verdict(run_netns(args.seconds, args.traffic, args.repeat)):
             print(line)
