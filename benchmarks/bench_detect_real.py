@@ -41,6 +41,14 @@ logged inputs, relative to its median over the training flights' airborne part, 
 median): the overlay adds k Q_in / C to the symptom, so the normalised symptom gains about k x the
 median rate at every power. ``--rise-profile`` prints how the overlay moves the symptom over the
 windows after its onsets (the overlaid minus the nominal replay), beside k Q_in / C.
+
+``--scale S`` (repeatable) evaluates the self-normalised detector (``detector.scale_s`` S, ``scale_floor``
+learned per fold from the training flights: the median of their online spread), calibrate's choice nested
+on candidates that all carry it, and each ``--variant`` with it. ``--separability`` prints per variant the
+hindsight separability (the held-out flights' largest nominal statistic over the smallest statistic a
+counted overlay reaches within its target: below 1, one h would have served every held-out flight);
+``--glr DELTA[:flat]`` (repeatable) the same for a GLR over the onsets of the last ``--glr-window`` s
+matched to a rise DELTA (1 - exp(-t/240 s)) (flat: a CUSUM that forgets older onsets), offline.
 """
 
 from __future__ import annotations
@@ -58,6 +66,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 
 LIMITS = {0.2: 300.0, 0.1: 600.0}  # overlay gain -> detection target, s
@@ -364,6 +373,92 @@ def _plot_misses(path: Path, flights: list[Path], feeds: dict[Any, Any], misses:
     plt.close(fig)
 
 
+def _separability(
+    runs_per_flight: list[Any], per_fold: list[Any], spans: list[Any], statistic: Any
+) -> dict[float, Any]:
+    """Hindsight separability per gain: the largest statistic of the held-out flights' nominal replays over the
+    smallest statistic a counted overlay reaches within its target time (no alarm; < 1: one h would have served
+    every held-out flight). ``statistic(t, x, settings)`` -> (block end times, statistic); per fold its settings.
+    Returns gain -> (G, per flight (nominal max, smallest reach))."""
+    out: dict[float, Any] = {}
+    rows = []
+    for i, runs in enumerate(runs_per_flight):
+        nominal = next(feed for onset, _, _, feed in runs if not math.isfinite(onset))
+        peak = max((float(np.max(statistic(t, x, per_fold[i])[1], initial=0.0)) for t, x in nominal), default=0.0)
+        reach: dict[float, list[float]] = {g: [] for g in LIMITS}
+        first, last = spans[i]
+        for onset, gain, start, feed in runs:
+            if not (math.isfinite(onset) and first <= onset <= last):
+                continue
+            best = 0.0
+            for t, x in feed:
+                ends, stat = statistic(t, x, per_fold[i])
+                window = (ends - start >= onset) & (ends - start <= onset + LIMITS[gain])
+                best = max(best, float(np.max(stat[window], initial=0.0)))
+            reach[gain].append(best)
+        rows.append((peak, reach))
+    for gain in LIMITS:
+        per_flight = [(peak, min(reach[gain], default=math.inf)) for peak, reach in rows]
+        out[gain] = (max(p for p, _ in per_flight) / min(r for _, r in per_flight), per_flight)
+    return out
+
+
+def _print_separability(label: str, result: dict[float, Any]) -> None:
+    cells = "; ".join(f"k = {g:g}: G {g_value:.2f}" for g, (g_value, _) in result.items())
+    flights = ", ".join(f"{p:.1f}/{r:.1f}" for p, r in result[0.1][1])
+    print(f"{label:<40} separability {cells}  (per flight nominal max / smallest k = 0.1 reach: {flights})")
+
+
+@numba.njit(cache=True)
+def _glr_blocks(means: Any, delta: float, shaped: bool, window: int, tau_blocks: float, baseline_blocks: float,
+                delay: int, freeze: bool) -> Any:  # fmt: skip
+    """A GLR over the onset times of the last ``window`` blocks for a rise delta (1 - exp(-t/tau)) of the symptom
+    over its baseline (shaped False: delta flat, a CUSUM with allowance delta / 2 that remembers ``window``
+    blocks): the statistic after each block, max over the onset of sum f (x - b - delta f / 2), at least 0.
+    The baseline as the detector's (a moving average of the block means ``delay`` blocks old, time constant
+    ``baseline_blocks``), frozen while the statistic is above 0 when ``freeze``."""
+    n = means.shape[0]
+    stat = np.zeros(n)
+    shape = np.ones(window)
+    if shaped:
+        for j in range(window):
+            shape[j] = 1.0 - math.exp(-(j + 0.5) / tau_blocks)
+    allowance = np.cumsum(shape * delta * shape / 2.0)
+    sums = np.zeros(window)  # per onset (block index modulo window): the weighed excess since it
+    baseline = np.nan
+    for i in range(n):
+        excess = 0.0 if (math.isnan(means[i]) or math.isnan(baseline)) else means[i] - baseline
+        sums[i % window] = 0.0
+        best = 0.0
+        for lag in range(min(window, i + 1)):
+            slot = (i - lag) % window
+            sums[slot] += shape[lag] * excess
+            best = max(best, sums[slot] - allowance[lag])
+        stat[i] = best
+        lagged = means[i - delay] if i >= delay else np.nan
+        if not math.isnan(lagged):
+            if math.isnan(baseline):
+                baseline = lagged
+            elif not (freeze and best > 0.0):
+                baseline += (lagged - baseline) / baseline_blocks
+    return stat
+
+
+def _glr_statistic(delta: float, shaped: bool, window_s: float) -> Any:
+    """statistic(t, x, settings) of :func:`_glr_blocks` with the detector's blocks and baseline settings."""
+    from ecu_monitor.estimation.detection import block_means
+
+    def statistic(t: Any, x: Any, settings: Any) -> Any:
+        ends, means = block_means(t, x, settings)
+        blocks = max(round(window_s / settings.block_s), 1)
+        baseline = max(settings.baseline_s / settings.block_s, 1.0)
+        stat = _glr_blocks(means, delta, shaped, blocks, 240.0 / settings.block_s, baseline, settings.delay_blocks,
+                           settings.baseline_freeze)  # fmt: skip
+        return ends, stat
+
+    return statistic
+
+
 def _count_oracle(counts: dict[float, list[int]], runs: Any, unbounded: Any, span: Any, cusum_path: Any) -> float:
     """Add to ``counts`` (gain -> [in time, counted]) the held-out flight's counted onsets detected in time
     with h = 1.01 x the largest statistic of its own nominal replay (the lowest h without a false DEGRADED
@@ -489,6 +584,21 @@ def main(argv: list[str] | None = None) -> int:
         " detector.scale_s this (s), scale_floor per fold the median of the online spread over the training"
         " flights' nominal replays (repeatable; on the same replays)",
     )
+    parser.add_argument(
+        "--separability",
+        action="store_true",
+        help="also print per variant the hindsight separability: the held-out flights' largest nominal statistic"
+        " over the smallest a counted overlay reaches within its target (< 1: one h would have served all)",
+    )
+    parser.add_argument(
+        "--glr",
+        action="append",
+        default=[],
+        help="DELTA[:flat]: the separability of a GLR over the onsets of the last --glr-window s for a rise"
+        " DELTA (1 - exp(-t/240 s)) (flat: a CUSUM with allowance DELTA/2 remembering that long), with calibrate's"
+        " and each variant's baseline (repeatable; offline, on the same replays)",
+    )
+    parser.add_argument("--glr-window", type=float, default=900.0, help="onsets the --glr test considers, s")
     parser.add_argument(
         "--rise-profile",
         action="store_true",
@@ -678,10 +788,25 @@ def main(argv: list[str] | None = None) -> int:
                   f"{oracle[0.2][0]:>3}/{oracle[0.2][1]:<10} {oracle[0.1][0]:>3}/{oracle[0.1][1]}"
                   f"   (h {', '.join(f'{v:.1f}' for v in oracle_h)})")  # fmt: skip
             report.setdefault("oracle", {})[name] = {str(k): v for k, v in oracle.items()}
+        if args.separability:
+            cusum = lambda t, x, settings: cusum_path(t, x, dataclasses.replace(settings, threshold=UNBOUNDED))[:2]  # noqa: E731
+            runs = [variant_feeds[(i, i)] for i in range(n)]
+            _print_separability("hindsight (no h)", _separability(runs, per_fold, spans, cusum))
         report.setdefault("totals", {})[name] = {str(k): v for k, v in totals.items()}
         report[name] = {"settings": [dataclasses.asdict(s) for s in per_fold], "flights": per_flight}
         thresholds[name] = [entry["threshold"] for entry in per_flight]
     report["counted_onsets_s"] = spans
+    for spec in args.glr:  # offline: the GLR matched to the rise (or the flat windowed CUSUM) on the same replays
+        shaped = not spec.endswith(":flat")
+        delta = float(spec.split(":")[0])
+        statistic = _glr_statistic(delta, shaped, args.glr_window)
+        kind = f"GLR, rise delta {delta:g} degC/s x (1 - exp(-t/240 s))" if shaped else f"flat, allowance {delta / 2:g}"
+        print(f"\n{kind}, onsets over the last {args.glr_window:g} s, baseline as each variant's (hindsight, no h):")
+        for name, per_fold, variant_feeds in fold_variants:
+            if "heat rate" in name or "self-" in name:
+                continue
+            runs = [variant_feeds[(i, i)] for i in range(n)]
+            _print_separability(name, _separability(runs, per_fold, spans, statistic))
     if args.rise_profile:
         _rise_profile(fold_variants[0][2], models, flights, spans)
     held = [t for t in timings if "all_frames_s" in t]
