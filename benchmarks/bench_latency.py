@@ -326,8 +326,8 @@ def run_case(
         while daemon._tick_thread is None and time.monotonic() < deadline:  # warmed up, heap frozen: running
             time.sleep(0.05)
         time.sleep(0.5)  # past the daemon's start-up collection
-        tick, receiver = daemon._tick_thread, daemon._receiver
-        threads = [t.native_id for t in (daemon_thread, tick, receiver) if t is not None and t.native_id is not None]
+        tick, receive = daemon._tick_thread, daemon._receiver
+        threads = [t.native_id for t in (daemon_thread, tick, receive) if t is not None and t.native_id is not None]
     else:
         default_interval = sys.getswitchinterval()
         if switch_interval_s is not None:
