@@ -149,6 +149,7 @@ class _Plan(NamedTuple):
     message: Any
     fields: tuple[_Field, ...]
     counter_name: str | None  # None: no counter/checksum in this message
+    length: int  # the message's DBC length, bytes
     # per field (shift, mask, sign bit or 0, big-endian): the raw integer read straight from the payload
     # as one integer, or None when cantools decodes the message (a float or multiplexed signal)
     extract: tuple[tuple[int, int, int, bool], ...] | None
@@ -239,7 +240,9 @@ class Decoder:
         for key, message in messages.items():
             integrity = _integrity_signals(message)
             counter = integrity[0].name if integrity else None
-            self._plans[key] = _Plan(message, tuple(fields[key]), counter, _extraction(message, fields[key]))
+            self._plans[key] = _Plan(
+                message, tuple(fields[key]), counter, int(message.length), _extraction(message, fields[key])
+            )
         self._last_counter: dict[tuple[int, bool], tuple[int, float]] = {}
         self.counters: dict[str, int] = dict.fromkeys(("frames", "ok", "unknown_id", "ignored", "malformed"), 0)
         self.counters.update(dict.fromkeys(MALFORMED_REASONS, 0))
@@ -276,8 +279,6 @@ class Decoder:
         ``time_s`` (s) is used only for the counter resynchronisation after a silence. Never raises
         for any frame content.
         """
-        import cantools
-
         self.counters["frames"] += 1
         key = (arbitration_id, is_extended)
         plan = self._plans.get(key)
@@ -285,11 +286,11 @@ class Decoder:
             self.counters["unknown_id"] += 1
             return None
         payload = bytes(data)
-        if len(payload) != plan.message.length:
+        if len(payload) != plan.length:
             self._malformed("bad_dlc")
             return None
-        if plan.counter_name is not None:
-            if payload[CHECKSUM_BYTE] != frame_checksum(payload):
+        if plan.counter_name is not None:  # 8 bytes (checked when the plan was made)
+            if payload[CHECKSUM_BYTE] != crc8_sae_j1850(payload[:CHECKSUM_BYTE]):
                 self._malformed("bad_checksum")
                 return None
             counter = payload[6] & 0x0F
@@ -300,6 +301,8 @@ class Decoder:
                 return None
         if plan.extract is not None:
             return self._decode_prepared(plan, payload)
+        import cantools  # here, not above: the prepared path above is the live hot path
+
         try:
             raw = plan.message.decode(payload, decode_choices=False, scaling=False)
         except (cantools.database.DecodeError, ValueError, KeyError, IndexError, TypeError, OverflowError):
@@ -368,7 +371,7 @@ class Decoder:
             rows = np.flatnonzero((ids == key[0]) & (ext == key[1]) & ~skip)
             known[rows] = True
             payload = data[rows]
-            ok = dlc[rows] == plan.message.length
+            ok = dlc[rows] == plan.length
             counts["bad_dlc"] += int(np.count_nonzero(~ok))
             if plan.counter_name is not None:
                 good_sum = _crc8_rows(payload) == payload[:, CHECKSUM_BYTE]

@@ -128,7 +128,8 @@ supervise: Any = None
 @functools.cache
 def _compiled() -> Any:
     """:func:`_live_call` compiled with the filters' and the supervisor's compiled functions (cached on disk,
-    keyed by every source it embeds)."""
+    keyed by every source it embeds), for its one argument type: the compiled function itself, not numba's
+    dispatcher, which would type the argument at every call (~7 us of a cold call, docs/performance.md)."""
     from ecu_monitor.estimation import ekf, isolation, quantiser
     from ecu_monitor.model import compiled as compiled_model
     from ecu_monitor.model import thermal
@@ -138,10 +139,11 @@ def _compiled() -> Any:
     tag = fingerprint([str(m.__file__) for m in modules])
     initial = jit(supervision.initial_supervisor, tag)
     step = jit(supervision.supervise, tag, initial_supervisor=initial)
-    return jit(
+    dispatcher = jit(
         _live_call, tag, nogil=False, ekf_live=ekf.compiled_filter().live, iso_live=isolation.compiled_kernels().live,
         supervise=step,
     )  # fmt: skip
+    return dispatcher.compile("(float64[::1],)")  # the workspace: float64, one dimension, contiguous
 
 
 class LiveCall:

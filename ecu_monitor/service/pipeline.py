@@ -292,6 +292,10 @@ class Pipeline:
         self._k = 0
         self._periods = {h.message: round(1.0 / (h.rate_hz * self._dt)) for h in config.health}
         self._frame_counters = dict.fromkeys(self._periods, 0)
+        self._frame_ids = {  # (frame id, extended) of each health message, read once from cantools
+            name: (int(self.encoder.message(name).frame_id), bool(self.encoder.message(name).is_extended_frame))
+            for name in self._periods
+        }
         self._status_period = self._periods["Health_Status"]
         self._rows: list[HealthSnapshot] = []
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
@@ -673,14 +677,9 @@ class Pipeline:
         counter = self._frame_counters[message]
         self._frame_counters[message] = (counter + 1) % 16
         data = self.encoder.encode(message, values, counter)
-        definition = self.encoder.message(message)
+        frame_id, extended = self._frame_ids[message]
         self.counters["health_frames"] += 1
-        return can.Message(
-            timestamp=time_s,
-            arbitration_id=definition.frame_id,
-            is_extended_id=bool(definition.is_extended_frame),
-            data=data,
-        )
+        return can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=extended, data=data)
 
     def _health_values(self, message: str, snap: HealthSnapshot, code: int) -> dict[str, float]:
         def finite(value: float, fallback: float) -> float:
