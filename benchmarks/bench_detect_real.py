@@ -49,6 +49,15 @@ hindsight separability (the held-out flights' largest nominal statistic over the
 counted overlay reaches within its target: below 1, one h would have served every held-out flight);
 ``--glr DELTA[:flat]`` (repeatable) the same for a GLR over the onsets of the last ``--glr-window`` s
 matched to a rise DELTA (1 - exp(-t/240 s)) (flat: a CUSUM that forgets older onsets), offline.
+
+``--soak TAU[,TAU...]`` screens a heat-soak term the model lacks, at the detector: per fold, on the training
+flights' nominal replays only, the symptom is regressed (least squares, one intercept per flight, over
+``--soak-bin`` s bins) on lag(q, tau) - q, q the fold model's heat-input rate Q_in / C at the logged inputs
+(``--soak-input``: or the fuel flow, or the airspeed), lag a first-order lag of time constant tau, tau the
+grid's best fit; b x that regressor is subtracted from every replay of the fold (an overlay changes the CHT
+only, so the regressor is the same), and calibrate's choice (nested) and each ``--variant`` are evaluated on
+the result. A soak (head warmer than the model after a power reduction) gives b > 0. ``--soak-coef B`` gives
+b instead of fitting it (hindsight, one tau).
 """
 
 from __future__ import annotations
@@ -229,6 +238,126 @@ def _heat_rate_feeds(feeds: dict[Any, Any], models: list[Path], flights: list[Pa
                 runs = tuple(OverlayRun(r.onset_s, r.gain, weigh(r.feed)) for r in f.overlays)
                 out[(i, j)] = FlightFeeds(f.name, weigh(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
     return out
+
+
+#: --soak: the width of the bins the heat-soak fit averages the symptom and its regressor over, s.
+SOAK_BIN_S = 10.0
+
+
+def first_order_lag(t: Any, q: Any, tau_s: float) -> Any:
+    """A first-order lag of ``q`` sampled at times ``t`` (s), time constant ``tau_s`` (s), started at rest at
+    q's first finite value: y_k = y_(k-1) + (1 - exp(-(t_k - t_(k-1))/tau)) (q_(k-1) - y_(k-1)) (q held between
+    samples). Non-finite values of q are filled from the finite ones (linear interpolation)."""
+    t = np.asarray(t, dtype=float)
+    q = np.asarray(q, dtype=float)
+    finite = np.isfinite(q)
+    if not finite.any():
+        return np.full(q.size, np.nan)
+    q = np.interp(t, t[finite], q[finite])
+    gain = 1.0 - np.exp(-np.diff(t) / tau_s)
+    y = np.empty(q.size)
+    y[0] = q[0]
+    for k in range(1, q.size):
+        y[k] = y[k - 1] + gain[k - 1] * (q[k - 1] - y[k - 1])
+    return y
+
+
+def _binned(t: Any, x: Any, r: Any, bin_s: float) -> tuple[Any, Any]:
+    """(x, r) averaged over bins of ``bin_s`` seconds where x is finite (bins without a finite x dropped)."""
+    ok = np.isfinite(x) & np.isfinite(r)
+    if not ok.any():
+        return np.empty(0), np.empty(0)
+    t, x, r = t[ok], x[ok], r[ok]
+    bins = np.floor((t - t[0]) / bin_s).astype(np.int64)
+    count = np.bincount(bins)
+    used = count > 0
+    return np.bincount(bins, x)[used] / count[used], np.bincount(bins, r)[used] / count[used]
+
+
+def fit_soak(flights: list[tuple[Any, Any, dict[float, Any]]], bin_s: float = SOAK_BIN_S) -> dict[float, Any]:
+    """The heat-soak coefficient per time constant, by least squares on nominal flights: symptom = c_f + b r_tau,
+    one intercept c_f per flight, r_tau the regressor (lag(q, tau) - q) at the symptom's times; both first
+    averaged over ``bin_s`` bins. ``flights``: (times s, symptom, tau -> regressor at those times) per flight
+    (concatenate a flight's clock segments). Returns tau -> (b, residual sum of squares, that sum with b = 0)."""
+    out: dict[float, Any] = {}
+    for tau in flights[0][2]:
+        xs, rs = [], []
+        for t, x, regressors in flights:
+            xb, rb = _binned(np.asarray(t, dtype=float), np.asarray(x, dtype=float), regressors[tau], bin_s)
+            if xb.size:
+                xs.append(xb - xb.mean())
+                rs.append(rb - rb.mean())
+        x_all, r_all = np.concatenate(xs), np.concatenate(rs)
+        denominator = float(r_all @ r_all)
+        b = float(r_all @ x_all) / denominator if denominator > 0.0 else 0.0
+        residual = x_all - b * r_all
+        out[tau] = (b, float(residual @ residual), float(x_all @ x_all))
+    return out
+
+
+def _soak_input(model: Path, flight: Path, source: str) -> tuple[Any, Any]:
+    """(log times s, the input the soak lags): the fold model's heat-input rate Q_in / C (degC/s, ``heat``), the
+    logged fuel flow (l/h, ``fuel``) or airspeed (m/s, ``airspeed``: a lagged cooling, not a soak)."""
+    if source == "heat":
+        t_log, rate, _ = _heat_rate(model, flight)
+        return t_log, rate
+    from ecu_monitor.bus.canlog import load_flight
+
+    log = load_flight(flight)
+    return log.time_s, np.asarray(log["fuel_flow_lph" if source == "fuel" else "airspeed_mps"], dtype=float)
+
+
+def _soak_feeds(
+    feeds: dict[Any, Any],
+    models: list[Path],
+    flights: list[Path],
+    taus: list[float],
+    source: str,
+    bin_s: float = SOAK_BIN_S,
+    coefficient: float | None = None,
+) -> tuple[dict[Any, Any], list[tuple[float, float, dict[float, Any]]]]:
+    """The replays' detector feeds less the fitted heat-soak term b (lag(q, tau) - q), per fold: b and tau fitted
+    (:func:`fit_soak`, tau the grid's best) on the fold's training flights' nominal replays only, then subtracted
+    from every replay of the fold (training nominal and overlaid, held-out nominal and overlaid: an overlay
+    changes the CHT only, so the regressor is the same). ``coefficient``: b given, not fitted (hindsight; tau
+    then the grid's only value). Returns the feeds and per fold (b, tau, the fit)."""
+    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+
+    n = len(flights)
+    out: dict[Any, Any] = {}
+    fits = []
+    for i in range(n):
+        regressors = []
+        for j in range(n):
+            t_log, q = _soak_input(models[i], flights[j], source)
+            regressors.append((t_log, {tau: first_order_lag(t_log, q, tau) - q for tau in taus}))
+        training = []
+        for j in range(n):
+            if j == i:
+                continue
+            segments = feeds[(i, j)].feed
+            t = np.concatenate([s[0] for s in segments])
+            x = np.concatenate([s[1] for s in segments])
+            t_log, per_tau = regressors[j]
+            training.append((t, x, {tau: np.interp(t, t_log, r) for tau, r in per_tau.items()}))
+        fit = fit_soak(training, bin_s)
+        tau = min(fit, key=lambda k: fit[k][1])
+        b = fit[tau][0] if coefficient is None else coefficient
+        fits.append((b, tau, fit))
+        for j in range(n):
+            t_log, per_tau = regressors[j]
+            term = b * per_tau[tau]
+
+            def less(feed: Any, t_log: Any = t_log, term: Any = term) -> Any:
+                return tuple((t, x - np.interp(t, t_log, term)) for t, x in feed)
+
+            f = feeds[(i, j)]
+            if j == i:
+                out[(i, j)] = [(onset, gain, start, less(feed)) for onset, gain, start, feed in f]
+            else:
+                runs = tuple(OverlayRun(r.onset_s, r.gain, less(r.feed)) for r in f.overlays)
+                out[(i, j)] = FlightFeeds(f.name, less(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
+    return out, fits
 
 
 def _learned_floor(training: list[Any], detector: Any, scale_s: float) -> float:
@@ -585,6 +714,31 @@ def main(argv: list[str] | None = None) -> int:
         " flights' nominal replays (repeatable; on the same replays)",
     )
     parser.add_argument(
+        "--soak",
+        help="TAU[,TAU...]: also evaluate calibrate's choice (nested) and each --variant on the symptom less a"
+        " heat-soak term b (lag(q, tau) - q), b by least squares and tau from this grid (s), both fitted per fold"
+        " on the training flights' nominal replays only (offline, on the same replays)",
+    )
+    parser.add_argument(
+        "--soak-input",
+        choices=("heat", "fuel", "airspeed"),
+        default="heat",
+        help="what --soak lags: the fold model's heat-input rate Q_in / C (heat), the logged fuel flow (fuel) or"
+        " the logged airspeed (airspeed: a cooling that follows the airspeed late, the same screen)",
+    )
+    parser.add_argument(
+        "--soak-coef",
+        type=float,
+        help="hindsight: b given, not fitted (--soak then a single TAU): what a soak term of that size would do",
+    )
+    parser.add_argument(
+        "--soak-bin",
+        type=float,
+        default=SOAK_BIN_S,
+        help="bins (s) the --soak fit averages the symptom and the regressor over first (longer: the fit weighs the"
+        " slow part of the symptom more)",
+    )
+    parser.add_argument(
         "--separability",
         action="store_true",
         help="also print per variant the hindsight separability: the held-out flights' largest nominal statistic"
@@ -607,6 +761,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not all(0.0 < f < 1.0 for f in args.heat_rate_floor):
         parser.error("--heat-rate-floor: expected a fraction of the median rate in (0, 1)")
+    try:
+        soak_taus = [float(v) for v in args.soak.split(",")] if args.soak else []
+    except ValueError:
+        parser.error(f"--soak: expected time constants in s separated by commas, got {args.soak!r}")
+    if not all(math.isfinite(v) and v > 0.0 for v in soak_taus):
+        parser.error("--soak: time constants must be positive")
+    if args.soak_coef is not None and len(soak_taus) != 1:
+        parser.error("--soak-coef: give --soak a single time constant")
+    if not (math.isfinite(args.soak_bin) and args.soak_bin > 0.0):
+        parser.error("--soak-bin: expected a positive width in s")
 
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.commands.calibrate import candidate_table
@@ -711,6 +875,19 @@ def main(argv: list[str] | None = None) -> int:
         label = f"calibrate's choice, symptom / heat rate (floor {floor:g})"
         fold_variants.append((label, [c.settings for c in nested_choice(weighted, f" ({label})")], weighted))
         fold_variants += [(f"{name}, heat rate (floor {floor:g})", [v] * n, weighted) for name, v in variants[1:]]
+    if soak_taus:
+        soaked, fits = _soak_feeds(feeds, models, flights, soak_taus, args.soak_input, args.soak_bin, args.soak_coef)
+        print(
+            f"\nheat soak ({args.soak_input}, {args.soak_bin:g} s bins): b and tau fitted per fold on the training"
+            " flights' nominal replays"
+        )
+        for i, (b, tau, fit) in enumerate(fits):
+            cells = ", ".join(f"tau {t:g} s: b {v[0]:+.4f}, RSS {v[1] / v[2]:.4f}" for t, v in fit.items())
+            print(f"  fold without {flights[i].name}: tau {tau:g} s, b {b:+.4f}  ({cells}; RSS relative to b = 0)")
+        given = "" if args.soak_coef is None else f", b {args.soak_coef:g} given"
+        label = f"calibrate's choice, less the heat soak ({args.soak_input}{given})"
+        fold_variants.append((label, [c.settings for c in nested_choice(soaked, f" ({label})")], soaked))
+        fold_variants += [(f"{name}, less the heat soak", [v] * n, soaked) for name, v in variants[1:]]
     for scale_s in args.scale:
         floors = [
             _learned_floor([feeds[(i, j)] for j in range(n) if j != i], config.detector, scale_s) for i in range(n)
@@ -803,7 +980,7 @@ def main(argv: list[str] | None = None) -> int:
         kind = f"GLR, rise delta {delta:g} degC/s x (1 - exp(-t/240 s))" if shaped else f"flat, allowance {delta / 2:g}"
         print(f"\n{kind}, onsets over the last {args.glr_window:g} s, baseline as each variant's (hindsight, no h):")
         for name, per_fold, variant_feeds in fold_variants:
-            if "heat rate" in name or "self-" in name:
+            if "heat rate" in name or "self-" in name or "soak" in name:
                 continue
             runs = [variant_feeds[(i, i)] for i in range(n)]
             _print_separability(name, _separability(runs, per_fold, spans, statistic))
@@ -826,7 +1003,9 @@ def main(argv: list[str] | None = None) -> int:
         _plot_misses(Path(args.plot_misses), flights, fold_variants[0][2], misses)
     if args.plot:
         raw = [
-            (name, per_fold) for name, per_fold, _ in fold_variants if "heat rate" not in name and "self-" not in name
+            (name, per_fold)
+            for name, per_fold, _ in fold_variants
+            if "heat rate" not in name and "self-" not in name and "soak" not in name
         ]
         _plot(Path(args.plot), flights, fold_variants[0][2], raw, thresholds)
     return 0

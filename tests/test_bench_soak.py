@@ -1,0 +1,72 @@
+"""The heat-soak screen of benchmarks/bench_detect_real.py (``--soak``): the first-order lag and the fit."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def bench() -> ModuleType:
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_detect_real.py"
+    spec = importlib.util.spec_from_file_location("bench_detect_real", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_lag_of_a_step_is_the_exponential_at_irregular_times(bench: ModuleType) -> None:
+    t = np.concatenate(([0.0], 1.0 + np.cumsum(np.linspace(0.5, 3.0, 400))))
+    q = np.ones(t.size)
+    q[0] = 0.0  # the step is seen from the second sample on (held between samples)
+    y = bench.first_order_lag(t, q, 300.0)
+    assert y[0] == 0.0
+    assert np.allclose(y[1:], 1.0 - np.exp(-(t[1:] - t[1]) / 300.0), rtol=0.0, atol=1e-12)
+
+
+def test_lag_fills_gaps_and_starts_at_rest(bench: ModuleType) -> None:
+    t = np.arange(0.0, 100.0)
+    q = np.full(t.size, 2.0)
+    q[[0, 10, 11]] = np.nan
+    assert np.allclose(bench.first_order_lag(t, q, 50.0), 2.0)
+    assert np.isnan(bench.first_order_lag(t, np.full(t.size, np.nan), 50.0)).all()
+
+
+def _flight(bench: ModuleType, rng: np.random.Generator, offset: float, taus: list[float], b: float, tau: float):
+    """Times (10 Hz), a symptom offset + b (lag(q, tau) - q) (+ gaps) and the regressors for ``taus``."""
+    t_log = np.arange(0.0, 5400.0)
+    q = np.repeat(rng.uniform(0.3, 1.6, 18), 300)  # a power step every 5 min
+    t = np.arange(0.0, 5399.0, 0.1)
+    regressors = {k: np.interp(t, t_log, bench.first_order_lag(t_log, q, k) - q) for k in taus}
+    x = offset + b * regressors[tau]
+    x[(t > 1000.0) & (t < 1100.0)] = np.nan  # the detector not fed (supervisor not NOMINAL)
+    return t, x, regressors
+
+
+def test_fit_finds_the_coefficient_and_time_constant_of_each_flight_s_offset_apart(bench: ModuleType) -> None:
+    rng = np.random.default_rng(3)
+    taus = [300.0, 600.0, 1200.0, 1800.0]
+    flights = [_flight(bench, rng, offset, taus, -0.04, 600.0) for offset in (0.02, -0.05, 0.1)]
+    fit = bench.fit_soak(flights)
+    assert set(fit) == set(taus)
+    best = min(fit, key=lambda k: fit[k][1])
+    assert best == 600.0
+    b, rss, rss0 = fit[600.0]
+    assert b == pytest.approx(-0.04, rel=1e-9)
+    assert rss == pytest.approx(0.0, abs=1e-12 * rss0) and rss0 > 0.0
+    assert all(fit[k][1] > 1e-3 * rss0 for k in taus if k != 600.0)
+
+
+def test_fit_of_a_symptom_without_the_term_gives_no_coefficient(bench: ModuleType) -> None:
+    rng = np.random.default_rng(4)
+    taus = [600.0]
+    flights = [_flight(bench, rng, 0.03, taus, 0.0, 600.0) for _ in range(2)]
+    b, rss, rss0 = bench.fit_soak(flights)[600.0]
+    assert b == 0.0 or math.isclose(b, 0.0, abs_tol=1e-12)
+    assert rss == pytest.approx(rss0)
