@@ -447,8 +447,9 @@ def dispatch_study(calls: int = 300, pace_s: float = 0.02) -> None:
     """What entering a compiled (numba) function costs, by argument list, warm and one call per 20 ms asleep
     (cold, as live): functions whose body is one store, called with the live filter call's arguments as they
     were (five arrays, 18 scalars and the model's Coefficients namedtuple, which numba types in Python at every
-    call), as they are (the coefficients as four arrays: ``ecu_monitor.model.pack_coefficients``), and with
-    three arrays only."""
+    call), as they were next (the coefficients as four arrays: ``ecu_monitor.model.pack_coefficients``), with
+    three arrays, and with one array through the dispatcher or through the compiled entry point of its one
+    signature (``service/live_call.py``'s workspace)."""
     import numba
     import numpy as np
 
@@ -470,6 +471,10 @@ def dispatch_study(calls: int = 300, pace_s: float = 0.02) -> None:
     def three_arrays(s, d, i):  # type: ignore[no-untyped-def]
         s[0] = d[0] + i[0]
 
+    @numba.njit
+    def one_array(w):  # type: ignore[no-untyped-def]
+        w[0] = w[1] + 1.0
+
     s, d, i, r, o = np.zeros(7), np.zeros(5), np.zeros((6, 1)), np.zeros((4, 1)), np.zeros(3)
     scalars = (0.02, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, True, 0, 5)
     cases = {
@@ -477,11 +482,14 @@ def dispatch_study(calls: int = 300, pace_s: float = 0.02) -> None:
             with_namedtuple,
             (s, d, i, r, o, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1.0, True, coeffs, *scalars),
         ),
-        "5 arrays, 18 scalars, coefficients as 4 arrays (now)": (
+        "5 arrays, 18 scalars, coefficients as 4 arrays (next)": (
             with_packed,
             (s, d, i, r, o, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1.0, True, *packed, *scalars),
         ),
         "3 arrays": (three_arrays, (s, d, d)),
+        "1 array through the dispatcher": (one_array, (s,)),
+        # what service/live_call.py calls: the compiled entry point of the one signature (no per-call typing)
+        "1 array, compiled entry point (LiveCall)": (one_array.compile("(float64[::1],)"), (s,)),
     }
     for function, arguments in cases.values():
         function(*arguments)  # compiled before timing
