@@ -245,6 +245,7 @@ class PhaseTimedDaemon(Daemon):
         msg.timestamp = now
         with self._lock:
             self.counters["frames_in"] += 1
+            self._silence.frame(now)  # as Daemon._on_frame (without it: "no frames for 10 s" warnings mid-run)
             started = time.perf_counter()
             self.pipeline.feed(msg)
             fed = time.perf_counter()
