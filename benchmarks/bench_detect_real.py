@@ -315,12 +315,13 @@ def _soak_feeds(
     source: str,
     bin_s: float = SOAK_BIN_S,
     coefficient: float | None = None,
-) -> tuple[dict[Any, Any], list[tuple[float, float, dict[float, Any]]]]:
+) -> tuple[dict[Any, Any], list[tuple[float, float, dict[float, Any], list[Any]]]]:
     """The replays' detector feeds less the fitted heat-soak term b (lag(q, tau) - q), per fold: b and tau fitted
     (:func:`fit_soak`, tau the grid's best) on the fold's training flights' nominal replays only, then subtracted
     from every replay of the fold (training nominal and overlaid, held-out nominal and overlaid: an overlay
     changes the CHT only, so the regressor is the same). ``coefficient``: b given, not fitted (hindsight; tau
-    then the grid's only value). Returns the feeds and per fold (b, tau, the fit)."""
+    then the grid's only value). Returns the feeds and per fold (b, tau, the fit, per flight (log times s,
+    tau -> regressor))."""
     from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
 
     n = len(flights)
@@ -343,7 +344,7 @@ def _soak_feeds(
         fit = fit_soak(training, bin_s)
         tau = min(fit, key=lambda k: fit[k][1])
         b = fit[tau][0] if coefficient is None else coefficient
-        fits.append((b, tau, fit))
+        fits.append((b, tau, fit, regressors))
         for j in range(n):
             t_log, per_tau = regressors[j]
             term = b * per_tau[tau]
@@ -358,6 +359,35 @@ def _soak_feeds(
                 runs = tuple(OverlayRun(r.onset_s, r.gain, less(r.feed)) for r in f.overlays)
                 out[(i, j)] = FlightFeeds(f.name, less(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
     return out, fits
+
+
+def _print_excursions(flights: list[Path], feeds: dict[Any, Any], per_fold: list[Any], fits: list[Any]) -> None:
+    """Per held-out flight, the largest excursions of its nominal statistic (calibrate's choice, the symptom as
+    replayed): when S rose from 0 and peaked, the peak, the mean block excess over the baseline, and the mean
+    soak regressor (lag(q, tau) - q, the fold's) over the excursion for each tau of the grid: a soak explains
+    an excursion when its regressor has the excess's sign and size / b."""
+    print("largest nominal excursions (calibrate's choice, before the soak term) and the regressor over each:")
+    for i, flight in enumerate(flights):
+        start, settings = feeds[(i, i)][0][2], per_fold[i]
+        t_log, per_tau = fits[i][3][i]
+        rows = []
+        for t, x in next(feed for onset, _, _, feed in feeds[(i, i)] if not math.isfinite(onset)):
+            ends, means, stat, baseline = _baseline_path(t, x, settings)
+            rising = np.flatnonzero((stat > 0.0) & (np.concatenate(([0.0], stat[:-1])) == 0.0))
+            for a in rising:
+                back = np.flatnonzero(stat[a:] == 0.0)
+                b = a + (back[0] if back.size else stat.size - a)
+                peak = a + int(np.argmax(stat[a:b]))
+                window = slice(a, peak + 1)
+                regressors = {tau: float(np.mean(np.interp(ends[window], t_log, r))) for tau, r in per_tau.items()}
+                excess = float(np.nanmean(means[window] - baseline[window]))
+                rows.append(
+                    (float(stat[peak]), (ends[a] - start) / 60.0, (ends[peak] - start) / 60.0, excess, regressors)
+                )
+        for peak, a, b, excess, regressors in sorted(rows, key=lambda row: -row[0])[:3]:
+            shown = ", ".join(f"{tau:g} s {v:+.3f}" for tau, v in regressors.items())
+            where = f"S {peak:5.1f} at {b:5.1f} min (from {a:5.1f} min)"
+            print(f"  {flight.name}: {where}, excess {excess:+.3f} degC/s; regressor {shown}")
 
 
 def _learned_floor(training: list[Any], detector: Any, scale_s: float) -> float:
@@ -881,10 +911,11 @@ def main(argv: list[str] | None = None) -> int:
             f"\nheat soak ({args.soak_input}, {args.soak_bin:g} s bins): b and tau fitted per fold on the training"
             " flights' nominal replays"
         )
-        for i, (b, tau, fit) in enumerate(fits):
+        for i, (b, tau, fit, _) in enumerate(fits):
             cells = ", ".join(f"tau {t:g} s: b {v[0]:+.4f}, RSS {v[1] / v[2]:.4f}" for t, v in fit.items())
             print(f"  fold without {flights[i].name}: tau {tau:g} s, b {b:+.4f}  ({cells}; RSS relative to b = 0)")
         given = "" if args.soak_coef is None else f", b {args.soak_coef:g} given"
+        _print_excursions(flights, feeds, [c.settings for c in chosen], fits)
         label = f"calibrate's choice, less the heat soak ({args.soak_input}{given})"
         fold_variants.append((label, [c.settings for c in nested_choice(soaked, f" ({label})")], soaked))
         fold_variants += [(f"{name}, less the heat soak", [v] * n, soaked) for name, v in variants[1:]]
