@@ -57,7 +57,8 @@ flights' nominal replays only, the symptom is regressed (least squares, one inte
 grid's best fit; b x that regressor is subtracted from every replay of the fold (an overlay changes the CHT
 only, so the regressor is the same), and calibrate's choice (nested) and each ``--variant`` are evaluated on
 the result. A soak (head warmer than the model after a power reduction) gives b > 0. ``--soak-coef B`` gives
-b instead of fitting it (hindsight, one tau).
+b instead of fitting it (hindsight, one tau); ``--soak-even`` regresses on |lag(q, tau) - q| instead (the head
+warmer than the model after a change of either sign).
 """
 
 from __future__ import annotations
@@ -315,13 +316,14 @@ def _soak_feeds(
     source: str,
     bin_s: float = SOAK_BIN_S,
     coefficient: float | None = None,
+    even: bool = False,
 ) -> tuple[dict[Any, Any], list[tuple[float, float, dict[float, Any], list[Any]]]]:
     """The replays' detector feeds less the fitted heat-soak term b (lag(q, tau) - q), per fold: b and tau fitted
     (:func:`fit_soak`, tau the grid's best) on the fold's training flights' nominal replays only, then subtracted
     from every replay of the fold (training nominal and overlaid, held-out nominal and overlaid: an overlay
     changes the CHT only, so the regressor is the same). ``coefficient``: b given, not fitted (hindsight; tau
-    then the grid's only value). Returns the feeds and per fold (b, tau, the fit, per flight (log times s,
-    tau -> regressor))."""
+    then the grid's only value); ``even``: the regressor |lag(q, tau) - q|. Returns the feeds and per fold (b,
+    tau, the fit, per flight (log times s, tau -> regressor))."""
     from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
 
     n = len(flights)
@@ -331,7 +333,8 @@ def _soak_feeds(
         regressors = []
         for j in range(n):
             t_log, q = _soak_input(models[i], flights[j], source)
-            regressors.append((t_log, {tau: first_order_lag(t_log, q, tau) - q for tau in taus}))
+            lagged = {tau: first_order_lag(t_log, q, tau) - q for tau in taus}
+            regressors.append((t_log, {tau: np.abs(r) if even else r for tau, r in lagged.items()}))
         training = []
         for j in range(n):
             if j == i:
@@ -757,6 +760,12 @@ def main(argv: list[str] | None = None) -> int:
         " the logged airspeed (airspeed: a cooling that follows the airspeed late, the same screen)",
     )
     parser.add_argument(
+        "--soak-even",
+        action="store_true",
+        help="the --soak regressor |lag(q, tau) - q| (even in the change's sign: the head warmer than the model"
+        " after any change of operating point, not a soak)",
+    )
+    parser.add_argument(
         "--soak-coef",
         type=float,
         help="hindsight: b given, not fitted (--soak then a single TAU): what a soak term of that size would do",
@@ -906,7 +915,9 @@ def main(argv: list[str] | None = None) -> int:
         fold_variants.append((label, [c.settings for c in nested_choice(weighted, f" ({label})")], weighted))
         fold_variants += [(f"{name}, heat rate (floor {floor:g})", [v] * n, weighted) for name, v in variants[1:]]
     if soak_taus:
-        soaked, fits = _soak_feeds(feeds, models, flights, soak_taus, args.soak_input, args.soak_bin, args.soak_coef)
+        soaked, fits = _soak_feeds(
+            feeds, models, flights, soak_taus, args.soak_input, args.soak_bin, args.soak_coef, args.soak_even
+        )
         print(
             f"\nheat soak ({args.soak_input}, {args.soak_bin:g} s bins): b and tau fitted per fold on the training"
             " flights' nominal replays"
@@ -915,6 +926,7 @@ def main(argv: list[str] | None = None) -> int:
             cells = ", ".join(f"tau {t:g} s: b {v[0]:+.4f}, RSS {v[1] / v[2]:.4f}" for t, v in fit.items())
             print(f"  fold without {flights[i].name}: tau {tau:g} s, b {b:+.4f}  ({cells}; RSS relative to b = 0)")
         given = "" if args.soak_coef is None else f", b {args.soak_coef:g} given"
+        given += ", even" if args.soak_even else ""
         _print_excursions(flights, feeds, [c.settings for c in chosen], fits)
         label = f"calibrate's choice, less the heat soak ({args.soak_input}{given})"
         fold_variants.append((label, [c.settings for c in nested_choice(soaked, f" ({label})")], soaked))
