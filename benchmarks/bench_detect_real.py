@@ -945,6 +945,8 @@ def main(argv: list[str] | None = None) -> int:
              for f in floors], feeds) for name, v in variants[1:]
         ]  # fmt: skip
     report: dict[str, Any] = {"choices": [c.reason for c in chosen]}
+    if soak_taus:  # per fold: the soak term's b and tau, and per tau of the grid (b, RSS, RSS with b = 0)
+        report["soak"] = [{"b": b, "tau_s": tau, "fit": {str(k): v for k, v in fit.items()}} for b, tau, fit, _ in fits]
     misses: list[Any] = []  # calibrate's choice: (flight, onset, gain, delay, settings with h) of late counted onsets
     thresholds: dict[str, list[float]] = {}
     for name, per_fold, variant_feeds in fold_variants:
