@@ -134,7 +134,12 @@ class Lines:
 _LISTENER = textwrap.dedent(
     """
     import sys, time, can
-    bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]))
+    from ecu_monitor.bus.kernel_filter import attach_kernel_filter
+    # only the health ids, dropped in the kernel otherwise: under a 4,000 frames/s flood on a loaded
+    # machine the socket's queue would otherwise overflow and lose health frames the daemon did send
+    filters = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in (0x300, 0x301, 0x302)]
+    bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]), can_filters=filters)
+    assert attach_kernel_filter(bus, filters)
     print("listening", flush=True)
     while True:
         msg = bus.recv(0.5)
