@@ -32,7 +32,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from netns import multicast_namespace
+from netns import kill_all, multicast_namespace
 
 REPO = Path(__file__).resolve().parent.parent
 GROUP = "239.74.163.2"
@@ -137,10 +137,7 @@ def main() -> None:
             traffic_hz = (traffic_sent() - sent_before) / wall
             load = os.getloadavg()[0]
         finally:
-            for proc in procs.values():
-                if proc.poll() is None:
-                    proc.kill()
-                proc.wait(timeout=10)
+            kill_all(list(procs.values()))
     usage = {name: (after[name] - before[name]) / wall * 100.0 for name in before}
     print(
         f"udp_multicast in a network namespace, {wall:.1f} s after {args.warmup:g} s warm-up, other traffic "

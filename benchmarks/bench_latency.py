@@ -55,13 +55,13 @@ import textwrap
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import can
 import yaml
-from netns import multicast_namespace
+from netns import kill_all, multicast_namespace
 
 from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.service.config import parse_config
@@ -548,29 +548,19 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
     live_call = getattr(pipeline_module, "LiveCall", None)  # older checkouts: three calls, no LiveCall
     if live_call is not None:
         wrap(live_call, "call", "one compiled call: reference, supervision, estimator, isolation")
+    totals: dict[int, list[float]] = {}
+
+    def after_the_estimators_start(k: int) -> None:
+        if k == 100:
+            timings.clear()
+            totals.clear()
+
     try:
         config = _config("unused")
         pipeline = Pipeline(config, config.load_params())
-        encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
-        counters = dict.fromkeys(ECU_VALUES, 0)
-        t = 0.0
-        pipeline.advance_to(t)
-        totals: dict[int, list[float]] = {}
-        for k in range(steps):
-            t += 0.02
-            time.sleep(pace_s)
-            if k == 100:  # after the estimator's start
-                timings.clear()
-                totals.clear()
-            for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
-                data = encoder.encode(name, ECU_VALUES[name], counters[name])
-                counters[name] += 1
-                msg = can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data)
-                started = time.perf_counter()
-                pipeline.feed(msg)
-                frames = pipeline.advance_to(t)
-                if frames:
-                    totals.setdefault(len(frames), []).append((time.perf_counter() - started) * 1e6)
+        for sent, cost_us in paced_steps(pipeline, steps, pace_s, before_step=after_the_estimators_start):
+            if sent:
+                totals.setdefault(sent, []).append(cost_us)
     finally:
         for owner, attribute, function in originals:
             setattr(owner, attribute, function)
@@ -618,13 +608,30 @@ def pipeline_cost(
     the scheduler preempts). ``gc_off``: automatic garbage collection off during the loop."""
     config = _config("unused")
     pipeline = Pipeline(config, config.load_params())
+    if gc_off:
+        gc.disable()
+    costs = [cost_us for sent, cost_us in paced_steps(pipeline, steps, pace_s, spin=spin) if sent]
+    gc.enable()
+    p50, p99, _ = _percentiles(costs[50:])  # after the estimator's start
+    return p50, p99
+
+
+def paced_steps(
+    pipeline: Pipeline,
+    steps: int,
+    pace_s: float,
+    spin: bool = False,
+    before_step: Callable[[int], None] | None = None,
+) -> Iterator[tuple[int, float]]:
+    """Feed ``pipeline`` the ECU frames of ``steps`` 20 ms steps (ECU_Fast each step, ECU_Slow and AirData
+    every fifth), ``feed`` then ``advance_to`` per frame as the daemon does, waiting ``pace_s`` before each
+    step (asleep, or with ``spin`` busy on the clock: the core stays awake at full clock). Yields, per
+    frame, (health frames that step sent, its feed + advance_to in us). ``before_step(k)`` runs after the
+    wait, before step k's frames."""
     encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
     counters = dict.fromkeys(ECU_VALUES, 0)
     t = 0.0
     pipeline.advance_to(t)
-    costs = []
-    if gc_off:
-        gc.disable()
     for k in range(steps):
         t += 0.02
         if pace_s > 0.0 and spin:
@@ -633,6 +640,8 @@ def pipeline_cost(
                 pass
         elif pace_s > 0.0:
             time.sleep(pace_s)
+        if before_step is not None:
+            before_step(k)
         for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
             data = encoder.encode(name, ECU_VALUES[name], counters[name])
             counters[name] += 1
@@ -640,11 +649,7 @@ def pipeline_cost(
             started = time.perf_counter()
             pipeline.feed(msg)
             frames = pipeline.advance_to(t)
-            if frames:
-                costs.append((time.perf_counter() - started) * 1e6)
-    gc.enable()
-    p50, p99, _ = _percentiles(costs[50:])  # after the estimator's start
-    return p50, p99
+            yield len(frames), (time.perf_counter() - started) * 1e6
 
 
 # --- across processes, udp_multicast in a network namespace -------------------------------------------
@@ -800,10 +805,7 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
                 row["cpu_pct"] = cpu_pct
                 rows.append(row)
         finally:
-            for proc in procs:
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait(timeout=10)
+            kill_all(procs)
     return rows
 
 

@@ -69,7 +69,7 @@ from typing import Any
 import bench_latency  # this folder's module (run as a script): run_case and its helpers
 import can
 import yaml
-from netns import multicast_namespace
+from netns import kill_all, multicast_namespace
 
 from ecu_monitor.bus.dronecan import DroneCanEncoder
 from ecu_monitor.service.config import parse_config
@@ -252,10 +252,7 @@ def run_netns(seconds: float, traffic_hz: float, repeat: int) -> list[dict[str, 
                     _print_case(case, row)
                 rounds.append(round_results)
         finally:
-            for proc in procs:
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait(timeout=10)
+            kill_all(procs)
     return rounds
 
 

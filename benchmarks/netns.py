@@ -13,7 +13,7 @@ import subprocess
 import sys
 import tempfile
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,3 +54,11 @@ def multicast_namespace(group: str, port: int, why: str) -> Iterator[MulticastNa
     finally:
         subprocess.run(["ip", "netns", "delete", name], capture_output=True)
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def kill_all(procs: Sequence[subprocess.Popen[str]]) -> None:
+    """Kill each of ``procs`` still running and reap them all: the cleanup of a benchmark's helper processes."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=10)
