@@ -58,6 +58,7 @@ def _scenario(estimator: dict[str, Any], fused: bool, monkeypatch: pytest.Monkey
         {"name": "cbekf-au", "dt_s": 0.02, "reset": "midpoint"},
         {"name": "cbekf", "dt_s": 0.02},
         {"name": "ekf", "dt_s": 0.02},
+        {"name": "cbekf-iso", "dt_s": 0.02},  # the isolation filter as estimator: run once for both
     ],
 )
 def test_one_compiled_call_equals_the_separate_calls_bit_for_bit(
@@ -70,8 +71,23 @@ def test_one_compiled_call_equals_the_separate_calls_bit_for_bit(
     assert rows == rows_apart  # repr: the shortest round-trip form of every float, so equal means bit-equal
 
 
-def test_the_isolation_filter_as_estimator_keeps_the_separate_calls(monkeypatch: pytest.MonkeyPatch) -> None:
-    pipeline = Pipeline(_config(estimator={"name": "cbekf-iso", "dt_s": 0.02}), paper_table_a1())
-    _run(pipeline, SteadyEcu().frames(5.0))
-    assert pipeline.snapshot().state == "NOMINAL"
-    assert pipeline._single.live is None and pipeline._single.estimator is not None
+def test_an_isolation_filter_unlike_the_pipelines_is_not_folded() -> None:
+    """cbekf-iso is run once for estimator and isolation filter only when the two are the same filter."""
+    from ecu_monitor.estimation import EstimatorSettings, make_estimator
+    from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings
+    from ecu_monitor.model import InputSeries, coefficients
+
+    params = paper_table_a1()
+    u = InputSeries(50.0, 6000.0, 1000.0, 40.0, 15.0)
+    reference = make_estimator("ekf", params, EstimatorSettings(dt_s=0.02))
+    same = IsolationFilter(params, IsolationSettings(dt_s=0.02))
+    other = IsolationFilter(params, IsolationSettings(dt_s=0.02, gamma_max=2.0))
+    later = IsolationFilter(params, IsolationSettings(dt_s=0.02))
+    isolation = IsolationFilter(params, IsolationSettings(dt_s=0.02))
+    for filt in (reference, same, other, later, isolation):
+        filt.initialise(0.0, u, 150.0)
+    later.estimate(0.1, u, 151.0)
+    args = (coefficients(params), 0.0, 5.0, 10.0, 0.5)
+    assert live_call.LiveCall.of(reference, same, isolation, *args) is not None
+    assert live_call.LiveCall.of(reference, other, isolation, *args) is None
+    assert live_call.LiveCall.of(reference, later, isolation, *args) is None

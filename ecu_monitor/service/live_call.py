@@ -3,7 +3,8 @@
 On a step where the filters are called (every ``FILTER_PERIOD_S``) a running cylinder needs, in this
 order: the open-loop reference EKF (its CHT is the supervisor's model for the stuck-probe test), the
 supervision step, then the estimator (EKF, CBEKF or CBEKF-AU) and the isolation filter with the
-reading the supervisor lets through. Done as three compiled calls with Python between them, each call
+reading the supervisor lets through (with ``cbekf-iso`` the estimator is an isolation filter equal to the
+other one, run once for both). Done as three compiled calls with Python between them, each call
 entered the numba dispatcher with ~25 arguments, and a step paced one frame per 20 ms (caches cold)
 paid ~25-45 us per entry (docs/performance.md, "Live p99"). :class:`LiveCall` does the same in one
 compiled call with one argument: a float64 workspace holding the three filters' states and held
@@ -42,15 +43,16 @@ _ISO = 24  # isolation filter: state (13), Drive (5)
 _ISO_MODEL = 42  # (4) C_w, tau_w, 1/(alpha R_e), radiation offset
 _ISO_CFG = 46  # (7) IsolationSettings.vector()
 # dt, Q, R, a, b, c, tau, use_deviation, reset_code, stale limit, stuck after, stuck change, then the
-# reference's use_deviation, reset code and "measured" (all 0) (15)
+# reference's use_deviation, reset code and "measured" (all 0), then 1 when the estimator is the isolation
+# filter (cbekf-iso: the estimate is the isolation filter's own, _EST unused) (16)
 _SET = 53
-_INPUTS = 68  # scratch (6, 1) of the drive kernel
-_ROWS = 74  # scratch (4, 1)
-_OUT = 78  # scratch (3) of the filter calls
-_ARGS = 81  # time, u (6), reading, new_reading, reading_bad, any_stale, pending, steps (13)
-_SV = 94  # supervisor state (6): in, and out after the call
-_RESULT = 100  # code, action, model_c, cht_est_c, deviation, gamma_q, gamma_d, iso_deviation (8)
-_COEFFS = 108  # n scalars, n x, n y, then the packed coefficients: scalars, heat values (row-major), x, y
+_INPUTS = 69  # scratch (6, 1) of the drive kernel
+_ROWS = 75  # scratch (4, 1)
+_OUT = 79  # scratch (3) of the filter calls
+_ARGS = 82  # time, u (6), reading, new_reading, reading_bad, any_stale, pending, steps (13)
+_SV = 95  # supervisor state (6): in, and out after the call
+_RESULT = 101  # code, action, model_c, cht_est_c, deviation, gamma_q, gamma_d, iso_deviation (8)
+_COEFFS = 109  # n scalars, n x, n y, then the packed coefficients: scalars, heat values (row-major), x, y
 _EKF_STATE, _DRIVE, _ISO_STATE = 7, 5, 13
 
 
@@ -107,13 +109,18 @@ def _live_call(ws: Any) -> None:
         return
     measured = pending and code == CODE_NOMINAL and np.isfinite(reading)
     z = reading if measured else np.nan
-    ekf_live(ws[_EST : _EST + 7], ws[_EST + 7 : _EST + 12], inputs, rows, out, u0, u1, u2, u3, u4, u5, z, measured,
-             cs, hv, xb, yb, dt, q, r, a, b, c, tau, use_deviation, reset_code, steps)  # fmt: skip
-    ws[_RESULT + 3] = ws[_EST]
-    ws[_RESULT + 4] = ws[_EST + 3] / dt if use_deviation else 0.0
+    iso_estimator = ws[_SET + 15] != 0.0
+    if not iso_estimator:
+        ekf_live(ws[_EST : _EST + 7], ws[_EST + 7 : _EST + 12], inputs, rows, out, u0, u1, u2, u3, u4, u5, z,
+                 measured, cs, hv, xb, yb, dt, q, r, a, b, c, tau, use_deviation, reset_code, steps)  # fmt: skip
+        ws[_RESULT + 3] = ws[_EST]
+        ws[_RESULT + 4] = ws[_EST + 3] / dt if use_deviation else 0.0
     iso = ws[_ISO : _ISO + 13]
     iso_live(iso, ws[_ISO + 13 : _ISO + 18], inputs, rows, out, u0, u1, u2, u3, u4, u5, z, measured, steps,
              ws[_ISO_MODEL : _ISO_MODEL + 4], ws[_ISO_CFG : _ISO_CFG + 7], cs, hv, xb, yb)  # fmt: skip
+    if iso_estimator:  # the estimator is an isolation filter equal to this one: its estimate is this one's
+        ws[_RESULT + 3] = iso[0]
+        ws[_RESULT + 4] = out[2]
     ws[_RESULT + 5] = iso[1]
     ws[_RESULT + 6] = iso[2]
     ws[_RESULT + 7] = out[2]
@@ -150,10 +157,11 @@ class LiveCall:
     """One cylinder's reference, estimator and isolation filter after initialisation, called as one
     compiled call per filter period (:meth:`call`). Build it with :meth:`of`."""
 
-    __slots__ = ("_call", "_mv", "_time_s", "dt_s", "ws")
+    __slots__ = ("_call", "_drive_at", "_mv", "_time_s", "dt_s", "ws")
 
-    def __init__(self, ws: np.ndarray, time_s: float, dt_s: float) -> None:
+    def __init__(self, ws: np.ndarray, time_s: float, dt_s: float, drive_at: int) -> None:
         self.ws = ws
+        self._drive_at = drive_at  # the estimator's held drive in ws (the isolation filter's for cbekf-iso)
         self._mv: Any = memoryview(cast(Any, ws))  # item access on plain floats, without numpy scalars
         self._time_s = time_s
         self.dt_s = dt_s
@@ -171,26 +179,38 @@ class LiveCall:
         stuck_change_c: float,
     ) -> LiveCall | None:
         """The call of these filters, just initialised at ``time_s`` (s) on the model whose coefficients are
-        ``coeffs``, or None when they are not the kinds it runs (a compiled EKF-family reference and
-        estimator, and an isolation filter)."""
+        ``coeffs``, or None when they are not the kinds it runs: a compiled EKF reference, an isolation filter,
+        and as estimator a compiled EKF-family filter on the reference's settings or an isolation filter equal
+        to ``isolation`` (cbekf-iso: same parameters, settings and state; the call runs it once for both)."""
         if not (
             isinstance(reference, ThermalEKF)
-            and isinstance(estimator, ThermalEKF)
             and isinstance(isolation, IsolationFilter)
             and reference.compiled
-            and estimator.compiled
             and not reference.use_deviation
             and reference.reset_mode == "none"
-            and reference.settings == estimator.settings
-            and reference.params is estimator.params
-            and isolation.params is estimator.params
-            and isolation.settings.dt_s == estimator.settings.dt_s
+            and isolation.params is reference.params
+            and isolation.settings.dt_s == reference.settings.dt_s
+        ):
+            return None
+        iso_estimator = isinstance(estimator, IsolationFilter)
+        if iso_estimator:
+            if not (
+                estimator.params is isolation.params
+                and estimator.settings == isolation.settings
+                and all(map(np.array_equal, estimator.live_arrays(), isolation.live_arrays()))
+            ):
+                return None
+        elif not (
+            isinstance(estimator, ThermalEKF)
+            and estimator.compiled
+            and estimator.settings == reference.settings
+            and estimator.params is reference.params
         ):
             return None
         packed = pack_coefficients(coeffs)
         n_x, n_y = packed.heat_values_w.shape
         ws = np.zeros(_COEFFS + 3 + packed.scalars.size + n_x * n_y + n_x + n_y)
-        for at, ekf in ((_REF, reference), (_EST, estimator)):
+        for at, ekf in ((_REF, reference),) if iso_estimator else ((_REF, reference), (_EST, estimator)):
             drive = ekf.held_drive
             if drive is None:
                 raise EstimationError(f"{ekf.name}: not initialised")
@@ -201,18 +221,20 @@ class LiveCall:
         ws[_ISO + _ISO_STATE : _ISO + _ISO_STATE + _DRIVE] = iso_drive
         ws[_ISO_MODEL : _ISO_MODEL + 4] = model
         ws[_ISO_CFG : _ISO_CFG + 7] = cfg
-        s = estimator.settings
-        ws[_SET : _SET + 15] = (s.dt_s, s.process_var, s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c,
-                                s.deviation_time_s, float(estimator.use_deviation), _RESET_CODES[estimator.reset_mode],
-                                stale_limit_s, stuck_after_s, stuck_change_c, float(reference.use_deviation),
-                                _RESET_CODES[reference.reset_mode], 0.0)  # fmt: skip
+        s = reference.settings
+        use_deviation = False if iso_estimator else estimator.use_deviation
+        reset_code = _RESET_CODES["none" if iso_estimator else estimator.reset_mode]
+        ws[_SET : _SET + 16] = (s.dt_s, s.process_var, s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c,
+                                s.deviation_time_s, float(use_deviation), reset_code, stale_limit_s, stuck_after_s,
+                                stuck_change_c, float(reference.use_deviation), _RESET_CODES[reference.reset_mode],
+                                0.0, float(iso_estimator))  # fmt: skip
         at = _COEFFS
         ws[at : at + 3] = (packed.scalars.size, n_x, n_y)
         at += 3
         for part in packed:
             ws[at : at + part.size] = part.ravel()
             at += part.size
-        return LiveCall(ws, float(time_s), s.dt_s)
+        return LiveCall(ws, float(time_s), s.dt_s, _ISO + _ISO_STATE if iso_estimator else _EST + _EKF_STATE)
 
     def call(
         self,
@@ -265,5 +287,5 @@ class LiveCall:
 
     def estimator_drive(self) -> Drive:
         """The model's drive at the inputs of the latest call, as the estimator holds it (floats, equal bit for
-        bit to ``ThermalEKF.held_drive``)."""
-        return Drive(*self._mv[_EST + _EKF_STATE : _EST + _EKF_STATE + _DRIVE].tolist())
+        bit to ``ThermalEKF.held_drive``; for cbekf-iso the isolation filter's, from the same compiled kernel)."""
+        return Drive(*self._mv[self._drive_at : self._drive_at + _DRIVE].tolist())

@@ -551,7 +551,7 @@ class Pipeline:
             cyl.sv, code, action, model_c, est_c, deviation, gamma_q, gamma_d, iso_deviation = live.call(
                 time_s, u, any_stale, new_reading, reading, reading_bad, cyl.pending_reading, cyl.sv
             )
-        else:
+        else:  # separate calls: an estimator the one call does not run (one added by register_estimator)
             if call and cyl.reference is not None:
                 cyl.held = cyl.held._replace(model_c=cyl.reference.estimate(time_s, u, None).cht_c)
             model_c = cyl.held.model_c if cyl.sv.running else reading
