@@ -164,3 +164,36 @@ def test_gap_cli_without_model_identifies_then_reidentifies(flights: dict[str, P
     assert best["id"] == "sensor_lag" and best["bootstrap_significant"] and best["shrink_pct"] >= 20.0
     if doc["verdict"]["effect"] == "sensor_lag":
         assert load_model(out / "model.yaml").effects.sensor_lag is not None
+
+
+def test_gap_cli_without_model_takes_fuel_flow_axes_when_no_throttle_is_logged(
+    flights: dict[str, Path], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """A G1000-like log (fuel flow, no throttle) identifies on fuel_flow_lph,rpm as ``identify`` does,
+    instead of failing on the missing throttle column."""
+    import csv
+
+    from ecu_monitor.commands import gap as gap_command
+    from ecu_monitor.errors import UserInputError
+
+    paths = []
+    for name in ("train", "test"):
+        with flights[name].open(newline="", encoding="utf-8") as f:
+            rows = list(csv.DictReader(f))
+        path = flights["root"] / f"{name}-no-throttle.csv"
+        with path.open("w", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, [c for c in rows[0] if c != "throttle_pct"], extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+        paths.append(str(path))
+    seen: list[tuple[str, str]] = []
+
+    def identify_stub(logs: object, axes: tuple[str, str], label: str) -> None:
+        seen.append(axes)
+        raise UserInputError("stub: stop before the PSO")
+
+    monkeypatch.setattr(gap_command, "_identify", identify_stub)
+    args = ["gap", "--train", paths[0], "--test", paths[1], "--out", str(flights["root"] / "no-throttle")]
+    assert main(args) == 2
+    assert seen == [("fuel_flow_lph", "rpm")]
+    assert "heat map on fuel_flow_lph,rpm" in capsys.readouterr().err

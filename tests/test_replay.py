@@ -279,3 +279,29 @@ def test_latest_frame_before_each_step_is_the_binary_search():
         frames = np.sort(np.round(rng.random(rng.integers(0, 40)) * 10.0, 1))  # repeated stamps too
         steps = np.unique(np.round(rng.random(rng.integers(1, 60)) * 12.0, 1))
         assert np.array_equal(latest_before(frames, steps), np.searchsorted(frames, steps, side="left") - 1)
+
+
+def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning(
+    flight: dict[str, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    """A real log's fuel flow above engine.dbc's FuelFlow range (50 L/h; a Lycoming at full power burns
+    ~57) is sent clamped, as that ECU would send it, and the replay says so once, naming the column."""
+    from ecu_monitor.flightlog import load_csv
+    from ecu_monitor.service.replay import frames_from_flight
+
+    log = load_csv(flight["csv"])
+    fuel = np.asarray(log["fuel_flow_lph"], dtype=float)
+    config = load_config(ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml")
+    with caplog.at_level("WARNING", logger="ecu_monitor.service.flight_frames"):
+        frames_from_flight(log, config)
+    assert not caplog.records  # the virtual ECU's own flight stays inside its DBC
+    hot = log.with_columns(fuel_flow_lph=np.where(np.arange(fuel.size) % 10 == 0, 57.5, fuel))
+    with caplog.at_level("WARNING", logger="ecu_monitor.service.flight_frames"):
+        frames = frames_from_flight(hot, config)
+    [record] = caplog.records
+    text = record.getMessage()
+    assert "fuel_flow_lph" in text and "ECU_Fast.FuelFlow" in text and "[0, 50]" in text and "57.5" in text
+    assert f"in {(fuel.size + 9) // 10} of {fuel.size} rows" in text
+    fast = frames.arbitration_id == 0x100  # ECU_Fast: FuelFlow at bit 32, 0.01 L/h; 50 L/h the largest sent
+    raw = frames.data[fast][:, 4].astype(int) | (frames.data[fast][:, 5].astype(int) << 8)
+    assert raw.max() * 0.01 == pytest.approx(50.0)

@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ecu_monitor.commands.identify import parse_heat_axes
+from ecu_monitor.commands.identify import choose_heat_axes, parse_heat_axes
 from ecu_monitor.errors import ConfigError, UserInputError
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
@@ -61,7 +61,9 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
-        "--heat-axes", metavar="COL,COL", help="heat-map axes when identifying (default throttle_pct,rpm)"
+        "--heat-axes",
+        metavar="COL,COL",
+        help="heat-map axes when identifying (default throttle_pct,rpm; fuel_flow_lph,rpm for a log without throttle)",
     )
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for foreign CSVs")
     parser.add_argument("--split-at", type=float, metavar="S", help="with --train only: train before S s, test after")
@@ -264,11 +266,7 @@ def _run(args: argparse.Namespace) -> int:
     nominal = load_model(args.model) if args.model else None
     if nominal is not None and args.heat_axes and parse_heat_axes(args.heat_axes) != nominal.heat_axes:
         raise UserInputError(f"--heat-axes {args.heat_axes}: the model's heat map is on {','.join(nominal.heat_axes)}")
-    axes = (
-        nominal.heat_axes
-        if nominal is not None
-        else (parse_heat_axes(args.heat_axes) if args.heat_axes else ("throttle_pct", "rpm"))
-    )
+    axes = nominal.heat_axes if nominal is not None else choose_heat_axes(args.heat_axes, [*trains, *tests])
     for log in (*trains, *tests):
         model_inputs(log, axes)  # fail early, naming the flight and the missing column
     settings = _settings(args, candidates_for(axes, [*trains, *tests]))
@@ -302,5 +300,7 @@ def _run(args: argparse.Namespace) -> int:
     for row in doc["per_flight"]:
         after = f" -> {row['test_rms_c']:.2f} ({row['shrink_pct']:+.0f} %)" if "test_rms_c" in row else ""
         print(f"  {row['flight']}: RMS {row['baseline_rms_c']:.2f}{after} degC")
-    print(f"wrote {args.out}/gap.json, report.md, model.yaml and plots ({time.perf_counter() - started:.1f} s)")
+    print(
+        f"wrote {Path(args.out) / 'gap.json'}, report.md, model.yaml and plots ({time.perf_counter() - started:.1f} s)"
+    )
     return 0

@@ -51,7 +51,11 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("flights", nargs="+", metavar="FLIGHT.csv", help="training flight log(s)")
     parser.add_argument("--out", required=True, metavar="MODEL.yaml", help="identified model to write")
     parser.add_argument("--validate", nargs="+", default=[], metavar="FLIGHT.csv", help="held-out flight log(s)")
-    parser.add_argument("--heat-axes", metavar="COL,COL", help="heat-map axes (default throttle_pct,rpm)")
+    parser.add_argument(
+        "--heat-axes",
+        metavar="COL,COL",
+        help="heat-map axes (default throttle_pct,rpm; fuel_flow_lph,rpm for a log without throttle)",
+    )
     parser.add_argument("--grid", metavar="NxM", help="heat-map breakpoints from the data's quantiles, e.g. 4x4")
     parser.add_argument("--base", metavar="MODEL.yaml", help="starting / fixed values (default: paper Table A1)")
     parser.add_argument(
@@ -126,7 +130,9 @@ def cylinder_output(out: Path, cylinder: int) -> Path:
     return out.with_name(f"{out.stem}_cyl{cylinder}{out.suffix or '.yaml'}")
 
 
-def _choose_axes(arg: str | None, flights: list[FlightLog]) -> tuple[str, str]:
+def choose_heat_axes(arg: str | None, flights: list[FlightLog]) -> tuple[str, str]:
+    """``--heat-axes`` when given; else throttle_pct,rpm, or fuel_flow_lph,rpm (said on stderr) when the
+    first flight has fuel flow but no throttle (a G1000 or NGAFID log). identify and gap share it."""
     if arg:
         return parse_heat_axes(arg)
     first = flights[0]
@@ -134,6 +140,19 @@ def _choose_axes(arg: str | None, flights: list[FlightLog]) -> tuple[str, str]:
         print(f"{first.source}: no throttle_pct; heat map on fuel_flow_lph,rpm", file=sys.stderr)
         return "fuel_flow_lph", "rpm"
     return "throttle_pct", "rpm"
+
+
+def _service_axis_warnings(axes: tuple[str, str]) -> list[str]:
+    """One line per heat-map axis the service cannot read from a bus (a column of the logs only, such as
+    manifold_pressure_kpa): such a model simulates and diagnoses, but replay, calibrate and run refuse it."""
+    from ecu_monitor.bus.codec import INPUT_NAMES
+
+    return [
+        f"heat-map axis {axis} is not an input the service reads (inputs: {', '.join(INPUT_NAMES)}): simulate and"
+        " gap take this model, replay, calibrate and run do not"
+        for axis in axes
+        if axis not in INPUT_NAMES
+    ]
 
 
 def _progress_bar(bar: Any) -> Callable[[int, float, float], None]:
@@ -205,7 +224,7 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     require_distinct([*args.flights, *(args.validate or [])], "identify")
     flights = _load(args.flights, args.mapping, cylinder)
     validation = _load(args.validate, args.mapping, cylinder)
-    axes = _choose_axes(args.heat_axes, flights)
+    axes = choose_heat_axes(args.heat_axes, flights)
     base = load_model(args.base) if args.base else paper_table_a1()
     if args.cht_limit is not None:
         base = base.replace(cht_limit_c=args.cht_limit)
@@ -216,7 +235,7 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
         model_inputs(log, axes)
         if not log.has("cht_c"):
             raise FlightLogError(f"{log.source}: no column 'cht_c' (measured CHT) to validate against")
-    warnings = _limit_warnings(flights, base.cht_limit_c, args.cht_limit is not None)
+    warnings = _limit_warnings(flights, base.cht_limit_c, args.cht_limit is not None) + _service_axis_warnings(axes)
     for line in warnings:
         print(f"warning: {line}", file=sys.stderr)
     bar = None if args.quiet else tqdm(total=settings.iterations, desc="identify", unit="it", file=sys.stderr)

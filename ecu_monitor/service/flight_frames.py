@@ -3,6 +3,7 @@ same path as a CAN log (:func:`frames_from_flight`)."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterable
 from typing import Any
@@ -15,6 +16,8 @@ from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.service.config import ServiceConfig
+
+_log = logging.getLogger(__name__)
 
 
 def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable[str] | None = None) -> FrameArrays:
@@ -62,6 +65,7 @@ def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable
         for signal, column in signals:
             unit = config.input(column).signal_spec().conversion()
             columns[signal] = unit.from_canonical(np.asarray(log[column], dtype=float)[rows])
+            _warn_clipped(log, column, name, message.get_signal_by_name(signal), unit.from_canonical(log[column]))
         data = np.zeros((count, 8), dtype=np.uint8)
         payloads = encoder.encode_rows(name, {**{sig.name: np.zeros(count) for sig in message.signals}, **columns})
         data[:, : message.length] = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(count, message.length)
@@ -177,3 +181,33 @@ def _put(values: dict[str, object], steps: tuple[str | int, ...], value: float) 
                 node[index] = value
             else:
                 node = node[index]
+
+
+def _warn_clipped(log: FlightLog, column: str, message: str, signal: Any, values: NDArray[np.float64]) -> None:
+    """Log one warning when a column holds values outside its DBC signal's range: the encoder clamps them
+    (as the ECU would send them), so the pipeline reads the range's end there, not the logged value."""
+    low = -math.inf if signal.minimum is None else float(signal.minimum)
+    high = math.inf if signal.maximum is None else float(signal.maximum)
+    values = np.asarray(values, dtype=float)
+    outside = (values < low) | (values > high)
+    count = int(np.count_nonzero(outside))
+    if count == 0:
+        return
+    unit = f" {signal.unit}" if signal.unit else ""
+    _log.warning(
+        "%s: column '%s' outside the range [%g, %g]%s of the DBC signal %s.%s it is sent in, in %d of %d rows"
+        " (%.4g to %.4g%s): sent clamped to the range, so the replay reads the range's end there; map the"
+        " input to a signal with a wider range",
+        log.source,
+        column,
+        low,
+        high,
+        unit,
+        message,
+        signal.name,
+        count,
+        values.size,
+        float(np.min(values[outside])),
+        float(np.max(values[outside])),
+        unit,
+    )

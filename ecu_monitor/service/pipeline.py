@@ -247,6 +247,12 @@ class Pipeline:
                 ", ".join(unfed),
             )
         missing = [name for name in (*self.model_inputs, *cylinder_inputs) if name not in mapped]
+        unreadable = [name for name in missing if name not in INPUT_NAMES and name not in cylinder_inputs]
+        if unreadable:  # e.g. a heat map identified on manifold pressure: no config can map it
+            raise ConfigError(
+                f"{config.source}: the model reads {', '.join(unreadable)}, which is not an input the service can"
+                f" read (inputs: {', '.join(INPUT_NAMES)}): identify the model with --heat-axes among them"
+            )
         if missing:
             raise ConfigError(
                 f"{config.source}: inputs: missing {', '.join(missing)} (the model reads "
