@@ -536,6 +536,16 @@ def test_dead_cylinder_probe_is_dropped(tmp_path: Path) -> None:
         load_csv(path, cht=2)
 
 
+def test_describe_cht_of_a_log_without_cylinders_or_without_any_cht() -> None:
+    """A CAN log imported with a partial signal map may carry no CHT at all: the summary says so
+    instead of calling a missing column "the log's own channel"."""
+    t = np.arange(3.0)
+    assert (
+        describe_cht(FlightLog({"time_s": t, "cht_c": t + 100.0})) == "the log's own channel (no per-cylinder columns)"
+    )
+    assert describe_cht(FlightLog({"time_s": t, "rpm": t + 2000.0})).startswith("absent (no CHT in the log")
+
+
 def test_units_row_of_the_file_wins(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = _g1000(tmp_path, [("10:00:00", "1000", "150 160"), ("10:00:01", "1000", "151 161")], cht_unit="deg C")
     log = load_csv(path)

@@ -80,8 +80,10 @@ def choose_cht(log: FlightLog, choice: str | int) -> FlightLog:
 def describe_cht(log: FlightLog) -> str:
     """Which cylinders ``cht_c`` carries, read from the data (e.g. ``"mean of cylinders 1-4"``)."""
     columns = cylinder_columns(log, "cht")
-    if not columns or not log.has("cht_c"):
-        return "cht_c is the log's own channel (no per-cylinder columns)"
+    if not log.has("cht_c"):
+        return "absent (no CHT in the log: the model cannot be identified or checked on it)"
+    if not columns:
+        return "the log's own channel (no per-cylinder columns)"
     cht = log["cht_c"]
     if len(columns) == 1:
         candidates = [(f"cylinder {_cylinder_number(columns[0])} (the only one)", log[columns[0]])]
@@ -96,4 +98,4 @@ def describe_cht(log: FlightLog) -> str:
     for text, values in candidates:
         if np.allclose(cht, values, rtol=0.0, atol=1e-9, equal_nan=True):
             return text
-    return "cht_c is the log's own channel (not made from cht1_c ..)"
+    return "the log's own channel (not made from cht1_c ..)"
