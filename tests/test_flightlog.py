@@ -536,6 +536,17 @@ def test_dead_cylinder_probe_is_dropped(tmp_path: Path) -> None:
         load_csv(path, cht=2)
 
 
+def test_an_export_without_one_cylinders_column_keeps_the_others_and_says_so(tmp_path: Path) -> None:
+    """A G1000 export whose EGT1 column is missing (not blank: absent) kept no EGT at all before, silently;
+    now cylinder 2's EGT is kept, the hole is warned, and egt_c is the mean of what is there."""
+    path = _g1000(tmp_path, GOOD_ROWS[:2])
+    path.write_text(path.read_text().replace("E1 EGT1,", "E1 EGTX,"))
+    log = load_csv(path, mapping="g1000")
+    assert cylinder_columns(log, "egt") == ["egt2_c"] and log.has("egt_c")
+    assert np.allclose(log["egt_c"], log["egt2_c"])
+    assert "no column 'E1 EGT1' among cylinders 1-2: egt1_c absent, the others kept" in log.notes
+
+
 def test_describe_cht_of_a_log_without_cylinders_or_without_any_cht() -> None:
     """A CAN log imported with a partial signal map may carry no CHT at all: the summary says so
     instead of calling a missing column "the log's own channel"."""

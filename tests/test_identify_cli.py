@@ -195,6 +195,12 @@ def test_identify_every_cylinder_writes_one_model_each(tmp_path, capsys):
         cht_c=hot["cht2_c"])).rms_c  # fmt: skip
     assert main([*argv, "--cylinder", "3"]) == 2
     assert "cylinder 3 chosen for cht_c" in capsys.readouterr().err
+    # a probe dead in every row is dropped on import (cht1_c, cht3_c): the config hint says what is missing
+    gap = tmp_path / "dead_probe.csv"
+    write_csv(log.with_columns(cht1_c=log["cht_c"], cht3_c=log["cht_c"] + 4.0), gap)
+    assert main([*argv[:1], str(gap), *argv[2:], "--cylinder", "all"]) == 0
+    out = capsys.readouterr().out
+    assert "== cylinder 3 of 3 ==" in out and "no model for cylinder(s) 2:" in out
 
 
 def test_a_heat_axis_the_service_cannot_read_is_warned_and_replay_refuses_it_in_one_line(tmp_path, capsys):

@@ -191,10 +191,17 @@ def _run(args: argparse.Namespace) -> int:
         raise FlightLogError(f"{first.source}: --cylinder all: no per-cylinder CHT columns (cht1_c ..)")
     written = []
     for number in numbers:
-        print(f"== cylinder {number} of {len(numbers)} ==")
+        print(f"== cylinder {number} of {max(numbers)} ==")
         path = cylinder_output(out, number)
         _run_one(args, number, path)
         written.append(str(path))
+    absent = sorted(set(range(1, max(numbers) + 1)) - set(numbers))
+    if absent:  # a probe blank in every row is dropped on import: the service cannot number around the hole
+        print(
+            f"no model for cylinder(s) {', '.join(map(str, absent))}: {first.source} has no CHT column for them."
+            " The service numbers its cylinders cht1_c .. chtN_c without gaps and takes one model per cylinder in"
+            " that order: map only the cylinders with a probe, renumbered, and list their models in that order"
+        )
     print("for the service config (docs/service.md, Every cylinder):")
     print(f"cylinders: {{models: [{', '.join(written)}]}}")
     return 0

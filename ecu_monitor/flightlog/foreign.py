@@ -212,16 +212,18 @@ def import_mapped_csv(
         reads.append((cm, present))
     cylinder_reads: list[tuple[CylinderMap, list[tuple[int, str]]]] = []
     for cyl in mapping.cylinders:
-        found = []
-        for n in range(1, _MAX_CYLINDERS + 1):
-            name = _fill(cyl.pattern, chosen, n)
-            if name not in index:
-                break
-            found.append((n, name))
+        found = [(n, _fill(cyl.pattern, chosen, n)) for n in range(1, _MAX_CYLINDERS + 1)]
+        found = [(n, name) for n, name in found if name in index]
         if not found and cyl.kind == "cht":
             raise ConfigError(
                 f"{mapping.path}: key 'cylinders.cht.column': column {_fill(cyl.pattern, chosen, 1)!r} not in {src}"
             )
+        last = found[-1][0] if found else 0
+        absent = [n for n in range(1, last) if n not in {k for k, _ in found}]
+        if absent:  # an export without one cylinder's column: the others are kept, as for a dead probe
+            names = ", ".join(repr(_fill(cyl.pattern, chosen, n)) for n in absent)
+            columns = ", ".join(f"{cyl.kind}{n}_c" for n in absent)
+            _note(notes, src, f"no column {names} among cylinders 1-{last}: {columns} absent, the others kept")
         cylinder_reads.append((cyl, found))
     units = _file_units(mapping, table)
     if not table.rows:
