@@ -221,9 +221,9 @@ def import_mapped_csv(
         last = found[-1][0] if found else 0
         absent = [n for n in range(1, last) if n not in {k for k, _ in found}]
         if absent:  # an export without one cylinder's column: the others are kept, as for a dead probe
-            sources = ", ".join(repr(_fill(cyl.pattern, chosen, n)) for n in absent)
+            absent_columns = ", ".join(repr(_fill(cyl.pattern, chosen, n)) for n in absent)
             targets = ", ".join(f"{cyl.kind}{n}_c" for n in absent)
-            _note(notes, src, f"no column {sources} among cylinders 1-{last}: {targets} absent, the others kept")
+            _note(notes, src, f"no column {absent_columns} among cylinders 1-{last}: {targets} absent, the others kept")
         cylinder_reads.append((cyl, found))
     units = _file_units(mapping, table)
     if not table.rows:
