@@ -117,14 +117,16 @@ def _config_with_egt(config_path: str, work: Path) -> str:
     return str(out)
 
 
-def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None]) -> Any:
+def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None, bool]) -> Any:
     """Replay one flight nominal (onset nan) and with each overlay; returns the detector feeds and timings.
 
     overlays None (a training flight): what ``ecu-monitor calibrate`` replays to choose the baseline
     (``service.calibration.flight_feeds``: nominal, and k = 0.2 / 0.1 at its airborne onsets), returned
     as a FlightFeeds. Else (the held-out flight): the nominal replay and one per (onset, gain), through
-    ``service.calibration.overlay_replays`` (only the CHT's message re-encoded per overlay)."""
-    flight, model, config_path, overlays = args
+    ``service.calibration.overlay_replays`` (only the CHT's message re-encoded per overlay), each as
+    (onset, gain, log start, detector feed, open-loop reference). keep_reference (the last argument): the
+    replays keep the open-loop reference (``ReplayResult.reference_feed``, for ``--level``; else empty)."""
+    flight, model, config_path, overlays, keep = args
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.model import load_model
     from ecu_monitor.service.calibration import flight_feeds, overlay_replays
@@ -136,25 +138,29 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None]) -> Any:
     params = load_model(model)
     began = time.perf_counter()
     if overlays is None:
-        return flight_feeds(flight, config, params), {"training_s": time.perf_counter() - began}
+        return flight_feeds(flight, config, params, keep_reference=keep), {"training_s": time.perf_counter() - began}
     log = load_flight(flight)
     nominal = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
     timing = {"all_frames_s": time.perf_counter() - began}
     began = time.perf_counter()
-    out = [(math.nan, 0.0, float(log.time_s[0]), replay_frames(config, params, nominal).detector_feed)]
+    result = replay_frames(config, params, nominal, keep_reference=keep)
+    out = [(math.nan, 0.0, float(log.time_s[0]), result.detector_feed, result.reference_feed)]
     timing["replay_s"] = time.perf_counter() - began
     began = time.perf_counter()
     shifted = [(onset, gain) for onset, gain in overlays if math.isfinite(onset)]
-    results = overlay_replays(log, config, params, shifted, nominal)
+    results = overlay_replays(log, config, params, shifted, nominal, keep_reference=keep)
     timing["overlay_s"] = (time.perf_counter() - began) / max(len(shifted), 1)
     start = float(log.time_s[0])
-    out += [(onset, gain, start, r.detector_feed) for (onset, gain), r in zip(shifted, results, strict=True)]
+    out += [
+        (onset, gain, start, r.detector_feed, r.reference_feed)
+        for (onset, gain), r in zip(shifted, results, strict=True)
+    ]
     return out, timing
 
 
-def _replay_key(job: tuple[str, str, str, Any]) -> tuple[str, str, str]:
+def _replay_key(job: tuple[str, str, str, Any, bool]) -> tuple[str, str, str]:
     """A job's flight (file name), model (file content) and config: what its replays depend on."""
-    flight, model, config_path, _ = job
+    flight, model, config_path, _, _ = job
     return Path(flight).name, Path(model).read_text(encoding="utf-8"), config_path
 
 
@@ -167,20 +173,28 @@ def _load_replays(path: str | None) -> dict[Any, Any]:
         return dict(pickle.load(f))
 
 
-def _cached(cache: dict[Any, Any], job: tuple[str, str, str, Any]) -> Any:
+def _cached(cache: dict[Any, Any], job: tuple[str, str, str, Any, bool]) -> Any:
     """The cached result of a job (training: its FlightFeeds; held out: the nominal replay and those of
-    the overlays asked), or None when the cache lacks any of it."""
+    the overlays asked), or None when the cache lacks any of it (or its open-loop reference, when the
+    job keeps it: pickles written before the reference was kept hold 4-tuples and FlightFeeds without it)."""
     entry = cache.get(_replay_key(job))
-    overlays = job[3]
+    overlays, keep = job[3], job[4]
     if entry is None:
         return None
     if overlays is None:
-        return (entry["training"], {}) if "training" in entry else None
+        if "training" not in entry:
+            return None
+        f = entry["training"]
+        kept = bool(f.reference) and all(r.reference for r in f.overlays)
+        return (f, {}) if kept or not keep else None
     runs = entry.get("held_out", {})
     keys = [(math.nan, 0.0), *overlays]
     if not all((round(o, 3), g) in runs for o, g in keys if math.isfinite(o)) or "nominal" not in entry:
         return None
-    return [entry["nominal"], *(runs[(round(o, 3), g)] for o, g in overlays)], {}
+    out = [entry["nominal"], *(runs[(round(o, 3), g)] for o, g in overlays)]
+    if keep and not all(len(r) == 5 and r[4] for r in out):
+        return None
+    return [(*r[:4], r[4] if len(r) == 5 else ()) for r in out], {}
 
 
 def _save_replays(path: str, cache: dict[Any, Any], jobs: list[Any], results: list[Any]) -> None:
@@ -391,6 +405,76 @@ def _print_excursions(flights: list[Path], feeds: dict[Any, Any], per_fold: list
             shown = ", ".join(f"{tau:g} s {v:+.3f}" for tau, v in regressors.items())
             where = f"S {peak:5.1f} at {b:5.1f} min (from {a:5.1f} min)"
             print(f"  {flight.name}: {where}, excess {excess:+.3f} degC/s; regressor {shown}")
+
+
+#: --level: the allowance of the relative residual rho (dimensionless), fixed before the screen was run: half of
+#: what the k = 0.1 overlay adds to rho 300 s after its onset, 0.1 (1 - exp(-300/240)) / 2 = 0.0357 (Page's rule,
+#: half the change to detect). The residual r's allowance is this times the median CHT - OAT over the fold's
+#: training flights' airborne part (degC).
+RHO_ALLOWANCE = 0.5 * 0.1 * (1.0 - math.exp(-300.0 / 240.0))
+#: --level relative: the reference model's rise above OAT in rho's denominator is floored at this, degC (a cold
+#: engine at start; the warm-up covers it).
+RHO_FLOOR_C = 20.0
+
+
+def level_symptom(reference: Any, relative: bool, floor_c: float = RHO_FLOOR_C) -> tuple[Any, Any]:
+    """A level symptom per step from a replay's open-loop reference (``ReferenceFeed`` of one clock segment):
+    (step times s, r = measured CHT - the reference model's CHT, degC), or with ``relative`` rho = r / max(model
+    CHT - OAT, floor_c) (dimensionless). nan where the reference is nan (the supervisor not NOMINAL). An overlay
+    CHT + k (CHT - OAT) f(t) adds k (CHT - OAT) f(t) to r and about k f(t) to rho."""
+    model = np.asarray(reference.model_c, dtype=float)
+    r = np.asarray(reference.cht_c, dtype=float) - model
+    if relative:
+        r = r / np.maximum(model - np.asarray(reference.oat_c, dtype=float), floor_c)
+    return np.asarray(reference.time_s, dtype=float), r
+
+
+def _level_feeds(feeds: dict[Any, Any], references: dict[int, list[Any]], n: int, relative: bool) -> dict[Any, Any]:
+    """The replays' feeds with the detector's symptom replaced by the level symptom (:func:`level_symptom`) of each
+    replay's own open-loop reference (the nominal and every overlaid replay, training and held out)."""
+    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+
+    def level(reference: Any) -> Any:
+        return tuple(level_symptom(segment, relative) for segment in reference)
+
+    out: dict[Any, Any] = {}
+    for i in range(n):
+        for j in range(n):
+            f = feeds[(i, j)]
+            if j == i:
+                out[(i, j)] = [
+                    (o, g, start, level(ref)) for (o, g, start, _), ref in zip(f, references[i], strict=True)
+                ]
+            else:
+                runs = tuple(OverlayRun(r.onset_s, r.gain, level(r.reference)) for r in f.overlays)
+                out[(i, j)] = FlightFeeds(
+                    f.name, level(f.reference), f.first_row_s, f.last_row_s, f.log_start_s, runs, f.reference
+                )
+    return out
+
+
+def _airborne_rise(flight: Path) -> Any:
+    """The logged CHT - OAT (degC) where airborne (airspeed >= ``AIRBORNE_MPS``)."""
+    from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.service.calibration import AIRBORNE_MPS
+
+    log = load_flight(flight)
+    rise = np.asarray(log["cht_c"], dtype=float) - np.asarray(log["oat_c"], dtype=float)
+    return rise[(np.nan_to_num(log["airspeed_mps"], nan=0.0) >= AIRBORNE_MPS) & np.isfinite(rise)]
+
+
+def _print_level(name: str, flights: list[Path], levelled: dict[Any, Any], warmup_s: float) -> None:
+    """Per held-out flight, the nominal level symptom after the warm-up: RMS, 1st and 99th percentiles, range."""
+    print(f"{name}, nominal held-out flights after the {warmup_s:g} s warm-up: RMS, 1-99 %, min-max")
+    for i, flight in enumerate(flights):
+        nominal = next(feed for onset, _, _, feed in levelled[(i, i)] if not math.isfinite(onset))
+        x = np.concatenate([x[t >= t[0] + warmup_s] for t, x in nominal])
+        x = x[np.isfinite(x)]
+        low, high = np.percentile(x, [1, 99])
+        print(
+            f"  {flight.name}: RMS {math.sqrt(float(np.mean(x * x))):.4g}, {low:+.4g} .. {high:+.4g},"
+            f" {x.min():+.4g} .. {x.max():+.4g}"
+        )
 
 
 def _learned_floor(training: list[Any], detector: Any, scale_s: float) -> float:
@@ -791,6 +875,15 @@ def main(argv: list[str] | None = None) -> int:
         " DELTA (1 - exp(-t/240 s)) (flat: a CUSUM with allowance DELTA/2 remembering that long), with calibrate's"
         " and each variant's baseline (repeatable; offline, on the same replays)",
     )
+    parser.add_argument(
+        "--level",
+        action="append",
+        default=[],
+        choices=("residual", "relative"),
+        help="also evaluate calibrate's choice (nested) and each --variant on a level symptom: the open-loop"
+        " residual r = CHT - the reference model's CHT (residual, degC) or rho = r / (model CHT - OAT) (relative),"
+        " allowance fixed in advance (RHO_ALLOWANCE); the replays keep their open-loop reference (repeatable)",
+    )
     parser.add_argument("--glr-window", type=float, default=900.0, help="onsets the --glr test considers, s")
     parser.add_argument(
         "--rise-profile",
@@ -884,7 +977,7 @@ def main(argv: list[str] | None = None) -> int:
                 overlays: list[tuple[float, float]] | None = [(float(t0), k) for t0 in onsets for k in LIMITS]
             else:
                 overlays = None
-            jobs.append((i, j, (str(flights[j]), str(models[i]), args.config, overlays)))
+            jobs.append((i, j, (str(flights[j]), str(models[i]), args.config, overlays, bool(args.level))))
     cache = _load_replays(args.replays)
     todo = [job[2] for job in jobs if _cached(cache, job[2]) is None]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
@@ -892,7 +985,9 @@ def main(argv: list[str] | None = None) -> int:
     results = [_cached(cache, job[2]) or next(fresh) for job in jobs]
     if args.replays and todo:
         _save_replays(args.replays, cache, [job[2] for job in jobs], results)
-    feeds = {(i, j): r for (i, j, _), (r, _) in zip(jobs, results, strict=True)}
+    # held out: (onset, gain, log start, detector feed) per run; the open-loop references kept apart (--level)
+    feeds = {(i, j): r if i != j else [run[:4] for run in r] for (i, j, _), (r, _) in zip(jobs, results, strict=True)}
+    references = {i: [run[4] for run in r] for (i, j, _), (r, _) in zip(jobs, results, strict=True) if i == j}
     timings = [t for _, t in results]
 
     # calibrate's choice, nested: made on the three training flights of each fold only
@@ -944,6 +1039,26 @@ def main(argv: list[str] | None = None) -> int:
             (f"{name}, self-normalised (scale {scale_s:g} s)", [dataclasses.replace(v, scale_s=scale_s, scale_floor=f)
              for f in floors], feeds) for name, v in variants[1:]
         ]  # fmt: skip
+    for kind in args.level:  # the open-loop residual r (degC) or the relative residual rho, as the detector's symptom
+        relative = kind == "relative"
+        name = "relative residual rho" if relative else "residual r"
+        levelled = _level_feeds(feeds, references, n, relative)
+        rises = [_airborne_rise(f) for f in flights]
+        allowances = [
+            RHO_ALLOWANCE * (1.0 if relative else float(np.median(np.concatenate(rises[:i] + rises[i + 1 :]))))
+            for i in range(n)
+        ]
+        unit = "" if relative else " degC"
+        shown = ", ".join(f"{a:.4g}{unit}" for a in allowances)
+        print(f"\n{name} as the symptom: allowance per fold (fixed in advance, see RHO_ALLOWANCE) {shown}")
+        _print_level(name, flights, levelled, config.detector.warmup_s)
+        current = [dataclasses.replace(config.detector, reference=a) for a in allowances]
+        label = f"calibrate's choice, {name}"
+        fold_variants.append((label, [c.settings for c in nested_choice(levelled, f" ({label})", current)], levelled))
+        fold_variants += [
+            (f"{vname}, {name}", [dataclasses.replace(v, reference=a) for a in allowances], levelled)
+            for vname, v in variants[1:]
+        ]
     report: dict[str, Any] = {"choices": [c.reason for c in chosen]}
     if soak_taus:  # per fold: the soak term's b and tau, and per tau of the grid (b, RSS, RSS with b = 0)
         report["soak"] = [{"b": b, "tau_s": tau, "fit": {str(k): v for k, v in fit.items()}} for b, tau, fit, _ in fits]
@@ -1025,7 +1140,7 @@ def main(argv: list[str] | None = None) -> int:
         kind = f"GLR, rise delta {delta:g} degC/s x (1 - exp(-t/240 s))" if shaped else f"flat, allowance {delta / 2:g}"
         print(f"\n{kind}, onsets over the last {args.glr_window:g} s, baseline as each variant's (hindsight, no h):")
         for name, per_fold, variant_feeds in fold_variants:
-            if "heat rate" in name or "self-" in name or "soak" in name:
+            if "heat rate" in name or "self-" in name or "soak" in name or "residual" in name:
                 continue
             runs = [variant_feeds[(i, i)] for i in range(n)]
             _print_separability(name, _separability(runs, per_fold, spans, statistic))
@@ -1050,7 +1165,7 @@ def main(argv: list[str] | None = None) -> int:
         raw = [
             (name, per_fold)
             for name, per_fold, _ in fold_variants
-            if "heat rate" not in name and "self-" not in name and "soak" not in name
+            if "heat rate" not in name and "self-" not in name and "soak" not in name and "residual" not in name
         ]
         _plot(Path(args.plot), flights, fold_variants[0][2], raw, thresholds)
     return 0

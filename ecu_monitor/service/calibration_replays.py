@@ -20,6 +20,7 @@ from ecu_monitor.estimation.detection import DetectorSettings, cusum_path, overl
 from ecu_monitor.flightlog import FlightLog, choose_cht
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.service.config import ServiceConfig
+from ecu_monitor.service.health_rows import ReferenceFeed
 from ecu_monitor.service.pipeline import model_input_names
 from ecu_monitor.service.replay import ReplayResult, frames_from_flight, replay_file, replay_frames
 
@@ -113,18 +114,26 @@ def nominal_feeds(
     if time_s.size == 0 or not result.detector_feed:
         raise FlightLogError(f"{path}: the service's estimator never started on this log (no usable CHT and inputs)")
     return FlightFeeds(
-        Path(path).name, result.detector_feed, float(time_s[0]), float(time_s[-1]), log_start_s, overlays
+        Path(path).name,
+        result.detector_feed,
+        float(time_s[0]),
+        float(time_s[-1]),
+        log_start_s,
+        overlays,
+        result.reference_feed,
     )
 
 
 @dataclass(frozen=True)
 class OverlayRun:
     """A replay of a flight with a degradation overlaid: onset_s (s after the log's first sample),
-    gain k, and what the replay fed the detector (per clock segment, (time s, symptom))."""
+    gain k, and what the replay fed the detector (per clock segment, (time s, symptom)); reference: the
+    replay's open-loop reference per clock segment, when kept (``keep_reference``; else empty)."""
 
     onset_s: float
     gain: float
     feed: Feed
+    reference: tuple[ReferenceFeed, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -132,7 +141,8 @@ class FlightFeeds:
     """One nominal flight through the service's replay: name (the file's), what the replay fed the
     detector (per clock segment, (time s, symptom)), the times of its first and last health rows, s,
     the log's first time, s, and the replays with overlays (empty when not asked or when the flight
-    has no room for onsets, see :func:`airborne_onsets`)."""
+    has no room for onsets, see :func:`airborne_onsets`); reference: the nominal replay's open-loop
+    reference per clock segment, when kept (``keep_reference``; else empty)."""
 
     name: str
     feed: Feed
@@ -140,6 +150,7 @@ class FlightFeeds:
     last_row_s: float
     log_start_s: float
     overlays: tuple[OverlayRun, ...]
+    reference: tuple[ReferenceFeed, ...] = ()
 
     def statistic_for(self, settings: DetectorSettings) -> FlightStatistic:
         """The flight's detector statistic with these settings (no new replay)."""
@@ -183,12 +194,15 @@ def overlay_replays(
     params: ThermalParams,
     overlays: Sequence[tuple[float, float]],
     nominal: FrameArrays | None = None,
+    *,
+    keep_reference: bool = False,
 ) -> list[ReplayResult]:
     """Replays of ``log`` with each (onset s after the first sample, gain k) overlaid on its CHT
     (:func:`overlay_degradation`, :data:`OVERLAY_TIME_CONSTANT_S`). ``nominal``: the log's frames
     (:func:`frames_from_flight`, built here when None). Only the message that carries the CHT is
     re-encoded from the overlaid log (with every signal it holds) and merged back in time order, so an
-    overlay costs one replay and one message's encoding, not the whole flight's."""
+    overlay costs one replay and one message's encoding, not the whole flight's. ``keep_reference``: as
+    :func:`replay_frames`."""
     if nominal is None:
         nominal = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
     cht_message = config.input("cht_c").message
@@ -203,7 +217,8 @@ def overlay_replays(
         part = FlightLog({"time_s": t, **{n: (cht if n == "cht_c" else log[n]) for n in with_cht}})
         patched = frames_from_flight(part, config, ["cht_c"])
         merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(others, patched, strict=True)))
-        results.append(replay_frames(config, params, merged.take(np.argsort(merged.time_s, kind="stable"))))
+        ordered = merged.take(np.argsort(merged.time_s, kind="stable"))
+        results.append(replay_frames(config, params, ordered, keep_reference=keep_reference))
     return results
 
 
@@ -214,11 +229,13 @@ def flight_feeds(
     *,
     overlays: bool = True,
     cylinder: int | None = None,
+    keep_reference: bool = False,
 ) -> FlightFeeds:
     """Replay one nominal flight (canonical CSV or CAN log, decoded with the config's DBCs) nominal and,
     if ``overlays``, with each gain of :data:`OVERLAY_TARGETS_S` at each of :func:`airborne_onsets`.
     ``cylinder``: the log's ``cht<cylinder>_c`` is its CHT (``config`` then maps that cylinder's probe
-    as ``cht_c``, see :func:`ecu_monitor.service.calibration.cylinder_config`)."""
+    as ``cht_c``, see :func:`ecu_monitor.service.calibration.cylinder_config`). ``keep_reference``: keep
+    each replay's open-loop reference too (:func:`replay_frames`; for offline analyses)."""
     if Path(path).suffix.lower() == ".csv":
         log = load_flight(path)
         if cylinder is not None:
@@ -229,12 +246,13 @@ def flight_feeds(
         if cylinder is not None:
             log = choose_cht(log, cylinder)
         frames = read_frames(path)
-    result = replay_frames(config, params, frames)
+    result = replay_frames(config, params, frames, keep_reference=keep_reference)
     nominal_feeds(path, result, math.nan, ())  # a log the estimator never starts on: one line, before the overlays
     runs: list[OverlayRun] = []
     if overlays:
         onsets = airborne_onsets(log, config.detector.warmup_s)
         pairs = [(float(t0), k) for t0 in onsets for k in OVERLAY_TARGETS_S]
-        for (t0, k), res in zip(pairs, overlay_replays(log, config, params, pairs, frames), strict=True):
-            runs.append(OverlayRun(t0, k, res.detector_feed))
+        replays = overlay_replays(log, config, params, pairs, frames, keep_reference=keep_reference)
+        for (t0, k), res in zip(pairs, replays, strict=True):
+            runs.append(OverlayRun(t0, k, res.detector_feed, res.reference_feed))
     return nominal_feeds(path, result, float(log.time_s[0]), tuple(runs))

@@ -11,7 +11,7 @@ import functools
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -119,6 +119,19 @@ def health_columns(cylinders: int) -> tuple[str, ...]:
     return (*HEALTH_COLUMNS, *per, *SPREAD_COLUMNS)
 
 
+class ReferenceFeed(NamedTuple):
+    """The open-loop reference over one clock segment of a batch replay, from the step the detector starts at
+    (the replay keeps it when asked, ``replay_frames(..., keep_reference=True)``): step times s, and per step
+    the held CHT reading, the open-loop reference model's CHT (the nominal model run from the first reading
+    of each estimator stretch, as the supervisor sees it) and the held OAT, degC; nan wherever the supervisor
+    was not NOMINAL (where the detector is fed nothing). The open-loop residual is cht_c - model_c."""
+
+    time_s: NDArray[np.float64]
+    cht_c: NDArray[np.float64]
+    model_c: NDArray[np.float64]
+    oat_c: NDArray[np.float64]
+
+
 @dataclass(frozen=True)
 class ReplayResult:
     """A replay's rows (one per health-status period) as columns, and the frame counters.
@@ -135,6 +148,8 @@ class ReplayResult:
     restart the clock (``counters["clock_restarts"]``): no step runs inside them.
     cross_feeds (batch path, cross-cylinder detectors on): per cylinder, per clock segment, what its
     cross-cylinder detector was fed (as detector_feed).
+    reference_feed (batch path, when asked): per clock segment as detector_feed, the open-loop reference
+    (:class:`ReferenceFeed`; the first cylinder's on an engine monitored per cylinder).
     """
 
     columns: dict[str, NDArray[Any]]
@@ -142,6 +157,7 @@ class ReplayResult:
     detector_feed: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...] = ()
     gaps: tuple[tuple[float, float], ...] = ()
     cross_feeds: tuple[tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...], ...] = ()
+    reference_feed: tuple[ReferenceFeed, ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)

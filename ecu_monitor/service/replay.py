@@ -57,6 +57,7 @@ from ecu_monitor.service.flight_frames import frames_from_flight
 from ecu_monitor.service.health_rows import (
     HEALTH_COLUMNS,
     HealthSnapshot,
+    ReferenceFeed,
     ReplayResult,
     empty_columns,
     rows_to_columns,
@@ -92,12 +93,18 @@ def replay_live(
 
 
 def replay_frames(
-    config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams], frames: FrameArrays
+    config: ServiceConfig,
+    params: ThermalParams | Sequence[ThermalParams],
+    frames: FrameArrays,
+    *,
+    keep_reference: bool = False,
 ) -> ReplayResult:
     """The batch replay of ``frames`` (see the module docstring); rows equal to :func:`replay_live`.
-    ``params``: the model of every cylinder, or one per cylinder (as :class:`Pipeline`)."""
+    ``params``: the model of every cylinder, or one per cylinder (as :class:`Pipeline`). ``keep_reference``:
+    also keep the open-loop reference per step (:attr:`ReplayResult.reference_feed`; off by default: four
+    more per-step arrays, the rows unchanged)."""
     with _small_pages():
-        return _replay_frames(config, params, frames)
+        return _replay_frames(config, params, frames, keep_reference)
 
 
 @contextlib.contextmanager
@@ -122,7 +129,7 @@ def _small_pages() -> Iterator[None]:
 
 
 def _replay_frames(
-    config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams], frames: FrameArrays
+    config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams], frames: FrameArrays, keep_reference: bool
 ) -> ReplayResult:
     probe = Pipeline(config, params)  # validates the config against the model, builds the decoder
     models = probe.cylinder_params
@@ -149,19 +156,23 @@ def _replay_frames(
     counters["clock_restarts"] = len(restarts)
     parts: list[dict[str, NDArray[Any]]] = []
     feeds: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+    references: list[ReferenceFeed] = []
     cross_feeds: list[list[tuple[NDArray[np.float64], NDArray[np.float64]]]] = [[] for _ in models]
     steps_total = 0
     for a, b in itertools.pairwise(bounds):
-        seg_columns, steps, feed, seg_cross = _replay_segment(config, models, probe, batch.values, stamps, a, b)
+        seg_columns, steps, feed, seg_cross, reference = _replay_segment(
+            config, models, probe, batch.values, stamps, a, b, keep_reference
+        )
         parts.append(seg_columns)
         feeds.extend([feed] if feed is not None else [])
+        references.extend([reference] if reference is not None else [])
         for cylinder, cross_feed in zip(cross_feeds, seg_cross, strict=False):
             cylinder.extend([cross_feed] if cross_feed is not None else [])
         steps_total += steps
     counters["steps"] = steps_total
     columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else empty_columns(count)
     cross = tuple(tuple(c) for c in cross_feeds) if config.cross_detectors else ()
-    return ReplayResult(columns, counters, tuple(feeds), tuple(time_gaps(stamps)), cross)
+    return ReplayResult(columns, counters, tuple(feeds), tuple(time_gaps(stamps)), cross, tuple(references))
 
 
 def _error_mask(frames: FrameArrays) -> NDArray[np.bool_]:
@@ -176,11 +187,13 @@ def _replay_segment(
     stamps: NDArray[np.float64],
     first: int,
     end: int,
+    keep_reference: bool,
 ) -> tuple[
     dict[str, NDArray[Any]],
     int,
     tuple[NDArray[np.float64], NDArray[np.float64]] | None,
     tuple[tuple[NDArray[np.float64], NDArray[np.float64]] | None, ...],
+    ReferenceFeed | None,
 ]:
     dt = config.estimator.dt_s
     cylinder_inputs = config.cylinder_inputs
@@ -199,7 +212,7 @@ def _replay_segment(
     times = times[: int(np.searchsorted(times, last, side="right"))]  # the steps up to the last frame
     n = times.size
     if n == 0:
-        return empty_columns(count), 0, None, ()
+        return empty_columns(count), 0, None, (), None
     held: dict[str, HeldInput] = {}
     message_of = {spec.name: spec.message for spec in config.inputs}
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
@@ -246,6 +259,7 @@ def _replay_segment(
             model_stale | stale[name],
             status,
             periods,
+            keep_reference,
         )
         for number, (name, model) in enumerate(zip(cylinder_inputs, params, strict=True), start=1)
     ]
@@ -271,7 +285,7 @@ def _replay_segment(
             "stale": bits,
             "sensor_fault": cyl.code[rows] == fault,
         }
-        return out, n, cyl.feed, ()
+        return out, n, cyl.feed, (), cyl.reference
     out = {"time_s": times[rows], "stale": bits}
     for number, cyl in enumerate(cylinders, start=1):
         out.update({
@@ -284,7 +298,7 @@ def _replay_segment(
             f"cyl{number}_state": cyl.state[rows].astype(np.int64),
         })  # fmt: skip
     out.update(engine_columns(out, count, config.spread_limit_c))
-    return out, n, cylinders[0].feed, cross_feeds
+    return out, n, cylinders[0].feed, cross_feeds, cylinders[0].reference
 
 
 def _cross_states(
@@ -327,6 +341,7 @@ class _CylinderTrace(NamedTuple):
     fed: NDArray[np.float64]  # the symptom its detector was fed per step (nan: not fed)
     first: int  # the step its detector starts at (its first initialisation)
     stretches: list[tuple[int, int]]  # where its estimator runs
+    reference: ReferenceFeed | None  # the open-loop reference from ``first`` (kept when asked)
 
 
 def _replay_cylinder(
@@ -338,6 +353,7 @@ def _replay_cylinder(
     any_stale: NDArray[np.bool_],
     status: NDArray[np.float64] | None,
     periods: dict[str, int],
+    keep_reference: bool,
 ) -> _CylinderTrace:
     """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom."""
     mixture = fed_mixture(params, config.input_names)
@@ -413,7 +429,14 @@ def _replay_cylinder(
     feed = (times[first:], fed[first:]) if stretches else None
     headroom = held_headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
                              periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
-    return _CylinderTrace(reading, est, deviation, gamma_q, gamma_d, headroom, state, code, feed, fed, first, stretches)
+    kept = None
+    if keep_reference and stretches:
+        off = code[first:] != 0
+        oat = inputs["oat_c"].at(np.arange(first, n)) if "oat_c" in inputs else np.full(n - first, np.nan)
+        values = (reading[first:], model_c[first:], oat)
+        kept = ReferenceFeed(times[first:], *(np.where(off, np.nan, v) for v in values))
+    return _CylinderTrace(reading, est, deviation, gamma_q, gamma_d, headroom, state, code, feed, fed, first, stretches,
+                          kept)  # fmt: skip
 
 
 def replay_file(
