@@ -59,4 +59,4 @@ def test_overlay_adds_about_its_gain_to_rho_at_every_power(bench: ModuleType) ->
     assert np.allclose(rho_k - rho, gain * shape, rtol=0.0, atol=gain * 2.0 / 70.0)
     assert np.allclose(r_k - r, gain * (cht - oat) * shape, rtol=1e-9, atol=1e-9)
     # the allowance is half the k = 0.1 overlay's rho 300 s after the onset
-    assert bench.RHO_ALLOWANCE == pytest.approx(0.5 * gain * (1.0 - math.exp(-300.0 / 240.0)))
+    assert pytest.approx(0.5 * gain * (1.0 - math.exp(-300.0 / 240.0))) == bench.RHO_ALLOWANCE
