@@ -429,16 +429,20 @@ def level_symptom(reference: Any, relative: bool, floor_c: float = RHO_FLOOR_C) 
     return np.asarray(reference.time_s, dtype=float), r
 
 
-def _level_feeds(feeds: dict[Any, Any], references: dict[int, list[Any]], n: int, relative: bool) -> dict[Any, Any]:
+def _level_feeds(
+    feeds: dict[Any, Any], references: dict[int, list[Any]], n: int, relative: bool, scales: list[float]
+) -> dict[Any, Any]:
     """The replays' feeds with the detector's symptom replaced by the level symptom (:func:`level_symptom`) of each
-    replay's own open-loop reference (the nominal and every overlaid replay, training and held out)."""
+    replay's own open-loop reference (the nominal and every overlaid replay, training and held out), times the
+    fold's ``scales[i]``."""
     from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
-
-    def level(reference: Any) -> Any:
-        return tuple(level_symptom(segment, relative) for segment in reference)
 
     out: dict[Any, Any] = {}
     for i in range(n):
+
+        def level(reference: Any, scale: float = scales[i]) -> Any:
+            return tuple((t, scale * x) for t, x in (level_symptom(segment, relative) for segment in reference))
+
         for j in range(n):
             f = feeds[(i, j)]
             if j == i:
@@ -645,7 +649,8 @@ def _separability(
         rows.append((peak, reach))
     for gain in LIMITS:
         per_flight = [(peak, min(reach[gain], default=math.inf)) for peak, reach in rows]
-        out[gain] = (max(p for p, _ in per_flight) / min(r for _, r in per_flight), per_flight)
+        reach = min(r for _, r in per_flight)  # 0: an overlay the statistic never saw within its target
+        out[gain] = (max(p for p, _ in per_flight) / reach if reach > 0.0 else math.inf, per_flight)
     return out
 
 
@@ -879,10 +884,12 @@ def main(argv: list[str] | None = None) -> int:
         "--level",
         action="append",
         default=[],
-        choices=("residual", "relative"),
+        choices=("residual", "relative", "residual-scaled", "relative-scaled"),
         help="also evaluate calibrate's choice (nested) and each --variant on a level symptom: the open-loop"
         " residual r = CHT - the reference model's CHT (residual, degC) or rho = r / (model CHT - OAT) (relative),"
-        " allowance fixed in advance (RHO_ALLOWANCE); the replays keep their open-loop reference (repeatable)",
+        " allowance fixed in advance (RHO_ALLOWANCE); -scaled: the symptom in units of that allowance x the"
+        " config's reference (h's floor then means what it means for the derivative symptom); the replays keep"
+        " their open-loop reference (repeatable)",
     )
     parser.add_argument("--glr-window", type=float, default=900.0, help="onsets the --glr test considers, s")
     parser.add_argument(
@@ -1040,9 +1047,9 @@ def main(argv: list[str] | None = None) -> int:
              for f in floors], feeds) for name, v in variants[1:]
         ]  # fmt: skip
     for kind in args.level:  # the open-loop residual r (degC) or the relative residual rho, as the detector's symptom
-        relative = kind == "relative"
-        name = "relative residual rho" if relative else "residual r"
-        levelled = _level_feeds(feeds, references, n, relative)
+        relative = kind.startswith("relative")
+        scaled = kind.endswith("-scaled")
+        name = ("relative residual rho" if relative else "residual r") + (" (allowance units)" if scaled else "")
         rises = [_airborne_rise(f) for f in flights]
         allowances = [
             RHO_ALLOWANCE * (1.0 if relative else float(np.median(np.concatenate(rises[:i] + rises[i + 1 :]))))
@@ -1051,7 +1058,14 @@ def main(argv: list[str] | None = None) -> int:
         unit = "" if relative else " degC"
         shown = ", ".join(f"{a:.4g}{unit}" for a in allowances)
         print(f"\n{name} as the symptom: allowance per fold (fixed in advance, see RHO_ALLOWANCE) {shown}")
+        # -scaled: the symptom in units of its allowance x the config's reference, which then is its allowance, so
+        # that calibrate_threshold's floor on h (1 symptom unit x s) means the 20 s of allowance it means for the
+        # derivative symptom (0.05 degC/s), not 0.2 s of r's
+        scales = [config.detector.reference / a if scaled else 1.0 for a in allowances]
+        levelled = _level_feeds(feeds, references, n, relative, scales)
         _print_level(name, flights, levelled, config.detector.warmup_s)
+        if scaled:
+            allowances = [config.detector.reference] * n
         current = [dataclasses.replace(config.detector, reference=a) for a in allowances]
         label = f"calibrate's choice, {name}"
         fold_variants.append((label, [c.settings for c in nested_choice(levelled, f" ({label})", current)], levelled))
