@@ -59,6 +59,16 @@ only, so the regressor is the same), and calibrate's choice (nested) and each ``
 the result. A soak (head warmer than the model after a power reduction) gives b > 0. ``--soak-coef B`` gives
 b instead of fitting it (hindsight, one tau); ``--soak-even`` regresses on |lag(q, tau) - q| instead (the head
 warmer than the model after a change of either sign).
+
+``--level residual|relative`` (repeatable) screens a level symptom in place of the derivative one: the replays keep
+their open-loop reference (``replay_frames(..., keep_reference=True)``: per step the held CHT, the reference model's
+CHT and the held OAT), and the detector is fed the open-loop residual r = CHT - model CHT (degC) or rho = r / (model
+CHT - OAT) (dimensionless), which an overlay moves by k (CHT - OAT)(1 - exp(-(t - t0)/240 s)) and about k (1 -
+exp(...)) at every power. The allowance was fixed before the screen (:data:`RHO_ALLOWANCE`: half what k = 0.1 adds
+to rho at 300 s; r: that x the training flights' median airborne CHT - OAT); calibrate's choice (nested, the
+candidates and rule unchanged) and each ``--variant`` run on it. ``residual-scaled`` / ``relative-scaled``: the
+same symptom in units of its allowance x the config's reference, so that the floor of h (1 x s) means what it means
+for the derivative symptom.
 """
 
 from __future__ import annotations
