@@ -305,3 +305,20 @@ def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning
     fast = frames.arbitration_id == 0x100  # ECU_Fast: FuelFlow at bit 32, 0.01 L/h; 50 L/h the largest sent
     raw = frames.data[fast][:, 4].astype(int) | (frames.data[fast][:, 5].astype(int) << 8)
     assert raw.max() * 0.01 == pytest.approx(50.0)
+
+
+def test_replay_of_a_log_without_throttle_on_a_throttle_model_says_which_model_it_needs(
+    flight: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A G1000 log (fuel flow, no throttle) replayed on the default model (paper heat map on throttle): one
+    line naming the column and the way out, exit 2."""
+    with flight["csv"].open(newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    path = tmp_path / "no_throttle.csv"
+    with path.open("w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, [c for c in rows[0] if c != "throttle_pct"], extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    assert main(["replay", str(path), "--out", str(tmp_path / "h.csv")]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert "missing column(s) throttle_pct" in line and "--heat-axes fuel_flow_lph,rpm" in line

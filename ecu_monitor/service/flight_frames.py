@@ -48,7 +48,7 @@ def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable
     needed = set(required) if required is not None else {s.name for s in config.inputs} - {"fuel_flow_lph"}
     missing = [spec.name for spec in config.inputs if not log.has(spec.name) and spec.name in needed]
     if missing:
-        raise FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}")
+        raise _missing_columns(log, missing, config)
     t = log.time_s
     holes = np.flatnonzero(np.diff(t) > GAP_S)
     runs = list(zip([0, *(holes + 1).tolist()], [*holes.tolist(), t.size - 1], strict=True))  # rows [a, b]
@@ -107,7 +107,7 @@ def dronecan_frames_from_flight(
     needed = set(required) if required is not None else {s.name for s in config.inputs} - {"fuel_flow_lph"}
     missing = [spec.name for spec in config.inputs if not log.has(spec.name) and spec.name in needed]
     if missing:
-        raise FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}")
+        raise _missing_columns(log, missing, config)
     sources = config.dronecan.source_node_ids
     encoder = DroneCanEncoder(sources[0] if sources else DRONECAN_SOURCE_NODE)
     by_type: dict[str, list[tuple[tuple[str | int, ...], np.ndarray]]] = {}
@@ -211,3 +211,15 @@ def _warn_clipped(log: FlightLog, column: str, message: str, signal: Any, values
         float(np.max(values[outside])),
         unit,
     )
+
+
+def _missing_columns(log: FlightLog, missing: list[str], config: ServiceConfig) -> FlightLogError:
+    """The one-line error for a flight CSV without a column the replay must send; a log with fuel flow but
+    no throttle (a G1000's) replayed on a throttle heat map is told which model it needs."""
+    hint = ""
+    if "throttle_pct" in missing and log.has("fuel_flow_lph"):
+        hint = (
+            "; the model's heat map reads throttle_pct: for a log without throttle give a model identified with"
+            " --heat-axes fuel_flow_lph,rpm (--model)"
+        )
+    return FlightLogError(f"{log.source}: missing column(s) {', '.join(missing)} mapped in {config.source}{hint}")
