@@ -512,11 +512,11 @@ def _identify(train: list[str], held_out: Path, model: Path, options: list[str])
     print(f"{model.name}:", *rows, sep="\n  ")
 
 
-def _plot(
-    path: Path, flights: list[Path], feeds: dict[Any, Any], variants: list[Any], thresholds: dict[str, Any]
-) -> None:
-    """One row per held-out flight, one column per variant: the statistic (no alarm) of the nominal
-    flight and of the k = 0.1 overlay at the second onset, with the calibrated h and the onset."""
+def _plot(path: Path, flights: list[Path], variants: list[Any], thresholds: dict[str, Any], level: Any = None) -> None:
+    """One row per held-out flight, one column per variant (name, per-fold settings, its feeds): the statistic
+    (no alarm) of the nominal flight and of the k = 0.1 overlay at the second onset, with the calibrated h and the
+    onset. ``level``: feeds of rho (``--level relative``), drawn first in a column of their own (60 s means,
+    nominal and overlaid) beside what the k = 0.1 overlay adds to rho 300 s and 600 s after its onset."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -525,13 +525,44 @@ def _plot(
     from ecu_monitor.estimation.detection import cusum_path
 
     n = len(flights)
-    fig, axes = plt.subplots(n, len(variants), figsize=(5.5 * len(variants), 2.6 * n), squeeze=False)
+    first = 1 if level is not None else 0
+    columns = len(variants) + first
+    fig, axes = plt.subplots(n, columns, figsize=(5.5 * columns, 2.6 * n), squeeze=False)
     for i in range(n):
-        runs = feeds[(i, i)]
-        nominal = next(r for r in runs if not math.isfinite(r[0]))
-        overlays = [r for r in runs if math.isfinite(r[0]) and r[1] == 0.1]
-        chosen = overlays[min(1, len(overlays) - 1)] if overlays else None
-        for col, (name, per_fold) in enumerate(variants):
+        if level is not None:
+            ax = axes[i][0]
+            runs = level[(i, i)]
+            nominal = next(r for r in runs if not math.isfinite(r[0]))
+            overlays = [r for r in runs if math.isfinite(r[0]) and r[1] == 0.1]
+            chosen = overlays[min(1, len(overlays) - 1)] if overlays else None
+            for run, style, label in ((nominal, "0.5", "rho, nominal"), (chosen, "tab:red", "rho, k = 0.1 overlay")):
+                if run is None:
+                    continue
+                for j, (t, x) in enumerate(run[3]):
+                    blocks = np.floor((t - t[0]) / 60.0).astype(np.int64)
+                    ok = np.isfinite(x)
+                    count = np.bincount(blocks[ok], minlength=blocks[-1] + 1)
+                    mean = np.bincount(blocks[ok], x[ok], minlength=blocks[-1] + 1) / np.maximum(count, 1)
+                    minutes = (t[0] - run[2]) / 60.0 + np.arange(mean.size) + 0.5
+                    mean[count == 0] = np.nan
+                    ax.plot(minutes, mean, color=style, lw=0.9, label=label if j == 0 else None)
+            for after, style in ((300.0, ":"), (600.0, "--")):
+                added = 0.1 * (1.0 - math.exp(-after / 240.0))
+                ax.axhline(added, color="tab:blue", ls=style, lw=1.0, label=f"k = 0.1 adds {added:.3f} in {after:g} s")
+            if chosen is not None:
+                ax.axvline(chosen[0] / 60.0, color="tab:red", ls=":", lw=1.0)
+            ax.set_ylim(-0.15, 0.25)
+            ax.set_title(f"{flights[i].stem[-13:]}, rho = (CHT - model) / (model - OAT), 60 s means", fontsize=9)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=6, loc="upper left")
+            ax.set_ylabel("rho")
+            if i == n - 1:
+                ax.set_xlabel("time since the start of the log (min)")
+        for col, (name, per_fold, feeds) in enumerate(variants, start=first):
+            runs = feeds[(i, i)]
+            nominal = next(r for r in runs if not math.isfinite(r[0]))
+            overlays = [r for r in runs if math.isfinite(r[0]) and r[1] == 0.1]
+            chosen = overlays[min(1, len(overlays) - 1)] if overlays else None
             ax = axes[i][col]
             settings = per_fold[i]
             unbounded = dataclasses.replace(settings, threshold=UNBOUNDED)
@@ -550,8 +581,8 @@ def _plot(
             ax.grid(alpha=0.3)
             if i == n - 1:
                 ax.set_xlabel("time since the start of the log (min)")
-            if col == 0:
-                ax.set_ylabel("CUSUM statistic (degC)")
+            if col == first:
+                ax.set_ylabel("statistic (symptom x s)")
             ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -810,6 +841,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--plot",
         help="PNG: per held-out flight, the statistic nominal and with the k = 0.1 overlay at the second onset",
+    )
+    parser.add_argument(
+        "--plot-level",
+        help="PNG (with --level): per held-out flight, rho nominal and overlaid (with --level relative) and the"
+        " statistic of calibrate's choice on the derivative symptom and on each --level symptom",
     )
     parser.add_argument(
         "--plot-misses",
@@ -1187,11 +1223,17 @@ def main(argv: list[str] | None = None) -> int:
         _plot_misses(Path(args.plot_misses), flights, fold_variants[0][2], misses)
     if args.plot:
         raw = [
-            (name, per_fold)
-            for name, per_fold, _ in fold_variants
-            if "heat rate" not in name and "self-" not in name and "soak" not in name and "residual" not in name
+            variant
+            for variant in fold_variants
+            if not any(word in variant[0] for word in ("heat rate", "self-", "soak", "residual"))
         ]
-        _plot(Path(args.plot), flights, fold_variants[0][2], raw, thresholds)
+        _plot(Path(args.plot), flights, raw, thresholds)
+    if args.plot_level:  # calibrate's choice on the derivative symptom and on each --level symptom; rho itself
+        chosen_level = [
+            v for v in fold_variants if v[0] == "calibrate's choice" or v[0].startswith("calibrate's choice, re")
+        ]
+        rho = next((v[2] for v in fold_variants if v[0] == "calibrate's choice, relative residual rho"), None)
+        _plot(Path(args.plot_level), flights, chosen_level, thresholds, rho)
     return 0
 
 
