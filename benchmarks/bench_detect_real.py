@@ -68,7 +68,7 @@ exp(...)) at every power. The allowance was fixed before the screen (:data:`RHO_
 to rho at 300 s; r: that x the training flights' median airborne CHT - OAT); calibrate's choice (nested, the
 candidates and rule unchanged) and each ``--variant`` run on it. ``residual-scaled`` / ``relative-scaled``: the
 same symptom in units of its allowance x the config's reference, so that the floor of h (1 x s) means what it means
-for the derivative symptom.
+for the derivative symptom. ``--plot-level P.png`` draws rho and the statistics of calibrate's choice on each.
 """
 
 from __future__ import annotations
