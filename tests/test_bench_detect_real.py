@@ -111,3 +111,30 @@ def test_overlay_adds_about_its_gain_to_rho_at_every_power(bench: ModuleType) ->
     assert np.allclose(r_k - r, gain * (cht - oat) * shape, rtol=1e-9, atol=1e-9)
     # the allowance is half the k = 0.1 overlay's rho 300 s after the onset
     assert pytest.approx(0.5 * gain * (1.0 - math.exp(-300.0 / 240.0))) == bench.RHO_ALLOWANCE
+
+
+def test_level_feeds_replace_every_replays_symptom_by_its_own_reference(bench: ModuleType) -> None:
+    """Training flights (FlightFeeds, their overlays) and the held-out runs each get the level symptom of their own
+    reference, times their fold's scale; the derivative feeds are not used."""
+    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+
+    t = np.arange(0.0, 5.0)
+    oat = np.full(5, 10.0)
+
+    def reference(offset: float) -> tuple[ReferenceFeed, ...]:
+        return (ReferenceFeed(t, np.full(5, 110.0 + offset), np.full(5, 110.0), oat),)
+
+    derivative = ((t, np.full(5, 99.0)),)
+    training = FlightFeeds("a.csv", derivative, 0.0, 4.0, 0.0, (OverlayRun(2.0, 0.1, derivative, reference(3.0)),),
+                           reference(1.0))  # fmt: skip
+    feeds = {(0, 0): [(math.nan, 0.0, 0.0, derivative), (2.0, 0.2, 0.0, derivative)], (0, 1): training,
+             (1, 1): [(math.nan, 0.0, 0.0, derivative)], (1, 0): training}  # fmt: skip
+    references = {0: [reference(2.0), reference(4.0)], 1: [reference(5.0)]}
+    levelled = bench._level_feeds(feeds, references, 2, relative=True, scales=[1.0, 10.0])
+    assert [float(run[3][0][1][0]) for run in levelled[(0, 0)]] == pytest.approx([0.02, 0.04])
+    assert [run[:3] for run in levelled[(0, 0)]] == [run[:3] for run in feeds[(0, 0)]]
+    assert float(levelled[(0, 1)].feed[0][1][0]) == pytest.approx(0.01)
+    assert float(levelled[(0, 1)].overlays[0].feed[0][1][0]) == pytest.approx(0.03)
+    assert float(levelled[(1, 0)].feed[0][1][0]) == pytest.approx(0.1)  # fold 1: scale 10
+    assert float(levelled[(1, 1)][0][3][0][1][0]) == pytest.approx(0.5)
+    assert levelled[(0, 1)].overlays[0].onset_s == 2.0 and levelled[(0, 1)].name == "a.csv"
