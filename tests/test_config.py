@@ -147,8 +147,12 @@ def test_every_error_names_file_and_key(tmp_path: Path, case: str, edit: Callabl
         (b"- just\n- a list\n", "top level: expected a mapping, got a list"),
         (b"\xff\xfe\x00garbage", "cannot read config file (not UTF-8 text)"),
         (b"", "top level: expected a mapping, got nothing"),
+        (
+            b"time_s,rpm,cht_c\n" + b"1.0,2400,180\n" * 5000,
+            "got str 'time_s,rpm,cht_c 1.0,2400,180 1.0,2400,180 1.0,24... (",
+        ),
     ],
-    ids=["missing", "bad-yaml", "list", "binary", "empty"],
+    ids=["missing", "bad-yaml", "list", "binary", "empty", "a-flight-csv"],
 )
 def test_bad_files(tmp_path: Path, content: bytes | None, expected: str) -> None:
     path = tmp_path / "bad.yaml"
@@ -157,6 +161,7 @@ def test_bad_files(tmp_path: Path, content: bytes | None, expected: str) -> None
     with pytest.raises(ConfigError) as info:
         load_config(path)
     assert str(info.value).startswith(str(path)) and expected in str(info.value)
+    assert len(str(info.value)) < len(str(path)) + 150  # one short line, not the file (a CSV given as --config)
 
 
 def test_relative_paths_resolve_against_the_config_file(tmp_path: Path) -> None:

@@ -342,7 +342,10 @@ def _kind(value: Any) -> str:
         return "a list"
     if value is None:
         return "nothing"
-    return f"{type(value).__name__} {value!r}"
+    text = repr(value)
+    if len(text) > 60:  # a CSV given as a config is one long YAML string: keep the message one short line
+        text = f"{text[:50]}... ({len(text)} characters)"
+    return f"{type(value).__name__} {text}"
 
 
 def _resolve(src: Path, value: str | os.PathLike[str]) -> Path:
