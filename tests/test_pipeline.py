@@ -443,3 +443,18 @@ def test_a_model_reading_what_the_service_does_not_feed_is_warned(caplog: pytest
     assert not caplog.text
     assert {"fuel_flow_lph", "rpm"} <= set(fed.model_inputs)
     assert plain.model_inputs == (*paper_table_a1().heat_axes, "altitude_m", "airspeed_mps", "oat_c")
+
+
+def test_demo_says_so_when_the_injection_falls_after_the_flight(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--inject-at past the mission's end: the demo says gamma_Q was never injected, not 'NOT detected'."""
+    from ecu_monitor.cli import main
+
+    mission = tmp_path / "tiny.yaml"
+    mission.write_text(yaml.safe_dump({"name": "tiny", "segments": [
+        {"kind": "ground_run", "duration_s": 20, "throttle_pct": 40}]}), encoding="utf-8")  # fmt: skip
+    assert main(["demo", "--mission", str(mission), "--inject-at", "500", "--out", str(tmp_path / "d")]) == 0
+    printed = capsys.readouterr().out
+    assert "gamma_Q = 1.2 NOT injected: --inject-at 500 s is after the end of the flight (20 s" in printed
+    assert "NOT detected" not in printed

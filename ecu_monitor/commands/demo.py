@@ -203,7 +203,12 @@ def _run(args: argparse.Namespace) -> int:
         f"({log.duration_s / wall:.0f}x real time); {counts['sent']} frames over the virtual bus, "
         f"{c['ok']} decoded, {c['malformed']} malformed, {counts['health_back']} {back} frames back"
     )
-    if detected is None:
+    if args.inject_at >= log.duration_s:
+        print(
+            f"gamma_Q = {args.gamma_q:g} NOT injected: --inject-at {args.inject_at:g} s is after the end of the flight"
+            f" ({log.duration_s:.0f} s of mission {mission.name})"
+        )
+    elif detected is None:
         print(
             f"gamma_Q = {args.gamma_q:g} injected at t = {args.inject_at:.0f} s: NOT detected by the end of the flight"
         )
