@@ -302,6 +302,10 @@ def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning
     text = record.getMessage()
     assert "fuel_flow_lph" in text and "ECU_Fast.FuelFlow" in text and "[0, 50]" in text and "57.5" in text
     assert f"in {(fuel.size + 9) // 10} of {fuel.size} rows" in text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="ecu_monitor.service.flight_frames"):
+        frames_from_flight(hot, config)  # calibrate replays a flight many times: told once
+    assert not caplog.records
     fast = frames.arbitration_id == 0x100  # ECU_Fast: FuelFlow at bit 32, 0.01 L/h; 50 L/h the largest sent
     raw = frames.data[fast][:, 4].astype(int) | (frames.data[fast][:, 5].astype(int) << 8)
     assert raw.max() * 0.01 == pytest.approx(50.0)

@@ -19,6 +19,10 @@ from ecu_monitor.service.config import ServiceConfig
 
 _log = logging.getLogger(__name__)
 
+#: (flight, column, range) already warned about by :func:`_warn_clipped`: calibrate replays a flight once per
+#: cylinder and per overlay, and one warning per flight says it all.
+_CLIPPED_WARNED: set[tuple[str, str, float, float]] = set()
+
 
 def frames_from_flight(log: FlightLog, config: ServiceConfig, required: Iterable[str] | None = None) -> FrameArrays:
     """The frames the ECU would have sent for a flight log: every message the config's inputs use, at
@@ -184,15 +188,18 @@ def _put(values: dict[str, object], steps: tuple[str | int, ...], value: float) 
 
 
 def _warn_clipped(log: FlightLog, column: str, message: str, signal: Any, values: NDArray[np.float64]) -> None:
-    """Log one warning when a column holds values outside its DBC signal's range: the encoder clamps them
-    (as the ECU would send them), so the pipeline reads the range's end there, not the logged value."""
+    """Log one warning (once per flight and column in a process) when a column holds values outside its DBC
+    signal's range: the encoder clamps them (as the ECU would send them), so the pipeline reads the range's
+    end there, not the logged value."""
     low = -math.inf if signal.minimum is None else float(signal.minimum)
     high = math.inf if signal.maximum is None else float(signal.maximum)
     values = np.asarray(values, dtype=float)
     outside = (values < low) | (values > high)
     count = int(np.count_nonzero(outside))
-    if count == 0:
+    key = (str(log.source), column, low, high)
+    if count == 0 or key in _CLIPPED_WARNED:
         return
+    _CLIPPED_WARNED.add(key)
     unit = f" {signal.unit}" if signal.unit else ""
     _log.warning(
         "%s: column '%s' outside the range [%g, %g]%s of the DBC signal %s.%s it is sent in, in %d of %d rows"
