@@ -253,6 +253,9 @@ class PhaseTimedDaemon(Daemon):
             advanced = time.perf_counter()
             self._send_locked(frames)
             sent = time.perf_counter()
+            schedule = getattr(self, "_schedule_rehearsal", None)  # older checkouts: no rehearsal
+            if schedule is not None:
+                schedule(now)
         if frames:
             self.phases.append(((fed - started) * 1e6, (advanced - fed) * 1e6, (sent - advanced) * 1e6))
         if msg.arbitration_id == ECU_FAST_ID:
@@ -317,6 +320,7 @@ def run_case(
                 freeze_heap=freeze_heap,
                 # only when asked: this script also measures older checkouts, whose daemon has no such setting
                 **({"switch_interval_s": switch_interval_s} if switch_interval_s is not None else {}),
+                **DAEMON_OPTIONS,
             ),
             receive_ids=pipeline.decoder.frame_ids,
         )
@@ -369,6 +373,7 @@ def run_case(
         daemon.stop()
         daemon_thread.join(timeout=10)
         frames_in, health_sent = daemon.counters["frames_in"], daemon.counters["health_sent"]
+        rehearsals = daemon.counters.get("rehearsals", 0)
     else:
         assert echo_notifier is not None and echo_bus is not None
         echo_notifier.stop()
@@ -385,6 +390,7 @@ def run_case(
         "out_received": len(got),
         "traffic_hz": counts["traffic"] / seconds,
         "cpu_pct": cpu_pct,
+        **({"rehearsals": rehearsals} if daemon is not None else {}),
         "gc": gc_pauses.summary(),
         "phases": daemon.phase_summary() if isinstance(daemon, PhaseTimedDaemon) else "",
         "anatomy": anatomy(daemon, sent_at, got, settled) if isinstance(daemon, PhaseTimedDaemon) else "",
@@ -622,19 +628,36 @@ def paced_steps(
     pace_s: float,
     spin: bool = False,
     before_step: Callable[[int], None] | None = None,
+    prewarm: Callable[[int, float, list[can.Message]], None] | None = None,
+    lead_s: float = 0.0,
 ) -> Iterator[tuple[int, float]]:
     """Feed ``pipeline`` the ECU frames of ``steps`` 20 ms steps (ECU_Fast each step, ECU_Slow and AirData
     every fifth), ``feed`` then ``advance_to`` per frame as the daemon does, waiting ``pace_s`` before each
     step (asleep, or with ``spin`` busy on the clock: the core stays awake at full clock). Yields, per
     frame, (health frames that step sent, its feed + advance_to in us). ``before_step(k)`` runs after the
-    wait, before step k's frames."""
+    wait, before step k's frames. ``prewarm(k, t, frames)``, when given, runs ``lead_s`` before step k's
+    frames (asleep ``pace_s - lead_s``, then it, then asleep ``lead_s``)."""
     encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
     counters = dict.fromkeys(ECU_VALUES, 0)
+
+    def ecu_frames(k: int) -> list[can.Message]:
+        messages = []
+        for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
+            data = encoder.encode(name, ECU_VALUES[name], counters[name])
+            counters[name] += 1
+            messages.append(can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data))
+        return messages
+
     t = 0.0
     pipeline.advance_to(t)
     for k in range(steps):
         t += 0.02
-        if pace_s > 0.0 and spin:
+        if prewarm is not None:  # the frames exist before the wait (the prewarm may read them)
+            messages = ecu_frames(k)
+            time.sleep(pace_s - lead_s)
+            prewarm(k, t, messages)
+            time.sleep(lead_s)
+        elif pace_s > 0.0 and spin:
             until = time.perf_counter() + pace_s
             while time.perf_counter() < until:
                 pass
@@ -642,14 +665,74 @@ def paced_steps(
             time.sleep(pace_s)
         if before_step is not None:
             before_step(k)
-        for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
-            data = encoder.encode(name, ECU_VALUES[name], counters[name])
-            counters[name] += 1
-            msg = can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data)
+        for msg in messages if prewarm is not None else ecu_frames(k):
             started = time.perf_counter()
             pipeline.feed(msg)
             frames = pipeline.advance_to(t)
             yield len(frames), (time.perf_counter() - started) * 1e6
+
+
+def prewarm_study(steps: int = 500, rounds: int = 3) -> None:
+    """Does running code shortly before a frame bring that frame's paced step down toward its 1 ms-paced
+    cost? The pipeline alone, one frame per 20 ms asleep; before each frame, ``lead`` ms earlier: nothing
+    (baseline), or a second pipeline (the twin) fed the same frames (every part of the step's code run, on
+    the twin's own data: what any rehearsal of the code could at most gain), or the pipeline's own
+    ``rehearse`` where it has one; and one frame per 1 ms for reference. Modes alternate, ``rounds`` times;
+    p50 / p99 of feed + advance_to of the frames whose step emits health frames, after the estimator's start."""
+    config = _config("unused")
+    params = config.load_params()
+
+    def twin_of(pipeline: Pipeline) -> Callable[[int, float, list[can.Message]], None]:
+        twin = Pipeline(config, params)
+        twin.advance_to(0.0)
+
+        def run(k: int, t: float, messages: list[can.Message]) -> None:
+            for msg in messages:
+                twin.feed(msg)
+                twin.advance_to(t)
+
+        return run
+
+    def rehearsal_of(pipeline: Pipeline) -> Callable[[int, float, list[can.Message]], None] | None:
+        rehearse = getattr(pipeline, "rehearse", None)
+        if rehearse is None:
+            return None
+
+        def run(k: int, t: float, messages: list[can.Message]) -> None:
+            if math.isfinite(pipeline.rehearsal_frame_s(t - 0.02)):  # as the daemon decides, after the last frame
+                rehearse()
+
+        return run
+
+    modes: list[tuple[str, float, float, Any]] = [
+        (
+            "one frame per 20 ms asleep (baseline: the frames built first, nothing run 1 ms before)",
+            0.02,
+            0.001,
+            lambda pipeline: lambda k, t, messages: None,
+        ),
+        ("the twin pipeline steps the same frames 1 ms before", 0.02, 0.001, twin_of),
+        ("the twin 0.3 ms before", 0.02, 0.0003, twin_of),
+        ("Pipeline.rehearse 1 ms before", 0.02, 0.001, rehearsal_of),
+        ("Pipeline.rehearse 0.6 ms before", 0.02, 0.0006, rehearsal_of),
+        ("Pipeline.rehearse 0.3 ms before", 0.02, 0.0003, rehearsal_of),
+        ("one frame per 1 ms asleep", 0.001, 0.0, None),
+    ]
+    results: dict[str, list[float]] = {}
+    for _ in range(rounds):
+        for name, pace_s, lead_s, make in modes:
+            pipeline = Pipeline(config, params)
+            prewarm = make(pipeline) if make is not None else None
+            if make is not None and prewarm is None:
+                continue
+            costs = [c for sent, c in paced_steps(pipeline, steps, pace_s, prewarm=prewarm, lead_s=lead_s) if sent]
+            results.setdefault(name, []).extend(costs[50:])
+    print("| pipeline alone: feed + advance_to of a frame whose step emits health frames | samples | p50 | p99 |")
+    print("|---|---|---|---|")
+    for name, values in results.items():
+        p50, p99, _ = _percentiles(values)
+        print(f"| {name} | {len(values)} | {p50:.0f} us | {p99:.0f} us |")
+    print()
 
 
 # --- across processes, udp_multicast in a network namespace -------------------------------------------
@@ -664,8 +747,29 @@ _DAEMON = textwrap.dedent(
     from ecu_monitor.service.pipeline import Pipeline
     config = load_config(sys.argv[1])
     pipeline = Pipeline(config, config.load_params())
-    daemon = Daemon(pipeline, lambda: can.Bus(**dict(config.bus)), settings=DaemonSettings(tick_s=3600.0),
+    settings = DaemonSettings(tick_s=3600.0, **json.loads(sys.argv[2]))
+    daemon = Daemon(pipeline, lambda: can.Bus(**dict(config.bus)), settings=settings,
                     receive_ids=pipeline.decoder.frame_ids)
+    # the daemon's own timings (perf_counter, s): feed + advance_to of the frames whose step sends health
+    # frames, and each rehearsal's start and end
+    steps, rehearsals, fed = [], [], [0.0]
+    feed, advance = pipeline.feed, pipeline.advance_to
+    def timed_feed(msg):
+        fed[0] = time.perf_counter()
+        feed(msg)
+    def timed_advance(t_s):
+        frames = advance(t_s)
+        if frames:
+            steps.append((fed[0], time.perf_counter()))
+        return frames
+    pipeline.feed, pipeline.advance_to = timed_feed, timed_advance
+    if hasattr(pipeline, "rehearse"):
+        rehearse = pipeline.rehearse
+        def timed_rehearse():
+            started = time.perf_counter()
+            rehearse()
+            rehearsals.append((started, time.perf_counter()))
+        pipeline.rehearse = timed_rehearse
     signal.signal(signal.SIGTERM, lambda *args: daemon.stop())
     def announce():
         while daemon.counters["bus_opens"] == 0:
@@ -673,7 +777,9 @@ _DAEMON = textwrap.dedent(
         print("ready", flush=True)
     threading.Thread(target=announce, daemon=True).start()
     daemon.run()
-    print(json.dumps({"in": daemon.counters["frames_in"], "out": daemon.counters["health_sent"]}), flush=True)
+    counts = {"in": daemon.counters["frames_in"], "out": daemon.counters["health_sent"],
+              "rehearsals": daemon.counters.get("rehearsals", 0), "steps": steps, "rehearsal_spans": rehearsals}
+    print(json.dumps(counts), flush=True)
     """
 )
 
@@ -718,6 +824,29 @@ _TRAFFIC = textwrap.dedent(
             time.sleep(delay)
     """
 )
+
+
+def _own_timings(steps: list[list[float]], rehearsals: list[list[float]]) -> str:
+    """The daemon process's own timings across processes: feed + advance_to of the frames whose step sends
+    health frames (after the start-up), each rehearsal, and from the end of the rehearsal before such a frame
+    to that frame's feed (short: the frame waited for the rehearsal)."""
+    costs = [(end - start) * 1e6 for start, end in steps[20:]]
+    text = "feed + advance_to p50 {:.0f} us, p99 {:.0f} us".format(*_percentiles(costs)[:2])
+    if rehearsals:
+        spans = [(end - start) * 1e6 for start, end in rehearsals[20:]]
+        ends = [end for _, end in rehearsals]
+        gaps = []
+        for start, _ in steps[20:]:
+            before = bisect.bisect_right(ends, start) - 1
+            if before >= 0 and start - ends[before] < 0.01:
+                gaps.append((start - ends[before]) * 1e6)
+        text += "; rehearsal p50 {:.0f} us, p99 {:.0f} us".format(*_percentiles(spans)[:2])
+        if gaps:
+            text += (
+                f"; {len(gaps)} of {len(costs)} such frames had a rehearsal in the 10 ms before, ended p50 "
+                f"{statistics.median(gaps):.0f} us before the frame's feed ({sum(g < 50 for g in gaps)} under 50 us)"
+            )
+    return text
 
 
 def measure_inner(port: int, seconds: float, name: str) -> None:
@@ -779,7 +908,10 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
             per_burst = round(traffic_hz * 0.0025)  # 0: no other traffic
             for name, argv in (
                 ("bare Notifier echo (baseline), separate process", [sys.executable, "-c", _ECHO, GROUP, str(port)]),
-                ("daemon + pipeline, separate process", [sys.executable, "-c", _DAEMON, str(config)]),
+                (
+                    "daemon + pipeline, separate process",
+                    [sys.executable, "-c", _DAEMON, str(config), json.dumps(DAEMON_OPTIONS)],
+                ),
             ):
                 peer = start(["nice", "-n", str(nice), *argv] if nice else argv)
                 assert peer.stdout is not None
@@ -801,6 +933,10 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
                 peer_counts = json.loads(peer_out.strip().splitlines()[-1])
                 row = json.loads(out.strip().splitlines()[-1])
                 row.update(ecu_in=peer_counts["in"], out_sent=peer_counts["out"], traffic_hz=per_burst / 0.0025)
+                if "rehearsals" in peer_counts:
+                    row["rehearsals"] = peer_counts["rehearsals"]
+                if "steps" in peer_counts:
+                    row["own"] = _own_timings(peer_counts["steps"], peer_counts["rehearsal_spans"])
                 row["socket_drops"] = peer_drops
                 row["cpu_pct"] = cpu_pct
                 rows.append(row)
@@ -844,6 +980,8 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
                 f"{row['case']}: {row['socket_drops']} datagrams dropped by the kernel on its socket (a full queue, or"
                 " the daemon's receive filter: bus/kernel_filter.py)"
             )
+        if row.get("own"):
+            print(f"{row['case']}: its own timings: {row['own']}")
         if row.get("phases"):
             print(f"{row['case']}: callback of a frame whose step emits health frames: {row['phases']}")
         if "gc" in row:
@@ -852,6 +990,10 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
             print(f"\n{row['case']}, what its latency is made of:\n\n{row['anatomy']}\n")
     lost = daemon["ecu_sent"] - daemon["ecu_in"] + daemon["out_sent"] - daemon["out_received"]
     print(f"frames lost: {lost}")
+    if "rehearsals" in daemon:
+        lead = DAEMON_OPTIONS.get("rehearse_lead_s", getattr(DaemonSettings(), "rehearse_lead_s", None))
+        shown = "off" if lead is None else f"{lead * 1e3:g} ms before the expected frame"
+        print(f"rehearsals of the Health_Status step ({shown}): {daemon['rehearsals']}")
     if across:
         checks = [(f"p99 within {P99_RATIO_ACROSS}x of the echo process's", p99_ratio <= P99_RATIO_ACROSS)]
     else:
@@ -861,6 +1003,11 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
         ]
     checks.append((f"daemon CPU < {CPU_LIMIT_PCT:g} % of a core", daemon.get("cpu_pct", math.inf) < CPU_LIMIT_PCT))
     print("targets: " + "; ".join(f"{name}: {'met' if ok else 'NOT met'}" for name, ok in checks) + "\n")
+
+
+#: DaemonSettings given on the command line (--rehearse-lead), for the daemon in one process and across; empty:
+#: the defaults (older checkouts' DaemonSettings lack the newer fields)
+DAEMON_OPTIONS: dict[str, Any] = {}
 
 
 def main() -> None:
@@ -878,7 +1025,16 @@ def main() -> None:
         "--step-profile", action="store_true", help="only: each part of a paced step of the pipeline alone, timed"
     )
     parser.add_argument(
+        "--prewarm-study", action="store_true", help="only: the paced step after code run shortly before the frame"
+    )
+    parser.add_argument(
         "--dispatch-study", action="store_true", help="only: what entering a compiled function costs, by argument list"
+    )
+    parser.add_argument(
+        "--rehearse-lead",
+        type=float,
+        default=None,
+        help="ms: the daemon's DaemonSettings.rehearse_lead_s (0: no rehearsal; default: the daemon's default)",
     )
     parser.add_argument(
         "--switch-interval",
@@ -887,11 +1043,16 @@ def main() -> None:
         help="ms: the daemon's DaemonSettings.switch_interval_s, the echo's too (0: the interpreter's default)",
     )
     args = parser.parse_args()
+    if args.rehearse_lead is not None:
+        DAEMON_OPTIONS["rehearse_lead_s"] = args.rehearse_lead * 1e-3 if args.rehearse_lead > 0 else None
     if args.dispatch_study:
         dispatch_study()
         return
     if args.step_profile:
         step_profile()
+        return
+    if args.prewarm_study:
+        prewarm_study()
         return
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)

@@ -135,16 +135,25 @@ SPREAD_LIMIT_C = 22.0  # between the spread before the fault (26 degC) and after
 
 @pytest.fixture(scope="module")
 def live_run(four_cylinder_flight: FlightLog) -> tuple[Any, Any, list[Any], ReplayResult]:
-    """The flight through the live pipeline frame by frame: (config, frames in, health frames out, rows)."""
+    """The flight through the live pipeline frame by frame: (config, frames in, health frames out, rows). Before
+    each frame the daemon would rehearse for (``Pipeline.rehearsal_frame_s``), the pipeline rehearses the step
+    that sends Health_Status (``Pipeline.rehearse``), as the daemon does: live == batch holds with it."""
     config = _config(cylinders={"spread_limit_c": SPREAD_LIMIT_C})
     frames = frames_from_flight(four_cylinder_flight, config)
     pipeline = Pipeline(config, config.load_cylinder_params())
     sent: list[Any] = []
     rows = []
+    rehearse_before = math.nan
+    rehearsals = 0
     for msg in frames.messages():
+        if msg.timestamp >= rehearse_before - 1e-3:
+            pipeline.rehearse()
+            rehearsals += 1
         sent += pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
+        rehearse_before = pipeline.rehearsal_frame_s(msg.timestamp)
         rows.extend(pipeline.drain_rows())
+    assert rehearsals >= len(rows) > 1000  # one before each Health_Status step, with its 4 compiled calls
     return config, frames, sent, ReplayResult(rows_to_columns(rows, 4), dict(pipeline.counters))
 
 

@@ -14,20 +14,30 @@ from ecu_monitor.service import live_call
 from ecu_monitor.service.pipeline import Pipeline
 
 
-def _scenario(estimator: dict[str, Any], fused: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[str, list[Any], int]:
+def _scenario(
+    estimator: dict[str, Any], fused: bool, monkeypatch: pytest.MonkeyPatch, rehearse: bool = False
+) -> tuple[str, list[Any], int]:
     """A steady engine, a stuck probe, stale air data (predicting, then UNAVAILABLE), recovery, an open probe,
-    a clock restart: (repr of every health row, the health frames, filter periods run by LiveCall)."""
+    a clock restart: (repr of every health row, the health frames, filter periods run by LiveCall).
+    ``rehearse``: ``Pipeline.rehearse`` before every frame (the daemon does it before some)."""
     calls = [0]
     original_call = live_call.LiveCall.call
+    original_advance = Pipeline.advance_to
 
     def counted(self: live_call.LiveCall, *args: Any) -> Any:
         calls[0] += 1
         return original_call(self, *args)
 
+    def rehearsed(self: Pipeline, t_s: float) -> Any:
+        self.rehearse()
+        return original_advance(self, t_s)
+
     with monkeypatch.context() as patch:
         patch.setattr(live_call.LiveCall, "call", counted)
         if not fused:
             patch.setattr(live_call.LiveCall, "of", staticmethod(lambda *args: None))
+        if rehearse:
+            patch.setattr(Pipeline, "advance_to", rehearsed)
         config = _config(estimator=estimator, stale_predict_limit_s=5.0, sensor_fault__stuck_after_s=10.0,
                          detector={"symptom": "estimator", "warmup_s": 5.0, "block_s": 2.0})  # fmt: skip
         pipeline = Pipeline(config, paper_table_a1())
@@ -69,6 +79,23 @@ def test_one_compiled_call_equals_the_separate_calls_bit_for_bit(
     assert calls > 500 and calls_apart == 0
     assert len(frames) > 800 and frames == frames_apart
     assert rows == rows_apart  # repr: the shortest round-trip form of every float, so equal means bit-equal
+
+
+def test_a_rehearsal_before_every_frame_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pipeline.rehearse (the daemon's, shortly before the frame of a Health_Status step) has no effect on
+    the rows or the frames, through every supervisor branch, and runs the compiled call on its copy."""
+    estimator = {"name": "cbekf-au", "dt_s": 0.02}
+    rehearsals = [0]
+    original = live_call.LiveCall.rehearse
+
+    def counted(self: live_call.LiveCall, *args: Any) -> None:
+        rehearsals[0] += 1
+        original(self, *args)
+
+    monkeypatch.setattr(live_call.LiveCall, "rehearse", counted)
+    rows, frames, calls = _scenario(estimator, True, monkeypatch, rehearse=True)
+    assert rehearsals[0] > 5 * calls > 2500
+    assert (rows, frames) == _scenario(estimator, True, monkeypatch)[:2]
 
 
 def test_an_isolation_filter_unlike_the_pipelines_is_not_folded() -> None:

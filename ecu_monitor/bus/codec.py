@@ -198,6 +198,23 @@ def _raw_bounds(sig: Any) -> tuple[float, float]:
     return low - _RANGE_SLACK, high + _RANGE_SLACK
 
 
+def _extract_values(plan: _Plan, payload: bytes) -> list[tuple[int, float]] | None:
+    """Integer signals of a prepared plan: raw integers by shift and mask (the values cantools' decode
+    gives), the range check and the scaling: [(value index, value)], or None when a raw value is out of its
+    range. No state."""
+    little = int.from_bytes(payload, "little")
+    big = int.from_bytes(payload, "big")
+    out: list[tuple[int, float]] = []
+    for f, (shift, mask, sign, big_endian) in zip(plan.fields, plan.extract or (), strict=True):
+        raw = ((big if big_endian else little) >> shift) & mask
+        if raw & sign:
+            raw -= mask + 1
+        if not f.raw_low <= raw <= f.raw_high:
+            return None
+        out.append((f.output, (raw * f.factor + f.offset) * f.unit_scale + f.unit_offset))
+    return out
+
+
 class Decoder:
     """Frames -> named values through DBC files, with the checks of the module docstring.
 
@@ -325,21 +342,27 @@ class Decoder:
         return out
 
     def _decode_prepared(self, plan: _Plan, payload: bytes) -> list[tuple[int, float]] | None:
-        """The end of :meth:`decode` for integer signals: raw integers by shift and mask (the values
-        cantools' decode gives), then the same range check and scaling."""
-        little = int.from_bytes(payload, "little")
-        big = int.from_bytes(payload, "big")
-        out: list[tuple[int, float]] = []
-        for f, (shift, mask, sign, big_endian) in zip(plan.fields, plan.extract or (), strict=True):
-            raw = ((big if big_endian else little) >> shift) & mask
-            if raw & sign:
-                raw -= mask + 1
-            if not f.raw_low <= raw <= f.raw_high:
-                self._malformed("out_of_range")
-                return None
-            out.append((f.output, (raw * f.factor + f.offset) * f.unit_scale + f.unit_offset))
+        """The end of :meth:`decode` for integer signals (:func:`_extract_values`), counted."""
+        out = _extract_values(plan, payload)
+        if out is None:
+            self._malformed("out_of_range")
+            return None
         self.counters["ok"] += 1
         return out
+
+    def rehearse(self, arbitration_id: int, is_extended: bool, data: bytes | bytearray) -> None:
+        """The work of :meth:`decode` on a frame of a prepared message (the checksum, the extraction), with
+        no effect: no counter, no counter-sequence state, nothing returned. Run shortly before a frame is
+        due, it brings that code into the caches (docs/performance.md, "Rehearsal")."""
+        plan = self._plans.get((arbitration_id, is_extended))
+        if plan is None or plan.extract is None:
+            return
+        payload = bytes(data)
+        if len(payload) != plan.length:
+            return
+        if plan.counter_name is not None:
+            crc8_sae_j1850(payload[:CHECKSUM_BYTE])
+        _extract_values(plan, payload)
 
     def decode_batch(
         self,

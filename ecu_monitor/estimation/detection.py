@@ -192,6 +192,10 @@ class Detector:
         """Current CUSUM statistic."""
         return self._statistic
 
+    def output(self) -> DetectorOutput:
+        """The detector's state now (what :meth:`update` returned last); no effect."""
+        return self._output()
+
     def _output(self) -> DetectorOutput:
         s = self.settings
         if not math.isnan(self._alarm_time_s):

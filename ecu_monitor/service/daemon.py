@@ -33,6 +33,16 @@ Then automatic collection is switched off and the supervisor collects every peri
 generation every 0.1 s, generation 1 every second, a full collection every minute): a collection is
 work that can wait, so it never starts inside the callback of a frame on the bus thread.
 
+Rehearsal: a step paced one frame per 20 ms costs several times what it costs back to back, because
+between two frames the caches lose its code and data (docs/performance.md, "Why a paced step costs
+several times a back-to-back one"). The step that sends Health_Status comes every 100 ms, run by the
+first frame after its time, and the ECU sends once per step: after each frame the pipeline says whether
+the next one, expected one step later, may run that step (``Pipeline.rehearsal_frame_s``); if so, the
+receive thread wakes from ``recv`` ``rehearse_lead_s`` before it and the pipeline runs the step's work
+on copies (``Pipeline.rehearse``: no effect on its state or output), so the frame finds the step's code
+and data in the caches. A frame that arrives during the rehearsal waits for it (~0.1 ms); one that
+arrives earlier than expected is not delayed.
+
 GIL: a thread that wants the interpreter while another runs Python waits until that one blocks, or
 for the switch interval (5 ms by default) and then asks it to let go; with several threads passing the
 GIL between them, a waiting thread can wait several intervals. ``DaemonSettings.switch_interval_s``
@@ -93,6 +103,10 @@ class PipelineLike(Protocol):
 
     def warm_up(self) -> float: ...
 
+    def rehearsal_frame_s(self, frame_s: float) -> float: ...
+
+    def rehearse(self) -> None: ...
+
     @property
     def steps_done(self) -> int: ...
 
@@ -111,6 +125,8 @@ class DaemonSettings:
     collect_in_supervisor: bool = True  # with freeze_heap: gc.disable(), the supervisor collects instead
     no_frames_warning_s: float = 10.0  # warn once when the bus carries no engine frame this long
     switch_interval_s: float | None = None  # sys.setswitchinterval while running (module docstring, "GIL")
+    rehearse_lead_s: float | None = 0.0006  # rehearse the next Health_Status step this long before its frame is due
+    # (module docstring, "Rehearsal"); None: never
 
 
 class SilenceWatch:
@@ -197,6 +213,9 @@ class Daemon:
         self._manual_gc = False  # automatic collection switched off by run()
         self._switch_interval_before: float | None = None  # the interpreter's, while run() has its own
         self._silence = SilenceWatch(self.settings.no_frames_warning_s, clock())
+        # the rehearsal of the next Health_Status step: when, and the time of the frame it is for
+        self._rehearse_at_s = math.inf
+        self._rehearse_due_s = -math.inf
         self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
         self.counters: dict[str, int] = {
@@ -212,6 +231,7 @@ class Daemon:
             "watchdog_pings": 0,
             "rows_recorded": 0,
             "silence_warnings": 0,
+            "rehearsals": 0,
         }
 
     # --- the one keep-alive handler ---------------------------------------------------------------
@@ -248,10 +268,18 @@ class Daemon:
     def _receive_frames(self, bus: can.BusABC, stop: threading.Event) -> bool:
         """Receive and handle frames until ``stop`` (returns True); a python-can or OS error of ``recv`` goes to
         :meth:`_on_receive_error` and the loop goes on (the supervisor reopens the bus and stops this thread)."""
-        recv, guarded, on_frame, stopped = bus.recv, self._guarded, self._on_frame, stop.is_set
+        recv, guarded, on_frame, stopped, clock = bus.recv, self._guarded, self._on_frame, stop.is_set, self._clock
+        rehearsing = self.settings.rehearse_lead_s is not None
         while not stopped():
+            timeout = _RECEIVE_TIMEOUT_S
+            if rehearsing:
+                wait = self._rehearse_at_s - clock()
+                if wait <= 0.0:
+                    guarded("rehearse", self._rehearse)
+                    continue
+                timeout = min(timeout, wait)
             try:
-                msg = recv(_RECEIVE_TIMEOUT_S)
+                msg = recv(timeout)
             except (can.CanError, OSError) as exc:
                 self._on_receive_error(exc)
                 continue
@@ -267,6 +295,31 @@ class Daemon:
             self._silence.frame(now)
             self.pipeline.feed(msg)
             self._send_locked(self.pipeline.advance_to(now))
+            self._schedule_rehearsal(now)
+
+    def _schedule_rehearsal(self, now: float) -> None:
+        """After a frame received at ``now`` (the caller holds the lock): if the next frame may make the
+        Health_Status step fall due, rehearse ``rehearse_lead_s`` before it is expected; once per expected
+        frame (the frames of one burst expect the same next one)."""
+        lead = self.settings.rehearse_lead_s
+        if lead is None:
+            return
+        if now >= self._rehearse_at_s:  # this frame came before its rehearsal could run: none for it now
+            self._rehearse_at_s = math.inf
+        expected = self.pipeline.rehearsal_frame_s(now)
+        if expected - self._rehearse_due_s > 0.5 * (expected - now):  # False for nan
+            self._rehearse_due_s = expected
+            self._rehearse_at_s = expected - lead
+
+    def _rehearse(self) -> None:
+        """The receive thread, ``rehearse_lead_s`` before a frame that may make the next Health_Status step
+        fall due: the pipeline rehearses that step (module docstring, "Rehearsal"), unless the frame is
+        already late."""
+        self._rehearse_at_s = math.inf
+        if self._clock() < self._rehearse_due_s:
+            with self._lock:
+                self.pipeline.rehearse()
+                self.counters["rehearsals"] += 1
 
     def _tick(self) -> None:
         with self._lock:

@@ -170,6 +170,10 @@ class _Cylinder:
         self.pending_reading = False
 
 
+#: A frame expected this long (s) before a Health_Status step's time may still be the one that runs it (its
+#: arrival jitters around the step grid when the ECU's clock keeps phase with it): it is rehearsed for too.
+REHEARSAL_EARLY_S = 0.001
+
 #: DegradationState code of each state name.
 _STATE_CODE = {name: code for code, name in enumerate(STATES)}
 #: State codes 0 .. this are the detector's verdicts (NOMINAL, SUSPECT, DEGRADED): the supervisor said NOMINAL.
@@ -292,6 +296,7 @@ class Pipeline:
         self._cht_names = frozenset(cylinder_inputs)
         self._cht_slots = {cyl.slot: cyl for cyl in self._cylinders}
         self._early: set[int] = set()  # slots fed before the first advance_to
+        self._last_frame: can.Message | None = None  # the latest frame that decoded (rehearse() decodes it again)
         self._dt = config.estimator.dt_s
         self._origin: float | None = None
         self._now = -math.inf
@@ -385,6 +390,34 @@ class Pipeline:
             live.call(4 * step_s, u, False, True, 101.0, False, True, sv)
         return time.perf_counter() - started
 
+    def rehearse(self) -> None:
+        """The work of the next step that sends Health_Status, on copies and with no effect on the pipeline:
+        the decode of the latest input frame, the staleness and inputs, each cylinder's compiled call
+        (:meth:`LiveCall.rehearse`), the detector's state, the headroom when that step computes it, the
+        snapshot and the Health_Status frame. Run shortly before that step's frame is due, it brings the step's
+        code and data into the caches (docs/performance.md, "Rehearsal")."""
+        msg = self._last_frame
+        if msg is not None:
+            self.decoder.rehearse(msg.arbitration_id, msg.is_extended_id, msg.data)
+        time_s, results, stale = self._last_step
+        if not results:
+            return
+        self._stale(time_s)
+        u = self._inputs()
+        headroom_next = (self._k // self._status_period + 1) * self._status_period % self._headroom_period == 0
+        for cyl in self._cylinders:
+            if cyl.live is not None:
+                cyl.live.rehearse(u)
+            cyl.detector.output()
+            est_c, _, gamma_q, gamma_d, _, _ = cyl.held
+            if headroom_next and math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d):
+                time_to_limit_s(est_c, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs)
+        snap = self._build_snapshot(time_s, results, stale)
+        if self._dbc_health:
+            data = self.encoder.encode("Health_Status", self._health_values("Health_Status", snap, 0), 0)
+            frame_id, extended = self._frame_ids["Health_Status"]
+            can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=extended, data=data)
+
     def receive_filters(self) -> list[CanFilter]:
         """python-can receive filters of the frames the pipeline reads: the decoder's, and on DroneCAN the
         service requests to the node."""
@@ -417,6 +450,7 @@ class Pipeline:
         decoded = self.decoder.decode(int(msg.arbitration_id), bool(msg.is_extended_id), data, stamp)
         if decoded is None:
             return
+        self._last_frame = msg  # for rehearse()
         for slot, value in decoded:
             self._values[slot] = value
             self._stamps[slot] = stamp
@@ -453,6 +487,17 @@ class Pipeline:
             self._step(step_time, frames)
         self._now = float(t_s)
         return frames
+
+    def rehearsal_frame_s(self, frame_s: float) -> float:
+        """After a frame received at ``frame_s`` (s, the clock of ``advance_to``): when the next is expected
+        (one step later: the ECU sends once per step) if that one may make the next Health_Status step fall
+        due (it comes after that step's time, or at most ``REHEARSAL_EARLY_S`` before it); nan if it will not,
+        or before the clock starts. The daemon rehearses (:meth:`rehearse`) shortly before that time."""
+        if self._origin is None:
+            return math.nan
+        expected = frame_s + self._dt
+        k = (self._k // self._status_period + 1) * self._status_period
+        return expected if expected >= self._origin + k * self._dt - REHEARSAL_EARLY_S else math.nan
 
     # ------------------------------------------------------------------ one step
 
