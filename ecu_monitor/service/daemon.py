@@ -40,8 +40,9 @@ first frame after its time, and the ECU sends once per step: after each frame th
 the next one, expected one step later, may run that step (``Pipeline.rehearsal_frame_s``); if so, the
 receive thread wakes from ``recv`` ``rehearse_lead_s`` before it and the pipeline runs the step's work
 on copies (``Pipeline.rehearse``: no effect on its state or output), so the frame finds the step's code
-and data in the caches. A frame that arrives during the rehearsal waits for it (~0.1 ms); one that
-arrives earlier than expected is not delayed.
+and data in the caches. A frame that arrives during the rehearsal (~0.2 ms) waits for it; at the 0.6 ms
+lead none did in docs/performance.md's runs ("Rehearsal"). A frame that comes before its rehearsal cancels
+it.
 
 GIL: a thread that wants the interpreter while another runs Python waits until that one blocks, or
 for the switch interval (5 ms by default) and then asks it to let go; with several threads passing the
