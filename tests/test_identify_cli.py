@@ -141,8 +141,12 @@ def test_two_flights_make_one_model_with_effects_lofo_limit_and_bounds(flights, 
     train, held_out = flights
     model = tmp_path / "model.yaml"
     argv = ["identify", str(train), str(held_out), "--out", str(model), "--particles", "12", "--iterations", "8"]
-    argv += ["--effects=-altitude_factor,sensor_lag", "--cht-limit", "90", "--quiet"]
-    assert main(argv) == 0
+    argv += ["--effects=-altitude_factor,sensor_lag", "--cht-limit", "90", "--quiet", "--plots", str(tmp_path / "p")]
+    assert main(argv) == 0  # --plots with the LOFO rows in the table: one plot per flight (it raised before)
+    assert sorted(p.name for p in (tmp_path / "p").glob("cht_*.png")) == [
+        "cht_train_1_train.png",
+        "cht_train_2_held_out.png",
+    ]
     captured = capsys.readouterr()
     assert captured.out.count("held out (LOFO)") == 2 and "leave-one-flight-out held-out RMS" in captured.out
     assert "measured CHT reaches" in captured.err and "above the limit 90" in captured.err

@@ -311,8 +311,8 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
         f" heat map {params.heat_map.x_axis} x {params.heat_map.y_axis}"
         f" {params.heat_map.shape[0]}x{params.heat_map.shape[1]} -> {out}"
     )
-    if plots is not None:
-        _plots(plots, result, flights, validation, rows)
+    if plots is not None:  # the identified model on each training and validation flight (not the LOFO folds')
+        _plots(plots, result, flights, validation, [row for row in rows if row[0] in ("train", "validate")])
     return 0
 
 
