@@ -42,7 +42,10 @@ receive thread wakes from ``recv`` ``rehearse_lead_s`` before it and the pipelin
 on copies (``Pipeline.rehearse``: no effect on its state or output), so the frame finds the step's code
 and data in the caches. A frame that arrives during the rehearsal (~0.2 ms) waits for it; at the 0.6 ms
 lead none did in docs/performance.md's runs ("Rehearsal"). A frame that comes before its rehearsal cancels
-it.
+it. Not on python-can's ``virtual`` interface, whose other ends (sender, receiver) are threads of this
+process: there the rehearsal's GIL time was measured to push their work into the frame's path (the
+one-process latency p99 worse with it in 5 of 6 pairs, docs/performance.md), where across processes it
+halves the frame's own step.
 
 GIL: a thread that wants the interpreter while another runs Python waits until that one blocks, or
 for the switch interval (5 ms by default) and then asks it to let go; with several threads passing the
@@ -270,7 +273,9 @@ class Daemon:
         """Receive and handle frames until ``stop`` (returns True); a python-can or OS error of ``recv`` goes to
         :meth:`_on_receive_error` and the loop goes on (the supervisor reopens the bus and stops this thread)."""
         recv, guarded, on_frame, stopped, clock = bus.recv, self._guarded, self._on_frame, stop.is_set, self._clock
-        rehearsing = self.settings.rehearse_lead_s is not None
+        # not on python-can's virtual interface: its other ends are threads of this process, and the rehearsal's
+        # ~0.2 ms with the GIL held was measured to delay them into the frame's path (module docstring)
+        rehearsing = self.settings.rehearse_lead_s is not None and not isinstance(bus, VirtualBus)
         while not stopped():
             timeout = _RECEIVE_TIMEOUT_S
             if rehearsing:
