@@ -992,7 +992,7 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
     print(f"frames lost: {lost}")
     if "rehearsals" in daemon:
         lead = DAEMON_OPTIONS.get("rehearse_lead_s", getattr(DaemonSettings(), "rehearse_lead_s", None))
-        shown = "off" if lead is None else f"{lead * 1e3:g} ms before the expected frame"
+        shown = "off" if lead is None else f"rehearse_lead_s {lead * 1e3:g} ms; the daemon does none on `virtual`"
         print(f"rehearsals of the Health_Status step ({shown}): {daemon['rehearsals']}")
     if across:
         checks = [(f"p99 within {P99_RATIO_ACROSS}x of the echo process's", p99_ratio <= P99_RATIO_ACROSS)]
