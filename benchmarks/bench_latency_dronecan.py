@@ -222,7 +222,7 @@ def run_netns(seconds: float, traffic_hz: float, repeat: int) -> list[dict[str, 
                 round_results: dict[str, dict[str, Any]] = {}
                 for case, protocol in CASES:
                     script, config = configs[protocol]
-                    peer = start([sys.executable, "-c", script, str(config)])
+                    peer = start([sys.executable, "-c", script, str(config), "{}"])  # the daemon's default settings
                     assert peer.stdout is not None
                     if peer.stdout.readline().strip() != "ready":
                         sys.exit(f"{case}: the daemon did not start")
@@ -430,7 +430,7 @@ def thread_split(seconds: float) -> None:
                                            ("dronecan", (_DAEMON, dronecan_yaml))):  # fmt: skip
             argv = ["ip", "netns", "exec", space.name]
             peer = subprocess.Popen(
-                [*argv, sys.executable, "-c", script, str(config)], stdout=subprocess.PIPE, text=True
+                [*argv, sys.executable, "-c", script, str(config), "{}"], stdout=subprocess.PIPE, text=True
             )
             assert peer.stdout is not None and peer.stdout.readline().strip() == "ready"
             traffic = subprocess.Popen([*argv, sys.executable, "-c", bench_latency._TRAFFIC, bench_latency.GROUP,
