@@ -173,7 +173,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     time_s = np.asarray(c["time_s"], dtype=float)
     t = (time_s - time_s[0]) / 60.0
     count = result.cylinder_count
-    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=True, height_ratios=(2.2, 1.2, 1.2, 1.0))
+    fig, axes = plt.subplots(4, 1, figsize=(13, 10), sharex=True, height_ratios=(2.2, 1.2, 1.2, 1.0))
     ax_cht, ax_dev, ax_gamma, ax_head = axes
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     if count == 1:
@@ -216,7 +216,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
                             transform=ax.get_xaxis_transform(), label=name if i == 0 else None)  # fmt: skip
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=7, ncol=2 if count > 1 else 1)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7, borderaxespad=0.0)  # beside the traces
     ax_cht.set_title(f"{title}: the service's replay (shaded: state not NOMINAL)")
     fig.tight_layout()
     try:
