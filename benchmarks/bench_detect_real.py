@@ -242,7 +242,6 @@ def _heat_rate_feeds(feeds: dict[Any, Any], models: list[Path], flights: list[Pa
     """The replays' detector feeds with the symptom divided by the fold model's heat-input rate relative
     to its median over the fold's training flights' airborne part, the rate floored at ``floor`` x that
     median (the same weight for the nominal and the overlaid replays of a flight)."""
-    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
 
     n = len(flights)
     out: dict[Any, Any] = {}
@@ -256,13 +255,19 @@ def _heat_rate_feeds(feeds: dict[Any, Any], models: list[Path], flights: list[Pa
             def weigh(feed: Any, t_log: Any = t_log, weight: Any = weight) -> Any:
                 return tuple((t, x * np.interp(t, t_log, weight)) for t, x in feed)
 
-            f = feeds[(i, j)]
-            if j == i:
-                out[(i, j)] = [(onset, gain, start, weigh(feed)) for onset, gain, start, feed in f]
-            else:
-                runs = tuple(OverlayRun(r.onset_s, r.gain, weigh(r.feed)) for r in f.overlays)
-                out[(i, j)] = FlightFeeds(f.name, weigh(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
+            out[(i, j)] = _map_feeds(feeds[(i, j)], weigh, held_out=j == i)
     return out
+
+
+def _map_feeds(f: Any, change: Any, held_out: bool) -> Any:
+    """One fold's feeds of one flight with ``change`` applied to every symptom feed: the held-out flight's
+    [(onset, gain, start, feed)] runs, or a training flight's FlightFeeds (nominal and overlays)."""
+    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+
+    if held_out:
+        return [(onset, gain, start, change(feed)) for onset, gain, start, feed in f]
+    runs = tuple(OverlayRun(r.onset_s, r.gain, change(r.feed)) for r in f.overlays)
+    return FlightFeeds(f.name, change(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
 
 
 #: --soak: the width of the bins the heat-soak fit averages the symptom and its regressor over, s.
@@ -348,7 +353,6 @@ def _soak_feeds(
     changes the CHT only, so the regressor is the same). ``coefficient``: b given, not fitted (hindsight; tau
     then the grid's only value); ``even``: the regressor |lag(q, tau) - q|. Returns the feeds and per fold (b,
     tau, the fit, per flight (log times s, tau -> regressor))."""
-    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
 
     n = len(flights)
     out: dict[Any, Any] = {}
@@ -379,12 +383,7 @@ def _soak_feeds(
             def less(feed: Any, t_log: Any = t_log, term: Any = term) -> Any:
                 return tuple((t, x - np.interp(t, t_log, term)) for t, x in feed)
 
-            f = feeds[(i, j)]
-            if j == i:
-                out[(i, j)] = [(onset, gain, start, less(feed)) for onset, gain, start, feed in f]
-            else:
-                runs = tuple(OverlayRun(r.onset_s, r.gain, less(r.feed)) for r in f.overlays)
-                out[(i, j)] = FlightFeeds(f.name, less(f.feed), f.first_row_s, f.last_row_s, f.log_start_s, runs)
+            out[(i, j)] = _map_feeds(feeds[(i, j)], less, held_out=j == i)
     return out, fits
 
 
