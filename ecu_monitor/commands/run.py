@@ -28,8 +28,9 @@ if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help s
     import can
 
     from ecu_monitor.service.config import ServiceConfig
+    from ecu_monitor.service.daemon import DaemonSettings
 
-__all__ = ["add_subparser", "bus_opener", "engine_speed_of", "unsupported_on_host"]
+__all__ = ["add_subparser", "bus_opener", "daemon_settings", "engine_speed_of", "unsupported_on_host"]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -147,7 +148,7 @@ def unsupported_on_host(exc: BaseException) -> bool:
 
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.daemon import Daemon, DaemonSettings
+    from ecu_monitor.service.daemon import Daemon
     from ecu_monitor.service.flight_recorder import FlightRecorder
     from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.service.persistence import StateStore
@@ -167,12 +168,7 @@ def _run(args: argparse.Namespace) -> int:
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
     open_bus = bus_opener(config)
-    settings = DaemonSettings(
-        backoff_initial_s=config.reopen_backoff.initial,
-        backoff_max_s=config.reopen_backoff.max,
-        watchdog_period_s=watchdog_period_s(),
-        no_frames_warning_s=config.no_frames_warning_s,
-    )
+    settings = daemon_settings(config, watchdog_period_s())
     with SystemdNotifier() as notifier:
         daemon = Daemon(
             pipeline,
@@ -203,6 +199,20 @@ def _run(args: argparse.Namespace) -> int:
             store.close()
     sys.stdout.flush()
     return code
+
+
+def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
+    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; rehearsal lead
+    (``rehearse_lead_ms``, 0: never); and systemd's watchdog period, s (None: no watchdog)."""
+    from ecu_monitor.service.daemon import DaemonSettings
+
+    return DaemonSettings(
+        backoff_initial_s=config.reopen_backoff.initial,
+        backoff_max_s=config.reopen_backoff.max,
+        watchdog_period_s=watchdog_s,
+        no_frames_warning_s=config.no_frames_warning_s,
+        rehearse_lead_s=config.rehearse_lead_ms * 1e-3 if config.rehearse_lead_ms > 0 else None,
+    )
 
 
 def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:

@@ -102,6 +102,7 @@ _TOP_KEYS = (
     "cylinders",
     "stale_predict_limit_s",
     "no_frames_warning_s",
+    "rehearse_lead_ms",
     "state_dir",
     "sensor_fault",
 )
@@ -199,6 +200,9 @@ class ServiceConfig:
     sensor_fault: SensorFaultSettings = field(default_factory=SensorFaultSettings)
     #: the daemon logs a warning when its bus has carried no engine frame for this long, s
     no_frames_warning_s: float = 10.0
+    #: the daemon rehearses a Health_Status step this long before its frame is due, ms; 0: never
+    #: (docs/service.md, "Rehearsal")
+    rehearse_lead_ms: float = 0.6
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
     #: ``ecu-monitor calibrate`` writes it, ecu_monitor.service.calibration.model_fingerprint); None if not given.
     detector_calibrated_for: str | None = None
@@ -450,6 +454,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         state_dir=top.path_value("state_dir", "/var/lib/ecu-monitor"),
         sensor_fault=sensor,
         no_frames_warning_s=top.number("no_frames_warning_s", 10.0, low=0.0, strict_low=True),
+        rehearse_lead_ms=top.number("rehearse_lead_ms", 0.6, low=0.0, high=10.0),
         detector_calibrated_for=calibrated_for,
         protocol=protocol,
         dronecan=dronecan,
