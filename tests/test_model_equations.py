@@ -38,7 +38,7 @@ from ecu_monitor.model import (
     simulate,
     stack_coefficients,
 )
-from ecu_monitor.model.compiled import compute_drive_compiled, simulate_compiled
+from ecu_monitor.model.compiled import compute_drive_compiled, simulate_compiled, simulate_held
 
 DT = 0.5
 
@@ -90,6 +90,25 @@ def _random_inputs(rng: np.random.Generator, n: int, hold: int = 4) -> InputSeri
         rng.uniform(-20, 35, m)[k],
         egt[k],
     )
+
+
+@pytest.mark.parametrize(("kelvin", "dt"), [(False, DT), (True, DT), (False, 400.0)])
+def test_held_inputs_run_equals_the_swarm_kernel_at_the_calls_bit_for_bit(kelvin: bool, dt: float) -> None:
+    """simulate_held (the replay's open-loop reference, inputs held between calls) is simulate_compiled
+    over the per-step inputs taken at the calls, to the last bit; dt 400 s makes RK4 diverge (the
+    failure mask: NaN from the first bad step on)."""
+    rng = np.random.default_rng(31 + kelvin)
+    params = _random_params(rng, kelvin)
+    per_call = _random_inputs(rng, 300, hold=1)
+    steps = rng.integers(1, 12, 300)
+    calls = np.cumsum(steps) - steps
+    which = np.repeat(np.arange(300), steps)
+    per_step = InputSeries(*(np.asarray(v)[which] for v in per_call))
+    coeffs = coefficients(params)
+    reference = simulate_compiled(per_step, coeffs, dt, 140.0).cht_c[calls]
+    held = simulate_held(per_call, steps, coeffs, dt, 140.0)
+    assert np.array_equal(held, reference, equal_nan=True)
+    assert np.isnan(held).any() == (dt > DT)
 
 
 @pytest.mark.parametrize("kelvin", [False, True])
