@@ -427,6 +427,9 @@ class Decoder:
         values: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for index, name in enumerate(self.names):
             parts = found[index]
+            if len(parts) == 1:  # one message: its rows are in log order already (shared, not copied)
+                values[name] = (parts[0][0], parts[0][1].astype(np.float64, copy=False))
+                continue
             rows_all = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
             vals_all = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0)
             order = np.argsort(rows_all, kind="stable")

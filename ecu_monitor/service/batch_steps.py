@@ -76,15 +76,36 @@ def latest_before(frame_stamps: NDArray[np.float64], times: NDArray[np.float64])
     return out
 
 
+def _stale_loop(
+    frame_stamps: NDArray[np.float64],
+    latest: NDArray[np.int64],
+    times: NDArray[np.float64],
+    limit_s: float,
+    out: NDArray[np.bool_],
+) -> None:
+    for k in range(times.shape[0]):
+        j = latest[k]
+        if j < 0:
+            out[k] = True
+        else:
+            stamp = frame_stamps[j]
+            out[k] = stamp != stamp or times[k] - stamp > limit_s
+
+
+@functools.cache
+def _compiled_stale() -> Callable[..., None]:
+    loop: Callable[..., None] = jit(_stale_loop, fingerprint([__file__]))
+    return loop
+
+
 class HeldInput(NamedTuple):
-    """An input sampled and held on the steps: the frames' values, the index of the latest frame before
-    each step (-1: none yet), its stamp per step (nan: none) and the frames seen per step. The held
-    values are taken at the steps asked for (:meth:`at`), not made for every step."""
+    """An input sampled and held on the steps: the frames' values and stamps, and the index of the
+    latest frame before each step (-1: none yet). The held values, their age and the arrivals are taken
+    from ``latest`` where asked (:meth:`at`, :meth:`stale`, :meth:`new_frame`), not kept per step."""
 
     values: NDArray[np.float64]
     latest: NDArray[np.int64]
-    stamp: NDArray[np.float64]
-    frames_seen: NDArray[np.int64]
+    frame_stamps: NDArray[np.float64]
 
     def at(self, steps: NDArray[np.intp] | slice) -> NDArray[np.float64]:
         """The value held at ``steps`` (nan before the first frame)."""
@@ -100,23 +121,24 @@ class HeldInput(NamedTuple):
         """The value held at every step."""
         return self.at(slice(None))
 
+    def stale(self, times: NDArray[np.float64], limit_s: float) -> NDArray[np.bool_]:
+        """Per step: no frame yet, or the latest is more than ``limit_s`` older than the step (compiled:
+        ``isnan(stamp) | (times - stamp > limit_s)`` without a per-step stamp array)."""
+        out = np.empty(times.size, dtype=np.bool_)
+        _compiled_stale()(np.ascontiguousarray(self.frame_stamps), np.ascontiguousarray(self.latest),
+                          np.ascontiguousarray(times), float(limit_s), out)  # fmt: skip
+        return out
 
-def hold_inputs(
-    frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64], like: HeldInput | None = None
-) -> HeldInput:
+    def new_frame(self) -> NDArray[np.bool_]:
+        """Per step: a frame arrived since the step before (the frames seen grew)."""
+        return np.diff(self.latest, prepend=-1) > 0
+
+
+def hold_inputs(frame_stamps: NDArray[np.float64], values: NDArray[np.float64], j: NDArray[np.int64]) -> HeldInput:
     """``values`` held on the steps from ``j`` (index of the latest valid frame stamped strictly before
-    the step, -1: none yet; a frame fed after advance_to(t) is stamped t).
-
-    ``like``: an input already held from the same frames and the same ``j`` (another field of the
-    message); its stamp and frames_seen arrays are shared, not made again (16 h: 23 MB each). The
-    returned arrays are not to be written to."""
-    if not values.size:
-        return HeldInput(values, j, np.full(j.size, np.nan), j + 1)
-    if like is not None:
-        return HeldInput(values, j, like.stamp, like.frames_seen)
-    stamp = frame_stamps[np.maximum(j, 0)]
-    stamp[j < 0] = np.nan
-    return HeldInput(values, j, stamp, j + 1)
+    the step, -1: none yet; a frame fed after advance_to(t) is stamped t). The arrays are shared, not
+    copied: not to be written to."""
+    return HeldInput(values, j, frame_stamps)
 
 
 def estimator_stretches(action: NDArray[np.int64]) -> list[tuple[int, int]]:

@@ -218,28 +218,28 @@ def _replay_segment(
     message_of[STATUS_INPUT] = str(config.sensor_fault.status_message)
     # per message: its frames and the latest of them before each step (a DroneCAN field sent as NaN leaves
     # its value out of one message's frames: then that value has its own); the values held on the same
-    # frames share one stamp and frames_seen array
-    latest: dict[str, tuple[NDArray[np.int64], NDArray[np.int64], HeldInput | None]] = {}
+    # frames share one frame-stamp and latest array. Rows are sorted: the segment's frames are a slice.
+    latest: dict[str, tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]] = {}
     for name, (rows, vals) in values.items():
-        inside = (rows >= first) & (rows < end)
-        frame_rows = rows[inside]
-        frame_stamps = stamps[frame_rows]
+        lo, hi = (0, rows.size) if (first, end) == (0, stamps.size) else np.searchsorted(rows, (first, end))
+        frame_rows = rows[lo:hi]
         message = message_of[name]
         cached = latest.get(message)
         if cached is not None and np.array_equal(cached[0], frame_rows):
-            held[name] = hold_inputs(frame_stamps, vals[inside], cached[1], cached[2])
+            held[name] = hold_inputs(cached[1], vals[lo:hi], cached[2])
             continue
+        frame_stamps = stamps[frame_rows]
         j = latest_before(frame_stamps, times)
-        held[name] = hold_inputs(frame_stamps, vals[inside], j)
+        held[name] = hold_inputs(frame_stamps, vals[lo:hi], j)
         if cached is None:
-            latest[message] = (frame_rows, j, held[name] if vals[inside].size else None)
+            latest[message] = (frame_rows, frame_stamps, j)
     mapped = [name for name in INPUT_NAMES if name in config.input_names] + (list(cylinder_inputs) if count > 1 else [])
     stale: dict[str, NDArray[np.bool_]] = {}
     tested: dict[tuple[int, float], NDArray[np.bool_]] = {}
     for name in mapped:
-        key = (id(held[name].stamp), config.input(name).stale_after_s)
+        key = (id(held[name].latest), config.input(name).stale_after_s)
         if key not in tested:
-            tested[key] = np.isnan(held[name].stamp) | (times - held[name].stamp > key[1])
+            tested[key] = held[name].stale(times, key[1])
         stale[name] = tested[key]
     fed = model_input_names(params[0], config.input_names)
     model_stale = np.zeros(n, dtype=bool)
@@ -363,7 +363,7 @@ def _replay_cylinder(
     dt = config.estimator.dt_s
     n = times.size
     reading = cht.value
-    new_reading = np.diff(cht.frames_seen, prepend=0) > 0
+    new_reading = cht.new_frame()
     sf = config.sensor_fault
     with np.errstate(invalid="ignore"):
         reading_bad = ~np.isnan(reading) & ((reading < sf.min_c) | (reading > sf.max_c))
