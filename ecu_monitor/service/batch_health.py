@@ -20,13 +20,19 @@ from ecu_monitor.service.supervision import ACTION_INITIALISE, ACTION_NONE, STAT
 
 
 def detector_feed(
-    code: NDArray[np.int64], symptom: NDArray[np.float64], stretches: list[tuple[int, int]]
+    code: NDArray[np.int64],
+    symptom: NDArray[np.float64],
+    call_of: NDArray[np.int64],
+    stretches: list[tuple[int, int]],
 ) -> tuple[int, NDArray[np.float64]]:
     """(step of the first initialisation, where the detector starts; the symptom it is fed per step:
-    nan before that step and wherever the supervisor is not NOMINAL)."""
+    nan before that step and wherever the supervisor is not NOMINAL). ``symptom``: one value per filter
+    call; ``call_of``: the call of each step (-1: the estimator does not run, nan)."""
     first = stretches[0][0] if stretches else code.size
-    fed = np.where(code == 0, symptom, np.nan)
-    fed[:first] = np.nan
+    fed = np.full(code.size, np.nan)
+    take = (code == 0) & (call_of >= 0)
+    take[:first] = False
+    fed[take] = symptom[call_of[take]]
     return first, fed
 
 
@@ -100,18 +106,24 @@ def held_headroom(
     est: NDArray[np.float64],
     gamma_q: NDArray[np.float64],
     gamma_d: NDArray[np.float64],
+    call_of: NDArray[np.int64],
     action: NDArray[np.int64],
-    step_numbers: NDArray[np.int64],
     period: int,
 ) -> NDArray[np.float64]:
     """Headroom held between its computations every ``period`` steps while the estimator runs (nan
-    otherwise), as the live pipeline does; computed with :func:`headroom_batch`."""
+    otherwise), as the live pipeline does; computed with :func:`headroom_batch`. ``est``, ``gamma_q``,
+    ``gamma_d``: one value per filter call; ``call_of``: the call of each step (-1: none)."""
     n = times.size
     running = action != ACTION_NONE
-    due = running & (step_numbers % period == 0)
+    due = np.zeros(n, dtype=bool)
+    due[period - 1 :: period] = True  # the steps k (1-based) with k % period == 0
+    due &= running
     idx = np.flatnonzero(due)
     series = series_of({name: v.at(idx) for name, v in inputs.items()}, params.heat_axes, params.effects.mixture_index)
-    computed = headroom_batch(params, series, est[idx], gamma_q[idx], gamma_d[idx])
+    call = call_of[idx]
+    if call.size and int(call.min()) < 0:
+        raise RuntimeError("replay: a headroom step outside the estimator's calls")
+    computed = headroom_batch(params, series, est[call], gamma_q[call], gamma_d[call])
     # hold: last computation since the last (re)initialisation, nan after a stop or before the first
     value = np.full(n, np.nan)
     value[idx] = computed

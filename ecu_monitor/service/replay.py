@@ -248,7 +248,7 @@ def _replay_segment(
     inputs = {name: held[name] for name in fed}  # taken at the filter calls
     periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
     rows = np.arange(periods["Health_Status"] - 1, n, periods["Health_Status"])  # steps k (1-based), k % period == 0
-    status = held[STATUS_INPUT].value if STATUS_INPUT in held else None
+    status = held.get(STATUS_INPUT)
     cylinders = [
         _replay_cylinder(
             config.replace(detector=config.cylinder_detector(number)),
@@ -259,6 +259,7 @@ def _replay_segment(
             model_stale | stale[name],
             status,
             periods,
+            rows,
             keep_reference,
         )
         for number, (name, model) in enumerate(zip(cylinder_inputs, params, strict=True), start=1)
@@ -275,12 +276,12 @@ def _replay_segment(
         cyl = cylinders[0]
         out = {
             "time_s": times[rows],
-            "cht_meas_c": cyl.reading[rows],
-            "cht_est_c": cyl.est[rows],
-            "deviation": cyl.deviation[rows],
-            "gamma_q": cyl.gamma_q[rows],
-            "gamma_d": cyl.gamma_d[rows],
-            "headroom_s": cyl.headroom[rows],
+            "cht_meas_c": cyl.reading,
+            "cht_est_c": cyl.est,
+            "deviation": cyl.deviation,
+            "gamma_q": cyl.gamma_q,
+            "gamma_d": cyl.gamma_d,
+            "headroom_s": cyl.headroom,
             "state": cyl.state[rows].astype(np.int64),
             "stale": bits,
             "sensor_fault": cyl.code[rows] == fault,
@@ -289,12 +290,12 @@ def _replay_segment(
     out = {"time_s": times[rows], "stale": bits}
     for number, cyl in enumerate(cylinders, start=1):
         out.update({
-            f"cyl{number}_cht_meas_c": cyl.reading[rows],
-            f"cyl{number}_cht_est_c": cyl.est[rows],
-            f"cyl{number}_deviation": cyl.deviation[rows],
-            f"cyl{number}_gamma_q": cyl.gamma_q[rows],
-            f"cyl{number}_gamma_d": cyl.gamma_d[rows],
-            f"cyl{number}_headroom_s": cyl.headroom[rows],
+            f"cyl{number}_cht_meas_c": cyl.reading,
+            f"cyl{number}_cht_est_c": cyl.est,
+            f"cyl{number}_deviation": cyl.deviation,
+            f"cyl{number}_gamma_q": cyl.gamma_q,
+            f"cyl{number}_gamma_d": cyl.gamma_d,
+            f"cyl{number}_headroom_s": cyl.headroom,
             f"cyl{number}_state": cyl.state[rows].astype(np.int64),
         })  # fmt: skip
     out.update(engine_columns(out, count, config.spread_limit_c))
@@ -327,7 +328,8 @@ def _cross_states(
 
 
 class _CylinderTrace(NamedTuple):
-    """One cylinder's per-step outputs over a clock segment of the batch replay."""
+    """One cylinder's outputs over a clock segment of the batch replay: the health rows' values (reading
+    to headroom) and the per-step states and detector feed."""
 
     reading: NDArray[np.float64]
     est: NDArray[np.float64]
@@ -351,11 +353,13 @@ def _replay_cylinder(
     inputs: dict[str, HeldInput],
     cht: HeldInput,
     any_stale: NDArray[np.bool_],
-    status: NDArray[np.float64] | None,
+    status: HeldInput | None,
     periods: dict[str, int],
+    rows: NDArray[np.int64],
     keep_reference: bool,
 ) -> _CylinderTrace:
-    """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom."""
+    """One cylinder over a clock segment: supervision, estimator, isolation filter, detector, headroom;
+    the values of the health rows taken at the steps ``rows``."""
     mixture = fed_mixture(params, config.input_names)
     if mixture is None and params.effects.mixture_index is not None:
         # the config maps no mixture index: its factor is 1, as live (NaN index; the pipeline warns)
@@ -367,11 +371,12 @@ def _replay_cylinder(
     sf = config.sensor_fault
     with np.errstate(invalid="ignore"):
         reading_bad = ~np.isnan(reading) & ((reading < sf.min_c) | (reading > sf.max_c))
-    if status is not None:
-        is_open = np.zeros(n, dtype=bool)
+    if status is not None and status.values.size:
+        # the sensor's status held at each step is one of the open-circuit values (tested on its frames)
+        open_frames = np.zeros(status.values.size, dtype=bool)
         for value in sf.open_values:
-            is_open |= status == value
-        reading_bad |= ~np.isnan(reading) & is_open
+            open_frames |= status.values == value
+        reading_bad |= ~np.isnan(reading) & (status.latest >= 0) & open_frames[np.maximum(status.latest, 0)]
     run = compiled_supervisor()
     code = np.empty(n, dtype=np.int64)
     action = np.empty(n, dtype=np.int64)
@@ -380,61 +385,82 @@ def _replay_cylinder(
     run(times, any_stale, new_reading, reading, reading_bad, reading, *args)
     stretches = estimator_stretches(action)
     period = filter_period_steps(dt)
-    model_c = np.full(n, np.nan)
     # per stretch: the filter call steps (the steps k, 1-based, with k % period == 0, and the
-    # initialisation), the inputs held at them, and for each step of the stretch its call
+    # initialisation), the steps each call's inputs hold for, the inputs held at the calls. The filters'
+    # outputs are kept per call; call_of maps each step to its call (numbered over the segment, -1:
+    # the estimator does not run), so nothing is made per step that the rows and the detector do not need
+    call_of = np.full(n, -1, dtype=np.int64)
     plans: list[tuple[NDArray[np.int64], NDArray[np.int64], dict[str, NDArray[np.float64]], InputSeries]] = []
+    stuck_model = reading.copy()  # the open-loop model the stuck test compares with (the reading where none)
+    reference_parts: list[NDArray[np.float64]] = []
+    calls_before = 0
     for a, b in stretches:
         at_calls = np.concatenate(([a], np.arange(period * ((a + 1) // period + 1) - 1, b, period)))
-        which = np.repeat(np.arange(at_calls.size), np.diff(at_calls, append=b))
+        held_steps = np.diff(at_calls, append=b)
+        call_of[a:b] = np.repeat(np.arange(calls_before, calls_before + at_calls.size), held_steps)
+        calls_before += at_calls.size
         at_inputs = {name: held.at(at_calls) for name, held in inputs.items()}
         # the model's inputs at the calls (the mixture index only if the config maps its columns)
         at_series = series_of(at_inputs, params.heat_axes, mixture)
-        plans.append((at_calls, which, at_inputs, at_series))
+        plans.append((at_calls, held_steps, at_inputs, at_series))
         # the open-loop reference: the nominal model from the first reading, the filters' inputs held
-        reference = simulate_held(at_series, np.diff(at_calls, append=b), coefficients(params), dt, float(reading[a]))
-        model_c[a:b] = reference[which]
+        reference = simulate_held(at_series, held_steps, coefficients(params), dt, float(reading[a]))
+        reference_parts.append(reference)
+        per_step = np.repeat(reference, held_steps)
+        known = ~np.isnan(per_step)
+        stuck_model[a:b][known] = per_step[known]
     # pass 2: with the open-loop model, the states and the estimator's actions
-    run(times, any_stale, new_reading, reading, reading_bad, np.where(np.isnan(model_c), reading, model_c), *args)
+    run(times, any_stale, new_reading, reading, reading_bad, stuck_model, *args)
+    del stuck_model
     if estimator_stretches(action) != stretches:  # the stuck test never starts or stops the estimator
         raise RuntimeError("replay: supervision passes disagree on where the estimator runs")
-    est = np.full(n, np.nan)
-    deviation = np.full(n, np.nan)
-    gamma_q = np.full(n, np.nan)
-    gamma_d = np.full(n, np.nan)
-    iso_dev = np.full(n, np.nan)
+    parts: dict[str, list[NDArray[np.float64]]] = {k: [] for k in ("est", "deviation", "gamma_q", "gamma_d", "iso")}
     arrivals = np.concatenate(([0], np.cumsum(new_reading)))  # readings arrived in steps [0, j)
-    for (a, b), (at_calls, which, at_inputs, at_series) in zip(stretches, plans, strict=True):
+    for (a, b), (at_calls, _, at_inputs, at_series) in zip(stretches, plans, strict=True):
         # a reading is applied at a call if one arrived since the previous call and the step is NOMINAL
         later = at_calls[1:]
         window = arrivals[later + 1] - arrivals[np.maximum(later - period, a) + 1] > 0
         z = np.concatenate(([reading[a]], np.where(window & (code[later] == 0), reading[later], np.nan)))
         trace = run_estimator_on_calls(times[a:b], at_calls - a, at_series, z, params, config.estimator_name,
                                        config.estimator)  # fmt: skip
-        est[a:b] = trace.cht_est_c[which]
-        deviation[a:b] = trace.deviation[which]
+        parts["est"].append(trace.cht_est_c)
+        parts["deviation"].append(trace.deviation)
         # the isolation filter on the call steps: each call integrates the steps since the previous one
         # (run_isolation's sub-steps) with that call's inputs, as the live filter does
         calls_log = FlightLog({"time_s": times[at_calls], **at_inputs, "cht_c": z}, source="replay")
         iso = run_isolation(calls_log, params, IsolationSettings(dt_s=dt))
-        gamma_q[a:b] = iso.gamma_q[which]
-        gamma_d[a:b] = iso.gamma_d[which]
-        iso_dev[a:b] = iso.deviation[which]
-    step_numbers = np.arange(1, n + 1)
-    symptom = deviation if config.detector_symptom == "estimator" else iso_dev
-    first, fed = detector_feed(code, symptom, stretches)
+        parts["gamma_q"].append(iso.gamma_q)
+        parts["gamma_d"].append(iso.gamma_d)
+        parts["iso"].append(iso.deviation)
+    del arrivals
+    at_call = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
+    symptom = at_call["deviation"] if config.detector_symptom == "estimator" else at_call["iso"]
+    first, fed = detector_feed(code, symptom, call_of, stretches)
     state = detect_states(config, times, code, first, fed, stretches)
     feed = (times[first:], fed[first:]) if stretches else None
-    headroom = held_headroom(params, times, inputs, est, gamma_q, gamma_d, action, step_numbers,
-                             periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
+    headroom = held_headroom(params, times, inputs, at_call["est"], at_call["gamma_q"], at_call["gamma_d"], call_of,
+                             action, periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
     kept = None
     if keep_reference and stretches:
         off = code[first:] != 0
         oat = inputs["oat_c"].at(np.arange(first, n)) if "oat_c" in inputs else np.full(n - first, np.nan)
-        values = (reading[first:], model_c[first:], oat)
+        model_c = _per_call(np.concatenate(reference_parts), call_of[first:])
+        values = (reading[first:], model_c, oat)
         kept = ReferenceFeed(times[first:], *(np.where(off, np.nan, v) for v in values))
-    return _CylinderTrace(reading, est, deviation, gamma_q, gamma_d, headroom, state, code, feed, fed, first, stretches,
-                          kept)  # fmt: skip
+    at_rows = call_of[rows]
+    est, deviation, gamma_q, gamma_d = (_per_call(at_call[k], at_rows) for k in ("est", "deviation", "gamma_q",
+                                                                                  "gamma_d"))  # fmt: skip
+    return _CylinderTrace(reading[rows], est, deviation, gamma_q, gamma_d, headroom[rows], state, code, feed, fed,
+                          first, stretches, kept)  # fmt: skip
+
+
+def _per_call(values: NDArray[np.float64], call: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``values`` (one per filter call) at the steps whose calls are ``call`` (-1: none, nan)."""
+    if not values.size:
+        return np.full(call.shape, np.nan)
+    out = values[np.maximum(call, 0)]
+    out[call < 0] = np.nan
+    return out
 
 
 def replay_file(
