@@ -56,15 +56,14 @@ def detect_states(
     step in block b sees the statistic after blocks 0..b-1 closed (the live Detector closes a block
     at the first sample of the next), DEGRADED from the block after the first alarm on (latched).
     """
-    state = code.copy()
     if not stretches:
-        return state
+        return code.copy()
     s = config.detector
     n = times.size
     t0 = float(times[first])
     begin = t0 + s.warmup_s
     if float(times[-1]) < begin:
-        return state
+        return code.copy()
     count = math.floor((float(times[-1]) - begin) / s.block_s) + 2
     ends = np.cumsum(np.concatenate(([begin + s.block_s], np.full(count - 1, s.block_s))))
     closes = np.searchsorted(times, ends - 1e-9, side="left")
@@ -75,7 +74,7 @@ def detect_states(
     starts = starts[starts < n]
     finite = np.isfinite(fed)
     sums = np.add.reduceat(np.where(finite, fed, 0.0), starts)
-    counts = np.add.reduceat(finite.astype(np.int64), starts)
+    counts = np.add.reduceat(finite, starts, dtype=np.int64)
     block = np.searchsorted(ends - 1e-9, times[starts], side="right")  # the block each start opens
     means = np.full(int(block[-1]) + 1, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -89,14 +88,9 @@ def detect_states(
         STATES.index("DEGRADED"),
         np.where(seen >= s.suspect_fraction * s.threshold, STATES.index("SUSPECT"), STATES.index("NOMINAL")),
     )
-    verdicts = np.zeros(n, dtype=np.int64)
-    opens = np.zeros(n, dtype=np.int64)
-    opens[starts] = 1
-    which = np.cumsum(opens) - 1  # the block of each step (-1: before the first)
-    verdicts[which >= 0] = block_state[which[which >= 0]]
-    nominal = code == 0
-    state[nominal] = verdicts[nominal]
-    return state
+    verdicts = np.zeros(n, dtype=np.int64)  # each step has the verdict of its block (before the first: 0)
+    verdicts[starts[0] :] = np.repeat(block_state, np.diff(starts, append=n))
+    return np.where(code == 0, verdicts, code)
 
 
 def held_headroom(
