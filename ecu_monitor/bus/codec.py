@@ -383,6 +383,7 @@ class Decoder:
         ext = np.asarray(is_extended, dtype=bool)
         dlc = np.asarray(dlc, dtype=np.int64)
         data = np.ascontiguousarray(data, dtype=np.uint8).reshape(n, 8)
+        words = data.view(np.uint64).reshape(n)  # a frame's 8 bytes as one word: gathered in one move
         times_s = np.asarray(times_s, dtype=np.float64)
         skip = np.zeros(n, dtype=bool) if ignored is None else np.asarray(ignored, dtype=bool)
         counts = dict.fromkeys(("frames", "ok", "unknown_id", "ignored", "malformed", *MALFORMED_REASONS), 0)
@@ -393,7 +394,7 @@ class Decoder:
         for key, plan in self._plans.items():
             rows = np.flatnonzero((ids == key[0]) & (ext == key[1]) & ~skip)
             known[rows] = True
-            payload = data[rows]
+            payload = words[rows].view(np.uint8).reshape(rows.size, 8)
             ok = dlc[rows] == plan.length
             counts["bad_dlc"] += int(np.count_nonzero(~ok))
             if plan.counter_name is not None:

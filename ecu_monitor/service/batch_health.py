@@ -103,10 +103,12 @@ def held_headroom(
     call_of: NDArray[np.int64],
     action: NDArray[np.int64],
     period: int,
+    rows: NDArray[np.int64],
 ) -> NDArray[np.float64]:
     """Headroom held between its computations every ``period`` steps while the estimator runs (nan
-    otherwise), as the live pipeline does; computed with :func:`headroom_batch`. ``est``, ``gamma_q``,
-    ``gamma_d``: one value per filter call; ``call_of``: the call of each step (-1: none)."""
+    otherwise), as the live pipeline does, at the steps ``rows``; computed with :func:`headroom_batch`.
+    ``est``, ``gamma_q``, ``gamma_d``: one value per filter call; ``call_of``: the call of each step
+    (-1: none)."""
     n = times.size
     running = action != ACTION_NONE
     due = np.zeros(n, dtype=bool)
@@ -119,16 +121,20 @@ def held_headroom(
         raise RuntimeError("replay: a headroom step outside the estimator's calls")
     computed = headroom_batch(params, series, est[call], gamma_q[call], gamma_d[call])
     # hold: last computation since the last (re)initialisation, nan after a stop or before the first
-    value = np.full(n, np.nan)
-    value[idx] = computed
     marker = np.full(n, -1, dtype=np.int64)
     marker[idx] = idx
     resets = np.flatnonzero((action == ACTION_INITIALISE) & ~due)
-    marker[resets] = resets  # an initialisation clears the held value (value there is nan)
+    marker[resets] = resets  # an initialisation clears the held value
     stops = np.flatnonzero(~running)
     marker[stops] = stops
     np.maximum.accumulate(marker, out=marker)
-    return np.where(marker >= 0, value[np.maximum(marker, 0)], np.nan)
+    last = marker[rows]  # the step whose value each row holds: a computation, or a reset or stop (nan)
+    out = np.full(rows.size, np.nan)
+    if idx.size:
+        pos = np.minimum(np.searchsorted(idx, last), idx.size - 1)
+        computed_there = idx[pos] == last
+        out[computed_there] = computed[pos[computed_there]]
+    return out
 
 
 def headroom_batch(

@@ -139,12 +139,16 @@ def _replay_frames(
     n = len(frames)
     if n == 0:
         return ReplayResult(empty_columns(count), counters)
-    clock = np.where(np.isfinite(frames.time_s) & (np.abs(frames.time_s) < MAX_CLOCK_S), frames.time_s, -np.inf)
-    stamps = np.maximum.accumulate(np.floor(clock * 1e6 + 0.5) / 1e6)  # clock_tick, as advance_to
-    started = np.isfinite(stamps)
-    if not started.any():
+    stamps = np.where(np.isfinite(frames.time_s) & (np.abs(frames.time_s) < MAX_CLOCK_S), frames.time_s, -np.inf)
+    stamps *= 1e6  # floor(t 1e6 + 0.5) / 1e6: clock_tick, as advance_to (in place: 4 M frames, 32 MB each)
+    stamps += 0.5
+    np.floor(stamps, out=stamps)
+    stamps /= 1e6
+    np.maximum.accumulate(stamps, out=stamps)
+    start = int(np.argmax(stamps > -np.inf))  # the clock starts at the first finite stamp (then stays finite)
+    if not np.isfinite(stamps[start]):
         return ReplayResult(empty_columns(count), counters)
-    stamps[~started] = stamps[started][0]  # frames before the clock starts count at its start
+    stamps[:start] = stamps[start]  # frames before the clock starts count at its start
     batch = decoder.decode_batch(frames.arbitration_id, frames.is_extended, frames.dlc, frames.data, stamps,
                                  frames.ignored)  # fmt: skip
     for key, value in batch.counts.items():
@@ -415,11 +419,11 @@ def _replay_cylinder(
     if estimator_stretches(action) != stretches:  # the stuck test never starts or stops the estimator
         raise RuntimeError("replay: supervision passes disagree on where the estimator runs")
     parts: dict[str, list[NDArray[np.float64]]] = {k: [] for k in ("est", "deviation", "gamma_q", "gamma_d", "iso")}
-    arrivals = np.concatenate(([0], np.cumsum(new_reading)))  # readings arrived in steps [0, j)
     for (a, b), (at_calls, _, at_inputs, at_series) in zip(stretches, plans, strict=True):
-        # a reading is applied at a call if one arrived since the previous call and the step is NOMINAL
+        # a reading is applied at a call if one arrived since the previous call (in the steps after
+        # max(call - period, a) up to the call: the latest reading's index grew) and the step is NOMINAL
         later = at_calls[1:]
-        window = arrivals[later + 1] - arrivals[np.maximum(later - period, a) + 1] > 0
+        window = cht.latest[later] > cht.latest[np.maximum(later - period, a)]
         z = np.concatenate(([reading[a]], np.where(window & (code[later] == 0), reading[later], np.nan)))
         trace = run_estimator_on_calls(times[a:b], at_calls - a, at_series, z, params, config.estimator_name,
                                        config.estimator)  # fmt: skip
@@ -432,14 +436,13 @@ def _replay_cylinder(
         parts["gamma_q"].append(iso.gamma_q)
         parts["gamma_d"].append(iso.gamma_d)
         parts["iso"].append(iso.deviation)
-    del arrivals
     at_call = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     symptom = at_call["deviation"] if config.detector_symptom == "estimator" else at_call["iso"]
     first, fed = detector_feed(code, symptom, call_of, stretches)
     state = detect_states(config, times, code, first, fed, stretches)
     feed = (times[first:], fed[first:]) if stretches else None
     headroom = held_headroom(params, times, inputs, at_call["est"], at_call["gamma_q"], at_call["gamma_d"], call_of,
-                             action, periods.get("Health_Isolation", periods["Health_Status"]))  # fmt: skip
+                             action, periods.get("Health_Isolation", periods["Health_Status"]), rows)  # fmt: skip
     kept = None
     if keep_reference and stretches:
         off = code[first:] != 0
@@ -450,7 +453,7 @@ def _replay_cylinder(
     at_rows = call_of[rows]
     est, deviation, gamma_q, gamma_d = (_per_call(at_call[k], at_rows) for k in ("est", "deviation", "gamma_q",
                                                                                   "gamma_d"))  # fmt: skip
-    return _CylinderTrace(reading[rows], est, deviation, gamma_q, gamma_d, headroom[rows], state, code, feed, fed,
+    return _CylinderTrace(reading[rows], est, deviation, gamma_q, gamma_d, headroom, state, code, feed, fed,
                           first, stretches, kept)  # fmt: skip
 
 
