@@ -4,7 +4,9 @@ headroom (:func:`held_headroom` over :func:`headroom_batch`)."""
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -13,6 +15,7 @@ from numpy.typing import NDArray
 from ecu_monitor.estimation.detection import cusum_blocks
 from ecu_monitor.model import Drive, InputSeries, ThermalParams, coefficients, compute_drive, rk4_step, steady_state_cht
 from ecu_monitor.model.inputs import series_of
+from ecu_monitor.model.kernels import fingerprint, jit
 from ecu_monitor.service.batch_steps import HeldInput
 from ecu_monitor.service.config import ServiceConfig
 from ecu_monitor.service.health_rows import HEADROOM_NOT_LIMITED_S
@@ -29,11 +32,27 @@ def detector_feed(
     nan before that step and wherever the supervisor is not NOMINAL). ``symptom``: one value per filter
     call; ``call_of``: the call of each step (-1: the estimator does not run, nan)."""
     first = stretches[0][0] if stretches else code.size
-    fed = np.full(code.size, np.nan)
-    take = (code == 0) & (call_of >= 0)
-    take[:first] = False
-    fed[take] = symptom[call_of[take]]
+    fed = np.empty(code.size)
+    _compiled_feed()(code, symptom, call_of, first, fed)
     return first, fed
+
+
+def _feed_loop(
+    code: NDArray[np.int64],
+    symptom: NDArray[np.float64],
+    call_of: NDArray[np.int64],
+    first: int,
+    out: NDArray[np.float64],
+) -> None:
+    for k in range(code.shape[0]):
+        call = call_of[k]
+        out[k] = symptom[call] if k >= first and code[k] == 0 and call >= 0 else np.nan
+
+
+@functools.cache
+def _compiled_feed() -> Callable[..., None]:
+    loop: Callable[..., None] = jit(_feed_loop, fingerprint([__file__]))
+    return loop
 
 
 def detect_states(

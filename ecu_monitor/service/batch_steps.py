@@ -98,6 +98,18 @@ def _compiled_stale() -> Callable[..., None]:
     return loop
 
 
+def _held_at_loop(values: NDArray[np.float64], latest: NDArray[np.int64], out: NDArray[np.float64]) -> None:
+    for k in range(latest.shape[0]):
+        j = latest[k]
+        out[k] = values[j] if j >= 0 else np.nan
+
+
+@functools.cache
+def _compiled_held_at() -> Callable[..., None]:
+    loop: Callable[..., None] = jit(_held_at_loop, fingerprint([__file__]))
+    return loop
+
+
 class HeldInput(NamedTuple):
     """An input sampled and held on the steps: the frames' values and stamps, and the index of the
     latest frame before each step (-1: none yet). The held values, their age and the arrivals are taken
@@ -109,11 +121,11 @@ class HeldInput(NamedTuple):
 
     def at(self, steps: NDArray[np.intp] | slice) -> NDArray[np.float64]:
         """The value held at ``steps`` (nan before the first frame)."""
-        j = self.latest[steps]
+        j = np.ascontiguousarray(self.latest[steps])
         if not self.values.size:
             return np.full(j.shape, np.nan)
-        value = self.values[np.maximum(j, 0)]
-        value[j < 0] = np.nan
+        value = np.empty(j.shape)
+        _compiled_held_at()(np.ascontiguousarray(self.values), j, value)  # one pass, no temporaries
         return value
 
     @property
