@@ -383,3 +383,11 @@ def test_prepared_decode_equals_cantools_decode(tmp_path: Path) -> None:
             assert got == reference.decode(frame_id, extended, bytes(payload), 0.01 * k)
         assert fast.counters == reference.counters
         assert fast.counters["ok"] >= 50 and fast.counters["out_of_range"] >= 500  # both verdicts reached
+
+
+def test_batch_checksum_equals_the_frame_checksum_on_random_payloads() -> None:
+    """The batch decoder's compiled CRC-8 of bytes 0..6 is the live path's frame_checksum, row by row."""
+    from ecu_monitor.bus.codec import _crc8_rows
+
+    rows = np.random.default_rng(5).integers(0, 256, (2000, 8), dtype=np.uint8)
+    assert _crc8_rows(rows).tolist() == [frame_checksum(bytes(row)) for row in rows]

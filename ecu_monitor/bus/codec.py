@@ -39,6 +39,7 @@ DBC files are read by the one loader, :func:`ecu_monitor.bus.dbc.load_dbc`.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -439,11 +440,26 @@ class Decoder:
 
 
 def _crc8_rows(payload: np.ndarray) -> np.ndarray:
-    """CRC-8/SAE-J1850 of bytes 0..6 of every row of an (N, 8) uint8 array (same as frame_checksum)."""
-    crc = np.full(len(payload), 0xFF, dtype=np.uint8)
-    for col in range(CHECKSUM_BYTE):
-        crc = _CRC_TABLE[crc ^ payload[:, col]]
-    return crc ^ np.uint8(0xFF)
+    """CRC-8/SAE-J1850 of bytes 0..6 of every row of an (N, 8) uint8 array (same as frame_checksum),
+    table-driven and compiled (numba, loaded on the first batch decode; 16 h log: 4 M frames)."""
+    out = np.empty(len(payload), dtype=np.uint8)
+    _compiled_crc8()(np.ascontiguousarray(payload, dtype=np.uint8), _CRC_TABLE, out)
+    return out
+
+
+def _crc8_loop(payload: np.ndarray, table: np.ndarray, out: np.ndarray) -> None:
+    for r in range(payload.shape[0]):
+        crc = 0xFF
+        for col in range(CHECKSUM_BYTE):
+            crc = table[crc ^ payload[r, col]]
+        out[r] = crc ^ 0xFF
+
+
+@functools.cache
+def _compiled_crc8() -> Any:
+    import numba  # the batch path only: the live decoder and the CLI's start do not load it
+
+    return numba.njit(cache=True, nogil=True)(_crc8_loop)
 
 
 def _make_crc_table() -> np.ndarray:
