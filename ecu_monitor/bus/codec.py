@@ -392,8 +392,12 @@ class Decoder:
         counts["ignored"] = int(np.count_nonzero(skip))
         known = np.zeros(n, dtype=bool)
         found: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {i: [] for i in range(len(self.names))}
+        usable = ~skip
         for key, plan in self._plans.items():
-            rows = np.flatnonzero((ids == key[0]) & (ext == key[1]) & ~skip)
+            match = ids == key[0]
+            match &= ext == key[1]
+            match &= usable
+            rows = np.flatnonzero(match)
             known[rows] = True
             payload = words[rows].view(np.uint8).reshape(rows.size, 8)
             ok = dlc[rows] == plan.length
@@ -403,9 +407,9 @@ class Decoder:
                 counts["bad_checksum"] += int(np.count_nonzero(ok & ~good_sum))
                 ok &= good_sum
                 checked = np.flatnonzero(ok)
-                counter = (payload[checked, 6] & 0x0F).astype(np.int64)
+                counter = payload[:, 6][checked] & 0x0F  # uint8: the difference wraps mod 256, a multiple of 16
                 stamp = times_s[rows[checked]]
-                step = (counter[1:] - counter[:-1]) % 16
+                step = (counter[1:] - counter[:-1]) & 0x0F  # (c - c_prev) mod 16
                 fresh = stamp[1:] - stamp[:-1] > COUNTER_RESYNC_S
                 good_counter = np.ones(len(checked), dtype=bool)
                 good_counter[1:] = fresh | (step == 1) | (step == 2)

@@ -536,10 +536,10 @@ def run_isolation(
     substeps = np.zeros(len(log), dtype=np.int64)
     substeps[1:] = np.maximum(1, np.round(np.diff(time_s) / settings.dt_s)).astype(np.int64)
     state = _initial_state(float(z[0]), 2.0 * float(drive["q_sl0_w"][0]), settings)
-    out = np.empty((len(log), 10))
+    columns = np.empty((10, len(log)))  # written as out[k, i] through its transpose: each column contiguous
     hg = np.ascontiguousarray(drive["heat_gain"] * drive["altitude_gain"])
     compiled_kernels().run(
         drive["q_sl0_w"], hg, drive["conductance_w_per_c"], drive["ambient_c"], z, substeps,
-        _model_vector(coefficients(params)), settings.vector(), state, out,
+        _model_vector(coefficients(params)), settings.vector(), state, columns.T,
     )  # fmt: skip
-    return IsolationTrace(time_s.copy(), *(out[:, i].copy() for i in range(10)))
+    return IsolationTrace(time_s.copy(), *columns)
