@@ -36,6 +36,23 @@ class CompiledRun(NamedTuple):
     failed: NDArray[np.bool_]  # () or (P,): trajectory became non-finite
 
 
+def _heat_cell(x: float, y: float, xb: NDArray[np.float64], yb: NDArray[np.float64]) -> tuple[int, int, float, float]:
+    """The heat-map cell of the point (x, y), clamped to the breakpoints ``xb``, ``yb``: its lower corner
+    (i, j) and the fractions (fx, fy) in [0, 1] across it, for :func:`equations.blend`. Inlined into every
+    kernel that reads the heat map (numba ``inline="always"``), so each does the same arithmetic."""
+    nx = xb.shape[0]
+    ny = yb.shape[0]
+    x = min(max(x, xb[0]), xb[nx - 1])
+    y = min(max(y, yb[0]), yb[ny - 1])
+    i = 0
+    while i < nx - 2 and x >= xb[i + 1]:
+        i += 1
+    j = 0
+    while j < ny - 2 and y >= yb[j + 1]:
+        j += 1
+    return i, j, (x - xb[i]) / (xb[i + 1] - xb[i]), (y - yb[j]) / (yb[j + 1] - yb[j])
+
+
 def _swarm_kernel(
     heat_x: NDArray[np.float64],
     heat_y: NDArray[np.float64],
@@ -79,21 +96,10 @@ def _swarm_kernel(
     q0 = np.empty(n_particles)
     gain = np.empty(n_particles)
     cond = np.empty(n_particles)
-    nx = xb.shape[0]
-    ny = yb.shape[0]
     for k in range(n_steps):
         if changed[k]:
             # the heat-map cell shared by every particle at this step
-            x = min(max(heat_x[k], xb[0]), xb[nx - 1])
-            y = min(max(heat_y[k], yb[0]), yb[ny - 1])
-            i = 0
-            while i < nx - 2 and x >= xb[i + 1]:
-                i += 1
-            j = 0
-            while j < ny - 2 and y >= yb[j + 1]:
-                j += 1
-            fx = (x - xb[i]) / (xb[i + 1] - xb[i])
-            fy = (y - yb[j]) / (yb[j + 1] - yb[j])
+            i, j, fx, fy = heat_cell(heat_x[k], heat_y[k], xb, yb)
             for p in range(n_particles):
                 q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
                 altitude_gain, heat_factor, conductance = drive(
@@ -155,20 +161,9 @@ def _held_kernel(
     q0 = np.empty(n_particles)
     gain = np.empty(n_particles)
     cond = np.empty(n_particles)
-    nx = xb.shape[0]
-    ny = yb.shape[0]
     k = 0
     for c in range(steps.shape[0]):
-        x = min(max(heat_x[c], xb[0]), xb[nx - 1])
-        y = min(max(heat_y[c], yb[0]), yb[ny - 1])
-        i = 0
-        while i < nx - 2 and x >= xb[i + 1]:
-            i += 1
-        j = 0
-        while j < ny - 2 and y >= yb[j + 1]:
-            j += 1
-        fx = (x - xb[i]) / (xb[i + 1] - xb[i])
-        fy = (y - yb[j]) / (yb[j + 1] - yb[j])
+        i, j, fx, fy = heat_cell(heat_x[c], heat_y[c], xb, yb)
         for p in range(n_particles):
             q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
             altitude_gain, heat_factor, conductance = drive(
@@ -229,24 +224,15 @@ def _drive_kernel(
     yb = coeffs.y_breakpoints
     v = coeffs.heat_values_w
     nx = xb.shape[0]
-    ny = yb.shape[0]
     for k in range(heat_x.shape[0]):
-        x = min(max(heat_x[k], xb[0]), xb[nx - 1])
-        y = min(max(heat_y[k], yb[0]), yb[ny - 1])
-        i = 0
-        while i < nx - 2 and x >= xb[i + 1]:
-            i += 1
-        j = 0
-        while j < ny - 2 and y >= yb[j + 1]:
-            j += 1
-        fx = (x - xb[i]) / (xb[i + 1] - xb[i])
-        fy = (y - yb[j]) / (yb[j + 1] - yb[j])
+        i, j, fx, fy = heat_cell(heat_x[k], heat_y[k], xb, yb)
         out[0, k] = blend(v[i, j], v[i, j + 1], v[i + 1, j], v[i + 1, j + 1], fx, fy)
         lpr, ltr, lrho, air, load = conditions(heat_x[k], altitude_m[k], airspeed_mps[k], oat_c[k], xb[0], xb[nx - 1])
         out[1, k], out[2, k], out[3, k] = drive(lpr, ltr, lrho, air, load, mixture[k], coeffs)
 
 
-# Names the kernels call; _kernel() and _drive() bind them to the compiled equations.
+# Names the kernels call; _kernel(), _held() and _drive() bind them to the compiled equations.
+heat_cell: Any = None
 blend: Any = None
 drive: Any = None
 rk4: Any = None
@@ -267,6 +253,7 @@ def _kernel() -> Callable[..., None]:
         tag,
         fastmath=set(SWARM_FASTMATH),
         particles_step=step,
+        heat_cell=jit(_heat_cell, f"{tag}_swarm", fastmath=set(SWARM_FASTMATH), inline="always"),
         blend=eq.blend,
         drive=eq.drive,
         rk4=eq.rk4,
@@ -286,6 +273,7 @@ def _held() -> Callable[..., None]:
         tag,
         fastmath=set(SWARM_FASTMATH),
         particles_step=step,
+        heat_cell=jit(_heat_cell, f"{tag}_swarm", fastmath=set(SWARM_FASTMATH), inline="always"),
         blend=eq.blend,
         drive=eq.drive,
         lag_fraction=eq.lag_fraction,
@@ -296,7 +284,9 @@ def _held() -> Callable[..., None]:
 def _drive() -> Callable[..., None]:
     """The drive kernel compiled with the exact (IEEE) equations: equal bit for bit to the scalar path."""
     eq = compiled_equations(False)
-    return jit(_drive_kernel, fingerprint([__file__]), blend=eq.blend, conditions=eq.conditions, drive=eq.drive)
+    tag = fingerprint([__file__])
+    cell = jit(_heat_cell, f"{tag}_exact", inline="always")
+    return jit(_drive_kernel, tag, heat_cell=cell, blend=eq.blend, conditions=eq.conditions, drive=eq.drive)
 
 
 def drive_kernel() -> Callable[..., None]:

@@ -52,17 +52,28 @@ def rebound(function: Callable[..., Any], tag: str, **callees: Any) -> types.Fun
     return clone
 
 
-def jit(function: Callable[..., Any], tag: str, fastmath: Any = False, nogil: bool = True, **callees: Any) -> Any:
+def jit(
+    function: Callable[..., Any],
+    tag: str,
+    fastmath: Any = False,
+    nogil: bool = True,
+    inline: str = "never",
+    **callees: Any,
+) -> Any:
     """numba.njit of a :func:`rebound` copy of ``function``: cached, nogil, and numpy's error model
     (a division by zero gives inf or NaN, as in the numpy reference, instead of a check per division
     that would stop the particle loop from vectorising).
 
     ``nogil=False`` for the live path's short calls (tens of microseconds): releasing the GIL around
     them lets another thread take it, and getting it back can then wait for that thread (up to the
-    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain."""
+    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain.
+
+    ``inline="always"``: numba inlines the function into its callers (a small helper of the kernels)."""
     import numba  # first use only
 
     options: dict[str, Any] = {"cache": True, "nogil": nogil, "fastmath": fastmath, "error_model": "numpy"}
+    if inline != "never":
+        options["inline"] = inline
     return numba.njit(**options)(rebound(function, tag, **callees))
 
 
