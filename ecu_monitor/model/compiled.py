@@ -242,42 +242,34 @@ conditions: Any = None
 particles_step: Any = None
 
 
+def _swarm_callees(tag: str) -> dict[str, Any]:
+    """The names the swarm and held kernels call, bound to the equations' numba twins compiled with
+    :data:`SWARM_FASTMATH` (one set for both, so both do the same arithmetic)."""
+    eq = compiled_equations(SWARM_FASTMATH)
+    fast = set(SWARM_FASTMATH)
+    return {
+        "particles_step": jit(_particles_step, tag, fastmath=fast, rk4=eq.rk4, probe_step=eq.probe_step),
+        "heat_cell": jit(_heat_cell, f"{tag}_swarm", fastmath=fast, inline="always"),
+        "blend": eq.blend,
+        "drive": eq.drive,
+        "rk4": eq.rk4,
+        "lag_fraction": eq.lag_fraction,
+        "probe_step": eq.probe_step,
+    }
+
+
 @functools.cache
 def _kernel() -> Callable[..., None]:
     """The swarm kernel compiled with the equations' numba twins (cached on disk)."""
-    eq = compiled_equations(SWARM_FASTMATH)
     tag = fingerprint([__file__])
-    step = jit(_particles_step, tag, fastmath=set(SWARM_FASTMATH), rk4=eq.rk4, probe_step=eq.probe_step)
-    return jit(
-        _swarm_kernel,
-        tag,
-        fastmath=set(SWARM_FASTMATH),
-        particles_step=step,
-        heat_cell=jit(_heat_cell, f"{tag}_swarm", fastmath=set(SWARM_FASTMATH), inline="always"),
-        blend=eq.blend,
-        drive=eq.drive,
-        rk4=eq.rk4,
-        lag_fraction=eq.lag_fraction,
-        probe_step=eq.probe_step,
-    )
+    return jit(_swarm_kernel, tag, fastmath=set(SWARM_FASTMATH), **_swarm_callees(tag))
 
 
 @functools.cache
 def _held() -> Callable[..., None]:
     """:func:`_held_kernel` compiled as :func:`_kernel` (the same equations and flags; cached on disk)."""
-    eq = compiled_equations(SWARM_FASTMATH)
     tag = fingerprint([__file__])
-    step = jit(_particles_step, tag, fastmath=set(SWARM_FASTMATH), rk4=eq.rk4, probe_step=eq.probe_step)
-    return jit(
-        _held_kernel,
-        tag,
-        fastmath=set(SWARM_FASTMATH),
-        particles_step=step,
-        heat_cell=jit(_heat_cell, f"{tag}_swarm", fastmath=set(SWARM_FASTMATH), inline="always"),
-        blend=eq.blend,
-        drive=eq.drive,
-        lag_fraction=eq.lag_fraction,
-    )
+    return jit(_held_kernel, tag, fastmath=set(SWARM_FASTMATH), **_swarm_callees(tag))
 
 
 @functools.cache
