@@ -84,18 +84,7 @@ def _swarm_kernel(
     """
     n_steps = heat_x.shape[0]
     n_particles = theta.shape[0]
-    c_w = theta[:, C_W].copy()
-    tau = theta[:, TAU_W].copy()
-    rad = theta[:, RADIATIVE].copy()
-    fraction = np.empty(n_particles)
-    for p in range(n_particles):
-        fraction[p] = lag_fraction(theta[p, SENSOR_LAG], dt)
-    temp = t0.copy()
-    probe = t0.copy()
-    pade = np.empty(n_particles)
-    q0 = np.empty(n_particles)
-    gain = np.empty(n_particles)
-    cond = np.empty(n_particles)
+    c_w, tau, rad, fraction, temp, probe, pade, q0, gain, cond = particles_start(theta, t0, dt)
     for k in range(n_steps):
         if changed[k]:
             # the heat-map cell shared by every particle at this step
@@ -149,18 +138,7 @@ def _held_kernel(
     probe value is not finite or beyond 5000 degC (-1: none), the failure test of
     :func:`simulate_compiled` at every step."""
     n_particles = theta.shape[0]
-    c_w = theta[:, C_W].copy()
-    tau = theta[:, TAU_W].copy()
-    rad = theta[:, RADIATIVE].copy()
-    fraction = np.empty(n_particles)
-    for p in range(n_particles):
-        fraction[p] = lag_fraction(theta[p, SENSOR_LAG], dt)
-    temp = t0.copy()
-    probe = t0.copy()
-    pade = np.empty(n_particles)
-    q0 = np.empty(n_particles)
-    gain = np.empty(n_particles)
-    cond = np.empty(n_particles)
+    c_w, tau, rad, fraction, temp, probe, pade, q0, gain, cond = particles_start(theta, t0, dt)
     k = 0
     for c in range(steps.shape[0]):
         i, j, fx, fy = heat_cell(heat_x[c], heat_y[c], xb, yb)
@@ -181,6 +159,28 @@ def _held_kernel(
             particles_step(temp, pade, probe, q0, gain, cond, c_w, tau, rad, fraction, ambient[c], offset, gamma_q,
                            gamma_d, dt)  # fmt: skip
             k += 1
+
+
+def _particles_start(theta: NDArray[np.float64], t0: NDArray[np.float64], dt: float) -> tuple[Any, ...]:
+    """The per-particle arrays the swarm and held kernels step: the constants C_w, tau_w, the radiative
+    coefficient and the probe's lag fraction over ``dt`` (s) from ``theta``; the head and probe
+    temperatures from ``t0`` (degC); the Pade state, q0, gain and conductance, filled by the first drive."""
+    n_particles = theta.shape[0]
+    fraction = np.empty(n_particles)
+    for p in range(n_particles):
+        fraction[p] = lag_fraction(theta[p, SENSOR_LAG], dt)
+    return (
+        theta[:, C_W].copy(),
+        theta[:, TAU_W].copy(),
+        theta[:, RADIATIVE].copy(),
+        fraction,
+        t0.copy(),
+        t0.copy(),
+        np.empty(n_particles),
+        np.empty(n_particles),
+        np.empty(n_particles),
+        np.empty(n_particles),
+    )
 
 
 def _particles_step(
@@ -240,6 +240,7 @@ lag_fraction: Any = None
 probe_step: Any = None
 conditions: Any = None
 particles_step: Any = None
+particles_start: Any = None
 
 
 def _swarm_callees(tag: str) -> dict[str, Any]:
@@ -250,6 +251,7 @@ def _swarm_callees(tag: str) -> dict[str, Any]:
     return {
         "particles_step": jit(_particles_step, tag, fastmath=fast, rk4=eq.rk4, probe_step=eq.probe_step),
         "heat_cell": jit(_heat_cell, f"{tag}_swarm", fastmath=fast, inline="always"),
+        "particles_start": jit(_particles_start, tag, fastmath=fast, inline="always", lag_fraction=eq.lag_fraction),
         "blend": eq.blend,
         "drive": eq.drive,
         "rk4": eq.rk4,
