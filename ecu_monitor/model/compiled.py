@@ -83,22 +83,14 @@ def _swarm_kernel(
     Row r of out_* is the state after r * record_every steps.
     """
     n_steps = heat_x.shape[0]
-    n_particles = theta.shape[0]
     c_w, tau, rad, fraction, temp, probe, pade, q0, gain, cond = particles_start(theta, t0, dt)
     for k in range(n_steps):
         if changed[k]:
             # the heat-map cell shared by every particle at this step
             i, j, fx, fy = heat_cell(heat_x[k], heat_y[k], xb, yb)
-            for p in range(n_particles):
-                q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
-                altitude_gain, heat_factor, conductance = drive(
-                    log_pressure_ratio[k], log_temperature_ratio[k], log_density[k], airspeed[k], load[k],
-                    mixture[k], theta[p],
-                )  # fmt: skip
-                gain[p] = altitude_gain * heat_factor
-                cond[p] = conductance
-                if k == 0:
-                    pade[p] = 2.0 * q0[p]
+            particles_drive(q0, gain, cond, pade, k == 0, heat, i, j, fx, fy, log_pressure_ratio[k],
+                            log_temperature_ratio[k], log_density[k], airspeed[k], load[k], mixture[k],
+                            theta)  # fmt: skip
         if k % record_every == 0:
             row = k // record_every
             out_cht[row, :] = temp
@@ -137,21 +129,12 @@ def _held_kernel(
     1 or a drive outside the particle loop changed the last bit). out_first_bad[0]: the first step whose
     probe value is not finite or beyond 5000 degC (-1: none), the failure test of
     :func:`simulate_compiled` at every step."""
-    n_particles = theta.shape[0]
     c_w, tau, rad, fraction, temp, probe, pade, q0, gain, cond = particles_start(theta, t0, dt)
     k = 0
     for c in range(steps.shape[0]):
         i, j, fx, fy = heat_cell(heat_x[c], heat_y[c], xb, yb)
-        for p in range(n_particles):
-            q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
-            altitude_gain, heat_factor, conductance = drive(
-                log_pressure_ratio[c], log_temperature_ratio[c], log_density[c], airspeed[c], load[c],
-                mixture[c], theta[p],
-            )  # fmt: skip
-            gain[p] = altitude_gain * heat_factor
-            cond[p] = conductance
-            if c == 0:
-                pade[p] = 2.0 * q0[p]
+        particles_drive(q0, gain, cond, pade, c == 0, heat, i, j, fx, fy, log_pressure_ratio[c],
+                        log_temperature_ratio[c], log_density[c], airspeed[c], load[c], mixture[c], theta)  # fmt: skip
         out_cht[c] = temp[0]
         for _ in range(steps[c]):
             if out_first_bad[0] < 0 and not abs(probe[0]) <= 5000.0:
@@ -181,6 +164,38 @@ def _particles_start(theta: NDArray[np.float64], t0: NDArray[np.float64], dt: fl
         np.empty(n_particles),
         np.empty(n_particles),
     )
+
+
+def _particles_drive(
+    q0: NDArray[np.float64],
+    gain: NDArray[np.float64],
+    cond: NDArray[np.float64],
+    pade: NDArray[np.float64],
+    first: bool,
+    heat: NDArray[np.float64],
+    i: int,
+    j: int,
+    fx: float,
+    fy: float,
+    log_pressure_ratio: float,
+    log_temperature_ratio: float,
+    log_density: float,
+    airspeed: float,
+    load: float,
+    mixture: float,
+    theta: NDArray[np.float64],
+) -> None:
+    """Each particle's drive at one operating point, in place: q0 (W) blended in the heat-map cell
+    (i, j, fx, fy), gain = g(z) x heat factor, cond (W/degC); on the ``first`` step the Pade state too."""
+    for p in range(theta.shape[0]):
+        q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
+        altitude_gain, heat_factor, conductance = drive(
+            log_pressure_ratio, log_temperature_ratio, log_density, airspeed, load, mixture, theta[p]
+        )
+        gain[p] = altitude_gain * heat_factor
+        cond[p] = conductance
+        if first:
+            pade[p] = 2.0 * q0[p]
 
 
 def _particles_step(
@@ -241,6 +256,7 @@ probe_step: Any = None
 conditions: Any = None
 particles_step: Any = None
 particles_start: Any = None
+particles_drive: Any = None
 
 
 def _swarm_callees(tag: str) -> dict[str, Any]:
@@ -251,6 +267,7 @@ def _swarm_callees(tag: str) -> dict[str, Any]:
     return {
         "particles_step": jit(_particles_step, tag, fastmath=fast, rk4=eq.rk4, probe_step=eq.probe_step),
         "heat_cell": jit(_heat_cell, f"{tag}_swarm", fastmath=fast, inline="always"),
+        "particles_drive": jit(_particles_drive, tag, fastmath=fast, inline="always", blend=eq.blend, drive=eq.drive),
         "particles_start": jit(_particles_start, tag, fastmath=fast, inline="always", lag_fraction=eq.lag_fraction),
         "blend": eq.blend,
         "drive": eq.drive,
