@@ -35,7 +35,8 @@ daemon (or the echo baseline) is one process, the other traffic another, and the
 (ECU sender + health receiver, one clock) a third. Every process on the group receives every frame, so
 the daemon's receive thread unpacks all 4,000 frames/s before its id filter drops them (on socketcan
 the kernel would filter them). The CPU figure there is the whole daemon (or echo) process
-(/proc/<pid>/stat). Needs root.
+(/proc/<pid>/stat). The report also splits the daemon's slowest health frames (:func:`tail_anatomy`: send ->
+the daemon's feed, its step, -> the receiver). Needs root.
 """
 
 from __future__ import annotations
@@ -770,6 +771,13 @@ _DAEMON = textwrap.dedent(
             rehearse()
             rehearsals.append((started, time.perf_counter()))
         pipeline.rehearse = timed_rehearse
+    supervised = []  # the supervisor's periods (perf_counter, s): the tail analysis of run_netns
+    supervise_once = daemon._supervise_once
+    def timed_supervise(now):
+        started = time.perf_counter()
+        supervise_once(now)
+        supervised.append((started, time.perf_counter()))
+    daemon._supervise_once = timed_supervise
     signal.signal(signal.SIGTERM, lambda *args: daemon.stop())
     def announce():
         while daemon.counters["bus_opens"] == 0:
@@ -778,7 +786,8 @@ _DAEMON = textwrap.dedent(
     threading.Thread(target=announce, daemon=True).start()
     daemon.run()
     counts = {"in": daemon.counters["frames_in"], "out": daemon.counters["health_sent"],
-              "rehearsals": daemon.counters.get("rehearsals", 0), "steps": steps, "rehearsal_spans": rehearsals}
+              "rehearsals": daemon.counters.get("rehearsals", 0), "steps": steps, "rehearsal_spans": rehearsals,
+              "supervisor_spans": supervised}
     print(json.dumps(counts), flush=True)
     """
 )
@@ -870,9 +879,13 @@ def measure_inner(port: int, seconds: float, name: str) -> None:
     receiver.join()
     ecu_bus.shutdown()
     rx_bus.shutdown()
-    print(
-        json.dumps({**_stats(name, sent_at, got, since=settled), "ecu_sent": counts["ecu"], "out_received": len(got)})
-    )
+    raw = []  # (sent, received) of each health frame counted, perf_counter s: for tail_anatomy
+    for received, _ in got:
+        index = bisect.bisect_left(sent_at, received) - 1
+        if received >= settled and index >= 0:
+            raw.append((sent_at[index], received))
+    stats = _stats(name, sent_at, got, since=settled)
+    print(json.dumps({**stats, "ecu_sent": counts["ecu"], "out_received": len(got), "raw": raw}))
 
 
 def _socket_drops(ns: str, pid: int) -> int:
@@ -937,12 +950,52 @@ def run_netns(seconds: float, traffic_hz: float, nice: int = 0) -> list[dict[str
                     row["rehearsals"] = peer_counts["rehearsals"]
                 if "steps" in peer_counts:
                     row["own"] = _own_timings(peer_counts["steps"], peer_counts["rehearsal_spans"])
+                if "supervisor_spans" in peer_counts:
+                    row["tail"] = tail_anatomy(row["raw"], peer_counts["steps"], peer_counts["supervisor_spans"])
+                row.pop("raw", None)
                 row["socket_drops"] = peer_drops
                 row["cpu_pct"] = cpu_pct
                 rows.append(row)
         finally:
             kill_all(procs)
     return rows
+
+
+def tail_anatomy(raw: list[list[float]], steps: list[list[float]], supervised: list[list[float]]) -> str:
+    """Where the daemon's slowest 2 % of health frames across processes spent their time, against the median
+    (one clock: perf_counter is CLOCK_MONOTONIC in every process): from the ECU frame's send to the daemon's
+    feed of it, its feed + advance_to, and from there to the receiver's recv; and how many of them had the
+    daemon's supervisor thread running on their way (it wakes every 0.1 s, the Health_Status period)."""
+    feeds = [start for start, _ in steps]
+    spans = sorted((start, end) for start, end in supervised)
+    starts = [start for start, _ in spans]
+
+    def supervisor_during(begin: float, end: float) -> bool:
+        index = bisect.bisect_right(starts, end) - 1
+        return index >= 0 and spans[index][1] > begin
+
+    rows = []
+    for sent, received in raw:
+        index = bisect.bisect_right(feeds, received) - 1
+        if index < 0 or steps[index][0] < sent:
+            continue
+        fed, done = steps[index]
+        rows.append((received - sent, fed - sent, done - fed, received - done, supervisor_during(sent, received), sent))
+    if len(rows) < 50:
+        return f"too few samples ({len(rows)})"
+    rows.sort()
+    tail = rows[-max(1, len(rows) // 50) :]
+    start = min(row[5] for row in rows)
+    median = "/".join(f"{1e6 * statistics.median(row[i] for row in rows):.0f}" for i in range(4))
+    slowest = "; ".join(
+        f"{1e6 * r[0]:.0f}/{1e6 * r[1]:.0f}/{1e6 * r[2]:.0f}/{1e6 * r[3]:.0f} {'S' if r[4] else '-'} {r[5] - start:.1f}"
+        for r in tail
+    )
+    return (
+        f"total / send->feed / feed + advance_to / ->recv, us: median of {len(rows)} {median}; the slowest "
+        f"{len(tail)} (S: the supervisor ran on its way; at s): {slowest}; the supervisor ran during "
+        f"{sum(r[4] for r in rows)} of all, {sum(r[4] for r in tail)} of the slowest"
+    )
 
 
 #: Targets of issue 13 (ratios against the echo baseline of the same run).
@@ -982,6 +1035,8 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
             )
         if row.get("own"):
             print(f"{row['case']}: its own timings: {row['own']}")
+        if row.get("tail"):
+            print(f"{row['case']}, its slowest health frames: {row['tail']}")
         if row.get("phases"):
             print(f"{row['case']}: callback of a frame whose step emits health frames: {row['phases']}")
         if "gc" in row:
