@@ -118,7 +118,7 @@ def _config_with_egt(config_path: str, work: Path) -> str:
 
     config = load_config(config_path)
     raw = yaml.safe_load(config.source.read_text(encoding="utf-8"))
-    dbc = work / "egt.dbc"
+    dbc = (work / "egt.dbc").resolve()  # absolute: the copy of the config lives in work, not in the cwd
     dbc.write_text(EGT_DBC, encoding="utf-8")
     raw["dbc"] = [str(path) for path in config.dbc_paths] + [str(dbc)]
     raw["inputs"]["egt_c"] = {"signal": "ECU_Exhaust.EGT", "unit": "degC", "stale_after_s": 1.0}
