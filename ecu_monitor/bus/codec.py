@@ -42,7 +42,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -515,12 +515,31 @@ def _extract(payload: np.ndarray, sig: Any, message: Any) -> np.ndarray:
     return raw.astype(np.float64)
 
 
+def _linear(to_raw: Any) -> tuple[float, float, bool]:
+    """(offset, scale, True) when ``to_raw`` (a signal's ``numeric_scaled_to_raw``) is cantools' integer
+    ``round((value - offset) / scale)`` of a linear or identity conversion, so a layout may do that
+    arithmetic itself with the same operands; else (0, 1, False): the layout calls ``to_raw``."""
+    from cantools.database.conversion import IdentityConversion, LinearConversion
+
+    owner = getattr(to_raw, "__self__", None)  # a signal with a value table delegates to its inner conversion
+    function = getattr(to_raw, "__func__", None)
+    if owner is None or owner.is_float:
+        return 0.0, 1.0, False
+    if function is IdentityConversion.numeric_scaled_to_raw:
+        return 0.0, 1.0, True  # round((v - 0.0) / 1.0) is round(v), bit for bit
+    if function is LinearConversion.numeric_scaled_to_raw:
+        return owner.offset, owner.scale, True
+    return 0.0, 1.0, False
+
+
 class _Packed(NamedTuple):
     """One signal of a :class:`FrameLayout`: its clamp range, raw conversion and bit placement."""
 
     low: float  # physical clamp range (-inf/inf: none)
     high: float
-    to_raw: Any  # cantools' numeric_scaled_to_raw of the signal (the same rounding as its encoder)
+    offset: float  # raw = round((value - offset) / scale): cantools' own arithmetic for a linear conversion
+    scale: float
+    to_raw: Any  # None for a linear conversion; else cantools' numeric_scaled_to_raw of the signal
     mask: int
     shift: int  # bit of the raw value's LSB in the message read as one little- (or big-) endian integer
     big_endian: bool
@@ -566,6 +585,7 @@ class FrameLayout:
                 low = -math.inf if sig.minimum is None else float(sig.minimum)
                 high = math.inf if sig.maximum is None else float(sig.maximum)
             to_raw = sig.conversion.numeric_scaled_to_raw
+            offset, scale, inline = _linear(to_raw)
             if not (math.isfinite(low) and math.isfinite(high)):
                 return None
             first, second = to_raw(low), to_raw(high)
@@ -580,7 +600,7 @@ class FrameLayout:
                 shift = sig.start
             if shift < 0 or shift + sig.length > 8 * message.length:
                 return None
-            packed = _Packed(low, high, to_raw, (1 << sig.length) - 1, shift, big)
+            packed = _Packed(low, high, offset, scale, None if inline else to_raw, (1 << sig.length) - 1, shift, big)
             if sig.name in skip:
                 if sig is integrity[0]:  # type: ignore[index]
                     counter = packed
@@ -596,18 +616,21 @@ class FrameLayout:
             raise ValueError(f"{self.name}: expected {len(self._fields)} values, got {len(values)}")
         little = 0
         big = 0
-        for (low, high, to_raw, mask, shift, big_endian), value in zip(self._fields, values, strict=False):
+        fields = self._fields
+        for (low, high, offset, scale, to_raw, mask, shift, big_endian), value in zip(fields, values, strict=False):
             v = float(value)
             if v != v:
                 raise ValueError(f"{self.name}.{self.signal_names[list(values).index(value)]}: cannot encode NaN")
-            raw = to_raw(low if v < low else high if v > high else v)
+            v = low if v < low else high if v > high else v
+            raw = round((v - offset) / scale) if to_raw is None else to_raw(v)
             if big_endian:
                 big |= (raw & mask) << shift
             else:
                 little |= (raw & mask) << shift
         c = self._counter
         if c is not None:
-            raw = c.to_raw(float(counter % 16))
+            v = float(counter % 16)
+            raw = round((v - c.offset) / c.scale) if c.to_raw is None else c.to_raw(v)
             if c.big_endian:
                 big |= (raw & c.mask) << c.shift
             else:
@@ -675,6 +698,20 @@ class Encoder:
         if layout is not None:
             return layout.pack([values[signal] for signal in layout.signal_names], counter)
         return self.encode_cantools(name, values, counter)
+
+    def packer(self, name: str, signals: Sequence[str]) -> Callable[[Sequence[float], int], bytes]:
+        """``pack(values, counter)``: the payload of message ``name`` from ``values`` given in ``signals`` order,
+        the bytes of :meth:`encode`; the message's :meth:`FrameLayout.pack` itself when ``signals`` is its
+        order (no mapping built per frame). KeyError if there is no such message."""
+        layout = self._layouts[name]
+        if layout is not None and tuple(signals) == layout.signal_names:
+            return layout.pack
+        names = tuple(signals)
+
+        def pack(values: Sequence[float], counter: int = 0) -> bytes:
+            return self.encode(name, dict(zip(names, values, strict=True)), counter)
+
+        return pack
 
     def encode_cantools(self, name: str, values: Mapping[str, float], counter: int = 0) -> bytes:
         """:meth:`encode` through cantools' non-strict encode (the reference of :class:`FrameLayout`)."""
