@@ -280,12 +280,8 @@ class LiveCall:
         (docs/performance.md, "Rehearsal")."""
         shadow: Any = self._shadow_mv
         shadow[:] = self._mv
-        shadow[_ARGS + 1] = u[0]
-        shadow[_ARGS + 2] = u[1]
-        shadow[_ARGS + 3] = u[2]
-        shadow[_ARGS + 4] = u[3]
-        shadow[_ARGS + 5] = u[4]
-        shadow[_ARGS + 6] = u[5]
+        previous = _ARGUMENTS.unpack_from(self._shadow, _ARGS * 8)
+        _ARGUMENTS.pack_into(self._shadow, _ARGS * 8, previous[0], *u, *previous[7:])
         self._call(self._shadow)
         shadow[_SV : _RESULT + 8].tolist()
 
