@@ -27,6 +27,7 @@ The targets of issue 13 are checked at the end of each report: in one process p9
 
 ``--step-cpu``: the pipeline alone, the CPU time of the steps that send health frames: back to back, one
 frame per 20 ms, and one per 20 ms with ``Pipeline.rehearse`` 0.6 ms before (docs/performance.md).
+``--step-bytecodes``: the Python bytecodes those steps execute, and the functions that execute most.
 
 ``--pace-study``: the pipeline alone (no bus, no thread) on the same frames back to back, one frame
 per 20 ms asleep or spinning on the clock in between, one per 1 ms, and with garbage collection off:
@@ -532,7 +533,9 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
     originals: list[tuple[Any, str, Any]] = []
 
     def wrap(owner: Any, attribute: str, label: str) -> None:
-        function = getattr(owner, attribute)
+        function = getattr(owner, attribute, None)
+        if function is None:  # a part an older (or newer) checkout does not have
+            return
         originals.append((owner, attribute, function))
 
         def timed(*args: Any, **kwargs: Any) -> Any:
@@ -550,9 +553,10 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
         (ekf.ThermalEKF, "estimate", "ThermalEKF call"),
         (isolation.IsolationFilter, "estimate", "isolation filter call"),
         (detection.Detector, "update", "detector"),
+        (detection.Detector, "step", "detector"),  # the pipeline's call since 2026-11-28
         (pipeline_module, "time_to_limit_s", "headroom"),
         (pipeline_module.Pipeline, "_build_snapshot", "snapshot"),
-        (pipeline_module.Pipeline, "_frame", "one health frame (encode, can.Message)"),
+        (pipeline_module.Pipeline, "_frame", "one health frame (values packed, can.Message)"),
     ):
         wrap(owner, attribute, label)
     live_call = getattr(pipeline_module, "LiveCall", None)  # older checkouts: three calls, no LiveCall
@@ -676,6 +680,53 @@ def paced_steps(
             pipeline.feed(msg)
             frames = pipeline.advance_to(t)
             yield len(frames), (clock() - started) * 1e6
+
+
+def step_bytecodes(steps: int = 1200) -> None:
+    """Python bytecodes executed by feed + advance_to of the frames whose step sends health frames (the pipeline
+    alone, ``sys.settrace`` opcode events: a count of the interpreter's work that no noise moves), by the number of
+    frames sent, and the functions that execute most of them on the steps sending one frame."""
+    config = _config("unused")
+    pipeline = Pipeline(config, config.load_params())
+    encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
+    counters = dict.fromkeys(ECU_VALUES, 0)
+    per_function: dict[tuple[str, str], int] = {}
+
+    def tracer(frame: Any, event: str, arg: Any) -> Any:
+        if event == "call":
+            frame.f_trace_opcodes = True
+        elif event == "opcode":
+            key = (Path(frame.f_code.co_filename).name, frame.f_code.co_name)
+            per_function[key] = per_function.get(key, 0) + 1
+        return tracer
+
+    totals: dict[int, list[int]] = {}
+    one_frame: dict[tuple[str, str], int] = {}
+    t = 0.0
+    pipeline.advance_to(t)
+    for k in range(steps):
+        t += 0.02
+        for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
+            data = encoder.encode(name, ECU_VALUES[name], counters[name])
+            counters[name] += 1
+            msg = can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data)
+            per_function.clear()
+            sys.settrace(tracer)
+            pipeline.feed(msg)
+            frames = pipeline.advance_to(t)
+            sys.settrace(None)
+            if frames and k >= steps // 2:  # the estimator running
+                totals.setdefault(len(frames), []).append(sum(per_function.values()))
+                if len(frames) == 1:
+                    for key, count in per_function.items():
+                        one_frame[key] = one_frame.get(key, 0) + count
+    print("| pipeline alone: bytecodes of feed + advance_to | frames sent | steps | mean |")
+    print("|---|---|---|---|")
+    for sent, values in sorted(totals.items()):
+        print(f"| a step sending {sent} frame(s) | {sent} | {len(values)} | {statistics.mean(values):.0f} |")
+    n = len(totals.get(1, [])) or 1
+    top = sorted(one_frame.items(), key=lambda item: -item[1])[:12]
+    print("\nmost of a one-frame step's: " + ", ".join(f"{f}:{name} {c / n:.0f}" for (f, name), c in top) + "\n")
 
 
 def step_cpu(steps: int = 1000) -> None:
@@ -1135,6 +1186,7 @@ def main() -> None:
     parser.add_argument(
         "--step-cpu", action="store_true", help="only: the CPU time of the health steps, paced, rehearsed, back to back"
     )
+    parser.add_argument("--step-bytecodes", action="store_true", help="only: the bytecodes a health step executes")
     parser.add_argument(
         "--dispatch-study", action="store_true", help="only: what entering a compiled function costs, by argument list"
     )
@@ -1164,6 +1216,9 @@ def main() -> None:
         return
     if args.step_cpu:
         step_cpu()
+        return
+    if args.step_bytecodes:
+        step_bytecodes()
         return
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)

@@ -262,7 +262,7 @@ class LiveCall:
                 f"live call: time must advance by at least one step of {self.dt_s} s (from {self._time_s} to {time_s})"
             )
         # the arguments and the supervisor state, converted to float64 in one call (flags: 1.0 / 0.0)
-        _ARGUMENTS.pack_into(self.ws, _ARGS * 8, time_s, *u, reading, bool(new_reading), bool(reading_bad),
+        _ARGUMENTS.pack_into(self._mv, _ARGS * 8, time_s, *u, reading, bool(new_reading), bool(reading_bad),
                              bool(any_stale), bool(pending), steps, bool(sv.running), *sv[1:])  # fmt: skip
         self._call(self.ws)
         self._time_s = time_s
@@ -280,8 +280,8 @@ class LiveCall:
         (docs/performance.md, "Rehearsal")."""
         shadow: Any = self._shadow_mv
         shadow[:] = self._mv
-        previous = _ARGUMENTS.unpack_from(self._shadow, _ARGS * 8)
-        _ARGUMENTS.pack_into(self._shadow, _ARGS * 8, previous[0], *u, *previous[7:])
+        previous = _ARGUMENTS.unpack_from(shadow, _ARGS * 8)
+        _ARGUMENTS.pack_into(shadow, _ARGS * 8, previous[0], *u, *previous[7:])
         self._call(self._shadow)
         shadow[_SV : _RESULT + 8].tolist()
 
