@@ -25,6 +25,10 @@ supervisor) or of the echo's Notifier thread, over the measured seconds (/proc/s
 The targets of issue 13 are checked at the end of each report: in one process p99 < 1 ms and at most
 2.5x the echo's p99; across processes p99 within 1.5x of the echo process's; daemon CPU < 3 %.
 
+``--step-cpu``: the pipeline alone, the CPU time of the steps that send health frames: back to back, one
+frame per 20 ms, and one per 20 ms with ``Pipeline.rehearse`` 0.6 ms before (docs/performance.md).
+``--step-bytecodes``: the Python bytecodes those steps execute, and the functions that execute most.
+
 ``--pace-study``: the pipeline alone (no bus, no thread) on the same frames back to back, one frame
 per 20 ms asleep or spinning on the clock in between, one per 1 ms, and with garbage collection off:
 what makes a paced step cost more (docs/performance.md).
@@ -529,7 +533,9 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
     originals: list[tuple[Any, str, Any]] = []
 
     def wrap(owner: Any, attribute: str, label: str) -> None:
-        function = getattr(owner, attribute)
+        function = getattr(owner, attribute, None)
+        if function is None:  # a part an older (or newer) checkout does not have
+            return
         originals.append((owner, attribute, function))
 
         def timed(*args: Any, **kwargs: Any) -> Any:
@@ -547,9 +553,10 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
         (ekf.ThermalEKF, "estimate", "ThermalEKF call"),
         (isolation.IsolationFilter, "estimate", "isolation filter call"),
         (detection.Detector, "update", "detector"),
+        (detection.Detector, "step", "detector"),  # the pipeline's call since 2026-11-28
         (pipeline_module, "time_to_limit_s", "headroom"),
         (pipeline_module.Pipeline, "_build_snapshot", "snapshot"),
-        (pipeline_module.Pipeline, "_frame", "one health frame (encode, can.Message)"),
+        (pipeline_module.Pipeline, "_frame", "one health frame (values packed, can.Message)"),
     ):
         wrap(owner, attribute, label)
     live_call = getattr(pipeline_module, "LiveCall", None)  # older checkouts: three calls, no LiveCall
@@ -631,13 +638,15 @@ def paced_steps(
     before_step: Callable[[int], None] | None = None,
     prewarm: Callable[[int, float, list[can.Message]], None] | None = None,
     lead_s: float = 0.0,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> Iterator[tuple[int, float]]:
     """Feed ``pipeline`` the ECU frames of ``steps`` 20 ms steps (ECU_Fast each step, ECU_Slow and AirData
     every fifth), ``feed`` then ``advance_to`` per frame as the daemon does, waiting ``pace_s`` before each
     step (asleep, or with ``spin`` busy on the clock: the core stays awake at full clock). Yields, per
     frame, (health frames that step sent, its feed + advance_to in us). ``before_step(k)`` runs after the
     wait, before step k's frames. ``prewarm(k, t, frames)``, when given, runs ``lead_s`` before step k's
-    frames (asleep ``pace_s - lead_s``, then it, then asleep ``lead_s``)."""
+    frames (asleep ``pace_s - lead_s``, then it, then asleep ``lead_s``). ``clock``: what the cost is read on
+    (``time.thread_time``: the thread's CPU time)."""
     encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
     counters = dict.fromkeys(ECU_VALUES, 0)
 
@@ -667,10 +676,102 @@ def paced_steps(
         if before_step is not None:
             before_step(k)
         for msg in messages if prewarm is not None else ecu_frames(k):
-            started = time.perf_counter()
+            started = clock()
             pipeline.feed(msg)
             frames = pipeline.advance_to(t)
-            yield len(frames), (time.perf_counter() - started) * 1e6
+            yield len(frames), (clock() - started) * 1e6
+
+
+def step_bytecodes(steps: int = 1200) -> None:
+    """Python bytecodes executed by feed + advance_to of the frames whose step sends health frames (the pipeline
+    alone, ``sys.settrace`` opcode events: a count of the interpreter's work that no noise moves), by the number of
+    frames sent, and the functions that execute most of them on the steps sending one frame."""
+    config = _config("unused")
+    pipeline = Pipeline(config, config.load_params())
+    encoder = Encoder([REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"])
+    counters = dict.fromkeys(ECU_VALUES, 0)
+    per_function: dict[tuple[str, str], int] = {}
+
+    def tracer(frame: Any, event: str, arg: Any) -> Any:
+        if event == "call":
+            frame.f_trace_opcodes = True
+        elif event == "opcode":
+            key = (Path(frame.f_code.co_filename).name, frame.f_code.co_name)
+            per_function[key] = per_function.get(key, 0) + 1
+        return tracer
+
+    totals: dict[int, list[int]] = {}
+    one_frame: dict[tuple[str, str], int] = {}
+    t = 0.0
+    pipeline.advance_to(t)
+    for k in range(steps):
+        t += 0.02
+        for name in ("ECU_Fast", "ECU_Slow", "AirData") if k % 5 == 0 else ("ECU_Fast",):
+            data = encoder.encode(name, ECU_VALUES[name], counters[name])
+            counters[name] += 1
+            msg = can.Message(arbitration_id=encoder.message(name).frame_id, is_extended_id=False, data=data)
+            per_function.clear()
+            sys.settrace(tracer)
+            pipeline.feed(msg)
+            frames = pipeline.advance_to(t)
+            sys.settrace(None)
+            if frames and k >= steps // 2:  # the estimator running
+                totals.setdefault(len(frames), []).append(sum(per_function.values()))
+                if len(frames) == 1:
+                    for key, count in per_function.items():
+                        one_frame[key] = one_frame.get(key, 0) + count
+    print("| pipeline alone: bytecodes of feed + advance_to | frames sent | steps | mean |")
+    print("|---|---|---|---|")
+    for sent, values in sorted(totals.items()):
+        print(f"| a step sending {sent} frame(s) | {sent} | {len(values)} | {statistics.mean(values):.0f} |")
+    n = len(totals.get(1, [])) or 1
+    top = sorted(one_frame.items(), key=lambda item: -item[1])[:12]
+    print("\nmost of a one-frame step's: " + ", ".join(f"{f}:{name} {c / n:.0f}" for (f, name), c in top) + "\n")
+
+
+def step_cpu(steps: int = 1000) -> None:
+    """The CPU time (``time.thread_time``) of feed + advance_to of the frames whose step sends health frames, the
+    pipeline alone, by the number of frames sent: back to back, one frame per 20 ms asleep, and the same with
+    ``Pipeline.rehearse`` 0.6 ms before each frame that may run the step (as the daemon does across processes).
+    p50 / p99 after the estimator's start; the heap frozen and collection off, as in the daemon."""
+    config = _config("unused")
+    params = config.load_params()
+
+    def rehearsal_of(pipeline: Pipeline) -> Callable[[int, float, list[can.Message]], None]:
+        def run(k: int, t: float, messages: list[can.Message]) -> None:
+            if math.isfinite(pipeline.rehearsal_frame_s(t - 0.02)):  # as the daemon decides, after the last frame
+                pipeline.rehearse()
+
+        return run
+
+    print("| pipeline alone: CPU of feed + advance_to | frames sent | samples | p50 | p99 |")
+    print("|---|---|---|---|---|")
+    for name, count, pace_s, rehearsed in (
+        ("back to back", 5 * steps, 0.0, False),
+        ("one frame per 20 ms asleep", steps, 0.02, False),
+        ("one frame per 20 ms, Pipeline.rehearse 0.6 ms before", steps, 0.02, True),
+    ):
+        pipeline = Pipeline(config, params)
+        pipeline.warm_up()
+        costs: dict[int, list[float]] = {}
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        try:
+            prewarm = rehearsal_of(pipeline) if rehearsed else None
+            lead = 0.0006 if rehearsed else 0.0
+            for k, (sent, cost_us) in enumerate(
+                paced_steps(pipeline, count, pace_s, prewarm=prewarm, lead_s=lead, clock=time.thread_time)
+            ):
+                if sent and k > 500:  # after the estimator's start
+                    costs.setdefault(sent, []).append(cost_us)
+        finally:
+            gc.enable()
+            gc.unfreeze()
+        for sent, values in sorted(costs.items()):
+            p50, p99, _ = _percentiles(values)
+            print(f"| {name} | {sent} | {len(values)} | {p50:.1f} us | {p99:.1f} us |")
+    print()
 
 
 def prewarm_study(steps: int = 500, rounds: int = 3) -> None:
@@ -1083,6 +1184,10 @@ def main() -> None:
         "--prewarm-study", action="store_true", help="only: the paced step after code run shortly before the frame"
     )
     parser.add_argument(
+        "--step-cpu", action="store_true", help="only: the CPU time of the health steps, paced, rehearsed, back to back"
+    )
+    parser.add_argument("--step-bytecodes", action="store_true", help="only: the bytecodes a health step executes")
+    parser.add_argument(
         "--dispatch-study", action="store_true", help="only: what entering a compiled function costs, by argument list"
     )
     parser.add_argument(
@@ -1108,6 +1213,12 @@ def main() -> None:
         return
     if args.prewarm_study:
         prewarm_study()
+        return
+    if args.step_cpu:
+        step_cpu()
+        return
+    if args.step_bytecodes:
+        step_bytecodes()
         return
     if args.netns:
         baseline, daemon = run_netns(args.seconds, args.traffic, args.nice)

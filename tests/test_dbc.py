@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 from typing import Any
 
 import cantools
 import pytest
 
-from ecu_monitor.bus.checksum import crc8_sae_j1850, frame_checksum
+from ecu_monitor.bus.checksum import crc8_sae_j1850, frame_checksum, head_checksum
 
 DBC_DIR = Path(__file__).resolve().parents[1] / "ecu_monitor" / "data" / "dbc"
 
@@ -307,6 +308,18 @@ def test_frame_checksum_covers_bytes_0_to_6_only() -> None:
     assert frame_checksum(flipped) != 0xCC
     with pytest.raises(ValueError, match="7 bytes"):
         frame_checksum(b"\x00" * 6)
+
+
+def test_head_checksum_equals_the_loop_on_random_heads() -> None:
+    """The unrolled 7-byte CRC the codec calls per frame is crc8_sae_j1850, byte for byte."""
+    rng = random.Random(7)
+    heads = [bytes(7), b"\xff" * 7, bytes.fromhex("4151ce18590809")]
+    heads += [bytes(rng.randrange(256) for _ in range(7)) for _ in range(5000)]
+    for head in heads:
+        assert head_checksum(head) == crc8_sae_j1850(head) == frame_checksum(head)
+    assert head_checksum(bytes.fromhex("4151ce18590809")) == 0xCC
+    with pytest.raises(ValueError):
+        head_checksum(bytes(6))
 
 
 # --------------------------------------------------------------------------------------------------

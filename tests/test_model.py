@@ -11,6 +11,7 @@ from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.model import (
     AirspeedCooling,
     DensityCooling,
+    Drive,
     Effects,
     InputSeries,
     MixtureCooling,
@@ -45,6 +46,21 @@ def test_steady_state_without_radiation_matches_closed_form():
     d = compute_drive(CRUISE, c)
     expected = 5.0 + 1.1 * 1.2 * d.altitude_gain * d.q_sl0_w * params.r_ce
     assert steady_state_cht(d, c, gamma_q=1.1, gamma_d=1.2) == pytest.approx(expected, rel=1e-12)
+
+
+def test_steady_state_stops_at_its_first_iterate_below_a_bound():
+    """With ``below`` Newton returns its first iterate under it (its iterates fall onto the steady state from
+    above); a bound under the steady state changes nothing. One operating point and arrays alike."""
+    c = coefficients(paper_table_a1())
+    scalar = Drive(*(float(v) for v in compute_drive(CRUISE, c)))
+    arrays = Drive(*(np.full(3, v) for v in scalar))
+    for drive in (scalar, arrays):
+        full = np.asarray(steady_state_cht(drive, c, gamma_q=1.1, gamma_d=1.2))
+        first = np.asarray(steady_state_cht(drive, c, gamma_q=1.1, gamma_d=1.2, iterations=1))
+        assert np.all(first > full + 1e-3)  # one step is not converged: the bound can stop it early
+        early = np.asarray(steady_state_cht(drive, c, gamma_q=1.1, gamma_d=1.2, below=float(first.max()) + 1e-9))
+        assert np.array_equal(early, first)
+        assert np.array_equal(np.asarray(steady_state_cht(drive, c, gamma_q=1.1, gamma_d=1.2, below=-50.0)), full)
 
 
 @pytest.mark.parametrize("kelvin", [False, True])

@@ -15,7 +15,7 @@ check (seven zero bytes give 0x0A, not 0).
 
 from __future__ import annotations
 
-__all__ = ["CHECKSUM_BYTE", "COUNTER_BYTE", "crc8_sae_j1850", "frame_checksum"]
+__all__ = ["CHECKSUM_BYTE", "COUNTER_BYTE", "crc8_sae_j1850", "frame_checksum", "head_checksum"]
 
 #: Index of the byte holding the checksum.
 CHECKSUM_BYTE = 7
@@ -46,6 +46,14 @@ def crc8_sae_j1850(data: bytes | bytearray | memoryview) -> int:
     for byte in data:
         crc = _TABLE[crc ^ byte]
     return crc ^ _XOR_OUT
+
+
+def head_checksum(head: bytes | bytearray) -> int:
+    """:func:`crc8_sae_j1850` of exactly 7 bytes (a frame's bytes 0..6), the loop unrolled: the codec's per-frame
+    call (ValueError for another length)."""
+    t = _TABLE
+    b0, b1, b2, b3, b4, b5, b6 = head
+    return t[t[t[t[t[t[t[_INIT ^ b0] ^ b1] ^ b2] ^ b3] ^ b4] ^ b5] ^ b6] ^ _XOR_OUT
 
 
 def frame_checksum(data: bytes | bytearray | memoryview) -> int:

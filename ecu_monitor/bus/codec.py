@@ -42,7 +42,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -52,7 +52,7 @@ import numpy as np
 if TYPE_CHECKING:
     from can.typechecking import CanFilter
 
-from ecu_monitor.bus.checksum import CHECKSUM_BYTE, crc8_sae_j1850, frame_checksum
+from ecu_monitor.bus.checksum import CHECKSUM_BYTE, crc8_sae_j1850, frame_checksum, head_checksum
 from ecu_monitor.bus.dbc import Dbc, load_dbc
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.units import QUANTITY_OF_COLUMN, Unit, unit_conversion
@@ -151,12 +151,13 @@ class _Plan(NamedTuple):
     fields: tuple[_Field, ...]
     counter_name: str | None  # None: no counter/checksum in this message
     length: int  # the message's DBC length, bytes
-    # per field (shift, mask, sign bit or 0, big-endian): the raw integer read straight from the payload
-    # as one integer, or None when cantools decodes the message (a float or multiplexed signal)
-    extract: tuple[tuple[int, int, int, bool], ...] | None
+    # per field (output, shift, mask, sign bit or 0, big-endian, raw_low, raw_high, factor, offset, unit_scale,
+    # unit_offset): the raw integer read straight from the payload as one integer, checked and scaled; or None
+    # when cantools decodes the message (a float or multiplexed signal)
+    extract: tuple[tuple[Any, ...], ...] | None
 
 
-def _extraction(message: Any, fields: Sequence[_Field]) -> tuple[tuple[int, int, int, bool], ...] | None:
+def _extraction(message: Any, fields: Sequence[_Field]) -> tuple[tuple[Any, ...], ...] | None:
     """How :meth:`Decoder.decode` reads each used signal's raw integer without cantools (the bits cantools
     reads: little-endian from the start bit up, big-endian from the sawtooth MSB down), or None."""
     if message.length > 8 or message.is_multiplexed():
@@ -173,7 +174,8 @@ def _extraction(message: Any, fields: Sequence[_Field]) -> tuple[tuple[int, int,
         if shift < 0 or shift + sig.length > 8 * message.length:
             return None
         sign = 1 << (sig.length - 1) if sig.is_signed else 0
-        out.append((shift, (1 << sig.length) - 1, sign, sig.byte_order != "little_endian"))
+        out.append((f.output, shift, (1 << sig.length) - 1, sign, sig.byte_order != "little_endian", f.raw_low,
+                    f.raw_high, f.factor, f.offset, f.unit_scale, f.unit_offset))  # fmt: skip
     return tuple(out)
 
 
@@ -206,13 +208,13 @@ def _extract_values(plan: _Plan, payload: bytes) -> list[tuple[int, float]] | No
     little = int.from_bytes(payload, "little")
     big = int.from_bytes(payload, "big")
     out: list[tuple[int, float]] = []
-    for f, (shift, mask, sign, big_endian) in zip(plan.fields, plan.extract or (), strict=True):
+    for output, shift, mask, sign, big_endian, low, high, factor, offset, unit_scale, unit_offset in plan.extract or ():
         raw = ((big if big_endian else little) >> shift) & mask
         if raw & sign:
             raw -= mask + 1
-        if not f.raw_low <= raw <= f.raw_high:
+        if not low <= raw <= high:
             return None
-        out.append((f.output, (raw * f.factor + f.offset) * f.unit_scale + f.unit_offset))
+        out.append((output, (raw * factor + offset) * unit_scale + unit_offset))
     return out
 
 
@@ -308,7 +310,7 @@ class Decoder:
             self._malformed("bad_dlc")
             return None
         if plan.counter_name is not None:  # 8 bytes (checked when the plan was made)
-            if payload[CHECKSUM_BYTE] != crc8_sae_j1850(payload[:CHECKSUM_BYTE]):
+            if payload[CHECKSUM_BYTE] != head_checksum(payload[:CHECKSUM_BYTE]):
                 self._malformed("bad_checksum")
                 return None
             counter = payload[6] & 0x0F
@@ -362,7 +364,7 @@ class Decoder:
         if len(payload) != plan.length:
             return
         if plan.counter_name is not None:
-            crc8_sae_j1850(payload[:CHECKSUM_BYTE])
+            head_checksum(payload[:CHECKSUM_BYTE])
         _extract_values(plan, payload)
 
     def decode_batch(
@@ -515,15 +517,49 @@ def _extract(payload: np.ndarray, sig: Any, message: Any) -> np.ndarray:
     return raw.astype(np.float64)
 
 
+def _linear(to_raw: Any) -> tuple[float, float] | None:
+    """(offset, scale) when ``to_raw`` (a signal's ``numeric_scaled_to_raw``) is one of cantools' integer
+    conversions, whose raw value is ``round((value - offset) / scale)`` with these very operands (for an
+    integer scale cantools divides only when the remainder is not 0: when it is 0 the quotient is exact, so
+    the division gives it too); None for any other (a layout is not made then)."""
+    from cantools.database.conversion import IdentityConversion, LinearConversion, LinearIntegerConversion
+
+    owner = getattr(to_raw, "__self__", None)  # a signal with a value table delegates to its inner conversion
+    function = getattr(to_raw, "__func__", None)
+    if owner is None or owner.is_float:
+        return None
+    if function is IdentityConversion.numeric_scaled_to_raw:
+        return 0.0, 1.0  # round((v - 0.0) / 1.0) is round(v), bit for bit
+    if function in (LinearConversion.numeric_scaled_to_raw, LinearIntegerConversion.numeric_scaled_to_raw):
+        return owner.offset, owner.scale
+    return None
+
+
 class _Packed(NamedTuple):
     """One signal of a :class:`FrameLayout`: its clamp range, raw conversion and bit placement."""
 
     low: float  # physical clamp range (-inf/inf: none)
     high: float
-    to_raw: Any  # cantools' numeric_scaled_to_raw of the signal (the same rounding as its encoder)
+    offset: float  # raw = round((value - offset) / scale): cantools' own arithmetic (:func:`_linear`)
+    scale: float
     mask: int
     shift: int  # bit of the raw value's LSB in the message read as one little- (or big-) endian integer
     big_endian: bool
+
+
+def _bits(fields: Sequence[_Packed], values: Sequence[float]) -> tuple[int, int]:
+    """The raw values of ``fields`` from physical ``values`` (clamped), placed: (little-endian bits, big-endian
+    bits) of the message read as one integer each."""
+    little = 0
+    big = 0
+    for (low, high, offset, scale, mask, shift, big_endian), value in zip(fields, values, strict=False):
+        v = float(value)
+        raw = round(((low if v < low else high if v > high else v) - offset) / scale) & mask
+        if big_endian:
+            big |= raw << shift
+        else:
+            little |= raw << shift
+    return little, big
 
 
 class FrameLayout:
@@ -542,8 +578,9 @@ class FrameLayout:
         self.length = int(message.length)
         self.signal_names = names
         self._fields = fields
-        self._counter = counter
         self._checksum = integrity is not None
+        # the counter's bits (little-, big-endian part) for each value 0..15, or None: no counter
+        self._counter_bits = None if counter is None else tuple(_bits((counter,), (float(c),)) for c in range(16))
         self._any_big = any(f.big_endian for f in fields) or (counter is not None and counter.big_endian)
 
     @staticmethod
@@ -566,7 +603,8 @@ class FrameLayout:
                 low = -math.inf if sig.minimum is None else float(sig.minimum)
                 high = math.inf if sig.maximum is None else float(sig.maximum)
             to_raw = sig.conversion.numeric_scaled_to_raw
-            if not (math.isfinite(low) and math.isfinite(high)):
+            linear = _linear(to_raw)
+            if linear is None or not (math.isfinite(low) and math.isfinite(high)):
                 return None
             first, second = to_raw(low), to_raw(high)
             lowest = -(1 << (sig.length - 1)) if sig.is_signed else 0
@@ -580,7 +618,7 @@ class FrameLayout:
                 shift = sig.start
             if shift < 0 or shift + sig.length > 8 * message.length:
                 return None
-            packed = _Packed(low, high, to_raw, (1 << sig.length) - 1, shift, big)
+            packed = _Packed(low, high, *linear, (1 << sig.length) - 1, shift, big)
             if sig.name in skip:
                 if sig is integrity[0]:  # type: ignore[index]
                     counter = packed
@@ -594,31 +632,21 @@ class FrameLayout:
         range; NaN is a ValueError), the rolling counter modulo 16 and the checksum in byte 7."""
         if len(values) != len(self._fields):
             raise ValueError(f"{self.name}: expected {len(self._fields)} values, got {len(values)}")
-        little = 0
-        big = 0
-        for (low, high, to_raw, mask, shift, big_endian), value in zip(self._fields, values, strict=False):
-            v = float(value)
-            if v != v:
+        for value in values:
+            if value != value:
                 raise ValueError(f"{self.name}.{self.signal_names[list(values).index(value)]}: cannot encode NaN")
-            raw = to_raw(low if v < low else high if v > high else v)
-            if big_endian:
-                big |= (raw & mask) << shift
-            else:
-                little |= (raw & mask) << shift
-        c = self._counter
-        if c is not None:
-            raw = c.to_raw(float(counter % 16))
-            if c.big_endian:
-                big |= (raw & c.mask) << c.shift
-            else:
-                little |= (raw & c.mask) << c.shift
+        little, big = _bits(self._fields, values)
+        if self._counter_bits is not None:
+            counter_little, counter_big = self._counter_bits[counter % 16]
+            little |= counter_little
+            big |= counter_big
         n = self.length
         if self._any_big:
             little |= int.from_bytes(big.to_bytes(n, "big"), "little")
         if not self._checksum:
             return little.to_bytes(n, "little")
         head = (little & 0xFFFFFFFFFFFFFF).to_bytes(CHECKSUM_BYTE, "little")
-        return head + bytes((crc8_sae_j1850(head),))
+        return head + bytes((head_checksum(head),))
 
 
 class Encoder:
@@ -675,6 +703,20 @@ class Encoder:
         if layout is not None:
             return layout.pack([values[signal] for signal in layout.signal_names], counter)
         return self.encode_cantools(name, values, counter)
+
+    def packer(self, name: str, signals: Sequence[str]) -> Callable[[Sequence[float], int], bytes]:
+        """``pack(values, counter)``: the payload of message ``name`` from ``values`` given in ``signals`` order,
+        the bytes of :meth:`encode`; the message's :meth:`FrameLayout.pack` itself when ``signals`` is its
+        order (no mapping built per frame). KeyError if there is no such message."""
+        layout = self._layouts[name]
+        if layout is not None and tuple(signals) == layout.signal_names:
+            return layout.pack
+        names = tuple(signals)
+
+        def pack(values: Sequence[float], counter: int = 0) -> bytes:
+            return self.encode(name, dict(zip(names, values, strict=True)), counter)
+
+        return pack
 
     def encode_cantools(self, name: str, values: Mapping[str, float], counter: int = 0) -> bytes:
         """:meth:`encode` through cantools' non-strict encode (the reference of :class:`FrameLayout`)."""

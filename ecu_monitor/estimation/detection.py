@@ -73,9 +73,9 @@ __all__ = [
     "scale_blocks",
 ]
 
-#: Detector states, in order of severity.
-STATES = ("NOMINAL", "SUSPECT", "DEGRADED")
 State = Literal["NOMINAL", "SUSPECT", "DEGRADED"]
+#: Detector states, in order of severity.
+STATES: tuple[State, State, State] = ("NOMINAL", "SUSPECT", "DEGRADED")
 _EULER_GAMMA = 0.5772156649015329
 
 
@@ -197,24 +197,30 @@ class Detector:
         return self._output()
 
     def _output(self) -> DetectorOutput:
-        s = self.settings
+        return DetectorOutput(STATES[self._state_index()], self._statistic, self._alarm_time_s)
+
+    def _state_index(self) -> int:
+        """The state's index in :data:`STATES`."""
         if not math.isnan(self._alarm_time_s):
-            state: State = "DEGRADED"
-        elif self._statistic >= s.suspect_fraction * s.threshold:
-            state = "SUSPECT"
-        else:
-            state = "NOMINAL"
-        return DetectorOutput(state, self._statistic, self._alarm_time_s)
+            return 2
+        s = self.settings
+        return 1 if self._statistic >= s.suspect_fraction * s.threshold else 0
 
     def update(self, t_s: float, deviation: float, steady: bool = True) -> DetectorOutput:
         """Feed one symptom sample at time t_s (s); returns the detector's state. steady False (from
         :class:`SteadyGate`) marks a transient of the inputs: the block holds the statistic."""
+        self.step(t_s, deviation, steady)
+        return self._output()
+
+    def step(self, t_s: float, deviation: float, steady: bool = True) -> int:
+        """:meth:`update` returning only the state's index in :data:`STATES` (0 NOMINAL, 1 SUSPECT, 2
+        DEGRADED), without building a :class:`DetectorOutput` (the live pipeline's call, every step)."""
         s = self.settings
         if self._start_s is None:
             self._start_s = t_s
             self._block_end_s = t_s + s.warmup_s + s.block_s
         if t_s < self._start_s + s.warmup_s:
-            return self._output()
+            return self._state_index()
         if t_s >= self._block_end_s - 1e-9:  # this sample opens a new block: close the previous one(s)
             closed = math.floor((t_s - self._block_end_s) / s.block_s + 1e-9) + 1
             means = [self._sum / self._count if self._count else math.nan] + [math.nan] * (closed - 1)
@@ -236,7 +242,7 @@ class Detector:
             self._sum += deviation
             self._count += 1
         self._steady = self._steady and bool(steady)
-        return self._output()
+        return self._state_index()
 
 
 # --------------------------------------------------------------------------------------------------

@@ -304,18 +304,25 @@ def sensor_step(probe_c: Real, cht_c: Real, coeffs: Coefficients, dt_s: float) -
 
 
 def steady_state_cht(
-    drive: Drive, coeffs: Coefficients, gamma_q: float = 1.0, gamma_d: float = 1.0, iterations: int = 60
+    drive: Drive,
+    coeffs: Coefficients,
+    gamma_q: float = 1.0,
+    gamma_d: float = 1.0,
+    iterations: int = 60,
+    below: float = -math.inf,
 ) -> Real:
     """CHT (degC) where heat in equals heat out for a held drive (Newton on the balance).
 
     Starts from the convective-only solution (an upper bound: the balance is convex, so Newton falls
-    monotonically) and stops once every step is below 1e-9 degC, at most ``iterations`` steps. For one
+    monotonically) and stops once every step is below 1e-9 degC, at most ``iterations`` steps, or as soon as
+    every iterate is below ``below`` (degC): the steady state is then below it too, and the iterate is
+    returned (for a caller that only asks whether the steady state is below ``below``). For one
     operating point (every argument a number) the same iteration runs on Python floats and complex
     numbers (the live headroom: ~10x cheaper than numpy on 0-d arrays).
     """
     if all(isinstance(v, float | int) for v in (*drive, gamma_q, gamma_d)):
         try:
-            return _steady_state_scalar(drive, coeffs, float(gamma_q), float(gamma_d), iterations)
+            return _steady_state_scalar(drive, coeffs, float(gamma_q), float(gamma_d), iterations, below)
         except ZeroDivisionError:  # no conductance: numpy's inf and nan below, as for arrays
             pass
     heat = gamma_q * gamma_d * np.asarray(drive.heat_gain) * drive.altitude_gain * drive.q_sl0_w
@@ -329,7 +336,7 @@ def steady_state_cht(
         )
         change = (lost.real - heat) / (lost.imag / _COMPLEX_STEP)
         temp = temp - change
-        if not np.any(np.abs(change) > 1e-9):
+        if not np.any(np.abs(change) > 1e-9) or (below > -math.inf and np.all(temp < below)):
             break
     return float(temp) if np.ndim(temp) == 0 else temp
 
@@ -337,7 +344,9 @@ def steady_state_cht(
 _COMPLEX_STEP = 1e-30
 
 
-def _steady_state_scalar(drive: Drive, coeffs: Coefficients, gamma_q: float, gamma_d: float, iterations: int) -> float:
+def _steady_state_scalar(
+    drive: Drive, coeffs: Coefficients, gamma_q: float, gamma_d: float, iterations: int, below: float = -math.inf
+) -> float:
     """:func:`steady_state_cht` of one operating point on Python floats (the same operations in the same order)."""
     heat = gamma_q * gamma_d * float(drive.heat_gain) * float(drive.altitude_gain) * float(drive.q_sl0_w)
     g_conv = float(drive.conductance_w_per_c)
@@ -350,7 +359,7 @@ def _steady_state_scalar(drive: Drive, coeffs: Coefficients, gamma_q: float, gam
         lost = dissipation(complex(temp, _COMPLEX_STEP), ambient, g_conv, radiative, offset)
         change = (lost.real - heat) / (lost.imag / _COMPLEX_STEP)
         temp = temp - change
-        if not abs(change) > 1e-9:
+        if not abs(change) > 1e-9 or temp < below:
             break
     return temp
 

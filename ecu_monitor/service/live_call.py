@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import struct
 import sys
 from typing import Any, cast
 
@@ -54,6 +55,8 @@ _SV = 95  # supervisor state (6): in, and out after the call
 _RESULT = 101  # code, action, model_c, cht_est_c, deviation, gamma_q, gamma_d, iso_deviation (8)
 _COEFFS = 109  # n scalars, n x, n y, then the packed coefficients: scalars, heat values (row-major), x, y
 _EKF_STATE, _DRIVE, _ISO_STATE = 7, 5, 13
+#: The call's arguments and the supervisor state as they lie in the workspace from _ARGS on (one write per call).
+_ARGUMENTS = struct.Struct(f"={_RESULT - _ARGS}d")
 
 
 def _live_call(ws: Any) -> None:
@@ -258,29 +261,12 @@ class LiveCall:
             raise EstimationError(
                 f"live call: time must advance by at least one step of {self.dt_s} s (from {self._time_s} to {time_s})"
             )
-        mv: Any = self._mv
-        mv[_ARGS] = time_s
-        mv[_ARGS + 1] = u[0]
-        mv[_ARGS + 2] = u[1]
-        mv[_ARGS + 3] = u[2]
-        mv[_ARGS + 4] = u[3]
-        mv[_ARGS + 5] = u[4]
-        mv[_ARGS + 6] = u[5]
-        mv[_ARGS + 7] = reading
-        mv[_ARGS + 8] = 1.0 if new_reading else 0.0
-        mv[_ARGS + 9] = 1.0 if reading_bad else 0.0
-        mv[_ARGS + 10] = 1.0 if any_stale else 0.0
-        mv[_ARGS + 11] = 1.0 if pending else 0.0
-        mv[_ARGS + 12] = steps
-        mv[_SV] = 1.0 if sv.running else 0.0
-        mv[_SV + 1] = sv.stale_since_s
-        mv[_SV + 2] = sv.changed_s
-        mv[_SV + 3] = sv.last_reading_c
-        mv[_SV + 4] = sv.model_low_c
-        mv[_SV + 5] = sv.model_high_c
+        # the arguments and the supervisor state, converted to float64 in one call (flags: 1.0 / 0.0)
+        _ARGUMENTS.pack_into(self._mv, _ARGS * 8, time_s, *u, reading, bool(new_reading), bool(reading_bad),
+                             bool(any_stale), bool(pending), steps, bool(sv.running), *sv[1:])  # fmt: skip
         self._call(self.ws)
         self._time_s = time_s
-        values: list[float] = mv[_SV : _RESULT + 8].tolist()
+        values: list[float] = self._mv[_SV : _RESULT + 8].tolist()
         running, since, changed, last, low, high, code, action, model_c, est_c, deviation, gq, gd, iso_dev = values
         if action == ACTION_NONE:
             est_c = deviation = gq = gd = iso_dev = math.nan
@@ -294,12 +280,8 @@ class LiveCall:
         (docs/performance.md, "Rehearsal")."""
         shadow: Any = self._shadow_mv
         shadow[:] = self._mv
-        shadow[_ARGS + 1] = u[0]
-        shadow[_ARGS + 2] = u[1]
-        shadow[_ARGS + 3] = u[2]
-        shadow[_ARGS + 4] = u[3]
-        shadow[_ARGS + 5] = u[4]
-        shadow[_ARGS + 6] = u[5]
+        previous = _ARGUMENTS.unpack_from(shadow, _ARGS * 8)
+        _ARGUMENTS.pack_into(shadow, _ARGS * 8, previous[0], *u, *previous[7:])
         self._call(self._shadow)
         shadow[_SV : _RESULT + 8].tolist()
 

@@ -51,6 +51,7 @@ from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, Encoder, SignalSpec
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import CHTEstimator, make_estimator
 from ecu_monitor.estimation.cross_cylinder import cross_cylinder_step
+from ecu_monitor.estimation.detection import STATES as VERDICTS
 from ecu_monitor.estimation.detection import Detector
 from ecu_monitor.estimation.ekf import ThermalEKF
 from ecu_monitor.estimation.headroom import thermal_headroom, time_to_limit_s
@@ -180,16 +181,31 @@ _STATE_CODE = {name: code for code, name in enumerate(STATES)}
 _LAST_VERDICT = _STATE_CODE["DEGRADED"]
 
 
-def _cylinder_values(cyl: CylinderSnapshot) -> dict[str, float]:
-    """Health_Cylinder's signals for one cylinder (health.dbc; nan sent as the signal's idle value)."""
+#: State code of each detector verdict (by its index in detection.STATES: what Detector.step returns).
+_VERDICT_CODE = tuple(_STATE_CODE[name] for name in VERDICTS)
+#: The data signals of each health message (health.dbc), in the order Pipeline._health_values gives their values.
+HEALTH_SIGNALS: dict[str, tuple[str, ...]] = {
+    "Health_Status": ("ChtEstimate", "ModelDeviation", "DegradationState"),
+    "Health_Isolation": ("GammaQEstimate", "GammaDEstimate", "ThermalHeadroom", "ChtLimitMargin"),
+    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors"),
+    "Health_Spread": ("ChtSpread", "HottestCylinder", "SpreadAlarm", "CylinderCount", "FaultyCylinders"),
+    "Health_Cylinder": ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD"),
+}
+#: One cylinder's result of a step: (reading degC, estimate degC, deviation degC/s, state code, gamma_Q,
+#: gamma_D, headroom s).
+_Result = tuple[float, float, float, int, float, float, float]
+
+
+def _cylinder_values(cyl: CylinderSnapshot) -> tuple[float, ...]:
+    """Health_Cylinder's signals for one cylinder (HEALTH_SIGNALS order; nan sent as the signal's idle value)."""
     est = cyl.cht_est_c
-    return {
-        "CylinderNumber": cyl.number,
-        "CylChtEstimate": est if math.isfinite(est) else -40.0,
-        "CylState": _STATE_CODE[cyl.state],
-        "CylGammaQ": cyl.gamma_q if math.isfinite(cyl.gamma_q) else 1.0,
-        "CylGammaD": cyl.gamma_d if math.isfinite(cyl.gamma_d) else 1.0,
-    }
+    return (
+        cyl.number,
+        est if math.isfinite(est) else -40.0,
+        _STATE_CODE[cyl.state],
+        cyl.gamma_q if math.isfinite(cyl.gamma_q) else 1.0,
+        cyl.gamma_d if math.isfinite(cyl.gamma_d) else 1.0,
+    )
 
 
 def model_input_names(params: ThermalParams, mapped: Collection[str] = ()) -> tuple[str, ...]:
@@ -278,6 +294,7 @@ class Pipeline:
         self._stamps = [math.nan] * len(names)
         self._model_slots = [self._slot[n] for n in self.model_inputs]
         self._status_slot = self._slot.get(STATUS_INPUT, -1)
+        self._plausible = (sf.min_c, sf.max_c, sf.open_values)  # a CHT reading's range, the ECU's "open" codes
         # stale inputs in Health_Diag.StaleInputs order; a cylinder's CHT is reported as cht_c
         self._input_slots: list[tuple[str, int]] = []
         for n in INPUT_NAMES:
@@ -285,6 +302,7 @@ class Pipeline:
                 self._input_slots += [(c, self._slot[c]) for c in cylinder_inputs]
             elif n in mapped:
                 self._input_slots.append((n, self._slot[n]))
+        self._stale_checks = tuple((name, slot, self._stale_after[slot]) for name, slot in self._input_slots)
         self._model_input_set = frozenset(self.model_inputs)
         self._cylinders = [
             _Cylinder(number, name, self._slot[name], model, config)
@@ -307,8 +325,13 @@ class Pipeline:
             name: (int(self.encoder.message(name).frame_id), bool(self.encoder.message(name).is_extended_frame))
             for name in self._periods
         }
+        # each health message packed from its values in HEALTH_SIGNALS order (its prepared layout, bus/codec.py)
+        self._packers = {name: self.encoder.packer(name, HEALTH_SIGNALS[name]) for name in self._periods}
+        self._stale_bit = {name: 1 << bit for bit, name in enumerate(INPUT_NAMES)}  # Health_Diag.StaleInputs
+        self._estimator_symptom = config.detector_symptom == "estimator"
         self._status_period = self._periods["Health_Status"]
-        self._rows: list[HealthSnapshot] = []
+        # the steps of the health-status periods since drain_rows(): made into snapshots there, off the frame path
+        self._rows: list[tuple[float, list[_Result], list[str]]] = []
         self._headroom_period = self._periods.get("Health_Isolation", self._status_period)
         self._filter_period = filter_period_steps(self._dt)
         # protocol dronecan: the service is a DroneCAN node (service/dronecan_node.py, called each step: the
@@ -326,11 +349,7 @@ class Pipeline:
             self.counters["dronecan_frames"] = 0
             self.counters["dronecan_requests"] = 0
         self._snapshot: HealthSnapshot | None = self._empty_snapshot(math.nan)
-        self._last_step: tuple[float, list[tuple[float, float, float, int, float, float, float]], list[str]] = (
-            math.nan,
-            [],
-            [],
-        )
+        self._last_step: tuple[float, list[_Result], list[str]] = (math.nan, [], [])
 
     # ------------------------------------------------------------------ public API
 
@@ -412,9 +431,10 @@ class Pipeline:
             est_c, _, gamma_q, gamma_d, _, _ = cyl.held
             if headroom_next and math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d):
                 time_to_limit_s(est_c, u, cyl.params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=cyl.coeffs)
-        snap = self._build_snapshot(time_s, results, stale)
         if self._dbc_health:
-            data = self.encoder.encode("Health_Status", self._health_values("Health_Status", snap, 0), 0)
+            snap = self._build_snapshot(time_s, results, stale) if self._per_cylinder else None
+            lead, names, snap = self._frame_view(results, stale, snap)
+            data = self._packers["Health_Status"](self._health_values("Health_Status", lead, names, snap), 0)
             frame_id, extended = self._frame_ids["Health_Status"]
             can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=extended, data=data)
 
@@ -429,7 +449,8 @@ class Pipeline:
     def drain_rows(self) -> list[HealthSnapshot]:
         """Snapshots of the health-status periods since the last call (oldest first)."""
         rows, self._rows = self._rows, []
-        return rows
+        last = self._last_step
+        return [self.snapshot() if step is last else self._build_snapshot(*step) for step in rows]
 
     def feed(self, msg: can.Message) -> None:
         """Take one received frame (never raises for any frame content)."""
@@ -451,14 +472,14 @@ class Pipeline:
         if decoded is None:
             return
         self._last_frame = msg  # for rehearse()
+        values, stamps, cht_slots = self._values, self._stamps, self._cht_slots
         for slot, value in decoded:
-            self._values[slot] = value
-            self._stamps[slot] = stamp
-            if self._origin is None:
-                self._early.add(slot)
-            cyl = self._cht_slots.get(slot)
-            if cyl is not None:
-                cyl.readings += 1
+            values[slot] = value
+            stamps[slot] = stamp
+            if slot in cht_slots:
+                cht_slots[slot].readings += 1
+        if self._origin is None:
+            self._early.update(slot for slot, _ in decoded)
 
     def advance_to(self, t_s: float) -> list[can.Message]:
         """Run every fixed step at or before ``t_s`` (s); returns the health frames that fell due."""
@@ -502,11 +523,9 @@ class Pipeline:
     # ------------------------------------------------------------------ one step
 
     def _stale(self, time_s: float) -> list[str]:
-        return [
-            name
-            for name, slot in self._input_slots
-            if math.isnan(self._stamps[slot]) or time_s - self._stamps[slot] > self._stale_after[slot]
-        ]
+        """The inputs stale at ``time_s``: never seen (nan stamp: the test is False) or silent too long."""
+        stamps = self._stamps
+        return [name for name, slot, limit in self._stale_checks if not time_s - stamps[slot] <= limit]
 
     def _inputs(self) -> InputSeries:
         v = self._values
@@ -517,12 +536,12 @@ class Pipeline:
         return series_of(columns, self.params.heat_axes, self._mixture)
 
     def _reading_bad(self, reading: float) -> bool:
-        sf = self.config.sensor_fault
-        if not sf.min_c <= reading <= sf.max_c:
+        low, high, open_values = self._plausible
+        if not low <= reading <= high:
             return True
         if self._status_slot >= 0:
             status = self._values[self._status_slot]
-            return not math.isnan(status) and int(status) in sf.open_values
+            return not math.isnan(status) and int(status) in open_values
         return False
 
     def _stop_estimation(self) -> None:
@@ -533,7 +552,7 @@ class Pipeline:
     def _step(self, time_s: float, frames: list[can.Message]) -> None:
         self.counters["steps"] += 1
         stale = self._stale(time_s)
-        model_stale = not self._model_input_set.isdisjoint(stale)
+        model_stale = bool(stale) and not self._model_input_set.isdisjoint(stale)
         u = self._inputs()
         call = self._k % self._filter_period == 0
         isolation_due = self._k % self._headroom_period == 0
@@ -547,26 +566,28 @@ class Pipeline:
         else:
             cyl = self._single
             results = [self._step_cylinder(cyl, time_s, u, model_stale or cyl.name in stale, call, isolation_due)]
-        # the snapshot is built when a row or a frame needs it, or on snapshot(): not on every step
-        self._last_step = (time_s, results, stale)
+        # the snapshot is built when asked for (snapshot(), drain_rows() on the daemon's supervisor thread),
+        # or for the frames of an engine monitored per cylinder: not on every step
+        step = self._last_step = (time_s, results, stale)
         self._snapshot = None
         k = self._k
         status_due = k % self._status_period == 0
         if status_due:
-            self._rows.append(self.snapshot())
+            self._rows.append(step)
         if self._dbc_health:
+            view = None
             for message, period in self._periods.items():
                 if k % period == 0:
-                    frames.extend(self._health_frames(message, self.snapshot()))
+                    if view is None:
+                        view = self._frame_view(results, stale, self.snapshot() if self._per_cylinder else None)
+                    self._health_frames(frames, message, time_s, *view)
         if self._node is not None:  # after the health.dbc frames; a KeyValue set goes out over the other steps
             published = self._node.frames(time_s, self.snapshot()) if status_due else self._node.step_frames(time_s)
             if published:
                 self.counters["dronecan_frames"] += len(published)
                 frames.extend(published)
 
-    def _build_snapshot(
-        self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]], stale: list[str]
-    ) -> HealthSnapshot:
+    def _build_snapshot(self, time_s: float, results: list[_Result], stale: list[str]) -> HealthSnapshot:
         """The snapshot of one step from its cylinders' results (one cylinder: its own values)."""
         if self._per_cylinder:
             names = tuple(dict.fromkeys(CHT_INPUT if name in self._cht_names else name for name in stale))
@@ -587,7 +608,7 @@ class Pipeline:
 
     def _step_cylinder(
         self, cyl: _Cylinder, time_s: float, u: InputSeries, any_stale: bool, call: bool, isolation_due: bool
-    ) -> tuple[float, float, float, int, float, float, float]:
+    ) -> _Result:
         """One step of one cylinder: (reading, estimate, deviation, state code, gamma_Q, gamma_D, headroom)."""
         reading = self._values[cyl.slot]
         new_reading = cyl.readings > cyl.readings_used
@@ -657,10 +678,10 @@ class Pipeline:
         est_c, deviation, gamma_q, gamma_d, iso_deviation, _ = cyl.held
         state = code
         if cyl.detector_started:
-            symptom = deviation if cfg.detector_symptom == "estimator" else iso_deviation
-            verdict = cyl.detector.update(time_s, symptom if code == CODE_NOMINAL else math.nan)
+            symptom = deviation if self._estimator_symptom else iso_deviation
+            verdict = cyl.detector.step(time_s, symptom if code == CODE_NOMINAL else math.nan)
             if code == CODE_NOMINAL:
-                state = STATES.index(verdict.state)
+                state = _VERDICT_CODE[verdict]
         if action == ACTION_NONE or not (math.isfinite(est_c) and math.isfinite(gamma_q) and math.isfinite(gamma_d)):
             cyl.headroom_s = math.nan
         elif isolation_due:  # the drive the estimator's compiled call has just computed at u, not again
@@ -669,10 +690,10 @@ class Pipeline:
             )
         return reading, est_c, deviation, state, gamma_q, gamma_d, cyl.headroom_s
 
-    def _cross_step(self, time_s: float, results: list[tuple[float, float, float, int, float, float, float]]) -> None:
+    def _cross_step(self, time_s: float, results: list[_Result]) -> None:
         """The cross-cylinder detectors (estimation/cross_cylinder.py) on this step's symptoms: each
         cylinder's state (in ``results``, in place) becomes the more severe of its two detectors' verdicts."""
-        estimator_symptom = self.config.detector_symptom == "estimator"
+        estimator_symptom = self._estimator_symptom
         symptoms = [
             (cyl.held.deviation if estimator_symptom else cyl.held.iso_deviation)
             if cyl.detector_started and result[3] <= _LAST_VERDICT
@@ -682,14 +703,14 @@ class Pipeline:
         for i, (cyl, cross) in enumerate(zip(self._cylinders, cross_cylinder_step(symptoms), strict=True)):
             if not cyl.detector_started or cyl.cross_detector is None:
                 continue
-            verdict = STATES.index(cyl.cross_detector.update(time_s, cross).state)
+            verdict = _VERDICT_CODE[cyl.cross_detector.step(time_s, cross)]
             if results[i][3] < verdict <= _LAST_VERDICT:
                 results[i] = (*results[i][:3], verdict, *results[i][4:])
 
     def _engine_snapshot(
         self,
         time_s: float,
-        results: list[tuple[float, float, float, int, float, float, float]],
+        results: list[_Result],
         stale: tuple[str, ...],
     ) -> HealthSnapshot:
         """The engine's snapshot from its cylinders' (service/cylinders.py: lead cylinder, spread, hottest)."""
@@ -718,63 +739,76 @@ class Pipeline:
 
     # ------------------------------------------------------------------ health frames
 
-    def _health_frames(self, message: str, snap: HealthSnapshot) -> list[can.Message]:
-        """The frames of ``message`` due now: one, or one per cylinder for Health_Cylinder."""
-        if message == "Health_Cylinder":
-            return [self._frame(message, snap.time_s, _cylinder_values(c)) for c in snap.cylinders]
-        return [self._frame(message, snap.time_s, self._health_values(message, snap, _STATE_CODE[snap.state]))]
+    def _frame_view(
+        self, results: list[_Result], stale: list[str], snap: HealthSnapshot | None
+    ) -> tuple[_Result, Sequence[str], HealthSnapshot | None]:
+        """What the engine's health frames say: (the lead's result, the stale input names, the snapshot). One
+        cylinder: its own result and this step's stale names, no snapshot needed; per cylinder (``snap``: this
+        step's snapshot): the lead cylinder's values and the snapshot's names (service/cylinders.py)."""
+        if snap is None:
+            return results[0], stale, None
+        lead = (snap.cht_meas_c, snap.cht_est_c, snap.deviation, _STATE_CODE[snap.state], snap.gamma_q, snap.gamma_d,
+                snap.headroom_s)  # fmt: skip
+        return lead, snap.stale_inputs, snap
 
-    def _frame(self, message: str, time_s: float, values: dict[str, float]) -> can.Message:
+    def _health_frames(
+        self,
+        frames: list[can.Message],
+        message: str,
+        time_s: float,
+        lead: _Result,
+        stale: Sequence[str],
+        snap: HealthSnapshot | None,
+    ) -> None:
+        """Append the frames of ``message`` due now: one, or one per cylinder for Health_Cylinder."""
+        if message == "Health_Cylinder":
+            snap = self.snapshot() if snap is None else snap
+            frames.extend(self._frame(message, time_s, _cylinder_values(c)) for c in snap.cylinders)
+        else:
+            frames.append(self._frame(message, time_s, self._health_values(message, lead, stale, snap)))
+
+    def _frame(self, message: str, time_s: float, values: tuple[float, ...]) -> can.Message:
         counter = self._frame_counters[message]
         self._frame_counters[message] = (counter + 1) % 16
-        data = self.encoder.encode(message, values, counter)
+        data = self._packers[message](values, counter)
         frame_id, extended = self._frame_ids[message]
         self.counters["health_frames"] += 1
         return can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=extended, data=data)
 
-    def _health_values(self, message: str, snap: HealthSnapshot, code: int) -> dict[str, float]:
-        def finite(value: float, fallback: float) -> float:
-            return value if math.isfinite(value) else fallback
-
+    def _health_values(
+        self, message: str, lead: _Result, stale: Sequence[str], snap: HealthSnapshot | None
+    ) -> tuple[float, ...]:
+        """The values of ``message``'s signals in HEALTH_SIGNALS order (nan sent as each signal's idle value),
+        from :meth:`_frame_view`'s (lead, stale, snap)."""
+        _, est, deviation, code, gamma_q, gamma_d, headroom = lead
+        finite = math.isfinite
         if message == "Health_Status":
-            return {
-                "ChtEstimate": finite(snap.cht_est_c, -40.0),
-                "ModelDeviation": finite(snap.deviation, 0.0),
-                "DegradationState": code,
-            }
+            return (est if finite(est) else -40.0, deviation if finite(deviation) else 0.0, code)
         if message == "Health_Isolation":
-            limit = self.params.cht_limit_c
-            margin = limit - snap.cht_est_c
-            if snap.cylinders:  # the smallest margin of any cylinder (each to its own model's limit)
+            margin = self.params.cht_limit_c - est
+            if snap is not None and snap.cylinders:  # the smallest margin of any cylinder (each to its own limit)
                 margins = [self.cylinder_params[c.number - 1].cht_limit_c - c.cht_est_c for c in snap.cylinders]
-                margin = min((m for m in margins if math.isfinite(m)), default=math.nan)
-            return {
-                "GammaQEstimate": finite(snap.gamma_q, 1.0),
-                "GammaDEstimate": finite(snap.gamma_d, 1.0),
-                "ThermalHeadroom": finite(snap.headroom_s, 0.0 if math.isnan(snap.cht_est_c) else 6000.0),
-                "ChtLimitMargin": finite(margin, 0.0),
-            }
+                margin = min((m for m in margins if finite(m)), default=math.nan)
+            return (
+                gamma_q if finite(gamma_q) else 1.0,
+                gamma_d if finite(gamma_d) else 1.0,
+                headroom if finite(headroom) else 0.0 if math.isnan(est) else 6000.0,
+                margin if finite(margin) else 0.0,
+            )
         if message == "Health_Spread":
+            snap = self.snapshot() if snap is None else snap
             faulty = 0
             for cyl in snap.cylinders:
                 if cyl.sensor_fault:
                     faulty |= 1 << (cyl.number - 1)
-            return {
-                "ChtSpread": finite(snap.cht_spread_c, 0.0),
-                "HottestCylinder": snap.hottest_cylinder,
-                "SpreadAlarm": int(snap.spread_alarm),
-                "CylinderCount": len(snap.cylinders) or 1,
-                "FaultyCylinders": faulty,
-            }
+            spread = snap.cht_spread_c
+            return (spread if finite(spread) else 0.0, snap.hottest_cylinder, int(snap.spread_alarm),
+                    len(snap.cylinders) or 1, faulty)  # fmt: skip
         bits = 0
-        for bit, name in enumerate(INPUT_NAMES):
-            if name in snap.stale_inputs:
-                bits |= 1 << bit
-        return {
-            "StaleInputs": bits,
-            "MalformedFrames": min(self.counters["malformed"], 65535),
-            "BusErrors": min(self.counters["bus_errors"], 255),
-        }
+        stale_bit = self._stale_bit
+        for name in stale:
+            bits |= stale_bit.get(name, 0)
+        return (bits, min(self.counters["malformed"], 65535), min(self.counters["bus_errors"], 255))
 
     def _empty_snapshot(self, time_s: float) -> HealthSnapshot:
         stale = tuple(dict.fromkeys(CHT_INPUT if n in self._cht_names else n for n, _ in self._input_slots))
