@@ -211,8 +211,25 @@ def _stats(name: str, sent_at: list[float], got: list[tuple[float, int]], since:
     }
     return {
         "case": name, "p50_us": p50, "p99_us": p99, "max_us": worst, "samples": len(latencies_us),
-        "per_frame": per_frame,
+        "per_frame": per_frame, "latencies_us": latencies_us,
     }  # fmt: skip
+
+
+def p99_ratio_interval(
+    daemon_us: list[float], echo_us: list[float], level: float = 0.9, draws: int = 2000
+) -> tuple[float, float]:
+    """Bootstrap interval (``level``, percentile method) of the ratio p99(daemon) / p99(echo): each side's
+    latencies (us) resampled with replacement, independently. The p99 of a 30 s run rests on its 3-4
+    slowest health frames, so one run's ratio alone says little; the interval says how much."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    daemon, echo = np.asarray(daemon_us), np.asarray(echo_us)
+    ratios = np.percentile(rng.choice(daemon, (draws, daemon.size)), 99, axis=1) / np.percentile(
+        rng.choice(echo, (draws, echo.size)), 99, axis=1
+    )
+    low, high = np.percentile(ratios, [50 * (1 - level), 50 * (1 + level)])
+    return float(low), float(high)
 
 
 class GcPauses:
@@ -1128,6 +1145,12 @@ def report(title: str, baseline: dict[str, Any], daemon: dict[str, Any], across:
             )
     p99_ratio = daemon["p99_us"] / baseline["p99_us"]
     print(f"\nratio daemon / baseline: p50 {daemon['p50_us'] / baseline['p50_us']:.2f}x, p99 {p99_ratio:.2f}x")
+    if daemon.get("latencies_us") and baseline.get("latencies_us"):
+        low, high = p99_ratio_interval(daemon["latencies_us"], baseline["latencies_us"])
+        print(
+            f"p99 ratio, 90 % bootstrap interval {low:.2f}-{high:.2f}x ({daemon['samples']} daemon and"
+            f" {baseline['samples']} echo samples: a longer --seconds narrows it)"
+        )
     for row in (baseline, daemon):
         if "socket_drops" in row:
             print(
