@@ -9,6 +9,9 @@ at 50 Hz as a 7-frame transfer, the three air-data messages at 10 Hz) from a sen
 frames/s of other ids from a traffic process, all on udp_multicast in a network namespace made for the run
 (benchmarks/netns.py: multicast stays inside it). The measured process is, level by level:
 
+* ``socket``: python-can's own socket wait and read only (``bus._multicast.recv``: ``select`` and
+  ``recvmsg`` with its timestamp), on the same bus with the same kernel filter: the system calls, the
+  kernel's delivery and the thread's wake-up per frame, without python-can's unpacking;
 * ``bare``: python-can's receive path only: the daemon's bus config (``can.Bus(**config.bus)``), its receive
   filters (``Pipeline.receive_filters()``, as ``ecu-monitor run`` installs them) set in python-can and in the
   kernel (:func:`ecu_monitor.bus.kernel_filter.attach_kernel_filter`), ``recv()`` in a loop on one thread,
@@ -40,6 +43,7 @@ Needs root (ip netns).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -58,7 +62,7 @@ import can
 import yaml
 from netns import kill_all, multicast_namespace
 
-LEVELS = ("bare", "sends", "feed", "daemon")
+LEVELS = ("socket", "bare", "sends", "feed", "daemon")
 CASES = bld.CASES  # (dbc, dronecan, dbc')
 WARM_S = 2.0  # the sender runs this long before the CPU window opens
 
@@ -91,6 +95,14 @@ _RECEIVER = textwrap.dedent(
                 n += 1
         counts["in"] = n
 
+    def socket_only():
+        recv, stopped = bus._multicast.recv, stop.is_set
+        n = 0
+        while not stopped():
+            if recv(0.2) is not None:
+                n += 1
+        counts["in"] = n
+
     def with_sends():
         recv, stopped, clock, send = bus.recv, stop.is_set, time.monotonic, bus.send
         n = sent = j = 0
@@ -114,7 +126,8 @@ _RECEIVER = textwrap.dedent(
                 next_s += 0.02
         counts["in"], counts["out"] = n, sent
 
-    thread = threading.Thread(target=bare if level == "bare" else with_sends, daemon=True)
+    loops = {"socket": socket_only, "bare": bare}
+    thread = threading.Thread(target=loops.get(level, with_sends), daemon=True)
     signal.signal(signal.SIGTERM, lambda *args: stop.set())
     gc.collect()
     gc.freeze()
@@ -225,10 +238,8 @@ def _cpu_ns(pid: int) -> dict[int, int]:
     """Run time, ns, of each thread of process ``pid`` (first field of /proc/<pid>/task/<tid>/schedstat)."""
     out = {}
     for tid in os.listdir(f"/proc/{pid}/task"):
-        try:
+        with contextlib.suppress(OSError, ValueError, IndexError):  # a thread that ended meanwhile
             out[int(tid)] = int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0])
-        except (OSError, ValueError, IndexError):
-            pass
     return out
 
 
@@ -336,7 +347,8 @@ def report(rounds: list[dict[str, dict[str, dict[str, Any]]]]) -> list[str]:
             f" dronecan-dbc {' '.join(f'{x:+.2f}' for x in diff)} points, median {med[level]['diff']:+.2f}"
         )
     parts = (
-        ("python-can receive floor (bare)", "bare", None),
+        ("python-can's select + recvmsg: system calls, kernel, wake-ups (socket)", "socket", None),
+        ("+ python-can's unpacking: msgpack, checked Message, filter match (bare - socket)", "bare", "socket"),
         ("+ the daemon's sends (sends - bare)", "sends", "bare"),
         ("+ per-frame decoding, Pipeline.feed (feed - sends)", "feed", "sends"),
         ("+ dispatch, steps, node encoding, other threads (daemon - feed)", "daemon", "feed"),
@@ -349,6 +361,10 @@ def report(rounds: list[dict[str, dict[str, dict[str, Any]]]]) -> list[str]:
             value = med[level][key] - (med[below][key] if below else 0.0)
             cells.append(f"{value:+.2f}" if key == "diff" or below else f"{value:.2f}")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    lines.append(
+        f"| python-can receive floor (bare) | {med['bare']['dbc']:.2f} | {med['bare']['dronecan']:.2f} |"
+        f" {med['bare']['diff']:+.2f} |"
+    )
     lines.append(
         f"| the daemon process | {med['daemon']['dbc']:.2f} | {med['daemon']['dronecan']:.2f} |"
         f" {med['daemon']['diff']:+.2f} |"
