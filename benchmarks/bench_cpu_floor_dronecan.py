@@ -26,6 +26,14 @@ frames/s of other ids from a traffic process, all on udp_multicast in a network 
   tick off as in bench_latency) without any timing wrapper: the receive thread's lock, ``feed``,
   ``advance_to`` with the steps and the node's publications, the rehearsal, the supervisor thread.
 
+``--timed``: instead of the levels, the daemon alone with the CPU of each part of its receive thread timed inside
+it (``time.thread_time`` around ``Pipeline.feed``, ``Pipeline.advance_to`` (the steps), inside the steps the
+DroneCAN node's encoding (``DroneCanNode.frames`` and ``step_frames``), ``Daemon._send_locked`` and
+``Pipeline.rehearse``; the rest of the receive thread is python-can's ``recv`` and the daemon's dispatch; the
+other threads are the supervisor's), over the same window (the driver signals its start and end): the paced
+cost of each part, which the warm offline figures understate. The timing adds two ``thread_time`` calls
+per wrapped call (well under 1 us each).
+
 Each level runs per round as (dbc, dronecan, dbc') (A B A: the two DBC runs are the A/A pair whose ratio is
 the run-to-run noise). The CPU of the measured process is the sum over its threads of the scheduler's run
 time (/proc/<pid>/task/*/schedstat, ns: user and system together, the kernel's receive and send work done
@@ -165,6 +173,36 @@ _DAEMON = textwrap.dedent(
 )
 
 
+#: the level timed (--timed): the daemon with its receive thread's parts timed (module docstring)
+_TIMED = _DAEMON.replace(
+    "signal.signal(signal.SIGTERM",
+    textwrap.dedent(
+        """
+        spent = {"feed": 0.0, "advance_to": 0.0, "node": 0.0, "send": 0.0, "rehearse": 0.0}
+        marks = []
+        def wrap(obj, name, key, clock=time.thread_time):
+            original = getattr(obj, name)
+            def timed(*args):
+                started = clock()
+                try:
+                    return original(*args)
+                finally:
+                    spent[key] += clock() - started
+            setattr(obj, name, timed)
+        wrap(pipeline, "feed", "feed")
+        wrap(pipeline, "advance_to", "advance_to")
+        wrap(pipeline, "rehearse", "rehearse")
+        wrap(daemon, "_send_locked", "send")
+        if getattr(pipeline, "_node", None) is not None:
+            wrap(pipeline._node, "frames", "node")
+            wrap(pipeline._node, "step_frames", "node")
+        signal.signal(signal.SIGUSR1, lambda *args: marks.append(dict(spent)))
+        """
+    ).strip()
+    + "\nsignal.signal(signal.SIGTERM",
+).replace('"out": daemon.counters["health_sent"]}', '"out": daemon.counters["health_sent"], "marks": marks}')
+
+
 def _sender(port: int, seconds: float, protocol: str) -> None:
     """Inside the namespace: the ECU frames of ``protocol`` for ``seconds`` (bench_latency_dronecan's senders)."""
     bus = can.Bus(interface="udp_multicast", channel=bench_latency.GROUP, port=port)
@@ -243,8 +281,9 @@ def _cpu_ns(pid: int) -> dict[int, int]:
     return out
 
 
-def run(seconds: float, repeat: int) -> list[dict[str, dict[str, dict[str, Any]]]]:
-    """``repeat`` rounds; each: every level, each as (dbc, dronecan, dbc'). Returns rounds[level][case]."""
+def run(seconds: float, repeat: int, levels: tuple[str, ...] = LEVELS) -> list[dict[str, dict[str, dict[str, Any]]]]:
+    """``repeat`` rounds; each: every level of ``levels`` (or ``timed``), each as (dbc, dronecan, dbc').
+    Returns rounds[level][case]."""
     port = 46000 + os.getpid() % 1000
     procs: list[subprocess.Popen[str]] = []
     rounds: list[dict[str, dict[str, dict[str, Any]]]] = []
@@ -280,11 +319,12 @@ def run(seconds: float, repeat: int) -> list[dict[str, dict[str, dict[str, Any]]
             traffic = start([sys.executable, "-c", bench_latency._TRAFFIC, bench_latency.GROUP, str(port), "10"])
             for r in range(repeat):
                 results: dict[str, dict[str, dict[str, Any]]] = {}
-                for level in LEVELS:
+                for level in levels:
                     results[level] = {}
                     for case, protocol in CASES:
-                        if level == "daemon":
-                            argv = [sys.executable, "-c", _DAEMON, str(configs[protocol])]
+                        if level in ("daemon", "timed"):
+                            script = _TIMED if level == "timed" else _DAEMON
+                            argv = [sys.executable, "-c", script, str(configs[protocol])]
                         else:
                             argv = [sys.executable, "-c", _RECEIVER, str(specs[protocol]), level]
                         peer = start(argv)
@@ -294,8 +334,12 @@ def run(seconds: float, repeat: int) -> list[dict[str, dict[str, dict[str, Any]]
                         sender = start([sys.executable, __file__, "--send", str(port), str(seconds + WARM_S + 0.5),
                                         protocol])  # fmt: skip
                         time.sleep(WARM_S)
+                        if level == "timed":
+                            os.kill(peer.pid, signal.SIGUSR1)
                         before, wall = _cpu_ns(peer.pid), time.monotonic()
                         time.sleep(seconds)
+                        if level == "timed":
+                            os.kill(peer.pid, signal.SIGUSR1)
                         after, wall = _cpu_ns(peer.pid), time.monotonic() - wall
                         sent = json.loads(sender.communicate(timeout=60)[0].strip().splitlines()[-1])
                         peer.send_signal(signal.SIGTERM)
@@ -308,11 +352,22 @@ def run(seconds: float, repeat: int) -> list[dict[str, dict[str, dict[str, Any]]
                             "out": counts["out"],
                             "ecu": sent["ecu"],
                         }
+                        if level == "timed":
+                            start_mark, end_mark = counts["marks"][:2]
+                            row["parts_pct"] = {
+                                key: 100.0 * (end_mark[key] - start_mark[key]) / wall for key in start_mark
+                            }
                         results[level][case] = row
                         print(
                             f"round {r + 1} {level:6s} {case:8s} CPU {row['cpu_pct']:5.2f} % (busiest thread "
                             f"{row['busiest_pct']:5.2f} %), ECU frames {row['ecu']} sent / {row['in']} received,"
-                            f" {row['out']} sent",
+                            f" {row['out']} sent"
+                            + (
+                                "; parts, % of a core: "
+                                + ", ".join(f"{k} {v:.3f}" for k, v in row["parts_pct"].items())
+                                if "parts_pct" in row
+                                else ""
+                            ),
                             flush=True,
                         )
                 rounds.append(results)
@@ -374,6 +429,42 @@ def report(rounds: list[dict[str, dict[str, dict[str, Any]]]]) -> list[str]:
     return lines
 
 
+def report_timed(rounds: list[dict[str, dict[str, dict[str, Any]]]]) -> list[str]:
+    """--timed: per part of the daemon, % of a core, medians over the rounds (DBC: the geometric mean of its
+    round's two runs), and DroneCAN - DBC."""
+
+    def parts(row: dict[str, Any]) -> dict[str, float]:
+        p = row["parts_pct"]
+        steps = p["advance_to"] - p["node"]
+        timed = p["feed"] + p["advance_to"] + p["send"] + p["rehearse"]
+        return {
+            "python-can recv + the daemon's dispatch (receive thread, untimed)": row["busiest_pct"] - timed,
+            "Pipeline.feed (decoding)": p["feed"],
+            "steps (advance_to without the node's encoding)": steps,
+            "the node's encoding (DroneCanNode.frames, step_frames)": p["node"],
+            "sends (Daemon._send_locked)": p["send"],
+            "rehearsal": p["rehearse"],
+            "other threads (supervisor)": row["cpu_pct"] - row["busiest_pct"],
+            "the daemon process": row["cpu_pct"],
+        }
+
+    per = [r["timed"] for r in rounds]
+    table = {case: [parts(p[case]) for p in per] for case, _ in CASES}
+    lines = ["| part, % of a core (medians over the rounds) | DBC | DroneCAN | DroneCAN - DBC | DBC A/A (dbc' - dbc) |"]
+    lines.append("|---|---|---|---|---|")
+    for key in table["dbc"][0]:
+        dbc = [(a[key] + b[key]) / 2 for a, b in zip(table["dbc"], table[bld.DBC2], strict=True)]
+        dronecan = [x[key] for x in table["dronecan"]]
+        diff = [d - c for d, c in zip(dronecan, dbc, strict=True)]
+        aa = [b[key] - a[key] for a, b in zip(table["dbc"], table[bld.DBC2], strict=True)]
+        lines.append(
+            f"| {key} | {statistics.median(dbc):.3f} | {statistics.median(dronecan):.3f} |"
+            f" {statistics.median(diff):+.3f} ({' '.join(f'{x:+.3f}' for x in diff)}) |"
+            f" {' '.join(f'{x:+.3f}' for x in aa)} |"
+        )
+    return lines
+
+
 def main() -> int:
     if len(sys.argv) == 5 and sys.argv[1] == "--send":
         _sender(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4])
@@ -381,7 +472,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n", 1)[0])
     parser.add_argument("--seconds", type=float, default=15.0, help="CPU window of each case")
     parser.add_argument("--repeat", type=int, default=3, help="rounds")
+    parser.add_argument("--timed", action="store_true", help="the daemon alone, its receive thread's parts timed")
     args = parser.parse_args()
+    if args.timed:
+        for line in report_timed(run(args.seconds, args.repeat, ("timed",))):
+            print(line)
+        return 0
     for line in report(run(args.seconds, args.repeat)):
         print(line)
     return 0
