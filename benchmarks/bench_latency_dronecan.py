@@ -35,6 +35,10 @@ sender and the health receiver a third (one clock). No interpreter lock is share
 the receiver there, so the frames the daemon handles after the health frame no longer delay its
 reception. The CPU figure is the whole daemon process's. Needs root.
 
+The floor under the --netns CPU figure, in the same namespace and traffic (python-can's receive path alone,
+then the daemon's sends, ``Pipeline.feed``, the whole daemon; and the daemon's parts timed inside it):
+benchmarks/bench_cpu_floor_dronecan.py.
+
 ``--breakdown``: where the daemon's CPU per frame goes, per layer, on udp_multicast in a network namespace
 (root): python-can's ``recv`` (the socket's ``select`` and ``recvmsg``, msgpack and the checked
 ``can.Message`` of ``unpack_message``, its Python-side filter match) on datagrams already queued, the
