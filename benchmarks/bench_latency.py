@@ -1220,6 +1220,12 @@ def main() -> None:
         help="ms: the daemon's DaemonSettings.rehearse_lead_s (0: no rehearsal; default: the daemon's default)",
     )
     parser.add_argument(
+        "--spin",
+        type=float,
+        default=None,
+        help="ms: the daemon's DaemonSettings.spin_s (poll without sleeping after a rehearsal; default: the daemon's)",
+    )
+    parser.add_argument(
         "--switch-interval",
         type=float,
         default=(getattr(DaemonSettings(), "switch_interval_s", None) or 0.0) * 1e3,
@@ -1228,6 +1234,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.rehearse_lead is not None:
         DAEMON_OPTIONS["rehearse_lead_s"] = args.rehearse_lead * 1e-3 if args.rehearse_lead > 0 else None
+    if args.spin is not None:
+        DAEMON_OPTIONS["spin_s"] = args.spin * 1e-3
     if args.dispatch_study:
         dispatch_study()
         return

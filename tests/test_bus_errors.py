@@ -147,6 +147,18 @@ def test_rehearse_lead_ms_is_read_and_checked(tmp_path: Path) -> None:
     assert off.rehearse_lead_s is None and off.watchdog_period_s == 2.0
 
 
+def test_spin_ms_is_read_and_checked(tmp_path: Path) -> None:
+    assert load_config(_shipped_config(tmp_path, "example.yaml")).spin_ms == 0.5
+    assert load_config(_shipped_config(tmp_path, "example.yaml", spin_ms=0)).spin_ms == 0.0
+    for bad in (-0.1, 25, "soon"):
+        with pytest.raises(ConfigError, match="spin_ms"):
+            load_config(_shipped_config(tmp_path, "example.yaml", spin_ms=bad))
+    # what `ecu-monitor run` gives the daemon: the window in s, 0 for none
+    assert daemon_settings(load_config(_shipped_config(tmp_path, "example.yaml")), None).spin_s == pytest.approx(5e-4)
+    off = daemon_settings(load_config(_shipped_config(tmp_path, "example.yaml", spin_ms=0)), None)
+    assert off.spin_s == 0.0
+
+
 def test_no_frames_warning_s_is_read_and_checked(tmp_path: Path) -> None:
     assert load_config(_shipped_config(tmp_path, "example.yaml")).no_frames_warning_s == 10.0
     assert load_config(_shipped_config(tmp_path, "example.yaml", no_frames_warning_s=3)).no_frames_warning_s == 3.0

@@ -203,7 +203,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
     """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; rehearsal lead
-    (``rehearse_lead_ms``, 0: never); and systemd's watchdog period, s (None: no watchdog)."""
+    (``rehearse_lead_ms``, 0: never) and the polling after it (``spin_ms``, 0: none); and systemd's watchdog
+    period, s (None: no watchdog)."""
     from ecu_monitor.service.daemon import DaemonSettings
 
     return DaemonSettings(
@@ -212,6 +213,7 @@ def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSe
         watchdog_period_s=watchdog_s,
         no_frames_warning_s=config.no_frames_warning_s,
         rehearse_lead_s=config.rehearse_lead_ms * 1e-3 if config.rehearse_lead_ms > 0 else None,
+        spin_s=config.spin_ms * 1e-3,
     )
 
 

@@ -103,6 +103,7 @@ _TOP_KEYS = (
     "stale_predict_limit_s",
     "no_frames_warning_s",
     "rehearse_lead_ms",
+    "spin_ms",
     "state_dir",
     "sensor_fault",
 )
@@ -203,6 +204,9 @@ class ServiceConfig:
     #: the daemon rehearses a Health_Status step this long before its frame is due, ms; 0: never
     #: (docs/service.md, "Rehearsal")
     rehearse_lead_ms: float = 0.6
+    #: after a rehearsal the daemon polls the bus without sleeping until the frame comes, at most this long past
+    #: the time it is expected, ms; 0: it sleeps in recv (docs/service.md, "Rehearsal")
+    spin_ms: float = 0.5
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
     #: ``ecu-monitor calibrate`` writes it, ecu_monitor.service.calibration.model_fingerprint); None if not given.
     detector_calibrated_for: str | None = None
@@ -455,6 +459,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         sensor_fault=sensor,
         no_frames_warning_s=top.number("no_frames_warning_s", 10.0, low=0.0, strict_low=True),
         rehearse_lead_ms=top.number("rehearse_lead_ms", 0.6, low=0.0, high=10.0),
+        spin_ms=top.number("spin_ms", 0.5, low=0.0, high=10.0),
         detector_calibrated_for=calibrated_for,
         protocol=protocol,
         dronecan=dronecan,
