@@ -95,16 +95,8 @@ _RECEIVER = textwrap.dedent(
     counts = {"in": 0, "out": 0}
     stop = threading.Event()
 
-    def bare():
-        recv, stopped = bus.recv, stop.is_set
-        n = 0
-        while not stopped():
-            if recv(0.2) is not None:
-                n += 1
-        counts["in"] = n
-
-    def socket_only():
-        recv, stopped = bus._multicast.recv, stop.is_set
+    def receive_only(recv):  # bare: python-can's bus.recv; socket: its select + recvmsg, no unpacking
+        stopped = stop.is_set
         n = 0
         while not stopped():
             if recv(0.2) is not None:
@@ -134,8 +126,11 @@ _RECEIVER = textwrap.dedent(
                 next_s += 0.02
         counts["in"], counts["out"] = n, sent
 
-    loops = {"socket": socket_only, "bare": bare}
-    thread = threading.Thread(target=loops.get(level, with_sends), daemon=True)
+    if level in ("bare", "socket"):
+        recv = bus.recv if level == "bare" else bus._multicast.recv
+        thread = threading.Thread(target=receive_only, args=(recv,), daemon=True)
+    else:
+        thread = threading.Thread(target=with_sends, daemon=True)
     signal.signal(signal.SIGTERM, lambda *args: stop.set())
     gc.collect()
     gc.freeze()
