@@ -88,7 +88,7 @@ def real(args: argparse.Namespace) -> None:
         cross: list[list[FlightFeeds]] = [[] for _ in range(count)]
         own: list[list[FlightFeeds]] = [[] for _ in range(count)]
         for path in [*train, held]:  # one replay per flight: what each cylinder's two detectors are fed
-            result = replay_file(path, config, models)
+            result = replay_file(path, config, models, keep_feeds=True)
             t = result.columns["time_s"]
             for n, feed in enumerate(_own_feeds(result, count)):
                 own[n].append(FlightFeeds(Path(path).name, feed, float(t[0]), float(t[-1]), math.nan, ()))
@@ -183,7 +183,7 @@ def virtual(args: argparse.Namespace) -> None:
         path = folder / f"nominal{tag}_{seed}.blf"
         if not path.exists():
             record(random_mission(seed, duration_s=3600.0), [path], paper_table_a1(), seed=seed, cylinders=truth)
-        result = replay_file(path, config, models)
+        result = replay_file(path, config, models, keep_feeds=True)
         t = result.columns["time_s"]
         maxima: dict[str, list[float]] = {"own": [], "cross": []}
         for n, feed in enumerate(_own_feeds(result, 4)):

@@ -122,9 +122,9 @@ def main() -> None:
 
     from ecu_monitor.flightlog import read_csv
     from ecu_monitor.model import paper_table_a1
+    from ecu_monitor.pipeline.supervision import STATES
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.replay import replay_file
-    from ecu_monitor.service.supervision import STATES
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.plant import Degradation
 
@@ -152,7 +152,7 @@ def main() -> None:
                 args.protocol)  # fmt: skip
         models = truth_models if args.models == "truth" else _identified(seed, args.hours, truth_models)
         started = time.perf_counter()
-        result = replay_file(path, config, models)
+        result = replay_file(path, config, models, keep_feeds=True)
         wall = time.perf_counter() - started
         log = read_csv(path.with_suffix(".csv"))
         c = result.columns

@@ -137,11 +137,12 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None, bool]) -
     (onset, gain, log start, detector feed, open-loop reference). keep_reference (the last argument): the
     replays keep the open-loop reference (``ReplayResult.reference_feed``, for ``--level``; else empty)."""
     flight, model, config_path, overlays, keep = args
+    from ecu_monitor.service.pipeline import model_input_names
+
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.model import load_model
     from ecu_monitor.service.calibration import flight_feeds, overlay_replays
     from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.pipeline import model_input_names
     from ecu_monitor.service.replay import frames_from_flight, replay_frames
 
     config = load_config(config_path)
@@ -153,7 +154,7 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None, bool]) -
     nominal = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
     timing = {"all_frames_s": time.perf_counter() - began}
     began = time.perf_counter()
-    result = replay_frames(config, params, nominal, keep_reference=keep)
+    result = replay_frames(config, params, nominal, keep_feeds=True, keep_reference=keep)
     out = [(math.nan, 0.0, float(log.time_s[0]), result.detector_feed, result.reference_feed)]
     timing["replay_s"] = time.perf_counter() - began
     began = time.perf_counter()

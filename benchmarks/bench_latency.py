@@ -66,12 +66,12 @@ from typing import Any
 
 import can
 import yaml
+from ecu_monitor.service.pipeline import Pipeline
 from netns import kill_all, multicast_namespace
 
 from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.service.config import parse_config
 from ecu_monitor.service.daemon import Daemon, DaemonSettings
-from ecu_monitor.service.pipeline import Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 HEALTH_IDS = (0x300, 0x301, 0x302)

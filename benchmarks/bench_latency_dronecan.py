@@ -348,10 +348,10 @@ def breakdown_inner(port: int, steps: int = 1000) -> None:
 def _breakdown_one(protocol: str, port: int, steps: int) -> None:
     """One bus of :func:`breakdown_inner`: one line, CPU us per frame of each layer."""
     from can.interfaces.udp_multicast.utils import pack_message, unpack_message
+    from ecu_monitor.service.pipeline import Pipeline
 
     from ecu_monitor.bus.kernel_filter import attach_kernel_filter
     from ecu_monitor.service.daemon import Daemon, DaemonSettings
-    from ecu_monitor.service.pipeline import Pipeline
 
     batch = 100  # datagrams queued at a time (well inside the socket's receive buffer)
     config = _dronecan_config("unused") if protocol == "dronecan" else bench_latency._config("unused")

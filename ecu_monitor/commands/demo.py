@@ -37,8 +37,9 @@ if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
 
     from ecu_monitor.flightlog import FlightLog
+    from ecu_monitor.pipeline.outputs import HealthSnapshot
     from ecu_monitor.service.config import ServiceConfig
-    from ecu_monitor.service.pipeline import HealthSnapshot, Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor
 
 __all__ = ["DEFAULT_CONFIG", "ServiceListener", "add_subparser", "plot_report"]
 
@@ -81,7 +82,7 @@ class ServiceListener:
     A python-can message recipient: can.Notifier calls it with each frame, and ``on_error`` on a bus error.
     """
 
-    def __init__(self, pipeline: Pipeline, bus: can.BusABC) -> None:
+    def __init__(self, pipeline: LiveMonitor, bus: can.BusABC) -> None:
         import can
 
         self.send_error = can.CanError
@@ -115,7 +116,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from ecu_monitor.flightlog import write_csv
     from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor
     from ecu_monitor.service.replay import write_health_csv
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.missions import load_mission
@@ -135,7 +136,7 @@ def _run(args: argparse.Namespace) -> int:
     params = config.load_params()
     heads = cylinder_models(params, args.cylinders, seed=args.seed) if args.cylinders > 1 else ()
     injection = Degradation("gamma_q", args.gamma_q, args.inject_at, cylinder=1 if heads else None)
-    pipeline = Pipeline(config, heads or params)
+    pipeline = LiveMonitor(config, heads or params)
     channel = f"ecu-monitor-demo-{os.getpid()}"
     ecu_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     service_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
@@ -269,7 +270,7 @@ def plot_report(
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.service.pipeline import STATES
+    from ecu_monitor.pipeline.supervision import STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -79,9 +79,9 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
     from ecu_monitor.estimation import ESTIMATORS
     from ecu_monitor.model import load_model
+    from ecu_monitor.pipeline.engine import model_input_names
+    from ecu_monitor.pipeline.table import check_table_path
     from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.health_table import check_table_path
-    from ecu_monitor.service.pipeline import model_input_names
     from ecu_monitor.service.replay import frames_from_flight, replay_frames, replay_live
 
     started = time.perf_counter()
@@ -164,7 +164,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.service.pipeline import STATES
+    from ecu_monitor.pipeline.supervision import STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -282,7 +282,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
     """One line per cylinder of an engine monitored per cylinder: its states, first DEGRADED, the spread."""
     import numpy as np
 
-    from ecu_monitor.service.pipeline import STATES
+    from ecu_monitor.pipeline.supervision import STATES
 
     count = result.cylinder_count
     if count == 1:
@@ -310,7 +310,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
     import numpy as np
 
-    from ecu_monitor.service.pipeline import STATES
+    from ecu_monitor.pipeline.supervision import STATES
 
     c = result.counters
     time_s = result.columns["time_s"]

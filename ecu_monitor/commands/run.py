@@ -152,7 +152,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.service.flight_recorder import FlightRecorder
     from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.service.persistence import StateStore
-    from ecu_monitor.service.pipeline import Pipeline  # the estimator stack: imported only when running
+    from ecu_monitor.service.publishers import LiveMonitor  # the estimator stack: imported only when running
 
     config = load_config(args.config)
     models = config.load_cylinder_params()  # one per cylinder (one for a single CHT channel)
@@ -160,7 +160,7 @@ def _run(args: argparse.Namespace) -> int:
     if not args.min_flight_s >= 0.0:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
     _log_to_journal()
-    pipeline = Pipeline(config, models)
+    pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
         store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)
@@ -202,9 +202,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
-    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; rehearsal lead
-    (``rehearse_lead_ms``, 0: never) and the polling after it (``spin_ms``, 0: none); and systemd's watchdog
-    period, s (None: no watchdog)."""
+    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; and systemd's
+    watchdog period, s (None: no watchdog)."""
     from ecu_monitor.service.daemon import DaemonSettings
 
     return DaemonSettings(
@@ -212,8 +211,6 @@ def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSe
         backoff_max_s=config.reopen_backoff.max,
         watchdog_period_s=watchdog_s,
         no_frames_warning_s=config.no_frames_warning_s,
-        rehearse_lead_s=config.rehearse_lead_ms * 1e-3 if config.rehearse_lead_ms > 0 else None,
-        spin_s=config.spin_ms * 1e-3,
     )
 
 

@@ -360,7 +360,7 @@ def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> 
     return s
 
 
-def _model_vector(coeffs: Coefficients) -> NDArray[np.float64]:
+def model_vector(coeffs: Coefficients) -> NDArray[np.float64]:
     """(C_w, tau_w, 1/(alpha R_e), radiation offset) of a single parameter set, as the core reads them."""
     return np.array(
         [float(coeffs.c_w), float(coeffs.tau_w), float(coeffs.radiative_conductance), float(coeffs.radiation_offset_c)]
@@ -387,7 +387,7 @@ class IsolationFilter:
         self.settings = settings or IsolationSettings()
         self._coeffs = coefficients(params)
         self._packed_coeffs = pack_coefficients(self._coeffs)
-        self._model = _model_vector(self._coeffs)
+        self._model = model_vector(self._coeffs)
         self._kernels: SimpleNamespace | None = None  # compiled on first use
         self._cfg = self.settings.vector()
         self._state: NDArray[np.float64] | None = None
@@ -540,6 +540,6 @@ def run_isolation(
     hg = np.ascontiguousarray(drive["heat_gain"] * drive["altitude_gain"])
     compiled_kernels().run(
         drive["q_sl0_w"], hg, drive["conductance_w_per_c"], drive["ambient_c"], z, substeps,
-        _model_vector(coefficients(params)), settings.vector(), state, columns.T,
+        model_vector(coefficients(params)), settings.vector(), state, columns.T,
     )  # fmt: skip
     return IsolationTrace(time_s.copy(), *columns)

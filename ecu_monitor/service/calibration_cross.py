@@ -44,7 +44,7 @@ def cross_feeds(
         raise ParameterError(f"{config.source}: cylinders.cross_detector is not set: nothing to calibrate")
     out: list[list[FlightFeeds]] = [[] for _ in config.cylinder_inputs]
     for path in paths:
-        result = replay_file(path, config, params)
+        result = replay_file(path, config, params, keep_feeds=True)
         time_s = result.columns["time_s"]
         if time_s.size == 0 or not result.cross_feeds:
             raise FlightLogError(f"{path}: the service's estimator never started on this log (no usable CHT, inputs)")

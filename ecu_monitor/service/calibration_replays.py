@@ -19,9 +19,9 @@ from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation.detection import DetectorSettings, cusum_path, overlay_degradation
 from ecu_monitor.flightlog import FlightLog, choose_cht
 from ecu_monitor.model import ThermalParams
+from ecu_monitor.pipeline.engine import model_input_names
+from ecu_monitor.pipeline.outputs import ReferenceFeed
 from ecu_monitor.service.config import ServiceConfig
-from ecu_monitor.service.health_rows import ReferenceFeed
-from ecu_monitor.service.pipeline import model_input_names
 from ecu_monitor.service.replay import ReplayResult, frames_from_flight, replay_file, replay_frames
 
 __all__ = [
@@ -104,7 +104,9 @@ def statistic_paths(
 
 def flight_statistic(path: str | os.PathLike[str], config: ServiceConfig, params: ThermalParams) -> FlightStatistic:
     """Replay one flight (canonical CSV or python-can log) and collect its detector statistic."""
-    return nominal_feeds(path, replay_file(path, config, params), math.nan, ()).statistic_for(config.detector)
+    return nominal_feeds(path, replay_file(path, config, params, keep_feeds=True), math.nan, ()).statistic_for(
+        config.detector
+    )
 
 
 def nominal_feeds(
@@ -218,7 +220,7 @@ def overlay_replays(
         patched = frames_from_flight(part, config, ["cht_c"])
         merged = FrameArrays(*(np.concatenate([a, b]) for a, b in zip(others, patched, strict=True)))
         ordered = merged.take(np.argsort(merged.time_s, kind="stable"))
-        results.append(replay_frames(config, params, ordered, keep_reference=keep_reference))
+        results.append(replay_frames(config, params, ordered, keep_feeds=True, keep_reference=keep_reference))
     return results
 
 
@@ -246,7 +248,7 @@ def flight_feeds(
         if cylinder is not None:
             log = choose_cht(log, cylinder)
         frames = read_frames(path)
-    result = replay_frames(config, params, frames, keep_reference=keep_reference)
+    result = replay_frames(config, params, frames, keep_feeds=True, keep_reference=keep_reference)
     nominal_feeds(path, result, math.nan, ())  # a log the estimator never starts on: one line, before the overlays
     runs: list[OverlayRun] = []
     if overlays:

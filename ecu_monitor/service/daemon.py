@@ -1,6 +1,7 @@
 """The live service: a receive thread feeding the pipeline, health frames back onto the bus.
 
-Three threads share one :class:`~ecu_monitor.service.pipeline.Pipeline` under one lock:
+Three threads share one :class:`~ecu_monitor.service.publishers.LiveMonitor` (the pipeline and its
+publishers) under one lock:
 
 * the receive thread: it calls the bus's ``recv`` itself (no python-can Notifier: the Notifier's lock
   and listener dispatch cost ~1-3 us a frame, docs/performance.md "DroneCAN"), each frame is stamped with
@@ -32,25 +33,6 @@ the collector only ever scans what the service allocates while it runs (docs/ser
 Then automatic collection is switched off and the supervisor collects every period instead (the young
 generation every 0.1 s, generation 1 every second, a full collection every minute): a collection is
 work that can wait, so it never starts inside the callback of a frame on the bus thread.
-
-Rehearsal: a step paced one frame per 20 ms costs several times what it costs back to back, because
-between two frames the caches lose its code and data (docs/performance.md, "Why a paced step costs
-several times a back-to-back one"). The step that sends Health_Status comes every 100 ms, run by the
-first frame after its time, and the ECU sends once per step: after each frame the pipeline says whether
-the next one, expected one step later, may run that step (``Pipeline.rehearsal_frame_s``); if so, the
-receive thread wakes from ``recv`` ``rehearse_lead_s`` before it and the pipeline runs the step's work
-on copies (``Pipeline.rehearse``: no effect on its state or output), so the frame finds the step's code
-and data in the caches. A frame that arrives during the rehearsal (~0.2 ms) waits for it; at the 0.6 ms
-lead none did in docs/performance.md's runs ("Rehearsal"). A frame that comes before its rehearsal cancels
-it. From the rehearsal until that frame comes (at most ``spin_s`` past the time it is expected) the
-receive thread polls the bus (``recv(0)``) instead of sleeping in it: a thread asleep in ``select`` when
-its datagram comes took 50-100 us longer to run than one awake on this virtual machine, and the frame
-now finds the thread awake (across processes the health frames' p99 fell from 539-558 to ~410 us,
-docs/performance.md, "Polling after the rehearsal"); that is at most ~1 ms of polling ten times a
-second. Not on python-can's ``virtual`` interface, whose other ends (sender, receiver) are threads of this
-process: there the rehearsal's GIL time was measured to push their work into the frame's path (the
-one-process latency p99 worse with it in 5 of 6 pairs, docs/performance.md), where across processes it
-halves the frame's own step.
 
 GIL: a thread that wants the interpreter while another runs Python waits until that one blocks, or
 for the switch interval (5 ms by default) and then asks it to let go; with several threads passing the
@@ -98,7 +80,7 @@ _T = TypeVar("_T")
 
 
 class PipelineLike(Protocol):
-    """What the daemon uses of :class:`~ecu_monitor.service.pipeline.Pipeline` (the service contract)."""
+    """What the daemon uses of :class:`~ecu_monitor.service.publishers.LiveMonitor` (the service contract)."""
 
     counters: dict[str, int]
 
@@ -111,10 +93,6 @@ class PipelineLike(Protocol):
     def drain_rows(self) -> list[Any]: ...
 
     def warm_up(self) -> float: ...
-
-    def rehearsal_frame_s(self, frame_s: float) -> float: ...
-
-    def rehearse(self) -> None: ...
 
     @property
     def steps_done(self) -> int: ...
@@ -134,10 +112,6 @@ class DaemonSettings:
     collect_in_supervisor: bool = True  # with freeze_heap: gc.disable(), the supervisor collects instead
     no_frames_warning_s: float = 10.0  # warn once when the bus carries no engine frame this long
     switch_interval_s: float | None = None  # sys.setswitchinterval while running (module docstring, "GIL")
-    rehearse_lead_s: float | None = 0.0006  # rehearse the next Health_Status step this long before its frame is due
-    # (module docstring, "Rehearsal"); None: never
-    spin_s: float = 0.0005  # after a rehearsal, poll the bus without sleeping until its frame comes, at most this
-    # long past the time it is expected (module docstring, "Rehearsal"); 0: sleep in recv as always
 
 
 class SilenceWatch:
@@ -224,9 +198,6 @@ class Daemon:
         self._manual_gc = False  # automatic collection switched off by run()
         self._switch_interval_before: float | None = None  # the interpreter's, while run() has its own
         self._silence = SilenceWatch(self.settings.no_frames_warning_s, clock())
-        # the rehearsal of the next Health_Status step: when, and the time of the frame it is for
-        self._rehearse_at_s = math.inf
-        self._rehearse_due_s = -math.inf
         self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
         self.counters: dict[str, int] = {
@@ -242,7 +213,6 @@ class Daemon:
             "watchdog_pings": 0,
             "rows_recorded": 0,
             "silence_warnings": 0,
-            "rehearsals": 0,
         }
 
     # --- the one keep-alive handler ---------------------------------------------------------------
@@ -279,31 +249,14 @@ class Daemon:
     def _receive_frames(self, bus: can.BusABC, stop: threading.Event) -> bool:
         """Receive and handle frames until ``stop`` (returns True); a python-can or OS error of ``recv`` goes to
         :meth:`_on_receive_error` and the loop goes on (the supervisor reopens the bus and stops this thread)."""
-        recv, guarded, on_frame, stopped, clock = bus.recv, self._guarded, self._on_frame, stop.is_set, self._clock
-        # not on python-can's virtual interface: its other ends are threads of this process, and the rehearsal's
-        # ~0.2 ms with the GIL held was measured to delay them into the frame's path (module docstring)
-        rehearsing = self.settings.rehearse_lead_s is not None and not isinstance(bus, VirtualBus)
-        spin_s = self.settings.spin_s
-        spin_until = -math.inf  # after a rehearsal: poll without sleeping until then, or until a frame comes
+        recv, guarded, on_frame, stopped = bus.recv, self._guarded, self._on_frame, stop.is_set
         while not stopped():
-            timeout = _RECEIVE_TIMEOUT_S
-            if rehearsing:
-                wait = self._rehearse_at_s - clock()
-                if wait <= 0.0:
-                    guarded("rehearse", self._rehearse)
-                    if spin_s > 0.0:
-                        spin_until = self._rehearse_due_s + spin_s
-                    continue
-                timeout = min(timeout, wait)
-                if spin_until > -math.inf and clock() < spin_until:
-                    timeout = 0.0
             try:
-                msg = recv(timeout)
+                msg = recv(_RECEIVE_TIMEOUT_S)
             except (can.CanError, OSError) as exc:
                 self._on_receive_error(exc)
                 continue
             if msg is not None:
-                spin_until = -math.inf
                 guarded("frame", on_frame, msg)
         return True
 
@@ -315,31 +268,6 @@ class Daemon:
             self._silence.frame(now)
             self.pipeline.feed(msg)
             self._send_locked(self.pipeline.advance_to(now))
-            self._schedule_rehearsal(now)
-
-    def _schedule_rehearsal(self, now: float) -> None:
-        """After a frame received at ``now`` (the caller holds the lock): if the next frame may make the
-        Health_Status step fall due, rehearse ``rehearse_lead_s`` before it is expected; once per expected
-        frame (the frames of one burst expect the same next one)."""
-        lead = self.settings.rehearse_lead_s
-        if lead is None:
-            return
-        if now >= self._rehearse_at_s:  # this frame came before its rehearsal could run: none for it now
-            self._rehearse_at_s = math.inf
-        expected = self.pipeline.rehearsal_frame_s(now)
-        if expected - self._rehearse_due_s > 0.5 * (expected - now):  # False for nan
-            self._rehearse_due_s = expected
-            self._rehearse_at_s = expected - lead
-
-    def _rehearse(self) -> None:
-        """The receive thread, ``rehearse_lead_s`` before a frame that may make the next Health_Status step
-        fall due: the pipeline rehearses that step (module docstring, "Rehearsal"), unless the frame is
-        already late."""
-        self._rehearse_at_s = math.inf
-        if self._clock() < self._rehearse_due_s:
-            with self._lock:
-                self.pipeline.rehearse()
-                self.counters["rehearsals"] += 1
 
     def _tick(self) -> None:
         with self._lock:

@@ -1,7 +1,7 @@
 """The health rows the service produces: :class:`HealthSnapshot` (one per health-status period, with a
 :class:`CylinderSnapshot` per cylinder on an engine monitored per cylinder), the columns of health.csv
 and their layout (:func:`health_table_columns`; the bytes are written from whole columns by
-:mod:`ecu_monitor.service.health_table`: CSV, Parquet, Arrow), :class:`ReplayResult` (a replay's rows
+:mod:`ecu_monitor.pipeline.table`: CSV, Parquet, Arrow), :class:`ReplayResult` (a replay's rows
 as columns)."""
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.estimation.headroom import DEFAULT_CAP_S
-from ecu_monitor.service.health_table import TableColumn, write_health_table
-from ecu_monitor.service.supervision import STATES
+from ecu_monitor.pipeline.supervision import STATES
+from ecu_monitor.pipeline.table import TableColumn, write_health_table
 
 #: ThermalHeadroom meaning "not limited" (health.dbc; the headroom module's cap).
 HEADROOM_NOT_LIMITED_S = DEFAULT_CAP_S
@@ -59,7 +59,7 @@ class HealthSnapshot:
     ``cht_c``). sensor_fault: the CHT sensor is faulty.
 
     Per cylinder (empty for a single CHT channel): ``cylinders``, one CylinderSnapshot each; the fields
-    above are then the lead cylinder's (:mod:`ecu_monitor.service.cylinders`, sensor_fault: any
+    above are then the lead cylinder's (:mod:`ecu_monitor.pipeline.cylinders`, sensor_fault: any
     cylinder's probe); ``cht_spread_c`` hottest minus coldest trusted estimate, degC (nan: fewer than
     two); ``hottest_cylinder`` its number (0: none); ``spread_alarm``: the spread exceeds its limit.
     """
@@ -200,7 +200,7 @@ class ReplayResult:
 
     def write_csv(self, path: str | os.PathLike[str]) -> int:
         """Write the rows to ``path``: health.csv, or Parquet / Arrow by the suffix
-        (:func:`~ecu_monitor.service.health_table.write_health_table`); returns the row count."""
+        (:func:`~ecu_monitor.pipeline.table.write_health_table`); returns the row count."""
         return write_health_table(health_table_columns(self.columns, self.cylinder_count), path)
 
 

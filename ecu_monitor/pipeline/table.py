@@ -6,7 +6,7 @@ compiled pass (exactly, as ``%.9e`` would; the few values whose float scaling le
 doubt, and the extreme magnitudes, are rounded by Python's own formatter), and a compiled loop writes
 the rows' bytes (``%g``'s choice of fixed or exponent notation, trailing zeros stripped; text columns
 from their labels). A nan or an infinity is an empty cell, as in every health.csv (the first column
-spells them). Which columns, in which order: :mod:`ecu_monitor.service.health_rows`. Parquet and
+spells them). Which columns, in which order: :mod:`ecu_monitor.pipeline.outputs`. Parquet and
 Arrow IPC (``.parquet``, ``.arrow``, ``.feather``) need pyarrow, an optional extra
 (``pip install 'ecu-monitor[arrow]'``): never part of the daemon's install.
 """

@@ -26,8 +26,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.service.health_rows import CylinderSnapshot
-from ecu_monitor.service.supervision import STATES
+from ecu_monitor.pipeline.outputs import CylinderSnapshot
+from ecu_monitor.pipeline.supervision import STATES
 
 __all__ = ["SEVERITY", "EngineView", "engine_columns", "engine_view", "lead_index"]
 

@@ -1,0 +1,561 @@
+"""The pipeline of one engine: decoded inputs held, the one compiled step (step.py) on the fixed-step
+schedule, and the output table. Live and replay are the same object and the same compiled functions;
+only where frames and time come from differs (:meth:`Pipeline.feed` + :meth:`Pipeline.advance_to` frame
+by frame, or :meth:`Pipeline.run_frames` over a whole log's arrays).
+
+Clock. The only clock is the one passed to :meth:`Pipeline.advance_to` (frame timestamps in replay, a
+monotonic clock live), rounded to the microsecond. A frame fed after ``advance_to(t)`` is stamped ``t``
+and is seen by the steps after ``t`` (sample and hold). Steps fall at ``t0 + k dt`` where ``t0`` is the
+first ``advance_to``; a jump of the clock by more than ``MAX_CLOCK_GAP_S`` restarts the schedule.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, SignalSpec
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation.ekf import _RESET_CODES
+from ecu_monitor.estimation.isolation import ESTIMATOR_NAME as ISOLATION_ESTIMATOR
+from ecu_monitor.estimation.isolation import IsolationSettings, model_vector
+from ecu_monitor.estimation.registry import ESTIMATORS
+from ecu_monitor.model import ThermalParams, coefficients, pack_coefficients
+from ecu_monitor.model.effects import MixtureIndex
+from ecu_monitor.model.inputs import MIXTURE_COLUMNS, input_columns
+from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
+from ecu_monitor.pipeline.schedule import filter_period_steps
+from ecu_monitor.pipeline.step import (
+    CLOCK,
+    CYLINDER_OUTPUT,
+    CYLINDER_SETTINGS,
+    CYLINDER_STATE,
+    Engine,
+    Rows,
+    Traces,
+    compiled,
+)
+from ecu_monitor.pipeline.supervision import CODE_FAULT, CODE_UNAVAILABLE, STATES
+
+if TYPE_CHECKING:
+    import can
+    from can.typechecking import CanFilter
+
+    from ecu_monitor.bus.dronecan import DroneCanDecoder
+    from ecu_monitor.estimation.detection import DetectorSettings
+    from ecu_monitor.service.config import ServiceConfig
+
+__all__ = ["MODEL_INPUTS", "STATUS_INPUT", "Pipeline", "StepRow", "fed_mixture", "make_decoder", "model_input_names"]
+
+_log = logging.getLogger(__name__)
+
+#: Value name of the optional ECU status signal (sensor open) in the decoder.
+STATUS_INPUT = "cht_sensor_status"
+#: The model inputs besides the heat-map axes (InputSeries order after the axes).
+MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
+#: The CHT input of a single-channel engine (a cylinder's is reported under this name when stale).
+CHT_INPUT = "cht_c"
+#: Estimators the one step runs (the registry's built-in four).
+_STEP_ESTIMATORS = ("ekf", "cbekf", "cbekf-au", ISOLATION_ESTIMATOR)
+#: Rows the live pipeline's output table holds between two drains.
+_LIVE_ROWS = 8192
+
+
+@dataclass(frozen=True)
+class StepRow:
+    """One row of the output table: step ``k`` at ``time_s`` (s), the stale inputs, each cylinder's result
+    (a CYLINDER_OUTPUT record each, in ``cylinders``)."""
+
+    k: int
+    time_s: float
+    stale: tuple[str, ...]
+    stale_bits: int  # Health_Diag.StaleInputs: bit i = INPUT_NAMES[i]
+    cylinders: Any  # CYLINDER_OUTPUT[cylinders]
+
+
+def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | DroneCanDecoder:
+    """The decoder of the config's protocol: DBC frames (:class:`Decoder`) or DroneCAN messages
+    (:class:`~ecu_monitor.bus.dronecan.DroneCanDecoder`, senders filtered by ``dronecan.source_node_ids``)."""
+    if config.protocol == "dronecan":
+        from ecu_monitor.bus.dronecan import DroneCanDecoder
+
+        return DroneCanDecoder(specs, config.dronecan.source_node_ids)
+    return Decoder(config.dbc_paths, specs)
+
+
+def model_input_names(params: ThermalParams, mapped: Collection[str] = ()) -> tuple[str, ...]:
+    """Inputs the service feeds the model: the two heat-map axes, altitude, airspeed, OAT, then the
+    columns of its mixture index (egt_c, or fuel_flow_lph and rpm) when the model has the mixture_index
+    effect and ``mapped`` (the config's input names) holds them all; otherwise the index is not fed and
+    the effect's factor is 1."""
+    names = (*params.heat_axes, *MODEL_INPUTS)
+    mixture = fed_mixture(params, mapped)
+    if mixture is None:
+        return names
+    return tuple(dict.fromkeys((*names, *MIXTURE_COLUMNS[mixture.source])))
+
+
+def fed_mixture(params: ThermalParams, mapped: Collection[str]) -> MixtureIndex | None:
+    """The model's mixture_index effect if the service feeds its index (see :func:`model_input_names`)."""
+    mixture = params.effects.mixture_index
+    if mixture is None or not all(name in mapped for name in MIXTURE_COLUMNS[mixture.source]):
+        return None
+    return mixture
+
+
+def _detector_record(record: Any, settings: DetectorSettings | None) -> None:
+    if settings is None:
+        record["on"] = False
+        record["threshold"] = 1.0
+        record["block_s"] = 1.0
+        record["suspect_fraction"] = 0.5
+        return
+    record["on"] = True
+    for name in ("threshold", "reference", "warmup_s", "suspect_fraction", "block_s", "baseline_s", "scale_s",
+                 "scale_floor"):  # fmt: skip
+        record[name] = getattr(settings, name)
+    record["delay_blocks"] = settings.delay_blocks
+    record["freeze"] = settings.baseline_freeze
+
+
+class Pipeline:
+    """Frames -> held inputs -> the one step on the fixed-step schedule -> the output table
+    (docs/architecture.md). Not thread-safe: the daemon guards it with a lock. ``counters`` (frames, ok,
+    unknown_id, malformed and its reasons, ignored, bus_errors, steps, clock_restarts) may be incremented
+    by the owner for events it sees."""
+
+    def __init__(
+        self, config: ServiceConfig, params: ThermalParams | Sequence[ThermalParams], *, rows: str = "health"
+    ) -> None:
+        """``params``: the model of every cylinder, or one per cylinder (``config.load_cylinder_params()``).
+        ``rows``: when the output table has a row: ``"health"`` every step a health message falls due,
+        ``"status"`` every health-status period (replay's health.csv), ``"step"`` every step."""
+        self.config = config
+        cylinder_inputs = config.cylinder_inputs
+        models = (params,) * len(cylinder_inputs) if isinstance(params, ThermalParams) else tuple(params)
+        if len(models) != len(cylinder_inputs):
+            raise ConfigError(
+                f"{config.source}: {len(models)} models for {len(cylinder_inputs)} cylinders"
+                f" ({', '.join(cylinder_inputs)})"
+            )
+        self.params = models[0]
+        self.cylinder_params = models
+        mapped = set(config.input_names)
+        self.model_inputs = model_input_names(self.params, mapped)
+        for number, model in enumerate(models[1:], start=2):
+            if input_columns(model) != input_columns(self.params):
+                raise ConfigError(
+                    f"{config.source}: cylinders.models: cylinder {number}'s model reads"
+                    f" {', '.join(input_columns(model))}, cylinder 1's {', '.join(input_columns(self.params))} (the"
+                    " inputs are shared: every cylinder's model must read the same)"
+                )
+        if config.estimator_name not in _STEP_ESTIMATORS:
+            raise ConfigError(
+                f"{config.source}: estimator: {config.estimator_name!r} is not one the service runs"
+                f" ({', '.join(_STEP_ESTIMATORS)}; known: {', '.join(sorted(ESTIMATORS))})"
+            )
+        self._mixture = fed_mixture(self.params, mapped)
+        unfed = [name for name in input_columns(self.params) if name not in self.model_inputs]
+        if unfed:  # the model's own list (model/inputs.py) names more than the config maps
+            _log.warning(
+                "%s: the model's mixture_index effect reads %s, which the config's inputs do not map: the effect"
+                " is off here (factor 1, the model's rule for an index not logged)",
+                config.source,
+                ", ".join(unfed),
+            )
+        missing = [name for name in (*self.model_inputs, *cylinder_inputs) if name not in mapped]
+        unreadable = [name for name in missing if name not in INPUT_NAMES and name not in cylinder_inputs]
+        if unreadable:  # e.g. a heat map identified on manifold pressure: no config can map it
+            raise ConfigError(
+                f"{config.source}: the model reads {', '.join(unreadable)}, which is not an input the service can"
+                f" read (inputs: {', '.join(INPUT_NAMES)}): identify the model with --heat-axes among them"
+            )
+        if missing:
+            raise ConfigError(
+                f"{config.source}: inputs: missing {', '.join(missing)} (the model reads "
+                f"{', '.join(self.model_inputs)} and the CHT)"
+            )
+        specs = [spec.signal_spec() for spec in config.inputs]
+        sf = config.sensor_fault
+        if sf.status_message is not None and sf.status_signal is not None:
+            specs.append(SignalSpec(STATUS_INPUT, sf.status_message, sf.status_signal, "raw"))
+        self.decoder = make_decoder(config, specs)
+        self.counters: dict[str, int] = self.decoder.counters
+        for key in ("bus_errors", "steps", "clock_restarts"):
+            self.counters[key] = 0
+        self.names = self.decoder.names
+        self._slot = {name: i for i, name in enumerate(self.names)}
+        dt = config.estimator.dt_s
+        self.dt_s = dt
+        self.periods = {h.message: round(1.0 / (h.rate_hz * dt)) for h in config.health}
+        self.status_period = self.periods["Health_Status"]
+        row_period = {"status": self.status_period, "health": math.gcd(*self.periods.values()), "step": 1}[rows]
+        self._cht_names = frozenset(cylinder_inputs)
+        # the stale checks, in Health_Diag.StaleInputs order; a cylinder's CHT is reported as cht_c
+        checks: list[tuple[str, int]] = []
+        for n in INPUT_NAMES:
+            if n == CHT_INPUT:
+                checks += [(c, self._slot[c]) for c in cylinder_inputs]
+            elif n in mapped:
+                checks.append((n, self._slot[n]))
+        self._check_names = tuple(CHT_INPUT if n in self._cht_names else n for n, _ in checks)
+        self._check_bits = tuple(1 << INPUT_NAMES.index(n) for n in self._check_names)
+        self._engine = self._build_engine(config, models, checks, dt, row_period)
+        self._row_period = row_period
+        self._rows = _rows(_LIVE_ROWS, len(models))
+        self._no_traces = _traces(0, len(models))
+        self._functions: Any = None
+        self._pending: list[StepRow] = []  # the health-status rows since drain_rows()
+        self._latest: StepRow | None = None
+        self._snapshot: HealthSnapshot | None = None
+        self._slots_buffer = np.zeros(64, dtype=np.int64)
+        self._values_buffer = np.zeros(64)
+
+    # ------------------------------------------------------------------ building the records
+
+    def _build_engine(
+        self, config: ServiceConfig, models: tuple[ThermalParams, ...], checks: list[tuple[str, int]], dt: float,
+        row_period: int,
+    ) -> Engine:  # fmt: skip
+        count = len(models)
+        slots = len(self.names)
+        clock = np.zeros(1, dtype=CLOCK)
+        c = clock[0]
+        c["origin_s"] = c["now_s"] = math.nan
+        c["dt_s"] = dt
+        c["filter_period"] = filter_period_steps(dt)
+        c["headroom_period"] = self.periods.get("Health_Isolation", self.status_period)
+        c["row_period"] = row_period
+        c["status_slot"] = self._slot.get(STATUS_INPUT, -1)
+        sf = config.sensor_fault
+        c["min_c"], c["max_c"] = sf.min_c, sf.max_c
+        c["cross"] = bool(config.cross_detectors)
+        mixture_slots = np.zeros(2, dtype=np.int64)
+        if self._mixture is not None:
+            columns = MIXTURE_COLUMNS[self._mixture.source]
+            c["mixture"] = 1 if self._mixture.source == "egt_c" else 2
+            mixture_slots[: len(columns)] = [self._slot[n] for n in columns]
+        model_slots = np.array([self._slot[n] for n in (*self.params.heat_axes, *MODEL_INPUTS)], dtype=np.int64)
+        packed = [pack_coefficients(coefficients(m)) for m in models]
+        n_s = packed[0].scalars.size
+        n_x = max(p.heat_values_w.shape[0] for p in packed)
+        n_y = max(p.heat_values_w.shape[1] for p in packed)
+        scalars = np.zeros((count, n_s))
+        heat = np.zeros((count, n_x, n_y))
+        xb = np.zeros((count, n_x))
+        yb = np.zeros((count, n_y))
+        settings = np.zeros(count, dtype=CYLINDER_SETTINGS)
+        iso_settings = IsolationSettings(dt_s=dt)
+        iso_model = np.zeros((count, 4))
+        iso_config = np.zeros((count, 7))
+        est = config.estimator
+        capacity = 1
+        for i, (model, p) in enumerate(zip(models, packed, strict=True)):
+            number = i + 1
+            mx, my = p.heat_values_w.shape
+            scalars[i] = p.scalars
+            heat[i, :mx, :my] = p.heat_values_w
+            xb[i, :mx] = p.x_breakpoints
+            yb[i, :my] = p.y_breakpoints
+            iso_model[i] = model_vector(coefficients(model))
+            iso_config[i] = iso_settings.vector()
+            s = settings[i]
+            name = config.cylinder_inputs[i]
+            s["cht_slot"] = self._slot[name]
+            s["cht_check"] = next(j for j, (n, _) in enumerate(checks) if n == name)
+            for field in ("dt_s", "process_var", "measurement_var", "sigmoid_a", "sigmoid_b", "quantum_c",
+                          "deviation_time_s", "initial_var"):  # fmt: skip
+                s[field] = getattr(est, field)
+            s["use_deviation"] = config.estimator_name in ("cbekf", "cbekf-au")
+            s["reset_code"] = _RESET_CODES[est.reset] if config.estimator_name == "cbekf-au" else 0
+            s["iso_estimator"] = config.estimator_name == ISOLATION_ESTIMATOR
+            s["iso_initial_cht_var"] = iso_settings.initial_cht_var
+            s["iso_initial_gamma_var"] = iso_settings.initial_gamma_var
+            s["stale_limit_s"] = config.stale_predict_limit_s
+            s["stuck_after_s"] = sf.stuck_after_s
+            s["stuck_change_c"] = sf.stuck_change_c
+            s["cht_limit_c"] = model.cht_limit_c
+            s["estimator_symptom"] = config.detector_symptom == "estimator"
+            s["n_x"], s["n_y"] = mx, my
+            own = config.cylinder_detector(number)
+            cross = config.cross_detector(number)
+            _detector_record(s["detector"], own)
+            _detector_record(s["cross"], cross)
+            for d in (own, cross):
+                if d is not None:
+                    capacity = max(capacity, d.delay_blocks + 1)
+        state = np.zeros(count, dtype=CYLINDER_STATE)  # made ready by the first advance_to (the clock's start)
+        engine = Engine(
+            clock=clock,
+            values=np.full(slots, math.nan),
+            stamps=np.full(slots, math.nan),
+            early=np.zeros(slots, dtype=np.bool_),
+            check_slot=np.array([slot for _, slot in checks], dtype=np.int64),
+            check_limit_s=np.array(
+                [config.input(n).stale_after_s if n in config.input_names else math.inf for n, _ in checks]
+            ),
+            check_model=np.array([n in self.model_inputs for n, _ in checks], dtype=np.bool_),
+            model_slots=model_slots,
+            mixture_slots=mixture_slots,
+            open_values=np.array([float(v) for v in sf.open_values], dtype=np.float64),
+            settings=settings,
+            state=state,
+            rings=np.zeros((count, 2, capacity)),
+            coeff_scalars=scalars,
+            heat_values=heat,
+            x_breakpoints=xb,
+            y_breakpoints=yb,
+            iso_model=iso_model,
+            iso_config=iso_config,
+            output=np.zeros(count, dtype=CYLINDER_OUTPUT),
+            scratch=np.zeros(24),
+            symptoms=np.zeros((2, count)),
+        )
+        return engine
+
+    def _compiled(self) -> Any:
+        if self._functions is None:
+            self._functions = compiled()
+        return self._functions
+
+    # ------------------------------------------------------------------ live
+
+    @property
+    def steps_done(self) -> int:
+        """Fixed steps run since start (grows while the pipeline makes progress)."""
+        return int(self._engine.clock[0]["steps"])
+
+    @property
+    def now_s(self) -> float:
+        """The clock's time, s (nan before it starts)."""
+        return float(self._engine.clock[0]["now_s"])
+
+    @property
+    def cylinder_count(self) -> int:
+        """CHT channels (1: a single channel)."""
+        return len(self.cylinder_params)
+
+    def feed(self, msg: can.Message) -> None:
+        """Take one received frame (never raises for any frame content)."""
+        if msg.is_error_frame:
+            self.counters["frames"] += 1
+            self.counters["bus_errors"] += 1
+            self.counters["ignored"] += 1
+            return
+        if msg.is_remote_frame:
+            self.counters["frames"] += 1
+            self.counters["ignored"] += 1
+            return
+        clock = self._engine.clock[0]
+        stamp = float(clock["now_s"]) if clock["started"] else math.nan
+        data = msg.data if msg.data is not None else b""
+        decoded = self.decoder.decode(int(msg.arbitration_id), bool(msg.is_extended_id), data, stamp)
+        if decoded:
+            self.feed_values(decoded)
+
+    def feed_values(self, decoded: Sequence[tuple[int, float]]) -> None:
+        """Hold decoded values, (slot of :attr:`names`, value in its canonical unit), as of the clock's time."""
+        n = len(decoded)
+        if n > self._slots_buffer.size:
+            self._slots_buffer = np.zeros(n, dtype=np.int64)
+            self._values_buffer = np.zeros(n)
+        for j, (slot, value) in enumerate(decoded):
+            self._slots_buffer[j] = slot
+            self._values_buffer[j] = value
+        self._compiled().feed_values(self._engine, self._slots_buffer, self._values_buffer, n)
+
+    def advance_to(self, t_s: float) -> list[StepRow]:
+        """Run every fixed step at or before ``t_s`` (s); returns the rows of the output table they wrote."""
+        advance = self._compiled().advance_to
+        rows = self._rows
+        out: list[StepRow] = []
+        while True:
+            done = advance(self._engine, rows, self._no_traces, float(t_s))
+            out += self._take_rows()
+            if done:
+                break
+        self._sync_counters()
+        return out
+
+    def _sync_counters(self) -> None:
+        clock = self._engine.clock[0]
+        self.counters["steps"] = int(clock["steps"])
+        self.counters["clock_restarts"] = int(clock["restarts"])
+
+    def _take_rows(self) -> list[StepRow]:
+        rows = self._rows
+        count = int(rows.count[0])
+        if count == 0:
+            return []
+        ks, times, masks = rows.k[:count].tolist(), rows.time_s[:count].tolist(), rows.stale[:count].tolist()
+        out = [self._step_row(ks[r], times[r], masks[r], rows.cylinders[r].copy()) for r in range(count)]
+        rows.count[0] = 0
+        status = self.status_period
+        for row in out:
+            if row.k % status == 0:
+                self._pending.append(row)
+        self._latest = out[-1]
+        self._snapshot = None
+        return out
+
+    def _step_row(self, k: int, time_s: float, mask: int, cylinders: Any) -> StepRow:
+        names: list[str] = []
+        bits = 0
+        for j, name in enumerate(self._check_names):
+            if mask >> j & 1:
+                bits |= self._check_bits[j]
+                if name not in names:
+                    names.append(name)
+        return StepRow(k, time_s, tuple(names), bits, cylinders)
+
+    def stale_bits(self, mask: NDArray[np.int64]) -> NDArray[np.int64]:
+        """The output table's stale masks (bit j: stale check j) as Health_Diag.StaleInputs bits (bit i =
+        INPUT_NAMES[i])."""
+        bits = np.zeros(mask.shape, dtype=np.int64)
+        for j, bit in enumerate(self._check_bits):
+            bits |= np.where(mask >> j & 1, bit, 0)
+        return bits
+
+    def snapshot(self) -> HealthSnapshot:
+        """The latest health snapshot (updated every row of the output table)."""
+        if self._snapshot is None:
+            row = self._latest
+            self._snapshot = self._empty_snapshot() if row is None else self.snapshot_of(row)
+        return self._snapshot
+
+    def drain_rows(self) -> list[HealthSnapshot]:
+        """Snapshots of the health-status periods since the last call (oldest first)."""
+        rows, self._pending = self._pending, []
+        return [self.snapshot() if row is self._latest else self.snapshot_of(row) for row in rows]
+
+    def snapshot_of(self, row: StepRow) -> HealthSnapshot:
+        """The snapshot of one row (one cylinder: its own values; several: the engine's view of them)."""
+        from ecu_monitor.pipeline.cylinders import engine_view
+
+        results = row.cylinders
+        if len(self.cylinder_params) == 1:
+            r = results[0]
+            state = int(r["state"])
+            return HealthSnapshot(row.time_s, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
+                                  STATES[state], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
+                                  row.stale, state == CODE_FAULT)  # fmt: skip
+        cylinders = tuple(
+            CylinderSnapshot(n, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
+                             STATES[int(r["state"])], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]))
+            for n, r in enumerate(results, start=1)
+        )  # fmt: skip
+        view = engine_view(cylinders, self.config.spread_limit_c)
+        lead = cylinders[view.lead]
+        return HealthSnapshot(
+            time_s=row.time_s,
+            cht_meas_c=lead.cht_meas_c,
+            cht_est_c=lead.cht_est_c,
+            deviation=lead.deviation,
+            state=lead.state,
+            gamma_q=lead.gamma_q,
+            gamma_d=lead.gamma_d,
+            headroom_s=lead.headroom_s,
+            stale_inputs=row.stale,
+            sensor_fault=any(c.sensor_fault for c in cylinders),
+            cylinders=cylinders,
+            cht_spread_c=view.spread_c,
+            hottest_cylinder=view.hottest,
+            spread_alarm=view.alarm,
+        )
+
+    def _empty_snapshot(self) -> HealthSnapshot:
+        nothing = np.zeros(len(self.cylinder_params), dtype=CYLINDER_OUTPUT)
+        for field in ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s"):
+            nothing[field] = math.nan
+        nothing["state"] = CODE_UNAVAILABLE
+        stale = tuple(dict.fromkeys(self._check_names))
+        return self.snapshot_of(StepRow(0, math.nan, stale, 0, nothing))
+
+    def held_input(self, name: str) -> float | None:
+        """The held (sample-and-hold) value of a mapped input, or None if never seen, stale or unmapped."""
+        slot = self._slot.get(name)
+        if slot is None or name in self.snapshot().stale_inputs:
+            return None
+        value = float(self._engine.values[slot])
+        return value if math.isfinite(value) else None
+
+    def receive_filters(self) -> list[CanFilter]:
+        """python-can receive filters of the frames the pipeline reads."""
+        return list(self.decoder.can_filters())
+
+    def warm_up(self) -> float:
+        """Load (or, on a fresh install, compile) the step's numba code; returns the seconds taken. The
+        daemon calls it before it opens the bus: otherwise the first frame would wait for the load."""
+        started = time.perf_counter()
+        self._compiled()
+        return time.perf_counter() - started
+
+    # ------------------------------------------------------------------ replay
+
+    def run_frames(
+        self, frame_time_s: NDArray[np.float64], first_value: NDArray[np.int64], slots: NDArray[np.int64],
+        values: NDArray[np.float64], *, traces: bool = False,
+    ) -> tuple[Rows, Traces]:  # fmt: skip
+        """The live loop over a whole log in one compiled call: for each frame, advance the clock to its time
+        (``frame_time_s``, s) and feed its decoded values (``slots[first_value[f]:first_value[f + 1]]``).
+        Returns the output table (every ``row_period`` steps) and, with ``traces``, every step's results."""
+        n_frames = frame_time_s.size
+        span = 0.0
+        finite = frame_time_s[np.isfinite(frame_time_s)]
+        if finite.size:
+            span = float(np.max(finite) - np.min(finite))
+        steps = int(span / self.dt_s) + 16
+        count = len(self.cylinder_params)
+        rows = _rows(steps // self._row_period + 16, count)
+        kept = _traces(steps + 16 if traces else 0, count)
+        loop = self._compiled().replay_loop
+        start = 0
+        while True:
+            start = int(loop(self._engine, rows, kept, frame_time_s, first_value, slots, values, start))
+            if start >= n_frames:
+                break
+            rows = _grow(rows)
+        self._sync_counters()
+        return rows, kept
+
+
+def _rows(capacity: int, cylinders: int) -> Rows:
+    return Rows(
+        count=np.zeros(1, dtype=np.int64),
+        k=np.zeros(capacity, dtype=np.int64),
+        time_s=np.zeros(capacity),
+        stale=np.zeros(capacity, dtype=np.int64),
+        cylinders=np.zeros((capacity, cylinders), dtype=CYLINDER_OUTPUT),
+    )
+
+
+def _grow(rows: Rows) -> Rows:
+    """The same table with twice the room (the rows written kept)."""
+    capacity = rows.k.size * 2
+    bigger = _rows(capacity, rows.cylinders.shape[1])
+    n = int(rows.count[0])
+    bigger.count[0] = n
+    bigger.k[:n] = rows.k[:n]
+    bigger.time_s[:n] = rows.time_s[:n]
+    bigger.stale[:n] = rows.stale[:n]
+    bigger.cylinders[:n] = rows.cylinders[:n]
+    return bigger
+
+
+def _traces(capacity: int, cylinders: int) -> Traces:
+    return Traces(
+        count=np.zeros(1, dtype=np.int64),
+        time_s=np.zeros(capacity),
+        restart=np.zeros(capacity, dtype=np.int64),
+        model_c=np.zeros((capacity, cylinders)),
+        oat_c=np.zeros(capacity),
+        detector_on=np.zeros((capacity, cylinders), dtype=np.bool_),
+        cylinders=np.zeros((capacity, cylinders), dtype=CYLINDER_OUTPUT),
+    )

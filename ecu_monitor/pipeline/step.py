@@ -1,0 +1,806 @@
+"""The one step: every fixed step of the schedule, for every cylinder, the supervision, the estimator and
+the isolation filter (every filter period), the detector and the headroom; then the cross-cylinder
+detectors. Compiled with numba; the live pipeline calls it frame by frame (:func:`advance_to`,
+:func:`feed_values`), replay runs :func:`replay_loop` over a whole log's decoded frames, which calls the
+very same two functions. Nothing here is written twice.
+
+Everything lives in named records (numpy structured dtypes, read by field name in the compiled code):
+:data:`CYLINDER_SETTINGS` (what the config and the model say, fixed), :data:`CYLINDER_STATE` (what one
+step carries to the next), :data:`CLOCK` (the schedule), :class:`Engine` (the arrays of one engine: held
+inputs, stale checks, the cylinders) and :class:`Rows` (the output table the steps write to).
+
+The rules, in the order a step applies them:
+
+* staleness: an input is stale when never seen or silent longer than its ``stale_after_s``;
+* supervision (:func:`~ecu_monitor.pipeline.supervision.supervise`): UNAVAILABLE, INPUT_STALE,
+  SENSOR_FAULT or "the detector decides";
+* every filter period: the open-loop reference EKF (the stuck-probe test's model), then the estimator and
+  the isolation filter with the reading the supervisor lets through;
+* the detector (a CUSUM over block means of the symptom, :func:`detector_step`), fed the symptom on
+  NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches;
+* every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
+* several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
+  detector; the more severe verdict wins.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import sys
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ecu_monitor.estimation import detection as _detection
+from ecu_monitor.estimation import ekf as _ekf
+from ecu_monitor.estimation import isolation as _isolation
+from ecu_monitor.model import compiled as _compiled_model
+from ecu_monitor.model import thermal as _thermal
+from ecu_monitor.pipeline import schedule as _schedule
+from ecu_monitor.pipeline import supervision as _supervision
+from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
+from ecu_monitor.pipeline.supervision import (
+    ACTION_INITIALISE,
+    ACTION_NONE,
+    CODE_DEGRADED,
+    CODE_NOMINAL,
+    SupervisorState,
+)
+
+__all__ = [
+    "CLOCK",
+    "CYLINDER_OUTPUT",
+    "CYLINDER_SETTINGS",
+    "CYLINDER_STATE",
+    "DETECTOR_SETTINGS",
+    "DETECTOR_STATE",
+    "HEADROOM_CAP_S",
+    "Engine",
+    "Rows",
+    "Traces",
+    "compiled",
+]
+
+#: Headroom reported when the limit is not reached within this time, s ("not limited at this power").
+HEADROOM_CAP_S = 6000.0
+#: The RK4 step of the headroom's march to the limit, s.
+HEADROOM_STEP_S = 2.0
+#: A Newton iterate of the steady state this far below the limit (degC) settles that the steady state is below it.
+_SETTLED_C = 1e-6
+_COMPLEX_STEP = 1e-30
+
+DETECTOR_SETTINGS = np.dtype(
+    [
+        ("on", "?"),
+        ("threshold", "f8"),
+        ("reference", "f8"),
+        ("warmup_s", "f8"),
+        ("suspect_fraction", "f8"),
+        ("block_s", "f8"),
+        ("baseline_s", "f8"),
+        ("delay_blocks", "i8"),
+        ("freeze", "?"),
+        ("scale_s", "f8"),
+        ("scale_floor", "f8"),
+    ]
+)
+DETECTOR_STATE = np.dtype(
+    [
+        ("started", "?"),
+        ("start_s", "f8"),
+        ("block_end_s", "f8"),
+        ("sum", "f8"),
+        ("count", "i8"),
+        ("statistic", "f8"),
+        ("baseline", "f8"),
+        ("scale", "f8"),
+        ("learned", "f8"),
+        ("steady", "?"),
+        ("alarm_s", "f8"),
+        ("queued", "i8"),  # block means in the baseline's delay line (the ring)
+        ("head", "i8"),  # the oldest of them in the ring
+    ]
+)
+CYLINDER_SETTINGS = np.dtype(
+    [
+        ("cht_slot", "i8"),  # its CHT reading in Engine.values
+        ("cht_check", "i8"),  # its CHT's stale check (bit of the stale mask)
+        ("dt_s", "f8"),
+        ("process_var", "f8"),
+        ("measurement_var", "f8"),
+        ("sigmoid_a", "f8"),
+        ("sigmoid_b", "f8"),
+        ("quantum_c", "f8"),
+        ("deviation_time_s", "f8"),
+        ("initial_var", "f8"),
+        ("use_deviation", "?"),
+        ("reset_code", "i8"),
+        ("iso_estimator", "?"),  # cbekf-iso: the estimator is the isolation filter itself
+        ("iso_initial_cht_var", "f8"),
+        ("iso_initial_gamma_var", "f8"),
+        ("stale_limit_s", "f8"),
+        ("stuck_after_s", "f8"),
+        ("stuck_change_c", "f8"),
+        ("cht_limit_c", "f8"),
+        ("estimator_symptom", "?"),  # the detector watches the estimator's deviation (else the isolation's)
+        ("n_x", "i8"),  # heat-map breakpoints (the padded coefficient arrays' used part)
+        ("n_y", "i8"),
+        ("detector", DETECTOR_SETTINGS),
+        ("cross", DETECTOR_SETTINGS),
+    ]
+)
+CYLINDER_STATE = np.dtype(
+    [
+        ("running", "?"),  # supervisor: the filters are initialised
+        ("stale_since_s", "f8"),
+        ("changed_s", "f8"),
+        ("last_reading_c", "f8"),
+        ("model_low_c", "f8"),
+        ("model_high_c", "f8"),
+        ("readings", "i8"),  # valid CHT values fed
+        ("readings_used", "i8"),
+        ("pending", "?"),  # a reading arrived since the last filter call
+        ("last_call_s", "f8"),
+        ("ref", "f8", (7,)),  # the open-loop reference EKF's FilterState, then its held Drive
+        ("ref_drive", "f8", (5,)),
+        ("est", "f8", (7,)),
+        ("est_drive", "f8", (5,)),
+        ("iso", "f8", (13,)),
+        ("iso_drive", "f8", (5,)),
+        ("cht_est_c", "f8"),  # held between filter calls
+        ("deviation", "f8"),
+        ("gamma_q", "f8"),
+        ("gamma_d", "f8"),
+        ("iso_deviation", "f8"),
+        ("model_c", "f8"),
+        ("headroom_s", "f8"),
+        ("detector_on", "?"),  # since the first initialisation
+        ("detector", DETECTOR_STATE),
+        ("cross", DETECTOR_STATE),
+    ]
+)
+#: One cylinder's result of a step (what the health outputs are made of).
+CYLINDER_OUTPUT = np.dtype(
+    [
+        ("cht_meas_c", "f8"),
+        ("cht_est_c", "f8"),
+        ("deviation", "f8"),
+        ("state", "i8"),
+        ("gamma_q", "f8"),
+        ("gamma_d", "f8"),
+        ("headroom_s", "f8"),
+        ("code", "i8"),  # the supervisor's code
+        ("fed", "f8"),  # what its detector was fed (nan: nothing)
+        ("cross_fed", "f8"),
+    ]
+)
+#: The schedule and its counters.
+CLOCK = np.dtype(
+    [
+        ("started", "?"),
+        ("origin_s", "f8"),
+        ("now_s", "f8"),
+        ("k", "i8"),
+        ("steps", "i8"),
+        ("restarts", "i8"),
+        ("dt_s", "f8"),
+        ("filter_period", "i8"),
+        ("headroom_period", "i8"),
+        ("row_period", "i8"),
+        ("status_slot", "i8"),  # the ECU's CHT sensor status (-1: none)
+        ("min_c", "f8"),  # a plausible CHT reading
+        ("max_c", "f8"),
+        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution
+        ("cross", "?"),  # cross-cylinder detectors on
+    ]
+)
+
+
+class Engine(NamedTuple):
+    """The arrays of one engine's pipeline (built by :mod:`ecu_monitor.pipeline.engine`)."""
+
+    clock: Any  # CLOCK[1]
+    values: Any  # float64[slots]: the held value of each decoded input
+    stamps: Any  # float64[slots]: when it was fed (nan: never)
+    early: Any  # bool[slots]: fed before the clock started
+    check_slot: Any  # int64[checks]: the stale checks (bit j of the stale mask)
+    check_limit_s: Any  # float64[checks]
+    check_model: Any  # bool[checks]: a model input (stale: every cylinder's inputs are)
+    model_slots: Any  # int64[5]: heat-map x, y, altitude, airspeed, OAT
+    mixture_slots: Any  # int64[2]: EGT, or fuel flow and rpm
+    open_values: Any  # float64[]: the CHT sensor status values meaning "open"
+    settings: Any  # CYLINDER_SETTINGS[cylinders]
+    state: Any  # CYLINDER_STATE[cylinders]
+    rings: Any  # float64[cylinders, 2, capacity]: each detector's baseline delay line
+    coeff_scalars: Any  # float64[cylinders, n]: each model's packed coefficients
+    heat_values: Any  # float64[cylinders, n_x, n_y] (padded)
+    x_breakpoints: Any  # float64[cylinders, n_x]
+    y_breakpoints: Any  # float64[cylinders, n_y]
+    iso_model: Any  # float64[cylinders, 4]
+    iso_config: Any  # float64[cylinders, 7]
+    output: Any  # CYLINDER_OUTPUT[cylinders]: this step's results
+    scratch: Any  # float64[24]: the filters' scratch (inputs 6, drive rows 4, out 3, a drive 5, the inputs u 6)
+    symptoms: Any  # float64[2, cylinders]: the cross-cylinder step's scratch
+
+
+class Rows(NamedTuple):
+    """The output table: one row per ``row_period`` steps (the steps ``k`` with ``k % row_period == 0``)."""
+
+    count: Any  # int64[1]: rows written
+    k: Any  # int64[capacity]: the step
+    time_s: Any  # float64[capacity]
+    stale: Any  # int64[capacity]: the stale mask (bit j: stale check j)
+    cylinders: Any  # CYLINDER_OUTPUT[capacity, cylinders]
+
+
+class Traces(NamedTuple):
+    """Per step (replay, when asked): the step time and each cylinder's result (the detectors' feeds);
+    capacity 0 = off."""
+
+    count: Any  # int64[1]
+    time_s: Any  # float64[capacity]
+    restart: Any  # int64[capacity]: the clock restarts before the step
+    model_c: Any  # float64[capacity, cylinders]: the open-loop reference, held
+    oat_c: Any  # float64[capacity]: the held OAT
+    detector_on: Any  # bool[capacity, cylinders]
+    cylinders: Any  # CYLINDER_OUTPUT[capacity, cylinders]
+
+
+# ------------------------------------------------------------------------------------------------ the rules
+
+
+def _reset_detector(d: Any) -> None:
+    d.started = False
+    d.start_s = np.nan
+    d.block_end_s = np.nan
+    d.sum = 0.0
+    d.count = 0
+    d.statistic = 0.0
+    d.baseline = np.nan
+    d.scale = np.nan
+    d.learned = 0.0
+    d.steady = True
+    d.alarm_s = np.nan
+    d.queued = 0
+    d.head = 0
+
+
+def detector_verdict(d: Any, s: Any) -> int:
+    """The detector's state: 0 NOMINAL, 1 SUSPECT, 2 DEGRADED (latched from the first alarm)."""
+    if not math.isnan(d.alarm_s):
+        return 2
+    return 1 if d.statistic >= s.suspect_fraction * s.threshold else 0
+
+
+def detector_step(d: Any, s: Any, ring: Any, t_s: float, symptom: float) -> int:
+    """Feed one symptom sample (nan: skipped) at t_s (s) to the CUSUM ``d`` (DETECTOR_STATE) with
+    settings ``s``; returns the state. Samples are averaged over blocks [start + warmup + i block_s, ...
+    + block_s); a block closes at the first sample at or after its end, blocks without a sample count
+    as empty; the statistic moves once per closed block (estimation/detection.py: the CUSUM update)."""
+    if not d.started:
+        d.started = True
+        d.start_s = t_s
+        d.block_end_s = t_s + s.warmup_s + s.block_s
+    if t_s < d.start_s + s.warmup_s:
+        return detector_verdict(d, s)
+    if t_s >= d.block_end_s - 1e-9:  # this sample opens a new block: close the previous one(s)
+        closed = math.floor((t_s - d.block_end_s) / s.block_s + 1e-9) + 1
+        capacity = ring.shape[0]
+        for j in range(closed):
+            mean = np.nan
+            if j == 0 and d.count > 0:
+                mean = d.sum / d.count
+            ring[(d.head + d.queued) % capacity] = mean  # into the delay line
+            d.queued += 1
+            lagged = np.nan
+            if d.queued > s.delay_blocks:  # the oldest leaves it for the baseline
+                lagged = ring[d.head]
+                d.head = (d.head + 1) % capacity
+                d.queued -= 1
+            d.statistic, d.baseline, d.scale, d.learned = cusum_step(
+                d.statistic, d.baseline, d.scale, d.learned, mean, lagged, s.reference, s.block_s, s.baseline_s,
+                d.steady or math.isnan(mean), s.freeze, s.scale_s, s.scale_floor,
+            )  # fmt: skip
+            d.steady = True
+            if d.statistic >= s.threshold and math.isnan(d.alarm_s):
+                d.alarm_s = t_s
+        d.sum = 0.0
+        d.count = 0
+        d.block_end_s += s.block_s * closed
+    if math.isfinite(symptom):
+        d.sum += symptom
+        d.count += 1
+    return detector_verdict(d, s)
+
+
+def _steady_state_c(heat: float, ambient: float, conductance: float, radiative: float, offset: float,
+                    below: float) -> float:  # fmt: skip
+    """The CHT where heat in (W) equals heat out (Newton on the balance from the convective-only solution,
+    an upper bound; complex-step slope); stops once a step is below 1e-9 degC or an iterate below ``below``."""
+    temp = ambient + heat / conductance
+    for _ in range(60):
+        lost = dissipation(complex(temp, _COMPLEX_STEP), ambient, conductance, radiative, offset)
+        change = (lost.real - heat) / (lost.imag / _COMPLEX_STEP)
+        temp = temp - change
+        if not abs(change) > 1e-9 or temp < below:
+            break
+    return temp
+
+
+def headroom_s(cht_c: float, drive: Any, coeffs: Any, gamma_q: float, gamma_d: float, limit_c: float) -> float:
+    """Seconds until the CHT reaches ``limit_c`` at the held drive (Drive order: q_sl0, altitude gain,
+    ambient, conductance, heat gain), the heat path in steady state: 0 at or over the limit,
+    HEADROOM_CAP_S when the steady state is below it; else the model's RK4 march (HEADROOM_STEP_S) with
+    the crossing interpolated linearly inside the step."""
+    if not limit_c - cht_c > 0.0:
+        return 0.0
+    q_sl0, altitude_gain, ambient, conductance, heat_gain = drive[0], drive[1], drive[2], drive[3], drive[4]
+    heat = gamma_q * gamma_d * heat_gain * altitude_gain * q_sl0
+    if heat >= 0.0 and conductance != 0.0 and ambient + heat / conductance < limit_c:
+        return HEADROOM_CAP_S  # the convective-only solution bounds the steady state from above
+    radiative = coeffs.radiative_conductance
+    offset = coeffs.radiation_offset_c
+    if _steady_state_c(heat, ambient, conductance, radiative, offset, limit_c - _SETTLED_C) < limit_c:
+        return HEADROOM_CAP_S
+    if _steady_state_c(heat, ambient, conductance, radiative, offset, -np.inf) < limit_c:
+        return HEADROOM_CAP_S
+    temp = cht_c
+    pade = 2.0 * q_sl0
+    elapsed = 0.0
+    while elapsed < HEADROOM_CAP_S:
+        new_temp, pade = rk4(temp, pade, q_sl0, heat_gain * altitude_gain, ambient, conductance, coeffs.c_w,
+                             coeffs.tau_w, radiative, offset, gamma_q, gamma_d, HEADROOM_STEP_S)  # fmt: skip
+        if new_temp >= limit_c:
+            fraction = (limit_c - temp) / (new_temp - temp) if new_temp > temp else 1.0
+            crossing = elapsed + fraction * HEADROOM_STEP_S
+            return crossing if crossing <= HEADROOM_CAP_S else HEADROOM_CAP_S
+        temp = new_temp
+        elapsed += HEADROOM_STEP_S
+    return HEADROOM_CAP_S
+
+
+def _drive_at(eng: Engine, i: int, u: Any, coeffs: Any, drive: Any) -> None:
+    """The model's drive of cylinder i at the inputs u (6) into drive (5, Drive order)."""
+    inputs = eng.scratch[0:6].reshape((6, 1))
+    rows = eng.scratch[6:10].reshape((4, 1))
+    for j in range(6):
+        inputs[j, 0] = u[j]
+    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, rows)
+    drive[0] = rows[0, 0]
+    drive[1] = rows[1, 0]
+    drive[2] = u[4]
+    drive[3] = rows[3, 0]
+    drive[4] = rows[2, 0]
+
+
+def _stop_cylinder(st: Any) -> None:
+    """Estimation and detection start afresh (at start and after a clock restart)."""
+    st.running = False
+    st.stale_since_s = np.nan
+    st.changed_s = np.nan
+    st.last_reading_c = np.nan
+    st.model_low_c = np.nan
+    st.model_high_c = np.nan
+    st.pending = False
+    st.last_call_s = np.nan
+    st.cht_est_c = np.nan
+    st.deviation = np.nan
+    st.gamma_q = np.nan
+    st.gamma_d = np.nan
+    st.iso_deviation = np.nan
+    st.model_c = np.nan
+    st.headroom_s = np.nan
+    st.detector_on = False
+    _reset_detector(st.detector)
+    _reset_detector(st.cross)
+
+
+def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: float, coeffs: Any) -> None:
+    """The reference, the estimator and the isolation filter start from the reading at the inputs u."""
+    st = eng.state[i]
+    cfg = eng.settings[i]
+    _drive_at(eng, i, u, coeffs, st.ref_drive)
+    pade = 2.0 * st.ref_drive[0]
+    level = level_of(reading, cfg.quantum_c)
+    for filt, drive in ((st.ref, st.ref_drive), (st.est, st.est_drive)):
+        filt[0] = reading
+        filt[1] = cfg.initial_var
+        filt[2] = pade
+        filt[3] = 0.0
+        filt[4] = reading
+        filt[5] = 0.0
+        filt[6] = level
+        drive[:] = st.ref_drive
+    st.iso[:] = 0.0
+    st.iso[0] = reading
+    st.iso[1] = 1.0
+    st.iso[2] = 1.0
+    st.iso[3] = pade
+    st.iso[4] = cfg.iso_initial_cht_var
+    st.iso[8] = cfg.iso_initial_gamma_var
+    st.iso[12] = cfg.iso_initial_gamma_var
+    st.iso_drive[:] = st.ref_drive
+    st.last_call_s = time_s
+
+
+def cylinder_step(eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, reading_bad: bool, call: bool,
+                  headroom_due: bool) -> None:  # fmt: skip
+    """One step of cylinder i at time_s (s) with the model inputs u (6): its result in ``eng.output[i]``."""
+    st = eng.state[i]
+    cfg = eng.settings[i]
+    out = eng.output[i]
+    n_x = cfg.n_x
+    n_y = cfg.n_y
+    cs = eng.coeff_scalars[i]
+    hv = eng.heat_values[i, :n_x, :n_y]
+    xb = eng.x_breakpoints[i, :n_x]
+    yb = eng.y_breakpoints[i, :n_y]
+    coeffs = unpack_coefficients(cs, hv, xb, yb)
+    inputs = eng.scratch[0:6].reshape((6, 1))
+    rows = eng.scratch[6:10].reshape((4, 1))
+    result = eng.scratch[10:13]
+    reading = eng.values[cfg.cht_slot]
+    new_reading = st.readings > st.readings_used
+    st.readings_used = st.readings
+    call = call and st.running
+    sv = SupervisorState(st.running, st.stale_since_s, st.changed_s, st.last_reading_c, st.model_low_c,
+                         st.model_high_c)  # fmt: skip
+    est_c = deviation = gamma_q = gamma_d = iso_deviation = np.nan
+    if call:  # the filter period: reference, supervision, estimator and isolation filter
+        steps = round((time_s - st.last_call_s) / cfg.dt_s)
+        st.pending = st.pending or new_reading
+        # the reference: an EKF without deviation, reset or reading (its settings are the estimator's)
+        live_ekf(st.ref, st.ref_drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], np.nan, False, cs,
+                 hv, xb, yb, cfg.dt_s, cfg.process_var, cfg.measurement_var, cfg.sigmoid_a, cfg.sigmoid_b,
+                 cfg.quantum_c, cfg.deviation_time_s, False, 0, steps)  # fmt: skip
+        model_c = st.ref[0]
+        sv, code, action = supervise(sv, time_s, any_stale, new_reading, reading, reading_bad, model_c,
+                                     cfg.stale_limit_s, cfg.stuck_after_s, cfg.stuck_change_c)  # fmt: skip
+        if action != ACTION_NONE:
+            measured = st.pending and code == CODE_NOMINAL and math.isfinite(reading)
+            z = reading if measured else np.nan
+            if not cfg.iso_estimator:
+                live_ekf(st.est, st.est_drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured,
+                         cs, hv, xb, yb, cfg.dt_s, cfg.process_var, cfg.measurement_var, cfg.sigmoid_a,
+                         cfg.sigmoid_b, cfg.quantum_c, cfg.deviation_time_s, cfg.use_deviation, cfg.reset_code,
+                         steps)  # fmt: skip
+                est_c = st.est[0]
+                deviation = st.est[3] / cfg.dt_s if cfg.use_deviation else 0.0
+            live_isolation(st.iso, st.iso_drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z,
+                           measured, steps, eng.iso_model[i], eng.iso_config[i], cs, hv, xb, yb)  # fmt: skip
+            if cfg.iso_estimator:  # its estimate is the isolation filter's own
+                est_c = st.iso[0]
+                deviation = result[2]
+            gamma_q = st.iso[1]
+            gamma_d = st.iso[2]
+            iso_deviation = result[2]
+        st.last_call_s = time_s
+    else:
+        model_c = st.model_c if st.running else reading
+        sv, code, action = supervise(sv, time_s, any_stale, new_reading, reading, reading_bad, model_c,
+                                     cfg.stale_limit_s, cfg.stuck_after_s, cfg.stuck_change_c)  # fmt: skip
+        st.pending = st.pending or new_reading
+    st.running = sv.running
+    st.stale_since_s = sv.stale_since_s
+    st.changed_s = sv.changed_s
+    st.last_reading_c = sv.last_reading_c
+    st.model_low_c = sv.model_low_c
+    st.model_high_c = sv.model_high_c
+    if action == ACTION_NONE:
+        st.cht_est_c = st.deviation = st.gamma_q = st.gamma_d = st.iso_deviation = st.model_c = np.nan
+    elif action == ACTION_INITIALISE:
+        _initialise_filters(eng, i, u, time_s, reading, coeffs)
+        st.cht_est_c = reading
+        st.deviation = 0.0
+        st.gamma_q = 1.0
+        st.gamma_d = 1.0
+        st.iso_deviation = 0.0
+        st.model_c = reading
+        st.pending = False
+        st.headroom_s = np.nan
+        st.detector_on = True
+    elif call:
+        st.pending = False
+        st.cht_est_c = est_c
+        st.deviation = deviation
+        st.gamma_q = gamma_q
+        st.gamma_d = gamma_d
+        st.iso_deviation = iso_deviation
+        st.model_c = model_c
+    state = code
+    fed = np.nan
+    if st.detector_on:
+        symptom = st.deviation if cfg.estimator_symptom else st.iso_deviation
+        fed = symptom if code == CODE_NOMINAL else np.nan
+        verdict = detector_step(st.detector, cfg.detector, eng.rings[i, 0], time_s, fed)
+        if code == CODE_NOMINAL:
+            state = verdict
+    if action == ACTION_NONE or not (
+        math.isfinite(st.cht_est_c) and math.isfinite(st.gamma_q) and math.isfinite(st.gamma_d)
+    ):
+        st.headroom_s = np.nan
+    elif headroom_due:
+        drive = eng.scratch[13:18]
+        _drive_at(eng, i, u, coeffs, drive)
+        st.headroom_s = headroom_s(st.cht_est_c, drive, coeffs, st.gamma_q, st.gamma_d, cfg.cht_limit_c)
+    out.cht_meas_c = reading
+    out.cht_est_c = st.cht_est_c
+    out.deviation = st.deviation
+    out.state = state
+    out.gamma_q = st.gamma_q
+    out.gamma_d = st.gamma_d
+    out.headroom_s = st.headroom_s
+    out.code = code
+    out.fed = fed
+    out.cross_fed = np.nan
+
+
+def cross_step(eng: Engine, time_s: float) -> None:
+    """The cross-cylinder detectors: each cylinder's symptom minus the median of the other cylinders'
+    usable symptoms (estimation/cross_cylinder.py); a cylinder's state becomes the more severe of its two
+    detectors' verdicts."""
+    n = eng.state.shape[0]
+    own = eng.symptoms[0]
+    others = eng.symptoms[1]
+    for i in range(n):
+        st = eng.state[i]
+        usable = st.detector_on and eng.output[i].state <= CODE_DEGRADED
+        own[i] = (st.deviation if eng.settings[i].estimator_symptom else st.iso_deviation) if usable else np.nan
+    for i in range(n):
+        cross = np.nan
+        if not math.isnan(own[i]):
+            m = 0
+            for j in range(n):
+                if j != i and not math.isnan(own[j]):
+                    others[m] = own[j]
+                    m += 1
+            if m > 0:
+                ordered = np.sort(others[:m])
+                mid = m // 2
+                reference = ordered[mid] if m % 2 else (ordered[mid - 1] + ordered[mid]) * 0.5
+                cross = own[i] - reference
+        st = eng.state[i]
+        cfg = eng.settings[i]
+        if not st.detector_on or not cfg.cross.on:
+            continue
+        eng.output[i].cross_fed = cross
+        verdict = detector_step(st.cross, cfg.cross, eng.rings[i, 1], time_s, cross)
+        if eng.output[i].state < verdict <= CODE_DEGRADED:
+            eng.output[i].state = verdict
+
+
+def _reading_bad(eng: Engine, reading: float) -> bool:
+    """An implausible CHT reading: outside [min_c, max_c], or the ECU's status says the probe is open."""
+    clock = eng.clock[0]
+    if math.isnan(reading):
+        return False
+    if not clock.min_c <= reading <= clock.max_c:
+        return True
+    if clock.status_slot >= 0:
+        status = eng.values[clock.status_slot]
+        if not math.isnan(status):
+            code = float(int(status))
+            for value in eng.open_values:
+                if code == value:
+                    return True
+    return False
+
+
+def engine_step(eng: Engine, time_s: float, k: int) -> int:
+    """Step k (1-based, at time_s) of every cylinder; returns the stale mask (bit j: stale check j)."""
+    clock = eng.clock[0]
+    stale = 0
+    model_stale = False
+    for j in range(eng.check_slot.shape[0]):
+        if not time_s - eng.stamps[eng.check_slot[j]] <= eng.check_limit_s[j]:  # never seen: nan, stale
+            stale |= 1 << j
+            model_stale = model_stale or eng.check_model[j]
+    u = eng.scratch[18:24]
+    for j in range(5):
+        u[j] = eng.values[eng.model_slots[j]]
+    if clock.mixture == 1:
+        u[5] = eng.values[eng.mixture_slots[0]]
+    elif clock.mixture == 2:  # fuel per revolution, mL/rev
+        u[5] = eng.values[eng.mixture_slots[0]] * (1000.0 / 60.0) / max(eng.values[eng.mixture_slots[1]], 100.0)
+    else:
+        u[5] = np.nan
+    call = k % clock.filter_period == 0
+    headroom_due = k % clock.headroom_period == 0
+    for i in range(eng.state.shape[0]):
+        cfg = eng.settings[i]
+        any_stale = model_stale or (stale >> cfg.cht_check) & 1 == 1
+        reading_bad = _reading_bad(eng, eng.values[cfg.cht_slot])
+        cylinder_step(eng, i, u, time_s, any_stale, reading_bad, call, headroom_due)
+    if clock.cross:
+        cross_step(eng, time_s)
+    return stale
+
+
+def _copy_output(dst: Any, src: Any) -> None:
+    dst.cht_meas_c = src.cht_meas_c
+    dst.cht_est_c = src.cht_est_c
+    dst.deviation = src.deviation
+    dst.state = src.state
+    dst.gamma_q = src.gamma_q
+    dst.gamma_d = src.gamma_d
+    dst.headroom_s = src.headroom_s
+    dst.code = src.code
+    dst.fed = src.fed
+    dst.cross_fed = src.cross_fed
+
+
+def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> None:
+    r = rows.count[0]
+    rows.k[r] = k
+    rows.time_s[r] = time_s
+    rows.stale[r] = stale
+    for i in range(eng.output.shape[0]):
+        _copy_output(rows.cylinders[r, i], eng.output[i])
+    rows.count[0] = r + 1
+
+
+def _write_trace(eng: Engine, traces: Traces, time_s: float, restarts: int) -> None:
+    n = traces.count[0]
+    if n >= traces.time_s.shape[0]:
+        return
+    traces.time_s[n] = time_s
+    traces.restart[n] = restarts
+    traces.oat_c[n] = eng.values[eng.model_slots[4]]
+    for i in range(eng.state.shape[0]):
+        traces.model_c[n, i] = eng.state[i].model_c
+        traces.detector_on[n, i] = eng.state[i].detector_on
+        _copy_output(traces.cylinders[n, i], eng.output[i])
+    traces.count[0] = n + 1
+
+
+def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
+    """Run every fixed step at or before t_s (s), rows into ``rows``; False when ``rows`` filled up before
+    the last of them (drain it and call again with the same t_s). The first reading starts the clock; a
+    jump by more than MAX_CLOCK_GAP_S restarts it (estimation starts afresh); a reading at or before the
+    clock's time does nothing."""
+    clock = eng.clock[0]
+    if not (math.isfinite(t_s) and abs(t_s) < MAX_CLOCK_S):
+        return True
+    t_s = clock_tick(t_s)
+    if not clock.started or t_s - clock.now_s > MAX_CLOCK_GAP_S:
+        if clock.started:
+            clock.restarts += 1
+        for i in range(eng.state.shape[0]):  # estimation and detection start afresh
+            _stop_cylinder(eng.state[i])
+        clock.started = True
+        clock.origin_s = t_s
+        clock.now_s = t_s
+        clock.k = 0
+        for slot in range(eng.early.shape[0]):  # inputs fed before the clock started count as fed at its start
+            if eng.early[slot]:
+                eng.stamps[slot] = t_s
+                eng.early[slot] = False
+        return True
+    if t_s <= clock.now_s:
+        return True
+    capacity = rows.k.shape[0]
+    while True:
+        step_time = clock_tick(clock.origin_s + (clock.k + 1) * clock.dt_s)
+        if step_time > t_s:
+            break
+        k = clock.k + 1
+        if k % clock.row_period == 0 and rows.count[0] >= capacity:
+            return False
+        clock.k = k
+        clock.steps += 1
+        stale = engine_step(eng, step_time, k)
+        if k % clock.row_period == 0:
+            _write_row(eng, rows, step_time, k, stale)
+        if traces.time_s.shape[0] > 0:
+            _write_trace(eng, traces, step_time, clock.restarts)
+    clock.now_s = t_s
+    return True
+
+
+def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
+    """Hold the first ``count`` decoded (slot, value) pairs of one frame, stamped with the clock's time
+    (sample and hold; before the clock starts, at its start); a cylinder's CHT counts a reading."""
+    clock = eng.clock[0]
+    for j in range(count):
+        slot = slots[j]
+        eng.values[slot] = values[j]
+        if clock.started:
+            eng.stamps[slot] = clock.now_s
+        else:
+            eng.stamps[slot] = np.nan
+            eng.early[slot] = True
+        for i in range(eng.state.shape[0]):
+            if eng.settings[i].cht_slot == slot:
+                eng.state[i].readings += 1
+
+
+def replay_loop(eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any,
+                values: Any, start: int) -> int:  # fmt: skip
+    """The live loop over a whole log: for each frame from ``start``, :func:`advance_to` its time then
+    :func:`feed_values` its decoded values (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame
+    to resume from when ``rows`` filled up, or the frame count when done."""
+    n = frame_time_s.shape[0]
+    for f in range(start, n):
+        if not advance_to(eng, rows, traces, frame_time_s[f]):
+            return f
+        a = first_value[f]
+        feed_values(eng, slots[a:], values[a:], first_value[f + 1] - a)
+    return n
+
+
+# ------------------------------------------------------------------------------------------------ compiling
+
+# The compiled callees of the functions above; compiled() binds them.
+cusum_step: Any = None
+dissipation: Any = None
+drive_kernel: Any = None
+level_of: Any = None
+live_ekf: Any = None
+live_isolation: Any = None
+rk4: Any = None
+supervise: Any = None
+unpack_coefficients: Any = None
+
+
+@functools.cache
+def compiled() -> Any:
+    """The step's functions compiled by numba (cached on disk, keyed by every source they embed):
+    a namespace with ``advance_to``, ``feed_values``, ``replay_loop``, ``headroom_s``, ``detector_step``."""
+    from types import SimpleNamespace
+
+    from ecu_monitor.estimation import quantiser
+    from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
+
+    modules = (
+        _ekf,
+        _isolation,
+        quantiser,
+        _thermal,
+        _compiled_model,
+        _supervision,
+        _schedule,
+        _detection,
+        sys.modules[__name__],
+    )
+    tag = fingerprint([str(m.__file__) for m in modules])
+    equations = compiled_equations(False)
+    filters = _ekf.compiled_filter()
+    callees: dict[str, Any] = {
+        "cusum_step": _detection._cusum_step,
+        "dissipation": equations.dissipation,
+        "drive_kernel": _compiled_model.drive_kernel(),
+        "level_of": filters.level_of,
+        "live_ekf": filters.live,
+        "live_isolation": _isolation.compiled_kernels().live,
+        "rk4": equations.rk4,
+        "supervise": jit(_supervision.supervise, tag, initial_supervisor=jit(_supervision.initial_supervisor, tag)),
+        "unpack_coefficients": jit(_thermal.unpack_coefficients, tag),
+    }
+
+    def compile_(function: Any, **more: Any) -> Any:
+        return jit(function, tag, nogil=False, **callees, **more)
+
+    verdict = compile_(detector_verdict)
+    reset = compile_(_reset_detector)
+    detector = compile_(detector_step, detector_verdict=verdict)
+    steady = compile_(_steady_state_c)
+    headroom = compile_(headroom_s, _steady_state_c=steady)
+    drive_at = compile_(_drive_at)
+    stop = compile_(_stop_cylinder, _reset_detector=reset)
+    initialise = compile_(_initialise_filters, _drive_at=drive_at)
+    cylinder = compile_(cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at,
+                        _initialise_filters=initialise)  # fmt: skip
+    cross = compile_(cross_step, detector_step=detector)
+    bad = compile_(_reading_bad)
+    engine = compile_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)
+    tick = compile_(clock_tick)
+    copy = compile_(_copy_output)
+    write_row = compile_(_write_row, _copy_output=copy)
+    write_trace = compile_(_write_trace, _copy_output=copy)
+    advance = compile_(advance_to, clock_tick=tick, engine_step=engine, _stop_cylinder=stop, _write_row=write_row,
+                       _write_trace=write_trace)  # fmt: skip
+    feed = compile_(feed_values)
+    loop = compile_(replay_loop, advance_to=advance, feed_values=feed)
+    return SimpleNamespace(advance_to=advance, feed_values=feed, replay_loop=loop, headroom_s=headroom,
+                           detector_step=detector, stop_cylinder=stop)  # fmt: skip
