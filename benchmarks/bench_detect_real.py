@@ -137,10 +137,9 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None, bool]) -
     (onset, gain, log start, detector feed, open-loop reference). keep_reference (the last argument): the
     replays keep the open-loop reference (``ReplayResult.reference_feed``, for ``--level``; else empty)."""
     flight, model, config_path, overlays, keep = args
-    from ecu_monitor.service.pipeline import model_input_names
-
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.model import load_model
+    from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.service.calibration import flight_feeds, overlay_replays
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.replay import frames_from_flight, replay_frames

@@ -66,12 +66,12 @@ from typing import Any
 
 import can
 import yaml
-from ecu_monitor.service.pipeline import Pipeline
 from netns import kill_all, multicast_namespace
 
 from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.service.config import parse_config
 from ecu_monitor.service.daemon import Daemon, DaemonSettings
+from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 HEALTH_IDS = (0x300, 0x301, 0x302)
@@ -863,7 +863,7 @@ _DAEMON = textwrap.dedent(
     import json, signal, sys, threading, time, can
     from ecu_monitor.service.config import load_config
     from ecu_monitor.service.daemon import Daemon, DaemonSettings
-    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
     config = load_config(sys.argv[1])
     pipeline = Pipeline(config, config.load_params())
     settings = DaemonSettings(tick_s=3600.0, **json.loads(sys.argv[2]))

@@ -282,7 +282,7 @@ def _print_case(case: str, result: dict[str, Any]) -> None:
 def pipeline_cost(protocol: str, steps: int) -> tuple[float, list[float]]:
     """(CPU us per 20 ms step of feed + advance_to, median feed us of each frame of the step's first
     message) for ``steps`` steps of the engine and air-data frames of ``protocol``."""
-    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
     config = _dronecan_config("unused") if protocol == "dronecan" else bench_latency._config("unused")
     pipeline = Pipeline(config, config.load_params())
@@ -348,10 +348,10 @@ def breakdown_inner(port: int, steps: int = 1000) -> None:
 def _breakdown_one(protocol: str, port: int, steps: int) -> None:
     """One bus of :func:`breakdown_inner`: one line, CPU us per frame of each layer."""
     from can.interfaces.udp_multicast.utils import pack_message, unpack_message
-    from ecu_monitor.service.pipeline import Pipeline
 
     from ecu_monitor.bus.kernel_filter import attach_kernel_filter
     from ecu_monitor.service.daemon import Daemon, DaemonSettings
+    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
     batch = 100  # datagrams queued at a time (well inside the socket's receive buffer)
     config = _dronecan_config("unused") if protocol == "dronecan" else bench_latency._config("unused")

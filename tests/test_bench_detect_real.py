@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ecu_monitor.estimation.detection import overlay_degradation
-from ecu_monitor.service.health_rows import ReferenceFeed
+from ecu_monitor.pipeline.outputs import ReferenceFeed
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ import can
 import pytest
 import yaml
 
-from ecu_monitor.commands.run import bus_opener, daemon_settings, unsupported_on_host
+from ecu_monitor.commands.run import bus_opener, unsupported_on_host
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.daemon import SilenceWatch
@@ -131,32 +131,6 @@ def test_silence_watch_warns_once_per_silence() -> None:
     watch.frame(505.0)
     assert [watch.check(t) for t in (505.1, 514.9)] == [None, None]
     assert watch.check(515.0) == "silent"  # frames stopped again
-
-
-def test_rehearse_lead_ms_is_read_and_checked(tmp_path: Path) -> None:
-    assert load_config(_shipped_config(tmp_path, "example.yaml")).rehearse_lead_ms == 0.6
-    assert load_config(_shipped_config(tmp_path, "example.yaml", rehearse_lead_ms=0)).rehearse_lead_ms == 0.0
-    assert load_config(_shipped_config(tmp_path, "example.yaml", rehearse_lead_ms=1.5)).rehearse_lead_ms == 1.5
-    for bad in (-0.1, 25, "soon"):
-        with pytest.raises(ConfigError, match="rehearse_lead_ms"):
-            load_config(_shipped_config(tmp_path, "example.yaml", rehearse_lead_ms=bad))
-    # what `ecu-monitor run` gives the daemon: the lead in s, None (never) for 0
-    default = daemon_settings(load_config(_shipped_config(tmp_path, "example.yaml")), None)
-    assert default.rehearse_lead_s == pytest.approx(0.0006)
-    off = daemon_settings(load_config(_shipped_config(tmp_path, "example.yaml", rehearse_lead_ms=0)), 2.0)
-    assert off.rehearse_lead_s is None and off.watchdog_period_s == 2.0
-
-
-def test_spin_ms_is_read_and_checked(tmp_path: Path) -> None:
-    assert load_config(_shipped_config(tmp_path, "example.yaml")).spin_ms == 0.5
-    assert load_config(_shipped_config(tmp_path, "example.yaml", spin_ms=0)).spin_ms == 0.0
-    for bad in (-0.1, 25, "soon"):
-        with pytest.raises(ConfigError, match="spin_ms"):
-            load_config(_shipped_config(tmp_path, "example.yaml", spin_ms=bad))
-    # what `ecu-monitor run` gives the daemon: the window in s, 0 for none
-    assert daemon_settings(load_config(_shipped_config(tmp_path, "example.yaml")), None).spin_s == pytest.approx(5e-4)
-    off = daemon_settings(load_config(_shipped_config(tmp_path, "example.yaml", spin_ms=0)), None)
-    assert off.spin_s == 0.0
 
 
 def test_no_frames_warning_s_is_read_and_checked(tmp_path: Path) -> None:

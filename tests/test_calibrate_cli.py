@@ -23,10 +23,10 @@ from ecu_monitor.commands.replay import DEFAULT_CONFIG
 from ecu_monitor.estimation.detection import DetectorSettings, calibrate_threshold, cusum_path
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import paper_table_a1, save_model
+from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.research.evaluation import residual_effects
 from ecu_monitor.service.calibration import model_fingerprint
 from ecu_monitor.service.config import load_config
-from ecu_monitor.service.pipeline import STATES
 from ecu_monitor.service.replay import frames_from_flight, replay_file
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission

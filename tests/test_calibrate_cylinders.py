@@ -25,10 +25,11 @@ from ecu_monitor.commands.replay import fit_warnings
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import load_model, paper_table_a1, save_model
+from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.research.evaluation import residual_effects
 from ecu_monitor.service.calibration import model_fingerprint
 from ecu_monitor.service.config import load_config, parse_config
-from ecu_monitor.service.pipeline import STATES, Pipeline
+from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 from ecu_monitor.service.replay import replay_file
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission

@@ -96,24 +96,6 @@ def test_every_malformed_reason_is_counted_and_dropped() -> None:
     assert c["ok"] == 3 and c["frames"] == 9
 
 
-def test_a_rehearsed_frame_changes_no_counter_and_no_sequence() -> None:
-    """Decoder.rehearse (the daemon's, before an expected frame) does the decode's work with no effect: the
-    same frames decode to the same values and counters with rehearsals of any frame between them."""
-    corrupt = bytearray(_fast(1))
-    corrupt[0] ^= 0x01
-    frames = [_fast(0), _fast(1), _fast(7), _fast(8), _fast(8), bytes(corrupt), _fast(9)[:7], _fast(10)]
-    plain, rehearsed = _decoder(), _decoder()
-    plain_out = [plain.decode(0x100, False, data, 0.01 * i) for i, data in enumerate(frames)]
-    rehearsed_out = []
-    for i, data in enumerate(frames):
-        for other in (*frames, _fast(3)):
-            rehearsed.rehearse(0x100, False, other)
-        rehearsed.rehearse(0x7FF, False, bytes(8))
-        rehearsed_out.append(rehearsed.decode(0x100, False, data, 0.01 * i))
-    assert rehearsed_out == plain_out and rehearsed.counters == plain.counters
-    assert plain.counters["bad_counter"] == 2 and plain.counters["ok"] == 4
-
-
 def test_counter_resynchronises_after_a_silence() -> None:
     dec = _decoder()
     assert dec.decode(0x100, False, _fast(3), 0.0) is not None

@@ -1,4 +1,4 @@
-"""Every cylinder (service/cylinders.py, the pipeline and the batch replay with cht1_c .. chtN_c): the
+"""Every cylinder (pipeline/cylinders.py, the pipeline and the batch replay with cht1_c .. chtN_c): the
 config, live == batch on a four-cylinder engine, a probe fault isolating one cylinder, the spread and
 its alarm, the health frames and health.csv columns."""
 
@@ -19,10 +19,10 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.flightlog import FlightLog, read_csv
 from ecu_monitor.model import paper_table_a1
+from ecu_monitor.pipeline.cylinders import engine_view
+from ecu_monitor.pipeline.outputs import CylinderSnapshot, ReplayResult, health_columns, rows_to_columns
 from ecu_monitor.service.config import load_config, parse_config
-from ecu_monitor.service.cylinders import engine_view
-from ecu_monitor.service.health_rows import CylinderSnapshot, ReplayResult, health_columns, rows_to_columns
-from ecu_monitor.service.pipeline import Pipeline
+from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 from ecu_monitor.service.replay import frames_from_flight, replay_frames
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,25 +135,17 @@ SPREAD_LIMIT_C = 22.0  # between the spread before the fault (26 degC) and after
 
 @pytest.fixture(scope="module")
 def live_run(four_cylinder_flight: FlightLog) -> tuple[Any, Any, list[Any], ReplayResult]:
-    """The flight through the live pipeline frame by frame: (config, frames in, health frames out, rows). Before
-    each frame the daemon would rehearse for (``Pipeline.rehearsal_frame_s``), the pipeline rehearses the step
-    that sends Health_Status (``Pipeline.rehearse``), as the daemon does: live == batch holds with it."""
+    """The flight through the live pipeline frame by frame: (config, frames in, health frames out, rows)."""
     config = _config(cylinders={"spread_limit_c": SPREAD_LIMIT_C})
     frames = frames_from_flight(four_cylinder_flight, config)
     pipeline = Pipeline(config, config.load_cylinder_params())
     sent: list[Any] = []
     rows = []
-    rehearse_before = math.nan
-    rehearsals = 0
     for msg in frames.messages():
-        if msg.timestamp >= rehearse_before - 1e-3:
-            pipeline.rehearse()
-            rehearsals += 1
         sent += pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
-        rehearse_before = pipeline.rehearsal_frame_s(msg.timestamp)
         rows.extend(pipeline.drain_rows())
-    assert rehearsals >= len(rows) > 1000  # one before each Health_Status step, with its 4 compiled calls
+    assert len(rows) > 1000
     return config, frames, sent, ReplayResult(rows_to_columns(rows, 4), dict(pipeline.counters))
 
 

@@ -9,7 +9,6 @@ error raised inside the frame path (counted by the keep-alive handler, the daemo
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import socket
@@ -30,12 +29,12 @@ import yaml
 
 from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S
 from ecu_monitor.service.config import load_config
 from ecu_monitor.service.daemon import SEND_FAILURES_TO_REOPEN, Daemon, DaemonSettings
 from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate, watchdog_period_s
 from ecu_monitor.service.persistence import DATABASE_NAME
-from ecu_monitor.service.pipeline import Pipeline
-from ecu_monitor.service.schedule import MAX_CLOCK_GAP_S
+from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 ENGINE_DBC = REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
@@ -421,46 +420,6 @@ def test_a_silent_bus_is_warned_once_per_silence(tmp_path: Path, caplog: pytest.
     finally:
         stop_daemon(daemon, thread, result)
         sender_bus.shutdown()
-
-
-@pytest.mark.parametrize("phase_s", [0.005, -5e-6])  # frames 5 ms after the step grid, and a hair before it
-def test_the_daemon_rehearses_before_each_frame_that_may_send_health_status(tmp_path: Path, phase_s: float) -> None:
-    """The daemon's clock is the test's, the frames are handed to it as its receive thread does: after each
-    frame it plans a rehearsal ``rehearse_lead_s`` before the next one when that one may run the step that
-    sends Health_Status (it comes after that step's time, or a hair before it: then the frame after it does,
-    and both are rehearsed for), and none otherwise; rehearsing leaves the health rows as without."""
-    now = [0.0]
-    lead_s = 0.0003
-    daemons = [
-        Daemon(
-            _pipeline(tmp_path, "unused"),
-            lambda: None,
-            settings=DaemonSettings(rehearse_lead_s=lead),
-            clock=lambda: now[0],
-        )
-        for lead in (lead_s, None)
-    ]
-    ecus = [EcuSender(None), EcuSender(None)]  # type: ignore[arg-type]  # frames only, never sent
-    planned: list[tuple[int, float]] = []
-    for k in range(300):  # the first frame starts the step grid: the others come phase_s off it
-        now[0] = 100.0 + 0.02 * k + (phase_s if k else 0.0)
-        for daemon, ecu in zip(daemons, ecus, strict=True):
-            for name in ["ECU_Fast"] + (["ECU_Slow", "AirData"] if k % 5 == 0 else []):
-                daemon._on_frame(ecu.frame(name))
-        rehearse_at = daemons[0]._rehearse_at_s
-        if math.isfinite(rehearse_at):
-            planned.append((k, rehearse_at))
-            now[0] = rehearse_at
-            daemons[0]._rehearse()
-    assert daemons[1].counters["rehearsals"] == 0
-    assert daemons[0].counters["rehearsals"] == len(planned) > 50
-    for k, rehearse_at in planned:
-        assert rehearse_at == pytest.approx(100.0 + 0.02 * (k + 1) + phase_s - lead_s, abs=1e-9)
-    # Health_Status every 5th step of the grid; frame k runs step k, or step k - 1 when a hair early
-    early = phase_s < 0.0
-    assert {k for k, _ in planned} == {k for k in range(1, 300) if (k + 1) % 5 == 0 or (early and k % 5 == 0)}
-    rows = [repr(r) for r in daemons[0].pipeline.drain_rows()]
-    assert len(rows) > 50 and rows == [repr(r) for r in daemons[1].pipeline.drain_rows()]
 
 
 class _ScriptedBus:

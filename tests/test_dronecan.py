@@ -414,7 +414,7 @@ def _published(frames: list[can.Message]) -> list[tuple[float, str, Any]]:
 
 
 def _run_pipeline(frames: list[can.Message], until_s: float) -> list[can.Message]:
-    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
     config = load_config("dronecan.yaml")
     pipeline = Pipeline(config, config.load_params())
@@ -475,8 +475,8 @@ def test_node_health_mapping() -> None:
 
 
 def test_key_values_of_an_engine_monitored_per_cylinder() -> None:
+    from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
     from ecu_monitor.service.dronecan_node import key_values
-    from ecu_monitor.service.health_rows import CylinderSnapshot, HealthSnapshot
 
     cylinders = (
         CylinderSnapshot(1, 120.0, 121.0, 0.0, "NOMINAL", 1.0, 1.0, 6000.0),
@@ -493,7 +493,7 @@ def test_the_mean_exhaust_temperature_feeds_a_model_with_the_mixture_index(tmp_p
     """egt_c mapped to the ICE status's mean exhaust gas temperature (kelvin): a model whose mixture_index
     effect reads the EGT gets it (degC) as an input of its own, reported stale like any other."""
     from ecu_monitor.model.effects import Effects, MixtureIndex
-    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
     data = _shipped()
     data["inputs"]["egt_c"] = {
@@ -584,7 +584,7 @@ def test_the_node_answers_get_node_info_as_the_package_reads_it() -> None:
     another node is not taken (it counts as a foreign frame)."""
     from ecu_monitor import __version__
     from ecu_monitor.service.dronecan_node import NODE_NAME
-    from ecu_monitor.service.pipeline import Pipeline
+    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
     def request(dest: int, transfer_id: int, time_s: float) -> can.Message:
         transfer = dronecan.transport.Transfer(

@@ -20,8 +20,9 @@ from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1, steady_state_cht
+from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.service.config import ServiceConfig, parse_config
-from ecu_monitor.service.pipeline import HealthSnapshot, Pipeline
+from ecu_monitor.service.publishers import LiveMonitor as Pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
@@ -431,13 +432,13 @@ def test_a_model_reading_what_the_service_does_not_feed_is_warned(caplog: pytest
     from ecu_monitor.model.effects import Effects, MixtureIndex
 
     on_egt = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("egt_c", 0.001, 700.0)))
-    with caplog.at_level(logging.WARNING, logger="ecu_monitor.service.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.pipeline.engine"):
         pipeline = Pipeline(_config(), on_egt)
     assert "mixture_index effect reads egt_c, which the config's inputs do not map: the effect is off" in caplog.text
     assert "egt_c" not in pipeline.model_inputs
     caplog.clear()
     on_fuel = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("fuel_per_rev", -2.0, 0.25)))
-    with caplog.at_level(logging.WARNING, logger="ecu_monitor.service.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="ecu_monitor.pipeline.engine"):
         fed = Pipeline(_config(), on_fuel)
         plain = Pipeline(_config(), paper_table_a1())
     assert not caplog.text

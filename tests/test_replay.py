@@ -16,9 +16,8 @@ import yaml
 from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.cli import main
 from ecu_monitor.model import InputSeries, paper_table_a1
-from ecu_monitor.service.batch_steps import latest_before
 from ecu_monitor.service.config import load_config
-from ecu_monitor.service.replay import headroom_batch, replay_file, replay_frames, replay_live
+from ecu_monitor.service.replay import replay_file, replay_frames, replay_live
 
 ROOT = Path(__file__).resolve().parents[1]
 NUMERIC = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
@@ -165,24 +164,34 @@ def test_replay_of_a_csv_runs_the_same_path(flight: dict[str, Path]) -> None:
     assert {r.state for r in result.rows[:100]} == {"NOMINAL"}
 
 
-def test_headroom_batch_equals_the_scalar_function() -> None:
+def test_the_steps_headroom_equals_the_reference_function() -> None:
+    """The one step's compiled headroom (pipeline/step.py) against estimation/headroom.py's thermal_headroom
+    (Python floats, the steady state and the march written separately) on random operating points."""
     from ecu_monitor.estimation.headroom import thermal_headroom
+    from ecu_monitor.model import Drive, coefficients, compute_drive
+    from ecu_monitor.model.thermal import unpack_coefficients
+    from ecu_monitor.pipeline.step import compiled
 
     params = paper_table_a1()
+    coeffs = coefficients(params)
+    headroom = compiled().headroom_s
     rng = np.random.default_rng(2)
-    n = 60
-    inputs = InputSeries(rng.uniform(20, 100, n), rng.uniform(3000, 9000, n), rng.uniform(0, 3000, n),
-                         rng.uniform(15, 30, n), rng.uniform(-10, 30, n))  # fmt: skip
-    cht = rng.uniform(90, 160, n)
-    gq, gd = rng.uniform(0.9, 1.4, n), rng.uniform(0.9, 1.3, n)
-    batch = headroom_batch(params, inputs, cht, gq, gd)
-    scalar = [
-        thermal_headroom(float(cht[i]), None, inputs.at(i), params,
-                         gamma_q=float(gq[i]), gamma_d=float(gd[i])).time_to_limit_s
-        for i in range(n)
-    ]  # fmt: skip
-    assert np.allclose(batch, scalar, rtol=0, atol=1e-6)
-    assert 0 < np.count_nonzero((np.array(scalar) > 0) & (np.array(scalar) < 6000)) < n  # some limited, some not
+    answers = []
+    for _ in range(200):
+        u = InputSeries(rng.uniform(20, 100), rng.uniform(3000, 9000), rng.uniform(0, 3000), rng.uniform(15, 30),
+                        rng.uniform(-10, 30))  # fmt: skip
+        cht, gq, gd = rng.uniform(90, 160), rng.uniform(0.9, 1.4), rng.uniform(0.9, 1.3)
+        drive = Drive(*(float(v) for v in compute_drive(u, coeffs)))
+        expected = thermal_headroom(cht, None, u, params, gamma_q=gq, gamma_d=gd, coeffs=coeffs).time_to_limit_s
+        from ecu_monitor.model import pack_coefficients
+
+        packed = pack_coefficients(coeffs)
+        unpacked = unpack_coefficients(*packed)
+        got = headroom(cht, np.array(drive, dtype=float), unpacked, gq, gd, params.cht_limit_c)
+        assert got == pytest.approx(expected, abs=1e-6)
+        answers.append(expected)
+    limited = np.array(answers)
+    assert 0 < np.count_nonzero((limited > 0) & (limited < 6000)) < limited.size  # some limited, some not
 
 
 def test_replay_bad_config_exits_2_with_one_line(flight: dict[str, Path], tmp_path: Path,
@@ -271,14 +280,6 @@ def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str
         assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
         assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name
 
-
-def test_latest_frame_before_each_step_is_the_binary_search():
-    """The replay's merge of frame stamps and step times equals searchsorted, ties and gaps included."""
-    rng = np.random.default_rng(11)
-    for _ in range(200):
-        frames = np.sort(np.round(rng.random(rng.integers(0, 40)) * 10.0, 1))  # repeated stamps too
-        steps = np.unique(np.round(rng.random(rng.integers(1, 60)) * 12.0, 1))
-        assert np.array_equal(latest_before(frames, steps), np.searchsorted(frames, steps, side="left") - 1)
 
 
 def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning(

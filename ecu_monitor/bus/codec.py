@@ -353,20 +353,6 @@ class Decoder:
         self.counters["ok"] += 1
         return out
 
-    def rehearse(self, arbitration_id: int, is_extended: bool, data: bytes | bytearray) -> None:
-        """The work of :meth:`decode` on a frame of a prepared message (the checksum, the extraction), with
-        no effect: no counter, no counter-sequence state, nothing returned. Run shortly before a frame is
-        due, it brings that code into the caches (docs/performance.md, "Rehearsal")."""
-        plan = self._plans.get((arbitration_id, is_extended))
-        if plan is None or plan.extract is None:
-            return
-        payload = bytes(data)
-        if len(payload) != plan.length:
-            return
-        if plan.counter_name is not None:
-            head_checksum(payload[:CHECKSUM_BYTE])
-        _extract_values(plan, payload)
-
     def decode_batch(
         self,
         arbitration_ids: np.ndarray,

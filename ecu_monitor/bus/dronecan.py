@@ -244,10 +244,6 @@ class DroneCanDecoder:
         """The DroneCAN data type ids this decoder reads."""
         return tuple(sorted(self._plans))
 
-    def rehearse(self, arbitration_id: int, is_extended: bool, data: bytes | bytearray) -> None:
-        """Nothing: a DroneCAN frame's decode is part of a multi-frame transfer whose state it changes, so it is
-        not rehearsed (``Decoder.rehearse``: the DBC decoder's)."""
-
     def can_filters(self) -> list[CanFilter]:
         """python-can receive filters: 29-bit message frames of the mapped data types, any priority; from
         any node, or with ``source_node_ids`` from those nodes only (one exact filter per type and node, so
