@@ -82,8 +82,8 @@ _RECEIVER = textwrap.dedent(
     spec, level = json.loads(open(sys.argv[1]).read()), sys.argv[2]
     feed = None
     if level == "feed":
-        from ecu_monitor.service.config import load_config
-        from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+        from ecu_monitor.config import load_config
+        from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
         config = load_config(spec["config"])
         feed = Pipeline(config, config.load_params()).feed
     outputs = [[can.Message(arbitration_id=i, is_extended_id=e, data=bytes.fromhex(d)) for i, e, d in step]
@@ -149,9 +149,9 @@ _RECEIVER = textwrap.dedent(
 _DAEMON = textwrap.dedent(
     """
     import signal, sys, json, threading, time, can
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.daemon import Daemon, DaemonSettings
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.config import load_config
+    from ecu_monitor.runtime.daemon import Daemon, DaemonSettings
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
     config = load_config(sys.argv[1])
     pipeline = Pipeline(config, config.load_params())
     daemon = Daemon(pipeline, lambda: can.Bus(**dict(config.bus)), settings=DaemonSettings(tick_s=3600.0),
@@ -220,7 +220,7 @@ def offline(protocol: str, steps: int = 2000, keep: int = 500) -> dict[str, Any]
     """The pipeline fed ``steps`` steps of ``protocol``'s ECU frames at the daemon's clock (one thread, warm):
     the frames it sends in the last ``keep`` steps, one list per step (id, extended, data hex), the filters it
     installs, and CPU us per second of feed, advance_to and the node's encoding over the last ``keep`` steps."""
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
     config = _config(protocol, "unused")
     pipeline = Pipeline(config, config.load_params())

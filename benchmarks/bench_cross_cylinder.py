@@ -8,7 +8,7 @@ alarms, on real four-cylinder flights (leave one flight out) and on virtual ones
 ``DIR/fold_<flight stem>/*_cyl<n>.yaml`` (identified on the other flights: ``identify --cylinder all``
 without the held-out one), the config four_cylinders.yaml with the shipped cross-cylinder settings. The
 four flights are replayed with the fold's models; ``ecu-monitor calibrate``'s cross-cylinder procedure
-(service/calibration_cross.py: threshold per cylinder from the training flights, kept only where none of
+(offline/calibration_cross.py: threshold per cylinder from the training flights, kept only where none of
 them alarms when held out) runs on the training flights, and the held-out flight's cross-cylinder
 statistic is compared with it. Printed per fold and cylinder: the threshold (or off), the held-out
 flight's maximum, whether it alarms; and, for comparison, the same for the own symptom with the same
@@ -64,12 +64,12 @@ def _block_sd(feed: Any, settings: Any) -> float:
 
 
 def real(args: argparse.Namespace) -> None:
+    from ecu_monitor.config import load_config
     from ecu_monitor.model import load_model
-    from ecu_monitor.service.calibration import calibrate_flights
-    from ecu_monitor.service.calibration_cross import calibrate_cross
-    from ecu_monitor.service.calibration_replays import FlightFeeds
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_file
+    from ecu_monitor.offline.calibration import calibrate_flights
+    from ecu_monitor.offline.calibration_cross import calibrate_cross
+    from ecu_monitor.offline.calibration_replays import FlightFeeds
+    from ecu_monitor.offline.replay import replay_file
 
     config = load_config("four_cylinders.yaml")
     count = len(config.cylinder_inputs)
@@ -153,13 +153,13 @@ def _plot(path: str, flight: str, own: Any, cross: Any, own_settings: Any, cross
 
 
 def virtual(args: argparse.Namespace) -> None:
+    from ecu_monitor.config import load_config
     from ecu_monitor.errors import ParameterError
     from ecu_monitor.model import paper_table_a1
+    from ecu_monitor.offline.calibration import calibrate_flights
+    from ecu_monitor.offline.calibration_replays import FlightFeeds
+    from ecu_monitor.offline.replay import replay_file
     from ecu_monitor.research.evaluation import residual_effects
-    from ecu_monitor.service.calibration import calibrate_flights
-    from ecu_monitor.service.calibration_replays import FlightFeeds
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_file
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.random_missions import random_mission
     from virtual_bus.recorder import record

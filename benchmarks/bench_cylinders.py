@@ -120,11 +120,11 @@ def main() -> None:
         one_channel(args.one_channel)
         return
 
+    from ecu_monitor.config import load_config
     from ecu_monitor.flightlog import read_csv
     from ecu_monitor.model import paper_table_a1
+    from ecu_monitor.offline.replay import replay_file
     from ecu_monitor.pipeline.supervision import STATES
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_file
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.plant import Degradation
 
@@ -233,7 +233,7 @@ def dronecan_config() -> object:
     four_cylinders.yaml's ``cylinders`` section (spread limit, cross-cylinder detectors)."""
     import yaml
 
-    from ecu_monitor.service.config import parse_config
+    from ecu_monitor.config import parse_config
     from ecu_monitor.shipped import resolve_file
 
     path = resolve_file("dronecan.yaml", "config")
@@ -250,8 +250,8 @@ def one_channel(path: str) -> None:
     """Live us/step and batch s of ``example.yaml`` over ``path`` (CPU time, best of 3); only APIs that
     predate every cylinder, so ``PYTHONPATH=<older tree>`` measures an older pipeline the same way."""
     from ecu_monitor.bus.canlog import read_frames
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_frames, replay_live
+    from ecu_monitor.config import load_config
+    from ecu_monitor.offline.replay import replay_frames, replay_live
 
     config = load_config("example.yaml")
     params = config.load_params()
@@ -273,9 +273,9 @@ def one_channel(path: str) -> None:
 def cost() -> None:
     """The live and batch cost of one extra cylinder (module docstring, --cost)."""
     from ecu_monitor.bus.canlog import read_frames
+    from ecu_monitor.config import load_config
     from ecu_monitor.model import paper_table_a1
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_frames, replay_live
+    from ecu_monitor.offline.replay import replay_frames, replay_live
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.missions import load_mission
     from virtual_bus.recorder import record

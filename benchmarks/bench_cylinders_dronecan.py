@@ -21,7 +21,7 @@ from typing import Any
 import bench_cylinders  # this folder's module (run as a script)
 import yaml
 
-from ecu_monitor.service import config as service_config
+from ecu_monitor.runtime import config as service_config
 from ecu_monitor.shipped import shipped_file
 
 _FIELD = "uavcan.equipment.ice.reciprocating.Status.cylinder_status[{}].cylinder_head_temperature"

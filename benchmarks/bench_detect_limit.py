@@ -29,7 +29,7 @@ from ecu_monitor.research.detection_limit import DetectionCase, DetectionOutcome
 
 def report(outcomes: list[DetectionOutcome], gammas: list[float], onsets: list[float], command: str,
            wall_s: float) -> str:  # fmt: skip
-    from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
+    from ecu_monitor.config import DEFAULT_CONFIG, load_config
 
     detector = load_config(DEFAULT_CONFIG).detector
     star = limit_step(detector)
@@ -94,7 +94,7 @@ def plot(outcomes: list[DetectionOutcome], gammas: list[float], onsets: list[flo
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
+    from ecu_monitor.config import DEFAULT_CONFIG, load_config
 
     star = limit_step(load_config(DEFAULT_CONFIG).detector)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -114,7 +114,7 @@ def _config_with_egt(config_path: str, work: Path) -> str:
     its DBCs and ``egt_c`` mapped to it, so a model with the mixture index is fed. Returns the copy's path."""
     import yaml
 
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.config import load_config
 
     config = load_config(config_path)
     raw = yaml.safe_load(config.source.read_text(encoding="utf-8"))
@@ -138,11 +138,11 @@ def _feeds(args: tuple[str, str, str, list[tuple[float, float]] | None, bool]) -
     replays keep the open-loop reference (``ReplayResult.reference_feed``, for ``--level``; else empty)."""
     flight, model, config_path, overlays, keep = args
     from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.config import load_config
     from ecu_monitor.model import load_model
+    from ecu_monitor.offline.calibration import flight_feeds, overlay_replays
+    from ecu_monitor.offline.replay import frames_from_flight, replay_frames
     from ecu_monitor.pipeline.engine import model_input_names
-    from ecu_monitor.service.calibration import flight_feeds, overlay_replays
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import frames_from_flight, replay_frames
 
     config = load_config(config_path)
     params = load_model(model)
@@ -228,7 +228,7 @@ def _heat_rate(model: Path, flight: Path) -> tuple[Any, Any, Any]:
     from ecu_monitor.model import load_model
     from ecu_monitor.model.inputs import flight_inputs
     from ecu_monitor.model.thermal import coefficients, compute_drive
-    from ecu_monitor.service.calibration import AIRBORNE_MPS
+    from ecu_monitor.offline.calibration import AIRBORNE_MPS
 
     params = load_model(model)
     log = load_flight(flight)
@@ -262,7 +262,7 @@ def _heat_rate_feeds(feeds: dict[Any, Any], models: list[Path], flights: list[Pa
 def _map_feeds(f: Any, change: Any, held_out: bool) -> Any:
     """One fold's feeds of one flight with ``change`` applied to every symptom feed: the held-out flight's
     [(onset, gain, start, feed)] runs, or a training flight's FlightFeeds (nominal and overlays)."""
-    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+    from ecu_monitor.offline.calibration_replays import FlightFeeds, OverlayRun
 
     if held_out:
         return [(onset, gain, start, change(feed)) for onset, gain, start, feed in f]
@@ -444,7 +444,7 @@ def _level_feeds(
     """The replays' feeds with the detector's symptom replaced by the level symptom (:func:`level_symptom`) of each
     replay's own open-loop reference (the nominal and every overlaid replay, training and held out), times the
     fold's ``scales[i]``."""
-    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+    from ecu_monitor.offline.calibration_replays import FlightFeeds, OverlayRun
 
     out: dict[Any, Any] = {}
     for i in range(n):
@@ -469,7 +469,7 @@ def _level_feeds(
 def _airborne_rise(flight: Path) -> Any:
     """The logged CHT - OAT (degC) where airborne (airspeed >= ``AIRBORNE_MPS``)."""
     from ecu_monitor.bus.canlog import load_flight
-    from ecu_monitor.service.calibration import AIRBORNE_MPS
+    from ecu_monitor.offline.calibration import AIRBORNE_MPS
 
     log = load_flight(flight)
     rise = np.asarray(log["cht_c"], dtype=float) - np.asarray(log["oat_c"], dtype=float)
@@ -958,12 +958,12 @@ def main(argv: list[str] | None = None) -> int:
 
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.commands.calibrate import candidate_table
+    from ecu_monitor.config import load_config
     from ecu_monitor.estimation.detection import calibrate_threshold, cusum_path
     from ecu_monitor.flightlog import import_mapped_csv, resolve_mapping, write_csv
     from ecu_monitor.identify import DEFAULT_FREE
     from ecu_monitor.model import Effects, load_model, save_model
-    from ecu_monitor.service.calibration import AIRBORNE_MPS, choose_settings
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.offline.calibration import AIRBORNE_MPS, choose_settings
 
     config = load_config(args.config)
     variants = [("config", config.detector)]

@@ -10,7 +10,7 @@ In one process (default), on python-can's ``virtual`` interface (three bus objec
   recording ``perf_counter()`` just before each send;
 * a traffic thread sends ``--traffic`` frames/s of other ids (0x400-0x7FF, random payloads), in bursts
   every 2.5 ms;
-* the daemon under test (:class:`~ecu_monitor.service.daemon.Daemon` with the real Pipeline from
+* the daemon under test (:class:`~ecu_monitor.runtime.daemon.Daemon` with the real Pipeline from
   the shipped example.yaml) runs with its 20 ms tick switched off (``tick_s`` = 1 h), so every health frame
   is emitted inside the Notifier callback of the ECU frame that made its step fall due: the health
   frame's latency is measured from that frame's send (the latest ECU send before it);
@@ -69,9 +69,9 @@ import yaml
 from netns import kill_all, multicast_namespace
 
 from ecu_monitor.bus.codec import Encoder
-from ecu_monitor.service.config import parse_config
-from ecu_monitor.service.daemon import Daemon, DaemonSettings
-from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+from ecu_monitor.config import parse_config
+from ecu_monitor.runtime.daemon import Daemon, DaemonSettings
+from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 HEALTH_IDS = (0x300, 0x301, 0x302)
@@ -544,7 +544,7 @@ def step_profile(steps: int = 700, pace_s: float = 0.02) -> None:
     each). The two ThermalEKF calls of a step are the open-loop reference (first) and the estimator."""
     from ecu_monitor.bus import codec
     from ecu_monitor.estimation import detection, ekf, isolation
-    from ecu_monitor.service import pipeline as pipeline_module
+    from ecu_monitor.runtime import pipeline as pipeline_module
 
     timings: dict[str, list[float]] = {}
     originals: list[tuple[Any, str, Any]] = []
@@ -861,9 +861,9 @@ GROUP = "239.74.163.2"
 _DAEMON = textwrap.dedent(
     """
     import json, signal, sys, threading, time, can
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.daemon import Daemon, DaemonSettings
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.config import load_config
+    from ecu_monitor.runtime.daemon import Daemon, DaemonSettings
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
     config = load_config(sys.argv[1])
     pipeline = Pipeline(config, config.load_params())
     settings = DaemonSettings(tick_s=3600.0, **json.loads(sys.argv[2]))

@@ -76,7 +76,7 @@ import yaml
 from netns import kill_all, multicast_namespace
 
 from ecu_monitor.bus.dronecan import DroneCanEncoder
-from ecu_monitor.service.config import parse_config
+from ecu_monitor.config import parse_config
 
 REPO = Path(__file__).resolve().parent.parent
 STATUS = "uavcan.equipment.ice.reciprocating.Status"
@@ -282,7 +282,7 @@ def _print_case(case: str, result: dict[str, Any]) -> None:
 def pipeline_cost(protocol: str, steps: int) -> tuple[float, list[float]]:
     """(CPU us per 20 ms step of feed + advance_to, median feed us of each frame of the step's first
     message) for ``steps`` steps of the engine and air-data frames of ``protocol``."""
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
     config = _dronecan_config("unused") if protocol == "dronecan" else bench_latency._config("unused")
     pipeline = Pipeline(config, config.load_params())
@@ -350,8 +350,8 @@ def _breakdown_one(protocol: str, port: int, steps: int) -> None:
     from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
     from ecu_monitor.bus.kernel_filter import attach_kernel_filter
-    from ecu_monitor.service.daemon import Daemon, DaemonSettings
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.runtime.daemon import Daemon, DaemonSettings
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
     batch = 100  # datagrams queued at a time (well inside the socket's receive buffer)
     config = _dronecan_config("unused") if protocol == "dronecan" else bench_latency._config("unused")

@@ -137,8 +137,8 @@ def phases(log: Path) -> None:
     """Read, replay and health.csv in a fresh process without a warm-up (numba's import and cache loads
     fall in the replay, as in ``ecu-monitor replay``): CPU user + system of each phase."""
     from ecu_monitor.bus.canlog import read_frames
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_frames
+    from ecu_monitor.config import load_config
+    from ecu_monitor.offline.replay import replay_frames
 
     root = Path(__file__).resolve().parents[1]
     config = load_config(root / "ecu_monitor" / "data" / "configs" / "example.yaml")
@@ -175,8 +175,8 @@ def main() -> None:
     import can
 
     from ecu_monitor.bus.canlog import read_frames
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import replay_file, replay_frames
+    from ecu_monitor.config import load_config
+    from ecu_monitor.offline.replay import replay_file, replay_frames
 
     root = Path(__file__).resolve().parents[1]
     config = load_config(root / "ecu_monitor" / "data" / "configs" / "example.yaml")

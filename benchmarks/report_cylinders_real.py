@@ -46,12 +46,12 @@ def main() -> None:
     parser.add_argument("--spread-limit", type=float, default=None, metavar="C")
     args = parser.parse_args()
 
+    from ecu_monitor.config import load_config
     from ecu_monitor.flightlog import cylinder_columns, read_csv
     from ecu_monitor.gap.segments import SEGMENT_NAMES, segment_flight
     from ecu_monitor.model import load_model
+    from ecu_monitor.offline.replay import frames_from_flight, replay_frames
     from ecu_monitor.pipeline.supervision import STATES
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import frames_from_flight, replay_frames
 
     models = tuple(load_model(m) for m in args.models)
     config = load_config("four_cylinders.yaml").replace(spread_limit_c=args.spread_limit)

@@ -116,7 +116,7 @@ def test_overlay_adds_about_its_gain_to_rho_at_every_power(bench: ModuleType) ->
 def test_level_feeds_replace_every_replays_symptom_by_its_own_reference(bench: ModuleType) -> None:
     """Training flights (FlightFeeds, their overlays) and the held-out runs each get the level symptom of their own
     reference, times their fold's scale; the derivative feeds are not used."""
-    from ecu_monitor.service.calibration_replays import FlightFeeds, OverlayRun
+    from ecu_monitor.offline.calibration_replays import FlightFeeds, OverlayRun
 
     t = np.arange(0.0, 5.0)
     oat = np.full(5, 10.0)

@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from ecu_monitor.commands.run import bus_opener, unsupported_on_host
+from ecu_monitor.config import load_config
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.config import load_config
-from ecu_monitor.service.daemon import SilenceWatch
+from ecu_monitor.runtime.daemon import SilenceWatch
 from ecu_monitor.shipped import resolve_file
 from virtual_bus.busconfig import load_bus_config
 

@@ -20,14 +20,14 @@ import yaml
 from ecu_monitor.bus.canlog import read_frames
 from ecu_monitor.cli import main
 from ecu_monitor.commands.replay import DEFAULT_CONFIG
+from ecu_monitor.config import load_config
 from ecu_monitor.estimation.detection import DetectorSettings, calibrate_threshold, cusum_path
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import paper_table_a1, save_model
+from ecu_monitor.offline.calibration import model_fingerprint
+from ecu_monitor.offline.replay import frames_from_flight, replay_file
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.research.evaluation import residual_effects
-from ecu_monitor.service.calibration import model_fingerprint
-from ecu_monitor.service.config import load_config
-from ecu_monitor.service.replay import frames_from_flight, replay_file
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
 
@@ -111,7 +111,7 @@ def test_threshold_is_calibrate_threshold_on_the_services_own_statistic(calibrat
     unbounded = dataclasses.replace(config.detector, threshold=1e300)
     paths = []
     for flight in calibrated["flights"]:
-        result = replay_file(flight, config, params)
+        result = replay_file(flight, config, params, keep_feeds=True)
         assert len(result.detector_feed) == 1  # one clock segment
         time_s, symptom = result.detector_feed[0]
         paths.append(cusum_path(time_s, symptom, unbounded)[1])
@@ -145,7 +145,7 @@ def test_the_statistic_is_the_one_the_service_alarms_on(calibrated):
     config = load_config(calibrated["written"])
     params = config.load_params()
     flight = calibrated["flights"][0]
-    time_s, symptom = replay_file(flight, config, params).detector_feed[0]
+    time_s, symptom = replay_file(flight, config, params, keep_feeds=True).detector_feed[0]
     ends, stat, _ = cusum_path(time_s, symptom, dataclasses.replace(config.detector, threshold=1e300))
     low = 0.6 * float(stat.max())
     crossing = float(ends[np.argmax(stat >= low)])
@@ -176,9 +176,9 @@ def test_csv_flights_go_through_the_same_path(nominal):
     folder, paths = nominal
     config = load_config(DEFAULT_CONFIG)
     params = config.load_params()
-    blf = replay_file(paths[0], config, params)
+    blf = replay_file(paths[0], config, params, keep_feeds=True)
     assert len(read_frames(paths[0])) > 100_000
-    csv = replay_file(folder / "nominal.csv", config, params)
+    csv = replay_file(folder / "nominal.csv", config, params, keep_feeds=True)
     assert np.array_equal(blf.columns["state"], csv.columns["state"])
     for (t_a, x_a), (t_b, x_b) in zip(blf.detector_feed, csv.detector_feed, strict=True):
         assert np.allclose(t_a, t_b) and np.allclose(x_a, x_b, equal_nan=True)
@@ -262,7 +262,7 @@ def _synthetic_flight(name, rng, bump=0.0, overlay_slope=None):
     a smooth nominal excursion of that height rising over 750 s from 1500 s and falling back by 3000 s
     (a phase the model misses on this flight only); overlays add a degradation to the symptom: a
     step of 0.3 approached with 240 s (``overlay_slope`` None) or a ramp of that slope, per s."""
-    from ecu_monitor.service.calibration import FlightFeeds, OverlayRun
+    from ecu_monitor.offline.calibration import FlightFeeds, OverlayRun
 
     t = np.arange(0.0, SYNTHETIC_S, 1.0)
     nominal = rng.normal(0.0, 0.02, t.size) + bump * np.sin(np.pi * np.clip((t - 1500.0) / 1500.0, 0.0, 1.0)) ** 2
@@ -283,7 +283,7 @@ def test_choice_excludes_candidates_with_a_false_alarm_on_a_held_out_flight():
     follows it (lag 0.15/750 x 180 s = 0.036, under the 0.05 allowance); longer ones do not and alarm
     when that flight is held out (h from the other two, on noise only, sits at the 1.0 floor). The
     choice is 120 s, and it detects the k = 0.2 overlays."""
-    from ecu_monitor.service.calibration import choose_settings
+    from ecu_monitor.offline.calibration import choose_settings
 
     rng = np.random.default_rng(5)
     flights = [_synthetic_flight("a", rng, bump=0.15), _synthetic_flight("b", rng), _synthetic_flight("c", rng)]
@@ -305,7 +305,7 @@ def test_choice_freezes_the_baseline_when_the_degradation_creeps_in():
     allowance builds up slowly; frozen while S > 0, the whole ramp stays in the test. The choice is a
     frozen baseline, and at 600 s / 60 s the frozen candidate sees more k = 0.1 ramps in time than
     its learning twin."""
-    from ecu_monitor.service.calibration import choose_settings
+    from ecu_monitor.offline.calibration import choose_settings
 
     rng = np.random.default_rng(8)
     flights = [_synthetic_flight(n, rng, overlay_slope=3e-4) for n in "abc"]
@@ -321,7 +321,7 @@ def test_choice_freezes_the_baseline_when_the_degradation_creeps_in():
 def test_held_out_verdicts_are_those_of_the_threshold_calibrated_on_the_others():
     """Recomputed here with calibrate_threshold and cusum_path: per fold, h from the other flights'
     nominal statistics, the held-out nominal flight's first alarm, each overlay's delay."""
-    from ecu_monitor.service.calibration import score_candidate
+    from ecu_monitor.offline.calibration import score_candidate
 
     rng = np.random.default_rng(6)
     flights = [_synthetic_flight(n, rng, bump=b, overlay_slope=3e-4) for n, b in (("a", 0.1), ("b", 0.0), ("c", 0.05))]
@@ -348,7 +348,7 @@ def test_held_out_verdicts_are_those_of_the_threshold_calibrated_on_the_others()
 
 
 def test_choice_falls_back_with_too_few_flights_or_too_little_airborne_time():
-    from ecu_monitor.service.calibration import FlightFeeds, choose_settings
+    from ecu_monitor.offline.calibration import FlightFeeds, choose_settings
 
     rng = np.random.default_rng(7)
     flights = [_synthetic_flight(n, rng) for n in "abc"]
@@ -369,7 +369,7 @@ def test_choice_falls_back_with_too_few_flights_or_too_little_airborne_time():
 
 def test_onsets_lie_in_the_airborne_part_after_the_warm_up():
     from ecu_monitor.flightlog import FlightLog
-    from ecu_monitor.service.calibration import airborne_onsets
+    from ecu_monitor.offline.calibration import airborne_onsets
 
     t = np.arange(0.0, 5000.0, 1.0)
     airspeed = np.where((t > 300.0) & (t < 4500.0), 50.0, 3.0)  # taxi, flight 300-4500 s, taxi
@@ -390,7 +390,7 @@ def test_baseline_override_skips_the_choice(nominal, tmp_path):
     # the threshold is calibrated for that baseline
     config = load_config(DEFAULT_CONFIG)
     settings = dataclasses.replace(config.detector, baseline_s=600.0, threshold=1e300)
-    feeds = [replay_file(p, config, config.load_params()).detector_feed[0] for p in paths]
+    feeds = [replay_file(p, config, config.load_params(), keep_feeds=True).detector_feed[0] for p in paths]
     expected = calibrate_threshold([cusum_path(t, x, settings)[1] for t, x in feeds], 1.0).threshold
     assert fragment["threshold"] == pytest.approx(expected, abs=1.01e-4)
 

@@ -22,15 +22,15 @@ import yaml
 
 from ecu_monitor.cli import main
 from ecu_monitor.commands.replay import fit_warnings
+from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import load_model, paper_table_a1, save_model
+from ecu_monitor.offline.calibration import model_fingerprint
+from ecu_monitor.offline.replay import replay_file
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.research.evaluation import residual_effects
-from ecu_monitor.service.calibration import model_fingerprint
-from ecu_monitor.service.config import load_config, parse_config
-from ecu_monitor.service.publishers import LiveMonitor as Pipeline
-from ecu_monitor.service.replay import replay_file
+from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
 
@@ -112,8 +112,8 @@ def test_each_cylinder_is_calibrated_on_its_own_channel_and_model(calibrated: di
 
 
 def test_the_cross_cylinder_detectors_are_calibrated_per_cylinder(calibrated: dict[str, Any]) -> None:
-    from ecu_monitor.service.calibration import calibrate_flights
-    from ecu_monitor.service.calibration_cross import cross_feeds, leave_one_out
+    from ecu_monitor.offline.calibration import calibrate_flights
+    from ecu_monitor.offline.calibration_cross import cross_feeds, leave_one_out
 
     printed = calibrated["printed"]
     assert "== cross-cylinder detectors" in printed and "alarms when held out" in printed
@@ -149,7 +149,7 @@ def test_the_service_runs_each_cylinder_on_its_own_detector(calibrated: dict[str
             dataclasses.replace(config.cylinder_detectors[1], threshold=0.05),
         )
     )
-    result = replay_file(flight, tiny, tiny.load_cylinder_params())
+    result = replay_file(flight, tiny, tiny.load_cylinder_params(), keep_feeds=True)
     assert not np.any(result.columns["cyl1_state"] == degraded)
     assert np.any(result.columns["cyl2_state"] == degraded)
     # replay's warning checks each cylinder's threshold against its own model

@@ -1,4 +1,4 @@
-"""service/config.py: the shipped configs load; every error path is a ConfigError naming file and key."""
+"""config.py: the shipped configs load; every error path is a ConfigError naming file and key."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 import yaml
 
+from ecu_monitor.config import load_config
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml"
@@ -191,7 +191,7 @@ def test_shipped_example_threshold_is_marked_for_the_model_it_names():
     """example.yaml and multicast.yaml carry the shipped threshold calibrated for paper_table_a1: their
     calibrated_for is that model's fingerprint, so replay does not warn on them (and would, rightly,
     once the preset changed without a recalibration)."""
-    from ecu_monitor.service.calibration import model_fingerprint
+    from ecu_monitor.offline.calibration import model_fingerprint
     from ecu_monitor.shipped import shipped_file
 
     for name in ("example.yaml", "multicast.yaml"):

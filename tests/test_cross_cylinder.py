@@ -36,9 +36,9 @@ def test_the_batch_form_equals_the_live_step_bit_for_bit() -> None:
 
 
 def test_calibrate_keeps_a_cylinders_cross_detector_only_if_no_held_out_flight_alarms() -> None:
-    from ecu_monitor.service.calibration_cross import calibrate_cross, leave_one_out
-    from ecu_monitor.service.calibration_replays import FlightFeeds
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.config import load_config
+    from ecu_monitor.offline.calibration_cross import calibrate_cross, leave_one_out
+    from ecu_monitor.offline.calibration_replays import FlightFeeds
 
     config = load_config("four_cylinders.yaml")
     rng = np.random.default_rng(8)

@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 import yaml
 
+from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.flightlog import FlightLog, read_csv
 from ecu_monitor.model import paper_table_a1
+from ecu_monitor.offline.replay import frames_from_flight, replay_frames
 from ecu_monitor.pipeline.cylinders import engine_view
 from ecu_monitor.pipeline.outputs import CylinderSnapshot, ReplayResult, health_columns, rows_to_columns
-from ecu_monitor.service.config import load_config, parse_config
-from ecu_monitor.service.publishers import LiveMonitor as Pipeline
-from ecu_monitor.service.replay import frames_from_flight, replay_frames
+from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "ecu_monitor" / "data" / "configs"

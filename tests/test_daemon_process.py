@@ -29,12 +29,12 @@ import yaml
 
 from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.config import load_config
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S
-from ecu_monitor.service.config import load_config
-from ecu_monitor.service.daemon import SEND_FAILURES_TO_REOPEN, Daemon, DaemonSettings
-from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate, watchdog_period_s
-from ecu_monitor.service.persistence import DATABASE_NAME
-from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+from ecu_monitor.runtime.daemon import SEND_FAILURES_TO_REOPEN, Daemon, DaemonSettings
+from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate, watchdog_period_s
+from ecu_monitor.runtime.persistence import DATABASE_NAME
+from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 ENGINE_DBC = REPO / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
@@ -394,7 +394,7 @@ def test_a_silent_bus_is_warned_once_per_silence(tmp_path: Path, caplog: pytest.
     thread, result = run_daemon_thread(daemon)
     stop.supervisor = thread
     try:
-        with caplog.at_level("INFO", logger="ecu_monitor.service.daemon"):
+        with caplog.at_level("INFO", logger="ecu_monitor.runtime.daemon"):
             # the supervisor's first wait comes after run() started the silence at the first open
             # (bus_opens, which run_daemon_thread waits for, is counted just before): no race with it
             assert wait_until(lambda: len(stop.waits) > 0, 30.0)
@@ -662,7 +662,7 @@ sys.path.insert(0, sys.argv[1])
 from test_daemon_process import _pipeline
 from ecu_monitor.estimation.runner import compiled_filter_steps
 from ecu_monitor.estimation import isolation
-from ecu_monitor.service.daemon import Daemon
+from ecu_monitor.runtime.daemon import Daemon
 from pathlib import Path
 
 def compiled():

@@ -18,10 +18,10 @@ from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.bus.codec import SignalSpec
 from ecu_monitor.bus.dronecan import TRANSFER_TIMEOUT_S, DroneCanDecoder, looks_like_dronecan, parse_field
 from ecu_monitor.bus.dronecan_codec import message_codec, transfer_frames
+from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.model import paper_table_a1
-from ecu_monitor.service.config import load_config, parse_config
-from ecu_monitor.service.replay import replay_frames, replay_live
+from ecu_monitor.offline.replay import replay_frames, replay_live
 from ecu_monitor.units import pressure_altitude_m
 
 dronecan = pytest.importorskip("dronecan")
@@ -414,7 +414,7 @@ def _published(frames: list[can.Message]) -> list[tuple[float, str, Any]]:
 
 
 def _run_pipeline(frames: list[can.Message], until_s: float) -> list[can.Message]:
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
     config = load_config("dronecan.yaml")
     pipeline = Pipeline(config, config.load_params())
@@ -465,7 +465,7 @@ def test_node_status_follows_the_engine_state_and_state_changes_are_logged() -> 
 
 
 def test_node_health_mapping() -> None:
-    from ecu_monitor.service.dronecan_node import node_health
+    from ecu_monitor.runtime.dronecan_node import node_health
 
     assert [node_health(s, 100.0, 150.0) for s in ("NOMINAL", "SUSPECT", "INPUT_STALE", "UNAVAILABLE")] == [0, 1, 1, 1]
     assert [node_health(s, 100.0, 150.0) for s in ("DEGRADED", "SENSOR_FAULT")] == [2, 2]
@@ -476,7 +476,7 @@ def test_node_health_mapping() -> None:
 
 def test_key_values_of_an_engine_monitored_per_cylinder() -> None:
     from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
-    from ecu_monitor.service.dronecan_node import key_values
+    from ecu_monitor.runtime.dronecan_node import key_values
 
     cylinders = (
         CylinderSnapshot(1, 120.0, 121.0, 0.0, "NOMINAL", 1.0, 1.0, 6000.0),
@@ -493,7 +493,7 @@ def test_the_mean_exhaust_temperature_feeds_a_model_with_the_mixture_index(tmp_p
     """egt_c mapped to the ICE status's mean exhaust gas temperature (kelvin): a model whose mixture_index
     effect reads the EGT gets it (degC) as an input of its own, reported stale like any other."""
     from ecu_monitor.model.effects import Effects, MixtureIndex
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
     data = _shipped()
     data["inputs"]["egt_c"] = {
@@ -583,8 +583,8 @@ def test_the_node_answers_get_node_info_as_the_package_reads_it() -> None:
     and transfer id, with the node's status as it broadcasts it, the version and the name; a request to
     another node is not taken (it counts as a foreign frame)."""
     from ecu_monitor import __version__
-    from ecu_monitor.service.dronecan_node import NODE_NAME
-    from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+    from ecu_monitor.runtime.dronecan_node import NODE_NAME
+    from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
     def request(dest: int, transfer_id: int, time_s: float) -> can.Message:
         transfer = dronecan.transport.Transfer(

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from ecu_monitor.bus.dronecan import DroneCanDecoder
-from ecu_monitor.service.config import load_config
+from ecu_monitor.config import load_config
 
 hypothesis = pytest.importorskip("hypothesis")
 dronecan = pytest.importorskip("dronecan")

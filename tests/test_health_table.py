@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.cli import main
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.pipeline import table as health_table
 from ecu_monitor.pipeline.outputs import ReplayResult, health_columns, health_table_columns, write_health_csv
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import check_table_path, csv_bytes, format_g10
-from ecu_monitor.service import health_table
 
 FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
 CYLINDER_FLOATS = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")

@@ -33,7 +33,7 @@ import pytest
 import yaml
 
 from ecu_monitor.bus.checksum import frame_checksum
-from ecu_monitor.service.persistence import DATABASE_NAME
+from ecu_monitor.runtime.persistence import DATABASE_NAME
 
 pytestmark = [pytest.mark.netns, pytest.mark.slow]
 

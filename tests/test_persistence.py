@@ -18,8 +18,8 @@ import pytest
 import rainflow
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.flight_recorder import FlightRecorder
-from ecu_monitor.service.persistence import (
+from ecu_monitor.runtime.flight_recorder import FlightRecorder
+from ecu_monitor.runtime.persistence import (
     DATABASE_NAME,
     FlightRules,
     FlightSample,
@@ -173,8 +173,8 @@ def test_rules_are_validated() -> None:
 _WRITER = textwrap.dedent(
     """
     import math, sys
-    from ecu_monitor.service.flight_recorder import FlightRecorder
-    from ecu_monitor.service.persistence import FlightRules, FlightSample, StateStore
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.persistence import FlightRules, FlightSample, StateStore
     rules = FlightRules(min_flight_s=5.0, end_after_s=1.0, checkpoint_every_s=2.0)
     store = StateStore(sys.argv[1])
     recorder = FlightRecorder(store, "UAV-ENG-KILL", 200.0, rules)

@@ -18,11 +18,11 @@ from hypothesis import strategies as st
 
 from ecu_monitor.bus.checksum import frame_checksum
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.config import ServiceConfig, parse_config
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.model import InputSeries, coefficients, compute_drive, paper_table_a1, steady_state_cht
 from ecu_monitor.pipeline.outputs import HealthSnapshot
-from ecu_monitor.service.config import ServiceConfig, parse_config
-from ecu_monitor.service.publishers import LiveMonitor as Pipeline
+from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE_DBC = ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc"
@@ -354,7 +354,7 @@ def test_demo_command_on_a_short_mission(tmp_path: Path, capsys: pytest.CaptureF
 
 def test_rusefi_config_runs_the_pipeline_on_third_party_frames() -> None:
     """The shipped rusefi.yaml: rusEFI broadcast frames (no counter/checksum) + our AirData -> estimates."""
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.config import load_config
 
     config = load_config(ROOT / "ecu_monitor" / "data" / "configs" / "rusefi.yaml")
     pipeline = Pipeline(config, paper_table_a1())
@@ -390,7 +390,7 @@ def test_rusefi_config_runs_the_pipeline_on_third_party_frames() -> None:
 def test_a_vendor_dbc_by_config_only(tmp_path: Path) -> None:
     """A dash DBC with '#' comment lines, hex ids and an unused message of overlapping signals, and a fuel
     flow in cc/min: a config alone (no hand edit of the file) maps it, the unit by its scale."""
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.config import load_config
 
     dbc = tmp_path / "dash.dbc"
     dbc.write_text(

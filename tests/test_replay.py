@@ -1,4 +1,4 @@
-"""service/replay.py and ``ecu-monitor replay``: the batch path equals the live pipeline; the virtual
+"""offline/replay.py and ``ecu-monitor replay``: the batch path equals the live pipeline; the virtual
 ECU's .blf log and its canonical CSV give the same health.csv; bad input exits 2 with one line."""
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import yaml
 
 from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.cli import main
+from ecu_monitor.config import load_config
 from ecu_monitor.model import InputSeries, paper_table_a1
-from ecu_monitor.service.config import load_config
-from ecu_monitor.service.replay import replay_file, replay_frames, replay_live
+from ecu_monitor.offline.replay import replay_file, replay_frames, replay_live
 
 ROOT = Path(__file__).resolve().parents[1]
 NUMERIC = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
@@ -281,30 +281,29 @@ def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str
         assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name
 
 
-
 def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning(
     flight: dict[str, Path], caplog: pytest.LogCaptureFixture
 ) -> None:
     """A real log's fuel flow above engine.dbc's FuelFlow range (50 L/h; a Lycoming at full power burns
     ~57) is sent clamped, as that ECU would send it, and the replay says so once, naming the column."""
     from ecu_monitor.flightlog import load_csv
-    from ecu_monitor.service.replay import frames_from_flight
+    from ecu_monitor.offline.replay import frames_from_flight
 
     log = load_csv(flight["csv"])
     fuel = np.asarray(log["fuel_flow_lph"], dtype=float)
     config = load_config(ROOT / "ecu_monitor" / "data" / "configs" / "example.yaml")
-    with caplog.at_level("WARNING", logger="ecu_monitor.service.flight_frames"):
+    with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
         frames_from_flight(log, config)
     assert not caplog.records  # the virtual ECU's own flight stays inside its DBC
     hot = log.with_columns(fuel_flow_lph=np.where(np.arange(fuel.size) % 10 == 0, 57.5, fuel))
-    with caplog.at_level("WARNING", logger="ecu_monitor.service.flight_frames"):
+    with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
         frames = frames_from_flight(hot, config)
     [record] = caplog.records
     text = record.getMessage()
     assert "fuel_flow_lph" in text and "ECU_Fast.FuelFlow" in text and "[0, 50]" in text and "57.5" in text
     assert f"in {(fuel.size + 9) // 10} of {fuel.size} rows" in text
     caplog.clear()
-    with caplog.at_level("WARNING", logger="ecu_monitor.service.flight_frames"):
+    with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
         frames_from_flight(hot, config)  # calibrate replays a flight many times: told once
     assert not caplog.records
     fast = frames.arbitration_id == 0x100  # ECU_Fast: FuelFlow at bit 32, 0.01 L/h; 50 L/h the largest sent

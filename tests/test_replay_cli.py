@@ -84,10 +84,10 @@ def test_replay_warns_when_the_limit_or_the_threshold_does_not_fit(flight_csv, t
     import dataclasses
 
     from ecu_monitor.commands.replay import fit_warnings
+    from ecu_monitor.config import DEFAULT_CONFIG, load_config
     from ecu_monitor.flightlog import read_csv
-    from ecu_monitor.service.calibration import model_fingerprint
-    from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
-    from ecu_monitor.service.replay import replay_file
+    from ecu_monitor.offline.calibration import model_fingerprint
+    from ecu_monitor.offline.replay import replay_file
 
     path, _ = flight_csv
     flown = read_csv(path)["cht_c"]

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ecu_monitor.commands.replay import DEFAULT_CONFIG
-from ecu_monitor.service.config import load_config
-from ecu_monitor.service.replay import frames_from_flight, replay_frames
+from ecu_monitor.config import load_config
+from ecu_monitor.offline.replay import frames_from_flight, replay_frames
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
 

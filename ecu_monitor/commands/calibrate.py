@@ -98,10 +98,10 @@ def add_subparser(subparsers: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     config_path = resolve_file(args.config, "config") if args.config else DEFAULT_CONFIG
     out = _check(args, config_path)
+    from ecu_monitor.config import load_config
     from ecu_monitor.flightlog import require_distinct
     from ecu_monitor.model import load_model
-    from ecu_monitor.service.calibration import BASELINE_CANDIDATES_S
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.offline.calibration import BASELINE_CANDIDATES_S
 
     candidates = _candidates(args.candidates) if args.candidates else list(BASELINE_CANDIDATES_S)
     config = load_config(config_path)
@@ -115,7 +115,7 @@ def _run(args: argparse.Namespace) -> int:
         if not Path(flight).is_file():
             raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")
 
-    from ecu_monitor.service.calibration import config_copy_yaml, detector_fragment_yaml, model_fingerprint
+    from ecu_monitor.offline.calibration import config_copy_yaml, detector_fragment_yaml, model_fingerprint
 
     sources = [str(Path(p).resolve()) for p in args.flights]
     if len(config.cylinder_inputs) > 1:
@@ -141,7 +141,7 @@ def _run_cylinders(
     """Every cylinder of an engine monitored per cylinder calibrated on its own CHT (``cht<n>_c``) and
     model, the same procedure as one channel; writes ``cylinders.detectors``."""
     from ecu_monitor.model import load_model
-    from ecu_monitor.service.calibration import (
+    from ecu_monitor.offline.calibration import (
         config_copy_yaml,
         cylinder_config,
         cylinders_fragment_yaml,
@@ -184,8 +184,8 @@ def _run_cylinders(
 def _calibrate_cross(args: argparse.Namespace, config: Any, params: list[Any]) -> list[Any]:
     """The cross-cylinder detectors (cylinders.cross_detector): one replay of each flight with every
     cylinder, each cylinder's threshold from its cross-cylinder statistic, kept only where no held-out
-    flight alarms (service/calibration_cross.py); prints the per-flight maxima and that check."""
-    from ecu_monitor.service.calibration_cross import calibrate_cross, cross_feeds, leave_one_out
+    flight alarms (offline/calibration_cross.py); prints the per-flight maxima and that check."""
+    from ecu_monitor.offline.calibration_cross import calibrate_cross, cross_feeds, leave_one_out
 
     print("== cross-cylinder detectors (each cylinder's symptom minus the median of the others') ==")
     feeds = cross_feeds(args.flights, config, params)
@@ -225,7 +225,7 @@ def _calibrate_channel(
     ``cylinder``: the flights' ``cht<cylinder>_c`` is the channel (``config`` maps it as ``cht_c``)."""
     from tqdm import tqdm
 
-    from ecu_monitor.service.calibration import (
+    from ecu_monitor.offline.calibration import (
         SettingsChoice,
         calibrate_flights,
         choose_settings,

@@ -36,10 +36,10 @@ from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
 
+    from ecu_monitor.config import ServiceConfig
     from ecu_monitor.flightlog import FlightLog
     from ecu_monitor.pipeline.outputs import HealthSnapshot
-    from ecu_monitor.service.config import ServiceConfig
-    from ecu_monitor.service.publishers import LiveMonitor
+    from ecu_monitor.runtime.publishers import LiveMonitor
 
 __all__ = ["DEFAULT_CONFIG", "ServiceListener", "add_subparser", "plot_report"]
 
@@ -114,10 +114,10 @@ class ServiceListener:
 def _run(args: argparse.Namespace) -> int:
     import can
 
+    from ecu_monitor.config import load_config
     from ecu_monitor.flightlog import write_csv
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.publishers import LiveMonitor
-    from ecu_monitor.service.replay import write_health_csv
+    from ecu_monitor.offline.replay import write_health_csv
+    from ecu_monitor.runtime.publishers import LiveMonitor
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.missions import load_mission
     from virtual_bus.plant import Degradation, collect, iter_steps, record_every
@@ -232,7 +232,7 @@ def cylinder_config(count: int, protocol: str = "dbc") -> ServiceConfig:
     and four_cylinders.yaml's cylinders and health sections."""
     import yaml
 
-    from ecu_monitor.service.config import parse_config
+    from ecu_monitor.config import parse_config
     from ecu_monitor.shipped import resolve_file
 
     if not 2 <= count <= 4:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.persistence import CYCLE_BIN_EDGES_C, FlightRecord, StateStore, iter_trend
+from ecu_monitor.runtime.persistence import CYCLE_BIN_EDGES_C, FlightRecord, StateStore, iter_trend
 
 __all__ = ["add_subparser", "engine_trend", "format_history", "plot_history"]
 
@@ -216,7 +216,7 @@ def _cylinder_value(record: FlightRecord, index: int, key: str) -> float:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from ecu_monitor.service.config import load_config
+    from ecu_monitor.config import load_config
 
     state_dir = Path(args.state_dir) if args.state_dir else load_config(args.config).state_dir
     with StateStore(state_dir, readonly=True) as store:

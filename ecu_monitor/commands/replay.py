@@ -37,9 +37,9 @@ if TYPE_CHECKING:  # the run imports these: --help stays light
     from collections.abc import Sequence
 
     from ecu_monitor.bus.canlog import FrameArrays
+    from ecu_monitor.config import ServiceConfig
     from ecu_monitor.model import ThermalParams
-    from ecu_monitor.service.config import ServiceConfig
-    from ecu_monitor.service.replay import ReplayResult
+    from ecu_monitor.offline.replay import ReplayResult
 
 __all__ = ["DEFAULT_CONFIG", "add_subparser", "fit_warnings"]
 
@@ -77,12 +77,12 @@ def _run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
+    from ecu_monitor.config import load_config
     from ecu_monitor.estimation import ESTIMATORS
     from ecu_monitor.model import load_model
+    from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.replay import frames_from_flight, replay_frames, replay_live
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
@@ -240,7 +240,7 @@ def fit_warnings(
     measured CHT, and a detector threshold not calibrated for ``params`` (by its fingerprint)."""
     import numpy as np
 
-    from ecu_monitor.service.calibration import model_fingerprint
+    from ecu_monitor.offline.calibration import model_fingerprint
 
     out = []
     cht = np.asarray(result.columns["cht_meas_c"], dtype=float)

@@ -22,13 +22,13 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.persistence import FlightRules
+from ecu_monitor.runtime.persistence import FlightRules
 
 if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help stays light
     import can
 
-    from ecu_monitor.service.config import ServiceConfig
-    from ecu_monitor.service.daemon import DaemonSettings
+    from ecu_monitor.config import ServiceConfig
+    from ecu_monitor.runtime.daemon import DaemonSettings
 
 __all__ = ["add_subparser", "bus_opener", "daemon_settings", "engine_speed_of", "unsupported_on_host"]
 
@@ -147,12 +147,12 @@ def unsupported_on_host(exc: BaseException) -> bool:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.daemon import Daemon
-    from ecu_monitor.service.flight_recorder import FlightRecorder
-    from ecu_monitor.service.notify import SystemdNotifier, watchdog_period_s
-    from ecu_monitor.service.persistence import StateStore
-    from ecu_monitor.service.publishers import LiveMonitor  # the estimator stack: imported only when running
+    from ecu_monitor.config import load_config
+    from ecu_monitor.runtime.daemon import Daemon
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
+    from ecu_monitor.runtime.persistence import StateStore
+    from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
 
     config = load_config(args.config)
     models = config.load_cylinder_params()  # one per cylinder (one for a single CHT channel)
@@ -204,7 +204,7 @@ def _run(args: argparse.Namespace) -> int:
 def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
     """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; and systemd's
     watchdog period, s (None: no watchdog)."""
-    from ecu_monitor.service.daemon import DaemonSettings
+    from ecu_monitor.runtime.daemon import DaemonSettings
 
     return DaemonSettings(
         backoff_initial_s=config.reopen_backoff.initial,

@@ -49,8 +49,8 @@ if TYPE_CHECKING:
     from can.typechecking import CanFilter
 
     from ecu_monitor.bus.dronecan import DroneCanDecoder
+    from ecu_monitor.config import ServiceConfig
     from ecu_monitor.estimation.detection import DetectorSettings
-    from ecu_monitor.service.config import ServiceConfig
 
 __all__ = ["MODEL_INPUTS", "STATUS_INPUT", "Pipeline", "StepRow", "fed_mixture", "make_decoder", "model_input_names"]
 

@@ -79,11 +79,11 @@ class DetectionOutcome(NamedTuple):
 def detection_case(case: DetectionCase) -> DetectionOutcome:
     """Fly ``case`` (random mission of onset + 1800 s, the evaluation's residual effects, flown to
     onset + 900 s) and run the shipped service's estimator and detector (example.yaml, its model)."""
+    from ecu_monitor.config import DEFAULT_CONFIG, load_config
     from ecu_monitor.estimation import run_estimator
     from ecu_monitor.estimation.detection import cusum_path
     from ecu_monitor.estimation.isolation import run_isolation
     from ecu_monitor.research.evaluation import residual_effects
-    from ecu_monitor.service.config import DEFAULT_CONFIG, load_config
     from virtual_bus.plant import Degradation, fly
     from virtual_bus.random_missions import random_mission
 

@@ -3,7 +3,7 @@
 A flight starts when rpm reaches ``FlightRules.running_rpm`` and ends when it has stayed below (or been
 stale) for ``end_after_s``; a run shorter than ``min_flight_s`` is not kept. A running flight is
 checkpointed every ``checkpoint_every_s``; a flight left running by a crash is recovered, and resumed when
-the engine is still running at restart (one engine run stays one flight). See service/persistence.py for
+the engine is still running at restart (one engine run stays one flight). See runtime/persistence.py for
 the durability rules of the store.
 """
 
@@ -14,8 +14,8 @@ import logging
 import math
 from typing import Any
 
-from ecu_monitor.service.persistence import FlightRecord, FlightRules, FlightSample, StateStore
-from ecu_monitor.service.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
+from ecu_monitor.runtime.persistence import FlightRecord, FlightRules, FlightSample, StateStore
+from ecu_monitor.runtime.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
 
 __all__ = ["FlightRecorder", "SignalMoments"]
 

@@ -1,6 +1,6 @@
 """The live service: a receive thread feeding the pipeline, health frames back onto the bus.
 
-Three threads share one :class:`~ecu_monitor.service.publishers.LiveMonitor` (the pipeline and its
+Three threads share one :class:`~ecu_monitor.runtime.publishers.LiveMonitor` (the pipeline and its
 publishers) under one lock:
 
 * the receive thread: it calls the bus's ``recv`` itself (no python-can Notifier: the Notifier's lock
@@ -61,9 +61,9 @@ import can
 from can.interfaces.virtual import VirtualBus
 
 from ecu_monitor.bus.kernel_filter import attach_kernel_filter
-from ecu_monitor.service.flight_recorder import FlightRecorder
-from ecu_monitor.service.notify import SystemdNotifier, WatchdogGate
-from ecu_monitor.service.persistence import FlightSample
+from ecu_monitor.runtime.flight_recorder import FlightRecorder
+from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
+from ecu_monitor.runtime.persistence import FlightSample
 
 __all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch"]
 
@@ -80,7 +80,7 @@ _T = TypeVar("_T")
 
 
 class PipelineLike(Protocol):
-    """What the daemon uses of :class:`~ecu_monitor.service.publishers.LiveMonitor` (the service contract)."""
+    """What the daemon uses of :class:`~ecu_monitor.runtime.publishers.LiveMonitor` (the service contract)."""
 
     counters: dict[str, int]
 

@@ -45,9 +45,9 @@ from can.typechecking import CanFilter
 from ecu_monitor import __version__
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.dronecan import DroneCanEncoder
+from ecu_monitor.config import DroneCanSettings
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.pipeline.supervision import STATES
-from ecu_monitor.service.config import DroneCanSettings
 
 __all__ = ["HEALTH_CODES", "KEY_VALUES", "LOG_LEVELS", "NODE_NAME", "DroneCanNode", "key_values", "node_health"]
 

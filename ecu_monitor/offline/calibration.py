@@ -1,6 +1,6 @@
 """Calibrating the detector's threshold on a user's own nominal flights (``ecu-monitor calibrate``).
 
-Each flight goes through the replay's batch path (:func:`~ecu_monitor.service.replay.replay_file`:
+Each flight goes through the replay's batch path (:func:`~ecu_monitor.offline.replay.replay_file`:
 the same decoding, supervision, estimator, symptom, warm-up and baseline as the service), and the
 detector's input (:attr:`ReplayResult.detector_feed`) is run through
 :func:`~ecu_monitor.estimation.detection.cusum_path` with no alarm (threshold 1e300, as
@@ -39,6 +39,13 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from ecu_monitor.config import (
+    CHT_INPUT,
+    CYLINDER_HEALTH_MESSAGES,
+    CYLINDER_INPUT,
+    MODEL_PRESETS,
+    ServiceConfig,
+)
 from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.estimation.detection import (
     DetectorSettings,
@@ -48,7 +55,7 @@ from ecu_monitor.estimation.detection import (
     cusum_path,
 )
 from ecu_monitor.model import ThermalParams
-from ecu_monitor.service.calibration_replays import (
+from ecu_monitor.offline.calibration_replays import (
     AIRBORNE_MPS,
     MIN_AIRBORNE_S,
     ONSET_FRACTIONS,
@@ -64,13 +71,6 @@ from ecu_monitor.service.calibration_replays import (
     flight_statistic,
     overlay_replays,
     statistic_paths,
-)
-from ecu_monitor.service.config import (
-    CHT_INPUT,
-    CYLINDER_HEALTH_MESSAGES,
-    CYLINDER_INPUT,
-    MODEL_PRESETS,
-    ServiceConfig,
 )
 from ecu_monitor.shipped import resolve_file, shipped_file
 

@@ -208,7 +208,7 @@ class ServiceConfig:
     #: the time it is expected, ms; 0: it sleeps in recv (docs/service.md, "Rehearsal")
     spin_ms: float = 0.5
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
-    #: ``ecu-monitor calibrate`` writes it, ecu_monitor.service.calibration.model_fingerprint); None if not given.
+    #: ``ecu-monitor calibrate`` writes it, ecu_monitor.offline.calibration.model_fingerprint); None if not given.
     detector_calibrated_for: str | None = None
     #: ``dbc`` or ``dronecan`` (:data:`PROTOCOLS`): how the inputs are read from the bus
     protocol: str = "dbc"

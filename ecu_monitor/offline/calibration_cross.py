@@ -25,12 +25,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ecu_monitor.config import ServiceConfig
 from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.model import ThermalParams
-from ecu_monitor.service.calibration import MIN_WHOLE_HOURS, CalibrationResult, calibrate_flights
-from ecu_monitor.service.calibration_replays import FlightFeeds
-from ecu_monitor.service.config import ServiceConfig
-from ecu_monitor.service.replay import replay_file
+from ecu_monitor.offline.calibration import MIN_WHOLE_HOURS, CalibrationResult, calibrate_flights
+from ecu_monitor.offline.calibration_replays import FlightFeeds
+from ecu_monitor.offline.replay import replay_file
 
 __all__ = ["HeldOut", "calibrate_cross", "cross_feeds", "leave_one_out"]
 

@@ -5,7 +5,7 @@ daemon and the demo run).
 
 * :class:`DbcHealthFrames`: the health.dbc messages (Health_Status, Health_Isolation, Health_Diag,
   Health_Spread, Health_Cylinder) at their configured rates; a nan value is sent as the signal's idle value.
-* :class:`DroneCanPublisher`: the service as a DroneCAN node (service/dronecan_node.py).
+* :class:`DroneCanPublisher`: the service as a DroneCAN node (runtime/dronecan_node.py).
 """
 
 from __future__ import annotations
@@ -21,12 +21,12 @@ from ecu_monitor.model import ThermalParams
 from ecu_monitor.pipeline.engine import Pipeline, StepRow
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.pipeline.supervision import STATES
-from ecu_monitor.service.dronecan_node import DroneCanNode
+from ecu_monitor.runtime.dronecan_node import DroneCanNode
 
 if TYPE_CHECKING:
     from can.typechecking import CanFilter
 
-    from ecu_monitor.service.config import ServiceConfig
+    from ecu_monitor.config import ServiceConfig
 
 __all__ = ["HEALTH_SIGNALS", "DbcHealthFrames", "DroneCanPublisher", "LiveMonitor", "Publisher", "make_publishers"]
 
@@ -148,7 +148,7 @@ def _cylinder_values(cyl: Any) -> tuple[float, ...]:
 
 class DroneCanPublisher:
     """The service as a DroneCAN node: NodeStatus, KeyValue and LogMessage from the health-status rows, the
-    rest of a KeyValue set and service replies on the rows between (service/dronecan_node.py)."""
+    rest of a KeyValue set and service replies on the rows between (runtime/dronecan_node.py)."""
 
     def __init__(self, config: ServiceConfig, pipeline: Pipeline) -> None:
         self.pipeline = pipeline

@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError, EcuMonitorError
-from ecu_monitor.service.thermal_cycles import (
+from ecu_monitor.runtime.thermal_cycles import (
     CYCLE_BIN_EDGES_C,
     ReversalFilter,
     count_cycles,

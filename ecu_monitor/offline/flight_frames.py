@@ -13,9 +13,9 @@ from numpy.typing import NDArray
 
 from ecu_monitor.bus.canlog import GAP_S, FrameArrays
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.config import ServiceConfig
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.service.config import ServiceConfig
 
 _log = logging.getLogger(__name__)
 

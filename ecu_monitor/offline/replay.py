@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, FrameArrays, load_flight, read_frames, time_gaps
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.model import ThermalParams
+from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
 from ecu_monitor.pipeline.engine import Pipeline, model_input_names
 from ecu_monitor.pipeline.outputs import (
@@ -39,7 +40,6 @@ from ecu_monitor.pipeline.outputs import (
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_S
 from ecu_monitor.pipeline.step import Rows, Traces
 from ecu_monitor.pipeline.supervision import CODE_FAULT, CODE_NOMINAL
-from ecu_monitor.service.flight_frames import frames_from_flight
 
 __all__ = [
     "HEALTH_COLUMNS",

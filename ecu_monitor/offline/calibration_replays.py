@@ -1,5 +1,5 @@
 """The user's nominal flights through the service's replay, for calibration: the detector's feed of each
-flight, nominal and with degradations overlaid on its CHT (``ecu-monitor calibrate``; service/calibration.py
+flight, nominal and with degradations overlaid on its CHT (``ecu-monitor calibrate``; offline/calibration.py
 sets the threshold and chooses the settings from these)."""
 
 from __future__ import annotations
@@ -15,14 +15,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.bus.canlog import FrameArrays, load_flight, read_frames
+from ecu_monitor.config import ServiceConfig
 from ecu_monitor.errors import FlightLogError
 from ecu_monitor.estimation.detection import DetectorSettings, cusum_path, overlay_degradation
 from ecu_monitor.flightlog import FlightLog, choose_cht
 from ecu_monitor.model import ThermalParams
+from ecu_monitor.offline.replay import ReplayResult, frames_from_flight, replay_file, replay_frames
 from ecu_monitor.pipeline.engine import model_input_names
 from ecu_monitor.pipeline.outputs import ReferenceFeed
-from ecu_monitor.service.config import ServiceConfig
-from ecu_monitor.service.replay import ReplayResult, frames_from_flight, replay_file, replay_frames
 
 __all__ = [
     "AIRBORNE_MPS",
@@ -236,7 +236,7 @@ def flight_feeds(
     """Replay one nominal flight (canonical CSV or CAN log, decoded with the config's DBCs) nominal and,
     if ``overlays``, with each gain of :data:`OVERLAY_TARGETS_S` at each of :func:`airborne_onsets`.
     ``cylinder``: the log's ``cht<cylinder>_c`` is its CHT (``config`` then maps that cylinder's probe
-    as ``cht_c``, see :func:`ecu_monitor.service.calibration.cylinder_config`). ``keep_reference``: keep
+    as ``cht_c``, see :func:`ecu_monitor.offline.calibration.cylinder_config`). ``keep_reference``: keep
     each replay's open-loop reference too (:func:`replay_frames`; for offline analyses)."""
     if Path(path).suffix.lower() == ".csv":
         log = load_flight(path)
