@@ -155,6 +155,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="output .csv, .asc, .blf, .log or (--protocol mavlink) .tlog (repeatable)",
     )
     rec.add_argument("--record-dt", type=float, default=0.1, help="CSV sample step, s (default 0.1)")
+    rec.add_argument(
+        "--start-time",
+        type=float,
+        default=0.0,
+        help="timestamp of mission time 0 in the CAN logs and the .tlog, s (a .tlog's clock: s since 1970; default 0)",
+    )
     rec.set_defaults(func=_record)
 
     run = sub.add_parser("run", help="emit a mission's frames onto a CAN bus")
@@ -195,6 +201,7 @@ def _record(args: argparse.Namespace) -> int:
         progress=lambda t: progress(f"t = {t:.0f} s"),
         cylinders=flight.cylinders,
         protocol=args.protocol or "dbc",
+        start_time_s=args.start_time,
     )
     progress.done()
     print(f"{flight.describe()}")

@@ -43,7 +43,8 @@ holds no key; a link that signs is read as it is).
 Kelvin in degC fields. Some senders put kelvin into fields the definition says are degC (issue 27:
 PX4's EFI_STATUS stream; ArduPilot's own EFI_STATUS sent its EGT in kelvin before it was fixed). The
 decoder checks every degC field it reads (:func:`kelvin_like`): an engine temperature (CHT, EGT) of
-250 "degC" or more while the same message says the engine is stopped (``rpm`` below 1), or any other
+250 "degC" or more while the same message says the engine is stopped (``rpm`` below 1), a CHT of 400
+"degC" or more at any time (no head runs that hot; a warm head in kelvin reads 400-520), or any other
 temperature (an air or intake temperature) of 150 "degC" or more, reads like kelvin. The first such
 value of an input is logged as one warning line naming the field and the fix, and kept in
 :attr:`MavlinkDecoder.warnings`; the value is passed on as the definition says (no guess). The fix is
@@ -143,6 +144,7 @@ DEFAULT_FIELDS: Mapping[str, tuple[tuple[str, str], ...]] = MappingProxyType(
 #: Fields holding an engine's own temperatures (kelvin check against the message's rpm).
 _ENGINE_TEMPERATURES = frozenset({"cylinder_head_temperature", "exhaust_gas_temperature"})
 _ENGINE_KELVIN_C = 250.0  # a stopped engine's CHT/EGT at or above this many "degC" reads like kelvin
+_CHT_KELVIN_C = 400.0  # a CHT at or above this many "degC" reads like kelvin, engine running or not
 _AIR_KELVIN_C = 150.0  # any other temperature at or above this reads like kelvin; a "K" value below, like degC
 _FIELD = re.compile(r"^([A-Z][A-Z0-9_]*)\.([a-z_][a-z0-9_]*)(?:\[(\d+)\])?$")
 _NUMERIC = frozenset(
@@ -225,6 +227,8 @@ def parse_field(ref: str) -> MavlinkField:
 def kelvin_like(field: str, value: float, rpm: float | None) -> bool:
     """True when ``value``, read from the degC field ``field`` of a message whose ``rpm`` field says
     ``rpm`` (None: the message has none), reads like kelvin (module docstring)."""
+    if field == "cylinder_head_temperature" and value >= _CHT_KELVIN_C:
+        return True
     if field in _ENGINE_TEMPERATURES:
         return rpm is not None and rpm < 1.0 and value >= _ENGINE_KELVIN_C
     return value >= _AIR_KELVIN_C
@@ -382,7 +386,7 @@ class MavlinkDecoder:
         rpm = float(rpm) if isinstance(rpm, int | float) else None
         where = f"{kind}.{f.field}" + (f"[{f.element}]" if f.element >= 0 else "")
         if f.check == 1 and kelvin_like(f.field, raw, rpm):
-            stopped = " with the engine stopped" if f.field in _ENGINE_TEMPERATURES else ""
+            stopped = " with the engine stopped" if f.field in _ENGINE_TEMPERATURES and raw < _CHT_KELVIN_C else ""
             text = (
                 f"input {f.name}: {where} reads {raw:.1f} degC{stopped}: kelvin in a degC field (as some autopilots"
                 f" send it)? if so, map it with unit: K"

@@ -48,7 +48,7 @@ _log = logging.getLogger(__name__)
 
 #: Suffixes read as MAVLink telemetry logs.
 TLOG_SUFFIXES: tuple[str, ...] = (".tlog",)
-_TIE_S = 1e-6
+_TIE_S = 1e-5  # a message this close after a grid instant counts as at it (stamps of 1.7e9 s carry ~2e-7 s of rounding)
 #: Columns a flight log must have (throttle may be missing: the heat map may use fuel flow instead).
 _REQUIRED = tuple(c for c in CANONICAL_COLUMNS if c not in ("time_s", "throttle_pct"))
 
@@ -123,7 +123,7 @@ def read_tlog(
         )
     clock = np.maximum.accumulate(np.asarray(stamps, dtype=np.float64))
     start = max(float(times[0]) for times, _ in columns.values())
-    n = math.floor((float(clock[-1]) - start) / dt_s + 1e-9) + 1
+    n = math.floor((float(clock[-1]) - start + _TIE_S) / dt_s) + 1
     offsets = np.round(dt_s * np.arange(max(n, 1), dtype=np.float64), 9)
     grid = start + offsets
     keep = np.ones(grid.size, dtype=bool)

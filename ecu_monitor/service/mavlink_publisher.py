@@ -411,4 +411,5 @@ class MavlinkPublisher:
 
 
 def _due(time_s: float, last_s: float, every_s: float) -> bool:
-    return time_s - last_s >= every_s - _SLACK_S
+    """A message sent every ``every_s`` (inf: never) is due at ``time_s``, last sent at ``last_s``."""
+    return math.isfinite(every_s) and time_s - last_s >= every_s - _SLACK_S
