@@ -32,7 +32,8 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
 * ``EFI_STATUS`` at ``mavlink.efi_status_hz`` when ``mavlink.efi_status_out`` (an engine only the
   service reads, for ArduPilot's EFI_TYPE 9): rpm, throttle, fuel flow (cm^3/min), CHT (the reading,
   degC), EGT, manifold pressure from the held inputs, the standard pressure at the pressure altitude
-  as barometric pressure, ``health`` 1 while no input is stale. Refused (ConfigError) when an input
+  as barometric pressure, ``health`` 1 while no input is stale (NaN where the service holds no value;
+  the fields it never knows 0, as ArduPilot's own backends leave them). Refused (ConfigError) when an input
   comes from EFI_STATUS: the autopilot's own engine status is never echoed back to it.
 """
 
@@ -384,24 +385,26 @@ class MavlinkPublisher:
 
         altitude = value("altitude_m")
         baro = float(standard_pressure_kpa(altitude)) if math.isfinite(altitude) else math.nan
+        # what the service holds: its value, NaN when not held; what it never knows: 0, as ArduPilot's own EFI
+        # backends leave a field their ECU does not report
         return self._ml.MAVLink_efi_status_message(
             0 if snap.stale_inputs else 1,  # health
             0,  # ecu_index
             value("rpm"),
-            math.nan,  # fuel_consumed
+            0.0,  # fuel_consumed
             value("fuel_flow_lph") / _CC_PER_MIN,
-            math.nan,  # engine_load
+            0.0,  # engine_load
             value("throttle_pct"),
-            math.nan,  # spark_dwell_time
+            0.0,  # spark_dwell_time
             baro,
             value("manifold_pressure_kpa"),
-            math.nan,  # intake_manifold_temperature
+            0.0,  # intake_manifold_temperature
             snap.cht_meas_c,
-            math.nan,  # ignition_timing
-            math.nan,  # injection_time
+            0.0,  # ignition_timing
+            0.0,  # injection_time
             value("egt_c"),
-            math.nan,  # throttle_out
-            math.nan,  # pt_compensation
+            0.0,  # throttle_out
+            0.0,  # pt_compensation
             0.0,  # ignition_voltage: unknown
             0.0,  # fuel_pressure: unknown
         )
