@@ -227,7 +227,6 @@ def _bus_config(args: argparse.Namespace) -> BusConfig:
 def _run(args: argparse.Namespace) -> int:
     from virtual_bus.busconfig import config_protocol, open_bus
     from virtual_bus.emitter import FrameEmitter
-    from virtual_bus.mavlink_emitter import MavlinkFrameEncoder
     from virtual_bus.plant import iter_steps
     from virtual_bus.recorder import frame_encoder
 
@@ -268,8 +267,6 @@ def _run(args: argparse.Namespace) -> int:
     encoder = frame_encoder(
         protocol, cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time, cylinders=count
     )
-    if isinstance(encoder, MavlinkFrameEncoder):  # never: mavlink went to _run_mavlink
-        raise ConfigError("--protocol mavlink sends over --connection, not onto a CAN bus")
     with open_bus(config) as bus:
         emitter = FrameEmitter(bus, encoder, realtime=args.realtime, speed=args.speed, progress=show)
         stats = emitter.emit(blocks)

@@ -45,7 +45,7 @@ PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan", "mavlink")
 
 def frame_encoder(
     protocol: str, *, cht_limit_c: float, start_time_s: float = 0.0, cylinders: int = 1
-) -> FrameEncoder | DroneCanFrameEncoder | MavlinkFrameEncoder:
+) -> FrameEncoder | DroneCanFrameEncoder:
     """The virtual ECU's frame encoder for ``protocol`` (one of :data:`PROTOCOLS`); ``cylinders``: an
     engine flown with cylinders (DBC: the frames of cylinders.dbc too; DroneCAN: one CylinderStatus each)."""
     if protocol == "dbc":
@@ -53,7 +53,7 @@ def frame_encoder(
     if protocol == "dronecan":
         return DroneCanFrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s)
     if protocol == "mavlink":
-        return MavlinkFrameEncoder(start_time_s=start_time_s)
+        raise ConfigError("--protocol mavlink: MAVLink is not on CAN (virtual_bus.mavlink_emitter.MavlinkFrameEncoder)")
     raise ConfigError(f"--protocol: expected one of {', '.join(PROTOCOLS)}, got {protocol!r}")
 
 
@@ -116,7 +116,11 @@ def record(
     if can_paths and protocol == "mavlink":
         raise ConfigError(f"{can_paths[0]}: a CAN log, and MAVLink is not on CAN: write a .tlog")
     count = len(cylinders) if len(cylinders) > 1 else 1
-    encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s, cylinders=count)
+    encoder: FrameEncoder | DroneCanFrameEncoder | MavlinkFrameEncoder
+    if protocol == "mavlink":
+        encoder = MavlinkFrameEncoder(start_time_s=start_time_s)
+    else:
+        encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s, cylinders=count)
     summary = RecordSummary()
     parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
     writers: list[Any] = []
