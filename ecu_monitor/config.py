@@ -12,6 +12,11 @@ not know, ``{scale: S, offset: O}`` (canonical value = raw physical value * S + 
 the shipped dronecan.yaml): each input names ``field: data.type.Name.field.path`` instead of
 ``signal:``, checked against the DSDL definitions at load; ``dbc`` is not used; the ``dronecan:``
 section gives the service's node id and the accepted senders (:class:`DroneCanSettings`).
+
+``protocol: mavlink`` reads an autopilot's MAVLink telemetry (:mod:`ecu_monitor.bus.mavlink`, the shipped
+mavlink.yaml): each input names ``field: MESSAGE.field`` (checked against pymavlink's dialect, its unit
+against the message definition); no ``dbc`` and no ``bus``; the ``mavlink:`` section
+(:class:`~ecu_monitor.service.mavlink_settings.MavlinkSettings`) gives the link and the service's ids.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+from ecu_monitor.service.mavlink_settings import MavlinkSettings, parse_mavlink_settings
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 from ecu_monitor.units import Unit, custom_unit
 
@@ -59,8 +65,8 @@ __all__ = [
     "parse_config",
 ]
 
-#: Bus protocols of the inputs: DBC-described frames, or DroneCAN messages.
-PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
+#: Bus protocols of the inputs: DBC-described frames, DroneCAN messages, or an autopilot's MAVLink telemetry.
+PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan", "mavlink")
 #: Per-cylinder CHT inputs (``cht1_c`` .. ``cht16_c``, the flight-log column names). Two or more
 #: mapped: every cylinder is monitored (one estimator each; docs/service.md, "Every cylinder"), and a
 #: ``cht_c`` mapped beside them is held but not estimated; one alone is held beside ``cht_c``.
@@ -89,6 +95,7 @@ MODEL_PRESETS = MappingProxyType({"paper_table_a1": paper_table_a1})
 _TOP_KEYS = (
     "protocol",
     "dronecan",
+    "mavlink",
     "engine",
     "bus",
     "reopen_backoff_s",
@@ -214,6 +221,8 @@ class ServiceConfig:
     protocol: str = "dbc"
     #: the service as a DroneCAN node (used when protocol is dronecan)
     dronecan: DroneCanSettings = field(default_factory=DroneCanSettings)
+    #: the service on a MAVLink link (used when protocol is mavlink)
+    mavlink: MavlinkSettings = field(default_factory=MavlinkSettings)
     #: ``cylinders.models``: one model (preset name or resolved file path) per cylinder, in cylinder
     #: order; empty: every cylinder runs on ``model``.
     cylinder_models: tuple[str, ...] = ()
@@ -388,10 +397,16 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     engine = top.child("engine", ("serial",))
     serial = engine.string("serial")
 
-    bus = top.child("bus")
-    bus.string("interface")
-    if not bus.has("channel"):
-        raise bus.error("missing", "channel")
+    protocol = top.raw("protocol", "dbc")
+    if protocol == "mavlink":  # the link is mavlink.connection, not a CAN bus
+        if top.has("bus"):
+            raise top.error("does not apply to protocol mavlink (the link is mavlink.connection)", "bus")
+        bus = _Node(source, "bus", {})
+    else:
+        bus = top.child("bus")
+        bus.string("interface")
+        if not bus.has("channel"):
+            raise bus.error("missing", "channel")
     for key in bus.data:
         if not isinstance(key, str):
             raise bus.error(f"keys must be strings, got {key!r}")
@@ -400,15 +415,17 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     initial = backoff_node.number("initial", 0.5, low=0.0, strict_low=True)
     backoff = Backoff(initial, backoff_node.number("max", 10.0, low=initial))
 
-    protocol = top.raw("protocol", "dbc")
     if protocol not in PROTOCOLS:
         raise top.error(f"expected one of {', '.join(PROTOCOLS)}, got {_kind(protocol)}", "protocol")
-    if protocol == "dronecan":
+    if protocol != "mavlink" and top.has("mavlink"):
+        raise top.error("applies to protocol mavlink only (add protocol: mavlink)", "mavlink")
+    mavlink = parse_mavlink_settings(top.raw("mavlink", None), str(source)) if protocol == "mavlink" else None
+    if protocol in ("dronecan", "mavlink"):
         if top.has("dbc"):
-            raise top.error("input DBC files do not apply to protocol dronecan (inputs name DroneCAN fields)", "dbc")
+            raise top.error(f"input DBC files do not apply to protocol {protocol} (inputs name its fields)", "dbc")
         dbc_paths: tuple[Path, ...] = ()
         databases: list[tuple[Path, Any]] = []
-        dronecan = _dronecan(top)
+        dronecan = _dronecan(top) if protocol == "dronecan" else DroneCanSettings()
         health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc", str(shipped_dbc("health.dbc"))))
     else:
         if top.has("dronecan"):
@@ -417,7 +434,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         dronecan = DroneCanSettings()
         health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc"))
     health_db = _load(top, "health_dbc", health_dbc)
-    find = _find_field if protocol == "dronecan" else _find_signal
+    find = {"dronecan": _find_field, "mavlink": _find_mavlink_field}.get(protocol, _find_signal)
 
     sensor_node = top.child(
         "sensor_fault", ("stuck_after_s", "min_c", "max_c", "stuck_change_c", "status_signal", "open_values"), {}
@@ -425,6 +442,17 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     sensor = _sensor_fault(sensor_node, databases, find)
 
     inputs = _inputs(top, databases, protocol)
+    if mavlink is not None:  # units against the MAVLink definitions; the service never echoes its inputs' EFI_STATUS
+        from ecu_monitor.bus.mavlink import MavlinkDecoder
+
+        try:
+            MavlinkDecoder([spec.signal_spec() for spec in inputs])
+        except ConfigError as exc:
+            raise top.error(str(exc), "inputs") from None
+        if mavlink.efi_status_out and any(spec.message == "EFI_STATUS" for spec in inputs):
+            raise top.error(
+                "efi_status_out: the inputs come from EFI_STATUS, which the service must not echo", "mavlink"
+            )
     if sensor.status_message is not None and _cylinder_count(inputs) > 1:
         raise sensor_node.error(
             "an ECU status signal reports one probe: not with cht1_c .. chtN_c (each cylinder's probe is"
@@ -463,6 +491,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         detector_calibrated_for=calibrated_for,
         protocol=protocol,
         dronecan=dronecan,
+        mavlink=mavlink or MavlinkSettings(),
         cylinder_models=cylinder_models,
         spread_limit_c=spread_limit,
         cylinder_detectors=cylinder_detectors,
@@ -627,6 +656,17 @@ def _find_field(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any
     return path.type_name, path.text[len(path.type_name) + 1 :]
 
 
+def _find_mavlink_field(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any]]) -> tuple[str, str]:
+    """Split and check ``MESSAGE.field`` against pymavlink's MAVLink dialect."""
+    from ecu_monitor.bus.mavlink import parse_field as parse_mavlink_field
+
+    try:
+        path = parse_mavlink_field(ref)
+    except ConfigError as exc:
+        raise node.error(str(exc), key) from None
+    return path.message, path.text[len(path.message) + 1 :]
+
+
 def _dronecan(top: _Node) -> DroneCanSettings:
     keys = ("node_id", "source_node_ids", "priority", "key_value_hz", "log_messages", "dbc_health_frames")
     node = top.child("dronecan", keys)
@@ -665,25 +705,25 @@ def _unit(value: Any, quantity: str) -> str | Unit:
 def _inputs(top: _Node, databases: list[tuple[Path, Any]], protocol: str = "dbc") -> tuple[InputSpec, ...]:
     node = top.child("inputs")
     dronecan = protocol == "dronecan"
-    ref_key = "field" if dronecan else "signal"
+    ref_key = "field" if protocol in ("dronecan", "mavlink") else "signal"
     specs: list[InputSpec] = []
     for name in node.data:
         if name not in INPUT_NAMES and not (isinstance(name, str) and CYLINDER_INPUT.match(name)):
             raise node.error(f"unknown key '{name}' (known: {', '.join(INPUT_NAMES)}, cht1_c .. cht16_c)", name)
         item = node.child(name, (ref_key, "unit", "stale_after_s"))
-        if dronecan:
-            message, signal = _find_field(item, ref_key, item.raw(ref_key), databases)
-        else:
-            message, signal = _find_signal(item, ref_key, item.raw(ref_key), databases)
+        find = {"dronecan": _find_field, "mavlink": _find_mavlink_field}.get(protocol, _find_signal)
+        message, signal = find(item, ref_key, item.raw(ref_key), databases)
         quantity = INPUT_QUANTITIES.get(name, "temperature")
         try:
-            if dronecan and name == "altitude_m" and _is_pressure(item.raw("unit")):
+            if ref_key == "field" and name == "altitude_m" and _is_pressure(item.raw("unit")):
                 unit = _unit(item.raw("unit"), "pressure")  # a static pressure: its pressure altitude
             else:
                 unit = _unit(item.raw("unit"), quantity)
         except ValueError as exc:
             hint = (
-                " (or, for protocol dronecan, a pressure unit: the pressure altitude)" if name == "altitude_m" else ""
+                " (or, for protocol dronecan or mavlink, a pressure unit: the pressure altitude)"
+                if name == "altitude_m"
+                else ""
             )
             raise item.error(f"{exc}{hint}", "unit") from None
         stale = item.number("stale_after_s", low=0.0, strict_low=True)

@@ -70,10 +70,13 @@ UNITS: Mapping[str, Unit] = MappingProxyType(
         # temperature, canonical degC
         "degC": Unit("temperature", 1.0, 0.0),
         "K": Unit("temperature", 1.0, -273.15),
+        "cdegC": Unit("temperature", 0.01, 0.0),  # centi-degrees Celsius (MAVLink SCALED_PRESSURE.temperature)
         "degF": Unit("temperature", 5.0 / 9.0, -32.0 * 5.0 / 9.0),
         # length (altitude), canonical m
         "m": Unit("length", 1.0, 0.0),
         "ft": Unit("length", 0.3048, 0.0),
+        "cm": Unit("length", 0.01, 0.0),
+        "mm": Unit("length", 0.001, 0.0),
         # speed (airspeed, vertical speed), canonical m/s
         "mps": _MPS,
         "m/s": _MPS,
@@ -81,6 +84,7 @@ UNITS: Mapping[str, Unit] = MappingProxyType(
         "km/h": _KPH,
         "kt": Unit("speed", 1852.0 / 3600.0, 0.0),
         "fpm": Unit("speed", 0.3048 / 60.0, 0.0),
+        "cm/s": Unit("speed", 0.01, 0.0),
         # fuel flow, canonical L/h
         "lph": _LPH,
         "l_per_h": _LPH,
@@ -93,6 +97,7 @@ UNITS: Mapping[str, Unit] = MappingProxyType(
         "kPa": Unit("pressure", 1.0, 0.0),
         "Pa": Unit("pressure", 1e-3, 0.0),
         "hPa": Unit("pressure", 0.1, 0.0),
+        "mbar": Unit("pressure", 0.1, 0.0),
         "inHg": Unit("pressure", 3.386389, 0.0),
         "psi": Unit("pressure", 6.894757293168, 0.0),
         # time, canonical s

@@ -24,7 +24,7 @@ import yaml
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import resolve_file
 
-__all__ = ["BusConfig", "config_protocol", "load_bus_config", "open_bus"]
+__all__ = ["BusConfig", "config_mavlink_connection", "config_protocol", "load_bus_config", "open_bus"]
 
 
 @dataclass(frozen=True)
@@ -75,9 +75,23 @@ def config_protocol(path: str | Path) -> str:
     except (OSError, yaml.YAMLError):
         return "dbc"  # load_bus_config reports the file's problem
     protocol = data.get("protocol", "dbc") if isinstance(data, dict) else "dbc"
-    if protocol not in ("dbc", "dronecan"):
-        raise ConfigError(f"{path}: protocol: expected dbc or dronecan, got {protocol!r}")
+    if protocol not in ("dbc", "dronecan", "mavlink"):
+        raise ConfigError(f"{path}: protocol: expected dbc, dronecan or mavlink, got {protocol!r}")
     return str(protocol)
+
+
+def config_mavlink_connection(path: str | Path) -> str:
+    """The ``mavlink.connection`` of a YAML config (the shipped default ``udpin:0.0.0.0:14550`` when absent)."""
+    path = resolve_file(path, "config")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read config ({exc})") from None
+    section = data.get("mavlink") if isinstance(data, dict) else None
+    connection = section.get("connection", "udpin:0.0.0.0:14550") if isinstance(section, dict) else None
+    if not isinstance(connection, str):
+        connection = "udpin:0.0.0.0:14550"
+    return connection
 
 
 def open_bus(config: BusConfig) -> can.BusABC:

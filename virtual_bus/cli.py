@@ -1,14 +1,16 @@
 """The ``virtual-ecu`` command line: fly a mission through the truth plant to files or onto a CAN bus.
 
-    virtual-ecu record --mission FILE|NAME --out f.csv|f.asc|f.blf|f.log [--out ...] [--seed N]
+    virtual-ecu record --mission FILE|NAME --out f.csv|f.asc|f.blf|f.log|f.tlog [--out ...] [--seed N]
                        [--degrade gamma_q=1.2@1800] [--degrade gamma_d=1.1@600:ramp=300]
                        [--effect airspeed_cooling] [--effect sensor_lag:time_constant_s=12] [--model model.yaml]
-                       [--protocol dbc|dronecan]
-    virtual-ecu run --config FILE | --interface NAME --channel CH  --mission FILE|NAME
-                    [--degrade ...] [--effect ...] [--realtime] [--speed X]
+                       [--protocol dbc|dronecan|mavlink]
+    virtual-ecu run --config FILE | --interface NAME --channel CH | --protocol mavlink --connection LINK
+                    --mission FILE|NAME [--degrade ...] [--effect ...] [--realtime] [--speed X]
 
-``--protocol``: engine.dbc frames (dbc, the default) or DroneCAN messages (virtual_bus/dronecan_emitter.py);
-``run --config`` takes the config's own ``protocol:`` when the option is not given.
+``--protocol``: engine.dbc frames (dbc, the default), DroneCAN messages (virtual_bus/dronecan_emitter.py) or
+an autopilot's MAVLink stream (virtual_bus/mavlink_emitter.py: recorded to a .tlog, sent over ``--connection``,
+e.g. ``udpout:127.0.0.1:14550``, or over the counterpart of ``--config``'s ``mavlink.connection`` on this
+machine); ``run --config`` takes the config's own ``protocol:`` when the option is not given.
 
 Errors (bad mission file, bad --degrade syntax, unknown effect, bus that cannot open) print one line
 and exit 2, as ``ecu-monitor`` does; ``--debug`` shows the traceback.
@@ -98,8 +100,9 @@ def _add_flight_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=float, default=0.02, help="integration step, s (default 0.02)")
     parser.add_argument(
         "--protocol",
-        choices=("dbc", "dronecan"),  # virtual_bus.recorder.PROTOCOLS (not imported: --help stays light)
-        help="frames of engine.dbc (dbc) or DroneCAN messages (dronecan); default dbc, or run --config's protocol",
+        choices=("dbc", "dronecan", "mavlink"),  # virtual_bus.recorder.PROTOCOLS (not imported: --help stays light)
+        help="frames of engine.dbc (dbc), DroneCAN messages (dronecan) or an autopilot's MAVLink stream (mavlink);"
+        " default dbc, or run --config's protocol",
     )
 
 
@@ -140,12 +143,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--log-level", default="WARNING", help="DEBUG, INFO, WARNING or ERROR")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    rec = sub.add_parser("record", help="simulate a mission to a canonical CSV and/or CAN logs (.asc, .blf, .log)")
+    rec = sub.add_parser(
+        "record", help="simulate a mission to a canonical CSV and/or CAN logs (.asc, .blf, .log) or a MAVLink .tlog"
+    )
     _add_flight_options(rec)
     rec.add_argument(
-        "--out", action="append", default=[], metavar="FILE", help="output .csv, .asc, .blf or .log (repeatable)"
+        "--out",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="output .csv, .asc, .blf, .log or (--protocol mavlink) .tlog (repeatable)",
     )
     rec.add_argument("--record-dt", type=float, default=0.1, help="CSV sample step, s (default 0.1)")
+    rec.add_argument(
+        "--start-time",
+        type=float,
+        default=0.0,
+        help="timestamp of mission time 0 in the CAN logs and the .tlog, s (a .tlog's clock: s since 1970; default 0)",
+    )
     rec.set_defaults(func=_record)
 
     run = sub.add_parser("run", help="emit a mission's frames onto a CAN bus")
@@ -153,6 +168,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--config", metavar="FILE", help="YAML file with a bus: {interface, channel, ...} section")
     run.add_argument("--interface", help="python-can interface (overrides the config)")
     run.add_argument("--channel", help="bus channel (overrides the config)")
+    run.add_argument(
+        "--connection",
+        metavar="LINK",
+        help="--protocol mavlink: where to send, as MAVProxy takes it (udpout:127.0.0.1:14550, /dev/ttyUSB0,57600);"
+        " default: the counterpart of --config's mavlink.connection on this machine",
+    )
     run.add_argument(
         "--realtime", action="store_true", help="pace frames to the wall clock (default: as fast as possible)"
     )
@@ -180,6 +201,7 @@ def _record(args: argparse.Namespace) -> int:
         progress=lambda t: progress(f"t = {t:.0f} s"),
         cylinders=flight.cylinders,
         protocol=args.protocol or "dbc",
+        start_time_s=args.start_time,
     )
     progress.done()
     print(f"{flight.describe()}")
@@ -208,6 +230,11 @@ def _run(args: argparse.Namespace) -> int:
     from virtual_bus.plant import iter_steps
     from virtual_bus.recorder import frame_encoder
 
+    protocol = args.protocol or (config_protocol(args.config) if args.config else "dbc")
+    if protocol == "mavlink":
+        return _run_mavlink(args)
+    if args.connection:
+        raise ConfigError("--connection: a MAVLink link, for --protocol mavlink (a CAN bus: --interface, --channel)")
     flight = _Flight(args)
     config = _bus_config(args)
     if not args.speed > 0.0:
@@ -237,7 +264,6 @@ def _run(args: argparse.Namespace) -> int:
         cylinders=flight.cylinders,
     )
     count = len(flight.cylinders) or 1
-    protocol = args.protocol or (config_protocol(args.config) if args.config else "dbc")
     encoder = frame_encoder(
         protocol, cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time, cylinders=count
     )
@@ -248,6 +274,58 @@ def _run(args: argparse.Namespace) -> int:
     print(flight.describe())
     print(
         f"sent {stats.frames_sent} frames ({stats.send_errors} send errors) on {config.interface}:{config.channel};"
+        f" mission time {stats.mission_time_s - args.start_time:.1f} s in {stats.wall_time_s:.1f} s wall"
+    )
+    return 0
+
+
+def _run_mavlink(args: argparse.Namespace) -> int:
+    """``run --protocol mavlink``: the autopilot's MAVLink stream over ``--connection`` (or the counterpart of the
+    config's ``mavlink.connection``)."""
+    from virtual_bus.busconfig import config_mavlink_connection
+    from virtual_bus.mavlink_emitter import MavlinkEmitter, MavlinkFrameEncoder, emitter_connection
+    from virtual_bus.plant import iter_steps
+
+    if args.interface or args.channel:
+        raise ConfigError("--interface/--channel: a CAN bus; --protocol mavlink sends over --connection")
+    if args.cylinders != 1:
+        print("virtual-ecu: note: EFI_STATUS carries one CHT: the cylinders' mean is sent", file=sys.stderr)
+    if args.connection:
+        link = args.connection
+    elif args.config:
+        link = emitter_connection(config_mavlink_connection(args.config))
+    else:
+        raise ConfigError(
+            "run --protocol mavlink: give --connection LINK (e.g. udpout:127.0.0.1:14550) or --config FILE"
+        )
+    flight = _Flight(args)
+    if not args.speed > 0.0:
+        raise ConfigError(f"--speed: expected a positive factor, got {args.speed!r}")
+    progress = _Progress(f"virtual-ecu run {flight.mission.name} on {link}")
+
+    def show(stats: EmitStats) -> None:
+        t = stats.mission_time_s - args.start_time
+        progress(f"t = {t:.0f} s, {stats.frames_sent} messages, {stats.send_errors} send errors")
+
+    blocks = iter_steps(
+        flight.mission,
+        flight.params,
+        effects=flight.effects,
+        degradation=flight.degradation,
+        seed=flight.seed,
+        dt_s=flight.dt_s,
+        cylinders=flight.cylinders,
+    )
+    encoder = MavlinkFrameEncoder(start_time_s=args.start_time)
+    emitter = MavlinkEmitter(link, encoder, realtime=args.realtime, speed=args.speed, progress=show)
+    try:
+        stats = emitter.emit(blocks)
+    finally:
+        emitter.close()
+    progress.done()
+    print(flight.describe())
+    print(
+        f"sent {stats.frames_sent} MAVLink messages ({stats.send_errors} send errors) on {link};"
         f" mission time {stats.mission_time_s - args.start_time:.1f} s in {stats.wall_time_s:.1f} s wall"
     )
     return 0

@@ -7,7 +7,9 @@ comes from the same flight (the same seed, the same frames). The flight is strea
 log writers block by block and only the CSV's samples (every ``record_dt_s``) are kept in memory, so
 a 16 h flight records in constant memory for the CAN logs. ``protocol="dronecan"`` writes the
 frames of :class:`~virtual_bus.dronecan_emitter.DroneCanFrameEncoder` into the CAN logs instead of
-engine.dbc's (the CSV is the same).
+engine.dbc's (the CSV is the same). ``protocol="mavlink"`` writes the autopilot's MAVLink stream of
+:class:`~virtual_bus.mavlink_emitter.MavlinkFrameEncoder` to ``.tlog`` outputs (MAVLink is not on CAN:
+no CAN log then, and a .tlog only with it).
 """
 
 from __future__ import annotations
@@ -26,17 +28,19 @@ from ecu_monitor.flightlog import FlightLog, write_csv
 from ecu_monitor.model import Effects, ThermalParams, paper_table_a1
 from virtual_bus.dronecan_emitter import DroneCanFrameEncoder
 from virtual_bus.emitter import FrameEncoder
+from virtual_bus.mavlink_emitter import MavlinkFrameEncoder, TlogWriter
 from virtual_bus.missions import Mission
 from virtual_bus.plant import LOG_COLUMNS, Degradation, StepBlock, block_rows, iter_steps, record_every
 from virtual_bus.sensors import SensorModel
 
 __all__ = ["CAN_SUFFIXES", "OUTPUT_SUFFIXES", "PROTOCOLS", "RecordSummary", "check_outputs", "frame_encoder", "record"]
 
-#: Suffixes written as python-can logs, and every suffix the recorder accepts.
+#: Suffixes written as python-can logs, the MAVLink telemetry log, and every suffix the recorder accepts.
 CAN_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log")
-OUTPUT_SUFFIXES: tuple[str, ...] = (".csv", *CAN_SUFFIXES)
-#: What the virtual ECU speaks on the bus: engine.dbc frames, or DroneCAN messages.
-PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan")
+TLOG_SUFFIX = ".tlog"
+OUTPUT_SUFFIXES: tuple[str, ...] = (".csv", *CAN_SUFFIXES, TLOG_SUFFIX)
+#: What the virtual ECU speaks: engine.dbc frames, DroneCAN messages, or an autopilot's MAVLink stream.
+PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan", "mavlink")
 
 
 def frame_encoder(
@@ -48,6 +52,8 @@ def frame_encoder(
         return FrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s, cylinders=cylinders)
     if protocol == "dronecan":
         return DroneCanFrameEncoder(cht_limit_c=cht_limit_c, start_time_s=start_time_s)
+    if protocol == "mavlink":
+        raise ConfigError("--protocol mavlink: MAVLink is not on CAN (virtual_bus.mavlink_emitter.MavlinkFrameEncoder)")
     raise ConfigError(f"--protocol: expected one of {', '.join(PROTOCOLS)}, got {protocol!r}")
 
 
@@ -66,7 +72,7 @@ class RecordSummary:
 def check_outputs(outputs: Sequence[str | Path]) -> list[Path]:
     """The output paths, checked: known suffixes, no duplicates, existing parent directories."""
     if not outputs:
-        raise ConfigError("--out: give at least one output file (.csv, .asc, .blf or .log)")
+        raise ConfigError("--out: give at least one output file (.csv, .asc, .blf, .log or .tlog)")
     paths = [Path(p) for p in outputs]
     for path in paths:
         if path.suffix.lower() not in OUTPUT_SUFFIXES:
@@ -104,8 +110,17 @@ def record(
     every = record_every(dt_s, record_dt_s)
     csv_paths = [p for p in paths if p.suffix.lower() == ".csv"]
     can_paths = [p for p in paths if p.suffix.lower() in CAN_SUFFIXES]
+    tlog_paths = [p for p in paths if p.suffix.lower() == TLOG_SUFFIX]
+    if tlog_paths and protocol != "mavlink":
+        raise ConfigError(f"{tlog_paths[0]}: a MAVLink telemetry log: give --protocol mavlink")
+    if can_paths and protocol == "mavlink":
+        raise ConfigError(f"{can_paths[0]}: a CAN log, and MAVLink is not on CAN: write a .tlog")
     count = len(cylinders) if len(cylinders) > 1 else 1
-    encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s, cylinders=count)
+    encoder: FrameEncoder | DroneCanFrameEncoder | MavlinkFrameEncoder
+    if protocol == "mavlink":
+        encoder = MavlinkFrameEncoder(start_time_s=start_time_s)
+    else:
+        encoder = frame_encoder(protocol, cht_limit_c=params.cht_limit_c, start_time_s=start_time_s, cylinders=count)
     summary = RecordSummary()
     parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
     writers: list[Any] = []
@@ -115,6 +130,7 @@ def record(
                 writers.append(can.Logger(str(path)))
             except OSError as exc:
                 raise ConfigError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        writers += [TlogWriter(path) for path in tlog_paths]
         blocks = iter_steps(
             mission,
             params,
@@ -144,8 +160,8 @@ def record(
         for path in csv_paths:
             write_csv(log, path)
             summary.files[str(path)] = f"{len(log)} rows"
-    for path in can_paths:
-        summary.files[str(path)] = f"{summary.frames} frames"
+    for path in (*can_paths, *tlog_paths):
+        summary.files[str(path)] = f"{summary.frames} {'messages' if path in tlog_paths else 'frames'}"
     return summary
 
 

@@ -480,7 +480,8 @@ def load_flight(
     ``.csv``: canonical, or foreign through ``mapping`` (:func:`ecu_monitor.flightlog.load_csv`: None
     or ``"auto"`` detects the layout; ``engine`` and ``cht`` as there). ``.asc/.blf/.log/.trc``:
     :func:`import_can_log` with ``dbc_paths`` (default: the shipped engine.dbc) and ``signal_map``
-    (default :data:`DEFAULT_SIGNAL_MAP`), for one engine.
+    (default :data:`DEFAULT_SIGNAL_MAP`), for one engine. ``.tlog``: a MAVLink telemetry log through the
+    default MAVLink mapping (:func:`ecu_monitor.bus.mavlink_log.read_tlog`).
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -495,5 +496,13 @@ def load_flight(
             raise FlightLogError(f"{path}: engine {engine} asked for, a CAN log is read for one engine")
         log = import_can_log(path, list(dbc_paths) if dbc_paths else [shipped_dbc("engine.dbc")], signal_map)
         return log if cht is None else choose_cht(log, cht)
-    known = ", ".join((".csv", *CAN_LOG_SUFFIXES))
+    if suffix == ".tlog":
+        if mapping is not None or dbc_paths or signal_map:
+            raise FlightLogError(f"{path}: a MAVLink log is read through the MAVLink mapping (no DBC, no CSV mapping)")
+        if engine not in (None, 1):
+            raise FlightLogError(f"{path}: engine {engine} asked for, a MAVLink log is read for one engine")
+        from ecu_monitor.bus.mavlink_log import read_tlog
+
+        return read_tlog(path)
+    known = ", ".join((".csv", *CAN_LOG_SUFFIXES, ".tlog"))
     raise FlightLogError(f"{path}: unknown log type {path.suffix or '(no suffix)'!r} (known: {known})")

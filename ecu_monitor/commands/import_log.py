@@ -3,9 +3,11 @@
 Converts flight logs into canonical flight CSVs (docs/flight_logs.md): a canonical CSV
 (validated and rewritten); a foreign CSV, its layout recognised from its header (Garmin G1000
 exports of every firmware, NGAFID processed exports) or given with ``--mapping`` (a mapping YAML, or
-the name of a shipped one: ``g1000``, ``ngafid_processed``); or a python-can log (.asc, .blf, .log,
+the name of a shipped one: ``g1000``, ``ngafid_processed``); a python-can log (.asc, .blf, .log,
 .trc) decoded through DBC files (default: the shipped engine.dbc) with a signal map
-(default: engine.dbc's signals; ``--signal rpm=BASE1.RPM`` entries replace it, for a user's own ECU).
+(default: engine.dbc's signals; ``--signal rpm=BASE1.RPM`` entries replace it, for a user's own ECU);
+or a MAVLink telemetry log (.tlog, as ground stations record it) through the MAVLink mapping
+(EFI_STATUS, VFR_HUD, SCALED_PRESSURE; docs/service.md, "MAVLink").
 
 Every cylinder is kept (``cht1_c ..``, ``egt1_c ..``); ``--cht`` says which feeds ``cht_c``, the
 channel the model reads: ``mean`` (default), ``hottest`` (per row) or a cylinder number. A twin's
@@ -31,10 +33,13 @@ def add_subparser(subparsers: Any) -> None:
     """Register the ``import`` subcommand."""
     parser = subparsers.add_parser(
         "import",
-        help="convert foreign flight logs (G1000 / NGAFID CSV, mapped CSV, CAN log) into canonical flight CSVs",
+        help="convert foreign flight logs (G1000 / NGAFID CSV, mapped CSV, CAN log, MAVLink .tlog) into canonical"
+        " flight CSVs",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    parser.add_argument("source", metavar="SOURCE", nargs="+", help="flight log(s): .csv, .asc, .blf, .log or .trc")
+    parser.add_argument(
+        "source", metavar="SOURCE", nargs="+", help="flight log(s): .csv, .asc, .blf, .log, .trc or .tlog"
+    )
     out = parser.add_mutually_exclusive_group(required=True)
     out.add_argument("--out", metavar="FLIGHT.csv", help="canonical CSV to write (one SOURCE)")
     out.add_argument("--out-dir", metavar="DIR", help="directory for the canonical CSVs, one per SOURCE, same name")
