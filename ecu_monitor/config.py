@@ -16,7 +16,7 @@ section gives the service's node id and the accepted senders (:class:`DroneCanSe
 ``protocol: mavlink`` reads an autopilot's MAVLink telemetry (:mod:`ecu_monitor.bus.mavlink`, the shipped
 mavlink.yaml): each input names ``field: MESSAGE.field`` (checked against pymavlink's dialect, its unit
 against the message definition); no ``dbc`` and no ``bus``; the ``mavlink:`` section
-(:class:`~ecu_monitor.service.mavlink_settings.MavlinkSettings`) gives the link and the service's ids.
+(:class:`~ecu_monitor.bus.mavlink_settings.MavlinkSettings`) gives the link and the service's ids.
 """
 
 from __future__ import annotations
@@ -35,11 +35,11 @@ import yaml
 
 from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec
 from ecu_monitor.bus.dbc import load_dbc, shipped_dbc
+from ecu_monitor.bus.mavlink_settings import MavlinkSettings, parse_mavlink_settings
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
-from ecu_monitor.service.mavlink_settings import MavlinkSettings, parse_mavlink_settings
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 from ecu_monitor.units import Unit, custom_unit
 

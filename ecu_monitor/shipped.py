@@ -18,7 +18,16 @@ from pathlib import Path, PurePosixPath
 
 from ecu_monitor.errors import ConfigError
 
-__all__ = ["DEFAULT_CONFIG", "DRONECAN_CONFIG", "KINDS", "resolve_file", "shipped_dir", "shipped_file", "shipped_files"]
+__all__ = [
+    "DEFAULT_CONFIG",
+    "DRONECAN_CONFIG",
+    "KINDS",
+    "MAVLINK_CONFIG",
+    "resolve_file",
+    "shipped_dir",
+    "shipped_file",
+    "shipped_files",
+]
 
 #: kind -> (folder under ecu_monitor/data, suffix a bare name is completed with, what it is)
 KINDS: dict[str, tuple[str, str, str]] = {
@@ -43,6 +52,8 @@ def shipped_dir(kind: str) -> Path:
 DEFAULT_CONFIG = shipped_dir("config") / "example.yaml"
 #: The shipped config of a DroneCAN bus (replay takes it by default for a log that looks like DroneCAN).
 DRONECAN_CONFIG = shipped_dir("config") / "dronecan.yaml"
+#: The shipped config of the service on an autopilot's MAVLink link.
+MAVLINK_CONFIG = shipped_dir("config") / "mavlink.yaml"
 
 
 def shipped_files(kind: str) -> tuple[str, ...]:

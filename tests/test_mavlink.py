@@ -1,4 +1,4 @@
-"""MAVLink (bus/mavlink.py, bus/mavlink_log.py, service/mavlink_publisher.py, virtual_bus/mavlink_emitter.py):
+"""MAVLink (bus/mavlink.py, bus/mavlink_log.py, runtime/mavlink_publisher.py, virtual_bus/mavlink_emitter.py):
 messages built by pymavlink itself decode to canonical units, from the accepted sender only; kelvin in a degC
 field is told once and converted when declared; random bytes never raise and are counted; the publisher's
 STATUSTEXT chunks, severities, rate limit and NAMED_VALUE_FLOAT names; a virtual flight recorded to a .tlog
@@ -34,9 +34,9 @@ from ecu_monitor.cli import main as ecu_monitor_main
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import read_csv
 from ecu_monitor.model import paper_table_a1
-from ecu_monitor.service.config import load_config, parse_config
-from ecu_monitor.service.health_rows import CylinderSnapshot, HealthSnapshot
-from ecu_monitor.service.mavlink_publisher import (
+from ecu_monitor.config import load_config, parse_config
+from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
+from ecu_monitor.runtime.mavlink_publisher import (
     MAX_NAME,
     MAX_TEXT,
     SEVERITY,
@@ -45,8 +45,8 @@ from ecu_monitor.service.mavlink_publisher import (
     state_text,
     text_chunks,
 )
-from ecu_monitor.service.mavlink_settings import MavlinkSettings
-from ecu_monitor.service.supervision import STATES
+from ecu_monitor.bus.mavlink_settings import MavlinkSettings
+from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.units import pressure_altitude_m
 from virtual_bus.cli import main as virtual_ecu_main
 from virtual_bus.mavlink_emitter import MavlinkEmitter, MavlinkFrameEncoder, TlogWriter, emitter_connection

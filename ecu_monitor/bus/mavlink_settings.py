@@ -1,8 +1,8 @@
 """The ``mavlink:`` section of a service config (``protocol: mavlink``; docs/service.md, "MAVLink").
 
-Kept beside :mod:`ecu_monitor.service.config` rather than in it: the config loader calls
+Kept beside :mod:`ecu_monitor.config` rather than in it: the config loader calls
 :func:`parse_mavlink_settings` on the section's raw YAML data and stores the result, and the MAVLink
-publisher (:mod:`ecu_monitor.service.mavlink_publisher`) and the daemon read :class:`MavlinkSettings`.
+publisher (:mod:`ecu_monitor.runtime.mavlink_publisher`) and the daemon read :class:`MavlinkSettings`.
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` naming the file and ``mavlink.<key>``.
 """
 

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
-from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
+from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
     from collections.abc import Sequence
@@ -80,7 +80,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
     from ecu_monitor.estimation import ESTIMATORS
     from ecu_monitor.model import load_model
-    from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live
+    from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
 
@@ -90,10 +90,14 @@ def _run(args: argparse.Namespace) -> int:
         _check_plot_path(Path(args.plot))
     path = Path(args.log)
     given = load_config(args.config) if args.config else None
+    tlog = path.suffix.lower() == ".tlog"
     log_frames = read_frames(path) if path.suffix.lower() in CAN_LOG_SUFFIXES else None
-    config = given or load_config(
-        DRONECAN_CONFIG if log_frames is not None and _is_dronecan(log_frames) else DEFAULT_CONFIG
-    )
+    if tlog:
+        config = given or load_config(MAVLINK_CONFIG)
+    else:
+        config = given or load_config(
+            DRONECAN_CONFIG if log_frames is not None and _is_dronecan(log_frames) else DEFAULT_CONFIG
+        )
     if args.estimator is not None:
         if args.estimator not in ESTIMATORS:
             raise ConfigError(
@@ -102,17 +106,21 @@ def _run(args: argparse.Namespace) -> int:
         config = config.replace(estimator_name=args.estimator)
     models = (load_model(args.model),) * len(config.cylinder_inputs) if args.model else config.load_cylinder_params()
     params = models[0]
-    if log_frames is not None:
-        frames = log_frames
+    result: ReplayResult
+    if tlog:
+        result = replay_live(config, models, tlog_messages(path)) if args.live else replay_tlog(path, config, models)
+        if len(result) == 0:
+            raise FlightLogError(f"{path}: nothing to replay: no health period of the mapped messages")
     else:
-        needed = (*model_input_names(params, config.input_names), *config.cylinder_inputs)
-        frames = frames_from_flight(load_flight(path), config, needed)
-    result: ReplayResult = (
-        replay_live(config, models, frames.messages()) if args.live else replay_frames(config, models, frames)
-    )
-    if len(result) == 0:
-        span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
-        raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
+        if log_frames is not None:
+            frames = log_frames
+        else:
+            needed = (*model_input_names(params, config.input_names), *config.cylinder_inputs)
+            frames = frames_from_flight(load_flight(path), config, needed)
+        result = replay_live(config, models, frames.messages()) if args.live else replay_frames(config, models, frames)
+        if len(result) == 0:
+            span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
+            raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
     rows = result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
     for line in _cylinder_lines(result):

@@ -82,6 +82,19 @@ class _HalfOpenBusFilter(logging.Filter):
         return "not properly shut down" not in record.getMessage()
 
 
+def mavlink_opener(config: ServiceConfig) -> Callable[[], Any]:
+    """A function that opens the config's MAVLink link (runtime/mavlink_link.py); the first open happens here,
+    so that a connection string that cannot be opened is one line and exit 2."""
+    from ecu_monitor.runtime.mavlink_link import MavlinkLink
+
+    first: list[MavlinkLink] = [MavlinkLink(config.mavlink)]
+
+    def open_link() -> MavlinkLink:
+        return first.pop() if first else MavlinkLink(config.mavlink)
+
+    return open_link
+
+
 def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
     """A function that opens the configured bus (``can.Bus(**config.bus)``); checks the interface first.
 
@@ -167,7 +180,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
-    open_bus = bus_opener(config)
+    open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     settings = daemon_settings(config, watchdog_period_s())
     with SystemdNotifier() as notifier:
         daemon = Daemon(

@@ -48,6 +48,8 @@ __all__ = [
     "replay_file",
     "replay_frames",
     "replay_live",
+    "replay_tlog",
+    "tlog_messages",
     "write_health_csv",
 ]
 
@@ -99,8 +101,70 @@ def replay_frames(
         counters[key] = counters.get(key, 0) + value
     counters["bus_errors"] = int(np.count_nonzero(frames.ignored))
     first_value, slots, values = _values_by_frame(pipeline.names, batch.values, n)
+    return _run(pipeline, config, frames.time_s, first_value, slots, values, counters, tuple(time_gaps(stamps)),
+                keep_feeds, keep_reference)  # fmt: skip
+
+
+def replay_tlog(
+    path: str | os.PathLike[str],
+    config: Any,
+    params: ThermalParams | Sequence[ThermalParams],
+    *,
+    keep_feeds: bool = False,
+    keep_reference: bool = False,
+) -> ReplayResult:
+    """The replay of a MAVLink telemetry log (``.tlog``, as ground stations record it) with a ``protocol:
+    mavlink`` config: each message decoded (bus/mavlink.py) at its log time, then the same compiled loop as
+    a CAN log's."""
+    from ecu_monitor.bus.mavlink_log import iter_tlog
+
+    if config.protocol != "mavlink":
+        raise FlightLogError(f"{path}: a MAVLink log needs a config with protocol: mavlink (the shipped mavlink.yaml)")
+    pipeline = Pipeline(config, params, rows="status")
+    times: list[float] = []
+    first: list[int] = [0]
+    slots: list[int] = []
+    values: list[float] = []
+    for time_s, msg in iter_tlog(path):
+        decoded = pipeline.decoder.decode(msg) or ()
+        times.append(time_s)
+        for slot, value in decoded:
+            slots.append(slot)
+            values.append(value)
+        first.append(len(slots))
+    counters = dict(pipeline.counters)
+    time_arr = np.array(times, dtype=np.float64)
+    if time_arr.size == 0:
+        return ReplayResult(empty_columns(pipeline.cylinder_count), counters)
+    return _run(pipeline, config, time_arr, np.array(first, dtype=np.int64), np.array(slots, dtype=np.int64),
+                np.array(values, dtype=np.float64), counters, (), keep_feeds, keep_reference)  # fmt: skip
+
+
+def tlog_messages(path: str | os.PathLike[str]) -> Iterable[Any]:
+    """The messages of a ``.tlog`` stamped with their log time (``timestamp``, s), for :func:`replay_live`."""
+    from ecu_monitor.bus.mavlink_log import iter_tlog
+
+    for time_s, msg in iter_tlog(path):
+        msg.timestamp = time_s
+        yield msg
+
+
+def _run(
+    pipeline: Pipeline,
+    config: Any,
+    frame_time_s: NDArray[np.float64],
+    first_value: NDArray[np.int64],
+    slots: NDArray[np.int64],
+    values: NDArray[np.float64],
+    counters: dict[str, int],
+    gaps: tuple[tuple[float, float], ...],
+    keep_feeds: bool,
+    keep_reference: bool,
+) -> ReplayResult:
+    """The compiled loop over decoded frames, and the replay's result from its output table."""
+    count = pipeline.cylinder_count
     traces = keep_feeds or keep_reference
-    rows, kept = pipeline.run_frames(frames.time_s, first_value, slots, values, traces=traces)
+    rows, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces)
     counters["steps"] = pipeline.counters["steps"]
     counters["clock_restarts"] = pipeline.counters["clock_restarts"]
     columns = _columns(rows, count, config.spread_limit_c, pipeline.stale_bits)
@@ -109,7 +173,7 @@ def replay_frames(
     reference: tuple[ReferenceFeed, ...] = ()
     if traces:
         feeds, cross, reference = _feeds(kept, count, config, keep_reference)
-    return ReplayResult(columns, counters, feeds, tuple(time_gaps(stamps)), cross, reference)
+    return ReplayResult(columns, counters, feeds, gaps, cross, reference)
 
 
 def _values_by_frame(
@@ -195,6 +259,8 @@ def replay_file(
 ) -> ReplayResult:
     """Replay a python-can log or a canonical flight CSV."""
     suffix = Path(path).suffix.lower()
+    if suffix == ".tlog":
+        return replay_tlog(path, config, params, keep_feeds=keep_feeds)
     if suffix in CAN_LOG_SUFFIXES:
         return replay_frames(config, params, read_frames(path), keep_feeds=keep_feeds)
     if suffix == ".csv":
@@ -202,4 +268,4 @@ def replay_file(
         needed = (*model_input_names(first, config.input_names), *config.cylinder_inputs)
         return replay_frames(config, params, frames_from_flight(load_flight(path), config, needed),
                              keep_feeds=keep_feeds)  # fmt: skip
-    raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, {', '.join(CAN_LOG_SUFFIXES)})")
+    raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, .tlog, {', '.join(CAN_LOG_SUFFIXES)})")

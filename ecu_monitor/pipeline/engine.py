@@ -45,10 +45,10 @@ from ecu_monitor.pipeline.step import (
 from ecu_monitor.pipeline.supervision import CODE_FAULT, CODE_UNAVAILABLE, STATES
 
 if TYPE_CHECKING:
-    import can
     from can.typechecking import CanFilter
 
     from ecu_monitor.bus.dronecan import DroneCanDecoder
+    from ecu_monitor.bus.mavlink import MavlinkDecoder
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.estimation.detection import DetectorSettings
 
@@ -80,9 +80,16 @@ class StepRow:
     cylinders: Any  # CYLINDER_OUTPUT[cylinders]
 
 
-def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | DroneCanDecoder:
-    """The decoder of the config's protocol: DBC frames (:class:`Decoder`) or DroneCAN messages
-    (:class:`~ecu_monitor.bus.dronecan.DroneCanDecoder`, senders filtered by ``dronecan.source_node_ids``)."""
+def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | DroneCanDecoder | MavlinkDecoder:
+    """The decoder of the config's protocol: DBC frames (:class:`Decoder`), DroneCAN messages
+    (:class:`~ecu_monitor.bus.dronecan.DroneCanDecoder`, senders filtered by ``dronecan.source_node_ids``)
+    or MAVLink messages (:class:`~ecu_monitor.bus.mavlink.MavlinkDecoder`, senders filtered by
+    ``mavlink.source_system`` / ``source_component``, the service's own messages ignored)."""
+    if config.protocol == "mavlink":
+        from ecu_monitor.bus.mavlink import MavlinkDecoder
+
+        m = config.mavlink
+        return MavlinkDecoder(specs, m.source_system, m.source_component, own=(m.system_id, m.component_id))
     if config.protocol == "dronecan":
         from ecu_monitor.bus.dronecan import DroneCanDecoder
 
@@ -342,8 +349,14 @@ class Pipeline:
         """CHT channels (1: a single channel)."""
         return len(self.cylinder_params)
 
-    def feed(self, msg: can.Message) -> None:
-        """Take one received frame (never raises for any frame content)."""
+    def feed(self, msg: Any) -> None:
+        """Take one received frame, a ``can.Message`` (a pymavlink message with ``protocol: mavlink``); never
+        raises for any content."""
+        if self.config.protocol == "mavlink":
+            decoded = self.decoder.decode(msg)
+            if decoded:
+                self.feed_values(decoded)
+            return
         if msg.is_error_frame:
             self.counters["frames"] += 1
             self.counters["bus_errors"] += 1
@@ -487,7 +500,9 @@ class Pipeline:
         return value if math.isfinite(value) else None
 
     def receive_filters(self) -> list[CanFilter]:
-        """python-can receive filters of the frames the pipeline reads."""
+        """python-can receive filters of the frames the pipeline reads (none on a MAVLink link)."""
+        if self.config.protocol == "mavlink":
+            return []
         return list(self.decoder.can_filters())
 
     def warm_up(self) -> float:

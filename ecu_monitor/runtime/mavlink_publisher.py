@@ -1,7 +1,7 @@
 """The service as a MAVLink component (protocol: mavlink; docs/service.md, "MAVLink"): what it publishes.
 
 The daemon calls :meth:`MavlinkPublisher.messages` once per health-status period (the 10 Hz health
-rows) with that period's :class:`~ecu_monitor.service.health_rows.HealthSnapshot` (and, for
+rows) with that period's :class:`~ecu_monitor.pipeline.outputs.HealthSnapshot` (and, for
 EFI_STATUS out, the held input values), and sends :meth:`MavlinkPublisher.encode` of what it returns
 on ``mavlink.output`` (or back over ``mavlink.connection``). Every message is a pymavlink message
 object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``system_id`` /
@@ -46,10 +46,10 @@ from typing import Any
 
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.mavlink import mavlink_module
+from ecu_monitor.bus.mavlink_settings import MavlinkSettings
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.service.health_rows import HealthSnapshot
-from ecu_monitor.service.mavlink_settings import MavlinkSettings
-from ecu_monitor.service.supervision import STATES
+from ecu_monitor.pipeline.outputs import HealthSnapshot
+from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.units import UNITS, standard_pressure_kpa
 
 __all__ = [

@@ -6,6 +6,7 @@ daemon and the demo run).
 * :class:`DbcHealthFrames`: the health.dbc messages (Health_Status, Health_Isolation, Health_Diag,
   Health_Spread, Health_Cylinder) at their configured rates; a nan value is sent as the signal's idle value.
 * :class:`DroneCanPublisher`: the service as a DroneCAN node (runtime/dronecan_node.py).
+* :class:`MavlinkHealth`: the service as a MAVLink component (runtime/mavlink_publisher.py).
 """
 
 from __future__ import annotations
@@ -28,7 +29,15 @@ if TYPE_CHECKING:
 
     from ecu_monitor.config import ServiceConfig
 
-__all__ = ["HEALTH_SIGNALS", "DbcHealthFrames", "DroneCanPublisher", "LiveMonitor", "Publisher", "make_publishers"]
+__all__ = [
+    "HEALTH_SIGNALS",
+    "DbcHealthFrames",
+    "DroneCanPublisher",
+    "LiveMonitor",
+    "MavlinkHealth",
+    "Publisher",
+    "make_publishers",
+]
 
 #: The data signals of each health message (health.dbc), in the order :meth:`DbcHealthFrames.values` gives them.
 HEALTH_SIGNALS: dict[str, tuple[str, ...]] = {
@@ -178,14 +187,45 @@ class DroneCanPublisher:
         return taken
 
 
+class MavlinkHealth:
+    """The service as a MAVLink component (runtime/mavlink_publisher.py): HEARTBEAT, STATUSTEXT on each state
+    change, NAMED_VALUE_FLOAT, optionally EFI_STATUS, from the health-status rows; pymavlink messages, which
+    the link (runtime/mavlink_link.py) packs with the service's ids."""
+
+    def __init__(self, config: ServiceConfig, pipeline: Pipeline) -> None:
+        from ecu_monitor.runtime.mavlink_publisher import MavlinkPublisher
+
+        self.pipeline = pipeline
+        self.publisher = MavlinkPublisher(
+            config.mavlink, [m.cht_limit_c for m in pipeline.cylinder_params], {s.message for s in config.inputs}
+        )
+        pipeline.counters["mavlink_messages"] = 0
+
+    def publish(self, rows: Sequence[StepRow]) -> list[Any]:
+        out: list[Any] = []
+        status = self.pipeline.status_period
+        for row in rows:
+            if row.k % status:
+                continue
+            inputs = {
+                name: value for name in self.pipeline.names if (value := self.pipeline.held_input(name)) is not None
+            }
+            out += self.publisher.messages(row.time_s, self.pipeline.snapshot_of(row), inputs)
+        self.pipeline.counters["mavlink_messages"] += len(out)
+        return out
+
+
 def make_publishers(config: ServiceConfig, pipeline: Pipeline) -> list[Publisher]:
-    """The publishers of a config, in the order their frames go out: the health.dbc frames (protocol dbc, or
-    dronecan with ``dronecan.dbc_health_frames``), then the DroneCAN node (protocol dronecan)."""
+    """The publishers of a config, the one table of them, in the order their frames go out: the health.dbc
+    frames (protocol dbc, or dronecan with ``dronecan.dbc_health_frames``), the DroneCAN node (protocol
+    dronecan), the MAVLink component (protocol mavlink)."""
     publishers: list[Publisher] = []
-    if config.protocol == "dbc" or config.dronecan.dbc_health_frames:
+    if config.protocol == "dbc" or (config.protocol == "dronecan" and config.dronecan.dbc_health_frames):
         publishers.append(DbcHealthFrames(config, pipeline))
     if config.protocol == "dronecan":
         publishers.append(DroneCanPublisher(config, pipeline))
+    if config.protocol == "mavlink":
+        publishers.append(MavlinkHealth(config, pipeline))
     return publishers
 
 
