@@ -1,37 +1,43 @@
-"""The service configuration: YAML -> frozen, validated dataclasses (docs/service.md, shipped example.yaml).
+"""The service configuration: YAML -> frozen, validated structs (docs/service.md, shipped example.yaml).
+
+The file's schema is :class:`ConfigFile` and its sections, msgspec structs (frozen, unknown keys
+refused): every key's type, range, whether it is required, and its default are declared there, once,
+and ``msgspec.convert`` checks the YAML-loaded mapping against them. Checks across keys that a type
+cannot express are small explicit checks in the sections' ``__post_init__``. :func:`parse_config`
+then resolves what the file names into a :class:`ServiceConfig`: paths are relative to the file
+itself; the input DBC files are loaded (:func:`ecu_monitor.bus.dbc.load_dbc`), so a
+``Message.Signal`` that is not in them, or in a message that fails the DBC's strict checks, is caught
+here, not at the first frame. An input's ``unit`` is a name of :data:`ecu_monitor.units.UNITS` or,
+for a unit it does not know, ``{scale: S, offset: O}`` (canonical value = raw physical value * S + O).
 
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` whose one-line message names the file,
 the key path and what was expected, e.g. ``x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
-(the CLI prints it and exits 2). Paths in the file are relative to the file itself. The input DBC
-files are loaded (:func:`ecu_monitor.bus.dbc.load_dbc`) while validating, so a ``Message.Signal``
-that is not in them, or in a message that fails the DBC's strict checks, is caught here, not at the
-first frame. An input's ``unit`` is a name of :data:`ecu_monitor.units.UNITS` or, for a unit it does
-not know, ``{scale: S, offset: O}`` (canonical value = raw physical value * S + O).
+(the CLI prints it and exits 2); msgspec's ValidationError (``... - at `$.inputs.rpm.unit```) is
+put in that form in one place, :func:`_config_error`.
 
 ``protocol: dronecan`` (default ``dbc``) reads DroneCAN messages instead (:mod:`ecu_monitor.bus.dronecan`,
 the shipped dronecan.yaml): each input names ``field: data.type.Name.field.path`` instead of
 ``signal:``, checked against the DSDL definitions at load; ``dbc`` is not used; the ``dronecan:``
 section gives the service's node id and the accepted senders (:class:`DroneCanSettings`).
-
-``protocol: mavlink`` reads an autopilot's MAVLink telemetry (:mod:`ecu_monitor.bus.mavlink`, the shipped
-mavlink.yaml): each input names ``field: MESSAGE.field`` (checked against pymavlink's dialect, its unit
-against the message definition); no ``dbc`` and no ``bus``; the ``mavlink:`` section
-(:class:`~ecu_monitor.bus.mavlink_settings.MavlinkSettings`) gives the link and the service's ids.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import re
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+import sys
+import typing
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
+import msgspec
+import msgspec.inspect as schema
 import yaml
+from msgspec import UNSET, Meta, UnsetType
 
 from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec
 from ecu_monitor.bus.dbc import load_dbc, shipped_dbc
@@ -56,17 +62,20 @@ __all__ = [
     "REQUIRED_INPUTS",
     "SYMPTOMS",
     "Backoff",
+    "ConfigFile",
     "DroneCanSettings",
     "HealthRate",
     "InputSpec",
     "SensorFaultSettings",
     "ServiceConfig",
+    "config_default",
     "load_config",
     "parse_config",
 ]
 
 #: Bus protocols of the inputs: DBC-described frames, DroneCAN messages, or an autopilot's MAVLink telemetry.
-PROTOCOLS: tuple[str, ...] = ("dbc", "dronecan", "mavlink")
+Protocol = Literal["dbc", "dronecan", "mavlink"]
+PROTOCOLS: tuple[str, ...] = typing.get_args(Protocol)
 #: Per-cylinder CHT inputs (``cht1_c`` .. ``cht16_c``, the flight-log column names). Two or more
 #: mapped: every cylinder is monitored (one estimator each; docs/service.md, "Every cylinder"), and a
 #: ``cht_c`` mapped beside them is held but not estimated; one alone is held beside ``cht_c``.
@@ -88,32 +97,315 @@ HEALTH_MESSAGES: Mapping[str, float] = MappingProxyType(
 )
 #: Model-deviation symptoms the detector may watch: the configured estimator's (the paper's Delta_k / dt)
 #: or the isolation filter's f(T, gamma_Q, gamma_D) - f(T, 1, 1); both degC/s.
-SYMPTOMS: tuple[str, ...] = ("estimator", "isolation")
+Symptom = Literal["estimator", "isolation"]
+SYMPTOMS: tuple[str, ...] = typing.get_args(Symptom)
 #: Built-in model presets accepted by ``model:`` instead of a file.
 MODEL_PRESETS = MappingProxyType({"paper_table_a1": paper_table_a1})
 
-_TOP_KEYS = (
-    "protocol",
-    "dronecan",
-    "mavlink",
-    "engine",
-    "bus",
-    "reopen_backoff_s",
-    "dbc",
-    "health_dbc",
-    "inputs",
-    "health",
-    "model",
-    "estimator",
-    "detector",
-    "cylinders",
-    "stale_predict_limit_s",
-    "no_frames_warning_s",
-    "rehearse_lead_ms",
-    "spin_ms",
-    "state_dir",
-    "sensor_fault",
-)
+# --- the file's schema ---------------------------------------------------------------------------------
+
+_MAX = sys.float_info.max  # a float within +-_MAX is finite: the bounds make msgspec refuse inf and nan
+_Number = Annotated[float, Meta(ge=-_MAX, le=_MAX)]
+_Positive = Annotated[float, Meta(gt=0.0, le=_MAX)]
+_NonNegative = Annotated[float, Meta(ge=0.0, le=_MAX)]
+_Text = Annotated[str, Meta(pattern=r"\S", description="a non-empty string")]
+_FilePath = Annotated[str, Meta(pattern=r"\S", description="a file path")]
+_ModelRef = Annotated[
+    str, Meta(pattern=r"\S", description=f"a preset name ({', '.join(MODEL_PRESETS)}) or a model file")
+]
+_Fingerprint = Annotated[str, Meta(pattern=r"^[0-9a-f]{16}$", description="16 hex digits (a model fingerprint)")]
+_NodeId = Annotated[int, Meta(ge=1, le=127, description="a node id 1..127")]
+
+
+class _SectionError(ValueError):
+    """A check across keys of a section failed: ``key`` (relative to the section) and what was expected.
+    Raised in ``__post_init__``, where msgspec wraps it, with the section's path, in its ValidationError."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}")
+        self.key = key
+        self.message = message
+
+
+class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A mapping of the config file: frozen, unknown keys refused (subclasses inherit both)."""
+
+
+class _Engine(_Section, frozen=True):
+    serial: _Text  # the engine's serial: persistence keeps its flights and trends under it
+
+
+class Backoff(_Section, frozen=True):
+    """``reopen_backoff_s``: delays between attempts to reopen a failed bus: initial, doubling up to max, s."""
+
+    initial: _Positive = 0.5
+    max: _Positive = 10.0
+
+    def __post_init__(self) -> None:
+        if self.max < self.initial:
+            raise _SectionError("max", f"expected a number >= {self.initial:g}, got {self.max:g}")
+
+
+class DroneCanSettings(_Section, frozen=True):
+    """The service as a DroneCAN node (docs/service.md, "DroneCAN").
+
+    node_id: the service's node id (1..127), the source of its NodeStatus, KeyValue and LogMessage.
+    source_node_ids: accept inputs only from these nodes (empty: from any node). priority: the CAN
+    priority of the service's transfers (0 highest .. 31 lowest). key_value_hz: rate of the health
+    values as uavcan.protocol.debug.KeyValue (0: none). log_messages: state changes as
+    uavcan.protocol.debug.LogMessage. dbc_health_frames: send the health.dbc frames too.
+    """
+
+    node_id: _NodeId = 100
+    source_node_ids: tuple[_NodeId, ...] = ()
+    priority: Annotated[int, Meta(ge=0, le=31, description="a CAN priority 0..31")] = 24
+    key_value_hz: Annotated[float, Meta(ge=0.0, le=10.0)] = 1.0
+    log_messages: bool = True
+    dbc_health_frames: bool = False
+
+    def __post_init__(self) -> None:
+        if self.node_id in self.source_node_ids:
+            raise _SectionError("source_node_ids", f"lists the service's own node id {self.node_id}")
+
+
+class _DroneCanSection(DroneCanSettings, frozen=True):
+    """``dronecan:`` as written: the node id is required, it must be unique on the bus (the default above
+    is only that of a config with protocol dbc, where the service is no DroneCAN node)."""
+
+    node_id: _NodeId
+
+
+class _SensorFaultSection(_Section, frozen=True):
+    """``sensor_fault:`` as written (:class:`SensorFaultSettings`; ``status_signal`` is ``Message.Signal``,
+    a DroneCAN field path for protocol dronecan)."""
+
+    stuck_after_s: _Positive = 120.0
+    min_c: _Number = -40.0
+    max_c: _Number = 350.0
+    stuck_change_c: _Positive = 5.0
+    status_signal: _Text | None = None
+    open_values: Annotated[tuple[int, ...], Meta(min_length=1, description="a non-empty list of integers")] = ()
+
+    def __post_init__(self) -> None:
+        if self.max_c <= self.min_c:
+            raise _SectionError("max_c", f"expected a number > {self.min_c:g}, got {self.max_c:g}")
+        if self.status_signal is not None and not self.open_values:
+            raise _SectionError("open_values", "missing")
+        if self.open_values and self.status_signal is None:
+            raise _SectionError("open_values", "given without status_signal")
+
+
+class SensorFaultSettings(_SensorFaultSection, frozen=True):
+    """CHT sensor plausibility.
+
+    min_c, max_c: readings outside are an open / shorted probe, degC. stuck_after_s: a reading that
+    has not changed for this long while the model predicts a change of at least stuck_change_c
+    (degC) is stuck. status_message/status_signal/open_values: optional ECU status signal whose
+    value in open_values reports an open probe (engine.dbc: ECU_Slow.EcuStatus = 3 CHT_SENSOR_OPEN);
+    the file's ``status_signal: Message.Signal`` split in two (a DroneCAN data type and field path).
+    """
+
+    status_message: str | None = None
+
+
+class _Input(_Section, frozen=True):
+    """``inputs.<name>``: where the input is on the bus, its unit and when it goes stale, s."""
+
+    unit: Annotated[str | dict[str, Any], Meta(description="a unit name or {scale: S, offset: O}")]
+    stale_after_s: _Positive
+    signal: _Text | UnsetType = UNSET  # protocol dbc: Message.Signal
+    field: _Text | UnsetType = UNSET  # protocol dronecan: data.type.Name.field.path
+
+
+class _Rate(_Section, frozen=True):
+    rate_hz: _Positive
+
+
+class _EstimatorName(_Section, frozen=True):
+    name: _Text = "cbekf-au"
+
+    def __post_init__(self) -> None:
+        if self.name not in ESTIMATORS:
+            raise _SectionError("name", f"unknown estimator {self.name!r} (known: {', '.join(sorted(ESTIMATORS))})")
+
+
+class _DetectorMark(_Section, frozen=True):
+    calibrated_for: _Fingerprint | None = None  # the model the threshold was calibrated for
+
+
+class _DetectorHead(_DetectorMark, frozen=True):
+    symptom: Symptom = "estimator"
+
+
+def _optional_keys(name: str, keys: Iterable[str], value: Any) -> Any:
+    """A section with the optional keys ``keys``, each a ``value`` (UNSET: not given)."""
+    return msgspec.defstruct(
+        name, [(key, value | UnsetType, UNSET) for key in keys], bases=(_Section,), module=__name__
+    )
+
+
+def _settings_keys(name: str, settings: type, base: type) -> Any:
+    """``base`` plus each field of the settings dataclass ``settings`` (which keeps their defaults and checks
+    their values), optional."""
+    hints = typing.get_type_hints(settings)
+    keys = [(f.name, hints[f.name] | UnsetType, UNSET) for f in dataclasses.fields(settings)]
+    return msgspec.defstruct(name, keys, bases=(base,), module=__name__)
+
+
+def _given(section: msgspec.Struct, settings: type) -> dict[str, Any]:
+    """The fields of the dataclass ``settings`` that ``section`` gives."""
+    names = {f.name for f in dataclasses.fields(settings)}
+    return {k: v for k, v in msgspec.structs.asdict(section).items() if k in names and v is not UNSET}
+
+
+_CYLINDER_NAMES = tuple(f"cht{n}_c" for n in range(1, MAX_CYLINDERS + 1))
+if TYPE_CHECKING:  # built below from names other modules declare; mypy sees their fixed part
+    _Inputs = _Section
+    _Health = _Section
+    _EstimatorSection = _EstimatorName
+    _DetectorSection = _DetectorHead
+    _DetectorKeys = _DetectorMark
+else:
+    _Inputs = _optional_keys("Inputs", (*INPUT_NAMES, *_CYLINDER_NAMES), _Input)
+    _Health = _optional_keys("Health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), _Rate)
+    _EstimatorSection = _settings_keys("EstimatorSection", EstimatorSettings, _EstimatorName)
+    _DetectorSection = _settings_keys("DetectorSection", DetectorSettings, _DetectorHead)
+    _DetectorKeys = _settings_keys("DetectorKeys", DetectorSettings, _DetectorMark)
+
+
+class _Cylinders(_Section, frozen=True):
+    """``cylinders:``: one model per cylinder, the CHT spread limit, one detector per cylinder (each replacing
+    keys of ``detector``), the cross-cylinder detector (replacing keys of DetectorSettings' defaults) and one
+    per cylinder (replacing keys of ``cross_detector``; null: none on that cylinder); all optional."""
+
+    models: list[_ModelRef] | UnsetType = UNSET
+    spread_limit_c: _Positive | UnsetType = UNSET
+    detectors: list[_DetectorKeys] | UnsetType = UNSET
+    cross_detector: _DetectorKeys | UnsetType = UNSET
+    cross_detectors: list[_DetectorKeys | None] | UnsetType = UNSET
+
+
+class ConfigFile(_Section, frozen=True, kw_only=True):
+    """The config file as written (the shipped example.yaml gives every key with its meaning): each key's
+    type, range and default, declared once (the daemon's settings read theirs here: :func:`config_default`)."""
+
+    protocol: Protocol = "dbc"
+    engine: _Engine
+    bus: dict[str, Any] | UnsetType = UNSET  # keyword arguments of can.Bus; required but for protocol mavlink
+    reopen_backoff_s: Backoff = Backoff()
+    dronecan: _DroneCanSection | UnsetType = UNSET  # protocol dronecan only, and required there
+    mavlink: dict[str, Any] | None | UnsetType = UNSET  # protocol mavlink only (bus/mavlink_settings.py checks it)
+    dbc: Annotated[
+        _FilePath | Annotated[list[_FilePath], Meta(min_length=1)] | UnsetType,
+        Meta(description="a DBC file path or a non-empty list of them"),
+    ] = UNSET  # protocol dbc only, and required there
+    health_dbc: _FilePath | UnsetType = UNSET  # required for protocol dbc; dronecan: the shipped health.dbc
+    inputs: _Inputs
+    health: _Health = msgspec.convert({name: {"rate_hz": rate} for name, rate in HEALTH_MESSAGES.items()}, _Health)
+    model: _ModelRef = "paper_table_a1"
+    cylinders: _Cylinders = _Cylinders()
+    estimator: _EstimatorSection = _EstimatorSection()
+    detector: _DetectorSection = _DetectorSection()
+    #: inputs stale: keep predicting on the model this long, s, then UNAVAILABLE
+    stale_predict_limit_s: _NonNegative = 30.0
+    #: the daemon logs a warning when its bus has carried no engine frame for this long, s
+    no_frames_warning_s: _Positive = 10.0
+    state_dir: _FilePath = "/var/lib/ecu-monitor"  # the SQLite database of flights and trends
+    sensor_fault: _SensorFaultSection = _SensorFaultSection()
+
+    def __post_init__(self) -> None:
+        if self.protocol == "mavlink":  # the link is mavlink.connection, not a CAN bus
+            if self.bus is not UNSET:
+                raise _SectionError("bus", "does not apply to protocol mavlink (the link is mavlink.connection)")
+        else:
+            bus = {} if self.bus is UNSET else self.bus
+            interface = bus.get("interface", UNSET)
+            if self.bus is UNSET:
+                raise _SectionError("bus", "missing")
+            if interface is UNSET or "channel" not in bus:
+                raise _SectionError("bus.interface" if interface is UNSET else "bus.channel", "missing")
+            if not isinstance(interface, str) or not interface.strip():
+                raise _SectionError("bus.interface", f"expected a non-empty string, got {_kind(interface)}")
+        if self.protocol != "mavlink" and self.mavlink is not UNSET:
+            raise _SectionError("mavlink", "applies to protocol mavlink only (add protocol: mavlink)")
+        if self.protocol == "dronecan" and self.dronecan is UNSET:
+            raise _SectionError("dronecan", "missing (protocol dronecan: the service's node id)")
+        if self.protocol != "dronecan" and self.dronecan is not UNSET:
+            raise _SectionError("dronecan", "applies to protocol dronecan only (add protocol: dronecan)")
+        if self.protocol in ("dronecan", "mavlink"):
+            if self.dbc is not UNSET:
+                raise _SectionError(
+                    "dbc", f"input DBC files do not apply to protocol {self.protocol} (inputs name its fields)"
+                )
+        else:
+            for key in ("dbc", "health_dbc"):
+                if getattr(self, key) is UNSET:
+                    raise _SectionError(key, "missing")
+        given = [name for name, spec in msgspec.structs.asdict(self.inputs).items() if spec is not UNSET]
+        numbers = sorted(int(m.group(1)) for name in given if (m := CYLINDER_INPUT.match(name)))
+        if numbers != list(range(1, len(numbers) + 1)):
+            cylinders = ", ".join(f"cht{n}_c" for n in numbers)
+            raise _SectionError(
+                "inputs", f"cylinders must be numbered 1 .. N (N <= {MAX_CYLINDERS}) without gaps, got {cylinders}"
+            )
+        mapped = set(given)
+        if self.protocol == "dronecan" and "airspeed_mps" in mapped:
+            mapped.add("altitude_m")  # the pressure altitude of the air data's static pressure (_inputs)
+        for name in REQUIRED_INPUTS:
+            if name not in mapped and not (name == CHT_INPUT and len(numbers) > 1):
+                every = ", ".join(REQUIRED_INPUTS)
+                raise _SectionError(
+                    f"inputs.{name}", f"missing (every configuration maps {every}; cht_c or cht1_c .. chtN_c)"
+                )
+        count = _cylinder_count(given)
+        if self.sensor_fault.status_signal is not None and count > 1:
+            raise _SectionError(
+                "sensor_fault.status_signal",
+                "an ECU status signal reports one probe: not with cht1_c .. chtN_c (each cylinder's probe is"
+                " checked by range and the stuck test)",
+            )
+        _check_cylinders(self.cylinders, count)
+
+
+def _check_cylinders(section: _Cylinders, count: int) -> None:
+    """The ``cylinders:`` lists have one entry per cylinder; cross-cylinder detectors need two or more."""
+    if section.models is not UNSET and len(section.models) != count:
+        raise _SectionError(
+            "cylinders.models",
+            f"expected a list of {count} models, one per cylinder, got a list of {len(section.models)}",
+        )
+    each = "one per cylinder (cht1_c .. chtN_c), got a list of {}"
+    if section.detectors is not UNSET and (count < 2 or len(section.detectors) != count):
+        raise _SectionError(
+            "cylinders.detectors", f"expected a list of {count} detectors, {each.format(len(section.detectors))}"
+        )
+    for key in ("cross_detector", "cross_detectors"):
+        if getattr(section, key) is not UNSET and count < 2:
+            raise _SectionError(
+                f"cylinders.{key}", "compares cylinders: needs two or more CHT channels (cht1_c .. chtN_c)"
+            )
+    if section.cross_detectors is not UNSET and len(section.cross_detectors) != count:
+        raise _SectionError(
+            "cylinders.cross_detectors",
+            f"expected a list of {count} detectors, {each.format(len(section.cross_detectors))}",
+        )
+
+
+def _cylinder_count(names: Iterable[str]) -> int:
+    """Cylinders monitored: the numbered CHT inputs when two or more are mapped, else 1 (``cht_c``)."""
+    count = sum(1 for name in names if CYLINDER_INPUT.match(name))
+    return count if count > 1 else 1
+
+
+def config_default(key: str) -> Any:
+    """The default of the config file's top-level ``key`` (declared once, in :class:`ConfigFile`)."""
+    for info in msgspec.structs.fields(ConfigFile):
+        if info.encode_name == key:
+            return info.default
+    raise KeyError(key)
+
+
+# --- the resolved configuration --------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -133,25 +425,6 @@ class InputSpec:
 
 
 @dataclass(frozen=True)
-class DroneCanSettings:
-    """The service as a DroneCAN node (docs/service.md, "DroneCAN").
-
-    node_id: the service's node id (1..127), the source of its NodeStatus, KeyValue and LogMessage.
-    source_node_ids: accept inputs only from these nodes (empty: from any node). priority: the CAN
-    priority of the service's transfers (0 highest .. 31 lowest). key_value_hz: rate of the health
-    values as uavcan.protocol.debug.KeyValue (0: none). log_messages: state changes as
-    uavcan.protocol.debug.LogMessage. dbc_health_frames: send the health.dbc frames too.
-    """
-
-    node_id: int = 100
-    source_node_ids: tuple[int, ...] = ()
-    priority: int = 24
-    key_value_hz: float = 1.0
-    log_messages: bool = True
-    dbc_health_frames: bool = False
-
-
-@dataclass(frozen=True)
 class HealthRate:
     """A health message of health_dbc and its broadcast rate, Hz."""
 
@@ -160,35 +433,8 @@ class HealthRate:
 
 
 @dataclass(frozen=True)
-class Backoff:
-    """Delays between attempts to reopen a failed bus: initial, doubling up to max, s."""
-
-    initial: float = 0.5
-    max: float = 10.0
-
-
-@dataclass(frozen=True)
-class SensorFaultSettings:
-    """CHT sensor plausibility.
-
-    min_c, max_c: readings outside are an open / shorted probe, degC. stuck_after_s: a reading that
-    has not changed for this long while the model predicts a change of at least stuck_change_c
-    (degC) is stuck. status_message/status_signal/open_values: optional ECU status signal whose
-    value in open_values reports an open probe (engine.dbc: ECU_Slow.EcuStatus = 3 CHT_SENSOR_OPEN).
-    """
-
-    stuck_after_s: float = 120.0
-    min_c: float = -40.0
-    max_c: float = 350.0
-    stuck_change_c: float = 5.0
-    status_message: str | None = None
-    status_signal: str | None = None
-    open_values: tuple[int, ...] = ()
-
-
-@dataclass(frozen=True)
 class ServiceConfig:
-    """The whole service configuration (see the shipped example.yaml for every key with its meaning)."""
+    """The whole service configuration, resolved (:class:`ConfigFile` has every key with its default)."""
 
     source: Path
     engine_serial: str
@@ -205,41 +451,34 @@ class ServiceConfig:
     detector_symptom: str
     stale_predict_limit_s: float
     state_dir: Path
-    sensor_fault: SensorFaultSettings = field(default_factory=SensorFaultSettings)
-    #: the daemon logs a warning when its bus has carried no engine frame for this long, s
-    no_frames_warning_s: float = 10.0
-    #: the daemon rehearses a Health_Status step this long before its frame is due, ms; 0: never
-    #: (docs/service.md, "Rehearsal")
-    rehearse_lead_ms: float = 0.6
-    #: after a rehearsal the daemon polls the bus without sleeping until the frame comes, at most this long past
-    #: the time it is expected, ms; 0: it sleeps in recv (docs/service.md, "Rehearsal")
-    spin_ms: float = 0.5
+    sensor_fault: SensorFaultSettings
+    no_frames_warning_s: float
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
     #: ``ecu-monitor calibrate`` writes it, ecu_monitor.offline.calibration.model_fingerprint); None if not given.
-    detector_calibrated_for: str | None = None
-    #: ``dbc`` or ``dronecan`` (:data:`PROTOCOLS`): how the inputs are read from the bus
-    protocol: str = "dbc"
+    detector_calibrated_for: str | None
+    #: ``dbc``, ``dronecan`` or ``mavlink`` (:data:`PROTOCOLS`): how the inputs are read
+    protocol: str
     #: the service as a DroneCAN node (used when protocol is dronecan)
-    dronecan: DroneCanSettings = field(default_factory=DroneCanSettings)
+    dronecan: DroneCanSettings
     #: the service on a MAVLink link (used when protocol is mavlink)
-    mavlink: MavlinkSettings = field(default_factory=MavlinkSettings)
+    mavlink: MavlinkSettings
     #: ``cylinders.models``: one model (preset name or resolved file path) per cylinder, in cylinder
     #: order; empty: every cylinder runs on ``model``.
-    cylinder_models: tuple[str, ...] = ()
+    cylinder_models: tuple[str, ...]
     #: ``cylinders.spread_limit_c``: the CHT spread (hottest minus coldest estimate, degC) above which
     #: the service raises its spread alarm; None: no alarm.
-    spread_limit_c: float | None = None
+    spread_limit_c: float | None
     #: ``cylinders.detectors``: one detector per cylinder, in cylinder order (each ``detector:`` with the
     #: entry's keys replaced, as ``ecu-monitor calibrate`` writes them); empty: every cylinder runs ``detector``.
-    cylinder_detectors: tuple[DetectorSettings, ...] = ()
+    cylinder_detectors: tuple[DetectorSettings, ...]
     #: each ``cylinders.detectors`` entry's ``calibrated_for`` (its model's fingerprint; None: not given)
-    cylinder_calibrated_for: tuple[str | None, ...] = ()
+    cylinder_calibrated_for: tuple[str | None, ...]
     #: ``cylinders.cross_detector`` / ``cross_detectors``: one more detector per cylinder, on the
     #: cross-cylinder symptom (its symptom minus the median of the others', estimation/cross_cylinder.py);
     #: empty: off. Each cylinder's state is the more severe of its two detectors' verdicts.
-    cross_detectors: tuple[DetectorSettings | None, ...] = ()
+    cross_detectors: tuple[DetectorSettings | None, ...]
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
-    cross_calibrated_for: tuple[str | None, ...] = ()
+    cross_calibrated_for: tuple[str | None, ...]
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
@@ -292,84 +531,6 @@ class ServiceConfig:
         return dataclasses.replace(self, **changes)
 
 
-class _Node:
-    """A mapping in the YAML with its key path, for messages naming file + key."""
-
-    def __init__(self, src: Path, path: str, data: Any, allowed: tuple[str, ...] | None = None) -> None:
-        self.src = src
-        self.path = path
-        if not isinstance(data, dict):
-            raise self.error(f"expected a mapping, got {_kind(data)}")
-        self.data: dict[Any, Any] = data
-        if allowed is not None:
-            for key in data:
-                if key not in allowed:
-                    raise self.error(f"unknown key '{key}' (known: {', '.join(allowed)})", key)
-
-    def key(self, name: str) -> str:
-        return f"{self.path}.{name}" if self.path else name
-
-    def error(self, message: str, name: str | None = None) -> ConfigError:
-        where = self.key(name) if name is not None else (self.path or "top level")
-        return ConfigError(f"{self.src}: {where}: {message}")
-
-    def has(self, name: str) -> bool:
-        return name in self.data
-
-    def raw(self, name: str, default: Any = ...) -> Any:
-        if name not in self.data:
-            if default is ...:
-                raise self.error("missing", name)
-            return default
-        return self.data[name]
-
-    def child(self, name: str, allowed: tuple[str, ...] | None = None, default: Any = ...) -> _Node:
-        return _Node(self.src, self.key(name), self.raw(name, default), allowed)
-
-    def string(self, name: str, default: Any = ...) -> str:
-        value = self.raw(name, default)
-        if not isinstance(value, str) or not value.strip():
-            raise self.error(f"expected a non-empty string, got {_kind(value)}", name)
-        return value
-
-    def number(
-        self, name: str, default: Any = ..., *, low: float = -math.inf, high: float = math.inf, strict_low: bool = False
-    ) -> float:
-        value = self.raw(name, default)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.error(f"expected a number, got {_kind(value)}", name)
-        below = value <= low if strict_low else value < low
-        if below or value > high:
-            bound = f"> {low:g}" if strict_low else f">= {low:g}"
-            rng = bound if high == math.inf else f"{bound} and <= {high:g}"
-            raise self.error(f"expected a number {rng}, got {value!r}", name)
-        return float(value)
-
-    def path_value(self, name: str, default: Any = ...) -> Path:
-        value = self.raw(name, default)
-        if not isinstance(value, str | os.PathLike) or not str(value).strip():
-            raise self.error(f"expected a file path, got {_kind(value)}", name)
-        return _resolve(self.src, value)
-
-
-def _kind(value: Any) -> str:
-    if isinstance(value, dict):
-        return "a mapping"
-    if isinstance(value, list):
-        return "a list"
-    if value is None:
-        return "nothing"
-    text = repr(value)
-    if len(text) > 60:  # a CSV given as a config is one long YAML string: keep the message one short line
-        text = f"{text[:50]}... ({len(text)} characters)"
-    return f"{type(value).__name__} {text}"
-
-
-def _resolve(src: Path, value: str | os.PathLike[str]) -> Path:
-    path = Path(os.path.expanduser(str(value)))
-    return path if path.is_absolute() else (src.parent / path)
-
-
 def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
     """Read and validate a service configuration YAML file: a path, or a shipped config's name
     (``example.yaml``; :func:`ecu_monitor.shipped.resolve_file`)."""
@@ -392,367 +553,251 @@ def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
 def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     """Validate already-parsed YAML ``data``; ``src`` names the file in messages and anchors relative paths."""
     source = Path(src)
-    top = _Node(source, "", data, _TOP_KEYS)
+    try:
+        file = msgspec.convert(data, ConfigFile)
+    except msgspec.ValidationError as exc:
+        raise _config_error(source, exc, data) from None
+    return _Resolver(source).config(file, order=list(data["inputs"]))  # the inputs in the file's order
 
-    engine = top.child("engine", ("serial",))
-    serial = engine.string("serial")
 
-    protocol = top.raw("protocol", "dbc")
-    if protocol == "mavlink":  # the link is mavlink.connection, not a CAN bus
-        if top.has("bus"):
-            raise top.error("does not apply to protocol mavlink (the link is mavlink.connection)", "bus")
-        bus = _Node(source, "bus", {})
-    else:
-        bus = top.child("bus")
-        bus.string("interface")
-        if not bus.has("channel"):
-            raise bus.error("missing", "channel")
-    for key in bus.data:
-        if not isinstance(key, str):
-            raise bus.error(f"keys must be strings, got {key!r}")
+# --- from the file to the configuration: what a schema cannot check -------------------------------------
 
-    backoff_node = top.child("reopen_backoff_s", ("initial", "max"), {})
-    initial = backoff_node.number("initial", 0.5, low=0.0, strict_low=True)
-    backoff = Backoff(initial, backoff_node.number("max", 10.0, low=initial))
 
-    if protocol not in PROTOCOLS:
-        raise top.error(f"expected one of {', '.join(PROTOCOLS)}, got {_kind(protocol)}", "protocol")
-    if protocol != "mavlink" and top.has("mavlink"):
-        raise top.error("applies to protocol mavlink only (add protocol: mavlink)", "mavlink")
-    mavlink = parse_mavlink_settings(top.raw("mavlink", None), str(source)) if protocol == "mavlink" else None
-    if protocol in ("dronecan", "mavlink"):
-        if top.has("dbc"):
-            raise top.error(f"input DBC files do not apply to protocol {protocol} (inputs name its fields)", "dbc")
-        dbc_paths: tuple[Path, ...] = ()
-        databases: list[tuple[Path, Any]] = []
-        dronecan = _dronecan(top) if protocol == "dronecan" else DroneCanSettings()
-        health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc", str(shipped_dbc("health.dbc"))))
-    else:
-        if top.has("dronecan"):
-            raise top.error("applies to protocol dronecan only (add protocol: dronecan)", "dronecan")
-        dbc_paths, databases = _dbc_list(top)
+class _Resolver:
+    """Resolves a checked :class:`ConfigFile` from ``src``: its files, signals, units and settings."""
+
+    def __init__(self, src: Path) -> None:
+        self.src = src
+        self.databases: list[tuple[Path, Any]] = []
+
+    def error(self, key: str, message: str) -> ConfigError:
+        return ConfigError(f"{self.src}: {key}: {message}")
+
+    def config(self, file: ConfigFile, order: list[str]) -> ServiceConfig:
+        """The configuration; ``order``: the input names in the order of the file."""
         dronecan = DroneCanSettings()
-        health_dbc = _dbc_file(top, "health_dbc", top.raw("health_dbc"))
-    health_db = _load(top, "health_dbc", health_dbc)
-    find = {"dronecan": _find_field, "mavlink": _find_mavlink_field}.get(protocol, _find_signal)
+        mavlink = MavlinkSettings()
+        if file.protocol == "mavlink":
+            mavlink = parse_mavlink_settings(None if file.mavlink is UNSET else file.mavlink, str(self.src))
+        if file.protocol in ("dronecan", "mavlink"):
+            if file.dronecan is not UNSET:
+                dronecan = DroneCanSettings(**msgspec.structs.asdict(file.dronecan))
+            health_name = str(shipped_dbc("health.dbc")) if file.health_dbc is UNSET else file.health_dbc
+        else:
+            names = [file.dbc] if isinstance(file.dbc, str) else list(file.dbc or ())
+            for index, name in enumerate(names):
+                path = self.dbc_file(f"dbc[{index}]", name)
+                self.databases.append((path, self.load(f"dbc[{index}]", path)))
+            health_name = str(file.health_dbc)
+        health_dbc = self.dbc_file("health_dbc", health_name)
+        health_db = self.load("health_dbc", health_dbc)
 
-    sensor_node = top.child(
-        "sensor_fault", ("stuck_after_s", "min_c", "max_c", "stuck_change_c", "status_signal", "open_values"), {}
-    )
-    sensor = _sensor_fault(sensor_node, databases, find)
+        inputs = self.inputs(file, order)
+        if file.protocol == "mavlink":  # units against the MAVLink definitions; never echo the inputs' EFI_STATUS
+            from ecu_monitor.bus.mavlink import MavlinkDecoder
 
-    inputs = _inputs(top, databases, protocol)
-    if mavlink is not None:  # units against the MAVLink definitions; the service never echoes its inputs' EFI_STATUS
-        from ecu_monitor.bus.mavlink import MavlinkDecoder
+            try:
+                MavlinkDecoder([spec.signal_spec() for spec in inputs])
+            except ConfigError as exc:
+                raise self.error("inputs", str(exc)) from None
+            if mavlink.efi_status_out and any(spec.message == "EFI_STATUS" for spec in inputs):
+                raise self.error(
+                    "mavlink.efi_status_out", "the inputs come from EFI_STATUS, which the service must not echo"
+                )
+        estimator = self.settings("", EstimatorSettings(), _given(file.estimator, EstimatorSettings))
+        detector = self.settings("", DetectorSettings(), _given(file.detector, DetectorSettings))
+        cylinders = file.cylinders
+        count = _cylinder_count(order)
+        return ServiceConfig(
+            source=self.src,
+            engine_serial=file.engine.serial,
+            bus=MappingProxyType({} if file.bus is UNSET else dict(file.bus)),
+            reopen_backoff=file.reopen_backoff_s,
+            dbc_paths=tuple(path for path, _ in self.databases),
+            health_dbc=health_dbc,
+            inputs=inputs,
+            health=self.health(file, health_db, estimator.dt_s),
+            model=self.model_name("model", file.model),
+            estimator_name=file.estimator.name,
+            estimator=estimator,
+            detector=detector,
+            detector_symptom=file.detector.symptom,
+            stale_predict_limit_s=file.stale_predict_limit_s,
+            state_dir=_resolve(self.src, file.state_dir),
+            sensor_fault=self.sensor_fault(file),
+            no_frames_warning_s=file.no_frames_warning_s,
+            detector_calibrated_for=file.detector.calibrated_for,
+            protocol=file.protocol,
+            dronecan=dronecan,
+            mavlink=mavlink,
+            cylinder_models=tuple(
+                self.model_name(f"cylinders.models[{i}]", model) for i, model in enumerate(cylinders.models or ())
+            ),
+            spread_limit_c=None if cylinders.spread_limit_c is UNSET else cylinders.spread_limit_c,
+            cylinder_detectors=tuple(
+                self.settings(f"cylinders.detectors[{i}]", detector, _given(entry, DetectorSettings))
+                for i, entry in enumerate(cylinders.detectors or ())
+            ),
+            cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
+            **self.cross_detectors(cylinders, count),
+        )
 
+    def load(self, key: str, path: Path) -> Any:
         try:
-            MavlinkDecoder([spec.signal_spec() for spec in inputs])
+            return load_dbc(path)
         except ConfigError as exc:
-            raise top.error(str(exc), "inputs") from None
-        if mavlink.efi_status_out and any(spec.message == "EFI_STATUS" for spec in inputs):
-            raise top.error(
-                "efi_status_out: the inputs come from EFI_STATUS, which the service must not echo", "mavlink"
-            )
-    if sensor.status_message is not None and _cylinder_count(inputs) > 1:
-        raise sensor_node.error(
-            "an ECU status signal reports one probe: not with cht1_c .. chtN_c (each cylinder's probe is"
-            " checked by range and the stuck test)",
-            "status_signal",
+            raise self.error(key, str(exc)) from None
+
+    def dbc_file(self, key: str, name: str) -> Path:
+        """A DBC named in the config: a path relative to the config file, else a shipped DBC's name."""
+        try:
+            return resolve_file(name, "dbc", base=self.src.parent)
+        except ConfigError as exc:
+            raise self.error(key, str(exc)) from None
+
+    def find(self, protocol: str, key: str, ref: str) -> tuple[str, str]:
+        """``ref`` split into message and signal (protocol dbc: ``Message.Signal``, checked against the DBCs)
+        or DroneCAN data type and field path (checked against the DSDL definitions)."""
+        if protocol == "mavlink":
+            from ecu_monitor.bus.mavlink import parse_field as parse_mavlink_field
+
+            try:
+                ref_path = parse_mavlink_field(ref)
+            except ConfigError as exc:
+                raise self.error(key, str(exc)) from None
+            return ref_path.message, ref_path.text[len(ref_path.message) + 1 :]
+        if protocol == "dronecan":
+            from ecu_monitor.bus.dronecan import parse_field
+
+            try:
+                path = parse_field(ref)
+            except ConfigError as exc:
+                raise self.error(key, str(exc)) from None
+            return path.type_name, path.text[len(path.type_name) + 1 :]
+        if ref.count(".") != 1 or "" in ref.split("."):
+            raise self.error(key, f"expected 'Message.Signal', got {_kind(ref)}")
+        msg_name, sig_name = ref.split(".")
+        for _, db in self.databases:
+            message = db.find(msg_name)
+            if message is not None:
+                if sig_name not in {s.name for s in message.signals}:
+                    known = ", ".join(s.name for s in message.signals)
+                    raise self.error(key, f"message '{msg_name}' has no signal '{sig_name}' (signals: {known})")
+                if msg_name in db.broken:
+                    raise self.error(key, f"message '{msg_name}' cannot be used: {db.broken[msg_name]}")
+                return msg_name, sig_name
+        raise self.error(key, f"no message '{msg_name}' in {', '.join(str(p) for p, _ in self.databases)}")
+
+    def inputs(self, file: ConfigFile, order: list[str]) -> tuple[InputSpec, ...]:
+        dronecan = file.protocol == "dronecan"
+        fields = file.protocol in ("dronecan", "mavlink")  # inputs name message fields, not DBC signals
+        ref_key, other = ("field", "signal") if fields else ("signal", "field")
+        specs: list[InputSpec] = []
+        for name in order:
+            entry: _Input = getattr(file.inputs, name)
+            key = f"inputs.{name}"
+            if getattr(entry, other) is not UNSET:
+                raise self.error(f"{key}.{other}", f"unknown key '{other}' (known: {ref_key}, unit, stale_after_s)")
+            ref = getattr(entry, ref_key)
+            if ref is UNSET:
+                raise self.error(f"{key}.{ref_key}", "missing")
+            message, signal = self.find(file.protocol, f"{key}.{ref_key}", ref)
+            quantity = INPUT_QUANTITIES.get(name, "temperature")
+            if fields and name == "altitude_m" and _is_pressure(entry.unit):
+                quantity = "pressure"  # a static pressure: its pressure altitude
+            try:
+                unit = _unit(entry.unit, quantity)
+            except ValueError as exc:
+                hint = (
+                    " (or, for protocol dronecan or mavlink, a pressure unit: the pressure altitude)"
+                    if name == "altitude_m"
+                    else ""
+                )
+                raise self.error(f"{key}.unit", f"{exc}{hint}") from None
+            specs.append(InputSpec(name, message, signal, unit, entry.stale_after_s))
+        if dronecan and "altitude_m" not in order and "airspeed_mps" in order:
+            # no altitude sent: the pressure altitude of the air-data computer's static pressure, as fresh as its
+            # airspeed
+            air = next(spec for spec in specs if spec.name == "airspeed_mps")
+            message, signal = self.find(file.protocol, "inputs.altitude_m", DRONECAN_ALTITUDE_FIELD)
+            specs.append(InputSpec("altitude_m", message, signal, "Pa", air.stale_after_s))
+        return tuple(specs)
+
+    def sensor_fault(self, file: ConfigFile) -> SensorFaultSettings:
+        section = file.sensor_fault
+        message = signal = None
+        if section.status_signal is not None:
+            message, signal = self.find(file.protocol, "sensor_fault.status_signal", section.status_signal)
+        fields = msgspec.structs.asdict(section)
+        return SensorFaultSettings(**{**fields, "status_signal": signal, "status_message": message})
+
+    def health(self, file: ConfigFile, health_db: Any, dt_s: float) -> tuple[HealthRate, ...]:
+        names = {m.name for m in health_db.messages}
+        rates: list[HealthRate] = []
+        for name, entry in msgspec.structs.asdict(file.health).items():
+            if entry is UNSET:
+                continue
+            key = f"health.{name}"
+            if name not in names:
+                raise self.error(key, f"message not in health_dbc (it has: {', '.join(sorted(names))})")
+            if entry.rate_hz > 1.0 / dt_s:
+                raise self.error(
+                    f"{key}.rate_hz", f"expected a number > 0 and <= {1.0 / dt_s:g}, got {entry.rate_hz!r}"
+                )
+            steps = 1.0 / (entry.rate_hz * dt_s)
+            if abs(steps - round(steps)) > 1e-6:
+                raise self.error(
+                    f"{key}.rate_hz",
+                    f"period 1/{entry.rate_hz:g} s is not a whole number of estimator steps of {dt_s:g} s",
+                )
+            rates.append(HealthRate(name, entry.rate_hz))
+        if not any(r.message == "Health_Status" for r in rates):
+            raise self.error("health.Health_Status", "missing (Health_Status is the frame the autopilot watches)")
+        return tuple(rates)
+
+    def model_name(self, key: str, value: str) -> str:
+        """A ``model:`` value: a preset's name, or a model file (resolved against the config file)."""
+        if value in MODEL_PRESETS:
+            return value
+        path = _resolve(self.src, value)
+        if not path.is_file():
+            raise self.error(key, f"no such model file {path} (or a preset: {', '.join(MODEL_PRESETS)})")
+        return str(path)
+
+    def settings(self, key: str, base: _Settings, changes: dict[str, Any]) -> _Settings:
+        """``base`` with ``changes``: checked by the settings' own class (its message names the section's key;
+        ``key``, the entry of a list, goes before it)."""
+        try:
+            return dataclasses.replace(base, **changes)
+        except ConfigError as exc:
+            raise ConfigError(f"{self.src}: {key + ': ' if key else ''}{exc}") from None
+
+    def cross_detectors(self, section: _Cylinders, count: int) -> dict[str, Any]:
+        """``cross_detectors`` and ``cross_calibrated_for`` of the ServiceConfig: either key turns them on."""
+        if section.cross_detector is UNSET and section.cross_detectors is UNSET:
+            return {"cross_detectors": (), "cross_calibrated_for": ()}
+        base = DetectorSettings()
+        if section.cross_detector is not UNSET:
+            base = self.settings("cylinders.cross_detector", base, _given(section.cross_detector, DetectorSettings))
+        if section.cross_detectors is UNSET:
+            return {"cross_detectors": (base,) * count, "cross_calibrated_for": (None,) * count}
+        detectors = tuple(
+            None
+            if entry is None
+            else self.settings(f"cylinders.cross_detectors[{i}]", base, _given(entry, DetectorSettings))
+            for i, entry in enumerate(section.cross_detectors)
         )
-    estimator_name, estimator = _estimator(top)
-    health = _health(top, health_db, estimator.dt_s)
-
-    model = _model_name(top, "model", top.raw("model", "paper_table_a1"))
-
-    detector, symptom, calibrated_for = _detector(top)
-    cylinder_models, spread_limit, cylinder_detectors, cylinder_calibrated_for = _cylinders(top, inputs, detector)
-    cross_detectors, cross_calibrated_for = _cross_detectors(top, inputs)
-
-    return ServiceConfig(
-        source=source,
-        engine_serial=serial,
-        bus=MappingProxyType(dict(bus.data)),
-        reopen_backoff=backoff,
-        dbc_paths=dbc_paths,
-        health_dbc=health_dbc,
-        inputs=inputs,
-        health=health,
-        model=model,
-        estimator_name=estimator_name,
-        estimator=estimator,
-        detector=detector,
-        detector_symptom=symptom,
-        stale_predict_limit_s=top.number("stale_predict_limit_s", 30.0, low=0.0),
-        state_dir=top.path_value("state_dir", "/var/lib/ecu-monitor"),
-        sensor_fault=sensor,
-        no_frames_warning_s=top.number("no_frames_warning_s", 10.0, low=0.0, strict_low=True),
-        rehearse_lead_ms=top.number("rehearse_lead_ms", 0.6, low=0.0, high=10.0),
-        spin_ms=top.number("spin_ms", 0.5, low=0.0, high=10.0),
-        detector_calibrated_for=calibrated_for,
-        protocol=protocol,
-        dronecan=dronecan,
-        mavlink=mavlink or MavlinkSettings(),
-        cylinder_models=cylinder_models,
-        spread_limit_c=spread_limit,
-        cylinder_detectors=cylinder_detectors,
-        cylinder_calibrated_for=cylinder_calibrated_for,
-        cross_detectors=cross_detectors,
-        cross_calibrated_for=cross_calibrated_for,
-    )
+        marks = tuple(None if entry is None else entry.calibrated_for for entry in section.cross_detectors)
+        return {"cross_detectors": detectors, "cross_calibrated_for": marks}
 
 
-def _model_name(node: _Node, key: str, value: Any) -> str:
-    """A ``model:`` value: a preset's name, or a model file (resolved against the config file)."""
-    if not isinstance(value, str) or not value.strip():
-        presets = ", ".join(MODEL_PRESETS)
-        raise node.error(f"expected a preset name ({presets}) or a file path, got {_kind(value)}", key)
-    if value in MODEL_PRESETS:
-        return value
-    path = _resolve(node.src, value)
-    if not path.is_file():
-        raise node.error(f"no such model file {path} (or a preset: {', '.join(MODEL_PRESETS)})", key)
-    return str(path)
-
-
-def _cylinders(
-    top: _Node, inputs: tuple[InputSpec, ...], detector: DetectorSettings
-) -> tuple[tuple[str, ...], float | None, tuple[DetectorSettings, ...], tuple[str | None, ...]]:
-    """``cylinders:``: one model per cylinder (optional), the CHT spread limit (optional) and one
-    detector per cylinder (optional; each entry replaces keys of ``detector``)."""
-    node = top.child("cylinders", ("models", "spread_limit_c", "detectors", "cross_detector", "cross_detectors"), {})
-    count = _cylinder_count(inputs)
-    models: tuple[str, ...] = ()
-    if node.has("models"):
-        items = node.raw("models")
-        if not isinstance(items, list) or len(items) != count:
-            raise node.error(f"expected a list of {count} models, one per cylinder, got {_kind(items)}", "models")
-        models = tuple(_model_name(node, f"models[{i}]", item) for i, item in enumerate(items))
-    limit = node.number("spread_limit_c", low=0.0, strict_low=True) if node.has("spread_limit_c") else None
-    detectors: tuple[DetectorSettings, ...] = ()
-    if node.has("detectors"):
-        items = node.raw("detectors")
-        if count < 2 or not isinstance(items, list) or len(items) != count:
-            raise node.error(
-                f"expected a list of {count} detectors, one per cylinder (cht1_c .. chtN_c), got {_kind(items)}",
-                "detectors",
-            )
-        entries = [_Node(node.src, f"{node.key('detectors')}[{i}]", item) for i, item in enumerate(items)]
-        detectors = tuple(_cylinder_detector(entry, detector) for entry in entries)
-        calibrated_for = tuple(entry.data.get("calibrated_for") for entry in entries)
-        return models, limit, detectors, calibrated_for
-    return models, limit, detectors, ()
-
-
-def _cross_detectors(
-    top: _Node, inputs: tuple[InputSpec, ...]
-) -> tuple[tuple[DetectorSettings | None, ...], tuple[str | None, ...]]:
-    """``cylinders.cross_detector`` (the cross-cylinder detector of every cylinder: DetectorSettings'
-    defaults with the keys given replaced) and ``cylinders.cross_detectors`` (one per cylinder, each
-    replacing keys of ``cross_detector``, or null: none on that cylinder, as ``ecu-monitor calibrate``
-    writes them); either turns it on."""
-    node = top.child("cylinders", None, {})
-    if not (node.has("cross_detector") or node.has("cross_detectors")):
-        return (), ()
-    count = _cylinder_count(inputs)
-    if count < 2:
-        key = "cross_detector" if node.has("cross_detector") else "cross_detectors"
-        raise node.error("compares cylinders: needs two or more CHT channels (cht1_c .. chtN_c)", key)
-    base = DetectorSettings()
-    if node.has("cross_detector"):
-        base = _cylinder_detector(node.child("cross_detector"), base)
-    if not node.has("cross_detectors"):
-        return (base,) * count, (None,) * count
-    items = node.raw("cross_detectors")
-    if not isinstance(items, list) or len(items) != count:
-        raise node.error(
-            f"expected a list of {count} detectors, one per cylinder (cht1_c .. chtN_c), got {_kind(items)}",
-            "cross_detectors",
-        )
-    detectors: list[DetectorSettings | None] = []
-    calibrated_for: list[str | None] = []
-    for i, item in enumerate(items):  # null: no cross-cylinder detector on this cylinder
-        entry = None if item is None else _Node(node.src, f"{node.key('cross_detectors')}[{i}]", item)
-        detectors.append(None if entry is None else _cylinder_detector(entry, base))
-        calibrated_for.append(None if entry is None else entry.data.get("calibrated_for"))
-    return tuple(detectors), tuple(calibrated_for)
-
-
-def _cylinder_detector(node: _Node, detector: DetectorSettings) -> DetectorSettings:
-    """One ``cylinders.detectors`` entry: ``detector`` with the entry's keys replaced (``calibrated_for``,
-    the fingerprint of the cylinder's model, is checked and kept only as a record)."""
-    known = {f.name for f in dataclasses.fields(DetectorSettings)}
-    kwargs = {}
-    for key, value in node.data.items():
-        if key == "calibrated_for":
-            if not (isinstance(value, str) and re.fullmatch(r"[0-9a-f]{16}", value)):
-                raise node.error(f"expected 16 hex digits (a model fingerprint), got {_kind(value)}", key)
-            continue
-        if key not in known:
-            raise node.error(f"unknown key '{key}' (known: calibrated_for, {', '.join(sorted(known))})", key)
-        kwargs[key] = value
-    try:
-        return dataclasses.replace(detector, **kwargs)
-    except ConfigError as exc:
-        raise node.error(str(exc)) from None
-
-
-def _load(node: _Node, key: str, path: Path) -> Any:
-    try:
-        return load_dbc(path)
-    except ConfigError as exc:
-        raise node.error(str(exc), key) from None
-
-
-def _dbc_file(top: _Node, key: str, value: Any) -> Path:
-    """A DBC named in the config: a path relative to the config file, else a shipped DBC's name."""
-    if not isinstance(value, str | os.PathLike) or not str(value).strip():
-        raise top.error(f"expected a file path, got {_kind(value)}", key)
-    try:
-        return resolve_file(value, "dbc", base=top.src.parent)
-    except ConfigError as exc:
-        raise top.error(str(exc), key) from None
-
-
-def _dbc_list(top: _Node) -> tuple[tuple[Path, ...], list[tuple[Path, Any]]]:
-    value = top.raw("dbc")
-    items = [value] if isinstance(value, str) else value
-    if not isinstance(items, list) or not items:
-        raise top.error(f"expected a DBC file path or a non-empty list of them, got {_kind(value)}", "dbc")
-    paths: list[Path] = []
-    databases: list[tuple[Path, Any]] = []
-    for index, item in enumerate(items):
-        path = _dbc_file(top, f"dbc[{index}]", item)
-        databases.append((path, _load(top, f"dbc[{index}]", path)))
-        paths.append(path)
-    return tuple(paths), databases
-
-
-def _find_signal(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any]]) -> tuple[str, str]:
-    """Split and check ``Message.Signal`` against the DBCs."""
-    if not isinstance(ref, str) or ref.count(".") != 1 or "" in ref.split("."):
-        raise node.error(f"expected 'Message.Signal', got {_kind(ref)}", key)
-    msg_name, sig_name = ref.split(".")
-    files = ", ".join(str(p) for p, _ in databases)
-    for _, db in databases:
-        message = db.find(msg_name)
-        if message is not None:
-            if sig_name not in {s.name for s in message.signals}:
-                known = ", ".join(s.name for s in message.signals)
-                raise node.error(f"message '{msg_name}' has no signal '{sig_name}' (signals: {known})", key)
-            if msg_name in db.broken:
-                raise node.error(f"message '{msg_name}' cannot be used: {db.broken[msg_name]}", key)
-            return msg_name, sig_name
-    raise node.error(f"no message '{msg_name}' in {files}", key)
-
-
-def _find_field(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any]]) -> tuple[str, str]:
-    """Split and check ``data.type.Name.field.path`` against the DroneCAN DSDL definitions."""
-    from ecu_monitor.bus.dronecan import parse_field
-
-    try:
-        path = parse_field(ref)
-    except ConfigError as exc:
-        raise node.error(str(exc), key) from None
-    return path.type_name, path.text[len(path.type_name) + 1 :]
-
-
-def _find_mavlink_field(node: _Node, key: str, ref: Any, databases: list[tuple[Path, Any]]) -> tuple[str, str]:
-    """Split and check ``MESSAGE.field`` against pymavlink's MAVLink dialect."""
-    from ecu_monitor.bus.mavlink import parse_field as parse_mavlink_field
-
-    try:
-        path = parse_mavlink_field(ref)
-    except ConfigError as exc:
-        raise node.error(str(exc), key) from None
-    return path.message, path.text[len(path.message) + 1 :]
-
-
-def _dronecan(top: _Node) -> DroneCanSettings:
-    keys = ("node_id", "source_node_ids", "priority", "key_value_hz", "log_messages", "dbc_health_frames")
-    node = top.child("dronecan", keys)
-    node_id = node.raw("node_id")
-    if type(node_id) is not int or not 1 <= node_id <= 127:
-        raise node.error(f"expected a node id 1..127, got {_kind(node_id)}", "node_id")
-    sources = node.raw("source_node_ids", [])
-    if not isinstance(sources, list) or not all(type(n) is int and 1 <= n <= 127 for n in sources):
-        raise node.error(f"expected a list of node ids 1..127, got {_kind(sources)}", "source_node_ids")
-    if node_id in sources:
-        raise node.error(f"lists the service's own node id {node_id}", "source_node_ids")
-    priority = node.raw("priority", 24)
-    if type(priority) is not int or not 0 <= priority <= 31:
-        raise node.error(f"expected a CAN priority 0..31, got {_kind(priority)}", "priority")
-    flags = {}
-    for key, default in (("log_messages", True), ("dbc_health_frames", False)):
-        value = node.raw(key, default)
-        if not isinstance(value, bool):
-            raise node.error(f"expected true or false, got {_kind(value)}", key)
-        flags[key] = value
-    return DroneCanSettings(
-        node_id=node_id,
-        source_node_ids=tuple(sources),
-        priority=priority,
-        key_value_hz=node.number("key_value_hz", 1.0, low=0.0, high=10.0),
-        **flags,
-    )
+_Settings = typing.TypeVar("_Settings", EstimatorSettings, DetectorSettings)
 
 
 def _unit(value: Any, quantity: str) -> str | Unit:
     """A unit name of the unit table, or a custom ``{scale: S, offset: O}`` unit (ValueError if neither)."""
     conversion = custom_unit(value, quantity)
     return value if isinstance(value, str) else conversion
-
-
-def _inputs(top: _Node, databases: list[tuple[Path, Any]], protocol: str = "dbc") -> tuple[InputSpec, ...]:
-    node = top.child("inputs")
-    dronecan = protocol == "dronecan"
-    ref_key = "field" if protocol in ("dronecan", "mavlink") else "signal"
-    specs: list[InputSpec] = []
-    for name in node.data:
-        if name not in INPUT_NAMES and not (isinstance(name, str) and CYLINDER_INPUT.match(name)):
-            raise node.error(f"unknown key '{name}' (known: {', '.join(INPUT_NAMES)}, cht1_c .. cht16_c)", name)
-        item = node.child(name, (ref_key, "unit", "stale_after_s"))
-        find = {"dronecan": _find_field, "mavlink": _find_mavlink_field}.get(protocol, _find_signal)
-        message, signal = find(item, ref_key, item.raw(ref_key), databases)
-        quantity = INPUT_QUANTITIES.get(name, "temperature")
-        try:
-            if ref_key == "field" and name == "altitude_m" and _is_pressure(item.raw("unit")):
-                unit = _unit(item.raw("unit"), "pressure")  # a static pressure: its pressure altitude
-            else:
-                unit = _unit(item.raw("unit"), quantity)
-        except ValueError as exc:
-            hint = (
-                " (or, for protocol dronecan or mavlink, a pressure unit: the pressure altitude)"
-                if name == "altitude_m"
-                else ""
-            )
-            raise item.error(f"{exc}{hint}", "unit") from None
-        stale = item.number("stale_after_s", low=0.0, strict_low=True)
-        specs.append(InputSpec(name, message, signal, unit, stale))
-    if dronecan and "altitude_m" not in node.data and "airspeed_mps" in node.data:
-        # no altitude sent: the pressure altitude of the air-data computer's static pressure, as fresh as its airspeed
-        air = next(spec for spec in specs if spec.name == "airspeed_mps")
-        message, signal = _find_field(node, "altitude_m", DRONECAN_ALTITUDE_FIELD, databases)
-        specs.append(InputSpec("altitude_m", message, signal, "Pa", air.stale_after_s))
-    matches = [CYLINDER_INPUT.match(name) for name in node.data if isinstance(name, str)]
-    numbers = sorted(int(m.group(1)) for m in matches if m is not None)
-    if numbers and numbers != list(range(1, len(numbers) + 1)):
-        raise node.error(
-            f"cylinders must be numbered 1 .. N (N <= {MAX_CYLINDERS}) without gaps, got"
-            f" {', '.join(f'cht{n}_c' for n in numbers)}"
-        )
-    mapped = {spec.name for spec in specs}
-    for name in REQUIRED_INPUTS:
-        if name not in mapped and not (name == CHT_INPUT and len(numbers) > 1):
-            raise node.error(
-                f"missing (every configuration maps {', '.join(REQUIRED_INPUTS)}; cht_c or cht1_c .. chtN_c)", name
-            )
-    return tuple(specs)
-
-
-def _cylinder_count(inputs: tuple[InputSpec, ...]) -> int:
-    """Cylinders monitored: the numbered CHT inputs when two or more are mapped, else 1 (``cht_c``)."""
-    count = sum(1 for spec in inputs if CYLINDER_INPUT.match(spec.name))
-    return count if count > 1 else 1
 
 
 def _is_pressure(value: Any) -> bool:
@@ -763,90 +808,122 @@ def _is_pressure(value: Any) -> bool:
         return False
 
 
-def _health(top: _Node, health_db: Any, dt_s: float) -> tuple[HealthRate, ...]:
-    defaults = {name: {"rate_hz": rate} for name, rate in HEALTH_MESSAGES.items()}
-    node = top.child("health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), defaults)
-    names = {m.name for m in health_db.messages}
-    rates: list[HealthRate] = []
-    for name in node.data:
-        if name not in names:
-            raise node.error(f"message not in health_dbc (it has: {', '.join(sorted(names))})", name)
-        item = node.child(name, ("rate_hz",))
-        rate = item.number("rate_hz", low=0.0, strict_low=True, high=1.0 / dt_s)
-        steps = 1.0 / (rate * dt_s)
-        if abs(steps - round(steps)) > 1e-6:
-            raise item.error(f"period 1/{rate:g} s is not a whole number of estimator steps of {dt_s:g} s", "rate_hz")
-        rates.append(HealthRate(name, rate))
-    if not any(r.message == "Health_Status" for r in rates):
-        raise node.error("missing (Health_Status is the frame the autopilot watches)", "Health_Status")
-    return tuple(rates)
+def _resolve(src: Path, value: str | os.PathLike[str]) -> Path:
+    path = Path(os.path.expanduser(str(value)))
+    return path if path.is_absolute() else (src.parent / path)
 
 
-def _estimator(top: _Node) -> tuple[str, EstimatorSettings]:
-    node = top.child("estimator", None, {"name": "cbekf-au"})
-    name = node.string("name", "cbekf-au")
-    if name not in ESTIMATORS:
-        raise node.error(f"unknown estimator {name!r} (known: {', '.join(sorted(ESTIMATORS))})", "name")
-    known = {f.name for f in dataclasses.fields(EstimatorSettings)}
-    kwargs = {}
-    for key, value in node.data.items():
-        if key == "name":
-            continue
-        if key not in known:
-            raise node.error(f"unknown key '{key}' (known: name, {', '.join(sorted(known))})", key)
-        kwargs[key] = value
-    try:
-        settings = EstimatorSettings(**kwargs)
-    except ConfigError as exc:
-        raise ConfigError(f"{top.src}: {exc}") from None
-    return name, settings
+def _kind(value: Any) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    if value is None:
+        return "nothing"
+    text = repr(value)
+    if len(text) > 60:  # a CSV given as a config is one long YAML string: keep the message one short line
+        text = f"{text[:50]}... ({len(text)} characters)"
+    return f"{type(value).__name__} {text}"
 
 
-def _detector(top: _Node) -> tuple[DetectorSettings, str, str | None]:
-    node = top.child("detector", None, {})
-    symptom = node.raw("symptom", "estimator")
-    if symptom not in SYMPTOMS:
-        raise node.error(f"expected one of {', '.join(SYMPTOMS)}, got {_kind(symptom)}", "symptom")
-    calibrated_for = node.raw("calibrated_for", None)
-    if calibrated_for is not None and not (
-        isinstance(calibrated_for, str) and re.fullmatch(r"[0-9a-f]{16}", calibrated_for)
-    ):
-        raise node.error(f"expected 16 hex digits (a model fingerprint), got {_kind(calibrated_for)}", "calibrated_for")
-    known = {f.name for f in dataclasses.fields(DetectorSettings)}
-    kwargs = {}
-    for key, value in node.data.items():
-        if key in ("symptom", "calibrated_for"):
-            continue
-        if key not in known:
-            raise node.error(f"unknown key '{key}' (known: symptom, calibrated_for, {', '.join(sorted(known))})", key)
-        kwargs[key] = value
-    try:
-        return DetectorSettings(**kwargs), symptom, calibrated_for
-    except ConfigError as exc:
-        raise ConfigError(f"{top.src}: {exc}") from None
+# --- msgspec's ValidationError as our one line -----------------------------------------------------------
+
+_AT = re.compile(r" - at `(?:key` in `)?(\$[^`]*)`$")
+_STEP = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
 
 
-def _sensor_fault(node: _Node, databases: list[tuple[Path, Any]], find: Any = None) -> SensorFaultSettings:
-    min_c = node.number("min_c", -40.0)
-    max_c = node.number("max_c", 350.0, low=min_c, strict_low=True)
-    status_message = status_signal = None
-    open_values: tuple[int, ...] = ()
-    if node.has("status_signal"):
-        status_message, status_signal = (find or _find_signal)(
-            node, "status_signal", node.raw("status_signal"), databases
-        )
-        values = node.raw("open_values")
-        if not isinstance(values, list) or not values or not all(type(v) is int for v in values):
-            raise node.error(f"expected a non-empty list of integers, got {_kind(values)}", "open_values")
-        open_values = tuple(values)
-    elif node.has("open_values"):
-        raise node.error("given without status_signal", "open_values")
-    return SensorFaultSettings(
-        stuck_after_s=node.number("stuck_after_s", 120.0, low=0.0, strict_low=True),
-        min_c=min_c,
-        max_c=max_c,
-        stuck_change_c=node.number("stuck_change_c", 5.0, low=0.0, strict_low=True),
-        status_message=status_message,
-        status_signal=status_signal,
-        open_values=open_values,
-    )
+def _config_error(src: Path, exc: msgspec.ValidationError, data: Any) -> ConfigError:
+    """msgspec's ``Expected `float`, got `str` - at `$.detector.threshold``` as
+    ``<src>: detector.threshold: expected a number, got str 'abc'``: the key path, what the schema expects
+    there (its description, else its type and range) and what the file has."""
+    text = str(exc)
+    at = _AT.search(text)
+    path: list[str | int] = []
+    for name, index in _STEP.findall(at.group(1)[1:] if at else ""):
+        path.append(name or (int(index) if index.isdigit() else index))
+    problem = text[: at.start()] if at else text
+    cause = exc.__cause__
+    if isinstance(cause, _SectionError):  # a section's __post_init__
+        return ConfigError(f"{src}: {_where([*path, cause.key])}: {cause.message}")
+    if isinstance(cause, ValueError | TypeError):
+        return ConfigError(f"{src}: {_where(path)}: {cause}")
+    if at is not None and "`key` in" in at.group(0):
+        return ConfigError(f"{src}: {_where(path)}: keys must be strings")
+    if match := re.fullmatch(r"Object missing required field `(.*)`", problem):
+        return ConfigError(f"{src}: {_where([*path, match.group(1)])}: missing")
+    if match := re.fullmatch(r"Object contains unknown field `(.*)`", problem):
+        key = match.group(1)
+        known = _known(_type_at(path))
+        return ConfigError(f"{src}: {_where([*path, key])}: unknown key '{key}' (known: {known})")
+    expected = _expected(_type_at(path)) or problem[:1].lower() + problem[1:]
+    return ConfigError(f"{src}: {_where(path)}: expected {expected}, got {_kind(_value_at(data, path))}")
+
+
+def _where(path: Iterable[str | int]) -> str:
+    """``cylinders.detectors[1].threshold``, or ``top level``."""
+    text = "".join(f"[{step}]" if isinstance(step, int) else f".{step}" for step in path if step != "")
+    return text.lstrip(".") or "top level"
+
+
+def _value_at(data: Any, path: list[str | int]) -> Any:
+    for step in path:
+        data = data[step]
+    return data
+
+
+def _options(kind: schema.Type | None) -> list[schema.Type]:
+    """The types ``kind`` may be (unions and Annotated metadata opened, null left out)."""
+    if isinstance(kind, schema.Metadata):
+        return _options(kind.type)
+    if isinstance(kind, schema.UnionType):
+        return [option for member in kind.types for option in _options(member)]
+    return [] if kind is None or isinstance(kind, schema.NoneType) else [kind]
+
+
+def _type_at(path: list[str | int]) -> schema.Type | None:
+    """The schema's type at ``path`` in the file (None where it has none)."""
+    kind: schema.Type | None = schema.type_info(ConfigFile)
+    for step in path:
+        options = _options(kind)
+        kind = None
+        for option in options:
+            if isinstance(step, str) and isinstance(option, schema.StructType):
+                kind = next((f.type for f in option.fields if f.encode_name == step), None)
+            elif isinstance(step, int) and isinstance(option, schema.ListType | schema.VarTupleType):
+                kind = option.item_type
+            if kind is not None:
+                break
+    return kind
+
+
+def _known(kind: schema.Type | None) -> str:
+    """The keys of the section of type ``kind`` (the cylinder inputs as one range)."""
+    names = [f.encode_name for option in _options(kind) if isinstance(option, schema.StructType) for f in option.fields]
+    shown = [name for name in names if not CYLINDER_INPUT.match(name)]
+    if len(shown) < len(names):
+        shown.append(f"{_CYLINDER_NAMES[0]} .. {_CYLINDER_NAMES[-1]}")
+    return ", ".join(shown)
+
+
+def _expected(kind: schema.Type | None) -> str:
+    """What the schema expects of a value of type ``kind``, in words ("" if it cannot say)."""
+    if isinstance(kind, schema.Metadata):
+        return str((kind.extra_json_schema or {}).get("description") or _expected(kind.type))
+    if isinstance(kind, schema.UnionType):
+        members = (member for member in kind.types if not isinstance(member, schema.NoneType))
+        return " or ".join(filter(None, map(_expected, members)))
+    if isinstance(kind, schema.FloatType | schema.IntType):
+        low = f"> {kind.gt:g}" if kind.gt is not None else f">= {kind.ge:g}" if kind.ge not in (None, -_MAX) else ""
+        high = f"<= {kind.le:g}" if kind.le not in (None, _MAX) else ""
+        bounds = " and ".join(filter(None, (low, high)))
+        noun = "a number" if isinstance(kind, schema.FloatType) else "an integer"
+        return f"{noun} {bounds}" if bounds else noun
+    if isinstance(kind, schema.LiteralType):
+        return f"one of {', '.join(map(str, kind.values))}"
+    if isinstance(kind, schema.BoolType):
+        return "true or false"
+    if isinstance(kind, schema.StrType):
+        return "a string"
+    if isinstance(kind, schema.ListType | schema.VarTupleType):
+        return "a list"
+    return "a mapping" if isinstance(kind, schema.StructType | schema.DictType) else ""

@@ -197,3 +197,112 @@ def test_shipped_example_threshold_is_marked_for_the_model_it_names():
     for name in ("example.yaml", "multicast.yaml"):
         config = load_config(shipped_file("config", name))
         assert config.detector_calibrated_for == model_fingerprint(config.load_params()), name
+
+
+# --- the schema (msgspec): its errors, in our one-line form, and what it gives back ----------------------
+
+SCHEMA_ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
+    ("unknown key", _set("engine.colour", "red"), "engine.colour: unknown key 'colour' (known: serial)"),
+    (
+        "unknown key of a detector entry",
+        _set("cylinders", {"cross_detector": {"treshold": 1.0}}),
+        "cylinders.cross_detector.treshold: unknown key 'treshold' (known: calibrated_for, threshold, reference,"
+        " warmup_s, suspect_fraction, block_s, baseline_s, baseline_delay_s, baseline_freeze, scale_s, scale_floor)",
+    ),
+    ("wrong type", _set("detector.threshold", "abc"), "detector.threshold: expected a number, got str 'abc'"),
+    ("wrong type in a list", _set("dbc", ["engine.dbc", 3]), "dbc[1]: expected a file path, got int 3"),
+    ("wrong type of section", _set("sensor_fault", None), "sensor_fault: expected a mapping, got nothing"),
+    (
+        "not finite",
+        _set("no_frames_warning_s", float("inf")),
+        "no_frames_warning_s: expected a number > 0, got float inf",
+    ),
+    ("out of range", _set("stale_predict_limit_s", -1), "stale_predict_limit_s: expected a number >= 0, got int -1"),
+    ("not one of", _set("protocol", "j1939"), "protocol: expected one of dbc, dronecan, got str 'j1939'"),
+    ("key not a string", _set("bus", {"interface": "virtual", "channel": "x", 3: 1}), "bus: keys must be strings"),
+    ("missing required key", _drop("engine.serial"), "engine.serial: missing"),
+    ("missing required key of an entry", _drop("inputs.rpm.stale_after_s"), "inputs.rpm.stale_after_s: missing"),
+    ("missing bus key", _drop("bus.channel"), "bus.channel: missing"),
+]
+
+
+@pytest.mark.parametrize(("case", "edit", "expected"), SCHEMA_ERRORS, ids=[e[0] for e in SCHEMA_ERRORS])
+def test_schema_errors_are_one_line_naming_file_and_key(
+    tmp_path: Path, case: str, edit: Callable[..., None], expected: str
+) -> None:
+    data = _base()
+    edit(data)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value) == f"{path}: {expected}"
+
+
+def test_a_default_is_the_config_files_and_the_daemon_takes_it(tmp_path: Path) -> None:
+    """Keys left out take ConfigFile's defaults, and DaemonSettings' defaults are those same values."""
+    from ecu_monitor.commands.run import daemon_settings
+    from ecu_monitor.config import config_default
+    from ecu_monitor.runtime.daemon import DaemonSettings
+
+    data = _base()
+    for key in ("reopen_backoff_s", "no_frames_warning_s", "stale_predict_limit_s"):
+        data.pop(key, None)
+    path = tmp_path / "defaults.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    config = load_config(path)
+    assert config.no_frames_warning_s == config_default("no_frames_warning_s") == 10.0
+    assert config.stale_predict_limit_s == config_default("stale_predict_limit_s")
+    assert daemon_settings(config, None) == DaemonSettings()
+
+
+def _calibration(threshold: float) -> Any:
+    from ecu_monitor.estimation.detection import DetectorSettings, ThresholdCalibration
+    from ecu_monitor.offline.calibration import CalibrationResult
+
+    c = ThresholdCalibration(threshold, threshold, threshold, 1.0, 0.1, 0, 1.0)
+    return CalibrationResult(calibration=c, method="test", flights=(), current=DetectorSettings(baseline_s=300.0))
+
+
+def test_a_config_written_back_by_calibrate_loads_to_the_same_config(tmp_path: Path) -> None:
+    """``calibrate --write-config`` re-emits the YAML (calibration.config_copy_yaml): read back from another
+    folder it is the same configuration, relative paths resolved as before, with the new detector."""
+    from ecu_monitor.offline.calibration import config_copy_yaml
+
+    data = _base()
+    (tmp_path / "dbc").mkdir()
+    (tmp_path / "dbc" / "mine.dbc").write_bytes((ROOT / "ecu_monitor" / "data" / "dbc" / "engine.dbc").read_bytes())
+    data.update(dbc="dbc/mine.dbc", health_dbc="health.dbc", state_dir="state")
+    source = tmp_path / "svc.yaml"
+    source.write_text(yaml.safe_dump(data), encoding="utf-8")
+    original = load_config(source)
+    (tmp_path / "out").mkdir()
+    copy_path = tmp_path / "out" / "copy.yaml"
+    copy_path.write_text(config_copy_yaml(source, _calibration(5.25), 1.0, ["f.csv"], "0123456789abcdef"), "utf-8")
+    written = load_config(copy_path)
+    assert written.detector.threshold == 5.25 and written.detector.baseline_s == 300.0
+    assert written.detector_calibrated_for == "0123456789abcdef"
+    assert written.dbc_paths == original.dbc_paths == (tmp_path / "dbc" / "mine.dbc",)
+    assert written.state_dir == original.state_dir == tmp_path / "state"
+    same = original.replace(source=copy_path, detector=written.detector, detector_calibrated_for="0123456789abcdef")
+    assert written == same
+
+
+def test_a_four_cylinder_config_written_back_keeps_its_cylinders(tmp_path: Path) -> None:
+    from ecu_monitor.offline.calibration import config_copy_yaml
+
+    source = ROOT / "ecu_monitor" / "data" / "configs" / "four_cylinders.yaml"
+    original = load_config(source)
+    marks = [f"{n:016x}" for n in range(4)]
+    per_cylinder = [(_calibration(2.0 + n), marks[n]) for n in range(4)]
+    cross = [(None, ""), *[(_calibration(1.5), marks[n]) for n in range(1, 4)]]
+    text = config_copy_yaml(source, per_cylinder[0][0], 1.0, ["f.csv"], marks[0], cylinders=per_cylinder, cross=cross)
+    copy_path = tmp_path / "copy.yaml"
+    copy_path.write_text(text, encoding="utf-8")
+    written = load_config(copy_path)
+    assert [d.threshold for d in written.cylinder_detectors] == [2.0, 3.0, 4.0, 5.0]
+    assert written.cylinder_calibrated_for == tuple(marks)
+    assert written.cross_detectors[0] is None and [d.threshold for d in written.cross_detectors[1:]] == [1.5] * 3
+    assert written.cross_calibrated_for == (None, *marks[1:])
+    assert written.detector == original.detector and written.spread_limit_c == original.spread_limit_c
+    assert written.inputs == original.inputs and written.health == original.health

@@ -249,8 +249,10 @@ def test_bad_cross_detector_configs_name_the_key() -> None:
         _config(cylinders={"cross_detector": {"treshold": 1.0}})
     with pytest.raises(ConfigError, match=r"cylinders\.cross_detectors: expected a list of 4"):
         _config(cylinders={"cross_detectors": [{"threshold": 1.0}]})
-    with pytest.raises(ConfigError, match=r"cylinders\.cross_detectors\[1\]: detector\.threshold: expected a finite"):
+    with pytest.raises(ConfigError, match=r"cylinders\.cross_detectors\[1\]\.threshold: expected a number, got str"):
         _config(cylinders={"cross_detectors": [{"threshold": 1.0}, {"threshold": "x"}, {}, {}]})
+    with pytest.raises(ConfigError, match=r"cylinders\.cross_detectors\[1\]: detector: threshold and block_s must"):
+        _config(cylinders={"cross_detectors": [{"threshold": 1.0}, {"threshold": -1.0}, {}, {}]})
     single = yaml.safe_load((CONFIGS / "example.yaml").read_text(encoding="utf-8"))
     single["cylinders"] = {"cross_detector": {"threshold": 1.0}}
     with pytest.raises(ConfigError, match=r"cylinders\.cross_detector: compares cylinders"):

@@ -61,6 +61,7 @@ import can
 from can.interfaces.virtual import VirtualBus
 
 from ecu_monitor.bus.kernel_filter import attach_kernel_filter
+from ecu_monitor.config import config_default
 from ecu_monitor.runtime.flight_recorder import FlightRecorder
 from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
 from ecu_monitor.runtime.persistence import FlightSample
@@ -100,17 +101,20 @@ class PipelineLike(Protocol):
 
 @dataclass(frozen=True)
 class DaemonSettings:
-    """Timing of the daemon's threads, s, and the bus reopen backoff, s."""
+    """Timing of the daemon's threads, s, and the bus reopen backoff, s. What the service config sets
+    (``ecu-monitor run`` passes it: commands/run.py, daemon_settings) defaults to the config's default,
+    declared once in :class:`~ecu_monitor.config.ConfigFile`."""
 
     tick_s: float = 0.02  # the 50 Hz timer
     supervise_s: float = 0.1  # supervisor period: reopen, persistence, watchdog
     status_every_s: float = 10.0  # STATUS= and the INFO log line
-    backoff_initial_s: float = 0.5
-    backoff_max_s: float = 10.0
+    backoff_initial_s: float = config_default("reopen_backoff_s").initial
+    backoff_max_s: float = config_default("reopen_backoff_s").max
     watchdog_period_s: float | None = None  # None: no watchdog (not under systemd's WatchdogSec)
     freeze_heap: bool = True  # gc.freeze() the start-up heap (module docstring, "Garbage collection")
     collect_in_supervisor: bool = True  # with freeze_heap: gc.disable(), the supervisor collects instead
-    no_frames_warning_s: float = 10.0  # warn once when the bus carries no engine frame this long
+    # warn once when the bus carries no engine frame this long
+    no_frames_warning_s: float = config_default("no_frames_warning_s")
     switch_interval_s: float | None = None  # sys.setswitchinterval while running (module docstring, "GIL")
 
 
