@@ -443,43 +443,6 @@ class _ScriptedBus:
         return None
 
 
-@pytest.mark.parametrize("late_s", [0.0002, 0.003])  # the frame inside the polling window, and after it
-@pytest.mark.parametrize("spin_s", [0.0005, 0.0])
-def test_after_a_rehearsal_the_receive_thread_polls_until_the_frame_comes(
-    tmp_path: Path, spin_s: float, late_s: float
-) -> None:
-    """From the rehearsal until its frame comes, at most ``spin_s`` past the time it is expected, the receive
-    thread calls ``recv(0)`` (awake when the frame comes); otherwise, and with ``spin_s`` 0, it sleeps in recv."""
-    now = [0.0]
-    daemon = Daemon(
-        _pipeline(tmp_path, "unused"),
-        lambda: None,
-        settings=DaemonSettings(rehearse_lead_s=0.0006, spin_s=spin_s),
-        clock=lambda: now[0],
-    )
-    ecu = EcuSender(None)  # type: ignore[arg-type]  # frames only, never sent
-    for k in range(5):  # the frame after these may run the step that sends Health_Status: a rehearsal is planned
-        now[0] = 100.0 + 0.02 * k + (0.005 if k else 0.0)  # frames 5 ms after the step grid
-        for name in ["ECU_Fast"] + (["ECU_Slow", "AirData"] if k == 0 else []):
-            daemon._on_frame(ecu.frame(name))
-    due = daemon._rehearse_due_s
-    assert due == pytest.approx(100.105) and daemon._rehearse_at_s == pytest.approx(due - 0.0006)
-    stop = threading.Event()
-    bus = _ScriptedBus(now, [(due + late_s, ecu.frame("ECU_Fast"))], stop)
-    daemon._receive_frames(bus, stop)  # type: ignore[arg-type]
-    assert daemon.counters["rehearsals"] == 1
-    polls = [t for t, timeout in bus.calls if timeout == 0.0]
-    arrived = due + late_s
-    if spin_s == 0.0:
-        assert polls == []
-    else:
-        assert len(polls) > 10  # awake from the rehearsal on
-        assert all(due - 0.0006 <= t < min(arrived, due + spin_s) for t in polls)
-        assert polls[-1] >= min(arrived, due + spin_s) - 25e-6  # until the frame came, or the window closed
-    assert all(timeout > 0.0 for t, timeout in bus.calls if t >= arrived)  # asleep again after the frame
-    assert daemon.counters["frames_in"] == 8
-
-
 # --- sd_notify pieces ----------------------------------------------------------------------------------
 
 
@@ -660,13 +623,13 @@ import sys, threading
 import can
 sys.path.insert(0, sys.argv[1])
 from test_daemon_process import _pipeline
-from ecu_monitor.estimation.runner import compiled_filter_steps
-from ecu_monitor.estimation import isolation
+from ecu_monitor.pipeline import step
 from ecu_monitor.runtime.daemon import Daemon
 from pathlib import Path
 
 def compiled():
-    return [len(compiled_filter_steps().signatures), len(isolation.compiled_kernels().predict.signatures)]
+    functions = step.compiled()
+    return [len(functions.advance_to.signatures), len(functions.feed_values.signatures)]
 
 pipeline = _pipeline(Path(sys.argv[2]), "warm-up")
 seen = []
