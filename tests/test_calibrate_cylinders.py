@@ -138,7 +138,9 @@ def test_the_cross_cylinder_detectors_are_calibrated_per_cylinder(calibrated: di
 def test_the_service_runs_each_cylinder_on_its_own_detector(calibrated: dict[str, Any], tmp_path: Path) -> None:
     config = load_config(calibrated["written"])
     pipeline = Pipeline(config, config.load_cylinder_params())
-    assert [c.detector_settings for c in pipeline._cylinders] == list(config.cylinder_detectors)
+    settings = pipeline.pipeline.engine.settings["detector"]
+    assert list(settings["threshold"]) == [d.threshold for d in config.cylinder_detectors]
+    assert list(settings["baseline_s"]) == [d.baseline_s for d in config.cylinder_detectors]
     # cylinder 1 keeps its calibrated threshold (no alarm on its nominal flight), cylinder 2 gets a tiny
     # one: only cylinder 2 goes DEGRADED, so the replay runs each cylinder on its own detector
     flight = calibrated["flights"][0]

@@ -623,13 +623,13 @@ import sys, threading
 import can
 sys.path.insert(0, sys.argv[1])
 from test_daemon_process import _pipeline
-from ecu_monitor.estimation.runner import compiled_filter_steps
-from ecu_monitor.estimation import isolation
+from ecu_monitor.pipeline import step
 from ecu_monitor.runtime.daemon import Daemon
 from pathlib import Path
 
 def compiled():
-    return [len(compiled_filter_steps().signatures), len(isolation.compiled_kernels().predict.signatures)]
+    functions = step.compiled()
+    return [len(functions.advance_to.signatures), len(functions.feed_values.signatures)]
 
 pipeline = _pipeline(Path(sys.argv[2]), "warm-up")
 seen = []

@@ -506,11 +506,24 @@ class Pipeline:
         return list(self.decoder.can_filters())
 
     def warm_up(self) -> float:
-        """Load (or, on a fresh install, compile) the step's numba code; returns the seconds taken. The
-        daemon calls it before it opens the bus: otherwise the first frame would wait for the load."""
+        """Load (or, on a fresh install, compile) the step's numba code by running it on a throwaway copy of
+        this pipeline; returns the seconds taken. The daemon calls it before it opens the bus: otherwise the
+        first frame would wait for the load. This pipeline's own state is untouched."""
         started = time.perf_counter()
-        self._compiled()
+        functions = self._compiled()
+        probe = Pipeline(self.config, self.cylinder_params)
+        engine = probe._engine
+        slots = np.arange(len(probe.names), dtype=np.int64)
+        values = np.full(slots.size, 100.0)
+        functions.feed_values(engine, slots, values, slots.size)
+        for t_s in (0.0, 1.0):
+            functions.advance_to(engine, probe._rows, probe._no_traces, t_s)
         return time.perf_counter() - started
+
+    @property
+    def engine(self) -> Engine:
+        """The step's records (settings, state, held inputs), for inspection."""
+        return self._engine
 
     # ------------------------------------------------------------------ replay
 

@@ -251,26 +251,26 @@ class Traces(NamedTuple):
 
 
 def _reset_detector(d: Any) -> None:
-    d.started = False
-    d.start_s = np.nan
-    d.block_end_s = np.nan
-    d.sum = 0.0
-    d.count = 0
-    d.statistic = 0.0
-    d.baseline = np.nan
-    d.scale = np.nan
-    d.learned = 0.0
-    d.steady = True
-    d.alarm_s = np.nan
-    d.queued = 0
-    d.head = 0
+    d["started"] = False
+    d["start_s"] = np.nan
+    d["block_end_s"] = np.nan
+    d["sum"] = 0.0
+    d["count"] = 0
+    d["statistic"] = 0.0
+    d["baseline"] = np.nan
+    d["scale"] = np.nan
+    d["learned"] = 0.0
+    d["steady"] = True
+    d["alarm_s"] = np.nan
+    d["queued"] = 0
+    d["head"] = 0
 
 
 def detector_verdict(d: Any, s: Any) -> int:
     """The detector's state: 0 NOMINAL, 1 SUSPECT, 2 DEGRADED (latched from the first alarm)."""
-    if not math.isnan(d.alarm_s):
+    if not math.isnan(d["alarm_s"]):
         return 2
-    return 1 if d.statistic >= s.suspect_fraction * s.threshold else 0
+    return 1 if d["statistic"] >= s["suspect_fraction"] * s["threshold"] else 0
 
 
 def detector_step(d: Any, s: Any, ring: Any, t_s: float, symptom: float) -> int:
@@ -278,44 +278,56 @@ def detector_step(d: Any, s: Any, ring: Any, t_s: float, symptom: float) -> int:
     settings ``s``; returns the state. Samples are averaged over blocks [start + warmup + i block_s, ...
     + block_s); a block closes at the first sample at or after its end, blocks without a sample count
     as empty; the statistic moves once per closed block (estimation/detection.py: the CUSUM update)."""
-    if not d.started:
-        d.started = True
-        d.start_s = t_s
-        d.block_end_s = t_s + s.warmup_s + s.block_s
-    if t_s < d.start_s + s.warmup_s:
+    if not d["started"]:
+        d["started"] = True
+        d["start_s"] = t_s
+        d["block_end_s"] = t_s + s["warmup_s"] + s["block_s"]
+    if t_s < d["start_s"] + s["warmup_s"]:
         return detector_verdict(d, s)
-    if t_s >= d.block_end_s - 1e-9:  # this sample opens a new block: close the previous one(s)
-        closed = math.floor((t_s - d.block_end_s) / s.block_s + 1e-9) + 1
+    if t_s >= d["block_end_s"] - 1e-9:  # this sample opens a new block: close the previous one(s)
+        closed = math.floor((t_s - d["block_end_s"]) / s["block_s"] + 1e-9) + 1
         capacity = ring.shape[0]
         for j in range(closed):
             mean = np.nan
-            if j == 0 and d.count > 0:
-                mean = d.sum / d.count
-            ring[(d.head + d.queued) % capacity] = mean  # into the delay line
-            d.queued += 1
+            if j == 0 and d["count"] > 0:
+                mean = d["sum"] / d["count"]
+            ring[(d["head"] + d["queued"]) % capacity] = mean  # into the delay line
+            d["queued"] += 1
             lagged = np.nan
-            if d.queued > s.delay_blocks:  # the oldest leaves it for the baseline
-                lagged = ring[d.head]
-                d.head = (d.head + 1) % capacity
-                d.queued -= 1
-            d.statistic, d.baseline, d.scale, d.learned = cusum_step(
-                d.statistic, d.baseline, d.scale, d.learned, mean, lagged, s.reference, s.block_s, s.baseline_s,
-                d.steady or math.isnan(mean), s.freeze, s.scale_s, s.scale_floor,
-            )  # fmt: skip
-            d.steady = True
-            if d.statistic >= s.threshold and math.isnan(d.alarm_s):
-                d.alarm_s = t_s
-        d.sum = 0.0
-        d.count = 0
-        d.block_end_s += s.block_s * closed
+            if d["queued"] > s["delay_blocks"]:  # the oldest leaves it for the baseline
+                lagged = ring[d["head"]]
+                d["head"] = (d["head"] + 1) % capacity
+                d["queued"] -= 1
+            d["statistic"], d["baseline"], d["scale"], d["learned"] = cusum_step(
+                d["statistic"],
+                d["baseline"],
+                d["scale"],
+                d["learned"],
+                mean,
+                lagged,
+                s["reference"],
+                s["block_s"],
+                s["baseline_s"],
+                d["steady"] or math.isnan(mean),
+                s["freeze"],
+                s["scale_s"],
+                s["scale_floor"],
+            )
+            d["steady"] = True
+            if d["statistic"] >= s["threshold"] and math.isnan(d["alarm_s"]):
+                d["alarm_s"] = t_s
+        d["sum"] = 0.0
+        d["count"] = 0
+        d["block_end_s"] += s["block_s"] * closed
     if math.isfinite(symptom):
-        d.sum += symptom
-        d.count += 1
+        d["sum"] += symptom
+        d["count"] += 1
     return detector_verdict(d, s)
 
 
-def _steady_state_c(heat: float, ambient: float, conductance: float, radiative: float, offset: float,
-                    below: float) -> float:  # fmt: skip
+def _steady_state_c(
+    heat: float, ambient: float, conductance: float, radiative: float, offset: float, below: float
+) -> float:
     """The CHT where heat in (W) equals heat out (Newton on the balance from the convective-only solution,
     an upper bound; complex-step slope); stops once a step is below 1e-9 degC or an iterate below ``below``."""
     temp = ambient + heat / conductance
@@ -349,8 +361,21 @@ def headroom_s(cht_c: float, drive: Any, coeffs: Any, gamma_q: float, gamma_d: f
     pade = 2.0 * q_sl0
     elapsed = 0.0
     while elapsed < HEADROOM_CAP_S:
-        new_temp, pade = rk4(temp, pade, q_sl0, heat_gain * altitude_gain, ambient, conductance, coeffs.c_w,
-                             coeffs.tau_w, radiative, offset, gamma_q, gamma_d, HEADROOM_STEP_S)  # fmt: skip
+        new_temp, pade = rk4(
+            temp,
+            pade,
+            q_sl0,
+            heat_gain * altitude_gain,
+            ambient,
+            conductance,
+            coeffs.c_w,
+            coeffs.tau_w,
+            radiative,
+            offset,
+            gamma_q,
+            gamma_d,
+            HEADROOM_STEP_S,
+        )
         if new_temp >= limit_c:
             fraction = (limit_c - temp) / (new_temp - temp) if new_temp > temp else 1.0
             crossing = elapsed + fraction * HEADROOM_STEP_S
@@ -376,62 +401,63 @@ def _drive_at(eng: Engine, i: int, u: Any, coeffs: Any, drive: Any) -> None:
 
 def _stop_cylinder(st: Any) -> None:
     """Estimation and detection start afresh (at start and after a clock restart)."""
-    st.running = False
-    st.stale_since_s = np.nan
-    st.changed_s = np.nan
-    st.last_reading_c = np.nan
-    st.model_low_c = np.nan
-    st.model_high_c = np.nan
-    st.pending = False
-    st.last_call_s = np.nan
-    st.cht_est_c = np.nan
-    st.deviation = np.nan
-    st.gamma_q = np.nan
-    st.gamma_d = np.nan
-    st.iso_deviation = np.nan
-    st.model_c = np.nan
-    st.headroom_s = np.nan
-    st.detector_on = False
-    _reset_detector(st.detector)
-    _reset_detector(st.cross)
+    st["running"] = False
+    st["stale_since_s"] = np.nan
+    st["changed_s"] = np.nan
+    st["last_reading_c"] = np.nan
+    st["model_low_c"] = np.nan
+    st["model_high_c"] = np.nan
+    st["pending"] = False
+    st["last_call_s"] = np.nan
+    st["cht_est_c"] = np.nan
+    st["deviation"] = np.nan
+    st["gamma_q"] = np.nan
+    st["gamma_d"] = np.nan
+    st["iso_deviation"] = np.nan
+    st["model_c"] = np.nan
+    st["headroom_s"] = np.nan
+    st["detector_on"] = False
+    _reset_detector(st["detector"])
+    _reset_detector(st["cross"])
 
 
 def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: float, coeffs: Any) -> None:
     """The reference, the estimator and the isolation filter start from the reading at the inputs u."""
     st = eng.state[i]
     cfg = eng.settings[i]
-    _drive_at(eng, i, u, coeffs, st.ref_drive)
-    pade = 2.0 * st.ref_drive[0]
-    level = level_of(reading, cfg.quantum_c)
-    for filt, drive in ((st.ref, st.ref_drive), (st.est, st.est_drive)):
+    _drive_at(eng, i, u, coeffs, st["ref_drive"])
+    pade = 2.0 * st["ref_drive"][0]
+    level = level_of(reading, cfg["quantum_c"])
+    for filt, drive in ((st["ref"], st["ref_drive"]), (st["est"], st["est_drive"])):
         filt[0] = reading
-        filt[1] = cfg.initial_var
+        filt[1] = cfg["initial_var"]
         filt[2] = pade
         filt[3] = 0.0
         filt[4] = reading
         filt[5] = 0.0
         filt[6] = level
-        drive[:] = st.ref_drive
-    st.iso[:] = 0.0
-    st.iso[0] = reading
-    st.iso[1] = 1.0
-    st.iso[2] = 1.0
-    st.iso[3] = pade
-    st.iso[4] = cfg.iso_initial_cht_var
-    st.iso[8] = cfg.iso_initial_gamma_var
-    st.iso[12] = cfg.iso_initial_gamma_var
-    st.iso_drive[:] = st.ref_drive
-    st.last_call_s = time_s
+        drive[:] = st["ref_drive"]
+    st["iso"][:] = 0.0
+    st["iso"][0] = reading
+    st["iso"][1] = 1.0
+    st["iso"][2] = 1.0
+    st["iso"][3] = pade
+    st["iso"][4] = cfg["iso_initial_cht_var"]
+    st["iso"][8] = cfg["iso_initial_gamma_var"]
+    st["iso"][12] = cfg["iso_initial_gamma_var"]
+    st["iso_drive"][:] = st["ref_drive"]
+    st["last_call_s"] = time_s
 
 
-def cylinder_step(eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, reading_bad: bool, call: bool,
-                  headroom_due: bool) -> None:  # fmt: skip
+def cylinder_step(
+    eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, reading_bad: bool, call: bool, headroom_due: bool
+) -> None:
     """One step of cylinder i at time_s (s) with the model inputs u (6): its result in ``eng.output[i]``."""
     st = eng.state[i]
     cfg = eng.settings[i]
     out = eng.output[i]
-    n_x = cfg.n_x
-    n_y = cfg.n_y
+    n_x = cfg["n_x"]
+    n_y = cfg["n_y"]
     cs = eng.coeff_scalars[i]
     hv = eng.heat_values[i, :n_x, :n_y]
     xb = eng.x_breakpoints[i, :n_x]
@@ -440,100 +466,192 @@ def cylinder_step(eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, r
     inputs = eng.scratch[0:6].reshape((6, 1))
     rows = eng.scratch[6:10].reshape((4, 1))
     result = eng.scratch[10:13]
-    reading = eng.values[cfg.cht_slot]
-    new_reading = st.readings > st.readings_used
-    st.readings_used = st.readings
-    call = call and st.running
-    sv = SupervisorState(st.running, st.stale_since_s, st.changed_s, st.last_reading_c, st.model_low_c,
-                         st.model_high_c)  # fmt: skip
+    reading = eng.values[cfg["cht_slot"]]
+    new_reading = st["readings"] > st["readings_used"]
+    st["readings_used"] = st["readings"]
+    call = call and st["running"]
+    sv = SupervisorState(
+        st["running"], st["stale_since_s"], st["changed_s"], st["last_reading_c"], st["model_low_c"], st["model_high_c"]
+    )
     est_c = deviation = gamma_q = gamma_d = iso_deviation = np.nan
     if call:  # the filter period: reference, supervision, estimator and isolation filter
-        steps = round((time_s - st.last_call_s) / cfg.dt_s)
-        st.pending = st.pending or new_reading
+        steps = round((time_s - st["last_call_s"]) / cfg["dt_s"])
+        st["pending"] = st["pending"] or new_reading
         # the reference: an EKF without deviation, reset or reading (its settings are the estimator's)
-        live_ekf(st.ref, st.ref_drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], np.nan, False, cs,
-                 hv, xb, yb, cfg.dt_s, cfg.process_var, cfg.measurement_var, cfg.sigmoid_a, cfg.sigmoid_b,
-                 cfg.quantum_c, cfg.deviation_time_s, False, 0, steps)  # fmt: skip
-        model_c = st.ref[0]
-        sv, code, action = supervise(sv, time_s, any_stale, new_reading, reading, reading_bad, model_c,
-                                     cfg.stale_limit_s, cfg.stuck_after_s, cfg.stuck_change_c)  # fmt: skip
+        live_ekf(
+            st["ref"],
+            st["ref_drive"],
+            inputs,
+            rows,
+            result,
+            u[0],
+            u[1],
+            u[2],
+            u[3],
+            u[4],
+            u[5],
+            np.nan,
+            False,
+            cs,
+            hv,
+            xb,
+            yb,
+            cfg["dt_s"],
+            cfg["process_var"],
+            cfg["measurement_var"],
+            cfg["sigmoid_a"],
+            cfg["sigmoid_b"],
+            cfg["quantum_c"],
+            cfg["deviation_time_s"],
+            False,
+            0,
+            steps,
+        )
+        model_c = st["ref"][0]
+        sv, code, action = supervise(
+            sv,
+            time_s,
+            any_stale,
+            new_reading,
+            reading,
+            reading_bad,
+            model_c,
+            cfg["stale_limit_s"],
+            cfg["stuck_after_s"],
+            cfg["stuck_change_c"],
+        )
         if action != ACTION_NONE:
-            measured = st.pending and code == CODE_NOMINAL and math.isfinite(reading)
+            measured = st["pending"] and code == CODE_NOMINAL and math.isfinite(reading)
             z = reading if measured else np.nan
-            if not cfg.iso_estimator:
-                live_ekf(st.est, st.est_drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured,
-                         cs, hv, xb, yb, cfg.dt_s, cfg.process_var, cfg.measurement_var, cfg.sigmoid_a,
-                         cfg.sigmoid_b, cfg.quantum_c, cfg.deviation_time_s, cfg.use_deviation, cfg.reset_code,
-                         steps)  # fmt: skip
-                est_c = st.est[0]
-                deviation = st.est[3] / cfg.dt_s if cfg.use_deviation else 0.0
-            live_isolation(st.iso, st.iso_drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z,
-                           measured, steps, eng.iso_model[i], eng.iso_config[i], cs, hv, xb, yb)  # fmt: skip
-            if cfg.iso_estimator:  # its estimate is the isolation filter's own
-                est_c = st.iso[0]
+            if not cfg["iso_estimator"]:
+                live_ekf(
+                    st["est"],
+                    st["est_drive"],
+                    inputs,
+                    rows,
+                    result,
+                    u[0],
+                    u[1],
+                    u[2],
+                    u[3],
+                    u[4],
+                    u[5],
+                    z,
+                    measured,
+                    cs,
+                    hv,
+                    xb,
+                    yb,
+                    cfg["dt_s"],
+                    cfg["process_var"],
+                    cfg["measurement_var"],
+                    cfg["sigmoid_a"],
+                    cfg["sigmoid_b"],
+                    cfg["quantum_c"],
+                    cfg["deviation_time_s"],
+                    cfg["use_deviation"],
+                    cfg["reset_code"],
+                    steps,
+                )
+                est_c = st["est"][0]
+                deviation = st["est"][3] / cfg["dt_s"] if cfg["use_deviation"] else 0.0
+            live_isolation(
+                st["iso"],
+                st["iso_drive"],
+                inputs,
+                rows,
+                result,
+                u[0],
+                u[1],
+                u[2],
+                u[3],
+                u[4],
+                u[5],
+                z,
+                measured,
+                steps,
+                eng.iso_model[i],
+                eng.iso_config[i],
+                cs,
+                hv,
+                xb,
+                yb,
+            )
+            if cfg["iso_estimator"]:  # its estimate is the isolation filter's own
+                est_c = st["iso"][0]
                 deviation = result[2]
-            gamma_q = st.iso[1]
-            gamma_d = st.iso[2]
+            gamma_q = st["iso"][1]
+            gamma_d = st["iso"][2]
             iso_deviation = result[2]
-        st.last_call_s = time_s
+        st["last_call_s"] = time_s
     else:
-        model_c = st.model_c if st.running else reading
-        sv, code, action = supervise(sv, time_s, any_stale, new_reading, reading, reading_bad, model_c,
-                                     cfg.stale_limit_s, cfg.stuck_after_s, cfg.stuck_change_c)  # fmt: skip
-        st.pending = st.pending or new_reading
-    st.running = sv.running
-    st.stale_since_s = sv.stale_since_s
-    st.changed_s = sv.changed_s
-    st.last_reading_c = sv.last_reading_c
-    st.model_low_c = sv.model_low_c
-    st.model_high_c = sv.model_high_c
+        model_c = st["model_c"] if st["running"] else reading
+        sv, code, action = supervise(
+            sv,
+            time_s,
+            any_stale,
+            new_reading,
+            reading,
+            reading_bad,
+            model_c,
+            cfg["stale_limit_s"],
+            cfg["stuck_after_s"],
+            cfg["stuck_change_c"],
+        )
+        st["pending"] = st["pending"] or new_reading
+    st["running"] = sv.running
+    st["stale_since_s"] = sv.stale_since_s
+    st["changed_s"] = sv.changed_s
+    st["last_reading_c"] = sv.last_reading_c
+    st["model_low_c"] = sv.model_low_c
+    st["model_high_c"] = sv.model_high_c
     if action == ACTION_NONE:
-        st.cht_est_c = st.deviation = st.gamma_q = st.gamma_d = st.iso_deviation = st.model_c = np.nan
+        st["cht_est_c"] = st["deviation"] = st["gamma_q"] = st["gamma_d"] = st["iso_deviation"] = st["model_c"] = np.nan
     elif action == ACTION_INITIALISE:
         _initialise_filters(eng, i, u, time_s, reading, coeffs)
-        st.cht_est_c = reading
-        st.deviation = 0.0
-        st.gamma_q = 1.0
-        st.gamma_d = 1.0
-        st.iso_deviation = 0.0
-        st.model_c = reading
-        st.pending = False
-        st.headroom_s = np.nan
-        st.detector_on = True
+        st["cht_est_c"] = reading
+        st["deviation"] = 0.0
+        st["gamma_q"] = 1.0
+        st["gamma_d"] = 1.0
+        st["iso_deviation"] = 0.0
+        st["model_c"] = reading
+        st["pending"] = False
+        st["headroom_s"] = np.nan
+        st["detector_on"] = True
     elif call:
-        st.pending = False
-        st.cht_est_c = est_c
-        st.deviation = deviation
-        st.gamma_q = gamma_q
-        st.gamma_d = gamma_d
-        st.iso_deviation = iso_deviation
-        st.model_c = model_c
+        st["pending"] = False
+        st["cht_est_c"] = est_c
+        st["deviation"] = deviation
+        st["gamma_q"] = gamma_q
+        st["gamma_d"] = gamma_d
+        st["iso_deviation"] = iso_deviation
+        st["model_c"] = model_c
     state = code
     fed = np.nan
-    if st.detector_on:
-        symptom = st.deviation if cfg.estimator_symptom else st.iso_deviation
+    if st["detector_on"]:
+        symptom = st["deviation"] if cfg["estimator_symptom"] else st["iso_deviation"]
         fed = symptom if code == CODE_NOMINAL else np.nan
-        verdict = detector_step(st.detector, cfg.detector, eng.rings[i, 0], time_s, fed)
+        verdict = detector_step(st["detector"], cfg["detector"], eng.rings[i, 0], time_s, fed)
         if code == CODE_NOMINAL:
             state = verdict
     if action == ACTION_NONE or not (
-        math.isfinite(st.cht_est_c) and math.isfinite(st.gamma_q) and math.isfinite(st.gamma_d)
+        math.isfinite(st["cht_est_c"]) and math.isfinite(st["gamma_q"]) and math.isfinite(st["gamma_d"])
     ):
-        st.headroom_s = np.nan
+        st["headroom_s"] = np.nan
     elif headroom_due:
         drive = eng.scratch[13:18]
         _drive_at(eng, i, u, coeffs, drive)
-        st.headroom_s = headroom_s(st.cht_est_c, drive, coeffs, st.gamma_q, st.gamma_d, cfg.cht_limit_c)
-    out.cht_meas_c = reading
-    out.cht_est_c = st.cht_est_c
-    out.deviation = st.deviation
-    out.state = state
-    out.gamma_q = st.gamma_q
-    out.gamma_d = st.gamma_d
-    out.headroom_s = st.headroom_s
-    out.code = code
-    out.fed = fed
-    out.cross_fed = np.nan
+        st["headroom_s"] = headroom_s(st["cht_est_c"], drive, coeffs, st["gamma_q"], st["gamma_d"], cfg["cht_limit_c"])
+    out["cht_meas_c"] = reading
+    out["cht_est_c"] = st["cht_est_c"]
+    out["deviation"] = st["deviation"]
+    out["state"] = state
+    out["gamma_q"] = st["gamma_q"]
+    out["gamma_d"] = st["gamma_d"]
+    out["headroom_s"] = st["headroom_s"]
+    out["code"] = code
+    out["fed"] = fed
+    out["cross_fed"] = np.nan
 
 
 def cross_step(eng: Engine, time_s: float) -> None:
@@ -545,8 +663,9 @@ def cross_step(eng: Engine, time_s: float) -> None:
     others = eng.symptoms[1]
     for i in range(n):
         st = eng.state[i]
-        usable = st.detector_on and eng.output[i].state <= CODE_DEGRADED
-        own[i] = (st.deviation if eng.settings[i].estimator_symptom else st.iso_deviation) if usable else np.nan
+        usable = st["detector_on"] and eng.output[i]["state"] <= CODE_DEGRADED
+        symptom = st["deviation"] if eng.settings[i]["estimator_symptom"] else st["iso_deviation"]
+        own[i] = symptom if usable else np.nan
     for i in range(n):
         cross = np.nan
         if not math.isnan(own[i]):
@@ -562,12 +681,12 @@ def cross_step(eng: Engine, time_s: float) -> None:
                 cross = own[i] - reference
         st = eng.state[i]
         cfg = eng.settings[i]
-        if not st.detector_on or not cfg.cross.on:
+        if not st["detector_on"] or not cfg["cross"]["on"]:
             continue
-        eng.output[i].cross_fed = cross
-        verdict = detector_step(st.cross, cfg.cross, eng.rings[i, 1], time_s, cross)
-        if eng.output[i].state < verdict <= CODE_DEGRADED:
-            eng.output[i].state = verdict
+        eng.output[i]["cross_fed"] = cross
+        verdict = detector_step(st["cross"], cfg["cross"], eng.rings[i, 1], time_s, cross)
+        if eng.output[i]["state"] < verdict <= CODE_DEGRADED:
+            eng.output[i]["state"] = verdict
 
 
 def _reading_bad(eng: Engine, reading: float) -> bool:
@@ -575,10 +694,10 @@ def _reading_bad(eng: Engine, reading: float) -> bool:
     clock = eng.clock[0]
     if math.isnan(reading):
         return False
-    if not clock.min_c <= reading <= clock.max_c:
+    if not clock["min_c"] <= reading <= clock["max_c"]:
         return True
-    if clock.status_slot >= 0:
-        status = eng.values[clock.status_slot]
+    if clock["status_slot"] >= 0:
+        status = eng.values[clock["status_slot"]]
         if not math.isnan(status):
             code = float(int(status))
             for value in eng.open_values:
@@ -599,35 +718,35 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
     u = eng.scratch[18:24]
     for j in range(5):
         u[j] = eng.values[eng.model_slots[j]]
-    if clock.mixture == 1:
+    if clock["mixture"] == 1:
         u[5] = eng.values[eng.mixture_slots[0]]
-    elif clock.mixture == 2:  # fuel per revolution, mL/rev
+    elif clock["mixture"] == 2:  # fuel per revolution, mL/rev
         u[5] = eng.values[eng.mixture_slots[0]] * (1000.0 / 60.0) / max(eng.values[eng.mixture_slots[1]], 100.0)
     else:
         u[5] = np.nan
-    call = k % clock.filter_period == 0
-    headroom_due = k % clock.headroom_period == 0
+    call = k % clock["filter_period"] == 0
+    headroom_due = k % clock["headroom_period"] == 0
     for i in range(eng.state.shape[0]):
         cfg = eng.settings[i]
-        any_stale = model_stale or (stale >> cfg.cht_check) & 1 == 1
-        reading_bad = _reading_bad(eng, eng.values[cfg.cht_slot])
+        any_stale = model_stale or (stale >> cfg["cht_check"]) & 1 == 1
+        reading_bad = _reading_bad(eng, eng.values[cfg["cht_slot"]])
         cylinder_step(eng, i, u, time_s, any_stale, reading_bad, call, headroom_due)
-    if clock.cross:
+    if clock["cross"]:
         cross_step(eng, time_s)
     return stale
 
 
 def _copy_output(dst: Any, src: Any) -> None:
-    dst.cht_meas_c = src.cht_meas_c
-    dst.cht_est_c = src.cht_est_c
-    dst.deviation = src.deviation
-    dst.state = src.state
-    dst.gamma_q = src.gamma_q
-    dst.gamma_d = src.gamma_d
-    dst.headroom_s = src.headroom_s
-    dst.code = src.code
-    dst.fed = src.fed
-    dst.cross_fed = src.cross_fed
+    dst["cht_meas_c"] = src["cht_meas_c"]
+    dst["cht_est_c"] = src["cht_est_c"]
+    dst["deviation"] = src["deviation"]
+    dst["state"] = src["state"]
+    dst["gamma_q"] = src["gamma_q"]
+    dst["gamma_d"] = src["gamma_d"]
+    dst["headroom_s"] = src["headroom_s"]
+    dst["code"] = src["code"]
+    dst["fed"] = src["fed"]
+    dst["cross_fed"] = src["cross_fed"]
 
 
 def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> None:
@@ -648,8 +767,8 @@ def _write_trace(eng: Engine, traces: Traces, time_s: float, restarts: int) -> N
     traces.restart[n] = restarts
     traces.oat_c[n] = eng.values[eng.model_slots[4]]
     for i in range(eng.state.shape[0]):
-        traces.model_c[n, i] = eng.state[i].model_c
-        traces.detector_on[n, i] = eng.state[i].detector_on
+        traces.model_c[n, i] = eng.state[i]["model_c"]
+        traces.detector_on[n, i] = eng.state[i]["detector_on"]
         _copy_output(traces.cylinders[n, i], eng.output[i])
     traces.count[0] = n + 1
 
@@ -663,38 +782,38 @@ def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
     if not (math.isfinite(t_s) and abs(t_s) < MAX_CLOCK_S):
         return True
     t_s = clock_tick(t_s)
-    if not clock.started or t_s - clock.now_s > MAX_CLOCK_GAP_S:
-        if clock.started:
-            clock.restarts += 1
+    if not clock["started"] or t_s - clock["now_s"] > MAX_CLOCK_GAP_S:
+        if clock["started"]:
+            clock["restarts"] += 1
         for i in range(eng.state.shape[0]):  # estimation and detection start afresh
             _stop_cylinder(eng.state[i])
-        clock.started = True
-        clock.origin_s = t_s
-        clock.now_s = t_s
-        clock.k = 0
+        clock["started"] = True
+        clock["origin_s"] = t_s
+        clock["now_s"] = t_s
+        clock["k"] = 0
         for slot in range(eng.early.shape[0]):  # inputs fed before the clock started count as fed at its start
             if eng.early[slot]:
                 eng.stamps[slot] = t_s
                 eng.early[slot] = False
         return True
-    if t_s <= clock.now_s:
+    if t_s <= clock["now_s"]:
         return True
     capacity = rows.k.shape[0]
     while True:
-        step_time = clock_tick(clock.origin_s + (clock.k + 1) * clock.dt_s)
+        step_time = clock_tick(clock["origin_s"] + (clock["k"] + 1) * clock["dt_s"])
         if step_time > t_s:
             break
-        k = clock.k + 1
-        if k % clock.row_period == 0 and rows.count[0] >= capacity:
+        k = clock["k"] + 1
+        if k % clock["row_period"] == 0 and rows.count[0] >= capacity:
             return False
-        clock.k = k
-        clock.steps += 1
+        clock["k"] = k
+        clock["steps"] += 1
         stale = engine_step(eng, step_time, k)
-        if k % clock.row_period == 0:
+        if k % clock["row_period"] == 0:
             _write_row(eng, rows, step_time, k, stale)
         if traces.time_s.shape[0] > 0:
-            _write_trace(eng, traces, step_time, clock.restarts)
-    clock.now_s = t_s
+            _write_trace(eng, traces, step_time, clock["restarts"])
+    clock["now_s"] = t_s
     return True
 
 
@@ -705,18 +824,19 @@ def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
     for j in range(count):
         slot = slots[j]
         eng.values[slot] = values[j]
-        if clock.started:
-            eng.stamps[slot] = clock.now_s
+        if clock["started"]:
+            eng.stamps[slot] = clock["now_s"]
         else:
             eng.stamps[slot] = np.nan
             eng.early[slot] = True
         for i in range(eng.state.shape[0]):
-            if eng.settings[i].cht_slot == slot:
-                eng.state[i].readings += 1
+            if eng.settings[i]["cht_slot"] == slot:
+                eng.state[i]["readings"] += 1
 
 
-def replay_loop(eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any,
-                values: Any, start: int) -> int:  # fmt: skip
+def replay_loop(
+    eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
+) -> int:
     """The live loop over a whole log: for each frame from ``start``, :func:`advance_to` its time then
     :func:`feed_values` its decoded values (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame
     to resume from when ``rows`` filled up, or the frame count when done."""
@@ -789,8 +909,9 @@ def compiled() -> Any:
     drive_at = compile_(_drive_at)
     stop = compile_(_stop_cylinder, _reset_detector=reset)
     initialise = compile_(_initialise_filters, _drive_at=drive_at)
-    cylinder = compile_(cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at,
-                        _initialise_filters=initialise)  # fmt: skip
+    cylinder = compile_(
+        cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at, _initialise_filters=initialise
+    )
     cross = compile_(cross_step, detector_step=detector)
     bad = compile_(_reading_bad)
     engine = compile_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)
@@ -798,9 +919,21 @@ def compiled() -> Any:
     copy = compile_(_copy_output)
     write_row = compile_(_write_row, _copy_output=copy)
     write_trace = compile_(_write_trace, _copy_output=copy)
-    advance = compile_(advance_to, clock_tick=tick, engine_step=engine, _stop_cylinder=stop, _write_row=write_row,
-                       _write_trace=write_trace)  # fmt: skip
+    advance = compile_(
+        advance_to,
+        clock_tick=tick,
+        engine_step=engine,
+        _stop_cylinder=stop,
+        _write_row=write_row,
+        _write_trace=write_trace,
+    )
     feed = compile_(feed_values)
     loop = compile_(replay_loop, advance_to=advance, feed_values=feed)
-    return SimpleNamespace(advance_to=advance, feed_values=feed, replay_loop=loop, headroom_s=headroom,
-                           detector_step=detector, stop_cylinder=stop)  # fmt: skip
+    return SimpleNamespace(
+        advance_to=advance,
+        feed_values=feed,
+        replay_loop=loop,
+        headroom_s=headroom,
+        detector_step=detector,
+        stop_cylinder=stop,
+    )

@@ -255,6 +255,14 @@ class LiveMonitor:
     def steps_done(self) -> int:
         return self.pipeline.steps_done
 
+    @property
+    def decoder(self) -> Any:
+        return self.pipeline.decoder
+
+    @property
+    def model_inputs(self) -> tuple[str, ...]:
+        return self.pipeline.model_inputs
+
     def feed(self, msg: can.Message) -> None:
         """Take one received frame (never raises for any frame content)."""
         if self._node is not None and self._node.take_request(msg, self.pipeline.now_s):
