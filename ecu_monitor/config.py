@@ -294,7 +294,7 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
     bus: dict[str, Any] | UnsetType = UNSET  # keyword arguments of can.Bus; required but for protocol mavlink
     reopen_backoff_s: Backoff = Backoff()
     dronecan: _DroneCanSection | UnsetType = UNSET  # protocol dronecan only, and required there
-    mavlink: dict[str, Any] | None | UnsetType = UNSET  # protocol mavlink only (bus/mavlink_settings.py checks it)
+    mavlink: dict[str, Any] | UnsetType | None = UNSET  # protocol mavlink only (bus/mavlink_settings.py checks it)
     dbc: Annotated[
         _FilePath | Annotated[list[_FilePath], Meta(min_length=1)] | UnsetType,
         Meta(description="a DBC file path or a non-empty list of them"),

@@ -218,7 +218,7 @@ SCHEMA_ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
         "no_frames_warning_s: expected a number > 0, got float inf",
     ),
     ("out of range", _set("stale_predict_limit_s", -1), "stale_predict_limit_s: expected a number >= 0, got int -1"),
-    ("not one of", _set("protocol", "j1939"), "protocol: expected one of dbc, dronecan, got str 'j1939'"),
+    ("not one of", _set("protocol", "j1939"), "protocol: expected one of dbc, dronecan, mavlink, got str 'j1939'"),
     ("key not a string", _set("bus", {"interface": "virtual", "channel": "x", 3: 1}), "bus: keys must be strings"),
     ("missing required key", _drop("engine.serial"), "engine.serial: missing"),
     ("missing required key of an entry", _drop("inputs.rpm.stale_after_s"), "inputs.rpm.stale_after_s: missing"),

@@ -30,12 +30,14 @@ from ecu_monitor.bus.mavlink import (
     parse_field,
 )
 from ecu_monitor.bus.mavlink_log import read_tlog
+from ecu_monitor.bus.mavlink_settings import MavlinkSettings
 from ecu_monitor.cli import main as ecu_monitor_main
+from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import read_csv
 from ecu_monitor.model import paper_table_a1
-from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
+from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.runtime.mavlink_publisher import (
     MAX_NAME,
     MAX_TEXT,
@@ -45,8 +47,6 @@ from ecu_monitor.runtime.mavlink_publisher import (
     state_text,
     text_chunks,
 )
-from ecu_monitor.bus.mavlink_settings import MavlinkSettings
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.units import pressure_altitude_m
 from virtual_bus.cli import main as virtual_ecu_main
 from virtual_bus.mavlink_emitter import MavlinkEmitter, MavlinkFrameEncoder, TlogWriter, emitter_connection

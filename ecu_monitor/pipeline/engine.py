@@ -193,7 +193,7 @@ class Pipeline:
         sf = config.sensor_fault
         if sf.status_message is not None and sf.status_signal is not None:
             specs.append(SignalSpec(STATUS_INPUT, sf.status_message, sf.status_signal, "raw"))
-        self.decoder = make_decoder(config, specs)
+        self.decoder: Any = make_decoder(config, specs)  # the protocol's: CAN frames or MAVLink messages
         self.counters: dict[str, int] = self.decoder.counters
         for key in ("bus_errors", "steps", "clock_restarts"):
             self.counters[key] = 0
