@@ -44,7 +44,6 @@ import math
 import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -55,7 +54,8 @@ if TYPE_CHECKING:
 from ecu_monitor.bus.checksum import CHECKSUM_BYTE, crc8_sae_j1850, frame_checksum, head_checksum
 from ecu_monitor.bus.dbc import Dbc, load_dbc
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.units import QUANTITY_OF_COLUMN, Unit, unit_conversion
+from ecu_monitor.inputs import INPUT_NAMES, INPUT_QUANTITIES
+from ecu_monitor.units import Unit, unit_conversion
 
 __all__ = [
     "COUNTER_RESYNC_S",
@@ -68,19 +68,6 @@ __all__ = [
     "FrameLayout",
     "SignalSpec",
 ]
-
-#: Model inputs the service knows, in the bit order of Health_Diag.StaleInputs (bit0 rpm ... bit6 fuel flow,
-#: bit7 the exhaust gas temperature a model with the mixture_index effect reads).
-INPUT_NAMES: tuple[str, ...] = (
-    "rpm",
-    "throttle_pct",
-    "cht_c",
-    "oat_c",
-    "altitude_m",
-    "airspeed_mps",
-    "fuel_flow_lph",
-    "egt_c",
-)
 
 #: A silence longer than this (s) resynchronises the rolling-counter check of a message.
 COUNTER_RESYNC_S = 1.0
@@ -96,10 +83,6 @@ MALFORMED_REASONS: tuple[str, ...] = (
 )
 
 _RANGE_SLACK = 1e-6  # raw units: absorbs rounding of (min - offset) / factor
-
-
-#: Quantity of each model input (its unit must be of this quantity).
-INPUT_QUANTITIES: Mapping[str, str] = MappingProxyType({name: QUANTITY_OF_COLUMN[name] for name in INPUT_NAMES})
 
 
 @dataclass(frozen=True)

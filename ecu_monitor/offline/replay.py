@@ -207,6 +207,7 @@ def _columns(
             "gamma_q": r["gamma_q"].copy(),
             "gamma_d": r["gamma_d"].copy(),
             "headroom_s": r["headroom_s"].copy(),
+            "cht_rate_c_per_min": r["cht_rate_c_per_min"].copy(),
             "state": r["state"].astype(np.int64),
             "stale": stale,
             "sensor_fault": r["state"] == CODE_FAULT,
@@ -214,7 +215,8 @@ def _columns(
     out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[:m].copy(), "stale": stale}
     for i in range(count):
         r = results[:, i]
-        for field in ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s"):
+        for field in ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s",
+                      "cht_rate_c_per_min"):  # fmt: skip
             out[f"cyl{i + 1}_{field}"] = r[field].copy()
     out.update(engine_columns(out, count, spread_limit_c))
     return out

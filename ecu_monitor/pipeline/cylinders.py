@@ -88,11 +88,11 @@ def engine_columns(
     """The engine columns of a replay (cht_meas_c .. sensor_fault of the lead cylinder, cht_spread_c,
     hottest_cylinder, spread_alarm) from its per-cylinder columns ``cyl{n}_...``, row by row through
     :func:`engine_view`, the function the live pipeline calls."""
-    fields = ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s")
+    fields = ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min")
     per = [
         [
-            CylinderSnapshot(n, meas, est, dev, STATES[state], gq, gd, head)
-            for meas, est, dev, state, gq, gd, head in zip(
+            CylinderSnapshot(n, meas, est, dev, STATES[state], gq, gd, head, rate)
+            for meas, est, dev, state, gq, gd, head, rate in zip(
                 *(columns[f"cyl{n}_{k}"].tolist() for k in fields), strict=True
             )
         ]

@@ -185,9 +185,12 @@ class Pipeline:
                 f" read (inputs: {', '.join(INPUT_NAMES)}): identify the model with --heat-axes among them"
             )
         if missing:
+            hint = (
+                "; the shipped manifold.yaml maps manifold_pressure_kpa" if "manifold_pressure_kpa" in missing else ""
+            )
             raise ConfigError(
                 f"{config.source}: inputs: missing {', '.join(missing)} (the model reads "
-                f"{', '.join(self.model_inputs)} and the CHT)"
+                f"{', '.join(self.model_inputs)} and the CHT){hint}"
             )
         specs = [spec.signal_spec() for spec in config.inputs]
         sf = config.sensor_fault
@@ -458,10 +461,12 @@ class Pipeline:
             state = int(r["state"])
             return HealthSnapshot(row.time_s, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
                                   STATES[state], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
-                                  row.stale, state == CODE_FAULT)  # fmt: skip
+                                  row.stale, state == CODE_FAULT,
+                                  cht_rate_c_per_min=float(r["cht_rate_c_per_min"]))  # fmt: skip
         cylinders = tuple(
             CylinderSnapshot(n, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
-                             STATES[int(r["state"])], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]))
+                             STATES[int(r["state"])], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
+                             float(r["cht_rate_c_per_min"]))
             for n, r in enumerate(results, start=1)
         )  # fmt: skip
         view = engine_view(cylinders, self.config.spread_limit_c)
@@ -481,11 +486,12 @@ class Pipeline:
             cht_spread_c=view.spread_c,
             hottest_cylinder=view.hottest,
             spread_alarm=view.alarm,
+            cht_rate_c_per_min=lead.cht_rate_c_per_min,
         )
 
     def _empty_snapshot(self) -> HealthSnapshot:
         nothing = np.zeros(len(self.cylinder_params), dtype=CYLINDER_OUTPUT)
-        for field in ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s"):
+        for field in ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min"):
             nothing[field] = math.nan
         nothing["state"] = CODE_UNAVAILABLE
         stale = tuple(dict.fromkeys(self._check_names))

@@ -40,6 +40,7 @@ class CylinderSnapshot:
     gamma_q: float
     gamma_d: float
     headroom_s: float
+    cht_rate_c_per_min: float = float("nan")
 
     @property
     def sensor_fault(self) -> bool:
@@ -78,6 +79,7 @@ class HealthSnapshot:
     cht_spread_c: float = float("nan")
     hottest_cylinder: int = 0
     spread_alarm: bool = False
+    cht_rate_c_per_min: float = float("nan")
 
 
 #: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
@@ -93,6 +95,7 @@ HEALTH_COLUMNS: tuple[str, ...] = (
     "headroom_s",
     "stale_inputs",
     "sensor_fault",
+    "cht_rate_c_per_min",
 )
 #: Per-cylinder columns of health.csv (engines monitored per cylinder), ``{n}`` = 1 .. N, after HEALTH_COLUMNS.
 CYLINDER_COLUMNS: tuple[str, ...] = (
@@ -103,12 +106,15 @@ CYLINDER_COLUMNS: tuple[str, ...] = (
     "cyl{n}_gamma_q",
     "cyl{n}_gamma_d",
     "cyl{n}_headroom_s",
+    "cyl{n}_cht_rate_c_per_min",
 )
 #: Engine columns of health.csv after the per-cylinder ones: CHT spread (degC), hottest cylinder (1-based,
 #: empty: none), spread alarm (0/1).
 SPREAD_COLUMNS: tuple[str, ...] = ("cht_spread_c", "hottest_cylinder", "spread_alarm")
 #: Float fields of CylinderSnapshot, in CYLINDER_COLUMNS order (the state is the fourth column).
-_CYLINDER_FLOATS: tuple[str, ...] = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+_CYLINDER_FLOATS: tuple[str, ...] = (
+    "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min",
+)  # fmt: skip
 
 
 def health_columns(cylinders: int) -> tuple[str, ...]:
@@ -174,8 +180,8 @@ class ReplayResult:
         names = _stale_names()
         floats = [c[k].tolist() for k in _FLOAT_COLUMNS]
         rows = [
-            HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault)
-            for t, meas, est, dev, gq, gd, head, state, stale, fault in zip(
+            HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault, cht_rate_c_per_min=rate)
+            for t, meas, est, dev, gq, gd, head, rate, state, stale, fault in zip(
                 *floats, c["state"].tolist(), c["stale"].tolist(), c["sensor_fault"].tolist(), strict=True
             )
         ]
@@ -184,10 +190,13 @@ class ReplayResult:
             return rows
         per = []
         for n in range(1, count + 1):
-            meas, est, dev, gq, gd, head = (c[f"cyl{n}_{k}"].tolist() for k in _CYLINDER_FLOATS)
+            meas, est, dev, gq, gd, head, rate = (c[f"cyl{n}_{k}"].tolist() for k in _CYLINDER_FLOATS)
             states = [STATES[v] for v in c[f"cyl{n}_state"].tolist()]
             per.append(
-                [CylinderSnapshot(n, *values) for values in zip(meas, est, dev, states, gq, gd, head, strict=True)]
+                [
+                    CylinderSnapshot(n, *values)
+                    for values in zip(meas, est, dev, states, gq, gd, head, rate, strict=True)
+                ]
             )
         return [
             dataclasses.replace(row, cylinders=tuple(cyls), cht_spread_c=spread, hottest_cylinder=hottest,
@@ -212,6 +221,7 @@ def health_table_columns(columns: dict[str, NDArray[Any]], cylinders: int = 1) -
     table += [TableColumn(k, columns[k]) for k in ("gamma_q", "gamma_d", "headroom_s")]
     table.append(TableColumn("stale_inputs", columns["stale"], tuple("+".join(n) for n in _stale_names())))
     table.append(TableColumn("sensor_fault", columns["sensor_fault"].astype(np.int64), bit))
+    table.append(TableColumn("cht_rate_c_per_min", columns["cht_rate_c_per_min"]))
     if cylinders > 1:
         for n in range(1, cylinders + 1):
             for name in CYLINDER_COLUMNS:
@@ -226,7 +236,9 @@ def health_table_columns(columns: dict[str, NDArray[Any]], cylinders: int = 1) -
 
 
 #: Float columns of ReplayResult.columns, in health.csv order.
-_FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+_FLOAT_COLUMNS = (
+    "time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min",
+)  # fmt: skip
 
 
 @functools.cache

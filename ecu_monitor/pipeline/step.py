@@ -155,6 +155,7 @@ CYLINDER_STATE = np.dtype(
         ("iso_deviation", "f8"),
         ("model_c", "f8"),
         ("headroom_s", "f8"),
+        ("cht_rate_c_per_min", "f8"),
         ("detector_on", "?"),  # since the first initialisation
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
@@ -170,6 +171,7 @@ CYLINDER_OUTPUT = np.dtype(
         ("gamma_q", "f8"),
         ("gamma_d", "f8"),
         ("headroom_s", "f8"),
+        ("cht_rate_c_per_min", "f8"),  # the estimated CHT's rate of change, degC/min
         ("code", "i8"),  # the supervisor's code
         ("fed", "f8"),  # what its detector was fed (nan: nothing)
         ("cross_fed", "f8"),
@@ -385,6 +387,22 @@ def headroom_s(cht_c: float, drive: Any, coeffs: Any, gamma_q: float, gamma_d: f
     return HEADROOM_CAP_S
 
 
+def _cht_rate(st: Any, cfg: Any, coeffs: Any) -> float:
+    """The rate of change of the estimated CHT, degC/min: the model's heat balance at the estimate (its CHT
+    and heat-path state, the drive of the latest inputs, the isolation filter's gammas)."""
+    if cfg["iso_estimator"]:
+        pade = st["iso"][3]
+        drive = st["iso_drive"]
+    else:
+        pade = st["est"][2]
+        drive = st["est_drive"]
+    rate, _ = derivatives(
+        st["cht_est_c"], pade, drive[0], drive[4] * drive[1], drive[2], drive[3], coeffs.c_w, coeffs.tau_w,
+        coeffs.radiative_conductance, coeffs.radiation_offset_c, st["gamma_q"], st["gamma_d"],
+    )  # fmt: skip
+    return 60.0 * rate
+
+
 def _drive_at(eng: Engine, i: int, u: Any, coeffs: Any, drive: Any) -> None:
     """The model's drive of cylinder i at the inputs u (6) into drive (5, Drive order)."""
     inputs = eng.scratch[0:6].reshape((6, 1))
@@ -416,6 +434,7 @@ def _stop_cylinder(st: Any) -> None:
     st["iso_deviation"] = np.nan
     st["model_c"] = np.nan
     st["headroom_s"] = np.nan
+    st["cht_rate_c_per_min"] = np.nan
     st["detector_on"] = False
     _reset_detector(st["detector"])
     _reset_detector(st["cross"])
@@ -607,6 +626,7 @@ def cylinder_step(
     st["model_high_c"] = sv.model_high_c
     if action == ACTION_NONE:
         st["cht_est_c"] = st["deviation"] = st["gamma_q"] = st["gamma_d"] = st["iso_deviation"] = st["model_c"] = np.nan
+        st["cht_rate_c_per_min"] = np.nan
     elif action == ACTION_INITIALISE:
         _initialise_filters(eng, i, u, time_s, reading, coeffs)
         st["cht_est_c"] = reading
@@ -618,6 +638,7 @@ def cylinder_step(
         st["pending"] = False
         st["headroom_s"] = np.nan
         st["detector_on"] = True
+        st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
     elif call:
         st["pending"] = False
         st["cht_est_c"] = est_c
@@ -626,6 +647,7 @@ def cylinder_step(
         st["gamma_d"] = gamma_d
         st["iso_deviation"] = iso_deviation
         st["model_c"] = model_c
+        st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
     state = code
     fed = np.nan
     if st["detector_on"]:
@@ -649,6 +671,7 @@ def cylinder_step(
     out["gamma_q"] = st["gamma_q"]
     out["gamma_d"] = st["gamma_d"]
     out["headroom_s"] = st["headroom_s"]
+    out["cht_rate_c_per_min"] = st["cht_rate_c_per_min"]
     out["code"] = code
     out["fed"] = fed
     out["cross_fed"] = np.nan
@@ -744,6 +767,7 @@ def _copy_output(dst: Any, src: Any) -> None:
     dst["gamma_q"] = src["gamma_q"]
     dst["gamma_d"] = src["gamma_d"]
     dst["headroom_s"] = src["headroom_s"]
+    dst["cht_rate_c_per_min"] = src["cht_rate_c_per_min"]
     dst["code"] = src["code"]
     dst["fed"] = src["fed"]
     dst["cross_fed"] = src["cross_fed"]
@@ -853,6 +877,7 @@ def replay_loop(
 
 # The compiled callees of the functions above; compiled() binds them.
 cusum_step: Any = None
+derivatives: Any = None
 dissipation: Any = None
 drive_kernel: Any = None
 level_of: Any = None
@@ -888,6 +913,7 @@ def compiled() -> Any:
     filters = _ekf.compiled_filter()
     callees: dict[str, Any] = {
         "cusum_step": _detection._cusum_step,
+        "derivatives": equations.derivatives,
         "dissipation": equations.dissipation,
         "drive_kernel": _compiled_model.drive_kernel(),
         "level_of": filters.level_of,
@@ -909,9 +935,11 @@ def compiled() -> Any:
     drive_at = compile_(_drive_at)
     stop = compile_(_stop_cylinder, _reset_detector=reset)
     initialise = compile_(_initialise_filters, _drive_at=drive_at)
+    rate = compile_(_cht_rate)
     cylinder = compile_(
-        cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at, _initialise_filters=initialise
-    )
+        cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at, _initialise_filters=initialise,
+        _cht_rate=rate,
+    )  # fmt: skip
     cross = compile_(cross_step, detector_step=detector)
     bad = compile_(_reading_bad)
     engine = compile_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)

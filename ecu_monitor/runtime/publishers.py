@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import can
 
-from ecu_monitor.bus.codec import INPUT_NAMES, Encoder
+from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.inputs import stale_bit
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.pipeline.engine import Pipeline, StepRow
 from ecu_monitor.pipeline.outputs import HealthSnapshot
@@ -41,9 +42,9 @@ __all__ = [
 
 #: The data signals of each health message (health.dbc), in the order :meth:`DbcHealthFrames.values` gives them.
 HEALTH_SIGNALS: dict[str, tuple[str, ...]] = {
-    "Health_Status": ("ChtEstimate", "ModelDeviation", "DegradationState"),
+    "Health_Status": ("ChtEstimate", "ModelDeviation", "DegradationState", "ChtRate"),
     "Health_Isolation": ("GammaQEstimate", "GammaDEstimate", "ThermalHeadroom", "ChtLimitMargin"),
-    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors"),
+    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh"),
     "Health_Spread": ("ChtSpread", "HottestCylinder", "SpreadAlarm", "CylinderCount", "FaultyCylinders"),
     "Health_Cylinder": ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD"),
 }
@@ -112,14 +113,17 @@ class DbcHealthFrames:
             gamma_q, gamma_d, headroom = float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"])
             margin = self._limits[0] - est
             stale = row.stale
+            rate = float(r["cht_rate_c_per_min"])
         else:
             est, deviation, code = snap.cht_est_c, snap.deviation, _STATE_CODE[snap.state]
             gamma_q, gamma_d, headroom = snap.gamma_q, snap.gamma_d, snap.headroom_s
             margins = [self._limits[c.number - 1] - c.cht_est_c for c in snap.cylinders]
             margin = min((m for m in margins if finite(m)), default=math.nan)
             stale = snap.stale_inputs
+            rate = snap.cht_rate_c_per_min
         if message == "Health_Status":
-            return (est if finite(est) else _IDLE_CHT_C, deviation if finite(deviation) else 0.0, code)
+            rate = min(max(rate, -128.0), 127.0) if finite(rate) else 0.0  # the signal's range, degC/min
+            return (est if finite(est) else _IDLE_CHT_C, deviation if finite(deviation) else 0.0, code, rate)
         if message == "Health_Isolation":
             return (
                 gamma_q if finite(gamma_q) else 1.0,
@@ -138,9 +142,9 @@ class DbcHealthFrames:
                     len(snap.cylinders) or 1, faulty)  # fmt: skip
         bits = 0
         for name in stale:
-            bits |= 1 << INPUT_NAMES.index(name)
+            bits |= stale_bit(name)
         counters = self.pipeline.counters
-        return (bits, min(counters["malformed"], 65535), min(counters["bus_errors"], 255))
+        return (bits & 0xFF, min(counters["malformed"], 65535), min(counters["bus_errors"], 255), bits >> 8)
 
 
 def _cylinder_values(cyl: Any) -> tuple[float, ...]:
