@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from ecu_monitor.compile_cache import use_cache_dir
 from ecu_monitor.errors import TOOLS_MODULES, run_command
 
 __all__ = ["COMMANDS", "COMMAND_MODULES", "build_parser", "main"]
@@ -89,6 +90,7 @@ def _needs_tools(subparsers: Any, name: str, missing: ModuleNotFoundError) -> No
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``ecu-monitor``; returns the process exit code."""
+    use_cache_dir()  # NUMBA_CACHE_DIR before anything imports numba (unless the user set it)
     arguments = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(only=_requested_command(arguments))
     args = parser.parse_args(arguments)

@@ -57,6 +57,16 @@ def test_unit_has_the_required_hardening() -> None:
     assert "MemoryDenyWriteExecute" not in unit  # numba needs W+X pages: off on purpose (see the unit's comment)
 
 
+def test_numba_cache_is_inside_the_units_cache_directory() -> None:
+    """ProtectSystem=strict leaves the CacheDirectory= writable and the dynamic user has no writable home:
+    NUMBA_CACHE_DIR must lie inside the cache directory (%C = /var/cache), or every start compiles again."""
+    unit = directives(UNIT.read_text())
+    assert unit["CacheDirectory"] == ["ecu-monitor"]
+    environment = dict(item.split("=", 1) for line in unit["Environment"] for item in line.split())
+    assert environment["NUMBA_CACHE_DIR"] == "%C/ecu-monitor/numba"
+    assert unit["ProtectSystem"] == ["strict"]  # the reason it must: nothing else is writable
+
+
 def _install_root(tmp_path: Path) -> Path:
     """A root with the host's unit files, our unit, and an executable at the ExecStart path."""
     root = tmp_path / "root"

@@ -25,6 +25,7 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from ecu_monitor.compile_cache import use_cache_dir
 from ecu_monitor.errors import ConfigError, run_command
 from ecu_monitor.shipped import shipped_files
 
@@ -333,6 +334,7 @@ def _run_mavlink(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``virtual-ecu``; returns the process exit code."""
+    use_cache_dir()  # NUMBA_CACHE_DIR before anything imports numba (unless the user set it)
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(

@@ -36,6 +36,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 
@@ -92,7 +93,7 @@ def add_subparser(subparsers: Any) -> None:
         " they are calibrated and checked but written off (null): on N550ND a flight held out alarmed"
         " (docs/results/cylinders.md)",
     )
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -30,6 +30,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
 
@@ -73,7 +74,7 @@ def add_subparser(subparsers: Any) -> None:
         default="dbc",
         help="what the virtual ECU and the service speak: engine.dbc/health.dbc frames (dbc, default) or DroneCAN",
     )
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 class ServiceListener:

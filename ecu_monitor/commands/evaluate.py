@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
 
 __all__ = ["add_subparser"]
@@ -53,7 +54,7 @@ def add_subparser(subparsers: Any) -> None:
         metavar="FILE",
         help="pickle of the simulated flights: loaded if it exists (skips the simulation), else written",
     )
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def _check(args: argparse.Namespace) -> None:

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.identify import choose_heat_axes, parse_heat_axes
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, UserInputError
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
@@ -89,7 +90,7 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the blind cases (default 0)")
     parser.add_argument("--duration", type=float, default=3600.0, metavar="S", help="blind-case flight length, s")
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def _say(message: str) -> None:

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.names import IDENTIFY_DEFAULT_FREE as DEFAULT_FREE
 from ecu_monitor.commands.names import PSO_DT_S, PSO_ITERATIONS, PSO_PARTICLES
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import FlightLogError, ParameterError, UserInputError
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
@@ -87,7 +88,7 @@ def add_subparser(subparsers: Any) -> None:
         " carries, one model each (OUT with _cylN before its suffix) for the service's cylinders.models",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def parse_heat_axes(text: str) -> tuple[str, str]:

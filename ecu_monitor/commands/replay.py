@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.commands.names import ESTIMATOR_NAMES
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
 
@@ -70,7 +71,7 @@ def add_subparser(subparsers: Any) -> None:
         help="also draw the replay: CHT measured and estimated, the deviation symptom, gamma_Q/gamma_D and the"
         " headroom over time, the service's state shaded behind (needs the tools extra)",
     )
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def _run(args: argparse.Namespace) -> int:

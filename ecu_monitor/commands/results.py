@@ -10,6 +10,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ecu_monitor.compile_cache import announce_compiles
+
 __all__ = ["add_subparser"]
 
 
@@ -28,7 +30,7 @@ def add_subparser(subparsers: Any) -> None:
         " give --out docs/results to regenerate those)",
     )
     parser.add_argument("--seeds", type=int, default=4, metavar="N", help="flights per degradation level (4)")
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from ecu_monitor.compile_cache import compile_notice
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.runtime.persistence import FlightRules
 
@@ -181,6 +182,11 @@ def _run(args: argparse.Namespace) -> int:
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
+    # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
+    # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only
+    # finds them loaded.
+    with compile_notice(say=_log.info):
+        pipeline.warm_up()
     settings = daemon_settings(config, watchdog_period_s())
     with SystemdNotifier() as notifier:
         daemon = Daemon(

@@ -14,6 +14,7 @@ import argparse
 from typing import Any
 
 from ecu_monitor.commands.names import SIMULATE_DT_S
+from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import FlightLogError
 
 __all__ = ["SIM_COLUMNS", "add_subparser"]
@@ -34,7 +35,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--out", required=True, metavar="SIM.csv", help="output CSV")
     parser.add_argument("--mapping", metavar="MAPPING", help="mapping YAML (or shipped name: g1000) for a foreign CSV")
     parser.add_argument("--dt", type=float, default=SIMULATE_DT_S, metavar="S", help="integration step, s (0.02)")
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -1,0 +1,191 @@
+"""numba's on-disk cache in a user-writable directory, and the first run's one line that says it compiles.
+
+Where: numba reads ``NUMBA_CACHE_DIR`` when it is imported. The ``ecu-monitor`` and ``virtual-ecu``
+entry points call :func:`use_cache_dir` before anything imports numba: unless the user (or the systemd
+unit, ``%C/ecu-monitor/numba``) set it, it becomes ``$XDG_CACHE_HOME/ecu-monitor/numba``
+(``~/.cache/ecu-monitor/numba``). Without it numba writes ``__pycache__`` beside the sources when that
+is writable and ``~/.cache/numba`` otherwise; with it the kernels of every install (editable, or
+``pip install .`` into a read-only site-packages run by another user) are in one place a second
+process reads. Only the command-line processes set it: importing the package as a library leaves the
+host process's environment alone.
+
+What the user sees: a fresh cache costs 15-25 s of compiling on the first ``replay`` on 2 cores
+(docs/performance.md, "First run"). :func:`compile_notice` listens to numba's ``numba:compile``
+events, which numba sends only when it compiles (a kernel loaded from the cache sends none), and once
+the compiling of the command has lasted :data:`NOTICE_AFTER_S` it prints ``compiling (first run only)
+...`` on stderr (the daemon: a log line); when the command is done, ``compiled in X s ...``. So it
+says so exactly when the cache misses (a fresh install, an upgrade, a cleared cache, a command whose
+kernels another command did not compile) and never on a run that only loads.
+
+No numba at this module's top level: the command line's ``--help`` stays light
+(tests/test_cli_startup.py); numba is imported by :func:`compile_notice`, which only the commands that
+compile call, when they run (demo, replay, simulate, identify, gap, calibrate, results, evaluate through
+:func:`announce_compiles`; ``run`` around its warm-up, logging).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, MutableMapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+__all__ = [
+    "CACHE_ENV",
+    "COMPILING_LINE",
+    "NOTICE_AFTER_S",
+    "CompileClock",
+    "announce_compiles",
+    "compile_notice",
+    "default_cache_dir",
+    "use_cache_dir",
+]
+
+#: The environment variable numba reads for its cache directory.
+CACHE_ENV = "NUMBA_CACHE_DIR"
+#: The line the first run prints (stderr) or logs (daemon).
+COMPILING_LINE = "compiling (first run only) ..."
+#: Seconds of compiling before the line is shown: a command that compiles less says nothing.
+NOTICE_AFTER_S = 1.0
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:
+    """``$XDG_CACHE_HOME/ecu-monitor/numba``, or ``~/.cache/ecu-monitor/numba`` when XDG_CACHE_HOME is
+    unset, empty or relative (the XDG base directory spec ignores a relative one); None without a home."""
+    env = os.environ if environ is None else environ
+    xdg = env.get("XDG_CACHE_HOME", "")
+    if xdg and os.path.isabs(xdg):
+        base = Path(xdg)
+    else:
+        try:
+            base = Path.home() / ".cache"
+        except (RuntimeError, KeyError):  # no HOME and no passwd entry
+            return None
+    return base / "ecu-monitor" / "numba"
+
+
+def use_cache_dir(environ: MutableMapping[str, str] | None = None) -> str | None:
+    """Set ``NUMBA_CACHE_DIR`` to :func:`default_cache_dir` unless it is set already (even to ""), and
+    return the directory numba will use (None: numba's own default). Call before numba is imported."""
+    env = os.environ if environ is None else environ
+    if CACHE_ENV in env:
+        return env[CACHE_ENV] or None
+    directory = default_cache_dir(env)
+    if directory is None:
+        return None
+    env[CACHE_ENV] = str(directory)
+    return env[CACHE_ENV]
+
+
+def _print_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+class CompileClock:
+    """Seconds numba spends compiling, and the one line said once they pass ``after_s``.
+
+    ``start``/``end``: numba's ``numba:compile`` events (nested ones, a kernel compiling its callees,
+    count once). The line comes from a timer thread while a compile runs (one that ends first cancels
+    it), so the line means "compiling now, for a second already"."""
+
+    def __init__(self, say: Callable[[str], None], after_s: float = NOTICE_AFTER_S) -> None:
+        self.say = say
+        self.after_s = after_s
+        self.total_s = 0.0  # finished compiles
+        self.announced = False
+        self._depth = 0
+        self._since = 0.0
+        self._timer: threading.Timer | None = None
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        with self._lock:
+            self._depth += 1
+            if self._depth > 1:
+                return
+            self._since = time.perf_counter()
+            if self.announced:
+                return
+            wait_s = self.after_s - self.total_s
+            if wait_s <= 0.0:
+                self._announce()
+                return
+            self._timer = threading.Timer(wait_s, self._fire)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def end(self) -> None:
+        with self._lock:
+            if self._depth == 0:  # its start came before the listener
+                return
+            self._depth -= 1
+            if self._depth > 0:
+                return
+            self.total_s += time.perf_counter() - self._since
+            self._cancel()
+
+    def close(self) -> None:
+        """Stop the timer (the command is over)."""
+        with self._lock:
+            self._cancel()
+
+    def _cancel(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+
+    def _fire(self) -> None:
+        with self._lock:
+            if self._depth > 0 and not self.announced:
+                self._announce()
+
+    def _announce(self) -> None:
+        self.announced = True
+        self.say(COMPILING_LINE)
+
+
+@contextlib.contextmanager
+def compile_notice(say: Callable[[str], None] | None = None, after_s: float = NOTICE_AFTER_S) -> Iterator[CompileClock]:
+    """Within the block, numba's compiles are timed; once they pass ``after_s`` seconds ``say`` (default:
+    print on stderr) gets :data:`COMPILING_LINE`, and after a block that ends normally, the seconds
+    compiled. Imports numba. Nothing is said when numba compiles nothing (every kernel from the cache)."""
+    from numba.core import config, event  # the commands that compile import numba anyway
+
+    tell = say or _print_stderr
+    clock = CompileClock(tell, after_s)
+
+    class _Forward(event.Listener):
+        def on_start(self, _event: Any) -> None:
+            clock.start()
+
+        def on_end(self, _event: Any) -> None:
+            clock.end()
+
+    listener = _Forward()
+    event.register("numba:compile", listener)
+    try:
+        yield clock
+    finally:
+        event.unregister("numba:compile", listener)
+        clock.close()
+    if clock.announced:
+        where = getattr(config, "CACHE_DIR", "") or "numba's default cache (__pycache__ or ~/.cache/numba)"
+        tell(f"compiled in {clock.total_s:.1f} s, cached in {where}: later runs load it")
+
+
+def announce_compiles(command: F) -> F:
+    """``command`` (a subcommand's run function) inside :func:`compile_notice` printing on stderr."""
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with compile_notice():
+            return command(*args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]

@@ -1,0 +1,15 @@
+"""Settings of the test session.
+
+``NUMBA_CACHE_DIR=""`` unless the developer set it: numba's own default, ``__pycache__`` beside the
+sources, where the suite's kernels were cached before the command line chose
+``~/.cache/ecu-monitor/numba`` (ecu_monitor/compile_cache.py). The ``ecu-monitor`` and ``virtual-ecu``
+mains that tests run (in this process or as children) find the variable set and leave it alone, so the
+suite writes nothing into the developer's home. tests/test_compile_cache.py removes it for the
+processes that check the default.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("NUMBA_CACHE_DIR", "")
