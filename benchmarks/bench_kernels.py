@@ -1,11 +1,12 @@
 """CPU time of the model's compiled kernels: the swarm kernel (PSO, gap refits), the EKF runner, the
-isolation filter over a flight and one live filter step.
+isolation filter over a flight, and one call of the one-step estimator API (``make_estimator``'s
+``estimate``; the service's live path runs the compiled step of ecu_monitor/pipeline/step.py instead).
 
     .venv/bin/python benchmarks/bench_kernels.py
 
 Each figure is the least CPU time (``time.process_time``, so other processes on a shared machine
 count less than in wall time) over several repetitions, beside a baseline measured in the same run:
-the numpy reference ``thermal.simulate`` for the swarm, the plain-Python filter for the live step.
+the numpy reference ``thermal.simulate`` for the swarm, the plain-Python filter for the estimator call.
 It uses only the public API, so the same file also runs on an older commit (``git worktree add``)
 to compare kernels across commits; docs/performance.md keeps the figures.
 """
@@ -100,7 +101,7 @@ def main() -> None:
     print(f"| run_estimator cbekf-au, 1 h at 0.02 s | {runner * 1e3:.1f} | | |")
     isolation = least_cpu_s(lambda: run_isolation(log, params), max(3, args.repeats // 3))
     print(f"| run_isolation, 1 h at 0.02 s | {isolation * 1e3:.1f} | | |")
-    # one live step (0.1 s of filter = 5 steps of 0.02 s, as the pipeline calls it)
+    # one estimator call (0.1 s of filter = 5 steps of 0.02 s)
     u = InputSeries(60.0, 6500.0, 500.0, 23.0, 12.0)
     settings = EstimatorSettings()
     steps = 2000
@@ -110,13 +111,13 @@ def main() -> None:
         live.initialise(0.0, u, 110.0)
         timings[compiled] = least_cpu_s(functools.partial(_live_calls, live, u, steps), 3) / steps
     print(
-        f"| live cbekf-au call (5 steps) | {timings[True] * 1e3:.4f} | plain Python {timings[False] * 1e3:.3f} ms"
-        f" | x{timings[False] / timings[True]:.1f} |"
+        f"| ThermalEKF.estimate cbekf-au (5 steps) | {timings[True] * 1e3:.4f} | plain Python "
+        f"{timings[False] * 1e3:.3f} ms | x{timings[False] / timings[True]:.1f} |"
     )
     iso = make_estimator("cbekf-iso", params)
     iso.initialise(0.0, u, 110.0)
     iso_s = least_cpu_s(functools.partial(_live_calls, iso, u, steps), 3) / steps
-    print(f"| live cbekf-iso call (5 steps) | {iso_s * 1e3:.4f} | | |")
+    print(f"| isolation filter estimate, cbekf-iso (5 steps) | {iso_s * 1e3:.4f} | | |")
 
 
 def _live_calls(filter_: Any, u: InputSeries, calls: int) -> None:
