@@ -69,7 +69,7 @@ def test_a_manifold_pressure_model_replays_live_and_batch_alike() -> None:
 
 def test_a_model_on_manifold_pressure_needs_a_config_that_maps_it() -> None:
     config = load_config(shipped_file("config", "example.yaml"))
-    with pytest.raises(ConfigError, match="manifold_pressure_kpa.*manifold.yaml"):
+    with pytest.raises(ConfigError, match=r"manifold_pressure_kpa.*manifold\.yaml"):
         LiveMonitor(config, _model())
 
 
@@ -117,7 +117,7 @@ def test_the_cht_rate_follows_the_estimate_and_goes_out_in_health_status() -> No
     ok = np.isfinite(rate) & np.isfinite(est)
     assert ok.mean() > 0.9
     # against the estimate's own slope over 20 s windows (an independent reading of the same thing)
-    step = int(round(20.0 / np.median(np.diff(t))))
+    step = round(20.0 / float(np.median(np.diff(t))))
     slope = (est[step:] - est[:-step]) / (t[step:] - t[:-step]) * 60.0
     middle = 0.5 * (rate[step:] + rate[:-step])
     both = np.isfinite(slope) & np.isfinite(middle)
