@@ -83,7 +83,7 @@ def period_frames(protocol: str) -> Callable[[int], list[can.Message]]:
     encoder = Encoder([DATA / "dbc" / "engine.dbc"])
     values = {
         "ECU_Fast": {"EngineSpeed": 5500.0, "ThrottlePos": 60.0, "FuelFlow": 0.6},
-        "ECU_Slow": {"CHT": 160.0, "OAT": 15.0, "EcuStatus": 0},
+        "ECU_Slow": {"CHT": 160.0, "OAT": 15.0, "EcuStatus": 0, "ManifoldPressure": 0.0},
         "AirData": {"PressureAltitude": 1500.0, "CalibratedAirspeed": 23.0, "VerticalSpeed": 0.0},
     }
     counters = dict.fromkeys(values, 0)

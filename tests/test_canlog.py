@@ -60,7 +60,7 @@ def _frames() -> list[can.Message]:
     for j in range(100):  # ECU_Fast 50 Hz from t=0
         add(0.02 * j, fast, {"EngineSpeed": 2000 + 10 * j, "ThrottlePos": 50.0, "FuelFlow": 12.5}, j)
     for k in range(20):  # ECU_Slow 10 Hz from t=0.01; AirData from t=0.05, its clock 1 ms/frame late
-        add(0.01 + 0.1 * k, slow, {"CHT": 100 + k, "OAT": -5.5, "EcuStatus": 0}, k)
+        add(0.01 + 0.1 * k, slow, {"CHT": 100 + k, "OAT": -5.5, "EcuStatus": 0, "ManifoldPressure": 0.0}, k)
         add(0.05 + 0.101 * k, air, {"PressureAltitude": 500 + k, "CalibratedAirspeed": 30.0, "VerticalSpeed": 1}, k)
     out.append((0.5, 0x7FF, bytes(8)))  # unknown id: ignored
     out.append((0.51, 0x101, bytes(3)))  # ECU_Slow with 3 bytes: counted, skipped

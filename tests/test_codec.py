@@ -66,12 +66,16 @@ def test_encoder_reproduces_golden_frame_and_round_trips() -> None:
 
 def test_encoder_clamps_to_dbc_range_and_refuses_nan() -> None:
     enc = Encoder([HEALTH_DBC])
-    data = enc.encode("Health_Status", {"ChtEstimate": 999.0, "ModelDeviation": -99.0, "DegradationState": 2}, 3)
+    data = enc.encode(
+        "Health_Status", {"ChtEstimate": 999.0, "ModelDeviation": -99.0, "DegradationState": 2, "ChtRate": 0.0}, 3
+    )
     db: Any = cantools.database.load_file(str(HEALTH_DBC))
     decoded = db.decode_message(0x300, data)
     assert decoded["ChtEstimate"] == pytest.approx(400.0) and decoded["ModelDeviation"] == pytest.approx(-32.768)
     with pytest.raises(ValueError, match="NaN"):
-        enc.encode("Health_Status", {"ChtEstimate": math.nan, "ModelDeviation": 0.0, "DegradationState": 0}, 0)
+        enc.encode(
+            "Health_Status", {"ChtEstimate": math.nan, "ModelDeviation": 0.0, "DegradationState": 0, "ChtRate": 0}, 0
+        )
 
 
 def test_every_malformed_reason_is_counted_and_dropped() -> None:
@@ -153,7 +157,8 @@ def _random_frames(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
             values = {"EngineSpeed": rng.uniform(0, 9000), "ThrottlePos": rng.uniform(0, 100), "FuelFlow": 3.0}
             data = bytearray(enc.encode("ECU_Fast", values, counters[fid]))
         elif fid == 0x101:
-            values = {"CHT": rng.uniform(-40, 400), "OAT": rng.uniform(-60, 80), "EcuStatus": int(rng.integers(0, 4))}
+            values = {"CHT": rng.uniform(-40, 400), "OAT": rng.uniform(-60, 80), "EcuStatus": int(rng.integers(0, 4)),
+                      "ManifoldPressure": rng.uniform(0, 120)}  # fmt: skip
             data = bytearray(enc.encode("ECU_Slow", values, counters[fid]))
         elif fid == 0x200:
             values = {"PressureAltitude": rng.uniform(-500, 5000), "CalibratedAirspeed": rng.uniform(0, 60),
@@ -236,7 +241,7 @@ def test_encode_rows_equals_encode_row_by_row() -> None:
     one_by_one = [enc.encode("ECU_Fast", {k: v[i] for k, v in columns.items()}, 13 + i) for i in range(300)]
     assert rows == one_by_one
     status = {"ChtEstimate": rng.uniform(-50, 400, 50), "ModelDeviation": rng.normal(0, 1, 50),
-              "DegradationState": rng.integers(0, 6, 50)}  # fmt: skip
+              "DegradationState": rng.integers(0, 6, 50), "ChtRate": rng.uniform(-40, 40, 50)}  # fmt: skip
     assert enc.encode_rows("Health_Status", status) == [
         enc.encode("Health_Status", {k: v[i] for k, v in status.items()}, i) for i in range(50)
     ]

@@ -61,7 +61,7 @@ class EcuSender:
 
     VALUES: ClassVar[dict[str, dict[str, float]]] = {
         "ECU_Fast": {"EngineSpeed": 5000.0, "ThrottlePos": 50.0, "FuelFlow": 0.5},
-        "ECU_Slow": {"CHT": 150.0, "OAT": 15.0, "EcuStatus": 0},
+        "ECU_Slow": {"CHT": 150.0, "OAT": 15.0, "EcuStatus": 0, "ManifoldPressure": 0.0},
         "AirData": {"PressureAltitude": 1000.0, "CalibratedAirspeed": 23.0, "VerticalSpeed": 0.0},
     }
 

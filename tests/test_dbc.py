@@ -17,7 +17,7 @@ DBC_DIR = Path(__file__).resolve().parents[1] / "ecu_monitor" / "data" / "dbc"
 CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
     "engine.dbc": {
         "ECU_Fast": (0x100, 20, "ECU", ("EngineSpeed", "ThrottlePos", "FuelFlow", "FastCounter", "FastChecksum")),
-        "ECU_Slow": (0x101, 100, "ECU", ("CHT", "OAT", "EcuStatus", "SlowCounter", "SlowChecksum")),
+        "ECU_Slow": (0x101, 100, "ECU", ("CHT", "OAT", "EcuStatus", "ManifoldPressure", "SlowCounter", "SlowChecksum")),
         "AirData": (
             0x200,
             100,
@@ -30,7 +30,7 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
             0x300,
             100,
             "EcuMonitor",
-            ("ChtEstimate", "ModelDeviation", "DegradationState", "HealthCounter", "HealthChecksum"),
+            ("ChtEstimate", "ModelDeviation", "DegradationState", "ChtRate", "HealthCounter", "HealthChecksum"),
         ),
         "Health_Isolation": (
             0x301,
@@ -49,7 +49,7 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
             0x302,
             1000,
             "EcuMonitor",
-            ("StaleInputs", "MalformedFrames", "BusErrors", "DiagCounter", "DiagChecksum"),
+            ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh", "DiagCounter", "DiagChecksum"),
         ),
         "Health_Spread": (
             0x303,
@@ -222,7 +222,12 @@ GOLDEN_FRAMES = [
         {"EngineSpeed": 5200.25, "ThrottlePos": 63.5, "FuelFlow": 21.37, "FastCounter": 9},
         "4151ce18590809cc",
     ),
-    ("engine.dbc", "ECU_Slow", {"CHT": 187.0, "OAT": -12.3, "EcuStatus": 1, "SlowCounter": 15}, "de0885ff01000fa9"),
+    (
+        "engine.dbc",
+        "ECU_Slow",
+        {"CHT": 187.0, "OAT": -12.3, "EcuStatus": 1, "ManifoldPressure": 0.0, "SlowCounter": 15},
+        "de0885ff01000fa9",
+    ),
     (
         "health.dbc",
         "Health_Isolation",

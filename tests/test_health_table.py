@@ -21,8 +21,9 @@ from ecu_monitor.pipeline.outputs import ReplayResult, health_columns, health_ta
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import check_table_path, csv_bytes, format_g10
 
-FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
-CYLINDER_FLOATS = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
+FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s",
+                 "cht_rate_c_per_min")  # fmt: skip
+CYLINDER_FLOATS = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min")
 
 
 def _boundary_values() -> np.ndarray:
@@ -84,12 +85,13 @@ def _reference_csv(result: ReplayResult) -> bytes:
     for r in rows:
         line = (
             f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
-            f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)}"
+            f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)},"
+            f"{r.cht_rate_c_per_min:.10g}"
         )
         if count > 1:
             per = "".join(
                 f",{c.cht_meas_c:.10g},{c.cht_est_c:.10g},{c.deviation:.10g},{c.state},{c.gamma_q:.10g},"
-                f"{c.gamma_d:.10g},{c.headroom_s:.10g}"
+                f"{c.gamma_d:.10g},{c.headroom_s:.10g},{c.cht_rate_c_per_min:.10g}"
                 for c in r.cylinders
             )
             hottest = str(r.hottest_cylinder) if r.hottest_cylinder else ""

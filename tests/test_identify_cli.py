@@ -207,18 +207,19 @@ def test_identify_every_cylinder_writes_one_model_each(tmp_path, capsys):
     assert "== cylinder 3 of 3 ==" in out and "no model for cylinder(s) 2:" in out
 
 
-def test_a_heat_axis_the_service_cannot_read_is_warned_and_replay_refuses_it_in_one_line(tmp_path, capsys):
-    """A constant-speed engine's log (the PA-44's) carries manifold pressure: identify may take it as a
-    heat-map axis, but no service input carries it, so identify warns and replay names the axis (exit 2)."""
+def test_a_manifold_pressure_heat_axis_identifies_and_replays_with_the_config_that_maps_it(tmp_path, capsys):
+    """A constant-speed engine's log (the PA-44's) carries manifold pressure: identify takes it as a heat-map
+    axis with no warning; replay names the shipped config that maps it (exit 2), and replays with it."""
     log = _flight(5, (30, 80, 50, 95))
     path = tmp_path / "map.csv"
     write_csv(log.with_columns(manifold_pressure_kpa=40.0 + 0.6 * np.asarray(log["throttle_pct"])), path)
     model = tmp_path / "m.yaml"
     argv = ["identify", str(path), "--out", str(model), "--heat-axes", "manifold_pressure_kpa,rpm", "--grid", "3x3"]
     assert main([*argv, "--particles", "8", "--iterations", "4", "--quiet", "--no-polish"]) == 0
-    err = capsys.readouterr().err
-    assert "warning: heat-map axis manifold_pressure_kpa is not an input the service reads" in err
-    assert "heat-map axis rpm" not in err and "manifold_pressure_kpa is not an input" in model.read_text()
+    assert "not an input the service reads" not in capsys.readouterr().err
     assert main(["replay", str(path), "--model", str(model), "--out", str(tmp_path / "h.csv")]) == 2
     [line] = capsys.readouterr().err.strip().splitlines()
-    assert "the model reads manifold_pressure_kpa, which is not an input the service can read" in line
+    assert "missing manifold_pressure_kpa" in line and "manifold.yaml" in line
+    out = tmp_path / "h.csv"
+    assert main(["replay", str(path), "--model", str(model), "--config", "manifold.yaml", "--out", str(out)]) == 0
+    assert out.read_text().count("\n") > 1000

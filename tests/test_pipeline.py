@@ -68,7 +68,7 @@ class SteadyEcu:
         v = self.values
         return {
             "ECU_Fast": {"EngineSpeed": v["rpm"], "ThrottlePos": v["throttle_pct"], "FuelFlow": 3.0},
-            "ECU_Slow": {"CHT": v["cht_c"], "OAT": v["oat_c"], "EcuStatus": v["status"]},
+            "ECU_Slow": {"CHT": v["cht_c"], "OAT": v["oat_c"], "EcuStatus": v["status"], "ManifoldPressure": 0.0},
             "AirData": {"PressureAltitude": v["altitude_m"], "CalibratedAirspeed": v["airspeed_mps"],
                         "VerticalSpeed": 0.0},
         }[name]  # fmt: skip

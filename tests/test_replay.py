@@ -138,7 +138,7 @@ def test_blf_and_its_canonical_csv_give_the_same_health_csv(flight: dict[str, Pa
         outputs[kind] = _read_csv(out)
     blf, flight_csv, asc = outputs["blf"], outputs["csv"], outputs["asc"]
     assert list(blf[0]) == ["time_s", "cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d",
-                            "headroom_s", "stale_inputs", "sensor_fault"]  # fmt: skip
+                            "headroom_s", "stale_inputs", "sensor_fault", "cht_rate_c_per_min"]  # fmt: skip
     assert asc == blf  # two log formats of the same frames: identical
     assert len(flight_csv) == len(blf)
     assert np.array_equal(_num(flight_csv, "time_s"), _num(blf, "time_s"))

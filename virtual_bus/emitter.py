@@ -161,6 +161,7 @@ class FrameEncoder:
             )
             warning = hottest[k] >= self.cht_limit_c
             columns["EcuStatus"] = np.where(warning, _STATUS_WARNING, _STATUS_OK)
+            columns["ManifoldPressure"] = np.zeros(k.size)  # not in the plant (fixed-pitch): 0, "not measured"
         if spec.first_cylinder >= 0:
             heads = block.measured.cht_cylinders_c
             if heads is None:
