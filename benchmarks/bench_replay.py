@@ -253,7 +253,7 @@ def main() -> None:
           f"DEGRADED from t = {alarm - t0:.0f} s (gamma_Q 1.15 injected at 30000 s)")  # fmt: skip
     from ecu_monitor.research.detection_limit import limit_step
 
-    feed_t, feed_v = result.detector_feed[0]
+    feed_t, feed_v = replay_file(args.log, config, params, keep_feeds=True).detector_feed[0]  # after the timing
     onset = 30000.0  # the log's gamma_Q step, s after its first frame
     rel = feed_t - t0
     step = float(np.nanmean(feed_v[(rel >= onset) & (rel < onset + 60.0)])
