@@ -335,6 +335,7 @@ def test_statustext_wording_severity_and_chunks_of_at_most_50() -> None:
         assert len(state_text(_snap(state, gq=1.5, gd=0.5))) <= MAX_TEXT, state
     long = "x" * 120
     assert text_chunks(long) == ["x" * 50, "x" * 50, "x" * 20]
+    assert text_chunks("y" * 100) == ["y" * 50, "y" * 50, ""]  # the last chunk is the shorter one (MAVProxy)
     assert text_chunks(long, mavlink1=True) == ["x" * 47 + "..."]
     assert SEVERITY["NOMINAL"] == ML.MAV_SEVERITY_INFO and SEVERITY["SUSPECT"] == ML.MAV_SEVERITY_WARNING
     assert SEVERITY["DEGRADED"] == SEVERITY["SENSOR_FAULT"] == ML.MAV_SEVERITY_CRITICAL

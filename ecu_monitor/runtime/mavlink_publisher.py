@@ -20,7 +20,8 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
   Severity (:data:`SEVERITY`): NOMINAL INFO, UNAVAILABLE NOTICE, SUSPECT and INPUT_STALE WARNING,
   DEGRADED and SENSOR_FAULT CRITICAL, a CHT at its limit ALERT. A text longer than 50 characters is
   sent in chunks of 50 (MAVLink 2 ``id`` and ``chunk_seq``, as the message definition says a long
-  text is reassembled; ``id`` 0 for a text of one chunk); on MAVLink 1 it is cut to 50. At most
+  text is reassembled; ``id`` 0 for a text of one chunk; a text of a whole number of chunks ends with an
+  empty one, since receivers take a chunk shorter than 50 as the last); on MAVLink 1 it is cut to 50. At most
   ``mavlink.statustext_per_s`` texts a second (a token bucket; a text's chunks count once): a text that
   would pass the rate waits. Nothing is dropped: a new text of the same kind (state, limit, spread)
   that comes while one is waiting is merged with it, with the more severe severity of the two: a state
@@ -172,13 +173,15 @@ def state_text(snap: HealthSnapshot, first: bool = False) -> str:
 
 def text_chunks(text: str, mavlink1: bool = False) -> list[str]:
     """``text`` in STATUSTEXT chunks of at most :data:`MAX_TEXT` characters (ASCII; MAVLink 1: one,
-    cut with '...')."""
+    cut with '...'). A receiver knows the last chunk of a text by its being shorter than MAX_TEXT (MAVProxy
+    waits for one): a text of a whole number of chunks ends with an empty chunk."""
     text = text.encode("ascii", "replace").decode("ascii")
     if len(text) <= MAX_TEXT:
         return [text]
     if mavlink1:
         return [text[: MAX_TEXT - 3] + "..."]
-    return [text[i : i + MAX_TEXT] for i in range(0, len(text), MAX_TEXT)]
+    chunks = [text[i : i + MAX_TEXT] for i in range(0, len(text), MAX_TEXT)]
+    return [*chunks, ""] if len(chunks[-1]) == MAX_TEXT else chunks
 
 
 def named_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
