@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import socket
 import threading
 import time
@@ -563,3 +564,25 @@ def test_the_publishers_bytes_reach_a_pymavlink_reader_over_udp() -> None:
         (ML.MAV_SEVERITY_INFO, "ENGINE: normal, NOMINAL, CHT 150 C"),
         (ML.MAV_SEVERITY_CRITICAL, "ENGINE: heat-in +18 %, DEGRADED"),
     ]
+
+
+@pytest.mark.slow
+def test_demo_over_mavlink_tells_the_pilot_nominal_then_degraded(tmp_path: Path, capsys: Any) -> None:
+    """``ecu-monitor demo --protocol mavlink``: the virtual autopilot's messages into the service, its STATUSTEXT
+    printed and written; gamma_Q 1.2 after the detector's warm-up gives SUSPECT then DEGRADED, critical."""
+    from ecu_monitor.cli import main
+
+    out = tmp_path / "d"
+    args = ["demo", "--protocol", "mavlink", "--mission", "short_hop", "--inject-at", "650", "--out", str(out)]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "MAVLink messages from the virtual autopilot" in printed and " 0 malformed" in printed
+    texts = (out / "statustext.csv").read_text(encoding="utf-8").splitlines()
+    assert texts[0] == "time_s,severity,text"
+    assert texts[1].startswith('0.1,INFO,"ENGINE: monitoring, NOMINAL, CHT ')
+    assert re.fullmatch(r'\d+\.\d,CRITICAL,"ENGINE: heat-in \+\d+ %, DEGRADED"', texts[-1]), texts
+    assert float(texts[-1].split(",")[0]) > 650.0 and "DEGRADED at t = " in printed
+    assert "CRITICAL  ENGINE: heat-in" in printed
+    assert (out / "health.csv").stat().st_size > 1000
+    assert main(["demo", "--protocol", "mavlink", "--cylinders", "2", "--out", str(out)]) == 2
+    assert "EFI_STATUS carries one CHT" in capsys.readouterr().err
