@@ -205,6 +205,11 @@ def test_daemon_on_udp_heard_by_pymavlink_link_drops_and_returns(ns: Namespace) 
     _, stderr = daemon.communicate(timeout=20)
     assert daemon.returncode == 0, stderr
     assert "Traceback" not in stderr
+    states = re.findall(r"engine state (\w+) \(was (\w+)\) at t = ([\d.]+) s", stderr)  # the daemon's log
+    assert [s[:2] for s in states] == [("UNAVAILABLE", "none"), ("NOMINAL", "UNAVAILABLE"), ("INPUT_STALE", "NOMINAL"),
+                                       ("NOMINAL", "INPUT_STALE")], states  # fmt: skip
+    told = float(states[2][2])  # the daemon's clock is CLOCK_MONOTONIC, as the reader's stamps
+    assert 0.0 <= stale["t"] - told < 0.5, (stale["t"], told)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("MAVProxy") is None, reason="MAVProxy not installed (the test extra)")
@@ -217,8 +222,10 @@ def test_mavproxy_shows_the_services_statustext(ns: Namespace) -> None:
     port = 14550
     daemon = _daemon(ns, _config(ns, port))
     log = ns.tmp / "mavproxy.tlog"
+    # flushlogs: MAVProxy writes its .tlog as messages come (else every 10 s, and a kill loses the rest)
     ground = ns.popen([sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpout:127.0.0.1:{port}",
-                       "--non-interactive", f"--state-basedir={ns.tmp}", f"--logfile={log}"])  # fmt: skip
+                       "--non-interactive", f"--state-basedir={ns.tmp}", f"--logfile={log}",
+                       "--cmd=set flushlogs True"])  # fmt: skip
     mavproxy = Lines(ground)
     detected = lambda lines: any("Detected vehicle 1:191" in line for line in lines)  # noqa: E731
     assert mavproxy.wait_for(detected, START_S), (mavproxy.lines, daemon.poll())
@@ -231,12 +238,15 @@ def test_mavproxy_shows_the_services_statustext(ns: Namespace) -> None:
     daemon.send_signal(signal.SIGTERM)
     _, stderr = daemon.communicate(timeout=20)
     assert daemon.returncode == 0, stderr
-    ground.send_signal(signal.SIGTERM)  # MAVProxy closes its log
+    ground.send_signal(signal.SIGTERM)
     ground.wait(timeout=20)
     logged = mavutil.mavlink_connection(str(log))
-    texts = []
+    texts, chunks = [], []  # the .tlog holds the chunks as sent: joined here as MAVProxy joins them
     while (msg := logged.recv_match(type="STATUSTEXT")) is not None:
-        texts.append(((msg.get_srcSystem(), msg.get_srcComponent()), msg.text))
+        chunks.append(msg.text)
+        if msg.id == 0 or len(msg.text) < 50:
+            texts.append(((msg.get_srcSystem(), msg.get_srcComponent()), "".join(chunks)))
+            chunks = []
     logged.close()
     assert any(src == tuple(SERVICE) and "NOMINAL" in text for src, text in texts), texts
     assert any(src == tuple(SERVICE) and "INPUT_STALE" in text for src, text in texts), texts
