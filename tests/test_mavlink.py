@@ -375,6 +375,33 @@ def test_statustext_rate_limit_delays_and_merges_but_never_drops_a_state() -> No
     assert pub.sent_texts[-1][0].endswith("(via SUSPECT, DEGRADED, SUSPECT, NOMINAL)")
 
 
+def test_inputs_lost_after_the_input_stale_text_are_told_again_with_the_whole_set() -> None:
+    """A dropped link: the inputs of the 5 Hz messages go stale first, EFI_STATUS's 0.1 s later; the pilot is
+    told the first, then all (and nothing more while the set does not grow)."""
+    pub = MavlinkPublisher(MavlinkSettings(), 180.0)
+    slow, fast = ("oat_c", "altitude_m", "airspeed_mps"), ("rpm", "throttle_pct", "cht_c", "fuel_flow_lph")
+    snaps = [_snap("NOMINAL")] * 3 + [_snap("INPUT_STALE", stale=slow)] + [_snap("INPUT_STALE", stale=slow + fast)] * 3
+    snaps += [_snap("INPUT_STALE", stale=fast)] * 2 + [_snap("NOMINAL")] * 5
+    for k, snap in enumerate(snaps):
+        pub.messages(0.1 * k, snap)
+    texts = [text for text, _ in pub.sent_texts]
+    assert texts[1:] == [
+        "ENGINE monitor: OAT+altitude+airspeed lost, INPUT_STALE",
+        "ENGINE monitor: OAT+altitude+airspeed+rpm+throttle+CHT+fuel flow lost, INPUT_STALE",
+        "ENGINE: normal, NOMINAL, CHT 150 C",
+    ], texts
+    assert [sev for _, sev in pub.sent_texts[1:3]] == [ML.MAV_SEVERITY_WARNING] * 2
+    # a text still waiting for the rate takes the whole set: one text, no "(via INPUT_STALE)"
+    pub = MavlinkPublisher(MavlinkSettings(statustext_per_s=1.0), 180.0)
+    for k, snap in enumerate([_snap("NOMINAL"), _snap("INPUT_STALE", stale=slow), _snap("INPUT_STALE", stale=fast)]):
+        pub.messages(0.1 * k, snap)
+    for k in range(3, 20):
+        pub.messages(0.1 * k, _snap("INPUT_STALE", stale=slow + fast))
+    assert [text for text, _ in pub.sent_texts][1:] == [
+        "ENGINE monitor: OAT+altitude+airspeed+rpm+throttle+CHT+fuel flow lost, INPUT_STALE"
+    ]
+
+
 def test_named_value_float_names_rate_and_values() -> None:
     pub = MavlinkPublisher(MavlinkSettings(named_value_hz=2.0), 180.0)
     names: list[str] = []

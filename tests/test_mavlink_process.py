@@ -187,6 +187,9 @@ def test_daemon_on_udp_heard_by_pymavlink_link_drops_and_returns(ns: Namespace) 
     assert stale is not None and stale["severity"] == WARNING
     assert re.fullmatch(r"ENGINE monitor: .+ lost, INPUT_STALE", stale["text"]), stale
     assert 2.5 < stale["t"] - killed < 5.0  # the shipped stale_after_s is 3 s
+    every = ("rpm", "throttle", "CHT", "OAT", "altitude", "airspeed", "fuel flow")  # the shipped inputs, as worded
+    lost_all = lambda _: any(all(w in r["text"] for w in every) for r in _texts(reader, killed))  # noqa: E731
+    assert reader.wait_for(lost_all, 3.0), _texts(reader, killed)  # at once, or in a second text
     time.sleep(1.2)
     modes = [r["mode"] & 0x0F for r in _rows(reader, "HEARTBEAT", stale["t"] + 0.05) if r["src"] == SERVICE]
     assert modes and set(modes) == {INPUT_STALE}, modes

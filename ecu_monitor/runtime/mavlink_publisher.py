@@ -16,7 +16,9 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
   (Health_Status.DegradationState: 0 NOMINAL .. 5 UNAVAILABLE) in bits 0-3 and the stale inputs
   (Health_Diag.StaleInputs bits) from bit 4, as the DroneCAN node's vendor status code.
 * ``STATUSTEXT`` for the pilot (:func:`state_text`, docs/contracts.md): on every state change (and once
-  at start), when a CHT reaches its limit and when it is back below, when the CHT spread alarm rises.
+  at start), while INPUT_STALE when more inputs are lost than the last text named (again, with all of
+  them: a dropped link loses the inputs of its slower messages first), when a CHT reaches its limit and
+  when it is back below, when the CHT spread alarm rises.
   Severity (:data:`SEVERITY`): NOMINAL INFO, UNAVAILABLE NOTICE, SUSPECT and INPUT_STALE WARNING,
   DEGRADED and SENSOR_FAULT CRITICAL, a CHT at its limit ALERT. A text longer than 50 characters is
   sent in chunks of 50 (MAVLink 2 ``id`` and ``chunk_seq``, as the message definition says a long
@@ -261,6 +263,7 @@ class MavlinkPublisher:
         self._efi_every_s = 1.0 / settings.efi_status_hz if settings.efi_status_hz > 0.0 else math.inf
         self._efi_s = -math.inf
         self._state: str | None = None  # the state of the last snapshot
+        self._stale_told: frozenset[str] = frozenset()  # the stale inputs the last INPUT_STALE text named
         self._over = 0  # the cylinder at its CHT limit in the last snapshot (0: none)
         self._spread = False
         self._pending: dict[str, _Text] = {}  # kind -> the text waiting for the rate limit
@@ -314,6 +317,9 @@ class MavlinkPublisher:
             first = self._state is None
             self._queue(_Text("state", SEVERITY[snap.state], state_text(snap, first), state=snap.state))
             self._state = snap.state
+            self._stale_told = frozenset(snap.stale_inputs)
+        elif snap.state == "INPUT_STALE" and not self._stale_told.issuperset(snap.stale_inputs):
+            self._more_lost(snap)
         if over != self._over:
             if over:
                 cyl = next((c for c in snap.cylinders if c.number == over), None)
@@ -329,6 +335,18 @@ class MavlinkPublisher:
             hottest = f", cyl {snap.hottest_cylinder} hottest" if snap.hottest_cylinder else ""
             self._queue(_Text("spread", _SEVERITY_WARNING, f"ENGINE: CHT spread {snap.cht_spread_c:.0f} C{hottest}"))
         self._spread = snap.spread_alarm
+
+    def _more_lost(self, snap: HealthSnapshot) -> None:
+        """While INPUT_STALE, inputs lost since the text that named the lost ones: told again with the whole set
+        (a link that drops loses the inputs of its slower messages first: the first text names only those). A
+        text of the state still waiting for the rate takes the whole set instead."""
+        text = _Text("state", SEVERITY["INPUT_STALE"], state_text(snap), state="INPUT_STALE")
+        waiting = self._pending.get("state")
+        if waiting is not None and waiting.state == "INPUT_STALE":
+            waiting.text = text.text
+        else:
+            self._queue(text)
+        self._stale_told = frozenset(snap.stale_inputs)
 
     def _queue(self, text: _Text) -> None:
         """Queue a text; one of the same kind still waiting is merged into it (module docstring)."""
