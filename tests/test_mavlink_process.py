@@ -208,6 +208,7 @@ def test_daemon_on_udp_heard_by_pymavlink_link_drops_and_returns(ns: Namespace) 
     _, stderr = daemon.communicate(timeout=20)
     assert daemon.returncode == 0, stderr
     assert "Traceback" not in stderr
+    assert f"engine UAV-ENG-0001, MAVLink udpin:127.0.0.1:{port_in} -> udpout:127.0.0.1:{port_out}, state" in stderr
     states = re.findall(r"engine state (\w+) \(was (\w+)\) at t = ([\d.]+) s", stderr)  # the daemon's log
     assert [s[:2] for s in states] == [("UNAVAILABLE", "none"), ("NOMINAL", "UNAVAILABLE"), ("INPUT_STALE", "NOMINAL"),
                                        ("NOMINAL", "INPUT_STALE")], states  # fmt: skip
