@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -223,6 +224,7 @@ def live_part(live_s: float) -> None:
         daemon.wait(timeout=30)
         reader.close()
     logged = log_path.read_text()
+    shutil.rmtree(tmp, ignore_errors=True)
     states = [(float(t), new, old) for new, old, t in _STATE_LINE.findall(logged)]
     print(f"live: {live_s:.0f} s of short_hop at speed 1 into the daemon (pid {daemon.pid}), gamma_Q {GAMMA_Q} from"
           f" {LIVE_ONSET_S:.0f} s, outages {', '.join(f'{a:.0f}-{b:.0f}' for a, b in OUTAGES_S)} s;"
