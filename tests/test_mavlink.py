@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import socket
 import threading
 import time
@@ -335,6 +336,7 @@ def test_statustext_wording_severity_and_chunks_of_at_most_50() -> None:
         assert len(state_text(_snap(state, gq=1.5, gd=0.5))) <= MAX_TEXT, state
     long = "x" * 120
     assert text_chunks(long) == ["x" * 50, "x" * 50, "x" * 20]
+    assert text_chunks("y" * 100) == ["y" * 50, "y" * 50, ""]  # the last chunk is the shorter one (MAVProxy)
     assert text_chunks(long, mavlink1=True) == ["x" * 47 + "..."]
     assert SEVERITY["NOMINAL"] == ML.MAV_SEVERITY_INFO and SEVERITY["SUSPECT"] == ML.MAV_SEVERITY_WARNING
     assert SEVERITY["DEGRADED"] == SEVERITY["SENSOR_FAULT"] == ML.MAV_SEVERITY_CRITICAL
@@ -371,6 +373,33 @@ def test_statustext_rate_limit_delays_and_merges_but_never_drops_a_state() -> No
     merged = pub.sent_texts[-1]
     assert merged[0].startswith("ENGINE: CHT probe fault, SENSOR_FAULT (via ") and merged[1] == ML.MAV_SEVERITY_CRITICAL
     assert pub.sent_texts[-1][0].endswith("(via SUSPECT, DEGRADED, SUSPECT, NOMINAL)")
+
+
+def test_inputs_lost_after_the_input_stale_text_are_told_again_with_the_whole_set() -> None:
+    """A dropped link: the inputs of the 5 Hz messages go stale first, EFI_STATUS's 0.1 s later; the pilot is
+    told the first, then all (and nothing more while the set does not grow)."""
+    pub = MavlinkPublisher(MavlinkSettings(), 180.0)
+    slow, fast = ("oat_c", "altitude_m", "airspeed_mps"), ("rpm", "throttle_pct", "cht_c", "fuel_flow_lph")
+    snaps = [_snap("NOMINAL")] * 3 + [_snap("INPUT_STALE", stale=slow)] + [_snap("INPUT_STALE", stale=slow + fast)] * 3
+    snaps += [_snap("INPUT_STALE", stale=fast)] * 2 + [_snap("NOMINAL")] * 5
+    for k, snap in enumerate(snaps):
+        pub.messages(0.1 * k, snap)
+    texts = [text for text, _ in pub.sent_texts]
+    assert texts[1:] == [
+        "ENGINE monitor: OAT+altitude+airspeed lost, INPUT_STALE",
+        "ENGINE monitor: OAT+altitude+airspeed+rpm+throttle+CHT+fuel flow lost, INPUT_STALE",
+        "ENGINE: normal, NOMINAL, CHT 150 C",
+    ], texts
+    assert [sev for _, sev in pub.sent_texts[1:3]] == [ML.MAV_SEVERITY_WARNING] * 2
+    # a text still waiting for the rate takes the whole set: one text, no "(via INPUT_STALE)"
+    pub = MavlinkPublisher(MavlinkSettings(statustext_per_s=1.0), 180.0)
+    for k, snap in enumerate([_snap("NOMINAL"), _snap("INPUT_STALE", stale=slow), _snap("INPUT_STALE", stale=fast)]):
+        pub.messages(0.1 * k, snap)
+    for k in range(3, 20):
+        pub.messages(0.1 * k, _snap("INPUT_STALE", stale=slow + fast))
+    assert [text for text, _ in pub.sent_texts][1:] == [
+        "ENGINE monitor: OAT+altitude+airspeed+rpm+throttle+CHT+fuel flow lost, INPUT_STALE"
+    ]
 
 
 def test_named_value_float_names_rate_and_values() -> None:
@@ -562,3 +591,25 @@ def test_the_publishers_bytes_reach_a_pymavlink_reader_over_udp() -> None:
         (ML.MAV_SEVERITY_INFO, "ENGINE: normal, NOMINAL, CHT 150 C"),
         (ML.MAV_SEVERITY_CRITICAL, "ENGINE: heat-in +18 %, DEGRADED"),
     ]
+
+
+@pytest.mark.slow
+def test_demo_over_mavlink_tells_the_pilot_nominal_then_degraded(tmp_path: Path, capsys: Any) -> None:
+    """``ecu-monitor demo --protocol mavlink``: the virtual autopilot's messages into the service, its STATUSTEXT
+    printed and written; gamma_Q 1.2 after the detector's warm-up gives SUSPECT then DEGRADED, critical."""
+    from ecu_monitor.cli import main
+
+    out = tmp_path / "d"
+    args = ["demo", "--protocol", "mavlink", "--mission", "short_hop", "--inject-at", "650", "--out", str(out)]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "MAVLink messages from the virtual autopilot" in printed and " 0 malformed" in printed
+    texts = (out / "statustext.csv").read_text(encoding="utf-8").splitlines()
+    assert texts[0] == "time_s,severity,text"
+    assert texts[1].startswith('0.1,INFO,"ENGINE: monitoring, NOMINAL, CHT ')
+    assert re.fullmatch(r'\d+\.\d,CRITICAL,"ENGINE: heat-in \+\d+ %, DEGRADED"', texts[-1]), texts
+    assert float(texts[-1].split(",")[0]) > 650.0 and "DEGRADED at t = " in printed
+    assert "CRITICAL  ENGINE: heat-in" in printed
+    assert (out / "health.csv").stat().st_size > 1000
+    assert main(["demo", "--protocol", "mavlink", "--cylinders", "2", "--out", str(out)]) == 2
+    assert "EFI_STATUS carries one CHT" in capsys.readouterr().err

@@ -11,7 +11,12 @@ frame timestamps); a progress line shows mission time, CHT measured and estimate
 state; the detection time is printed at the end. ``--protocol dronecan``: the virtual ECU speaks
 DroneCAN instead (an engine node's ICE status and an air-data node's messages, 10 Hz), the service
 reads them through the shipped dronecan.yaml and answers as a DroneCAN node (NodeStatus, KeyValue,
-LogMessage), which the ECU side counts as the autopilot would.
+LogMessage), which the ECU side counts as the autopilot would. ``--protocol mavlink``: the virtual ECU
+sends the stream an autopilot would (virtual_bus/mavlink_emitter.py: HEARTBEAT, EFI_STATUS 10 Hz, VFR_HUD
+and SCALED_PRESSURE 5 Hz), no bus between: each message is parsed by pymavlink from its bytes and fed to
+the service (the shipped mavlink.yaml) at its mission time, and what the service would send as a MAVLink
+component (HEARTBEAT, STATUSTEXT, NAMED_VALUE_FLOAT) is counted; its STATUSTEXT texts, the pilot's view,
+are printed with their mission times and written to statustext.csv.
 
 Writes into DIR (default demo-out): flight.csv (the virtual ECU's canonical log with the truth:
 cht_true_c, gamma_q, gamma_d), health.csv (the service's rows, 10 Hz), and the plots cht.png (CHT
@@ -32,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG
+from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
 
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
@@ -70,9 +75,10 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--protocol",
-        choices=("dbc", "dronecan"),
+        choices=("dbc", "dronecan", "mavlink"),
         default="dbc",
-        help="what the virtual ECU and the service speak: engine.dbc/health.dbc frames (dbc, default) or DroneCAN",
+        help="what the virtual ECU and the service speak: engine.dbc/health.dbc frames (dbc, default), DroneCAN, or"
+        " MAVLink (the autopilot's stream in, HEARTBEAT/STATUSTEXT/NAMED_VALUE_FLOAT out; one CHT channel)",
     )
     parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
@@ -116,8 +122,6 @@ def _run(args: argparse.Namespace) -> int:
     import can
 
     from ecu_monitor.config import load_config
-    from ecu_monitor.flightlog import write_csv
-    from ecu_monitor.offline.replay import write_health_csv
     from ecu_monitor.runtime.publishers import LiveMonitor
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.missions import load_mission
@@ -130,6 +134,10 @@ def _run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
     mission = load_mission(args.mission)
+    if args.protocol == "mavlink":
+        if args.cylinders != 1:
+            raise ConfigError("--cylinders: MAVLink's EFI_STATUS carries one CHT: --protocol mavlink flies one channel")
+        return _run_mavlink(args, out, mission, load_config(MAVLINK_CONFIG))
     if args.cylinders == 1:
         config = load_config(DRONECAN_CONFIG if args.protocol == "dronecan" else DEFAULT_CONFIG)
     else:
@@ -187,17 +195,6 @@ def _run(args: argparse.Namespace) -> int:
     if tty:
         print(file=sys.stderr)
     rows = listener.rows
-    write_csv(log, out / "flight.csv")
-    write_health_csv(rows, out / "health.csv")
-    detected = _first(rows, "DEGRADED")
-    suspect = _first(rows, "SUSPECT")
-    try:
-        plot_report(log, rows, out, params.cht_limit_c, args.inject_at, args.gamma_q, detected)
-        plots = ", cht.png, detection.png, gammas.png, headroom.png" + (", cylinders.png" if heads else "")
-    except ModuleNotFoundError as exc:  # the daemon's lean install: CSVs only
-        if exc.name != "matplotlib":
-            raise
-        plots = "; no plots: pip install 'ecu-monitor[tools]' for them"
     c = pipeline.counters
     back = "DroneCAN node" if args.protocol == "dronecan" else "health"
     print(
@@ -205,10 +202,45 @@ def _run(args: argparse.Namespace) -> int:
         f"({log.duration_s / wall:.0f}x real time); {counts['sent']} frames over the virtual bus, "
         f"{c['ok']} decoded, {c['malformed']} malformed, {counts['health_back']} {back} frames back"
     )
+    plots = _write_report(
+        args, out, log, rows, mission=mission.name, cht_limit_c=params.cht_limit_c, cylinders=bool(heads)
+    )
+    if listener.errors:
+        print(f"bus errors in the service listener: {len(listener.errors)} (first: {listener.errors[0]})")
+    print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows){plots}")
+    return 0
+
+
+def _write_report(
+    args: argparse.Namespace,
+    out: Path,
+    log: FlightLog,
+    rows: list[HealthSnapshot],
+    *,
+    mission: str,
+    cht_limit_c: float,
+    cylinders: bool,
+) -> str:
+    """flight.csv, health.csv and the plots written, the detection line printed; returns the plots' part of the
+    closing line."""
+    from ecu_monitor.flightlog import write_csv
+    from ecu_monitor.offline.replay import write_health_csv
+
+    write_csv(log, out / "flight.csv")
+    write_health_csv(rows, out / "health.csv")
+    detected = _first(rows, "DEGRADED")
+    suspect = _first(rows, "SUSPECT")
+    try:
+        plot_report(log, rows, out, cht_limit_c, args.inject_at, args.gamma_q, detected)
+        plots = ", cht.png, detection.png, gammas.png, headroom.png" + (", cylinders.png" if cylinders else "")
+    except ModuleNotFoundError as exc:  # the daemon's lean install: CSVs only
+        if exc.name != "matplotlib":
+            raise
+        plots = "; no plots: pip install 'ecu-monitor[tools]' for them"
     if args.inject_at >= log.duration_s:
         print(
             f"gamma_Q = {args.gamma_q:g} NOT injected: --inject-at {args.inject_at:g} s is after the end of the flight"
-            f" ({log.duration_s:.0f} s of mission {mission.name})"
+            f" ({log.duration_s:.0f} s of mission {mission})"
         )
     elif detected is None:
         print(
@@ -221,9 +253,84 @@ def _run(args: argparse.Namespace) -> int:
             f"detected after {detected - args.inject_at:.1f} s{lead}; gamma_Q estimate at the end "
             f"{rows[-1].gamma_q:.3f}"
         )
-    if listener.errors:
-        print(f"bus errors in the service listener: {len(listener.errors)} (first: {listener.errors[0]})")
-    print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows){plots}")
+    return plots
+
+
+#: MAV_SEVERITY names (common.xml), for the STATUSTEXT lines of the MAVLink demo.
+_SEVERITY_NAMES = ("EMERGENCY", "ALERT", "CRITICAL", "ERROR", "WARNING", "NOTICE", "INFO", "DEBUG")
+
+
+def _run_mavlink(args: argparse.Namespace, out: Path, mission: Any, config: ServiceConfig) -> int:
+    """The demo over MAVLink (module docstring): the virtual autopilot's messages straight into the service."""
+    from ecu_monitor.bus.mavlink import mavlink_module
+    from ecu_monitor.runtime.publishers import LiveMonitor
+    from virtual_bus.mavlink_emitter import MavlinkFrameEncoder
+    from virtual_bus.plant import Degradation, collect, iter_steps, record_every
+
+    params = config.load_params()
+    injection = Degradation("gamma_q", args.gamma_q, args.inject_at)
+    monitor = LiveMonitor(config, params)
+    encoder = MavlinkFrameEncoder()
+    parser = mavlink_module().MAVLink(None)  # the bytes of each message parsed as a link's receiver would
+    parser.robust_parsing = True
+    rows: list[HealthSnapshot] = []
+    sent: dict[str, int] = {}
+    back: dict[str, int] = {}
+    texts: list[tuple[float, int, str]] = []  # (mission time s, severity, the whole text)
+    chunks: dict[int, list[str]] = {}  # STATUSTEXT id -> chunks so far (the last one is shorter than 50)
+    tty = sys.stderr.isatty()
+    started = time.perf_counter()
+    last_line = [0.0]
+
+    def take(time_s: float, messages: list[Any]) -> None:
+        for msg in messages:
+            kind = msg.get_type()
+            back[kind] = back.get(kind, 0) + 1
+            if kind != "STATUSTEXT":
+                continue
+            parts = chunks.setdefault(msg.id, []) if msg.id else []
+            parts.append(msg.text)
+            if msg.id and len(msg.text) == 50:
+                continue
+            chunks.pop(msg.id, None)
+            texts.append((time_s, int(msg.severity), "".join(parts)))
+
+    def fly() -> Iterator[Any]:
+        for block in iter_steps(mission, params, degradation=(injection,), seed=args.seed):
+            for frame in encoder.frames(block):
+                sent[frame.name] = sent.get(frame.name, 0) + 1
+                for msg in parser.parse_buffer(frame.data) or ():
+                    take(frame.timestamp, monitor.advance_to(frame.timestamp))
+                    monitor.feed(msg)
+                rows.extend(monitor.drain_rows())
+            now = time.perf_counter()
+            if now - last_line[0] >= (0.5 if tty else 10.0):
+                last_line[0] = now
+                snap = monitor.snapshot()
+                line = (f"demo: t = {block.time_s[-1]:6.0f} s  CHT measured {snap.cht_meas_c:5.1f}  estimated "
+                        f"{snap.cht_est_c:6.2f} degC  state {snap.state:<12s} gamma_Q {snap.gamma_q:4.2f}")  # fmt: skip
+                print(f"\r{line}" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+            yield block
+
+    log: FlightLog = collect(fly(), record_every(0.02, 0.1), source=f"demo:{mission.name}:seed={args.seed}")
+    wall = time.perf_counter() - started
+    if tty:
+        print(file=sys.stderr)
+    c = monitor.counters
+    print(
+        f"flew {log.duration_s / 60.0:.1f} min of mission {mission.name} in {wall:.1f} s "
+        f"({log.duration_s / wall:.0f}x real time); {sum(sent.values())} MAVLink messages from the virtual autopilot"
+        f" ({', '.join(f'{n} {k}' for k, n in sent.items())}), {c['ok']} decoded, {c['malformed']} malformed;"
+        f" the service sent {', '.join(f'{n} {k}' for k, n in sorted(back.items()))}"
+    )
+    print("STATUSTEXT, as the ground station shows it:")
+    for time_s, severity, text in texts:
+        print(f"  t = {time_s:7.1f} s  {_SEVERITY_NAMES[severity]:<8s}  {text}")
+    with (out / "statustext.csv").open("w", encoding="utf-8") as f:
+        f.write("time_s,severity,text\n")
+        f.writelines(f'{time_s:.1f},{_SEVERITY_NAMES[severity]},"{text}"\n' for time_s, severity, text in texts)
+    plots = _write_report(args, out, log, rows, mission=mission.name, cht_limit_c=params.cht_limit_c, cylinders=False)
+    print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows), statustext.csv ({len(texts)} texts){plots}")
     return 0
 
 

@@ -205,13 +205,12 @@ def _run(args: argparse.Namespace) -> int:
 
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
-        _log.info(
-            "engine %s, bus %s:%s, state %s",
-            config.engine_serial,
-            config.bus.get("interface"),
-            config.bus.get("channel"),
-            store.path,
-        )
+        if config.protocol == "mavlink":
+            output = config.mavlink.output
+            link = f"MAVLink {config.mavlink.connection}" + (f" -> {output}" if output else "")
+        else:
+            link = f"bus {config.bus.get('interface')}:{config.bus.get('channel')}"
+        _log.info("engine %s, %s, state %s", config.engine_serial, link, store.path)
         try:
             code = daemon.run()
         finally:

@@ -10,8 +10,9 @@ publishers) under one lock:
 * the tick thread: every 20 ms ``advance_to(now)``, so the 50 Hz steps and the health frames go on when
   the frames stop (that is how staleness gets reported);
 * the supervisor (the thread that calls :meth:`Daemon.run`): reopens a failed bus with backoff, feeds
-  the health rows to the flight recorder (SQLite writes stay off the frame path), pings the systemd
-  watchdog only while ``pipeline.steps_done`` grows, updates ``STATUS=`` and the log.
+  the health rows to the flight recorder (SQLite writes stay off the frame path), logs each change of the
+  engine's state (``engine state DEGRADED (was SUSPECT) at t = ... s``, t on the daemon's monotonic
+  clock), pings the systemd watchdog only while ``pipeline.steps_done`` grows, updates ``STATUS=`` and the log.
 
 Bus failures never end the process: a receive error (python-can's ``CanError`` or ``OSError`` from
 ``recv``, or anything else ``recv`` raises, logged by :meth:`Daemon._guarded`), a failed open, and every
@@ -201,6 +202,7 @@ class Daemon:
         self._collections = 0  # supervisor periods since the start (the collections it ran)
         self._manual_gc = False  # automatic collection switched off by run()
         self._switch_interval_before: float | None = None  # the interpreter's, while run() has its own
+        self._state: str | None = None  # the engine's state in the last health row logged (_log_states)
         self._silence = SilenceWatch(self.settings.no_frames_warning_s, clock())
         self._errors_by_path: dict[str, int] = {}
         self._watchdog = WatchdogGate(self.settings.watchdog_period_s)
@@ -388,12 +390,14 @@ class Daemon:
     def _record(self) -> None:
         if self._recorder is None:
             with self._lock:
-                self.pipeline.drain_rows()
+                rows = self.pipeline.drain_rows()
+            self._log_states(rows)
             return
         with self._lock:
             rows = self.pipeline.drain_rows()
             rpm = self._engine_speed() if self._engine_speed is not None else None
             offset = self._wall_clock() - self._clock()
+        self._log_states(rows)
         for row in rows:  # the rows of the last supervisor period (0.1 s): the engine speed held now
             cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
             self._recorder.add(
@@ -420,6 +424,14 @@ class Daemon:
                 )
             )
         self.counters["rows_recorded"] += len(rows)
+
+    def _log_states(self, rows: Sequence[Any]) -> None:
+        """One INFO line per change of the engine's state among the health rows, with the row's time on the
+        daemon's clock (monotonic, s): the instant the publishers were given the new state."""
+        for row in rows:
+            if row.state != self._state:
+                _log.info("engine state %s (was %s) at t = %.3f s", row.state, self._state or "none", row.time_s)
+                self._state = row.state
 
     def _status_line(self) -> str:
         with self._lock:

@@ -16,11 +16,14 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
   (Health_Status.DegradationState: 0 NOMINAL .. 5 UNAVAILABLE) in bits 0-3 and the stale inputs
   (Health_Diag.StaleInputs bits) from bit 4, as the DroneCAN node's vendor status code.
 * ``STATUSTEXT`` for the pilot (:func:`state_text`, docs/contracts.md): on every state change (and once
-  at start), when a CHT reaches its limit and when it is back below, when the CHT spread alarm rises.
+  at start), while INPUT_STALE when more inputs are lost than the last text named (again, with all of
+  them: a dropped link loses the inputs of its slower messages first), when a CHT reaches its limit and
+  when it is back below, when the CHT spread alarm rises.
   Severity (:data:`SEVERITY`): NOMINAL INFO, UNAVAILABLE NOTICE, SUSPECT and INPUT_STALE WARNING,
   DEGRADED and SENSOR_FAULT CRITICAL, a CHT at its limit ALERT. A text longer than 50 characters is
   sent in chunks of 50 (MAVLink 2 ``id`` and ``chunk_seq``, as the message definition says a long
-  text is reassembled; ``id`` 0 for a text of one chunk); on MAVLink 1 it is cut to 50. At most
+  text is reassembled; ``id`` 0 for a text of one chunk; a text of a whole number of chunks ends with an
+  empty one, since receivers take a chunk shorter than 50 as the last); on MAVLink 1 it is cut to 50. At most
   ``mavlink.statustext_per_s`` texts a second (a token bucket; a text's chunks count once): a text that
   would pass the rate waits. Nothing is dropped: a new text of the same kind (state, limit, spread)
   that comes while one is waiting is merged with it, with the more severe severity of the two: a state
@@ -172,13 +175,15 @@ def state_text(snap: HealthSnapshot, first: bool = False) -> str:
 
 def text_chunks(text: str, mavlink1: bool = False) -> list[str]:
     """``text`` in STATUSTEXT chunks of at most :data:`MAX_TEXT` characters (ASCII; MAVLink 1: one,
-    cut with '...')."""
+    cut with '...'). A receiver knows the last chunk of a text by its being shorter than MAX_TEXT (MAVProxy
+    waits for one): a text of a whole number of chunks ends with an empty chunk."""
     text = text.encode("ascii", "replace").decode("ascii")
     if len(text) <= MAX_TEXT:
         return [text]
     if mavlink1:
         return [text[: MAX_TEXT - 3] + "..."]
-    return [text[i : i + MAX_TEXT] for i in range(0, len(text), MAX_TEXT)]
+    chunks = [text[i : i + MAX_TEXT] for i in range(0, len(text), MAX_TEXT)]
+    return [*chunks, ""] if len(chunks[-1]) == MAX_TEXT else chunks
 
 
 def named_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
@@ -258,6 +263,7 @@ class MavlinkPublisher:
         self._efi_every_s = 1.0 / settings.efi_status_hz if settings.efi_status_hz > 0.0 else math.inf
         self._efi_s = -math.inf
         self._state: str | None = None  # the state of the last snapshot
+        self._stale_told: frozenset[str] = frozenset()  # the stale inputs the last INPUT_STALE text named
         self._over = 0  # the cylinder at its CHT limit in the last snapshot (0: none)
         self._spread = False
         self._pending: dict[str, _Text] = {}  # kind -> the text waiting for the rate limit
@@ -311,6 +317,9 @@ class MavlinkPublisher:
             first = self._state is None
             self._queue(_Text("state", SEVERITY[snap.state], state_text(snap, first), state=snap.state))
             self._state = snap.state
+            self._stale_told = frozenset(snap.stale_inputs)
+        elif snap.state == "INPUT_STALE" and not self._stale_told.issuperset(snap.stale_inputs):
+            self._more_lost(snap)
         if over != self._over:
             if over:
                 cyl = next((c for c in snap.cylinders if c.number == over), None)
@@ -326,6 +335,18 @@ class MavlinkPublisher:
             hottest = f", cyl {snap.hottest_cylinder} hottest" if snap.hottest_cylinder else ""
             self._queue(_Text("spread", _SEVERITY_WARNING, f"ENGINE: CHT spread {snap.cht_spread_c:.0f} C{hottest}"))
         self._spread = snap.spread_alarm
+
+    def _more_lost(self, snap: HealthSnapshot) -> None:
+        """While INPUT_STALE, inputs lost since the text that named the lost ones: told again with the whole set
+        (a link that drops loses the inputs of its slower messages first: the first text names only those). A
+        text of the state still waiting for the rate takes the whole set instead."""
+        text = _Text("state", SEVERITY["INPUT_STALE"], state_text(snap), state="INPUT_STALE")
+        waiting = self._pending.get("state")
+        if waiting is not None and waiting.state == "INPUT_STALE":
+            waiting.text = text.text
+        else:
+            self._queue(text)
+        self._stale_told = frozenset(snap.stale_inputs)
 
     def _queue(self, text: _Text) -> None:
         """Queue a text; one of the same kind still waiting is merged into it (module docstring)."""
