@@ -157,6 +157,8 @@ def test_daemon_on_udp_heard_by_pymavlink_link_drops_and_returns(ns: Namespace) 
     daemon = _daemon(ns, _config(ns, port_in, output=f"udpout:127.0.0.1:{port_out}"))
     heard = lambda _: any(r["src"] == SERVICE for r in _rows(reader, "HEARTBEAT"))  # noqa: E731
     assert reader.wait_for(heard, START_S), f"no HEARTBEAT from the daemon: {daemon.poll()}"
+    # the text goes out right after the HEARTBEAT of the same health row: the reader may print it a moment later
+    assert reader.wait_for(lambda _: _text_after(reader, "started", 0.0) is not None, 5), _texts(reader)
     started = _text_after(reader, "started", 0.0)
     assert started is not None and started["severity"] == NOTICE, _texts(reader)
     assert started["text"] == "ENGINE monitor: started, UNAVAILABLE" and started["src"] == SERVICE
