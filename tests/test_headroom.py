@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ecu_monitor.errors import EstimationError
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom, time_to_limit_s
+from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
 from ecu_monitor.model import Drive, InputSeries, coefficients, compute_drive, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
 
@@ -82,11 +82,18 @@ def test_time_to_limit_matches_the_virtual_ecu_truth_plant() -> None:
     assert room.time_to_limit_s == pytest.approx(actual, rel=0.05, abs=5.0)
 
 
-def test_time_to_limit_equals_the_full_headroom_with_or_without_a_drive_at_hand() -> None:
-    """The live pipeline's time_to_limit_s (convective bound first, drive passed in) gives exactly what
-    thermal_headroom gives, at operating points on both sides of the limit and at it."""
+def test_the_steps_headroom_equals_the_full_headroom() -> None:
+    """The one step's compiled headroom (pipeline/step.py: convective bound first, Newton stopped below the
+    limit, the march) gives what thermal_headroom gives (Python floats, written separately), at operating
+    points on both sides of the limit and at it."""
+    from ecu_monitor.model import pack_coefficients
+    from ecu_monitor.model.thermal import unpack_coefficients
+    from ecu_monitor.pipeline.step import compiled
+
     params = paper_table_a1()
     coeffs = coefficients(params)
+    packed = unpack_coefficients(*pack_coefficients(coeffs))
+    headroom = compiled().headroom_s
     rng = np.random.default_rng(13)
     lo = np.array([20.0, 2000.0, 0.0, 10.0, -20.0])
     hi = np.array([100.0, 9500.0, 4000.0, 60.0, 40.0])
@@ -97,9 +104,8 @@ def test_time_to_limit_equals_the_full_headroom_with_or_without_a_drive_at_hand(
         gamma_q, gamma_d = (float(v) for v in rng.uniform(0.8, 1.4, size=2))
         full = thermal_headroom(cht, None, u, params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=coeffs)
         drive = Drive(*(float(v) for v in compute_drive(u, coeffs)))
-        for given in (None, drive):
-            got = time_to_limit_s(cht, u, params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=coeffs, drive=given)
-            assert got == full.time_to_limit_s
+        got = headroom(cht, np.array(drive, dtype=float), packed, gamma_q, gamma_d, params.cht_limit_c)
+        assert got == pytest.approx(full.time_to_limit_s, rel=0.0, abs=1e-9)
         heat = gamma_q * gamma_d * drive.heat_gain * drive.altitude_gain * drive.q_sl0_w
         bound = drive.ambient_c + heat / drive.conductance_w_per_c
         if full.time_to_limit_s == 0.0:
@@ -109,5 +115,3 @@ def test_time_to_limit_equals_the_full_headroom_with_or_without_a_drive_at_hand(
         else:  # not limited: by the convective bound alone, or by Newton (stopped below the limit, or converged)
             outcomes.add("not limited, bound above the limit" if bound >= params.cht_limit_c else "not limited")
     assert outcomes == {"at the limit", "limited", "not limited", "not limited, bound above the limit"}
-    with pytest.raises(EstimationError):
-        time_to_limit_s(float("nan"), FULL_THROTTLE, params, gamma_q=1.0, gamma_d=1.0, coeffs=coeffs)

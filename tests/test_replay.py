@@ -16,7 +16,7 @@ import yaml
 from ecu_monitor.bus.canlog import FrameArrays, read_frames
 from ecu_monitor.cli import main
 from ecu_monitor.config import load_config
-from ecu_monitor.model import InputSeries, paper_table_a1
+from ecu_monitor.model import paper_table_a1
 from ecu_monitor.offline.replay import replay_file, replay_frames, replay_live
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,36 +162,6 @@ def test_replay_of_a_csv_runs_the_same_path(flight: dict[str, Path]) -> None:
     result = replay_file(flight["csv"], config, config.load_params())
     assert result.counters["malformed"] == 0 and result.counters["ok"] == result.counters["frames"]
     assert {r.state for r in result.rows[:100]} == {"NOMINAL"}
-
-
-def test_the_steps_headroom_equals_the_reference_function() -> None:
-    """The one step's compiled headroom (pipeline/step.py) against estimation/headroom.py's thermal_headroom
-    (Python floats, the steady state and the march written separately) on random operating points."""
-    from ecu_monitor.estimation.headroom import thermal_headroom
-    from ecu_monitor.model import Drive, coefficients, compute_drive
-    from ecu_monitor.model.thermal import unpack_coefficients
-    from ecu_monitor.pipeline.step import compiled
-
-    params = paper_table_a1()
-    coeffs = coefficients(params)
-    headroom = compiled().headroom_s
-    rng = np.random.default_rng(2)
-    answers = []
-    for _ in range(200):
-        u = InputSeries(rng.uniform(20, 100), rng.uniform(3000, 9000), rng.uniform(0, 3000), rng.uniform(15, 30),
-                        rng.uniform(-10, 30))  # fmt: skip
-        cht, gq, gd = rng.uniform(90, 160), rng.uniform(0.9, 1.4), rng.uniform(0.9, 1.3)
-        drive = Drive(*(float(v) for v in compute_drive(u, coeffs)))
-        expected = thermal_headroom(cht, None, u, params, gamma_q=gq, gamma_d=gd, coeffs=coeffs).time_to_limit_s
-        from ecu_monitor.model import pack_coefficients
-
-        packed = pack_coefficients(coeffs)
-        unpacked = unpack_coefficients(*packed)
-        got = headroom(cht, np.array(drive, dtype=float), unpacked, gq, gd, params.cht_limit_c)
-        assert got == pytest.approx(expected, abs=1e-6)
-        answers.append(expected)
-    limited = np.array(answers)
-    assert 0 < np.count_nonzero((limited > 0) & (limited < 6000)) < limited.size  # some limited, some not
 
 
 def test_replay_bad_config_exits_2_with_one_line(flight: dict[str, Path], tmp_path: Path,

@@ -29,12 +29,10 @@ from ecu_monitor.model import (
     steady_state_cht,
 )
 
-__all__ = ["DEFAULT_CAP_S", "Headroom", "thermal_headroom", "time_to_limit_s"]
+__all__ = ["DEFAULT_CAP_S", "Headroom", "thermal_headroom"]
 
 #: Headroom reported when the limit is not reached (100 min): "not limited at this power".
 DEFAULT_CAP_S = 6000.0
-#: A Newton iterate of the steady state this far below the limit (degC) settles that the steady state is below it.
-_SETTLED_C = 1e-6
 
 
 class Headroom(NamedTuple):
@@ -92,47 +90,6 @@ def thermal_headroom(
         temp = new_temp
         elapsed += step_s
     return Headroom(cap_s, steady, margin, False)
-
-
-def time_to_limit_s(
-    cht_c: float,
-    inputs: InputSeries,
-    params: ThermalParams,
-    *,
-    gamma_q: float,
-    gamma_d: float,
-    coeffs: Coefficients,
-    drive: Drive | None = None,
-    cap_s: float = DEFAULT_CAP_S,
-    step_s: float = 2.0,
-) -> float:
-    """``thermal_headroom(...).time_to_limit_s`` (heat path in steady state), s, computing only what it needs.
-
-    At or over the limit the answer is 0 without the steady state. When the convective-only solution
-    (ambient + heat / conductance, an upper bound of the steady state: radiation only takes heat out) is below
-    the limit, the answer is ``cap_s`` without Newton's iterations: the test the batch path makes
-    (``service.batch_health.headroom_batch``); else Newton stops at its first iterate below the limit by
-    ``_SETTLED_C`` (its iterates fall monotonically onto the steady state, rounding is ~1e-12 degC), which
-    settles "not limited" before they converge. ``drive``: the model's drive at ``inputs`` when it is at hand
-    (the live pipeline takes the one its estimator's compiled call has just computed from the same inputs,
-    equal bit for bit to ``compute_drive``).
-    """
-    _check(cht_c, gamma_q, gamma_d, cap_s, step_s)
-    limit = params.cht_limit_c
-    if not limit - cht_c > 0.0:
-        return 0.0  # thermal_headroom's answer for a margin <= 0
-    if drive is None:
-        drive = _drive_at(inputs, coeffs)
-    heat = gamma_q * gamma_d * drive.heat_gain * drive.altitude_gain * drive.q_sl0_w
-    conductance = drive.conductance_w_per_c
-    if heat >= 0.0 and conductance != 0.0 and drive.ambient_c + heat / conductance < limit:
-        return cap_s
-    if steady_state_cht(drive, coeffs, gamma_q, gamma_d, below=limit - _SETTLED_C) < limit:
-        return cap_s
-    return thermal_headroom(
-        cht_c, None, inputs, params, gamma_q=gamma_q, gamma_d=gamma_d, cap_s=cap_s, step_s=step_s, coeffs=coeffs,
-        drive=drive,
-    ).time_to_limit_s  # fmt: skip
 
 
 def _check(cht_c: float, gamma_q: float, gamma_d: float, cap_s: float, step_s: float) -> None:

@@ -430,14 +430,6 @@ class IsolationFilter:
         p = self._require()[0][_P : _P + 9].reshape(3, 3)
         return p[1:, 1:].copy()
 
-    def live_arrays(
-        self,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Copies of what its compiled live call reads: (state, held drive, model vector, settings vector),
-        for a caller that runs that call itself (``service.live_call``)."""
-        s, _ = self._require()
-        return s.copy(), self._drive_vec.copy(), self._model.copy(), self._cfg.copy()
-
     def initialise(self, t_s: float, u: InputSeries, z_cht_c: float) -> None:
         """Start at t_s from the first reading: T = z, gammas = 1, Pade state in steady state."""
         if not math.isfinite(z_cht_c):
