@@ -475,6 +475,17 @@ def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: flo
     st["last_call_s"] = time_s
 
 
+def _ekf_call(state: Any, drive: Any, cfg: Any, scratch: Any, u: Any, z: float, measured: bool, cs: Any, hv: Any,
+              xb: Any, yb: Any, use_deviation: bool, reset_code: int, steps: int) -> None:  # fmt: skip
+    """One filter period of an EKF-family filter (the reference or the estimator) on its record fields."""
+    inputs = scratch[0:6].reshape((6, 1))
+    rows = scratch[6:10].reshape((4, 1))
+    result = scratch[10:13]
+    live_ekf(state, drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured, cs, hv, xb, yb,
+             cfg["dt_s"], cfg["process_var"], cfg["measurement_var"], cfg["sigmoid_a"], cfg["sigmoid_b"],
+             cfg["quantum_c"], cfg["deviation_time_s"], use_deviation, reset_code, steps)  # fmt: skip
+
+
 def cylinder_step(
     eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, reading_bad: bool, call: bool, headroom_due: bool
 ) -> None:
@@ -516,35 +527,7 @@ def cylinder_step(
         steps = round((time_s - st["last_call_s"]) / cfg["dt_s"])
         st["pending"] = st["pending"] or new_reading
         # the reference: an EKF without deviation, reset or reading (its settings are the estimator's)
-        live_ekf(
-            st["ref"],
-            st["ref_drive"],
-            inputs,
-            rows,
-            result,
-            u[0],
-            u[1],
-            u[2],
-            u[3],
-            u[4],
-            u[5],
-            np.nan,
-            False,
-            cs,
-            hv,
-            xb,
-            yb,
-            cfg["dt_s"],
-            cfg["process_var"],
-            cfg["measurement_var"],
-            cfg["sigmoid_a"],
-            cfg["sigmoid_b"],
-            cfg["quantum_c"],
-            cfg["deviation_time_s"],
-            False,
-            0,
-            steps,
-        )
+        _ekf_call(st["ref"], st["ref_drive"], cfg, eng_scratch, u, np.nan, False, cs, hv, xb, yb, False, 0, steps)
         model_c = st["ref"][0]
         sv, code, action = supervise(
             sv,
@@ -562,35 +545,8 @@ def cylinder_step(
             measured = st["pending"] and code == CODE_NOMINAL and math.isfinite(reading)
             z = reading if measured else np.nan
             if not cfg["iso_estimator"]:
-                live_ekf(
-                    st["est"],
-                    st["est_drive"],
-                    inputs,
-                    rows,
-                    result,
-                    u[0],
-                    u[1],
-                    u[2],
-                    u[3],
-                    u[4],
-                    u[5],
-                    z,
-                    measured,
-                    cs,
-                    hv,
-                    xb,
-                    yb,
-                    cfg["dt_s"],
-                    cfg["process_var"],
-                    cfg["measurement_var"],
-                    cfg["sigmoid_a"],
-                    cfg["sigmoid_b"],
-                    cfg["quantum_c"],
-                    cfg["deviation_time_s"],
-                    cfg["use_deviation"],
-                    cfg["reset_code"],
-                    steps,
-                )
+                _ekf_call(st["est"], st["est_drive"], cfg, eng_scratch, u, z, measured, cs, hv, xb, yb,
+                          cfg["use_deviation"], cfg["reset_code"], steps)  # fmt: skip
                 est_c = st["est"][0]
                 deviation = st["est"][3] / cfg["dt_s"] if cfg["use_deviation"] else 0.0
             live_isolation(
@@ -1004,9 +960,11 @@ def compiled() -> Any:
     stop = compile_(_stop_cylinder, _reset_detector=reset)
     initialise = compile_(_initialise_filters, _drive_at=drive_at)
     rate = compile_(_cht_rate)
+    ekf_call = compile_(_ekf_call)
     cylinder = compile_(
         cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at, _initialise_filters=initialise,
         _cht_rate=rate,
+        _ekf_call=ekf_call,
     )  # fmt: skip
     cross = compile_(cross_step, detector_step=detector)
     bad = compile_(_reading_bad)
