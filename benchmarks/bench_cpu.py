@@ -74,8 +74,8 @@ _IDLE_NOTIFIER_KERNEL_FILTER = textwrap.dedent(
     """
     import sys, threading, can
     from ecu_monitor.bus.kernel_filter import attach_kernel_filter
-    from ecu_monitor.service.config import load_config
-    from ecu_monitor.service.publishers import LiveMonitor
+    from ecu_monitor.config import load_config
+    from ecu_monitor.runtime.publishers import LiveMonitor
     config = load_config(sys.argv[3])
     filters = LiveMonitor(config, config.load_cylinder_params()).receive_filters()  # the daemon's
     bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]))

@@ -144,10 +144,10 @@ def run_daemon(config: Any, open_bus: Callable[[], can.BusABC], ready: threading
     """The daemon as ``ecu-monitor run`` builds it (commands/run.py), its tick off, run until ``stop`` in the
     calling thread (its recorder's SQLite connection lives there); ``ready`` is set once the bus is open.
     Returns the engine frames it took in and the health frames it made."""
-    from ecu_monitor.service.daemon import Daemon
-    from ecu_monitor.service.flight_recorder import FlightRecorder
-    from ecu_monitor.service.persistence import FlightRules, StateStore
-    from ecu_monitor.service.publishers import LiveMonitor
+    from ecu_monitor.runtime.daemon import Daemon
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.persistence import FlightRules, StateStore
+    from ecu_monitor.runtime.publishers import LiveMonitor
 
     from ecu_monitor.commands.run import daemon_settings, engine_speed_of
 
@@ -246,7 +246,7 @@ def across_processes(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def one_process(args: argparse.Namespace, case: str) -> dict[str, Any]:
-    from ecu_monitor.service.config import parse_config
+    from ecu_monitor.config import parse_config
 
     channel = f"bench-{uuid.uuid4().hex}"
 
@@ -280,7 +280,7 @@ def run_role(role: str, port: str, *argv: str) -> None:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if role == "daemon":
-        from ecu_monitor.service.config import load_config
+        from ecu_monitor.config import load_config
 
         config, ready = load_config(argv[0]), threading.Event()
         counts = in_thread(run_daemon, config, lambda: can.Bus(**dict(config.bus)), ready, stop)
