@@ -73,7 +73,7 @@ def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:
             columns.update({f"cyl{c}_{k}": floats(k) for k in CYLINDER_FLOATS})
             columns[f"cyl{c}_state"] = rng.integers(0, len(STATES), n)
         columns.update(cht_spread_c=floats("cht_spread_c"), hottest_cylinder=rng.integers(0, cylinders + 1, n),
-                       spread_alarm=rng.random(n) < 0.3)  # fmt: skip
+                       spread_alarm=rng.random(n) < 0.3, lead_cylinder=rng.integers(1, cylinders + 1, n))  # fmt: skip
     return columns
 
 

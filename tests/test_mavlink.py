@@ -327,7 +327,9 @@ def test_statustext_wording_severity_and_chunks_of_at_most_50() -> None:
     assert state_text(_snap("SUSPECT", gq=1.03, gd=1.01)) == "ENGINE: CHT +0.02 C/s off model, SUSPECT"
     cyl = CylinderSnapshot(3, 190.0, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0)
     other = CylinderSnapshot(1, 150.0, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0)
-    multi = HealthSnapshot(0.0, 190.0, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0, (), False, (other, cyl), 40.0, 3)
+    multi = HealthSnapshot(
+        0.0, 190.0, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0, (), False, (other, cyl), 40.0, 3, lead_cylinder=3
+    )
     assert state_text(multi) == "ENGINE cyl 3: heat-in +18 %, cooling -10 %, DEGRADED"
     assert state_text(_snap("INPUT_STALE", stale=("cht_c", "airspeed_mps"))) == (
         "ENGINE monitor: CHT+airspeed lost, INPUT_STALE"

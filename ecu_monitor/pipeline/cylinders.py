@@ -105,6 +105,7 @@ def engine_columns(
     hottest = np.empty(rows, dtype=np.int64)
     alarm = np.empty(rows, dtype=bool)
     fault = np.empty(rows, dtype=bool)
+    lead_number = np.empty(rows, dtype=np.int64)
     for i, cylinders in enumerate(zip(*per, strict=True)):
         view = engine_view(cylinders, spread_limit_c)
         lead = cylinders[view.lead]
@@ -113,5 +114,6 @@ def engine_columns(
         state[i] = STATES.index(lead.state)
         spread[i], hottest[i], alarm[i] = view.spread_c, view.hottest, view.alarm
         fault[i] = any(c.sensor_fault for c in cylinders)
+        lead_number[i] = lead.number
     return {**lead_values, "state": state, "sensor_fault": fault, "cht_spread_c": spread,
-            "hottest_cylinder": hottest, "spread_alarm": alarm}  # fmt: skip
+            "hottest_cylinder": hottest, "spread_alarm": alarm, "lead_cylinder": lead_number}  # fmt: skip

@@ -487,6 +487,7 @@ class Pipeline:
             hottest_cylinder=view.hottest,
             spread_alarm=view.alarm,
             cht_rate_c_per_min=lead.cht_rate_c_per_min,
+            lead_cylinder=lead.number,
         )
 
     def _empty_snapshot(self) -> HealthSnapshot:

@@ -80,6 +80,7 @@ class HealthSnapshot:
     hottest_cylinder: int = 0
     spread_alarm: bool = False
     cht_rate_c_per_min: float = float("nan")
+    lead_cylinder: int = 0  # the number of the cylinder the engine-level fields are (0: one CHT channel)
 
 
 #: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
@@ -146,7 +147,7 @@ class ReplayResult:
     state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool);
     per cylinder on an engine monitored per cylinder: ``cyl{n}_<field>`` for the float fields of
     CylinderSnapshot and ``cyl{n}_state`` (int codes), then cht_spread_c (float), hottest_cylinder (int,
-    0: none), spread_alarm (bool).
+    0: none), spread_alarm (bool), lead_cylinder (int: the cylinder the engine-level columns are).
     detector_feed (batch path only): per clock segment whose estimator started, what the detector was
     fed: (step times s from its start, symptom per step, nan where the supervisor was not NOMINAL).
     gaps (batch path only): (last frame time before, first after) of every hole in the frames longer
@@ -200,9 +201,10 @@ class ReplayResult:
             )
         return [
             dataclasses.replace(row, cylinders=tuple(cyls), cht_spread_c=spread, hottest_cylinder=hottest,
-                                spread_alarm=alarm)
-            for row, spread, hottest, alarm, *cyls in zip(
-                rows, c["cht_spread_c"].tolist(), c["hottest_cylinder"].tolist(), c["spread_alarm"].tolist(), *per,
+                                spread_alarm=alarm, lead_cylinder=lead)
+            for row, spread, hottest, alarm, lead, *cyls in zip(
+                rows, c["cht_spread_c"].tolist(), c["hottest_cylinder"].tolist(), c["spread_alarm"].tolist(),
+                c["lead_cylinder"].tolist(), *per,
                 strict=True,
             )
         ]  # fmt: skip
@@ -257,7 +259,7 @@ def empty_columns(cylinders: int = 1) -> dict[str, NDArray[Any]]:
             columns.update({f"cyl{n}_{k}": np.zeros(0) for k in _CYLINDER_FLOATS})
             columns[f"cyl{n}_state"] = np.zeros(0, dtype=np.int64)
         columns.update(cht_spread_c=np.zeros(0), hottest_cylinder=np.zeros(0, dtype=np.int64),
-                       spread_alarm=np.zeros(0, dtype=bool))  # fmt: skip
+                       spread_alarm=np.zeros(0, dtype=bool), lead_cylinder=np.zeros(0, dtype=np.int64))  # fmt: skip
     return columns
 
 
@@ -280,6 +282,7 @@ def rows_to_columns(rows: list[HealthSnapshot], cylinders: int = 1) -> dict[str,
         columns["cht_spread_c"] = np.array([r.cht_spread_c for r in rows], dtype=float)
         columns["hottest_cylinder"] = np.array([r.hottest_cylinder for r in rows], dtype=np.int64)
         columns["spread_alarm"] = np.array([r.spread_alarm for r in rows], dtype=bool)
+        columns["lead_cylinder"] = np.array([r.lead_cylinder for r in rows], dtype=np.int64)
     return columns
 
 

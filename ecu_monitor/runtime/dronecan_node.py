@@ -213,7 +213,7 @@ class DroneCanNode:
     def _log_message(self, time_s: float, snap: HealthSnapshot) -> list[can.Message]:
         was = f" (was {self._told})" if self._told is not None else ""
         text = f"CHT {snap.state}{was}"
-        lead = _lead(snap)
+        lead = snap.lead_cylinder
         if lead:
             text += f" cyl {lead}"
         if math.isfinite(snap.cht_est_c):
@@ -237,15 +237,6 @@ def key_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
                 (f"cyl{n}_st", float(STATES.index(cyl.state))),
             ]
     return out
-
-
-def _lead(snap: HealthSnapshot) -> int:
-    """The number of the cylinder whose values the engine's are (0: one CHT channel)."""
-    for cyl in snap.cylinders:
-        same = cyl.cht_est_c == snap.cht_est_c or (math.isnan(cyl.cht_est_c) and math.isnan(snap.cht_est_c))
-        if cyl.state == snap.state and same:
-            return cyl.number
-    return 0
 
 
 def _due(time_s: float, last_s: float, every_s: float) -> bool:

@@ -129,15 +129,6 @@ def _over_limit(snap: HealthSnapshot, cht_limits: Sequence[float]) -> int:
     return worst
 
 
-def _lead(snap: HealthSnapshot) -> int:
-    """The number of the cylinder whose values the engine's are (0: one CHT channel)."""
-    for cyl in snap.cylinders:
-        same = cyl.cht_est_c == snap.cht_est_c or (math.isnan(cyl.cht_est_c) and math.isnan(snap.cht_est_c))
-        if cyl.state == snap.state and same:
-            return cyl.number
-    return 0
-
-
 def _deviation_words(snap: HealthSnapshot) -> str:
     """gamma_Q 1.18 -> 'heat-in +18 %', gamma_D 0.85 -> 'cooling -15 %' (the larger first; those under
     5 % left out); without either, the model-deviation symptom."""
@@ -157,7 +148,7 @@ def _deviation_words(snap: HealthSnapshot) -> str:
 def state_text(snap: HealthSnapshot, first: bool = False) -> str:
     """The pilot's text of a snapshot's state (docs/contracts.md, "STATUSTEXT"), e.g.
     ``ENGINE cyl 3: heat-in +18 %, DEGRADED``; ``first``: the first text since start."""
-    lead = _lead(snap)
+    lead = snap.lead_cylinder
     who = f"ENGINE cyl {lead}" if lead else "ENGINE"
     state = snap.state
     if state in ("SUSPECT", "DEGRADED"):
