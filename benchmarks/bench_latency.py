@@ -144,12 +144,11 @@ def run_daemon(config: Any, open_bus: Callable[[], can.BusABC], ready: threading
     """The daemon as ``ecu-monitor run`` builds it (commands/run.py), its tick off, run until ``stop`` in the
     calling thread (its recorder's SQLite connection lives there); ``ready`` is set once the bus is open.
     Returns the engine frames it took in and the health frames it made."""
+    from ecu_monitor.commands.run import daemon_settings, engine_speed_of
     from ecu_monitor.runtime.daemon import Daemon
     from ecu_monitor.runtime.flight_recorder import FlightRecorder
     from ecu_monitor.runtime.persistence import FlightRules, StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor
-
-    from ecu_monitor.commands.run import daemon_settings, engine_speed_of
 
     def opened() -> can.BusABC:
         bus = open_bus()
