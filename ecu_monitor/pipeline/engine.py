@@ -23,10 +23,9 @@ from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, SignalSpec
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.estimation.ekf import _RESET_CODES
-from ecu_monitor.estimation.isolation import ESTIMATOR_NAME as ISOLATION_ESTIMATOR
-from ecu_monitor.estimation.isolation import IsolationSettings, model_vector
-from ecu_monitor.estimation.registry import ESTIMATORS
+from ecu_monitor.estimation.ekf import _RESET_CODES, ThermalEKF
+from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings, model_vector
+from ecu_monitor.estimation.registry import ESTIMATORS, make_estimator
 from ecu_monitor.model import ThermalParams, coefficients, pack_coefficients
 from ecu_monitor.model.effects import MixtureIndex
 from ecu_monitor.model.inputs import MIXTURE_COLUMNS, input_columns
@@ -62,8 +61,6 @@ STATUS_INPUT = "cht_sensor_status"
 MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 #: The CHT input of a single-channel engine (a cylinder's is reported under this name when stale).
 CHT_INPUT = "cht_c"
-#: Estimators the one step runs (the registry's built-in four).
-_STEP_ESTIMATORS = ("ekf", "cbekf", "cbekf-au", ISOLATION_ESTIMATOR)
 #: Rows the live pipeline's output table holds between two drains.
 _LIVE_ROWS = 8192
 
@@ -163,10 +160,11 @@ class Pipeline:
                     f" {', '.join(input_columns(model))}, cylinder 1's {', '.join(input_columns(self.params))} (the"
                     " inputs are shared: every cylinder's model must read the same)"
                 )
-        if config.estimator_name not in _STEP_ESTIMATORS:
+        estimator = make_estimator(config.estimator_name, self.params, config.estimator)  # unknown: ConfigError
+        if not isinstance(estimator, ThermalEKF | IsolationFilter):  # a registered estimator the step cannot run
             raise ConfigError(
-                f"{config.source}: estimator: {config.estimator_name!r} is not one the service runs"
-                f" ({', '.join(_STEP_ESTIMATORS)}; known: {', '.join(sorted(ESTIMATORS))})"
+                f"{config.source}: estimator: {config.estimator_name!r} is not one the service's step runs (an"
+                f" EKF-family filter or the isolation filter; known: {', '.join(sorted(ESTIMATORS))})"
             )
         self._mixture = fed_mixture(self.params, mapped)
         unfed = [name for name in input_columns(self.params) if name not in self.model_inputs]
@@ -283,9 +281,12 @@ class Pipeline:
             for field in ("dt_s", "process_var", "measurement_var", "sigmoid_a", "sigmoid_b", "quantum_c",
                           "deviation_time_s", "initial_var"):  # fmt: skip
                 s[field] = getattr(est, field)
-            s["use_deviation"] = config.estimator_name in ("cbekf", "cbekf-au")
-            s["reset_code"] = _RESET_CODES[est.reset] if config.estimator_name == "cbekf-au" else 0
-            s["iso_estimator"] = config.estimator_name == ISOLATION_ESTIMATOR
+            # what the registry's estimator of that name is (estimation/registry.py: the one table of them)
+            estimator = make_estimator(config.estimator_name, model, est)
+            s["iso_estimator"] = isinstance(estimator, IsolationFilter)
+            if isinstance(estimator, ThermalEKF):
+                s["use_deviation"] = estimator.use_deviation
+                s["reset_code"] = _RESET_CODES[estimator.reset_mode]
             s["iso_initial_cht_var"] = iso_settings.initial_cht_var
             s["iso_initial_gamma_var"] = iso_settings.initial_gamma_var
             s["stale_limit_s"] = config.stale_predict_limit_s

@@ -523,24 +523,17 @@ def cylinder_step(
         st["running"], st["stale_since_s"], st["changed_s"], st["last_reading_c"], st["model_low_c"], st["model_high_c"]
     )
     est_c = deviation = gamma_q = gamma_d = iso_deviation = np.nan
-    if call:  # the filter period: reference, supervision, estimator and isolation filter
+    if call:  # the filter period: the open-loop reference first (its CHT is the stuck-probe test's model)
         steps = round((time_s - st["last_call_s"]) / cfg["dt_s"])
-        st["pending"] = st["pending"] or new_reading
         # the reference: an EKF without deviation, reset or reading (its settings are the estimator's)
         _ekf_call(st["ref"], st["ref_drive"], cfg, eng_scratch, u, np.nan, False, cs, hv, xb, yb, False, 0, steps)
         model_c = st["ref"][0]
-        sv, code, action = supervise(
-            sv,
-            time_s,
-            any_stale,
-            new_reading,
-            reading,
-            reading_bad,
-            model_c,
-            cfg["stale_limit_s"],
-            cfg["stuck_after_s"],
-            cfg["stuck_change_c"],
-        )
+    else:
+        model_c = st["model_c"] if st["running"] else reading
+    st["pending"] = st["pending"] or new_reading
+    sv, code, action = supervise(sv, time_s, any_stale, new_reading, reading, reading_bad, model_c,
+                                 cfg["stale_limit_s"], cfg["stuck_after_s"], cfg["stuck_change_c"])  # fmt: skip
+    if call:  # then the estimator and the isolation filter, with the reading the supervisor lets through
         if action != ACTION_NONE:
             measured = st["pending"] and code == CODE_NOMINAL and math.isfinite(reading)
             z = reading if measured else np.nan
@@ -549,28 +542,8 @@ def cylinder_step(
                           cfg["use_deviation"], cfg["reset_code"], steps)  # fmt: skip
                 est_c = st["est"][0]
                 deviation = st["est"][3] / cfg["dt_s"] if cfg["use_deviation"] else 0.0
-            live_isolation(
-                st["iso"],
-                st["iso_drive"],
-                inputs,
-                rows,
-                result,
-                u[0],
-                u[1],
-                u[2],
-                u[3],
-                u[4],
-                u[5],
-                z,
-                measured,
-                steps,
-                eng_iso_model[i],
-                eng_iso_config[i],
-                cs,
-                hv,
-                xb,
-                yb,
-            )
+            live_isolation(st["iso"], st["iso_drive"], inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z,
+                           measured, steps, eng_iso_model[i], eng_iso_config[i], cs, hv, xb, yb)  # fmt: skip
             if cfg["iso_estimator"]:  # its estimate is the isolation filter's own
                 est_c = st["iso"][0]
                 deviation = result[2]
@@ -578,21 +551,6 @@ def cylinder_step(
             gamma_d = st["iso"][2]
             iso_deviation = result[2]
         st["last_call_s"] = time_s
-    else:
-        model_c = st["model_c"] if st["running"] else reading
-        sv, code, action = supervise(
-            sv,
-            time_s,
-            any_stale,
-            new_reading,
-            reading,
-            reading_bad,
-            model_c,
-            cfg["stale_limit_s"],
-            cfg["stuck_after_s"],
-            cfg["stuck_change_c"],
-        )
-        st["pending"] = st["pending"] or new_reading
     st["running"] = sv.running
     st["stale_since_s"] = sv.stale_since_s
     st["changed_s"] = sv.changed_s
