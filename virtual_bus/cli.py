@@ -22,7 +22,7 @@ import argparse
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.compile_cache import use_cache_dir
@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # the commands import these (numpy, python-can, the plant): -
     from virtual_bus.busconfig import BusConfig
     from virtual_bus.emitter import EmitStats
     from virtual_bus.missions import Mission
+    from virtual_bus.plant import StepBlock
 
 __all__ = ["build_parser", "main"]
 
@@ -133,6 +134,13 @@ class _Flight:
         parts.append("effects " + (", ".join(effects) or "none"))
         return "; ".join(parts)
 
+    def blocks(self) -> Iterator[StepBlock]:
+        """The flown steps of this flight, block by block (the truth plant, its sensors)."""
+        from virtual_bus.plant import iter_steps
+
+        return iter_steps(self.mission, self.params, effects=self.effects, degradation=self.degradation,
+                          seed=self.seed, dt_s=self.dt_s, cylinders=self.cylinders)  # fmt: skip
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``virtual-ecu`` parser with its two subcommands."""
@@ -228,7 +236,6 @@ def _bus_config(args: argparse.Namespace) -> BusConfig:
 def _run(args: argparse.Namespace) -> int:
     from virtual_bus.busconfig import config_protocol, open_bus
     from virtual_bus.emitter import FrameEmitter
-    from virtual_bus.plant import iter_steps
     from virtual_bus.recorder import frame_encoder
 
     protocol = args.protocol or (config_protocol(args.config) if args.config else "dbc")
@@ -255,15 +262,7 @@ def _run(args: argparse.Namespace) -> int:
         t = stats.mission_time_s - args.start_time
         progress(f"t = {t:.0f} s, {stats.frames_sent} frames, {stats.send_errors} send errors")
 
-    blocks = iter_steps(
-        flight.mission,
-        flight.params,
-        effects=flight.effects,
-        degradation=flight.degradation,
-        seed=flight.seed,
-        dt_s=flight.dt_s,
-        cylinders=flight.cylinders,
-    )
+    blocks = flight.blocks()
     count = len(flight.cylinders) or 1
     encoder = frame_encoder(
         protocol, cht_limit_c=flight.params.cht_limit_c, start_time_s=args.start_time, cylinders=count
@@ -285,7 +284,6 @@ def _run_mavlink(args: argparse.Namespace) -> int:
     config's ``mavlink.connection``)."""
     from virtual_bus.busconfig import config_mavlink_connection
     from virtual_bus.mavlink_emitter import MavlinkEmitter, MavlinkFrameEncoder, emitter_connection
-    from virtual_bus.plant import iter_steps
 
     if args.interface or args.channel:
         raise ConfigError("--interface/--channel: a CAN bus; --protocol mavlink sends over --connection")
@@ -308,15 +306,7 @@ def _run_mavlink(args: argparse.Namespace) -> int:
         t = stats.mission_time_s - args.start_time
         progress(f"t = {t:.0f} s, {stats.frames_sent} messages, {stats.send_errors} send errors")
 
-    blocks = iter_steps(
-        flight.mission,
-        flight.params,
-        effects=flight.effects,
-        degradation=flight.degradation,
-        seed=flight.seed,
-        dt_s=flight.dt_s,
-        cylinders=flight.cylinders,
-    )
+    blocks = flight.blocks()
     encoder = MavlinkFrameEncoder(start_time_s=args.start_time)
     emitter = MavlinkEmitter(link, encoder, realtime=args.realtime, speed=args.speed, progress=show)
     try:
