@@ -66,7 +66,7 @@ def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:
         return values
 
     columns: dict[str, Any] = {k: floats(k) for k in FLOAT_COLUMNS}
-    columns.update(state=rng.integers(0, len(STATES), n), stale=rng.integers(0, 1 << len(INPUT_NAMES), n),
+    columns.update(state=rng.integers(0, len(STATES), n), stale_inputs=rng.integers(0, 1 << len(INPUT_NAMES), n),
                    sensor_fault=rng.random(n) < 0.2)  # fmt: skip
     if cylinders > 1:
         for c in range(1, cylinders + 1):
@@ -126,7 +126,8 @@ def test_parquet_and_arrow_hold_the_csv_columns(suffix: str, tmp_path: Path) -> 
         np.testing.assert_array_equal(table.column(name).to_numpy(), columns[name])
     assert table.column("state").to_pylist() == [STATES[c] for c in columns["state"].tolist()]
     stale = table.column("stale_inputs").to_pylist()
-    assert stale == ["+".join(n for b, n in enumerate(INPUT_NAMES) if c >> b & 1) for c in columns["stale"].tolist()]
+    bits = columns["stale_inputs"].tolist()
+    assert stale == ["+".join(n for b, n in enumerate(INPUT_NAMES) if c >> b & 1) for c in bits]
     assert table.column("sensor_fault").to_pylist() == columns["sensor_fault"].tolist()
     assert table.column("cyl2_state").to_pylist() == [STATES[c] for c in columns["cyl2_state"].tolist()]
     np.testing.assert_array_equal(table.column("cyl1_gamma_q").to_numpy(), columns["cyl1_gamma_q"])
