@@ -7,12 +7,17 @@ health.dbc signals (runtime/publishers.py), the DroneCAN KeyValues (runtime/dron
 MAVLink NAMED_VALUE_FLOAT names (runtime/mavlink_publisher.py) and the flight history's trend columns
 in SQLite (runtime/flight_recorder.py, runtime/persistence.py).
 
-**Adding a health value** (a flag, an alert, an event count, ...): append one :class:`HealthValue` row
-below, add its signal to ``data/dbc/health.dbc`` (when it goes on the bus), and compute it in the step
-(``out["<name>"] = ...`` in ``step.cylinder_step`` for a ``cylinder`` row; for an ``engine`` or
-``cylinders`` row, in ``Pipeline.snapshot_of`` and ``cylinders.engine_columns``). health.csv gains its
-column (after the existing ones of its group), the publishers send it under the names given here, and
-docs/contracts.md lists it. Nothing else names the value.
+**Adding a health value** (a detector-armed flag, a not-isolable flag, a maintenance alert, an engine
+event count, ...): append one :class:`HealthValue` row to :data:`HEALTH_VALUES`, add its signal to
+``data/dbc/health.dbc`` (when it goes on the bus), and compute it: a ``cylinder`` row in the step
+(``out["<name>"] = ...`` in ``step.cylinder_step``; the output record gains the field from the row); an
+``engine`` or ``cylinders`` row in ``cylinders.engine_snapshot`` (live, and replays of several cylinders)
+and, for an ``engine`` row, in the one-channel replay's columns (``offline/replay._columns``). health.csv
+gains its column (after the others of its group), the snapshots its attribute, each publisher sends it
+under the name its column gives (an empty name: not sent there), the flight history keeps its trend when
+``history``. Then list it in docs/contracts.md and docs/dbc.md; a signal added to a message already sent
+changes that message's bytes: rewrite the golden digests (tests/runtime/test_health_frames_golden.py).
+Nothing else names the value.
 """
 
 from __future__ import annotations
