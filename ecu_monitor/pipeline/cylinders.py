@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 
 from numpy.typing import NDArray
 
-from ecu_monitor.pipeline.output_table import HealthSnapshot, cylinder_values
+from ecu_monitor.pipeline.output_table import HealthSnapshot
 from ecu_monitor.pipeline.outputs import CylinderSnapshot, column_layout, columns_of, cylinder_snapshots
 
 __all__ = ["SEVERITY", "EngineView", "engine_columns", "engine_snapshot", "engine_view", "lead_index"]
@@ -89,12 +89,15 @@ def engine_snapshot(
     cylinder: its own values (``cylinders`` empty). The one place the ``engine`` and ``cylinders`` rows of
     the output table are computed."""
     if len(cylinders) == 1:
-        cyl = cylinders[0]
-        values = {v.name: getattr(cyl, v.name) for v in cylinder_values()}
-        return HealthSnapshot(time_s=time_s, stale_inputs=stale_inputs, sensor_fault=cyl.sensor_fault, **values)
+        values = cylinders[0].values()
+        del values["number"]
+        values.update(time_s=time_s, stale_inputs=stale_inputs, sensor_fault=cylinders[0].sensor_fault)
+        return HealthSnapshot._of(values)
     view = engine_view(cylinders, spread_limit_c)
     lead = cylinders[view.lead]
-    return HealthSnapshot(
+    values = lead.values()
+    del values["number"]
+    values.update(
         time_s=time_s,
         stale_inputs=stale_inputs,
         sensor_fault=any(c.sensor_fault for c in cylinders),
@@ -103,8 +106,8 @@ def engine_snapshot(
         hottest_cylinder=view.hottest,
         spread_alarm=view.alarm,
         lead_cylinder=lead.number,
-        **{v.name: getattr(lead, v.name) for v in cylinder_values()},
     )
+    return HealthSnapshot._of(values)
 
 
 def engine_columns(

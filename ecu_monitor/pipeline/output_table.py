@@ -115,9 +115,12 @@ HEALTH_VALUES: tuple[HealthValue, ...] = (
 )  # fmt: skip
 
 
-def cylinder_values() -> Iterator[HealthValue]:
+def cylinder_values() -> tuple[HealthValue, ...]:
     """The rows each cylinder has (``cylinder`` scope), in table order."""
-    return (v for v in HEALTH_VALUES if v.scope == "cylinder")
+    return _CYLINDER_VALUES
+
+
+_CYLINDER_VALUES = tuple(v for v in HEALTH_VALUES if v.scope == "cylinder")
 
 
 def engine_values(cylinders: int) -> Iterator[HealthValue]:
@@ -135,13 +138,17 @@ def output_fields() -> list[tuple[str, str]]:
 
 
 def cylinder_snapshot(number: int, record: Any) -> CylinderSnapshot:
-    """Cylinder ``number``'s snapshot from its step output record (a ``CYLINDER_OUTPUT`` record)."""
-    values: dict[str, Any] = {}
-    for v in cylinder_values():
-        x = record[v.name]
-        values[v.name] = STATES[int(x)] if v.kind == "state" else bool(x) if v.kind == "flag" else (
-            int(x) if v.kind == "cylinder" else float(x))  # fmt: skip
-    return CylinderSnapshot(number=number, **values)
+    """Cylinder ``number``'s snapshot from its step output record (a ``CYLINDER_OUTPUT`` record, whose first
+    fields are the ``cylinder`` rows: :func:`output_fields`)."""
+    values = dict(zip(_CYLINDER_NAMES, record.item(), strict=False))
+    for name in _CYLINDER_STATES:
+        values[name] = STATES[values[name]]
+    values["number"] = number
+    return CylinderSnapshot._of(values)
+
+
+_CYLINDER_NAMES = tuple(v.name for v in _CYLINDER_VALUES)
+_CYLINDER_STATES = tuple(v.name for v in _CYLINDER_VALUES if v.kind == "state")
 
 
 def as_number(value: HealthValue, x: Any) -> float:
@@ -164,24 +171,35 @@ _STATE_CODE = {name: code for code, name in enumerate(STATES)}
 
 
 class _Values:
-    """A frozen record whose attributes are the rows of the output table (and a few fixed ones)."""
+    """A frozen record whose attributes are the rows of the output table (and a few fixed ones): one
+    read-only property per field, made by ``__init_subclass__`` from ``_fields`` (name -> default)."""
 
     __slots__ = ("_v",)
     _fields: ClassVar[dict[str, Any]] = {}
 
+    def __init_subclass__(cls) -> None:
+        for name in cls._fields:
+            setattr(cls, name, property(lambda self, _name=name: self._v[_name], doc=f"the {name} value"))
+
     def __init__(self, **values: Any) -> None:
-        unknown = values.keys() - self._fields.keys()
-        if unknown:
-            raise TypeError(f"{type(self).__name__}: no field {', '.join(sorted(unknown))}")
+        if not values.keys() <= self._fields.keys():
+            unknown = sorted(values.keys() - self._fields.keys())
+            raise TypeError(f"{type(self).__name__}: no field {', '.join(unknown)}")
         object.__setattr__(self, "_v", {**self._fields, **values})
 
+    @classmethod
+    def _of(cls, values: dict[str, Any]) -> Any:
+        """A record of ``values`` (known field names only; the others take their defaults), not copied."""
+        record = object.__new__(cls)
+        object.__setattr__(record, "_v", values if len(values) == len(cls._fields) else {**cls._fields, **values})
+        return record
+
     def __getattr__(self, name: str) -> Any:
-        if name == "_v":
-            raise AttributeError(name)
-        try:
-            return self._v[name]
-        except KeyError:
-            raise AttributeError(f"{type(self).__name__} has no field {name!r}") from None
+        raise AttributeError(f"{type(self).__name__} has no field {name!r}")
+
+    def values(self) -> dict[str, Any]:
+        """The fields by name (a copy)."""
+        return dict(self._v)
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError(f"{type(self).__name__} is frozen")
