@@ -31,13 +31,11 @@ from ecu_monitor.model.atmosphere import (
     ISA_PRESSURE_EXPONENT,
     KELVIN_OFFSET,
     LAPSE_RATE_K_PER_M,
-    SEA_LEVEL_DENSITY_KG_M3,
     SEA_LEVEL_PRESSURE_PA,
     SEA_LEVEL_TEMPERATURE_K,
 )
 
 __all__ = [
-    "EFFECT_COEFFICIENTS",
     "PARAMETER_FIELDS",
     "Coefficients",
     "blend",
@@ -158,21 +156,6 @@ class Coefficients(NamedTuple):
 
 #: The per-parameter-set fields of :class:`Coefficients`, in order (a swarm kernel's matrix rows).
 PARAMETER_FIELDS: tuple[str, ...] = Coefficients._fields[: Coefficients._fields.index("radiation_offset_c")]
-#: "effect.parameter" -> (its Coefficients field, the neutral value while the effect is off: a factor of
-#: exactly 1). ``ecu_monitor.model.coefficients`` fills the effects' fields from this table.
-EFFECT_COEFFICIENTS: dict[str, tuple[str, float]] = {
-    "airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", 0.0),
-    "airspeed_cooling.reference_mps": ("airspeed_reference_mps", 23.0),
-    "airspeed_cooling.floor": ("airspeed_floor", 1.0),
-    "airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0),
-    "density_cooling.exponent": ("density_exponent", 0.0),
-    "density_cooling.reference_kg_m3": ("density_reference_kg_m3", SEA_LEVEL_DENSITY_KG_M3),
-    "sensor_lag.time_constant_s": ("sensor_lag_s", 0.0),
-    "mixture_cooling.fraction": ("mixture_fraction", 0.0),
-    "mixture_cooling.onset": ("mixture_onset", 0.7),
-    "mixture_index.gain": ("mixture_gain", 0.0),
-    "mixture_index.reference": ("mixture_reference", 0.0),
-}
 C_W = PARAMETER_FIELDS.index("c_w")
 R_CE = PARAMETER_FIELDS.index("r_ce")
 RADIATIVE = PARAMETER_FIELDS.index("radiative_conductance")

@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 
 from ecu_monitor.model import equations as _eq
 from ecu_monitor.model.atmosphere import KELVIN_OFFSET
-from ecu_monitor.model.equations import EFFECT_COEFFICIENTS, Coefficients
+from ecu_monitor.model.effects import EFFECT_COEFFICIENTS
+from ecu_monitor.model.equations import Coefficients
 from ecu_monitor.model.heatmap import bilinear, heat_cell
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.params import ThermalParams
