@@ -59,8 +59,8 @@ from ecu_monitor.model import (
     rk4_step,
     unpack_coefficients,
 )
-from ecu_monitor.model.compiled import drive_kernel
 from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_at
 
 __all__ = [
     "COMPLEX_STEP",
@@ -319,8 +319,6 @@ def filter_steps(
 def live_steps(
     state: Any,
     drive: Any,
-    inputs: Any,
-    drive_rows: Any,
     out: Any,
     heat_x: float,
     heat_y: float,
@@ -347,10 +345,10 @@ def live_steps(
 ) -> None:
     """One live filter call in one compiled call: :func:`filter_steps` on the state held in ``state``
     (the FilterState fields, float64[7], updated in place) with the drive held in ``drive`` (the Drive
-    fields, float64[5]); then the drive of this call's inputs (the model's drive kernel, equal
-    bit for bit to :func:`scalar_drive`) replaces it for the next call. ``inputs`` (6, 1) and
-    ``drive_rows`` (4, 1) are scratch; ``out`` gets (innovation, nis, reset as 0/1). The model's coefficients
-    come packed (``ecu_monitor.model.pack_coefficients``: four arrays, cheap for numba's dispatcher to type)."""
+    fields, float64[5]); then the drive of this call's inputs (the model's ``drive_at``, equal bit for
+    bit to :func:`scalar_drive`) replaces it for the next call. ``out`` gets (innovation, nis, reset as
+    0/1). The model's coefficients come packed (``ecu_monitor.model.pack_coefficients``: four arrays,
+    cheap for numba's dispatcher to type)."""
     coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     held = FilterState(state[0], state[1], state[2], state[3], state[4], state[5], state[6])
     new, innovation, nis, did_reset = filter_steps(
@@ -364,18 +362,8 @@ def live_steps(
     state[4] = new.reference
     state[5] = new.steps_since
     state[6] = new.level
-    inputs[0, 0] = heat_x
-    inputs[1, 0] = heat_y
-    inputs[2, 0] = altitude_m
-    inputs[3, 0] = airspeed_mps
-    inputs[4, 0] = oat_c
-    inputs[5, 0] = mixture_index
-    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, drive_rows)
-    drive[0] = drive_rows[0, 0]  # Drive order: q_sl0, altitude gain, ambient, conductance, heat gain
-    drive[1] = drive_rows[1, 0]
-    drive[2] = oat_c
-    drive[3] = drive_rows[3, 0]
-    drive[4] = drive_rows[2, 0]
+    u = (heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index)
+    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
     out[0] = innovation
     out[1] = nis
     out[2] = 1.0 if did_reset else 0.0
@@ -417,8 +405,6 @@ class ThermalEKF:
         # compiled live path: state and drive held in preallocated arrays between calls (no allocation)
         self._state_vec = np.zeros(len(FilterState._fields))
         self._drive_vec = np.zeros(len(Drive._fields))
-        self._inputs = np.zeros((6, 1))
-        self._drive_rows = np.zeros((4, 1))
         self._out = np.zeros(3)
 
     @property
@@ -516,7 +502,7 @@ class ThermalEKF:
         state = self._state_vec
         out = self._out
         live_steps(
-            state, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
+            state, self._drive_vec, out, float(u[0]), float(u[1]), float(u[2]),
             float(u[3]), float(u[4]), float(u[5]), z, measured, *self._packed_coeffs, s.dt_s, s.process_var,
             s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, self.use_deviation,
             _RESET_CODES[self.reset_mode], steps,

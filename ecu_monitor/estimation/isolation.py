@@ -60,10 +60,11 @@ from ecu_monitor.model import (
     scalar_coefficients,
     unpack_coefficients,
 )
-from ecu_monitor.model.compiled import compute_drive_compiled, drive_kernel
+from ecu_monitor.model.compiled import compute_drive_compiled
 from ecu_monitor.model.equations import derivatives, rk4
 from ecu_monitor.model.inputs import flight_inputs
 from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_at
 
 __all__ = [
     "ESTIMATOR_NAME",
@@ -276,8 +277,6 @@ def _run(
 def live_steps(
     s: NDArray[np.float64],
     drive: NDArray[np.float64],
-    inputs: NDArray[np.float64],
-    drive_rows: NDArray[np.float64],
     out: NDArray[np.float64],
     heat_x: float,
     heat_y: float,
@@ -297,7 +296,7 @@ def live_steps(
 ) -> None:
     """One live call in one compiled call: ``steps`` predictions with the held drive (``drive``, the
     Drive fields), the update with z when measured, the deviation; then the drive of this call's inputs
-    (the model's drive kernel) is held for the next call. out = (innovation, NIS, deviation). The
+    (the model's ``drive_at``) is held for the next call. out = (innovation, NIS, deviation). The
     model's coefficients come packed (``ecu_monitor.model.pack_coefficients``)."""
     coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     q0 = drive[0]
@@ -313,18 +312,8 @@ def live_steps(
     out[0] = innovation
     out[1] = nis
     out[2] = _deviation(s, q0, hg, g, te, model)
-    inputs[0, 0] = heat_x
-    inputs[1, 0] = heat_y
-    inputs[2, 0] = altitude_m
-    inputs[3, 0] = airspeed_mps
-    inputs[4, 0] = oat_c
-    inputs[5, 0] = mixture_index
-    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, drive_rows)
-    drive[0] = drive_rows[0, 0]  # Drive order: q_sl0, altitude gain, ambient, conductance, heat gain
-    drive[1] = drive_rows[1, 0]
-    drive[2] = oat_c
-    drive[3] = drive_rows[3, 0]
-    drive[4] = drive_rows[2, 0]
+    u = (heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index)
+    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
 
 
 def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> NDArray[np.float64]:
@@ -373,8 +362,6 @@ class IsolationFilter:
         self._time_s = 0.0
         # the live call's drive, scratch and outputs, preallocated (estimate() allocates no array)
         self._drive_vec = np.zeros(len(Drive._fields))
-        self._inputs = np.zeros((6, 1))
-        self._drive_rows = np.zeros((4, 1))
         self._out = np.zeros(3)
 
     def _require(self) -> tuple[NDArray[np.float64], Drive]:
@@ -431,7 +418,7 @@ class IsolationFilter:
         z = float(z_cht_c) if measured and z_cht_c is not None else math.nan
         out = self._out
         live_steps(
-            s, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
+            s, self._drive_vec, out, float(u[0]), float(u[1]), float(u[2]),
             float(u[3]), float(u[4]), float(u[5]), z, measured, steps, self._model, self._cfg, *self._packed_coeffs,
         )  # fmt: skip
         innovation, nis, deviation = float(out[0]), float(out[1]), float(out[2])

@@ -191,9 +191,8 @@ def drive_kernel(
 ) -> None:
     """The drive of one parameter set at every step (rows of out: q_sl0, g(z), heat factor, G)."""
     for k in range(heat_x.shape[0]):
-        q_sl0, altitude_gain, _, conductance, heat_gain = drive_at(
-            heat_x[k], heat_y[k], altitude_m[k], airspeed_mps[k], oat_c[k], mixture[k], coeffs
-        )
+        u = (heat_x[k], heat_y[k], altitude_m[k], airspeed_mps[k], oat_c[k], mixture[k])
+        q_sl0, altitude_gain, _, conductance, heat_gain = drive_at(u, coeffs)
         out[0, k] = q_sl0
         out[1, k] = altitude_gain
         out[2, k] = heat_gain

@@ -235,47 +235,28 @@ def _is_scalar_case(inputs: InputSeries, coeffs: Coefficients) -> bool:
 
 
 @register_jitable
-def drive_at(
-    heat_x: float,
-    heat_y: float,
-    altitude_m: float,
-    airspeed_mps: float,
-    oat_c: float,
-    mixture_index: float,
-    coeffs: Any,
-) -> tuple[float, float, float, float, float]:
-    """The model's drive at one operating point, in :class:`Drive` order (q_sl0 W, g(z), ambient degC,
-    conductance W/degC, heat factor): the heat-map cell, its blend, the conditions and the effects. The
-    one assembly of the drive; every compiled caller (the drive kernel, the filters, the step) uses it."""
+def drive_at(u: Any, coeffs: Any) -> tuple[float, float, float, float, float]:
+    """The model's drive at one operating point ``u`` (the six inputs in :class:`InputSeries` order), in
+    :class:`Drive` order (q_sl0 W, g(z), ambient degC, conductance W/degC, heat factor): the heat-map
+    cell, its blend, the conditions and the effects. The one assembly of the drive; every compiled
+    caller (the drive kernel, the filters, the step) uses it."""
     xb = coeffs.x_breakpoints
     v = coeffs.heat_values_w
-    i, j, fx, fy = heat_cell(heat_x, heat_y, xb, coeffs.y_breakpoints)
+    i, j, fx, fy = heat_cell(u[0], u[1], xb, coeffs.y_breakpoints)
     q_sl0 = _eq.blend(v[i, j], v[i, j + 1], v[i + 1, j], v[i + 1, j + 1], fx, fy)
-    log_p, log_t, log_rho, airspeed, load = _eq.conditions(
-        heat_x, altitude_m, airspeed_mps, oat_c, xb[0], xb[xb.shape[0] - 1]
-    )
-    altitude_gain, heat_gain, conductance = _eq.drive(log_p, log_t, log_rho, airspeed, load, mixture_index, coeffs)
-    return q_sl0, altitude_gain, oat_c, conductance, heat_gain
+    log_p, log_t, log_rho, airspeed, load = _eq.conditions(u[0], u[2], u[3], u[4], xb[0], xb[xb.shape[0] - 1])
+    altitude_gain, heat_gain, conductance = _eq.drive(log_p, log_t, log_rho, airspeed, load, u[5], coeffs)
+    return q_sl0, altitude_gain, u[4], conductance, heat_gain
 
 
-@njit()
-def _drive_compiled(
-    heat_x: float,
-    heat_y: float,
-    altitude_m: float,
-    airspeed_mps: float,
-    oat_c: float,
-    mixture_index: float,
-    coeffs: Any,
-) -> tuple[float, float, float, float, float]:
-    """:func:`drive_at` compiled (the math module's primitives, as every compiled caller)."""
-    return drive_at(heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index, coeffs)
+#: :func:`drive_at` compiled (the math module's primitives, as every compiled caller), for one step from Python.
+_drive_compiled = njit()(drive_at)
 
 
 def _compute_drive_scalar(inputs: InputSeries, coeffs: Coefficients) -> Drive:
     """compute_drive for floats: :func:`drive_at` compiled, so a Python filter drives its model exactly as
     the compiled ones do."""
-    return Drive(*_drive_compiled(*(float(v) for v in inputs), scalar_coefficients(coeffs)))
+    return Drive(*_drive_compiled(tuple(float(v) for v in inputs), scalar_coefficients(coeffs)))
 
 
 def initial_pade_state(drive: Drive) -> Real:

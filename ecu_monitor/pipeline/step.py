@@ -38,10 +38,9 @@ from ecu_monitor.estimation.detection import _cusum_step as cusum_step
 from ecu_monitor.estimation.ekf import live_steps as live_ekf
 from ecu_monitor.estimation.isolation import live_steps as live_isolation
 from ecu_monitor.estimation.quantiser import level_of
-from ecu_monitor.model.compiled import drive_kernel
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
-from ecu_monitor.model.thermal import unpack_coefficients
+from ecu_monitor.model.thermal import drive_at, unpack_coefficients
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
 from ecu_monitor.pipeline.supervision import (
     ACTION_INITIALISE,
@@ -226,7 +225,7 @@ class Engine(NamedTuple):
     iso_model: Any  # float64[cylinders, 4]
     iso_config: Any  # float64[cylinders, 7]
     output: Any  # CYLINDER_OUTPUT[cylinders]: this step's results
-    scratch: Any  # float64[24]: the filters' scratch (inputs 6, drive rows 4, out 3, a drive 5, the inputs u 6)
+    scratch: Any  # float64[24]: the filters' scratch (10 free, out 3, a drive 5, the inputs u 6)
     symptoms: Any  # float64[2, cylinders]: the cross-cylinder step's scratch
 
 
@@ -416,17 +415,7 @@ def _cht_rate(st: Any, cfg: Any, coeffs: Any) -> float:
 @njit(nogil=False)
 def _drive_at(eng: Engine, i: int, u: Any, coeffs: Any, drive: Any) -> None:
     """The model's drive of cylinder i at the inputs u (6) into drive (5, Drive order)."""
-    eng_scratch = eng.scratch
-    inputs = eng_scratch[0:6].reshape((6, 1))
-    rows = eng_scratch[6:10].reshape((4, 1))
-    for j in range(6):
-        inputs[j, 0] = u[j]
-    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, rows)
-    drive[0] = rows[0, 0]
-    drive[1] = rows[1, 0]
-    drive[2] = u[4]
-    drive[3] = rows[3, 0]
-    drive[4] = rows[2, 0]
+    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
 
 
 @njit(nogil=False)
@@ -488,10 +477,8 @@ def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: flo
 def _ekf_call(state: Any, drive: Any, cfg: Any, scratch: Any, u: Any, z: float, measured: bool, cs: Any, hv: Any,
               xb: Any, yb: Any, use_deviation: bool, reset_code: int, steps: int) -> None:  # fmt: skip
     """One filter period of an EKF-family filter (the reference or the estimator) on its record fields."""
-    inputs = scratch[0:6].reshape((6, 1))
-    rows = scratch[6:10].reshape((4, 1))
     result = scratch[10:13]
-    live_ekf(state, drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured, cs, hv, xb, yb,
+    live_ekf(state, drive, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured, cs, hv, xb, yb,
              cfg["dt_s"], cfg["process_var"], cfg["measurement_var"], cfg["sigmoid_a"], cfg["sigmoid_b"],
              cfg["quantum_c"], cfg["deviation_time_s"], use_deviation, reset_code, steps)  # fmt: skip
 
@@ -523,8 +510,6 @@ def cylinder_step(
     xb = eng_x_breakpoints[i, :n_x]
     yb = eng_y_breakpoints[i, :n_y]
     coeffs = unpack_coefficients(cs, hv, xb, yb)
-    inputs = eng_scratch[0:6].reshape((6, 1))
-    rows = eng_scratch[6:10].reshape((4, 1))
     result = eng_scratch[10:13]
     reading = eng_values[cfg["cht_slot"]]
     new_reading = st["readings"] > st["readings_used"]
@@ -553,7 +538,7 @@ def cylinder_step(
                           cfg["use_deviation"], cfg["reset_code"], steps)  # fmt: skip
                 est_c = st["est"][0]
                 deviation = st["est"][3] / cfg["dt_s"] if cfg["use_deviation"] else 0.0
-            live_isolation(st["iso"], st["iso_drive"], inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z,
+            live_isolation(st["iso"], st["iso_drive"], result, u[0], u[1], u[2], u[3], u[4], u[5], z,
                            measured, steps, eng_iso_model[i], eng_iso_config[i], cs, hv, xb, yb)  # fmt: skip
             if cfg["iso_estimator"]:  # its estimate is the isolation filter's own
                 est_c = st["iso"][0]
