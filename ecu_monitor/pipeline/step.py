@@ -41,7 +41,7 @@ from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
-from ecu_monitor.pipeline.output_table import output_fields
+from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, output_fields
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
 from ecu_monitor.pipeline.supervision import (
     ACTION_INITIALISE,
@@ -59,15 +59,12 @@ __all__ = [
     "CYLINDER_STATE",
     "DETECTOR_SETTINGS",
     "DETECTOR_STATE",
-    "HEADROOM_CAP_S",
     "Engine",
     "Rows",
     "Traces",
     "compiled",
 ]
 
-#: Headroom reported when the limit is not reached within this time, s ("not limited at this power").
-HEADROOM_CAP_S = 6000.0
 #: The RK4 step of the headroom's march to the limit, s.
 HEADROOM_STEP_S = 2.0
 #: A Newton iterate of the steady state this far below the limit (degC) settles that the steady state is below it.
