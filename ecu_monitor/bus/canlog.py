@@ -43,6 +43,7 @@ from ecu_monitor.bus.codec import MALFORMED_REASONS, Decoder, SignalSpec
 from ecu_monitor.bus.dbc import load_dbc, shipped_dbc
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import GAP_WARN_S, FlightLog, choose_cht, load_csv
+from ecu_monitor.userfiles import check_input
 
 __all__ = [
     "CAN_LOG_SUFFIXES",
@@ -138,15 +139,8 @@ def time_gaps(time_s: NDArray[np.float64], longer_than_s: float = GAP_S) -> list
 def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
     """Read a python-can log into arrays (rules in the module docstring); FlightLogError if unusable."""
     src = str(path)
-    if os.path.isdir(src):
-        raise FlightLogError(f"{src}: is a directory, not a CAN log")
-    try:
-        size = os.path.getsize(src)
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    if size == 0:
+    check_input(src, "CAN log", FlightLogError)
+    if os.path.getsize(src) == 0:
         raise FlightLogError(f"{src}: empty file (0 bytes), not a CAN log")
     truncated = False
     frames: FrameArrays | None = None
@@ -484,6 +478,7 @@ def load_flight(
     default MAVLink mapping (:func:`ecu_monitor.bus.mavlink_log.read_tlog`).
     """
     path = Path(path)
+    check_input(path, "flight log", FlightLogError)
     suffix = path.suffix.lower()
     if suffix == ".csv":
         if dbc_paths or signal_map:

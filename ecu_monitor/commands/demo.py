@@ -338,21 +338,20 @@ def cylinder_config(count: int, protocol: str = "dbc") -> ServiceConfig:
     """The shipped four_cylinders.yaml for an engine of ``count`` (2-4) cylinders: cht1_c .. cht<count>_c;
     ``protocol="dronecan"``: the shipped dronecan.yaml with those inputs on ``cylinder_status[0..count-1]``
     and four_cylinders.yaml's cylinders and health sections."""
-    import yaml
-
     from ecu_monitor.config import parse_config
     from ecu_monitor.shipped import resolve_file
+    from ecu_monitor.yamlfile import load_yaml_file
 
     if not 2 <= count <= 4:
         raise ConfigError(f"--cylinders: expected 1 to 4 (the cylinders of ECU_Cht1to4), got {count}")
     path = resolve_file("four_cylinders.yaml", "config")
-    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    data = load_yaml_file(path, "config file", ConfigError)
     for n in range(count + 1, 5):
         del data["inputs"][f"cht{n}_c"]
     if protocol != "dronecan":
         return parse_config(data, path)
     dronecan_path = resolve_file("dronecan.yaml", "config")
-    dronecan = yaml.safe_load(dronecan_path.read_text(encoding="utf-8"))
+    dronecan = load_yaml_file(dronecan_path, "config file", ConfigError)
     inputs = {name: spec for name, spec in dronecan["inputs"].items() if not name.startswith("cht")}
     field = "uavcan.equipment.ice.reciprocating.Status.cylinder_status[{}].cylinder_head_temperature"
     for n in range(1, count + 1):

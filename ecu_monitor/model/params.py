@@ -20,7 +20,8 @@ import yaml
 from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.model.effects import Effects
 from ecu_monitor.model.heatmap import HeatMap, reference_heat_map
-from ecu_monitor.yamlfile import load_yaml_text
+from ecu_monitor.userfiles import write_output_bytes
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
     "MODEL_KIND",
@@ -249,16 +250,7 @@ def paper_table_a1() -> ThermalParams:
 def load_model(path: str | Path) -> ThermalParams:
     """Read model.yaml; any problem raises ConfigError naming the file and the key."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read model file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a model file (not UTF-8 text: byte {exc.start})") from None
-    try:
-        data = load_yaml_text(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = load_yaml_file(path, "model file", ConfigError)
     try:
         return ThermalParams.from_dict(data)
     except ParameterError as exc:
@@ -267,9 +259,6 @@ def load_model(path: str | Path) -> ThermalParams:
 
 def save_model(params: ThermalParams, path: str | Path, comment: str | None = None) -> None:
     """Write model.yaml (loads back to an equal ThermalParams)."""
-    path = Path(path)
     header = "".join(f"# {line}\n" for line in (comment or "").splitlines())
-    try:
-        path.write_text(header + yaml.safe_dump(params.to_dict(), sort_keys=False), encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot write model file ({exc.strerror})") from None
+    text = header + yaml.safe_dump(params.to_dict(), sort_keys=False)
+    write_output_bytes(path, text.encode("utf-8"), ConfigError)
