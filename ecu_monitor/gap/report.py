@@ -27,6 +27,7 @@ from ecu_monitor.gap.diagnosis import EffectScore, GapDiagnosis
 from ecu_monitor.gap.localise import LagSignature
 from ecu_monitor.gap.segments import SEGMENT_NAMES
 from ecu_monitor.model import save_model
+from ecu_monitor.userfiles import write_output_bytes
 
 __all__ = ["PLOT_FILES", "gap_json", "write_report"]
 
@@ -480,12 +481,12 @@ def write_report(diag: GapDiagnosis, out_dir: str | Path, command: str | None = 
     except OSError as exc:
         raise ConfigError(f"{out}: cannot create the output directory ({exc.strerror})") from None
     doc = gap_json(diag)
-    (out / "gap.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    write_output_bytes(out / "gap.json", (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode(), ConfigError)
     _plot_residual_time(diag, out / PLOT_FILES[0])
     _plot_residual_inputs(diag, out / PLOT_FILES[1])
     _plot_spectrum(diag, out / PLOT_FILES[2])
     _plot_before_after(diag, out / PLOT_FILES[3])
-    (out / "report.md").write_text(_markdown(diag, doc, command), encoding="utf-8")
+    write_output_bytes(out / "report.md", _markdown(diag, doc, command).encode("utf-8"), ConfigError)
     label = diag.winner.label if diag.winner is not None else "none (unexplained): nominal model unchanged"
     save_model(diag.model, out / "model.yaml", comment=f"ecu-monitor gap: winning effect {label}")
     return doc
