@@ -65,7 +65,7 @@ def open_input(
     try:
         fd = os.open(src, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
-        raise error(f"{src}: no such file") from None
+        raise error(f"{src}: no such {what}") from None
     except OSError as exc:
         raise error(f"{src}: cannot read {what} ({exc.strerror or exc})") from None
     try:

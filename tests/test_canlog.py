@@ -107,6 +107,7 @@ def test_can_log_signal_map_errors(tmp_path: Path) -> None:
 
 
 def test_load_flight_unknown_suffix(tmp_path: Path) -> None:
+    (tmp_path / "x.parquet").write_bytes(b"PAR1")
     with pytest.raises(FlightLogError, match=r"unknown log type '.parquet'"):
         load_flight(tmp_path / "x.parquet")
 
