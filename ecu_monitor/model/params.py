@@ -24,6 +24,7 @@ from ecu_monitor.userfiles import write_output_bytes
 from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
+    "MAX_STEADY_RISE_C",
     "MODEL_KIND",
     "MODEL_VERSION",
     "NOMINAL_TERMS",
@@ -67,6 +68,11 @@ _SCALARS: dict[str, tuple[float, float]] = {
     "b": (0.0, 10.0),
     "cht_limit_c": (20.0, 500.0),
 }
+#: Highest steady CHT rise above the air a model may predict, degC: the heat map's largest value times
+#: R_Ce (the wall's steady state without radiation). Aluminium melts at 660 degC; three times that still
+#: leaves room for any identified engine while refusing a heat map in the wrong unit (1e9 W made every
+#: filter step NaN).
+MAX_STEADY_RISE_C = 2000.0
 
 
 @dataclass(frozen=True)
@@ -111,6 +117,13 @@ class ThermalParams:
             raise ParameterError("radiation_in_kelvin: expected true or false")
         if not isinstance(self.heat_map, HeatMap):
             raise ParameterError("heat_map: expected a HeatMap")
+        peak_w = max(max(row) for row in self.heat_map.values_w)
+        if peak_w * self.r_ce > MAX_STEADY_RISE_C:
+            raise ParameterError(
+                f"heat_map.values_w: {peak_w:g} W times r_ce {self.r_ce:g} degC/W is a steady CHT"
+                f" {peak_w * self.r_ce:.3g} degC above the air, more than any engine ({MAX_STEADY_RISE_C:g});"
+                " is the heat map in W?"
+            )
         if not isinstance(self.effects, Effects):
             raise ParameterError("effects: expected an Effects")
         if isinstance(self.terms_off, str) or not isinstance(self.terms_off, tuple | list):
