@@ -113,7 +113,10 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
         raise ConfigError(f"{config.source}: bus.interface: unknown interface {interface!r} (known: {known})")
 
     def open_bus() -> can.BusABC:
-        return can.Bus(**options)
+        bus = can.Bus(**options)
+        if bus.channel_info == can.BusABC.channel_info:  # "unknown" (udp_multicast): the daemon's log names it
+            bus.channel_info = f"{interface} {options.get('channel')}"
+        return bus
 
     first: can.BusABC | None = None
     error: str | None = None
