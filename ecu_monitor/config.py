@@ -45,6 +45,7 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+from ecu_monitor.model.params import MODEL_KIND
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 from ecu_monitor.units import Unit, custom_unit
 from ecu_monitor.yamlfile import load_yaml_file
@@ -541,6 +542,8 @@ def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
 def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     """Validate already-parsed YAML ``data``; ``src`` names the file in messages and anchors relative paths."""
     source = Path(src)
+    if isinstance(data, dict) and data.get("model") == MODEL_KIND and "heat_map" in data:
+        raise ConfigError(f"{source}: this is a model file (model.yaml), not a service config: give it as --model")
     try:
         file = msgspec.convert(data, ConfigFile)
     except msgspec.ValidationError as exc:

@@ -184,6 +184,8 @@ class ThermalParams:
         if not isinstance(data, dict):
             raise ParameterError("expected a mapping at the top level")
         known = {f.name for f in dataclasses.fields(cls)} | {"model", "version"}
+        if "inputs" in data and "engine" in data:
+            raise ParameterError("this is a service config, not a model file: give it as --config")
         for key in data:
             if key not in known:
                 raise ParameterError(f"{key}: unknown key (known: {', '.join(sorted(known))})")
