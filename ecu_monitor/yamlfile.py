@@ -4,6 +4,7 @@
 - a mapping that repeats a key is refused (safe_load silently keeps the last value, so a file that sets
   ``c_w`` twice would run with the value a reader did not see);
 - nesting deeper than :data:`MAX_DEPTH` is refused (50,000 ``[`` would otherwise end in a RecursionError);
+- an integer longer than :data:`MAX_NUMBER_CHARS` characters is refused (Python itself refuses 4,300 digits);
 - aliases that expand to more than :data:`MAX_NODES` values are refused (a "billion laughs" file is a few
   lines that alias a list nine times over: every later step, even an error message, would walk 10^9 items).
 """
@@ -21,6 +22,7 @@ from ecu_monitor.userfiles import read_input_text
 __all__ = [
     "MAX_DEPTH",
     "MAX_NODES",
+    "MAX_NUMBER_CHARS",
     "DuplicateKeyError",
     "YamlLimitError",
     "load_yaml_file",
@@ -32,6 +34,8 @@ __all__ = [
 MAX_DEPTH = 64
 #: Most values one document may hold once its aliases are expanded (a large heat map holds a few hundred).
 MAX_NODES = 100_000
+#: Longest integer accepted, in characters.
+MAX_NUMBER_CHARS = 100
 
 
 class DuplicateKeyError(yaml.constructor.ConstructorError):
@@ -73,6 +77,15 @@ class _StrictLoader(yaml.SafeLoader):
                 )
         return node
 
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        """An integer of at most :data:`MAX_NUMBER_CHARS` characters (Python refuses to read one of
+        4,300 digits with a ValueError no YAML error handler expects)."""
+        if len(node.value) > MAX_NUMBER_CHARS:
+            line = node.start_mark.line + 1
+            message = f"a number of {len(node.value)} characters (line {line}); at most {MAX_NUMBER_CHARS}"
+            raise YamlLimitError(None, None, message, node.start_mark)
+        return int(super().construct_yaml_int(node))
+
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: set[Any] = set()
         for key_node, _value_node in node.value:
@@ -88,6 +101,9 @@ class _StrictLoader(yaml.SafeLoader):
                 raise DuplicateKeyError(None, None, f"{key}: duplicate key (line {line})", key_node.start_mark)
             seen.add(key)
         return super().construct_mapping(node, deep=deep)
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
 
 
 def load_yaml_text(text: str) -> Any:
