@@ -33,6 +33,7 @@ __all__ = [
     "open_input",
     "read_input_bytes",
     "read_input_text",
+    "save_figure",
     "write_output_bytes",
 ]
 
@@ -201,3 +202,12 @@ def write_output_bytes(
     """Write ``data`` to ``path`` through :func:`atomic_output`."""
     with atomic_output(path, error, inputs) as handle:
         handle.write(data)
+
+
+def save_figure(
+    figure: Any, path: str | os.PathLike[str], dpi: float, error: type[UserInputError] = UserInputError
+) -> None:
+    """Save a matplotlib ``figure`` to ``path`` (format by suffix, PNG without one) through :func:`atomic_output`."""
+    out = Path(path)
+    with atomic_output(out, error) as handle:
+        figure.savefig(handle, format=out.suffix.lstrip(".").lower() or "png", dpi=dpi)

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
+from ecu_monitor.userfiles import save_figure
 
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
@@ -406,7 +407,7 @@ def plot_report(
     marks(ax)
     ax.legend(loc="lower center", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "cht.png", dpi=110)
+    save_figure(fig, out / "cht.png", dpi=110)
     plt.close(fig)
 
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 6), sharex=True, height_ratios=(2, 1))
@@ -424,7 +425,7 @@ def plot_report(
     ax2.set_ylabel("state")
     marks(ax2)
     fig.tight_layout()
-    fig.savefig(out / "detection.png", dpi=110)
+    save_figure(fig, out / "detection.png", dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(11, 4.5))
@@ -437,7 +438,7 @@ def plot_report(
     marks(ax)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "gammas.png", dpi=110)
+    save_figure(fig, out / "gammas.png", dpi=110)
     plt.close(fig)
 
     if rows and rows[0].cylinders:
@@ -455,7 +456,7 @@ def plot_report(
     marks(ax)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "headroom.png", dpi=110)
+    save_figure(fig, out / "headroom.png", dpi=110)
     plt.close(fig)
 
 
@@ -493,5 +494,5 @@ def _plot_cylinders(log: FlightLog, rows: list[HealthSnapshot], out: Path, marks
     for ax in (ax1, ax2, ax3):
         marks(ax)
     fig.tight_layout()
-    fig.savefig(out / "cylinders.png", dpi=110)
+    save_figure(fig, out / "cylinders.png", dpi=110)
     plt.close(fig)

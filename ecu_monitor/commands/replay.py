@@ -33,6 +33,7 @@ from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
+from ecu_monitor.userfiles import save_figure
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
     from collections.abc import Sequence
@@ -232,9 +233,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_cht.set_title(f"{title}: the service's replay (shaded: state not NOMINAL)")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+        save_figure(fig, path, dpi=110, error=ParameterError)
     finally:
         plt.close(fig)
 

@@ -27,7 +27,7 @@ from ecu_monitor.gap.diagnosis import EffectScore, GapDiagnosis
 from ecu_monitor.gap.localise import LagSignature
 from ecu_monitor.gap.segments import SEGMENT_NAMES
 from ecu_monitor.model import save_model
-from ecu_monitor.userfiles import write_output_bytes
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = ["PLOT_FILES", "gap_json", "write_report"]
 
@@ -205,7 +205,7 @@ def _plot_residual_time(diag: GapDiagnosis, path: Path) -> None:
         bottom.set_xlabel("time, min")
         _legend(bottom, present)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -231,7 +231,7 @@ def _plot_residual_inputs(diag: GapDiagnosis, path: Path) -> None:
     _legend(axes.flat[0], {SEGMENT_NAMES[i] for i in np.unique(labels)})
     fig.suptitle(f"Residual of the nominal model against each input ({len(diag.tests)} test flight(s) pooled)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -256,7 +256,7 @@ def _plot_spectrum(diag: GapDiagnosis, path: Path) -> None:
     ax.set_title(f"Residual spectrum ({lag}, r = {diag.lag.correlation:+.2f})")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -285,7 +285,7 @@ def _plot_before_after(diag: GapDiagnosis, path: Path) -> None:
         bottom.set_xlabel("time, min")
         bottom.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 

@@ -59,6 +59,7 @@ from ecu_monitor.model import (
     paper_table_a1,
 )
 from ecu_monitor.model.compiled import simulate_compiled
+from ecu_monitor.userfiles import save_figure
 
 __all__ = [
     "RESET_MODES_COMPARED",
@@ -739,7 +740,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(folder / "delay_vs_severity.png", dpi=110)
+    save_figure(fig, folder / "delay_vs_severity.png", dpi=110)
     plt.close(fig)
     names.append("delay_vs_severity.png")
     # 2. gamma estimates vs time for a few cases
@@ -769,7 +770,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
         np.atleast_1d(axes)[0].legend(fontsize=8, loc="upper left")
         np.atleast_1d(axes)[-1].set_xlabel("time since onset, s (dotted: +300 s, where isolation is scored)")
         fig.tight_layout()
-        fig.savefig(folder / "gamma_estimates.png", dpi=100)
+        save_figure(fig, folder / "gamma_estimates.png", dpi=100)
         plt.close(fig)
         names.append("gamma_estimates.png")
     # 3. statistic on nominal (scoring) flights with the threshold
@@ -785,7 +786,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(folder / "nominal_statistic.png", dpi=110)
+    save_figure(fig, folder / "nominal_statistic.png", dpi=110)
     plt.close(fig)
     names.append("nominal_statistic.png")
     # 4. headroom predicted vs actual
@@ -807,7 +808,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
         fig.tight_layout()
-        fig.savefig(folder / "headroom.png", dpi=110)
+        save_figure(fig, folder / "headroom.png", dpi=110)
         plt.close(fig)
         names.append("headroom.png")
     return names

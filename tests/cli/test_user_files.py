@@ -143,3 +143,13 @@ def test_flights_cache_is_never_unpickled(capsys, tmp_path):
         "not a flights cache",
     )
     assert not marker.exists()
+
+
+def test_a_plot_replaces_a_link_and_never_writes_its_target(tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me\n")
+    plot = tmp_path / "health.png"
+    plot.symlink_to(victim)
+    assert main(["replay", str(FLIGHT), "--out", str(tmp_path / "h.csv"), "--plot", str(plot)]) == 0
+    assert victim.read_text() == "keep me\n"
+    assert not plot.is_symlink() and plot.read_bytes().startswith(b"\x89PNG")
