@@ -9,6 +9,7 @@ error raised inside the frame path (counted by the keep-alive handler, the daemo
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import socket
@@ -350,31 +351,21 @@ class StrayDatagramBus(FlakyBus):
 def test_a_datagram_that_is_no_can_frame_is_counted_and_the_bus_kept(tmp_path: Path) -> None:
     """Issue 31: one non-CAN datagram every few frames used to close and reopen the bus (~0.5 s each)."""
     channel = f"stray-{uuid.uuid4().hex}"
-    opened: list[can.BusABC] = []
-    calls = {"n": 0}
-
-    def every_tenth() -> bool:
-        calls["n"] += 1
-        return calls["n"] % 10 == 0
-
-    def open_bus() -> can.BusABC:
-        opened.append(StrayDatagramBus(channel, lambda: False, every_tenth))
-        return opened[-1]
-
-    pipeline = _pipeline(tmp_path, channel)
-    daemon = Daemon(pipeline, open_bus, settings=DaemonSettings(backoff_initial_s=0.05, backoff_max_s=0.2))
-    sender_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    every_tenth = itertools.cycle([False] * 9 + [True]).__next__
+    opens = []
+    bus = StrayDatagramBus(channel, lambda: False, every_tenth)
+    daemon = Daemon(_pipeline(tmp_path, channel), lambda: opens.append(bus) or bus)
     thread, result = run_daemon_thread(daemon)
-    try:
-        with EcuSender(sender_bus):
-            assert wait_until(lambda: daemon.counters["bad_datagrams"] >= 20, 30.0)
-            assert wait_until(lambda: daemon.counters["frames_in"] > 200, 30.0)
-        assert thread.is_alive()
-        assert len(opened) == 1 and daemon.counters["receive_errors"] == 0
-        assert daemon.counters["bus_errors"] == daemon.counters["bad_datagrams"]
-    finally:
-        stop_daemon(daemon, thread, result)
-        sender_bus.shutdown()
+    with can.Bus(interface="virtual", channel=channel, receive_own_messages=False) as sender_bus:
+        try:
+            with EcuSender(sender_bus):
+                assert wait_until(lambda: daemon.counters["bad_datagrams"] >= 20, 30.0)
+                assert wait_until(lambda: daemon.counters["frames_in"] > 200, 30.0)
+            assert thread.is_alive()
+            assert len(opens) == 1 and daemon.counters["receive_errors"] == 0
+            assert daemon.counters["bus_errors"] == daemon.counters["bad_datagrams"]
+        finally:
+            stop_daemon(daemon, thread, result)
 
 
 def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(
