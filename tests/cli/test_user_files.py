@@ -139,7 +139,7 @@ def test_flights_cache_is_never_unpickled(capsys, tmp_path):
     cache.write_bytes(pickle.dumps(Payload()))
     _fails_in_one_line(
         capsys,
-        ["evaluate", "--hours", "0.1", "--flights-cache", str(cache), "--out", str(tmp_path / "out")],
+        ["evaluate", "--hours", "2", "--flights-cache", str(cache), "--out", str(tmp_path / "out")],
         "not a flights cache",
     )
     assert not marker.exists()
