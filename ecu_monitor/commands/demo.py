@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
-from ecu_monitor.userfiles import save_figure
+from ecu_monitor.userfiles import atomic_output, save_figure
 
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
@@ -327,7 +327,7 @@ def _run_mavlink(args: argparse.Namespace, out: Path, mission: Any, config: Serv
     print("STATUSTEXT, as the ground station shows it:")
     for time_s, severity, text in texts:
         print(f"  t = {time_s:7.1f} s  {_SEVERITY_NAMES[severity]:<8s}  {text}")
-    with (out / "statustext.csv").open("w", encoding="utf-8") as f:
+    with atomic_output(out / "statustext.csv", text=True) as f:
         f.write("time_s,severity,text\n")
         f.writelines(f'{time_s:.1f},{_SEVERITY_NAMES[severity]},"{text}"\n' for time_s, severity, text in texts)
     plots = _write_report(args, out, log, rows, mission=mission.name, cht_limit_c=params.cht_limit_c, cylinders=False)

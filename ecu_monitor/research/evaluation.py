@@ -59,7 +59,7 @@ from ecu_monitor.model import (
     paper_table_a1,
 )
 from ecu_monitor.model.compiled import simulate_compiled
-from ecu_monitor.userfiles import save_figure
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = [
     "RESET_MODES_COMPARED",
@@ -981,5 +981,5 @@ def write_report(
         "",
     ]
     path = out / "detection.md"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_output_bytes(path, ("\n".join(lines) + "\n").encode("utf-8"))
     return path

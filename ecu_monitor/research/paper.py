@@ -24,7 +24,7 @@ from ecu_monitor.estimation import EstimatorSettings, run_estimator
 from ecu_monitor.estimation.runner import EstimateTrace, sample_indices
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import ThermalParams, paper_table_a1
-from ecu_monitor.userfiles import save_figure
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = ["INJECT_S", "VARIANTS", "generate", "settle_time", "steady_relative_error"]
 
@@ -419,7 +419,8 @@ def generate(out: Path, seeds: int = 4, progress: Callable[[str], None] = print)
 
     elapsed = time.perf_counter() - started
     md = out / "paper_reproduction.md"
-    md.write_text(
+    write_output_bytes(
+        md,
         _report(
             settle,
             steady,
@@ -440,8 +441,7 @@ def generate(out: Path, seeds: int = 4, progress: Callable[[str], None] = print)
             seeds,
             elapsed,
             settings,
-        ),
-        encoding="utf-8",
+        ).encode("utf-8"),
     )
     return md
 
