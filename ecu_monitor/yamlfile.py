@@ -57,7 +57,7 @@ class _StrictLoader(yaml.SafeLoader):
         self._depth += 1
         if self._depth > MAX_DEPTH:
             mark = self.peek_event().start_mark
-            raise YamlLimitError(None, None, f"nested more than {MAX_DEPTH} levels deep (line {mark.line + 1})", mark)
+            raise YamlLimitError(None, None, f"nested more than {MAX_DEPTH} levels deep", mark)
         try:
             node = super().compose_node(parent, index)
         finally:
@@ -71,18 +71,14 @@ class _StrictLoader(yaml.SafeLoader):
                 children = []
             node.expanded_size = 1 + sum(child.expanded_size for child in children)
             if node.expanded_size > MAX_NODES:
-                line = node.start_mark.line + 1
-                raise YamlLimitError(
-                    None, None, f"aliases expand to more than {MAX_NODES} values (line {line})", node.start_mark
-                )
+                raise YamlLimitError(None, None, f"aliases expand to more than {MAX_NODES} values", node.start_mark)
         return node
 
     def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
         """An integer of at most :data:`MAX_NUMBER_CHARS` characters (Python refuses to read one of
         4,300 digits with a ValueError no YAML error handler expects)."""
         if len(node.value) > MAX_NUMBER_CHARS:
-            line = node.start_mark.line + 1
-            message = f"a number of {len(node.value)} characters (line {line}); at most {MAX_NUMBER_CHARS}"
+            message = f"a number of {len(node.value)} characters (at most {MAX_NUMBER_CHARS})"
             raise YamlLimitError(None, None, message, node.start_mark)
         return int(super().construct_yaml_int(node))
 
