@@ -90,7 +90,7 @@ def model_files(draw: st.DrawFn) -> bytes:
             data.pop(key, None)
         elif action == "value":
             data[key] = draw(st.one_of(st.floats(allow_nan=True), st.text(max_size=5), st.none(), st.booleans()))
-        elif action == "ragged" and isinstance(data.get("heat_map"), dict):
+        elif action == "ragged" and isinstance(data.get("heat_map"), dict) and "values_w" in data["heat_map"]:
             rows = data["heat_map"]["values_w"]
             rows[draw(st.integers(0, len(rows) - 1))] = draw(st.lists(st.floats(0, 5000), max_size=8))
         elif action == "nested":
