@@ -179,7 +179,7 @@ class _Values:
 
     def __init_subclass__(cls) -> None:
         for name in cls._fields:
-            setattr(cls, name, property(lambda self, _name=name: self._v[_name], doc=f"the {name} value"))
+            setattr(cls, name, _field(name))
 
     def __init__(self, **values: Any) -> None:
         if not values.keys() <= self._fields.keys():
@@ -211,7 +211,7 @@ class _Values:
         object.__setattr__(self, "_v", state)
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._v == other._v  # type: ignore[attr-defined]
+        return type(other) is type(self) and self._v == other._v
 
     def __hash__(self) -> int:
         return hash(tuple(self._v.items()))
@@ -222,6 +222,15 @@ class _Values:
     def replace(self, **changes: Any) -> Any:
         """A copy with ``changes``."""
         return type(self)(**{**self._v, **changes})
+
+
+def _field(name: str) -> property:
+    """The read-only attribute of field ``name``."""
+
+    def get(self: _Values) -> Any:
+        return self._v[name]
+
+    return property(get, doc=f"the {name} value")
 
 
 class CylinderSnapshot(_Values):
