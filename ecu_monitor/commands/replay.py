@@ -33,6 +33,7 @@ from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
+from ecu_monitor.userfiles import save_figure
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
     from collections.abc import Sequence
@@ -84,9 +85,12 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
+    from ecu_monitor.userfiles import check_output_not_input
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
+    for out in (args.out, args.plot):
+        check_output_not_input(out or "", (args.log, args.config, args.model), ConfigError)
     if args.plot:
         _check_plot_path(Path(args.plot))
     path = Path(args.log)
@@ -226,9 +230,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_cht.set_title(f"{title}: the service's replay (shaded: state not NOMINAL)")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+        save_figure(fig, path, dpi=110, error=ParameterError)
     finally:
         plt.close(fig)
 
