@@ -65,6 +65,7 @@ __all__ = [
     "Backoff",
     "ConfigFile",
     "DroneCanSettings",
+    "EngineEvents",
     "HealthRate",
     "InputSpec",
     "SensorFaultSettings",
@@ -209,6 +210,27 @@ class SensorFaultSettings(_SensorFaultSection, frozen=True):
     status_message: str | None = None
 
 
+class EngineEvents(_Section, frozen=True):
+    """``events:``: the engine events the step reports (docs/service.md, "Engine events"; each default's
+    reason is there).
+
+    on: report them at all. shock_cooling_c_per_min: a cylinder's CHT rate (the filter's, degC/min)
+    falling faster than this is shock cooling, once it lasts shock_cooling_min_s (s).
+    cht_divergence_c: a cylinder's estimated CHT further than this (degC) from the median of the other
+    cylinders' diverges, once it lasts divergence_min_s (s); needs two or more CHT channels.
+    cht_limit_c: an estimated CHT above this (degC) is an exceedance once it lasts exceedance_min_s (s);
+    None: each cylinder's model's ``cht_limit_c`` (model.yaml).
+    """
+
+    on: bool = True
+    shock_cooling_c_per_min: _Positive = 33.0
+    shock_cooling_min_s: _NonNegative = 5.0
+    cht_divergence_c: _Positive = 40.0
+    divergence_min_s: _NonNegative = 10.0
+    cht_limit_c: _Number | None = None
+    exceedance_min_s: _NonNegative = 2.0
+
+
 class _Input(_Section, frozen=True):
     """``inputs.<name>``: where the input is on the bus, its unit and when it goes stale, s."""
 
@@ -313,6 +335,7 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
     no_frames_warning_s: _Positive = 10.0
     state_dir: _FilePath = "/var/lib/ecu-monitor"  # the SQLite database of flights and trends
     sensor_fault: _SensorFaultSection = _SensorFaultSection()
+    events: EngineEvents = EngineEvents()
 
     def __post_init__(self) -> None:
         if self.protocol == "mavlink":  # the link is mavlink.connection, not a CAN bus
@@ -480,6 +503,8 @@ class ServiceConfig:
     cross_detectors: tuple[DetectorSettings | None, ...]
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
     cross_calibrated_for: tuple[str | None, ...]
+    #: ``events:``: the engine events' limits
+    events: EngineEvents
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
@@ -631,6 +656,7 @@ class _Resolver:
             ),
             cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
             **self.cross_detectors(cylinders, count),
+            events=file.events,
         )
 
     def load(self, key: str, path: Path) -> Any:

@@ -13,7 +13,8 @@ the model's CHT limit below what the engine read (the headroom is 0 there), and 
 not calibrated for this model (``detector.calibrated_for`` absent from the config or naming another
 model; ``ecu-monitor calibrate`` writes it). Defaults: config example.yaml (shipped), the model it
 names (or --model), its estimator (or --estimator). ``--live`` feeds the frames one by one through
-the live path instead of the batch path (same rows, slower; for checking).
+the live path instead of the batch path (same rows, slower; for checking). ``--events EVENTS.csv``
+writes the engine events (docs/contracts.md, "Engine events") and ``--plot`` draws them on the CHT panel.
 
 The protocol comes from the config (``protocol: dbc|dronecan``). Without --config, a CAN log whose
 frames look like DroneCAN (29-bit ids with DroneCAN tail bytes, ``bus.dronecan.looks_like_dronecan``)
@@ -65,6 +66,12 @@ def add_subparser(subparsers: Any) -> None:
         metavar="HEALTH.csv",
         help="output: .csv, or .parquet / .arrow / .feather (pip install 'ecu-monitor[arrow]')",
     )
+    parser.add_argument(
+        "--events",
+        metavar="EVENTS.csv",
+        help="also write the engine events (shock cooling, CHT divergence, exceedances): time_s, kind, cylinder,"
+        " value, limit, duration_s (docs/contracts.md)",
+    )
     parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
     parser.add_argument(
         "--plot",
@@ -89,7 +96,7 @@ def _run(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
-    for out in (args.out, args.plot):
+    for out in (args.out, args.plot, args.events):
         check_output_not_input(out or "", (args.log, args.config, args.model), ConfigError)
     if args.plot:
         _check_plot_path(Path(args.plot))
@@ -128,6 +135,15 @@ def _run(args: argparse.Namespace) -> int:
             raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
     rows = result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
+    if args.events:
+        from ecu_monitor.pipeline.events import events_csv
+        from ecu_monitor.userfiles import write_output_bytes
+
+        write_output_bytes(args.events, events_csv(result.events).encode(), ParameterError, (args.log, args.config))
+        kinds = collections.Counter(e.kind for e in result.events)
+        listed = ", ".join(f"{n} {kind}" for kind, n in sorted(kinds.items())) or "none"
+        dropped = result.counters.get("events_dropped", 0)
+        print(f"events: {args.events}: {listed}" + (f" ({dropped} dropped: buffer full)" if dropped else ""))
     for line in _cylinder_lines(result):
         print(line)
     if log_frames is not None and result.counters.get("ok", 0) == 0:
@@ -224,6 +240,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
         for i, ax in enumerate(axes):
             ax.fill_between(t, 0, 1, where=inside, step="post", color=colour, alpha=0.15, lw=0,
                             transform=ax.get_xaxis_transform(), label=name if i == 0 else None)  # fmt: skip
+    _plot_events(ax_cht, result, time_s[0])
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7, borderaxespad=0.0)  # beside the traces
@@ -233,6 +250,32 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
         save_figure(fig, path, dpi=110, error=ParameterError)
     finally:
         plt.close(fig)
+
+
+#: The colour of each kind of engine event on the replay plot.
+_EVENT_COLOURS = {
+    "shock_cooling": "tab:cyan",
+    "cht_divergence": "tab:olive",
+    "egt_divergence": "tab:brown",
+    "valve_advisory": "tab:pink",
+    "cht_exceedance": "tab:red",
+    "egt_exceedance": "darkred",
+    "oil_exceedance": "tab:orange",
+}
+
+
+def _plot_events(ax: Any, result: ReplayResult, origin_s: float) -> None:
+    """The engine events on the CHT panel: each a band over its duration and its cylinder's number above."""
+    labelled: set[str] = set()
+    for event in result.events:
+        start = (event.time_s - origin_s) / 60.0
+        end = start + event.duration_s / 60.0
+        colour = _EVENT_COLOURS[event.kind]
+        ax.axvspan(start, max(end, start + 0.05), color=colour, alpha=0.35, lw=0,
+                   label=None if event.kind in labelled else event.kind.replace("_", " "))  # fmt: skip
+        ax.text(start, 1.0, str(event.cylinder), color=colour, fontsize=6, ha="left", va="bottom",
+                transform=ax.get_xaxis_transform())  # fmt: skip
+        labelled.add(event.kind)
 
 
 def _is_dronecan(frames: FrameArrays) -> bool:

@@ -28,6 +28,7 @@ from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
 from ecu_monitor.pipeline.engine import Pipeline, model_input_names
+from ecu_monitor.pipeline.events import Event
 from ecu_monitor.pipeline.output_table import output_fields
 from ecu_monitor.pipeline.outputs import (
     HealthSnapshot,
@@ -61,11 +62,15 @@ def replay_live(
     """The replay frame by frame through the live calls (``replay --live``)."""
     pipeline = Pipeline(config, params)
     rows: list[HealthSnapshot] = []
+    events: list[Event] = []
     for msg in frames:
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
         rows.extend(pipeline.drain_rows())
-    return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters))
+        events += pipeline.take_events()
+    events += pipeline.close_events()
+    return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters),
+                        events=tuple(events))  # fmt: skip
 
 
 def replay_frames(
@@ -164,15 +169,16 @@ def _run(
     count = pipeline.cylinder_count
     traces = keep_feeds or keep_reference
     rows, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces)
-    counters["steps"] = pipeline.counters["steps"]
-    counters["clock_restarts"] = pipeline.counters["clock_restarts"]
+    events = tuple(pipeline.close_events())
+    for key in ("steps", "clock_restarts", "events_dropped"):
+        counters[key] = pipeline.counters[key]
     columns = _columns(rows, count, config.spread_limit_c, pipeline.stale_bits)
     feeds: tuple[_Feed, ...] = ()
     cross: tuple[tuple[_Feed, ...], ...] = ()
     reference: tuple[ReferenceFeed, ...] = ()
     if traces:
         feeds, cross, reference = _feeds(kept, count, config, keep_reference)
-    return ReplayResult(columns, counters, feeds, gaps, cross, reference)
+    return ReplayResult(columns, counters, feeds, gaps, cross, reference, events)
 
 
 def _values_by_frame(

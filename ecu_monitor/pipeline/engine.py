@@ -29,6 +29,7 @@ from ecu_monitor.estimation.registry import ESTIMATORS, make_estimator
 from ecu_monitor.model import ThermalParams, coefficients, pack_coefficients
 from ecu_monitor.model.effects import MixtureIndex
 from ecu_monitor.model.inputs import MIXTURE_COLUMNS, input_columns
+from ecu_monitor.pipeline.events import EVENT_KINDS, Event
 from ecu_monitor.pipeline.output_table import cylinder_snapshot, output_fields
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.pipeline.schedule import filter_period_steps
@@ -37,6 +38,7 @@ from ecu_monitor.pipeline.step import (
     CYLINDER_OUTPUT,
     CYLINDER_SETTINGS,
     CYLINDER_STATE,
+    EVENT,
     Engine,
     Rows,
     Traces,
@@ -64,6 +66,8 @@ MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 CHT_INPUT = "cht_c"
 #: Rows the live pipeline's output table holds between two drains.
 _LIVE_ROWS = 8192
+#: Events the step's buffer holds between two :meth:`Pipeline.take_events` (more are counted, dropped).
+_EVENT_CAPACITY = 4096
 
 
 @dataclass(frozen=True)
@@ -197,7 +201,7 @@ class Pipeline:
             specs.append(SignalSpec(STATUS_INPUT, sf.status_message, sf.status_signal, "raw"))
         self.decoder: Any = make_decoder(config, specs)  # the protocol's: CAN frames or MAVLink messages
         self.counters: dict[str, int] = self.decoder.counters
-        for key in ("bus_errors", "steps", "clock_restarts"):
+        for key in ("bus_errors", "steps", "clock_restarts", "events_dropped"):
             self.counters[key] = 0
         self.names = self.decoder.names
         self._slot = {name: i for i, name in enumerate(self.names)}
@@ -300,6 +304,15 @@ class Pipeline:
             cross = config.cross_detector(number)
             _detector_record(s["detector"], own)
             _detector_record(s["cross"], cross)
+            ev = config.events
+            e = s["events"]
+            e["on"] = ev.on
+            e["shock_rate_c_per_min"] = ev.shock_cooling_c_per_min
+            e["shock_min_s"] = ev.shock_cooling_min_s
+            e["divergence_c"] = ev.cht_divergence_c
+            e["divergence_min_s"] = ev.divergence_min_s
+            e["cht_limit_c"] = model.cht_limit_c if ev.cht_limit_c is None else ev.cht_limit_c
+            e["exceedance_min_s"] = ev.exceedance_min_s
             for d in (own, cross):
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)
@@ -329,6 +342,8 @@ class Pipeline:
             output=np.zeros(count, dtype=CYLINDER_OUTPUT),
             scratch=np.zeros(24),
             symptoms=np.zeros((2, count)),
+            events=np.zeros(_EVENT_CAPACITY, dtype=EVENT),
+            event_count=np.zeros(2, dtype=np.int64),
         )
         return engine
 
@@ -406,6 +421,24 @@ class Pipeline:
         clock = self._engine.clock[0]
         self.counters["steps"] = int(clock["steps"])
         self.counters["clock_restarts"] = int(clock["restarts"])
+        self.counters["events_dropped"] = int(self._engine.event_count[1])
+
+    def take_events(self) -> list[Event]:
+        """The engine events the step wrote since the last call (oldest first; pipeline/events.py)."""
+        count = self._engine.event_count
+        n = int(count[0])
+        if n == 0:
+            return []
+        records = self._engine.events[:n].tolist()
+        count[0] = 0
+        return [Event(t, EVENT_KINDS[kind], cylinder, value, limit, duration)
+                for t, kind, cylinder, value, limit, duration in records]  # fmt: skip
+
+    def close_events(self) -> list[Event]:
+        """End every event condition still holding (the log ended) and take the events
+        (:meth:`take_events`)."""
+        self._compiled().close_events(self._engine)
+        return self.take_events()
 
     def _take_rows(self) -> list[StepRow]:
         rows = self._rows

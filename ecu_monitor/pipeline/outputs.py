@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES
+from ecu_monitor.pipeline.events import Event
 from ecu_monitor.pipeline.output_table import (
     HEALTH_VALUES,
     STATES,
@@ -97,6 +98,7 @@ class ReplayResult:
     cross-cylinder detector was fed (as detector_feed).
     reference_feed (batch path, when asked): per clock segment as detector_feed, the open-loop reference
     (:class:`ReferenceFeed`; the first cylinder's on an engine monitored per cylinder).
+    events: the engine events (pipeline/events.py), in the order the step wrote them.
     """
 
     columns: dict[str, NDArray[Any]]
@@ -105,6 +107,7 @@ class ReplayResult:
     gaps: tuple[tuple[float, float], ...] = ()
     cross_feeds: tuple[tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...], ...] = ()
     reference_feed: tuple[ReferenceFeed, ...] = ()
+    events: tuple[Event, ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)

@@ -24,7 +24,9 @@ The rules, in the order a step applies them:
   NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches;
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
-  detector; the more severe verdict wins.
+  detector; the more severe verdict wins;
+* the engine events (:func:`events_step`): shock cooling, CHT divergence and CHT exceedance per cylinder,
+  into ``Engine.events`` when their condition ends.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
+from ecu_monitor.pipeline.events import EVENT_KINDS
 from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, output_fields
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
 from ecu_monitor.pipeline.supervision import (
@@ -60,6 +63,9 @@ __all__ = [
     "CYLINDER_STATE",
     "DETECTOR_SETTINGS",
     "DETECTOR_STATE",
+    "EVENT",
+    "EVENT_SETTINGS",
+    "EVENT_TRACKER",
     "Engine",
     "Rows",
     "Traces",
@@ -104,6 +110,27 @@ DETECTOR_STATE = np.dtype(
         ("head", "i8"),  # the oldest of them in the ring
     ]
 )
+#: A cylinder's engine-event limits (config ``events:``; pipeline/events.py).
+EVENT_SETTINGS = np.dtype(
+    [
+        ("on", "?"),
+        ("shock_rate_c_per_min", "f8"),  # the CHT rate below minus this is shock cooling
+        ("shock_min_s", "f8"),
+        ("divergence_c", "f8"),  # the CHT estimate this far from the median of the others' diverges
+        ("divergence_min_s", "f8"),
+        ("cht_limit_c", "f8"),
+        ("exceedance_min_s", "f8"),
+    ]
+)
+#: One condition of one cylinder being watched: since when it holds, when it last held, its worst value.
+EVENT_TRACKER = np.dtype([("active", "?"), ("start_s", "f8"), ("last_s", "f8"), ("peak", "f8")])
+#: One event (pipeline/events.py: the kind is an index into EVENT_KINDS, the cylinder 1-based).
+EVENT = np.dtype(
+    [("time_s", "f8"), ("kind", "i8"), ("cylinder", "i8"), ("value", "f8"), ("limit", "f8"), ("duration_s", "f8")]
+)
+_SHOCK_COOLING = EVENT_KINDS.index("shock_cooling")
+_CHT_DIVERGENCE = EVENT_KINDS.index("cht_divergence")
+_CHT_EXCEEDANCE = EVENT_KINDS.index("cht_exceedance")
 CYLINDER_SETTINGS = np.dtype(
     [
         ("cht_slot", "i8"),  # its CHT reading in Engine.values
@@ -130,6 +157,7 @@ CYLINDER_SETTINGS = np.dtype(
         ("n_y", "i8"),
         ("detector", DETECTOR_SETTINGS),
         ("cross", DETECTOR_SETTINGS),
+        ("events", EVENT_SETTINGS),
     ]
 )
 CYLINDER_STATE = np.dtype(
@@ -161,6 +189,9 @@ CYLINDER_STATE = np.dtype(
         ("detector_on", "?"),  # since the first initialisation
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
+        ("shock", EVENT_TRACKER),  # the engine events' conditions (events_step)
+        ("divergence", EVENT_TRACKER),
+        ("cht_high", EVENT_TRACKER),
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -220,6 +251,8 @@ class Engine(NamedTuple):
     output: Any  # CYLINDER_OUTPUT[cylinders]: this step's results
     scratch: Any  # float64[24]: the filters' scratch (10 free, out 3, a drive 5, the inputs u 6)
     symptoms: Any  # float64[2, cylinders]: the cross-cylinder step's scratch
+    events: Any  # EVENT[capacity]: the events written since the owner last took them
+    event_count: Any  # int64[2]: events written, events dropped (the buffer was full)
 
 
 class Rows(NamedTuple):
@@ -602,6 +635,22 @@ def cylinder_step(
 
 
 @njit(nogil=False)
+def median_of_others(values: Any, i: int, scratch: Any) -> float:
+    """The median of ``values`` other than ``values[i]``, nan ones left out (nan: none left); ``scratch``
+    holds them (as long as ``values``)."""
+    m = 0
+    for j in range(values.shape[0]):
+        if j != i and not math.isnan(values[j]):
+            scratch[m] = values[j]
+            m += 1
+    if m == 0:
+        return np.nan
+    ordered = np.sort(scratch[:m])
+    mid = m // 2
+    return ordered[mid] if m % 2 else (ordered[mid - 1] + ordered[mid]) * 0.5
+
+
+@njit(nogil=False)
 def cross_step(eng: Engine, time_s: float) -> None:
     """The cross-cylinder detectors: each cylinder's symptom minus the median of the other cylinders'
     usable symptoms (estimation/cross_cylinder.py); a cylinder's state becomes the more severe of its two
@@ -620,18 +669,7 @@ def cross_step(eng: Engine, time_s: float) -> None:
         symptom = st["deviation"] if eng_settings[i]["estimator_symptom"] else st["iso_deviation"]
         own[i] = symptom if usable else np.nan
     for i in range(n):
-        cross = np.nan
-        if not math.isnan(own[i]):
-            m = 0
-            for j in range(n):
-                if j != i and not math.isnan(own[j]):
-                    others[m] = own[j]
-                    m += 1
-            if m > 0:
-                ordered = np.sort(others[:m])
-                mid = m // 2
-                reference = ordered[mid] if m % 2 else (ordered[mid - 1] + ordered[mid]) * 0.5
-                cross = own[i] - reference
+        cross = own[i] - median_of_others(own, i, others)
         st = eng_state[i]
         cfg = eng_settings[i]
         if not st["detector_on"] or not cfg["cross"]["on"]:
@@ -702,7 +740,101 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
         cylinder_step(eng, i, u, time_s, any_stale, reading_bad, call, headroom_due)
     if clock["cross"]:
         cross_step(eng, time_s)
+    events_step(eng, time_s)
     return stale
+
+
+# ------------------------------------------------------------------------------------------------ the engine events
+
+
+@njit(nogil=False)
+def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, min_s: float) -> None:
+    """The tracker's condition ended: an event if it lasted ``min_s`` (s) or more (its duration: from its
+    start to the end of the last step it held in); the tracker is free again."""
+    eng_events = eng.events
+    eng_event_count = eng.event_count
+    tr["active"] = False
+    duration = tr["last_s"] - tr["start_s"] + eng.clock[0]["dt_s"]
+    if duration < min_s:
+        return
+    n = eng_event_count[0]
+    if n >= eng_events.shape[0]:
+        eng_event_count[1] += 1
+        return
+    e = eng_events[n]
+    e["time_s"] = tr["start_s"]
+    e["kind"] = kind
+    e["cylinder"] = cylinder
+    e["value"] = tr["peak"]
+    e["limit"] = limit
+    e["duration_s"] = duration
+    eng_event_count[0] = n + 1
+
+
+@njit(nogil=False)
+def _track(eng: Engine, tr: Any, holds: bool, value: float, time_s: float, kind: int, cylinder: int, limit: float,
+           min_s: float) -> None:  # fmt: skip
+    """One step of a condition's tracker: it holds (its worst value is the one furthest from zero) or it
+    ended (:func:`_write_event`)."""
+    if holds:
+        if not tr["active"]:
+            tr["active"] = True
+            tr["start_s"] = time_s
+            tr["peak"] = value
+        elif abs(value) > abs(tr["peak"]):
+            tr["peak"] = value
+        tr["last_s"] = time_s
+    elif tr["active"]:
+        _write_event(eng, tr, kind, cylinder, limit, min_s)
+
+
+@njit(nogil=False)
+def events_step(eng: Engine, time_s: float) -> None:
+    """The engine events of this step (pipeline/events.py), on every cylinder whose reading the supervisor
+    lets through (NOMINAL code): shock cooling (the filter's CHT rate below minus its limit), divergence (the
+    CHT estimate further than its limit from the median of the other such cylinders' estimates) and
+    exceedance (the CHT estimate above its limit)."""
+    eng_output = eng.output
+    eng_settings = eng.settings
+    eng_state = eng.state
+    own = eng.symptoms[0]
+    others = eng.symptoms[1]
+    n = eng_state.shape[0]
+    for i in range(n):
+        cht = eng_state[i]["cht_est_c"]
+        own[i] = cht if eng_output[i]["code"] == CODE_NOMINAL and math.isfinite(cht) else np.nan
+    for i in range(n):
+        es = eng_settings[i]["events"]
+        if not es["on"]:
+            continue
+        st = eng_state[i]
+        cht = own[i]
+        usable = not math.isnan(cht)
+        rate = st["cht_rate_c_per_min"]
+        limit = -es["shock_rate_c_per_min"]
+        _track(eng, st["shock"], usable and rate < limit, rate, time_s, _SHOCK_COOLING, i + 1, limit,
+               es["shock_min_s"])  # fmt: skip
+        _track(eng, st["cht_high"], usable and cht > es["cht_limit_c"], cht, time_s, _CHT_EXCEEDANCE, i + 1,
+               es["cht_limit_c"], es["exceedance_min_s"])  # fmt: skip
+        apart = cht - median_of_others(own, i, others)
+        _track(eng, st["divergence"], abs(apart) > es["divergence_c"], apart, time_s, _CHT_DIVERGENCE, i + 1,
+               es["divergence_c"], es["divergence_min_s"])  # fmt: skip
+
+
+@njit(nogil=False)
+def close_events(eng: Engine) -> None:
+    """End every condition still holding (the log ended): their events are written."""
+    eng_settings = eng.settings
+    eng_state = eng.state
+    for i in range(eng_state.shape[0]):
+        es = eng_settings[i]["events"]
+        st = eng_state[i]
+        if st["shock"]["active"]:
+            _write_event(eng, st["shock"], _SHOCK_COOLING, i + 1, -es["shock_rate_c_per_min"], es["shock_min_s"])
+        if st["cht_high"]["active"]:
+            _write_event(eng, st["cht_high"], _CHT_EXCEEDANCE, i + 1, es["cht_limit_c"], es["exceedance_min_s"])
+        if st["divergence"]["active"]:
+            _write_event(eng, st["divergence"], _CHT_DIVERGENCE, i + 1, es["divergence_c"], es["divergence_min_s"])
 
 
 @njit(nogil=False)
@@ -846,7 +978,7 @@ def replay_loop(
 def compiled() -> Any:
     """The step's compiled entry points (each function here carries ``@njit``; numba compiles it on first
     call or loads it from the disk cache): a namespace with ``advance_to``, ``feed_values``,
-    ``replay_loop``, ``headroom_s``, ``detector_step``, ``stop_cylinder``."""
+    ``replay_loop``, ``headroom_s``, ``detector_step``, ``stop_cylinder``, ``close_events``."""
     from types import SimpleNamespace
 
     return SimpleNamespace(
@@ -856,4 +988,5 @@ def compiled() -> Any:
         headroom_s=headroom_s,
         detector_step=detector_step,
         stop_cylinder=_stop_cylinder,
+        close_events=close_events,
     )

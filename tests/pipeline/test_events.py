@@ -1,0 +1,128 @@
+"""The engine events (pipeline/step.py events_step, pipeline/events.py): a four-cylinder virtual flight with
+a power-off dive and one cylinder running hot, through the batch replay and the live calls."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from ecu_monitor.config import parse_config
+from ecu_monitor.errors import ConfigError
+from ecu_monitor.flightlog import read_csv
+from ecu_monitor.model import paper_table_a1
+from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live
+from ecu_monitor.pipeline.events import EVENT_COLUMNS, EVENT_KINDS, Event, events_csv
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIGS = ROOT / "ecu_monitor" / "data" / "configs"
+FOUR = yaml.safe_load((CONFIGS / "four_cylinders.yaml").read_text(encoding="utf-8"))
+HOT_CYLINDER = 3
+HOT_FROM_S = 60.0
+#: Climb to 700 m, cruise, then a power-off dive at high speed (where shock cooling happens).
+DIVE_MISSION = {
+    "name": "dive",
+    "segments": [
+        {"kind": "ground_run", "duration_s": 30, "throttle_pct": 35},
+        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
+         "climb_rate_mps": 3},
+        {"kind": "climb", "target_altitude_m": 700, "climb_rate_mps": 3, "throttle_pct": 95, "airspeed_mps": 21},
+        {"kind": "cruise", "duration_s": 60, "airspeed_mps": 25, "throttle_pct": 70},
+        {"kind": "descent", "target_altitude_m": 150, "rate_mps": 8, "throttle_pct": 0, "airspeed_mps": 45},
+        {"kind": "cruise", "duration_s": 20, "airspeed_mps": 23, "throttle_pct": 55},
+    ],
+}  # fmt: skip
+
+
+def _config(**events: Any) -> Any:
+    data = copy.deepcopy(FOUR)
+    data["events"] = events
+    return parse_config(data, CONFIGS / "four_cylinders.yaml")
+
+
+@pytest.fixture(scope="module")
+def dive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Any, Any]:
+    """(the flight, its frames under the shipped four-cylinder config, the cylinders' models): cylinder 3
+    heats 60 % more than it should from 60 s on."""
+    from virtual_bus.cylinders import cylinder_models
+    from virtual_bus.missions import mission_from_dict
+    from virtual_bus.plant import Degradation
+    from virtual_bus.recorder import record
+
+    models = cylinder_models(paper_table_a1(), 4, seed=7)
+    path = tmp_path_factory.mktemp("events") / "dive.csv"
+    record(mission_from_dict(DIVE_MISSION), [path], paper_table_a1(), seed=7, cylinders=models,
+           degradation=[Degradation("gamma_q", 1.6, HOT_FROM_S, cylinder=HOT_CYLINDER)])  # fmt: skip
+    log = read_csv(path)
+    return log, frames_from_flight(log, _config()), models
+
+
+def _dive_start_s(log: Any) -> float:
+    """When the throttle was closed for the dive (the first time it is below 5 % after the engine ran)."""
+    throttle = np.asarray(log["throttle_pct"])
+    ran = int(np.argmax(throttle > 30.0))
+    closed = ran + int(np.argmax(throttle[ran:] < 5.0))
+    return float(np.asarray(log.time_s)[closed])
+
+
+def test_the_dive_shock_cools_every_cylinder_and_the_hot_one_diverges_and_exceeds(dive: tuple[Any, Any, Any]) -> None:
+    log, frames, models = dive
+    config = _config(cht_divergence_c=20.0, cht_limit_c=170.0)
+    events = replay_frames(config, models, frames).events
+    assert events, "no event"
+    start = _dive_start_s(log)
+    shocks = [e for e in events if e.kind == "shock_cooling" and e.time_s >= start]
+    assert sorted({e.cylinder for e in shocks}) == [1, 2, 3, 4]
+    for e in shocks:  # confirmed within 30 s of the throttle closing, the limit crossed for its minimum time
+        assert e.time_s + config.events.shock_cooling_min_s <= start + 30.0, e
+        assert e.value < e.limit == -config.events.shock_cooling_c_per_min
+        assert e.duration_s >= config.events.shock_cooling_min_s
+    t = np.asarray(log.time_s)
+    for e in (e for e in events if e.kind == "shock_cooling"):  # every one where the plant's head did cool fast
+        true_rate = np.gradient(np.asarray(log[f"cyl{e.cylinder}_cht_true_c"]), t) * 60.0
+        smooth = np.convolve(true_rate, np.ones(50) / 50, mode="same")  # 5 s at 10 Hz
+        inside = (t >= e.time_s) & (t <= e.time_s + e.duration_s)
+        assert smooth[inside].min() < 0.8 * e.limit, e
+    divergent = {e.cylinder for e in events if e.kind == "cht_divergence"}
+    assert divergent == {HOT_CYLINDER}
+    hot = [e for e in events if e.kind == "cht_exceedance"]
+    assert hot and {e.cylinder for e in hot} == {HOT_CYLINDER}
+    assert all(e.value > 170.0 and e.limit == 170.0 for e in hot)
+    # the defaults: each cylinder's model's limit
+    assert {e.limit for e in replay_frames(_config(), models, frames).events if e.kind == "cht_exceedance"} <= {
+        m.cht_limit_c for m in models
+    }
+
+
+def test_live_calls_find_the_same_events_as_the_batch_replay(dive: tuple[Any, Any, Any]) -> None:
+    _, frames, models = dive
+    config = _config(cht_divergence_c=20.0)
+    batch = replay_frames(config, models, frames).events
+    live = replay_live(config, models, frames.messages()).events
+    assert sorted(live) == sorted(batch)
+
+
+def test_events_off_and_bad_limits() -> None:
+    assert _config(on=False).events.on is False
+    with pytest.raises(ConfigError, match=r"events\.shock_cooling_c_per_min"):
+        _config(shock_cooling_c_per_min=-5)
+    with pytest.raises(ConfigError, match=r"events.*colour"):
+        _config(colour=1)
+
+
+def test_the_events_table() -> None:
+    text = events_csv(
+        [
+            Event(12.5, "shock_cooling", 3, -41.234, -33.0, 8.0),
+            Event(1.0, "cht_exceedance", 1, float("nan"), 150.0, 2.0),
+        ]
+    )
+    lines = text.splitlines()
+    assert lines[0] == ",".join(EVENT_COLUMNS) == "time_s,kind,cylinder,value,limit,duration_s"
+    assert lines[1] == "12.50,shock_cooling,3,-41.23,-33.00,8.00"
+    assert lines[2] == "1.00,cht_exceedance,1,,150.00,2.00"
+    assert set(EVENT_KINDS) >= {"shock_cooling", "cht_divergence", "cht_exceedance", "valve_advisory"}
