@@ -56,6 +56,7 @@ __all__ = [
     "CYLINDER_INPUT",
     "DEFAULT_CONFIG",
     "DRONECAN_ALTITUDE_FIELD",
+    "EVENT_INPUTS",
     "HEALTH_MESSAGES",
     "MAX_CYLINDERS",
     "MODEL_PRESETS",
@@ -214,21 +215,29 @@ class EngineEvents(_Section, frozen=True):
     """``events:``: the engine events the step reports (docs/service.md, "Engine events"; each default's
     reason is there).
 
-    on: report them at all. shock_cooling_c_per_min: a cylinder's CHT rate (the filter's, degC/min)
+    enabled: report them at all. shock_cooling_c_per_min: a cylinder's CHT rate (the filter's, degC/min)
     falling faster than this is shock cooling, once it lasts shock_cooling_min_s (s).
     cht_divergence_c: a cylinder's estimated CHT further than this (degC) from the median of the other
     cylinders' diverges, once it lasts divergence_min_s (s); needs two or more CHT channels.
     cht_limit_c: an estimated CHT above this (degC) is an exceedance once it lasts exceedance_min_s (s);
-    None: each cylinder's model's ``cht_limit_c`` (model.yaml).
+    None: each cylinder's model's ``cht_limit_c`` (model.yaml). egt_divergence_c: a cylinder's EGT
+    (``egtN_c`` mapped) further than this from the median of the others' diverges (divergence_min_s),
+    counted while the median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
+    egt_limit_c, oil_limit_c: an EGT, the oil temperature (``oil_temp_c``) above this (degC) is an
+    exceedance (exceedance_min_s).
     """
 
-    on: bool = True
+    enabled: bool = True
     shock_cooling_c_per_min: _Positive = 33.0
     shock_cooling_min_s: _NonNegative = 5.0
     cht_divergence_c: _Positive = 40.0
     divergence_min_s: _NonNegative = 10.0
     cht_limit_c: _Number | None = None
     exceedance_min_s: _NonNegative = 2.0
+    egt_divergence_c: _Positive = 80.0
+    egt_divergence_from_c: _Number = 500.0
+    egt_limit_c: _Number = 900.0
+    oil_limit_c: _Number = 118.0
 
 
 class _Input(_Section, frozen=True):
@@ -282,6 +291,9 @@ def _given(section: msgspec.Struct, settings: type) -> dict[str, Any]:
 
 
 _CYLINDER_NAMES = tuple(f"cht{n}_c" for n in range(1, MAX_CYLINDERS + 1))
+#: Inputs only the engine events read (docs/service.md, "Engine events"): held, never stale bits or model
+#: inputs; each cylinder's EGT, the oil temperature.
+EVENT_INPUTS: tuple[str, ...] = (*(f"egt{n}_c" for n in range(1, MAX_CYLINDERS + 1)), "oil_temp_c")
 if TYPE_CHECKING:  # built below from names other modules declare; mypy sees their fixed part
     _Inputs = _Section
     _Health = _Section
@@ -289,7 +301,7 @@ if TYPE_CHECKING:  # built below from names other modules declare; mypy sees the
     _DetectorSection = _DetectorHead
     _DetectorKeys = _DetectorMark
 else:
-    _Inputs = _optional_keys("Inputs", (*INPUT_NAMES, *_CYLINDER_NAMES), _Input)
+    _Inputs = _optional_keys("Inputs", (*INPUT_NAMES, *_CYLINDER_NAMES, *EVENT_INPUTS), _Input)
     _Health = _optional_keys("Health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), _Rate)
     _EstimatorSection = _settings_keys("EstimatorSection", EstimatorSettings, _EstimatorName)
     _DetectorSection = _settings_keys("DetectorSection", DetectorSettings, _DetectorHead)
@@ -382,6 +394,11 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
                     f"inputs.{name}", f"missing (every configuration maps {every}; cht_c or cht1_c .. chtN_c)"
                 )
         count = _cylinder_count(given)
+        beyond = [name for name in given if name.startswith("egt") and int(name[3:-2]) > count]
+        if beyond:
+            raise _SectionError(
+                f"inputs.{beyond[0]}", f"an EGT of a cylinder the config does not monitor ({count} CHT channel(s))"
+            )
         if self.sensor_fault.status_signal is not None and count > 1:
             raise _SectionError(
                 "sensor_fault.status_signal",
@@ -916,9 +933,11 @@ def _type_at(path: list[str | int]) -> schema.Type | None:
 def _known(kind: schema.Type | None) -> str:
     """The keys of the section of type ``kind`` (the cylinder inputs as one range)."""
     names = [f.encode_name for option in _options(kind) if isinstance(option, schema.StructType) for f in option.fields]
-    shown = [name for name in names if not CYLINDER_INPUT.match(name)]
+    egt = EVENT_INPUTS[:MAX_CYLINDERS]
+    shown = [name for name in names if not CYLINDER_INPUT.match(name) and name not in egt]
     if len(shown) < len(names):
         shown.append(f"{_CYLINDER_NAMES[0]} .. {_CYLINDER_NAMES[-1]}")
+        shown.append(f"{egt[0]} .. {egt[-1]}")
     return ", ".join(shown)
 
 

@@ -76,8 +76,8 @@ ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
     ("unknown top key", _set("colour", "red"), "unknown key 'colour'"),
     (
         "unknown input",
-        _set("inputs.oil_temp_c", {"signal": "ECU_Slow.CHT", "unit": "degC", "stale_after_s": 1}),
-        "unknown key 'oil_temp_c'",
+        _set("inputs.coolant_temp_c", {"signal": "ECU_Slow.CHT", "unit": "degC", "stale_after_s": 1}),
+        "unknown key 'coolant_temp_c'",
     ),
     ("wrong type", _set("inputs.rpm.stale_after_s", "fast"), "inputs.rpm.stale_after_s: expected a number"),
     ("not positive", _set("inputs.rpm.stale_after_s", 0), "inputs.rpm.stale_after_s: expected a number > 0"),

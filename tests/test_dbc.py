@@ -75,6 +75,8 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
     "cylinders.dbc": {
         "ECU_Cht1to4": (0x102, 100, "ECU", ("CHT1", "CHT2", "CHT3", "CHT4", "Cht1to4Counter", "Cht1to4Checksum")),
         "ECU_Cht5to8": (0x103, 100, "ECU", ("CHT5", "CHT6", "CHT7", "CHT8", "Cht5to8Counter", "Cht5to8Checksum")),
+        "ECU_Egt1to4": (0x104, 100, "ECU", ("EGT1", "EGT2", "EGT3", "EGT4", "Egt1to4Counter", "Egt1to4Checksum")),
+        "ECU_Oil": (0x105, 1000, "ECU", ("OilTemp", "OilCounter", "OilChecksum")),
     },
 }
 
@@ -98,6 +100,8 @@ RANGES: dict[str, tuple[str, float, float, float]] = {
     "Health_Diag.BusErrors": ("", 0, 255, 1),
     "ECU_Cht1to4.CHT1": ("degC", -40, 350, 0.1),
     "ECU_Cht5to8.CHT8": ("degC", -40, 350, 0.1),
+    "ECU_Egt1to4.EGT4": ("degC", 0, 1000, 0.25),
+    "ECU_Oil.OilTemp": ("degC", -40, 200, 0.1),
     "Health_Spread.ChtSpread": ("degC", 0, 400, 0.1),
     "Health_Spread.HottestCylinder": ("", 0, 16, 1),
     "Health_Spread.FaultyCylinders": ("", 0, 65535, 1),

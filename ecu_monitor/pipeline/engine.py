@@ -306,13 +306,19 @@ class Pipeline:
             _detector_record(s["cross"], cross)
             ev = config.events
             e = s["events"]
-            e["on"] = ev.on
+            e["enabled"] = ev.enabled
             e["shock_rate_c_per_min"] = ev.shock_cooling_c_per_min
             e["shock_min_s"] = ev.shock_cooling_min_s
             e["divergence_c"] = ev.cht_divergence_c
             e["divergence_min_s"] = ev.divergence_min_s
             e["cht_limit_c"] = model.cht_limit_c if ev.cht_limit_c is None else ev.cht_limit_c
             e["exceedance_min_s"] = ev.exceedance_min_s
+            e["egt_divergence_c"] = ev.egt_divergence_c
+            e["egt_divergence_from_c"] = ev.egt_divergence_from_c
+            e["egt_limit_c"] = ev.egt_limit_c
+            e["oil_limit_c"] = ev.oil_limit_c
+            e["egt_slot"], e["egt_stale_s"] = self._event_input(config, f"egt{number}_c")
+            e["oil_slot"], e["oil_stale_s"] = self._event_input(config, "oil_temp_c")
             for d in (own, cross):
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)
@@ -346,6 +352,12 @@ class Pipeline:
             event_count=np.zeros(2, dtype=np.int64),
         )
         return engine
+
+    def _event_input(self, config: ServiceConfig, name: str) -> tuple[int, float]:
+        """An input only the engine events read: its slot and stale time (s), or (-1, 0) when not mapped."""
+        if name not in self._slot:
+            return -1, 0.0
+        return self._slot[name], config.input(name).stale_after_s
 
     def _compiled(self) -> Any:
         if self._functions is None:

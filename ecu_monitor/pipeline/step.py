@@ -113,13 +113,21 @@ DETECTOR_STATE = np.dtype(
 #: A cylinder's engine-event limits (config ``events:``; pipeline/events.py).
 EVENT_SETTINGS = np.dtype(
     [
-        ("on", "?"),
+        ("enabled", "?"),
         ("shock_rate_c_per_min", "f8"),  # the CHT rate below minus this is shock cooling
         ("shock_min_s", "f8"),
         ("divergence_c", "f8"),  # the CHT estimate this far from the median of the others' diverges
         ("divergence_min_s", "f8"),
         ("cht_limit_c", "f8"),
         ("exceedance_min_s", "f8"),
+        ("egt_slot", "i8"),  # its EGT in Engine.values (-1: not mapped)
+        ("egt_stale_s", "f8"),
+        ("egt_divergence_c", "f8"),
+        ("egt_divergence_from_c", "f8"),  # counted while the median EGT is above this (at power)
+        ("egt_limit_c", "f8"),
+        ("oil_slot", "i8"),  # the oil temperature (-1: not mapped; watched on cylinder 1's record)
+        ("oil_stale_s", "f8"),
+        ("oil_limit_c", "f8"),
     ]
 )
 #: One condition of one cylinder being watched: since when it holds, when it last held, its worst value.
@@ -131,6 +139,9 @@ EVENT = np.dtype(
 _SHOCK_COOLING = EVENT_KINDS.index("shock_cooling")
 _CHT_DIVERGENCE = EVENT_KINDS.index("cht_divergence")
 _CHT_EXCEEDANCE = EVENT_KINDS.index("cht_exceedance")
+_EGT_DIVERGENCE = EVENT_KINDS.index("egt_divergence")
+_EGT_EXCEEDANCE = EVENT_KINDS.index("egt_exceedance")
+_OIL_EXCEEDANCE = EVENT_KINDS.index("oil_exceedance")
 CYLINDER_SETTINGS = np.dtype(
     [
         ("cht_slot", "i8"),  # its CHT reading in Engine.values
@@ -192,6 +203,9 @@ CYLINDER_STATE = np.dtype(
         ("shock", EVENT_TRACKER),  # the engine events' conditions (events_step)
         ("divergence", EVENT_TRACKER),
         ("cht_high", EVENT_TRACKER),
+        ("egt_divergence", EVENT_TRACKER),
+        ("egt_high", EVENT_TRACKER),
+        ("oil_high", EVENT_TRACKER),
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -636,8 +650,8 @@ def cylinder_step(
 
 @njit(nogil=False)
 def median_of_others(values: Any, i: int, scratch: Any) -> float:
-    """The median of ``values`` other than ``values[i]``, nan ones left out (nan: none left); ``scratch``
-    holds them (as long as ``values``)."""
+    """The median of ``values`` other than ``values[i]`` (i = -1: of all), nan ones left out (nan: none left);
+    ``scratch`` holds them (as long as ``values``)."""
     m = 0
     for j in range(values.shape[0]):
         if j != i and not math.isnan(values[j]):
@@ -789,24 +803,35 @@ def _track(eng: Engine, tr: Any, holds: bool, value: float, time_s: float, kind:
 
 
 @njit(nogil=False)
+def _fresh(eng: Engine, slot: int, limit_s: float, time_s: float) -> float:
+    """The held value of input ``slot`` if it is mapped (slot >= 0), finite and fed within ``limit_s`` (s) of
+    time_s; else nan."""
+    if slot < 0:
+        return np.nan
+    value = eng.values[slot]
+    return value if math.isfinite(value) and time_s - eng.stamps[slot] <= limit_s else np.nan
+
+
+@njit(nogil=False)
 def events_step(eng: Engine, time_s: float) -> None:
-    """The engine events of this step (pipeline/events.py), on every cylinder whose reading the supervisor
-    lets through (NOMINAL code): shock cooling (the filter's CHT rate below minus its limit), divergence (the
-    CHT estimate further than its limit from the median of the other such cylinders' estimates) and
-    exceedance (the CHT estimate above its limit)."""
+    """The engine events of this step (pipeline/events.py). On every cylinder whose CHT reading the
+    supervisor lets through (NOMINAL code): shock cooling (the filter's CHT rate below minus its limit),
+    CHT divergence (the estimate further than its limit from the median of the other such cylinders') and
+    CHT exceedance (the estimate above its limit). On every fresh EGT: EGT divergence (from the median of
+    the other fresh EGTs) and exceedance; the fresh oil temperature's exceedance (cylinder 0: the engine)."""
     eng_output = eng.output
     eng_settings = eng.settings
     eng_state = eng.state
     own = eng.symptoms[0]
     others = eng.symptoms[1]
     n = eng_state.shape[0]
+    if not eng_settings[0]["events"]["enabled"]:
+        return
     for i in range(n):
         cht = eng_state[i]["cht_est_c"]
         own[i] = cht if eng_output[i]["code"] == CODE_NOMINAL and math.isfinite(cht) else np.nan
     for i in range(n):
         es = eng_settings[i]["events"]
-        if not es["on"]:
-            continue
         st = eng_state[i]
         cht = own[i]
         usable = not math.isnan(cht)
@@ -819,6 +844,23 @@ def events_step(eng: Engine, time_s: float) -> None:
         apart = cht - median_of_others(own, i, others)
         _track(eng, st["divergence"], abs(apart) > es["divergence_c"], apart, time_s, _CHT_DIVERGENCE, i + 1,
                es["divergence_c"], es["divergence_min_s"])  # fmt: skip
+    for i in range(n):
+        es = eng_settings[i]["events"]
+        own[i] = _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s)
+    at_power = median_of_others(own, -1, others) > eng_settings[0]["events"]["egt_divergence_from_c"]
+    for i in range(n):
+        es = eng_settings[i]["events"]
+        st = eng_state[i]
+        egt = own[i]
+        _track(eng, st["egt_high"], egt > es["egt_limit_c"], egt, time_s, _EGT_EXCEEDANCE, i + 1,
+               es["egt_limit_c"], es["exceedance_min_s"])  # fmt: skip
+        apart = egt - median_of_others(own, i, others)
+        _track(eng, st["egt_divergence"], at_power and abs(apart) > es["egt_divergence_c"], apart, time_s,
+               _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"])  # fmt: skip
+    es = eng_settings[0]["events"]
+    oil = _fresh(eng, es["oil_slot"], es["oil_stale_s"], time_s)
+    _track(eng, eng_state[0]["oil_high"], oil > es["oil_limit_c"], oil, time_s, _OIL_EXCEEDANCE, 0,
+           es["oil_limit_c"], es["exceedance_min_s"])  # fmt: skip
 
 
 @njit(nogil=False)
@@ -829,12 +871,16 @@ def close_events(eng: Engine) -> None:
     for i in range(eng_state.shape[0]):
         es = eng_settings[i]["events"]
         st = eng_state[i]
-        if st["shock"]["active"]:
-            _write_event(eng, st["shock"], _SHOCK_COOLING, i + 1, -es["shock_rate_c_per_min"], es["shock_min_s"])
-        if st["cht_high"]["active"]:
-            _write_event(eng, st["cht_high"], _CHT_EXCEEDANCE, i + 1, es["cht_limit_c"], es["exceedance_min_s"])
-        if st["divergence"]["active"]:
-            _write_event(eng, st["divergence"], _CHT_DIVERGENCE, i + 1, es["divergence_c"], es["divergence_min_s"])
+        for tr, kind, number, limit, min_s in (
+            (st["shock"], _SHOCK_COOLING, i + 1, -es["shock_rate_c_per_min"], es["shock_min_s"]),
+            (st["cht_high"], _CHT_EXCEEDANCE, i + 1, es["cht_limit_c"], es["exceedance_min_s"]),
+            (st["divergence"], _CHT_DIVERGENCE, i + 1, es["divergence_c"], es["divergence_min_s"]),
+            (st["egt_high"], _EGT_EXCEEDANCE, i + 1, es["egt_limit_c"], es["exceedance_min_s"]),
+            (st["egt_divergence"], _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"]),
+            (st["oil_high"], _OIL_EXCEEDANCE, 0, es["oil_limit_c"], es["exceedance_min_s"]),
+        ):
+            if tr["active"]:
+                _write_event(eng, tr, kind, number, limit, min_s)
 
 
 @njit(nogil=False)

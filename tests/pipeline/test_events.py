@@ -106,8 +106,38 @@ def test_live_calls_find_the_same_events_as_the_batch_replay(dive: tuple[Any, An
     assert sorted(live) == sorted(batch)
 
 
+def test_egt_divergence_and_egt_and_oil_exceedances(dive: tuple[Any, Any, Any]) -> None:
+    """The flight with EGTs and an oil temperature laid on it: cylinder 2's EGT 120 degC above the others'
+    from 150 s to 200 s, cylinder 4's above 900 degC from 250 s to 260 s, the oil above 118 degC from 300 s."""
+    log, _, models = dive
+    t = np.asarray(log.time_s)
+    rng = np.random.default_rng(1)
+    egts = {f"egt{n}_c": 650.0 + 10.0 * n + rng.normal(0.0, 3.0, t.size) for n in range(1, 5)}
+    egts["egt2_c"] = np.where((t >= 150.0) & (t < 200.0), egts["egt2_c"] + 120.0, egts["egt2_c"])
+    egts["egt4_c"] = np.where((t >= 250.0) & (t < 260.0), 905.0, egts["egt4_c"])
+    oil = np.where(t >= 300.0, 122.0, 95.0)
+    flight = log.with_columns(oil_temp_c=oil, **egts)
+    data = copy.deepcopy(FOUR)
+    for n in range(1, 5):
+        data["inputs"][f"egt{n}_c"] = {"signal": f"ECU_Egt1to4.EGT{n}", "unit": "degC", "stale_after_s": 1.0}
+    data["inputs"]["oil_temp_c"] = {"signal": "ECU_Oil.OilTemp", "unit": "degC", "stale_after_s": 3.0}
+    config = parse_config(data, CONFIGS / "four_cylinders.yaml")
+    events = replay_frames(config, models, frames_from_flight(flight, config)).events
+    egt = [e for e in events if e.kind == "egt_divergence"]
+    assert [e.cylinder for e in egt] == [2]
+    assert abs(egt[0].time_s - 150.0) < 1.0 and abs(egt[0].duration_s - 50.0) < 1.5 and egt[0].value > 80.0
+    high = [e for e in events if e.kind == "egt_exceedance"]
+    assert [e.cylinder for e in high] == [4] and abs(high[0].time_s - 250.0) < 1.0 and high[0].value > 900.0
+    oil_events = [e for e in events if e.kind == "oil_exceedance"]
+    assert len(oil_events) == 1 and oil_events[0].cylinder == 0 and abs(oil_events[0].time_s - 300.0) < 1.5
+    assert oil_events[0].time_s + oil_events[0].duration_s == pytest.approx(t[-1], abs=1.5)  # held to the end
+    data["inputs"]["egt5_c"] = data["inputs"]["egt1_c"]
+    with pytest.raises(ConfigError, match=r"inputs\.egt5_c: an EGT of a cylinder"):
+        parse_config(data, CONFIGS / "four_cylinders.yaml")
+
+
 def test_events_off_and_bad_limits() -> None:
-    assert _config(on=False).events.on is False
+    assert _config(enabled=False).events.enabled is False
     with pytest.raises(ConfigError, match=r"events\.shock_cooling_c_per_min"):
         _config(shock_cooling_c_per_min=-5)
     with pytest.raises(ConfigError, match=r"events.*colour"):
