@@ -256,6 +256,7 @@ def _calibrate_channel(
     for line in _table(flights, config.detector.threshold, settings.block_s):
         print(line)
     result = calibrate_flights(flights, args.rate, settings, choice)
+    result = _with_engine_reference(result, feeds, settings, args.rate)
     c = result.calibration
     print(
         f"threshold h = {c.threshold:.3f} for {args.rate:g} false alarm(s) per 100 h"
@@ -272,6 +273,33 @@ def _calibrate_channel(
             f" seen ({c.empirical_max:.3f})"
         )
     return result, flights
+
+
+def _with_engine_reference(result: Any, feeds: list[Any], settings: Any, rate: float) -> Any:
+    """``result`` whose settings carry the engine's reference learned on the flights (printed per region), or
+    as it is (and why) when the flights are too few."""
+    import dataclasses
+
+    from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
+    from ecu_monitor.estimation.regions import REGION_NAMES
+    from ecu_monitor.offline.calibration_reference import calibrate_reference
+
+    try:
+        ref = calibrate_reference(feeds, settings, rate)
+    except ParameterError as exc:
+        print(f"engine reference: none ({exc}); the detector tests against its in-flight baseline only")
+        return result
+    print(f"engine reference (symptom per region over {len(feeds)} nominal flights; level = mean + "
+          f"{NOMINAL_SPREAD_Z:g} x spread across flights):")  # fmt: skip
+    print("  region         " + "".join(f"{n[:12]:>13}" for n in ref.flights) + "         mean       spread")
+    for r, name in enumerate(REGION_NAMES):
+        cells = "".join(f"{v:13.4f}" for v in ref.flight_means[:, r])
+        print(f"  {name:<14} {cells} {ref.mean[r]:12.4f} {ref.spread[r]:12.4f}")
+    c = ref.calibration
+    worst = ", ".join(f"{n} {m:.2f}" for n, m in zip(ref.flights, ref.held_out_max, strict=True))
+    print(f"reference test h = {c.threshold:.3f} ({c.hours} whole hours, each flight against the others' reference;"
+          f" largest statistic per flight: {worst})")  # fmt: skip
+    return dataclasses.replace(result, current=ref.settings(result.current))
 
 
 def _write(out: Path, text: str) -> None:

@@ -31,6 +31,7 @@ __all__ = [
     "GROUND_AIRSPEED_MPS",
     "HIGH_POWER",
     "LOW_POWER",
+    "REGION_COUNT",
     "REGION_CRUISE",
     "REGION_GROUND",
     "REGION_HIGH",
@@ -60,6 +61,8 @@ REGION_CRUISE = 3
 REGION_HIGH = 4
 #: The regions' names, by index.
 REGION_NAMES: tuple[str, ...] = ("start", "ground", "low power", "cruise power", "high power")
+#: How many regions there are.
+REGION_COUNT = len(REGION_NAMES)
 
 
 def power_fraction(x: float, x_low: float, x_high: float) -> float:

@@ -407,7 +407,7 @@ def detector_fragment_yaml(
     them together), and ``calibrated_for``, the :func:`model_fingerprint` of the model used."""
     settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
     body = yaml.safe_dump(
-        {"detector": {"symptom": symptom, **dataclasses.asdict(settings), "calibrated_for": calibrated_for}},
+        {"detector": {"symptom": symptom, **_settings_yaml(settings), "calibrated_for": calibrated_for}},
         sort_keys=False,
         default_flow_style=False,
     )
@@ -488,6 +488,8 @@ def config_copy_yaml(
     detector["baseline_s"] = result.current.baseline_s
     detector["baseline_delay_s"] = result.current.baseline_delay_s
     detector["baseline_freeze"] = result.current.baseline_freeze
+    for key in ("nominal_threshold", "nominal_mean", "nominal_spread"):
+        detector[key] = _settings_yaml(result.current)[key]
     detector["calibrated_for"] = calibrated_for
     data["detector"] = detector
     header = _header(result, rate_per_100h, sources)
@@ -529,7 +531,12 @@ def cylinder_config(config: ServiceConfig, number: int, model: str | None = None
 def _cylinder_entry(result: CalibrationResult, calibrated_for: str) -> dict[str, Any]:
     """One ``cylinders.detectors`` entry: the settings it was calibrated with and its model's fingerprint."""
     settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
-    return {**dataclasses.asdict(settings), "calibrated_for": calibrated_for}
+    return {**_settings_yaml(settings), "calibrated_for": calibrated_for}
+
+
+def _settings_yaml(settings: DetectorSettings) -> dict[str, Any]:
+    """The detector settings as YAML values (the reference's per-region tuples as lists)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(settings).items()}
 
 
 def _cylinder_headers(

@@ -29,6 +29,7 @@ from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
 from ecu_monitor.pipeline.engine import Pipeline, model_input_names
 from ecu_monitor.pipeline.outputs import (
+    DETECTOR_COLUMNS,
     HEALTH_COLUMNS,
     HealthSnapshot,
     ReferenceFeed,
@@ -171,9 +172,10 @@ def _run(
     feeds: tuple[_Feed, ...] = ()
     cross: tuple[tuple[_Feed, ...], ...] = ()
     reference: tuple[ReferenceFeed, ...] = ()
+    regions: tuple[NDArray[np.int64], ...] = ()
     if traces:
-        feeds, cross, reference = _feeds(kept, count, config, keep_reference)
-    return ReplayResult(columns, counters, feeds, gaps, cross, reference)
+        feeds, cross, reference, regions = _feeds(kept, count, config, keep_reference)
+    return ReplayResult(columns, counters, feeds, gaps, cross, reference, regions)
 
 
 def _values_by_frame(
@@ -211,12 +213,17 @@ def _columns(
             "state": r["state"].astype(np.int64),
             "stale": stale,
             "sensor_fault": r["state"] == CODE_FAULT,
+            "gamma_q_sd": r["gamma_q_sd"].copy(),
+            "gamma_d_sd": r["gamma_d_sd"].copy(),
+            "isolable": r["isolable"].copy(),
+            "armed": r["armed"].astype(np.int64),
+            "region": r["region"].astype(np.int64),
         }
     out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[:m].copy(), "stale": stale}
     for i in range(count):
         r = results[:, i]
         for field in ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s",
-                      "cht_rate_c_per_min"):  # fmt: skip
+                      "cht_rate_c_per_min", *DETECTOR_COLUMNS):  # fmt: skip
             out[f"cyl{i + 1}_{field}"] = r[field].copy()
     out.update(engine_columns(out, count, spread_limit_c))
     return out
@@ -224,14 +231,15 @@ def _columns(
 
 def _feeds(
     kept: Traces, count: int, config: Any, keep_reference: bool
-) -> tuple[tuple[_Feed, ...], tuple[tuple[_Feed, ...], ...], tuple[ReferenceFeed, ...]]:
+) -> tuple[tuple[_Feed, ...], tuple[tuple[_Feed, ...], ...], tuple[ReferenceFeed, ...], tuple[NDArray[np.int64], ...]]:
     """Per clock segment whose detectors started: what the first cylinder's detector was fed, what each
-    cylinder's cross-cylinder detector was fed, and the open-loop reference."""
+    cylinder's cross-cylinder detector was fed, the open-loop reference, and the first cylinder's regions."""
     n = int(kept.count[0])
     time_s = kept.time_s[:n]
     segments = np.flatnonzero(np.diff(kept.restart[:n])) + 1
     bounds = [0, *segments.tolist(), n]
     feeds: list[_Feed] = []
+    regions: list[NDArray[np.int64]] = []
     reference: list[ReferenceFeed] = []
     cross: list[list[_Feed]] = [[] for _ in range(count)]
     for a, b in itertools.pairwise(bounds):
@@ -243,13 +251,15 @@ def _feeds(
             out = kept.cylinders[first:b, i]
             if i == 0:
                 feeds.append((time_s[first:b].copy(), out["fed"].copy()))
+                regions.append(out["region"].astype(np.int64))
                 if keep_reference:
                     off = out["code"] != CODE_NOMINAL
                     values = (out["cht_meas_c"], kept.model_c[first:b, 0], kept.oat_c[first:b])
                     reference.append(ReferenceFeed(time_s[first:b].copy(), *(np.where(off, np.nan, v) for v in values)))
             if config.cross_detector(i + 1) is not None:
                 cross[i].append((time_s[first:b].copy(), out["cross_fed"].copy()))
-    return tuple(feeds), tuple(tuple(c) for c in cross) if config.cross_detectors else (), tuple(reference)
+    cross_feeds = tuple(tuple(c) for c in cross) if config.cross_detectors else ()
+    return tuple(feeds), cross_feeds, tuple(reference), tuple(regions)
 
 
 def replay_file(

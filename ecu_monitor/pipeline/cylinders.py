@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.pipeline.outputs import CylinderSnapshot
+from ecu_monitor.pipeline.outputs import DETECTOR_COLUMNS, CylinderSnapshot
 from ecu_monitor.pipeline.supervision import STATES
 
 __all__ = ["SEVERITY", "EngineView", "engine_columns", "engine_view", "lead_index"]
@@ -91,15 +91,16 @@ def engine_columns(
     fields = ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min")
     per = [
         [
-            CylinderSnapshot(n, meas, est, dev, STATES[state], gq, gd, head, rate)
-            for meas, est, dev, state, gq, gd, head, rate in zip(
-                *(columns[f"cyl{n}_{k}"].tolist() for k in fields), strict=True
+            CylinderSnapshot(n, meas, est, dev, STATES[state], gq, gd, head, rate, *more)
+            for meas, est, dev, state, gq, gd, head, rate, *more in zip(
+                *(columns[f"cyl{n}_{k}"].tolist() for k in (*fields, *DETECTOR_COLUMNS)), strict=True
             )
         ]
         for n in range(1, count + 1)
     ]
     rows = columns["time_s"].size
     lead_values = {k: np.empty(rows) for k in fields if k != "state"}
+    lead_values.update({k: np.empty(rows, dtype=columns[f"cyl1_{k}"].dtype) for k in DETECTOR_COLUMNS})
     state = np.empty(rows, dtype=np.int64)
     spread = np.empty(rows)
     hottest = np.empty(rows, dtype=np.int64)

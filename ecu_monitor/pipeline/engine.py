@@ -114,6 +114,12 @@ def fed_mixture(params: ThermalParams, mapped: Collection[str]) -> MixtureIndex 
     return mixture
 
 
+def _detector_fields(r: Any) -> dict[str, Any]:
+    """The detector's and the isolation's fields of a snapshot from a CYLINDER_OUTPUT record."""
+    return {"gamma_q_sd": float(r["gamma_q_sd"]), "gamma_d_sd": float(r["gamma_d_sd"]),
+            "isolable": bool(r["isolable"]), "armed": int(r["armed"]), "region": int(r["region"])}  # fmt: skip
+
+
 def _detector_record(record: Any, settings: DetectorSettings | None) -> None:
     if settings is None:
         record["on"] = False
@@ -299,6 +305,8 @@ class Pipeline:
             cross = config.cross_detector(number)
             _detector_record(s["detector"], own)
             _detector_record(s["cross"], cross)
+            _detector_record(s["nominal"], own.nominal_settings() if own.reference_on else None)
+            s["nominal_level"][:] = own.nominal_levels() if own.reference_on else np.nan
             for d in (own, cross):
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)
@@ -318,7 +326,7 @@ class Pipeline:
             open_values=np.array([float(v) for v in sf.open_values], dtype=np.float64),
             settings=settings,
             state=state,
-            rings=np.zeros((count, 2, capacity)),
+            rings=np.zeros((count, 3, capacity)),  # the detector's, the cross-cylinder's, the reference test's
             coeff_scalars=scalars,
             heat_values=heat,
             x_breakpoints=xb,
@@ -463,11 +471,11 @@ class Pipeline:
             return HealthSnapshot(row.time_s, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
                                   STATES[state], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
                                   row.stale, state == CODE_FAULT,
-                                  cht_rate_c_per_min=float(r["cht_rate_c_per_min"]))  # fmt: skip
+                                  cht_rate_c_per_min=float(r["cht_rate_c_per_min"]), **_detector_fields(r))  # fmt: skip
         cylinders = tuple(
             CylinderSnapshot(n, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
                              STATES[int(r["state"])], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
-                             float(r["cht_rate_c_per_min"]))
+                             float(r["cht_rate_c_per_min"]), **_detector_fields(r))
             for n, r in enumerate(results, start=1)
         )  # fmt: skip
         view = engine_view(cylinders, self.config.spread_limit_c)
@@ -489,13 +497,20 @@ class Pipeline:
             spread_alarm=view.alarm,
             cht_rate_c_per_min=lead.cht_rate_c_per_min,
             lead_cylinder=lead.number,
+            gamma_q_sd=lead.gamma_q_sd,
+            gamma_d_sd=lead.gamma_d_sd,
+            isolable=lead.isolable,
+            armed=lead.armed,
+            region=lead.region,
         )
 
     def _empty_snapshot(self) -> HealthSnapshot:
         nothing = np.zeros(len(self.cylinder_params), dtype=CYLINDER_OUTPUT)
-        for field in ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min"):
+        for field in ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min",
+                      "gamma_q_sd", "gamma_d_sd"):
             nothing[field] = math.nan
         nothing["state"] = CODE_UNAVAILABLE
+        nothing["region"] = -1
         stale = tuple(dict.fromkeys(self._check_names))
         return self.snapshot_of(StepRow(0, math.nan, stale, 0, nothing))
 

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.estimation.headroom import DEFAULT_CAP_S
+from ecu_monitor.estimation.regions import REGION_NAMES
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import TableColumn, write_health_table
 
@@ -41,6 +42,11 @@ class CylinderSnapshot:
     gamma_d: float
     headroom_s: float
     cht_rate_c_per_min: float = float("nan")
+    gamma_q_sd: float = float("nan")
+    gamma_d_sd: float = float("nan")
+    isolable: bool = False
+    armed: int = 0
+    region: int = -1
 
     @property
     def sensor_fault(self) -> bool:
@@ -57,7 +63,10 @@ class HealthSnapshot:
     state: one of STATES. gamma_q, gamma_d: isolation estimates (nan when UNAVAILABLE). headroom_s:
     time to the CHT limit at the present inputs, s (HEADROOM_NOT_LIMITED_S = not limited; nan when
     UNAVAILABLE). stale_inputs: names of the stale inputs (a cylinder's ``chtN_c`` is reported as
-    ``cht_c``). sensor_fault: the CHT sensor is faulty.
+    ``cht_c``). sensor_fault: the CHT sensor is faulty. gamma_q_sd, gamma_d_sd: the isolation filter's
+    standard deviations of the gammas (1). isolable: the gammas can be told apart now; when not, gamma_q
+    and gamma_d are nan ("not isolable"). armed: what the detector measures against, bits of
+    :data:`ARMED_NAMES` (0: not armed yet). region: the operating region (estimation/regions.py; -1: none).
 
     Per cylinder (empty for a single CHT channel): ``cylinders``, one CylinderSnapshot each; the fields
     above are then the lead cylinder's (:mod:`ecu_monitor.pipeline.cylinders`, sensor_fault: any
@@ -81,6 +90,16 @@ class HealthSnapshot:
     spread_alarm: bool = False
     cht_rate_c_per_min: float = float("nan")
     lead_cylinder: int = 0  # the number of the cylinder the engine-level fields are (0: one CHT channel)
+    gamma_q_sd: float = float("nan")
+    gamma_d_sd: float = float("nan")
+    isolable: bool = False
+    armed: int = 0
+    region: int = -1
+
+    @property
+    def isolation_text(self) -> str:
+        """"not isolable" when the gammas cannot be told apart, else empty."""
+        return "" if self.isolable else "not isolable"
 
 
 #: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
@@ -97,7 +116,15 @@ HEALTH_COLUMNS: tuple[str, ...] = (
     "stale_inputs",
     "sensor_fault",
     "cht_rate_c_per_min",
+    "gamma_q_sd",
+    "gamma_d_sd",
+    "isolable",
+    "detector_armed",
+    "region",
 )
+#: What ``detector_armed`` says for each value of the ``armed`` bits (ARMED_REFERENCE = 1, ARMED_BASELINE = 2
+#: of pipeline/step.py): empty while the detector is not armed.
+ARMED_NAMES: tuple[str, ...] = ("", "reference", "baseline", "reference+baseline")
 #: Per-cylinder columns of health.csv (engines monitored per cylinder), ``{n}`` = 1 .. N, after HEALTH_COLUMNS.
 CYLINDER_COLUMNS: tuple[str, ...] = (
     "cyl{n}_cht_meas_c",
@@ -157,6 +184,8 @@ class ReplayResult:
     cross-cylinder detector was fed (as detector_feed).
     reference_feed (batch path, when asked): per clock segment as detector_feed, the open-loop reference
     (:class:`ReferenceFeed`; the first cylinder's on an engine monitored per cylinder).
+    detector_regions (batch path only): per clock segment as detector_feed, the operating region of each
+    step (estimation/regions.py), what the reference test measures the feed against.
     """
 
     columns: dict[str, NDArray[Any]]
@@ -165,6 +194,7 @@ class ReplayResult:
     gaps: tuple[tuple[float, float], ...] = ()
     cross_feeds: tuple[tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...], ...] = ()
     reference_feed: tuple[ReferenceFeed, ...] = ()
+    detector_regions: tuple[NDArray[np.int64], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)
@@ -180,12 +210,14 @@ class ReplayResult:
         c = self.columns
         names = _stale_names()
         floats = [c[k].tolist() for k in _FLOAT_COLUMNS]
+        detector = [c[k].tolist() for k in DETECTOR_COLUMNS]
         rows = [
-            HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault, cht_rate_c_per_min=rate)
-            for t, meas, est, dev, gq, gd, head, rate, state, stale, fault in zip(
-                *floats, c["state"].tolist(), c["stale"].tolist(), c["sensor_fault"].tolist(), strict=True
+            HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault, cht_rate_c_per_min=rate,
+                           **dict(zip(DETECTOR_COLUMNS, more, strict=True)))
+            for t, meas, est, dev, gq, gd, head, rate, state, stale, fault, *more in zip(
+                *floats, c["state"].tolist(), c["stale"].tolist(), c["sensor_fault"].tolist(), *detector, strict=True
             )
-        ]
+        ]  # fmt: skip
         count = self.cylinder_count
         if count == 1:
             return rows
@@ -224,6 +256,10 @@ def health_table_columns(columns: dict[str, NDArray[Any]], cylinders: int = 1) -
     table.append(TableColumn("stale_inputs", columns["stale"], tuple("+".join(n) for n in _stale_names())))
     table.append(TableColumn("sensor_fault", columns["sensor_fault"].astype(np.int64), bit))
     table.append(TableColumn("cht_rate_c_per_min", columns["cht_rate_c_per_min"]))
+    table += [TableColumn(k, columns[k]) for k in ("gamma_q_sd", "gamma_d_sd")]
+    table.append(TableColumn("isolable", columns["isolable"].astype(np.int64), bit))
+    table.append(TableColumn("detector_armed", columns["armed"], ARMED_NAMES))
+    table.append(TableColumn("region", columns["region"] + 1, ("", *REGION_NAMES)))
     if cylinders > 1:
         for n in range(1, cylinders + 1):
             for name in CYLINDER_COLUMNS:
@@ -237,6 +273,9 @@ def health_table_columns(columns: dict[str, NDArray[Any]], cylinders: int = 1) -
     return table
 
 
+#: The detector's and the isolation's columns of ReplayResult.columns (HealthSnapshot fields of one name):
+#: gamma_q_sd, gamma_d_sd (float), isolable (bool), armed, region (int).
+DETECTOR_COLUMNS: tuple[str, ...] = ("gamma_q_sd", "gamma_d_sd", "isolable", "armed", "region")
 #: Float columns of ReplayResult.columns, in health.csv order.
 _FLOAT_COLUMNS = (
     "time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min",
@@ -253,7 +292,9 @@ def empty_columns(cylinders: int = 1) -> dict[str, NDArray[Any]]:
     """The columns of a replay without rows (of an engine with ``cylinders`` CHT channels)."""
     columns: dict[str, NDArray[Any]] = {k: np.zeros(0) for k in _FLOAT_COLUMNS}
     columns.update(state=np.zeros(0, dtype=np.int64), stale=np.zeros(0, dtype=np.int64),
-                   sensor_fault=np.zeros(0, dtype=bool))  # fmt: skip
+                   sensor_fault=np.zeros(0, dtype=bool), gamma_q_sd=np.zeros(0), gamma_d_sd=np.zeros(0),
+                   isolable=np.zeros(0, dtype=bool), armed=np.zeros(0, dtype=np.int64),
+                   region=np.zeros(0, dtype=np.int64))  # fmt: skip
     if cylinders > 1:
         for n in range(1, cylinders + 1):
             columns.update({f"cyl{n}_{k}": np.zeros(0) for k in _CYLINDER_FLOATS})
@@ -273,6 +314,8 @@ def rows_to_columns(rows: list[HealthSnapshot], cylinders: int = 1) -> dict[str,
         [sum(1 << i for i, n in enumerate(INPUT_NAMES) if n in r.stale_inputs) for r in rows], dtype=np.int64
     )
     columns["sensor_fault"] = np.array([r.sensor_fault for r in rows], dtype=bool)
+    for k, kind in zip(DETECTOR_COLUMNS, (float, float, bool, np.int64, np.int64), strict=True):
+        columns[k] = np.array([getattr(r, k) for r in rows], dtype=kind)
     if cylinders > 1:
         for i in range(cylinders):
             n = i + 1

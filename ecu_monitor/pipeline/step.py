@@ -39,6 +39,8 @@ import numpy as np
 from ecu_monitor.estimation import detection as _detection
 from ecu_monitor.estimation import ekf as _ekf
 from ecu_monitor.estimation import isolation as _isolation
+from ecu_monitor.estimation import regions as _regions
+from ecu_monitor.estimation.regions import REGION_COUNT
 from ecu_monitor.model import compiled as _compiled_model
 from ecu_monitor.model import thermal as _thermal
 from ecu_monitor.pipeline import schedule as _schedule
@@ -53,6 +55,8 @@ from ecu_monitor.pipeline.supervision import (
 )
 
 __all__ = [
+    "ARMED_BASELINE",
+    "ARMED_REFERENCE",
     "CLOCK",
     "CYLINDER_OUTPUT",
     "CYLINDER_SETTINGS",
@@ -60,11 +64,22 @@ __all__ = [
     "DETECTOR_SETTINGS",
     "DETECTOR_STATE",
     "HEADROOM_CAP_S",
+    "ISOLATION_CORRELATION_MIN",
+    "ISOLATION_SD_MAX",
     "Engine",
     "Rows",
     "Traces",
     "compiled",
 ]
+
+#: ``armed`` bits: the test against the engine's reference (calibrated nominal levels) is running
+ARMED_REFERENCE = 1
+#: ``armed`` bits: the test against the in-flight adaptive baseline is running (after its warm-up)
+ARMED_BASELINE = 2
+#: The isolation's standard deviation of either gamma above which the split is not told (1).
+ISOLATION_SD_MAX = 0.05
+#: The correlation of the gamma_Q and gamma_D estimates at and below which only their product is seen (1).
+ISOLATION_CORRELATION_MIN = -0.9
 
 #: Headroom reported when the limit is not reached within this time, s ("not limited at this power").
 HEADROOM_CAP_S = 6000.0
@@ -132,6 +147,8 @@ CYLINDER_SETTINGS = np.dtype(
         ("n_y", "i8"),
         ("detector", DETECTOR_SETTINGS),
         ("cross", DETECTOR_SETTINGS),
+        ("nominal", DETECTOR_SETTINGS),  # the test against the engine's reference (on: calibrated)
+        ("nominal_level", "f8", (REGION_COUNT,)),  # its level per region, symptom unit (nan: none there)
     ]
 )
 CYLINDER_STATE = np.dtype(
@@ -161,8 +178,10 @@ CYLINDER_STATE = np.dtype(
         ("headroom_s", "f8"),
         ("cht_rate_c_per_min", "f8"),
         ("detector_on", "?"),  # since the first initialisation
+        ("on_s", "f8"),  # when: the engine's start for the regions, s
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
+        ("nominal", DETECTOR_STATE),
     ]
 )
 #: One cylinder's result of a step (what the health outputs are made of).
@@ -179,6 +198,11 @@ CYLINDER_OUTPUT = np.dtype(
         ("code", "i8"),  # the supervisor's code
         ("fed", "f8"),  # what its detector was fed (nan: nothing)
         ("cross_fed", "f8"),
+        ("region", "i8"),  # the operating region (estimation/regions.py; -1: not started)
+        ("armed", "i8"),  # what the detector measures against: ARMED_* bits (0: not armed)
+        ("gamma_q_sd", "f8"),  # the isolation filter's standard deviation of gamma_Q, 1
+        ("gamma_d_sd", "f8"),
+        ("isolable", "?"),  # gamma_Q and gamma_D can be told apart now (else the outputs' gammas are nan)
     ]
 )
 #: The schedule and its counters.
@@ -441,8 +465,10 @@ def _stop_cylinder(st: Any) -> None:
     st["headroom_s"] = np.nan
     st["cht_rate_c_per_min"] = np.nan
     st["detector_on"] = False
+    st["on_s"] = np.nan
     _reset_detector(st["detector"])
     _reset_detector(st["cross"])
+    _reset_detector(st["nominal"])
 
 
 def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: float, coeffs: Any) -> None:
@@ -570,6 +596,8 @@ def cylinder_step(
         st["model_c"] = reading
         st["pending"] = False
         st["headroom_s"] = np.nan
+        if not st["detector_on"]:
+            st["on_s"] = time_s
         st["detector_on"] = True
         st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
     elif call:
@@ -583,10 +611,24 @@ def cylinder_step(
         st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
     state = code
     fed = np.nan
+    region = -1
+    armed = 0
     if st["detector_on"]:
+        power = power_fraction(u[0], xb[0], xb[n_x - 1])
+        region = region_of(time_s - st["on_s"], u[3], power)
         symptom = st["deviation"] if cfg["estimator_symptom"] else st["iso_deviation"]
         fed = symptom if code == CODE_NOMINAL else np.nan
         verdict = detector_step(st["detector"], cfg["detector"], eng_rings[i, 0], time_s, fed)
+        baseline = st["detector"]["baseline"]
+        if time_s >= st["detector"]["start_s"] + cfg["detector"]["warmup_s"] and (
+            cfg["detector"]["baseline_s"] <= 0.0 or not math.isnan(baseline)
+        ):
+            armed |= ARMED_BASELINE
+        if cfg["nominal"]["on"]:  # against the engine's own reference, from engine start
+            level = cfg["nominal_level"][region]
+            if not math.isnan(level):
+                armed |= ARMED_REFERENCE
+            verdict = max(verdict, detector_step(st["nominal"], cfg["nominal"], eng_rings[i, 2], time_s, fed - level))
         if code == CODE_NOMINAL:
             state = verdict
     if action == ACTION_NONE or not (
@@ -608,6 +650,29 @@ def cylinder_step(
     out["code"] = code
     out["fed"] = fed
     out["cross_fed"] = np.nan
+    out["region"] = region
+    out["armed"] = armed
+    gamma_q_sd = gamma_d_sd = np.nan
+    isolable = False
+    if st["running"] and math.isfinite(st["gamma_q"]):
+        iso = st["iso"]
+        gamma_q_sd = math.sqrt(max(iso[8], 0.0))
+        gamma_d_sd = math.sqrt(max(iso[12], 0.0))
+        product = gamma_q_sd * gamma_d_sd
+        correlation = iso[9] / product if product > 0.0 else -1.0
+        isolable = (
+            region >= 0
+            and isolable_region(region)
+            and gamma_q_sd <= ISOLATION_SD_MAX
+            and gamma_d_sd <= ISOLATION_SD_MAX
+            and correlation > ISOLATION_CORRELATION_MIN
+        )
+    out["gamma_q_sd"] = gamma_q_sd
+    out["gamma_d_sd"] = gamma_d_sd
+    out["isolable"] = isolable
+    if not isolable:
+        out["gamma_q"] = np.nan
+        out["gamma_d"] = np.nan
 
 
 def cross_step(eng: Engine, time_s: float) -> None:
@@ -723,6 +788,11 @@ def _copy_output(dst: Any, src: Any) -> None:
     dst["code"] = src["code"]
     dst["fed"] = src["fed"]
     dst["cross_fed"] = src["cross_fed"]
+    dst["region"] = src["region"]
+    dst["armed"] = src["armed"]
+    dst["gamma_q_sd"] = src["gamma_q_sd"]
+    dst["gamma_d_sd"] = src["gamma_d_sd"]
+    dst["isolable"] = src["isolable"]
 
 
 def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> None:
@@ -862,9 +932,12 @@ cusum_step: Any = None
 derivatives: Any = None
 dissipation: Any = None
 drive_kernel: Any = None
+isolable_region: Any = None
 level_of: Any = None
 live_ekf: Any = None
 live_isolation: Any = None
+power_fraction: Any = None
+region_of: Any = None
 rk4: Any = None
 supervise: Any = None
 unpack_coefficients: Any = None
@@ -888,6 +961,7 @@ def compiled() -> Any:
         _supervision,
         _schedule,
         _detection,
+        _regions,
         sys.modules[__name__],
     )
     tag = fingerprint([str(m.__file__) for m in modules])
@@ -898,9 +972,12 @@ def compiled() -> Any:
         "derivatives": equations.derivatives,
         "dissipation": equations.dissipation,
         "drive_kernel": _compiled_model.drive_kernel(),
+        "isolable_region": jit(_regions.isolable_region, tag),
         "level_of": filters.level_of,
         "live_ekf": filters.live,
         "live_isolation": _isolation.compiled_kernels().live,
+        "power_fraction": jit(_regions.power_fraction, tag),
+        "region_of": jit(_regions.region_of, tag),
         "rk4": equations.rk4,
         "supervise": jit(_supervision.supervise, tag, initial_supervisor=jit(_supervision.initial_supervisor, tag)),
         "unpack_coefficients": jit(_thermal.unpack_coefficients, tag),
