@@ -235,6 +235,9 @@ class _DetectorMark(_Section, frozen=True):
 
 class _DetectorHead(_DetectorMark, frozen=True):
     symptom: Symptom = "estimator"
+    #: a detector not calibrated for the model: ``run`` refuses to start (exit 2), or (accept, a test bench)
+    #: runs with a warning in every status line
+    uncalibrated: Literal["refuse", "accept"] = "refuse"
 
 
 def _optional_keys(name: str, keys: Iterable[str], value: Any) -> Any:
@@ -456,6 +459,9 @@ class ServiceConfig:
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
     #: ``ecu-monitor calibrate`` writes it, ecu_monitor.offline.calibration.model_fingerprint); None if not given.
     detector_calibrated_for: str | None
+    #: ``detector.uncalibrated``: "refuse" (run exits 2 when the detector was not calibrated for the model) or
+    #: "accept" (a test bench: run anyway, warning in every status line)
+    detector_uncalibrated: str
     #: ``dbc``, ``dronecan`` or ``mavlink`` (:data:`PROTOCOLS`): how the inputs are read
     protocol: str
     #: the service as a DroneCAN node (used when protocol is dronecan)
@@ -627,6 +633,7 @@ class _Resolver:
             sensor_fault=self.sensor_fault(file),
             no_frames_warning_s=file.no_frames_warning_s,
             detector_calibrated_for=file.detector.calibrated_for,
+            detector_uncalibrated=file.detector.uncalibrated,
             protocol=file.protocol,
             dronecan=dronecan,
             mavlink=mavlink,

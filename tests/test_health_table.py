@@ -16,8 +16,15 @@ from hypothesis import strategies as st
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.cli import main
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation.regions import REGION_NAMES
 from ecu_monitor.pipeline import table as health_table
-from ecu_monitor.pipeline.outputs import ReplayResult, health_columns, health_table_columns, write_health_csv
+from ecu_monitor.pipeline.outputs import (
+    ARMED_NAMES,
+    ReplayResult,
+    health_columns,
+    health_table_columns,
+    write_health_csv,
+)
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import check_table_path, csv_bytes, format_g10
 
@@ -67,7 +74,9 @@ def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:
 
     columns: dict[str, Any] = {k: floats(k) for k in FLOAT_COLUMNS}
     columns.update(state=rng.integers(0, len(STATES), n), stale=rng.integers(0, 1 << len(INPUT_NAMES), n),
-                   sensor_fault=rng.random(n) < 0.2)  # fmt: skip
+                   sensor_fault=rng.random(n) < 0.2, gamma_q_sd=floats("gamma_q_sd"), gamma_d_sd=floats("gamma_d_sd"),
+                   isolable=rng.random(n) < 0.5, armed=rng.integers(0, len(ARMED_NAMES), n),
+                   region=rng.integers(-1, len(REGION_NAMES), n))  # fmt: skip
     if cylinders > 1:
         for c in range(1, cylinders + 1):
             columns.update({f"cyl{c}_{k}": floats(k) for k in CYLINDER_FLOATS})
@@ -86,7 +95,8 @@ def _reference_csv(result: ReplayResult) -> bytes:
         line = (
             f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
             f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)},"
-            f"{r.cht_rate_c_per_min:.10g}"
+            f"{r.cht_rate_c_per_min:.10g},{r.gamma_q_sd:.10g},{r.gamma_d_sd:.10g},{int(r.isolable)},"
+            f"{ARMED_NAMES[r.armed]},{REGION_NAMES[r.region] if r.region >= 0 else ''}"
         )
         if count > 1:
             per = "".join(

@@ -325,6 +325,9 @@ def test_statustext_wording_severity_and_chunks_of_at_most_50() -> None:
     assert state_text(_snap("DEGRADED", gq=1.18)) == "ENGINE: heat-in +18 %, DEGRADED"
     assert state_text(_snap("SUSPECT", gq=1.02, gd=0.88)) == "ENGINE: cooling -12 %, SUSPECT"
     assert state_text(_snap("SUSPECT", gq=1.03, gd=1.01)) == "ENGINE: CHT +0.02 C/s off model, SUSPECT"
+    assert state_text(_snap("SUSPECT", gq=math.nan, gd=math.nan, isolable=False)) == (
+        "ENGINE: CHT +0.02 C/s off model, cause not isolable, SUSPECT"
+    )
     cyl = CylinderSnapshot(3, 190.0, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0)
     other = CylinderSnapshot(1, 150.0, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0)
     multi = HealthSnapshot(

@@ -249,7 +249,7 @@ def fit_warnings(
     measured CHT, and a detector threshold not calibrated for ``params`` (by its fingerprint)."""
     import numpy as np
 
-    from ecu_monitor.offline.calibration import model_fingerprint
+    from ecu_monitor.offline.calibration import uncalibrated_detectors
 
     out = []
     cht = np.asarray(result.columns["cht_meas_c"], dtype=float)
@@ -261,30 +261,7 @@ def fit_warnings(
             f"the model's CHT limit {limit:g} degC is below what the engine read (up to {float(cht.max()):.1f} degC,"
             f" {share:.0f} % of the rows above): headroom is 0 there; set the engine's cht_limit_c in the model"
         )
-    if config.cylinder_detectors and models:  # one detector per cylinder: each checked against its model
-        for number, (model, calibrated_for) in enumerate(
-            zip(models, config.cylinder_calibrated_for, strict=True), start=1
-        ):
-            if calibrated_for != model_fingerprint(model):
-                out.append(
-                    f"cylinder {number}'s detector threshold {config.cylinder_detector(number).threshold:g} was not"
-                    f" calibrated for its model ({calibrated_for or 'no calibrated_for'}, this model is"
-                    f" {model_fingerprint(model)}); calibrate it on nominal flights: ecu-monitor calibrate"
-                )
-        return out
-    fingerprint = model_fingerprint(params)
-    calibrated = config.detector_calibrated_for
-    if calibrated != fingerprint:
-        why = (
-            f"{config.source} has no detector.calibrated_for"
-            if calibrated is None
-            else f"it was calibrated for model {calibrated}, this model is {fingerprint}"
-        )
-        out.append(
-            f"the detector threshold {config.detector.threshold:g} was not calibrated for this model ({why});"
-            " calibrate it on nominal flights: ecu-monitor calibrate"
-        )
-    return out
+    return out + uncalibrated_detectors(config, models or (params,))
 
 
 def _cylinder_lines(result: ReplayResult) -> list[str]:

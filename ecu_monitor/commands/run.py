@@ -31,7 +31,14 @@ if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help s
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.runtime.daemon import DaemonSettings
 
-__all__ = ["add_subparser", "bus_opener", "daemon_settings", "engine_speed_of", "unsupported_on_host"]
+__all__ = [
+    "add_subparser",
+    "bus_opener",
+    "daemon_settings",
+    "engine_speed_of",
+    "uncalibrated_warning",
+    "unsupported_on_host",
+]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -173,6 +180,7 @@ def _run(args: argparse.Namespace) -> int:
     params = models[0]
     if not args.min_flight_s >= 0.0:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
+    uncalibrated = uncalibrated_warning(config, models)
     _log_to_journal()
     pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
@@ -187,7 +195,9 @@ def _run(args: argparse.Namespace) -> int:
     # finds them loaded.
     with compile_notice(say=_log.info):
         pipeline.warm_up()
-    settings = daemon_settings(config, watchdog_period_s())
+    settings = daemon_settings(config, watchdog_period_s(), uncalibrated)
+    if uncalibrated:
+        _log.warning("%s", uncalibrated)
     with SystemdNotifier() as notifier:
         daemon = Daemon(
             pipeline,
@@ -219,9 +229,26 @@ def _run(args: argparse.Namespace) -> int:
     return code
 
 
-def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
-    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; and systemd's
-    watchdog period, s (None: no watchdog)."""
+def uncalibrated_warning(config: ServiceConfig, models: Any) -> str:
+    """The warning a test bench runs with when a detector was not calibrated for its model (the config says
+    ``detector: {uncalibrated: accept}``), else empty; ConfigError (one line, exit 2) when the config does not
+    accept it: a threshold calibrated for another model false-alarms (or misses) on this one."""
+    from ecu_monitor.offline.calibration import uncalibrated_detectors
+
+    lines = uncalibrated_detectors(config, models)
+    if not lines:
+        return ""
+    if config.detector_uncalibrated != "accept":
+        raise ConfigError(
+            f"{config.source}: detector: {lines[0]}; a test bench may run anyway with"
+            " detector: {uncalibrated: accept}"
+        )
+    return f"UNCALIBRATED detector (detector.uncalibrated: accept): {lines[0]}"
+
+
+def daemon_settings(config: ServiceConfig, watchdog_s: float | None, uncalibrated: str = "") -> DaemonSettings:
+    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; systemd's watchdog
+    period, s (None: no watchdog); ``uncalibrated``: the warning every status line carries (empty: none)."""
     from ecu_monitor.runtime.daemon import DaemonSettings
 
     return DaemonSettings(
@@ -229,6 +256,7 @@ def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSe
         backoff_max_s=config.reopen_backoff.max,
         watchdog_period_s=watchdog_s,
         no_frames_warning_s=config.no_frames_warning_s,
+        uncalibrated_warning=uncalibrated,
     )
 
 

@@ -107,6 +107,7 @@ __all__ = [
     "overlay_replays",
     "score_candidate",
     "statistic_paths",
+    "uncalibrated_detectors",
 ]
 
 #: calibrate_threshold needs at least this many whole hours of statistic.
@@ -396,6 +397,36 @@ def model_fingerprint(params: ThermalParams) -> str:
     tell whether the threshold was calibrated for the model in use."""
     text = json.dumps(params.to_dict(), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def uncalibrated_detectors(config: ServiceConfig, models: Sequence[ThermalParams]) -> list[str]:
+    """One line per detector of ``config`` not calibrated for its model (``models``: one per cylinder, or the
+    one model), by the model's :func:`model_fingerprint` against ``calibrated_for``; empty when all are."""
+    out = []
+    if config.cylinder_detectors and len(models) > 1:  # one detector per cylinder: each checked against its model
+        for number, (model, calibrated_for) in enumerate(
+            zip(models, config.cylinder_calibrated_for, strict=True), start=1
+        ):
+            if calibrated_for != model_fingerprint(model):
+                out.append(
+                    f"cylinder {number}'s detector threshold {config.cylinder_detector(number).threshold:g} was not"
+                    f" calibrated for its model ({calibrated_for or 'no calibrated_for'}, this model is"
+                    f" {model_fingerprint(model)}); calibrate it on nominal flights: ecu-monitor calibrate"
+                )
+        return out
+    fingerprint = model_fingerprint(models[0])
+    calibrated = config.detector_calibrated_for
+    if calibrated != fingerprint:
+        why = (
+            f"{config.source} has no detector.calibrated_for"
+            if calibrated is None
+            else f"it was calibrated for model {calibrated}, this model is {fingerprint}"
+        )
+        out.append(
+            f"the detector threshold {config.detector.threshold:g} was not calibrated for this model ({why});"
+            " calibrate it on nominal flights: ecu-monitor calibrate"
+        )
+    return out
 
 
 def detector_fragment_yaml(

@@ -21,7 +21,15 @@ The rules, in the order a step applies them:
 * every filter period: the open-loop reference EKF (the stuck-probe test's model), then the estimator and
   the isolation filter with the reading the supervisor lets through;
 * the detector (a CUSUM over block means of the symptom, :func:`detector_step`), fed the symptom on
-  NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches;
+  NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches. Two
+  tests, the more severe verdict wins: against the in-flight adaptive baseline (after its warm-up), and,
+  once ``calibrate`` has learned the engine's reference, against the symptom's nominal level in the
+  step's operating region (estimation/regions.py, the time since the first initialisation being the
+  engine's start) from engine start, which no baseline can absorb; ``armed`` says which run;
+* isolation: the gammas are published only where they can be told apart (``isolable``): a change is
+  detected (SUSPECT or DEGRADED: something to isolate), cruise or high power airborne, both standard
+  deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
+  ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable");
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins.
@@ -661,7 +669,8 @@ def cylinder_step(
         product = gamma_q_sd * gamma_d_sd
         correlation = iso[9] / product if product > 0.0 else -1.0
         isolable = (
-            region >= 0
+            CODE_NOMINAL < state <= CODE_DEGRADED  # a change detected: something to isolate
+            and region >= 0
             and isolable_region(region)
             and gamma_q_sd <= ISOLATION_SD_MAX
             and gamma_d_sd <= ISOLATION_SD_MAX

@@ -117,6 +117,7 @@ class DaemonSettings:
     # warn once when the bus carries no engine frame this long
     no_frames_warning_s: float = config_default("no_frames_warning_s")
     switch_interval_s: float | None = None  # sys.setswitchinterval while running (module docstring, "GIL")
+    uncalibrated_warning: str = ""  # a detector not calibrated for its model, accepted: said in every status line
 
 
 class SilenceWatch:
@@ -439,10 +440,13 @@ class Daemon:
             counters = dict(self.pipeline.counters)
             mine = dict(self.counters)
         stale = ",".join(snap.stale_inputs) if snap.stale_inputs else "none"
+        warning = self.settings.uncalibrated_warning
+        isolation = f"gamma_Q {snap.gamma_q:.3f}" if snap.isolable else "gamma_Q not isolable"
         return (
-            f"state {snap.state}, CHT est {snap.cht_est_c:.1f} degC, gamma_Q {snap.gamma_q:.3f}, "
+            f"state {snap.state}, CHT est {snap.cht_est_c:.1f} degC, {isolation}, "
             f"stale {stale}, frames {mine['frames_in']}, malformed {counters.get('malformed', 0)}, "
             f"bus errors {mine['bus_errors']}, health sent {mine['health_sent']}"
+            + (f"; WARNING {warning}" if warning else "")
         )
 
     def _supervise_once(self, now: float) -> None:

@@ -74,6 +74,8 @@ KEY_VALUES: dict[str, str] = {
     "gamma_d": "gamma_d",
     "headroom": "headroom_s",
     "state": "state",
+    "isolable": "isolable",
+    "det_armed": "armed",
 }
 _NODE_STATUS = "uavcan.protocol.NodeStatus"
 _GET_NODE_INFO = "uavcan.protocol.GetNodeInfo"
@@ -217,7 +219,8 @@ class DroneCanNode:
         if lead:
             text += f" cyl {lead}"
         if math.isfinite(snap.cht_est_c):
-            text += f": est {snap.cht_est_c:.1f} C, gamma_Q {snap.gamma_q:.2f}"
+            isolation = f"gamma_Q {snap.gamma_q:.2f}" if snap.isolable else "cause not isolable"
+            text += f": est {snap.cht_est_c:.1f} C, {isolation}"
         self._told, self._told_s = snap.state, time_s
         values = {"level": {"value": LOG_LEVELS[snap.state]}, "source": _LOG_SOURCE, "text": text}
         return self.encoder.frames(_LOG_MESSAGE, values, time_s, self.settings.priority)

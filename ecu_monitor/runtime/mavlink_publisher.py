@@ -140,9 +140,10 @@ def _deviation_words(snap: HealthSnapshot) -> str:
                 parts.append((abs(pct), f"{word} {pct:+d} %"))
     if parts:
         return ", ".join(text for _, text in sorted(parts, reverse=True))
+    cause = "" if snap.isolable or math.isfinite(snap.gamma_q) else ", cause not isolable"
     if math.isfinite(snap.deviation):
-        return f"CHT {snap.deviation:+.2f} C/s off model"
-    return "CHT off model"
+        return f"CHT {snap.deviation:+.2f} C/s off model{cause}"
+    return f"CHT off model{cause}"
 
 
 def state_text(snap: HealthSnapshot, first: bool = False) -> str:
@@ -180,7 +181,9 @@ def text_chunks(text: str, mavlink1: bool = False) -> list[str]:
 def named_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
     """The NAMED_VALUE_FLOAT set of a snapshot (docs/contracts.md): per cylinder n (1 for one channel)
     ``CHTn_EST`` (degC) and ``HDRMn`` (s); the engine's (its lead cylinder's) ``GAMMA_Q``, ``GAMMA_D``,
-    ``ENG_DEV`` (degC/s) and ``ENG_ST`` (the state's code); with several cylinders ``CHT_SPRD`` (degC)
+    ``ENG_DEV`` (degC/s), ``ENG_ST`` (the state's code), ``ISOLABLE`` (1: the gammas can be told apart; 0:
+    "not isolable", GAMMA_Q and GAMMA_D are NaN) and ``DET_ARMED`` (bit 0 the engine's reference, bit 1 the
+    in-flight baseline); with several cylinders ``CHT_SPRD`` (degC)
     and ``CHT_HOT`` (the hottest's number, 0: none)."""
     if snap.cylinders:
         out = []
@@ -193,6 +196,8 @@ def named_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
         ("GAMMA_D", snap.gamma_d),
         ("ENG_DEV", snap.deviation),
         ("ENG_ST", float(STATES.index(snap.state))),
+        ("ISOLABLE", float(snap.isolable)),
+        ("DET_ARMED", float(snap.armed)),
     ]
     if snap.cylinders:
         out += [("CHT_SPRD", snap.cht_spread_c), ("CHT_HOT", float(snap.hottest_cylinder))]

@@ -44,9 +44,9 @@ __all__ = [
 HEALTH_SIGNALS: dict[str, tuple[str, ...]] = {
     "Health_Status": ("ChtEstimate", "ModelDeviation", "DegradationState", "ChtRate"),
     "Health_Isolation": ("GammaQEstimate", "GammaDEstimate", "ThermalHeadroom", "ChtLimitMargin"),
-    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh"),
+    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh", "DetectorArmed", "NotIsolable"),
     "Health_Spread": ("ChtSpread", "HottestCylinder", "SpreadAlarm", "CylinderCount", "FaultyCylinders"),
-    "Health_Cylinder": ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD"),
+    "Health_Cylinder": ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD", "CylNotIsolable"),
 }
 #: Idle values sent for a nan (no estimate): the CHT estimate's floor, no deviation, gammas at 1, the
 #: headroom's "not limited" with an estimate and 0 without one, no margin, no spread.
@@ -114,6 +114,7 @@ class DbcHealthFrames:
             margin = self._limits[0] - est
             stale = row.stale
             rate = float(r["cht_rate_c_per_min"])
+            armed, isolable = int(r["armed"]), bool(r["isolable"])
         else:
             est, deviation, code = snap.cht_est_c, snap.deviation, _STATE_CODE[snap.state]
             gamma_q, gamma_d, headroom = snap.gamma_q, snap.gamma_d, snap.headroom_s
@@ -121,6 +122,7 @@ class DbcHealthFrames:
             margin = min((m for m in margins if finite(m)), default=math.nan)
             stale = snap.stale_inputs
             rate = snap.cht_rate_c_per_min
+            armed, isolable = snap.armed, snap.isolable
         if message == "Health_Status":
             rate = min(max(rate, -128.0), 127.0) if finite(rate) else 0.0  # the signal's range, degC/min
             return (est if finite(est) else _IDLE_CHT_C, deviation if finite(deviation) else 0.0, code, rate)
@@ -144,7 +146,8 @@ class DbcHealthFrames:
         for name in stale:
             bits |= stale_bit(name)
         counters = self.pipeline.counters
-        return (bits & 0xFF, min(counters["malformed"], 65535), min(counters["bus_errors"], 255), bits >> 8)
+        return (bits & 0xFF, min(counters["malformed"], 65535), min(counters["bus_errors"], 255), bits >> 8, armed,
+                int(not isolable))  # fmt: skip
 
 
 def _cylinder_values(cyl: Any) -> tuple[float, ...]:
@@ -156,6 +159,7 @@ def _cylinder_values(cyl: Any) -> tuple[float, ...]:
         _STATE_CODE[cyl.state],
         cyl.gamma_q if math.isfinite(cyl.gamma_q) else 1.0,
         cyl.gamma_d if math.isfinite(cyl.gamma_d) else 1.0,
+        int(not cyl.isolable),
     )
 
 
