@@ -116,7 +116,7 @@ def main() -> None:
             "false_degraded_s": false_s,
             "gamma_d_above_1_3_unflagged_rows": unflagged,
             "gamma_d_max_shown": float(np.nanmax(gd)) if np.isfinite(gd).any() else math.nan,
-            "isolable_share": float(np.mean(c["isolable"])),
+            "isolable_share": float(np.mean(~c["not_isolable"])),
             "from_start_delay_s": delays[0],
             "mid_flight": [(t0, d) for (t0, _), d in zip(pairs[1:], delays[1:], strict=True)],
         }

@@ -99,9 +99,9 @@ def score_flight(job: tuple[int, str | None, Any]) -> dict[str, Any]:
     degraded = np.flatnonzero(c["state"] == 2)
     first = float(t[degraded[0]]) if degraded.size else math.inf
     call = ""
-    isolable_share = float(np.mean(c["isolable"])) if t.size else 0.0
+    isolable_share = float(np.mean(~c["not_isolable"])) if t.size else 0.0
     if math.isfinite(first):
-        window = (t >= first) & (t < first + ISOLATION_WINDOW_S) & c["isolable"]
+        window = (t >= first) & (t < first + ISOLATION_WINDOW_S) & ~c["not_isolable"]
         if window.any():
             q = float(np.mean(c["gamma_q"][window])) - 1.0
             d = float(np.mean(c["gamma_d"][window])) - 1.0

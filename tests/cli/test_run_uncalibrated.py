@@ -42,4 +42,3 @@ def test_a_test_bench_accepts_it_with_a_warning(tmp_path: Path) -> None:
 def test_a_calibrated_detector_runs_without_a_word() -> None:
     config = load_config(DEFAULT_CONFIG)
     assert uncalibrated_warning(config, config.load_cylinder_params()) == ""
-
