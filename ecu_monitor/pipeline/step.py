@@ -26,8 +26,8 @@ The rules, in the order a step applies them:
   once ``calibrate`` has learned the engine's reference, against the symptom's nominal level in the
   step's operating region (estimation/regions.py, the time since the first initialisation being the
   engine's start) from engine start, which no baseline can absorb; ``armed`` says which run;
-* isolation: the gammas are published only where they can be told apart (``isolable``): a change is
-  detected (SUSPECT or DEGRADED: something to isolate), cruise or high power airborne, both standard
+* isolation: the gammas are published only where they can be told apart (``isolable``): a degradation
+  is declared (DEGRADED: something to isolate), cruise or high power airborne, both standard
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
   ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable");
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
@@ -660,7 +660,7 @@ def cylinder_step(
         product = gamma_q_sd * gamma_d_sd
         correlation = iso[9] / product if product > 0.0 else -1.0
         isolable = (
-            CODE_NOMINAL < state <= CODE_DEGRADED  # a change detected: something to isolate
+            state == CODE_DEGRADED  # a degradation declared: something to isolate
             and region >= 0
             and isolable_region(region)
             and gamma_q_sd <= ISOLATION_SD_MAX
