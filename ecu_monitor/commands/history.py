@@ -19,6 +19,7 @@ from typing import Any
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.runtime.persistence import CYCLE_BIN_EDGES_C, FlightRecord, StateStore, iter_trend
+from ecu_monitor.userfiles import save_figure
 
 __all__ = ["add_subparser", "engine_trend", "format_history", "plot_history"]
 
@@ -148,7 +149,7 @@ def plot_history(histories: dict[str, list[FlightRecord]], out: Path) -> None:
 
     fig = trend_figure(histories)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    save_figure(fig, out, dpi=110)
     plt.close(fig)
 
 

@@ -120,7 +120,10 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
         raise ConfigError(f"{config.source}: bus.interface: unknown interface {interface!r} (known: {known})")
 
     def open_bus() -> can.BusABC:
-        return can.Bus(**options)
+        bus = can.Bus(**options)
+        if bus.channel_info == can.BusABC.channel_info:  # "unknown" (udp_multicast): the daemon's log names it
+            bus.channel_info = f"{interface} {options.get('channel')}"
+        return bus
 
     first: can.BusABC | None = None
     error: str | None = None
@@ -174,6 +177,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.runtime.persistence import StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
+    from ecu_monitor.runtime.state_lock import StateDirLock
 
     config = load_config(args.config)
     models = config.load_cylinder_params()  # one per cylinder (one for a single CHT channel)
@@ -182,6 +186,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
     uncalibrated = uncalibrated_warning(config, models)
     _log_to_journal()
+    lock = StateDirLock(config.state_dir)  # before the store's start-up recovery; held until the process ends
     pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
@@ -225,6 +230,7 @@ def _run(args: argparse.Namespace) -> int:
             code = daemon.run()
         finally:
             store.close()
+            lock.close()
     sys.stdout.flush()
     return code
 
