@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import functools
 import gc
 import logging
 import os
@@ -31,7 +32,7 @@ if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help s
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.runtime.daemon import DaemonSettings
 
-__all__ = ["add_subparser", "bus_opener", "daemon_settings", "engine_speed_of", "unsupported_on_host"]
+__all__ = ["add_subparser", "bus_opener", "daemon_settings", "unsupported_on_host"]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -163,7 +164,7 @@ def unsupported_on_host(exc: BaseException) -> bool:
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
     from ecu_monitor.runtime.daemon import Daemon
-    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.runtime.persistence import StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
@@ -195,7 +196,7 @@ def _run(args: argparse.Namespace) -> int:
             settings=settings,
             notifier=notifier,
             recorder=recorder,
-            engine_speed=engine_speed_of(pipeline),
+            held_inputs=functools.partial(held_inputs, pipeline),
             receive_filters=pipeline.receive_filters(),
         )
 
@@ -230,15 +231,3 @@ def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSe
         watchdog_period_s=watchdog_s,
         no_frames_warning_s=config.no_frames_warning_s,
     )
-
-
-def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:
-    """The engine speed the pipeline holds, rev/min (None while stale or never received).
-
-    Reads the pipeline's sample-and-hold value of input ``rpm`` (the decoder's value; no second decode).
-    """
-
-    def engine_speed() -> float | None:
-        return pipeline.held_input("rpm")
-
-    return engine_speed

@@ -5,26 +5,95 @@ stale) for ``end_after_s``; a run shorter than ``min_flight_s`` is not kept. A r
 checkpointed every ``checkpoint_every_s``; a flight left running by a crash is recovered, and resumed when
 the engine is still running at restart (one engine run stays one flight). See runtime/persistence.py for
 the durability rules of the store.
+
+Across flights: each finished flight keeps its wear index (:class:`~ecu_monitor.estimation.wear.FlightWear`
+over the samples' CHT, reference model CHT and OAT); after it, the across-flight detector
+(:func:`engine_wear`) runs over the engine's flights since its last cleared alert, and an alert it raises
+is stored (:class:`~ecu_monitor.runtime.persistence.MaintenanceAlert`) once, until maintenance clears it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
-from typing import Any
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
-from ecu_monitor.runtime.persistence import FlightRecord, FlightRules, FlightSample, StateStore
+from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
+from ecu_monitor.runtime.persistence import FlightRecord, FlightRules, FlightSample, MaintenanceAlert, StateStore
 from ecu_monitor.runtime.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
 
-__all__ = ["FlightRecorder", "SignalMoments"]
+__all__ = [
+    "EngineWear",
+    "FlightRecorder",
+    "HeldInputs",
+    "SignalMoments",
+    "engine_wear",
+    "flight_samples",
+    "held_inputs",
+]
 
 _log = logging.getLogger(__name__)
 
 #: Detector states ranked from best to worst (health.dbc DegradationState order of concern).
 _STATE_RANK = {"NOMINAL": 0, "INPUT_STALE": 1, "UNAVAILABLE": 2, "SENSOR_FAULT": 3, "SUSPECT": 4, "DEGRADED": 5}
+#: States in which the estimator (and its reference model) is not running: no wear sample then.
+_NOT_ESTIMATING = frozenset({"UNAVAILABLE", "SENSOR_FAULT"})
 #: Longest gap between two samples that still counts as covered time, s (a longer gap adds nothing).
 _MAX_SAMPLE_GAP_S = 2.0
+
+
+class HeldInputs(NamedTuple):
+    """What the recorder reads from the pipeline besides its rows, at one instant: engine speed, rev/min
+    (None: stale), the reference model's CHT, OAT and throttle (nan: not available)."""
+
+    rpm: float | None
+    model_c: float = math.nan
+    oat_c: float = math.nan
+    throttle_pct: float = math.nan
+
+
+def held_inputs(pipeline: Any) -> HeldInputs:
+    """The pipeline's held inputs and reference model CHT now (a Pipeline or a LiveMonitor; call under its lock)."""
+
+    def value(name: str) -> float:
+        held = pipeline.held_input(name)
+        return math.nan if held is None else float(held)
+
+    return HeldInputs(pipeline.held_input("rpm"), pipeline.reference_model_c(), value("oat_c"), value("throttle_pct"))
+
+
+def flight_samples(rows: Sequence[Any], held: HeldInputs, wall_offset_s: float) -> list[FlightSample]:
+    """The recorder's samples of health rows (HealthSnapshot) whose held inputs were ``held``; wall time = the
+    row's time + ``wall_offset_s``. A row's CHT is the reading, or the estimate where the probe is faulty."""
+    return [
+        FlightSample(
+            time_s=row.time_s,
+            wall_time_s=row.time_s + wall_offset_s,
+            rpm=held.rpm,
+            cht_c=_trusted_cht(row),
+            gamma_q=float(row.gamma_q),
+            gamma_d=float(row.gamma_d),
+            state=str(row.state),
+            model_c=held.model_c,
+            oat_c=held.oat_c,
+            throttle_pct=held.throttle_pct,
+            cylinders=tuple((_trusted_cht(c), float(c.gamma_q), float(c.gamma_d), str(c.state)) for c in row.cylinders),
+            cht_spread_c=float(row.cht_spread_c),
+            hottest_cylinder=int(row.hottest_cylinder),
+            spread_alarm=bool(row.spread_alarm),
+        )
+        for row in rows
+    ]
+
+
+def _trusted_cht(row: Any) -> float:
+    cht = row.cht_meas_c if not row.sensor_fault and math.isfinite(row.cht_meas_c) else row.cht_est_c
+    return float(cht) if math.isfinite(cht) else math.nan
 
 
 class SignalMoments:
@@ -144,7 +213,7 @@ class _CylinderFlight:
 class _OpenFlight:
     """Aggregates of the flight in progress."""
 
-    def __init__(self, flight_id: int, sample: FlightSample, hysteresis: float) -> None:
+    def __init__(self, flight_id: int, sample: FlightSample, hysteresis: float, wear: WearSettings) -> None:
         self.flight_id = flight_id
         self.start_time_s = sample.time_s
         self.start_utc = sample.wall_time_s
@@ -159,6 +228,8 @@ class _OpenFlight:
         self.gamma_q = SignalMoments()
         self.gamma_d = SignalMoments()
         self.reversals = ReversalFilter(hysteresis)
+        self.wear = FlightWear(wear)
+        self.high_power_s: float | None = None  # None until a throttle value is seen
         self.cylinders: list[_CylinderFlight] = []  # engines monitored per cylinder
         self.spread_max_c = -math.inf
         self.spread_alarm_s = 0.0
@@ -166,10 +237,10 @@ class _OpenFlight:
 
     @classmethod
     def resume(
-        cls, record: FlightRecord, reversals: list[float], sample: FlightSample, hysteresis: float
+        cls, record: FlightRecord, reversals: list[float], sample: FlightSample, hysteresis: float, wear: WearSettings
     ) -> _OpenFlight:
         """Continue a flight cut by a restart: its aggregates from the row, its clock from its start (UTC)."""
-        flight = cls(record.id, sample, hysteresis)
+        flight = cls(record.id, sample, hysteresis, wear)
         flight.start_time_s = sample.time_s - (sample.wall_time_s - record.start_utc)
         flight.start_utc = record.start_utc
         flight.last_checkpoint_s = sample.time_s
@@ -178,6 +249,8 @@ class _OpenFlight:
         flight.time_degraded_s = record.time_degraded_s
         flight.worst_state = record.worst_state
         flight.reversals.restore(reversals)
+        flight.wear.restore(record.wear_samples, record.wear_index, record.wear_spread)
+        flight.high_power_s = record.high_power_s
         span_h = record.duration_s / 3600.0
         for moments, first, mean, top, slope in (
             (flight.gamma_q, record.gamma_q_start, record.gamma_q_mean, record.gamma_q_max, record.gamma_q_slope_per_h),
@@ -221,6 +294,10 @@ class _OpenFlight:
             "cycles_total": total,
             "cycles_json": json.dumps(histogram),
             "cylinders_json": self._cylinders_json(),
+            "wear_index": self.wear.index,
+            "wear_spread": self.wear.spread,
+            "wear_samples": self.wear.n,
+            "high_power_s": self.high_power_s,
             "reversals": pack_reversals(points),
         }
 
@@ -240,14 +317,28 @@ class FlightRecorder:
 
     ``add(sample)`` once per health period; ``close(reason)`` at service stop finishes a flight in
     progress (kept if long enough). Flights left running by a crash are recovered when the recorder is
-    created. ``finished`` lists the ids committed by this recorder.
+    created. ``finished`` lists the ids committed by this recorder. ``wear`` and ``reference``: the
+    across-flight detector's settings and the engine's nominal wear reference (None: learned from its first
+    flights); ``alerts`` lists the alerts this recorder raised.
     """
 
-    def __init__(self, store: StateStore, serial: str, cht_limit_c: float, rules: FlightRules | None = None) -> None:
+    def __init__(
+        self,
+        store: StateStore,
+        serial: str,
+        cht_limit_c: float,
+        rules: FlightRules | None = None,
+        *,
+        wear: WearSettings | None = None,
+        reference: WearReference | None = None,
+    ) -> None:
         self.store = store
         self.serial = serial
         self.cht_limit_c = float(cht_limit_c)
         self.rules = rules or FlightRules()
+        self.wear = wear or WearSettings()
+        self.reference = reference
+        self.alerts: list[MaintenanceAlert] = []
         self.finished: list[int] = []
         self.recovered = store.recover(serial, self.rules.min_flight_s)
         store.ensure_engine(serial)
@@ -285,7 +376,7 @@ class FlightRecorder:
     def _begin(self, sample: FlightSample) -> _OpenFlight:
         flight_id = self.store.begin_flight(self.serial, sample.wall_time_s, self.cht_limit_c)
         _log.info("flight %d of engine %s started", flight_id, self.serial)
-        return _OpenFlight(flight_id, sample, self.rules.cycle_hysteresis_c)
+        return _OpenFlight(flight_id, sample, self.rules.cycle_hysteresis_c, self.wear)
 
     def _resume(self, sample: FlightSample) -> _OpenFlight | None:
         """The flight a restart cut, reopened when this first running sample continues its engine run."""
@@ -300,7 +391,7 @@ class FlightRecorder:
         _log.info(
             "flight %d of engine %s resumed after a restart (%.0f s since its checkpoint)", cut.id, self.serial, gap_s
         )
-        return _OpenFlight.resume(record, reversals, sample, self.rules.cycle_hysteresis_c)
+        return _OpenFlight.resume(record, reversals, sample, self.rules.cycle_hysteresis_c, self.wear)
 
     def _accumulate(self, flight: _OpenFlight, sample: FlightSample) -> None:
         dt = sample.time_s - flight.last_time_s
@@ -317,6 +408,11 @@ class FlightRecorder:
             flight.time_degraded_s += dt
         if _STATE_RANK.get(sample.state, 0) > _STATE_RANK.get(flight.worst_state, 0):
             flight.worst_state = sample.state
+        if math.isfinite(sample.throttle_pct):
+            high = dt if sample.throttle_pct >= self.rules.high_power_throttle_pct else 0.0
+            flight.high_power_s = (flight.high_power_s or 0.0) + high
+        if sample.state not in _NOT_ESTIMATING:
+            flight.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
         flight.gamma_q.add(sample.time_s - flight.start_time_s, sample.gamma_q)
         flight.gamma_d.add(sample.time_s - flight.start_time_s, sample.gamma_d)
         if sample.cylinders:
@@ -347,8 +443,61 @@ class FlightRecorder:
         self.store.write_flight(flight.flight_id, values)
         self.finished.append(flight.flight_id)
         _log.info("flight %d of engine %s finished (%s, %.0f s)", flight.flight_id, self.serial, reason, duration_s)
+        self._check_wear()
         return flight.flight_id
+
+    def _check_wear(self) -> None:
+        """Run the across-flight detector after a flight; store an alert it raises (once while open)."""
+        if self.store.alerts(self.serial, open_only=True):
+            return
+        result = engine_wear(self.store, self.serial, self.wear, self.reference)
+        alert = result.alert()
+        if alert is None:
+            return
+        alert = dataclasses.replace(alert, id=self.store.raise_alert(alert))
+        self.alerts.append(alert)
+        _log.warning("%s (CUSUM %.1f >= %.1f)", alert.text, alert.statistic, alert.threshold)
 
     def close(self, reason: str = "service_stop") -> int | None:
         """Finish the flight in progress (service stop); returns its id if it was kept."""
         return self._finish(reason)
+
+
+@dataclass(frozen=True)
+class EngineWear:
+    """The across-flight detector over one engine's flights since its last cleared alert (oldest first)."""
+
+    serial: str
+    flights: tuple[FlightRecord, ...]
+    verdict: WearVerdict
+
+    def alert(self) -> MaintenanceAlert | None:
+        """The alert the verdict raises (id 0: not stored yet), None without one."""
+        at, reference = self.verdict.alert_at, self.verdict.reference
+        if at is None or reference is None:
+            return None
+        flight = self.flights[at]
+        return MaintenanceAlert(
+            id=0,
+            engine_serial=self.serial,
+            flight_id=flight.id,
+            raised_utc=time.time(),
+            wear_index=float(flight.wear_index or 0.0),
+            statistic=float(self.verdict.statistic[at] or 0.0),
+            threshold=self.verdict.threshold,
+            reference_mean=reference.mean,
+            reference_sd=reference.sd,
+            reference_flights=reference.flights,
+            reference_learned=self.verdict.learned,
+            cleared_utc=None,
+        )
+
+
+def engine_wear(
+    store: StateStore, serial: str, settings: WearSettings, reference: WearReference | None = None
+) -> EngineWear:
+    """The across-flight detector over ``serial``'s finished and recovered flights since its last cleared alert."""
+    cleared = [a.cleared_utc for a in store.alerts(serial) if a.cleared_utc is not None]
+    since = max(cleared, default=-math.inf)
+    flights = tuple(r for r in store.flights(serial) if r.start_utc > since)
+    return EngineWear(serial, flights, wear_verdict([r.wear_index for r in flights], settings, reference))

@@ -290,6 +290,9 @@ class LiveMonitor:
     def held_input(self, name: str) -> float | None:
         return self.pipeline.held_input(name)
 
+    def reference_model_c(self) -> float:
+        return self.pipeline.reference_model_c()
+
     def warm_up(self) -> float:
         return self.pipeline.warm_up()
 
