@@ -178,10 +178,18 @@ def _run(args: argparse.Namespace) -> int:
     pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
-        store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)
+        store,
+        config.engine_serial,
+        params.cht_limit_c,
+        FlightRules(min_flight_s=args.min_flight_s),
+        wear=config.wear,
+        reference=config.wear_reference,
     )
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
+    for alert in store.alerts(config.engine_serial, open_only=True):  # kept across restarts: told at each start
+        _log.warning("ALERT %s", alert.text)
+        pipeline.tell(alert.text)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
     # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only

@@ -44,7 +44,7 @@ __all__ = [
 HEALTH_SIGNALS: dict[str, tuple[str, ...]] = {
     "Health_Status": ("ChtEstimate", "ModelDeviation", "DegradationState", "ChtRate"),
     "Health_Isolation": ("GammaQEstimate", "GammaDEstimate", "ThermalHeadroom", "ChtLimitMargin"),
-    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh"),
+    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh", "MaintenanceAlert"),
     "Health_Spread": ("ChtSpread", "HottestCylinder", "SpreadAlarm", "CylinderCount", "FaultyCylinders"),
     "Health_Cylinder": ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD"),
 }
@@ -62,6 +62,10 @@ class Publisher(Protocol):
         """The frames the rows make, oldest first."""
         ...
 
+    def tell(self, text: str) -> None:
+        """An open maintenance alert (its one-line text), told from the next row on (module docstring)."""
+        ...
+
 
 class DbcHealthFrames:
     """The health.dbc frames of each row: every message whose period (steps) divides the row's step."""
@@ -77,7 +81,11 @@ class DbcHealthFrames:
         self._packers = {name: self.encoder.packer(name, HEALTH_SIGNALS[name]) for name in self.periods}
         self._counters = dict.fromkeys(self.periods, 0)
         self._limits = [m.cht_limit_c for m in pipeline.cylinder_params]
+        self.maintenance_alert = False  # Health_Diag.MaintenanceAlert: an open alert told (set, never cleared)
         pipeline.counters.setdefault("health_frames", 0)
+
+    def tell(self, text: str) -> None:
+        self.maintenance_alert = True
 
     def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
         out: list[can.Message] = []
@@ -144,7 +152,8 @@ class DbcHealthFrames:
         for name in stale:
             bits |= stale_bit(name)
         counters = self.pipeline.counters
-        return (bits & 0xFF, min(counters["malformed"], 65535), min(counters["bus_errors"], 255), bits >> 8)
+        return (bits & 0xFF, min(counters["malformed"], 65535), min(counters["bus_errors"], 255), bits >> 8,
+                int(self.maintenance_alert))  # fmt: skip
 
 
 def _cylinder_values(cyl: Any) -> tuple[float, ...]:
@@ -183,6 +192,9 @@ class DroneCanPublisher:
         self.pipeline.counters["dronecan_frames"] += len(out)
         return out
 
+    def tell(self, text: str) -> None:
+        self.node.tell(text)
+
     def take_request(self, msg: can.Message, time_s: float) -> bool:
         """A service request to the node (GetNodeInfo), taken here: not an input."""
         taken = bool(msg.arbitration_id & 0x80) and self.node.take_request(msg, time_s)
@@ -204,6 +216,9 @@ class MavlinkHealth:
             config.mavlink, [m.cht_limit_c for m in pipeline.cylinder_params], {s.message for s in config.inputs}
         )
         pipeline.counters["mavlink_messages"] = 0
+
+    def tell(self, text: str) -> None:
+        self.publisher.tell(text)
 
     def publish(self, rows: Sequence[StepRow]) -> list[Any]:
         out: list[Any] = []
@@ -289,6 +304,11 @@ class LiveMonitor:
 
     def held_input(self, name: str) -> float | None:
         return self.pipeline.held_input(name)
+
+    def tell(self, text: str) -> None:
+        """Tell an open maintenance alert on every output (each publisher's :meth:`Publisher.tell`)."""
+        for publisher in self.publishers:
+            publisher.tell(text)
 
     def reference_model_c(self) -> float:
         return self.pipeline.reference_model_c()
