@@ -219,8 +219,8 @@ class MaintenanceAlert:
     def text(self) -> str:
         """One line for the pilot and the maintainer (the history's ALERT line, the publishers' text)."""
         return (
-            f"MAINTENANCE engine {self.engine_serial}: head {100.0 * self.wear_index:+.1f} % hotter than nominal"
-            f" (ref {100.0 * self.reference_mean:+.1f} %) after flight {self.flight_id}"
+            f"MAINTENANCE {self.engine_serial}: head {100.0 * self.wear_index:+.1f}% hotter than nominal"
+            f" (ref {100.0 * self.reference_mean:+.1f}%) after flight {self.flight_id}"
         )
 
 
