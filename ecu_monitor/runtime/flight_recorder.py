@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from ecu_monitor.estimation.regions import REGION_HIGH, REGION_NAMES, power_fraction, region_of
 from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
 from ecu_monitor.runtime.persistence import FlightRecord, FlightRules, FlightSample, MaintenanceAlert, StateStore
 from ecu_monitor.runtime.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
@@ -49,12 +50,14 @@ _MAX_SAMPLE_GAP_S = 2.0
 
 class HeldInputs(NamedTuple):
     """What the recorder reads from the pipeline besides its rows, at one instant: engine speed, rev/min
-    (None: stale), the reference model's CHT, OAT and throttle (nan: not available)."""
+    (None: stale), the reference model's CHT, OAT, airspeed and the power fraction of the heat map's power
+    input (estimation/regions.py; nan: not available)."""
 
     rpm: float | None
     model_c: float = math.nan
     oat_c: float = math.nan
-    throttle_pct: float = math.nan
+    airspeed_mps: float = math.nan
+    power: float = math.nan
 
 
 def held_inputs(pipeline: Any) -> HeldInputs:
@@ -64,7 +67,10 @@ def held_inputs(pipeline: Any) -> HeldInputs:
         held = pipeline.held_input(name)
         return math.nan if held is None else float(held)
 
-    return HeldInputs(pipeline.held_input("rpm"), pipeline.reference_model_c(), value("oat_c"), value("throttle_pct"))
+    heat_map = pipeline.params.heat_map
+    power = power_fraction(value(heat_map.x_axis), heat_map.x_breakpoints[0], heat_map.x_breakpoints[-1])
+    rpm = pipeline.held_input("rpm")
+    return HeldInputs(rpm, pipeline.reference_model_c(), value("oat_c"), value("airspeed_mps"), power)
 
 
 def flight_samples(rows: Sequence[Any], held: HeldInputs, wall_offset_s: float) -> list[FlightSample]:
@@ -81,7 +87,9 @@ def flight_samples(rows: Sequence[Any], held: HeldInputs, wall_offset_s: float) 
             state=str(row.state),
             model_c=held.model_c,
             oat_c=held.oat_c,
-            throttle_pct=held.throttle_pct,
+            airspeed_mps=held.airspeed_mps,
+            power=held.power,
+            deviation=float(row.deviation),
             cylinders=tuple((_trusted_cht(c), float(c.gamma_q), float(c.gamma_d), str(c.state)) for c in row.cylinders),
             cht_spread_c=float(row.cht_spread_c),
             hottest_cylinder=int(row.hottest_cylinder),
@@ -162,6 +170,39 @@ class SignalMoments:
         return first, self.last, sv / n, max(max_p, self.maximum), slope
 
 
+class _Phase:
+    """One flight phase's (region's) part of the flight in progress: its time, wear index, symptom and gammas."""
+
+    def __init__(self, wear: WearSettings) -> None:
+        self.seconds = 0.0
+        self.wear = FlightWear(wear)
+        self.sums = {"deviation": [0.0, 0], "gamma_q": [0.0, 0], "gamma_d": [0.0, 0]}
+
+    def add(self, sample: FlightSample) -> None:
+        self.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
+        for name, value in (("deviation", sample.deviation), ("gamma_q", sample.gamma_q), ("gamma_d", sample.gamma_d)):
+            if math.isfinite(value):
+                self.sums[name][0] += value
+                self.sums[name][1] += 1
+
+    def values(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"seconds": self.seconds, "wear_index": self.wear.index, "wear_spread": self.wear.spread,
+                               "wear_samples": self.wear.n}  # fmt: skip
+        for name, (total, count) in self.sums.items():
+            out[f"{name}_mean"] = total / count if count else None
+            out[f"{name}_samples"] = count
+        return out
+
+    def restore(self, stored: dict[str, Any]) -> None:
+        """Continue from the stored part (a flight cut by a restart)."""
+        self.seconds = float(stored.get("seconds", 0.0))
+        self.wear.restore(int(stored.get("wear_samples", 0)), stored.get("wear_index"), stored.get("wear_spread"))
+        for name in self.sums:
+            mean, count = stored.get(f"{name}_mean"), int(stored.get(f"{name}_samples", 0))
+            if mean is not None and count:
+                self.sums[name] = [mean * count, count]
+
+
 class _CylinderFlight:
     """One cylinder's aggregates of the flight in progress (engines monitored per cylinder)."""
 
@@ -229,7 +270,8 @@ class _OpenFlight:
         self.gamma_d = SignalMoments()
         self.reversals = ReversalFilter(hysteresis)
         self.wear = FlightWear(wear)
-        self.high_power_s: float | None = None  # None until a throttle value is seen
+        self.high_power_s: float | None = None  # None until a power value is seen
+        self.phases = [_Phase(wear) for _ in REGION_NAMES]  # per region (estimation/regions.py)
         self.cylinders: list[_CylinderFlight] = []  # engines monitored per cylinder
         self.spread_max_c = -math.inf
         self.spread_alarm_s = 0.0
@@ -251,6 +293,8 @@ class _OpenFlight:
         flight.reversals.restore(reversals)
         flight.wear.restore(record.wear_samples, record.wear_index, record.wear_spread)
         flight.high_power_s = record.high_power_s
+        for phase, name in zip(flight.phases, REGION_NAMES, strict=True):
+            phase.restore(record.phases.get(name, {}))
         span_h = record.duration_s / 3600.0
         for moments, first, mean, top, slope in (
             (flight.gamma_q, record.gamma_q_start, record.gamma_q_mean, record.gamma_q_max, record.gamma_q_slope_per_h),
@@ -298,8 +342,12 @@ class _OpenFlight:
             "wear_spread": self.wear.spread,
             "wear_samples": self.wear.n,
             "high_power_s": self.high_power_s,
+            "phases_json": json.dumps(self._phases()),
             "reversals": pack_reversals(points),
         }
+
+    def _phases(self) -> dict[str, Any]:
+        return {name: phase.values() for name, phase in zip(REGION_NAMES, self.phases, strict=True) if phase.seconds}
 
     def _cylinders_json(self) -> str | None:
         if not self.cylinders:
@@ -408,11 +456,14 @@ class FlightRecorder:
             flight.time_degraded_s += dt
         if _STATE_RANK.get(sample.state, 0) > _STATE_RANK.get(flight.worst_state, 0):
             flight.worst_state = sample.state
-        if math.isfinite(sample.throttle_pct):
-            high = dt if sample.throttle_pct >= self.rules.high_power_throttle_pct else 0.0
-            flight.high_power_s = (flight.high_power_s or 0.0) + high
+        region = region_of(sample.time_s - flight.start_time_s, sample.airspeed_mps, sample.power)
+        if math.isfinite(sample.power):
+            flight.high_power_s = (flight.high_power_s or 0.0) + (dt if region == REGION_HIGH else 0.0)
+        phase = flight.phases[region]
+        phase.seconds += dt
         if sample.state not in _NOT_ESTIMATING:
             flight.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
+            phase.add(sample)
         flight.gamma_q.add(sample.time_s - flight.start_time_s, sample.gamma_q)
         flight.gamma_d.add(sample.time_s - flight.start_time_s, sample.gamma_d)
         if sample.cylinders:

@@ -91,7 +91,6 @@ class FlightRules:
     end_after_s: float = 10.0  # s: engine stopped (or rpm stale) this long ends the flight
     checkpoint_every_s: float = 30.0  # s of flight time between checkpoints of a running flight
     cycle_hysteresis_c: float = 5.0  # degC: smallest CHT reversal kept for rainflow
-    high_power_throttle_pct: float = 75.0  # %: time at or above this throttle counts as high power
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -108,8 +107,9 @@ class FlightSample:
 
     ``time_s`` is the service's monotonic time (s), ``wall_time_s`` the matching UTC unix time (s);
     ``rpm`` is None when the engine speed is stale; NaN values mean "not available". ``model_c`` is the
-    pipeline's open-loop reference CHT (the nominal model), ``oat_c`` the outside air and ``throttle_pct``
-    the throttle held at that instant (the wear index and the time at high power). An engine
+    pipeline's open-loop reference CHT (the nominal model), ``oat_c`` the outside air, ``airspeed_mps`` the
+    airspeed and ``power`` the power fraction (estimation/regions.py) held at that instant: the wear index,
+    the flight phases (regions) and the time at high power. An engine
     monitored per cylinder adds ``cylinders``: (CHT degC, gamma_Q, gamma_D, state) per cylinder in
     cylinder order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
     """
@@ -127,7 +127,9 @@ class FlightSample:
     spread_alarm: bool = False
     model_c: float = math.nan
     oat_c: float = math.nan
-    throttle_pct: float = math.nan
+    airspeed_mps: float = math.nan
+    power: float = math.nan
+    deviation: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -158,12 +160,15 @@ class FlightRecord:
     time_degraded_s: float
     cycles_total: float
     #: the flight's wear index (estimation/wear.py; None: too few samples), the spread of its samples within
-    #: the flight, how many samples; the time at high power, s (None: no throttle input)
+    #: the flight, how many samples; the time at high power (region ``high power``), s (None: power unknown)
     wear_index: float | None
     wear_spread: float | None
     wear_samples: int
     high_power_s: float | None
     cycles_histogram: dict[str, float]
+    #: per flight phase (the regions of estimation/regions.py, by name): ``seconds``, ``wear_index``,
+    #: ``deviation_mean`` (the model-deviation symptom, degC/s), ``gamma_q_mean``, ``gamma_d_mean`` (None: none)
+    phases: dict[str, Any] = field(default_factory=dict)
     #: engines monitored per cylinder (else empty): ``spread_max_c``, ``spread_alarm_s`` (time with the
     #: spread alarm), ``hottest_s`` (seconds each cylinder was the hottest, by number) and ``per_cylinder``
     #: (one mapping each: ``number``, ``max_cht_c``, ``gamma_q_start/end/mean/max/slope_per_h``, the
@@ -180,7 +185,7 @@ _FLIGHT_COLUMNS = (
     "id, engine_serial, status, end_reason, start_utc, end_utc, duration_s, max_cht_c, cht_limit_c, "
     "time_above_limit_s, gamma_q_start, gamma_q_end, gamma_q_mean, gamma_q_max, gamma_q_slope_per_h, "
     "gamma_d_start, gamma_d_end, gamma_d_mean, gamma_d_max, gamma_d_slope_per_h, worst_state, time_degraded_s, "
-    "cycles_total, wear_index, wear_spread, wear_samples, high_power_s, cycles_json, cylinders_json"
+    "cycles_total, wear_index, wear_spread, wear_samples, high_power_s, cycles_json, cylinders_json, phases_json"
 )
 
 #: Columns added to ``flights`` after version 1, with their SQL types: an older database gains them.
@@ -190,6 +195,7 @@ _ADDED_COLUMNS = (
     ("wear_spread", "REAL"),
     ("wear_samples", "INTEGER NOT NULL DEFAULT 0"),
     ("high_power_s", "REAL"),
+    ("phases_json", "TEXT"),
 )
 
 
@@ -254,6 +260,7 @@ CREATE TABLE IF NOT EXISTS flights (
     wear_spread REAL,
     wear_samples INTEGER NOT NULL DEFAULT 0,
     high_power_s REAL,
+    phases_json TEXT,
     reversals BLOB,
     updated_utc REAL NOT NULL
 );
@@ -494,9 +501,10 @@ class StateStore:
 
 def _record(row: tuple[object, ...]) -> FlightRecord:
     names = [item.name for item in fields(FlightRecord)]
-    values: dict[str, object] = dict(zip(names[:-2], row[:-2], strict=True))
-    values["cycles_histogram"] = json.loads(str(row[-2])) if row[-2] else {}
-    values["cylinders"] = json.loads(str(row[-1])) if row[-1] else {}
+    values: dict[str, object] = dict(zip(names[:-3], row[:-3], strict=True))
+    values["cycles_histogram"] = json.loads(str(row[-3])) if row[-3] else {}
+    values["cylinders"] = json.loads(str(row[-2])) if row[-2] else {}
+    values["phases"] = json.loads(str(row[-1])) if row[-1] else {}
     return FlightRecord(**values)  # type: ignore[arg-type]
 
 

@@ -28,9 +28,9 @@ REFERENCE = WearReference(mean=0.0, sd=0.005, flights=10)
 OAT_C = 15.0
 
 
-def _fly(recorder: FlightRecorder, start_utc: float, excess: float, seconds: float = 300.0) -> None:
+def _fly(recorder: FlightRecorder, start_utc: float, excess: float, seconds: float = 600.0) -> None:
     """One flight at 10 Hz whose head runs ``excess`` (a fraction of the model's rise over OAT) above the model;
-    throttle 80 % for the first third (high power), then 50 %."""
+    airborne, at power fraction 0.8 (high power) from 300 s to 400 s, 0.5 (cruise) otherwise."""
     n = round(seconds * 10)
     for i in range(n + 200):  # then 20 s stopped: the flight ends
         t = i * 0.1
@@ -39,7 +39,7 @@ def _fly(recorder: FlightRecorder, start_utc: float, excess: float, seconds: flo
         recorder.add(FlightSample(
             time_s=t, wall_time_s=start_utc + t, rpm=5000.0 if running else 0.0,
             cht_c=model + excess * (model - OAT_C), gamma_q=1.0, gamma_d=1.0, state="NOMINAL",
-            model_c=model, oat_c=OAT_C, throttle_pct=80.0 if i < n / 3 else 50.0,
+            model_c=model, oat_c=OAT_C, airspeed_mps=30.0, power=0.8 if 3000 <= i < 4000 else 0.5, deviation=0.01,
         ))  # fmt: skip
 
 
@@ -51,7 +51,12 @@ def test_flights_keep_their_wear_index_and_a_drift_raises_one_alert_kept_across_
             _fly(recorder, 1.7e9 + 86400.0 * n, x)
         flights = store.flights(SERIAL)
         assert [round(f.wear_index or 0.0, 6) for f in flights] == [round(x, 6) for x in excess]
-        assert all(f.wear_samples == 3000 and f.high_power_s == pytest.approx(100.0, abs=0.2) for f in flights)
+        assert all(f.wear_samples == 6000 and f.high_power_s == pytest.approx(100.0, abs=0.2) for f in flights)
+        phases = flights[-1].phases  # the regions of estimation/regions.py: the first 300 s are the start
+        assert {k: round(v["seconds"]) for k, v in phases.items()} == {"start": 300, "high power": 100,
+                                                                        "cruise power": 200}  # fmt: skip
+        assert phases["high power"]["wear_index"] == pytest.approx(excess[-1])
+        assert phases["cruise power"]["deviation_mean"] == pytest.approx(0.01)
         (alert,) = recorder.alerts
         # z = x / (0.005 x 1.4695, the sd's 90 % bound from 10 flights), S += z - 0.5: 0.04, 0.63, 1.76, 3.44, 5.66
         # after flights 4-8 (h 5.75), 8.42 after flight 9 (x = 0.024)
