@@ -3,12 +3,12 @@ by ``history`` and told on every output at the next start; an older database mig
 
 from __future__ import annotations
 
-import sqlite3
 from pathlib import Path
 
 import can
 import dronecan
 import pytest
+from conftest import write_old_flight_database
 
 from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.cli import main
@@ -88,22 +88,7 @@ def test_history_prints_the_alert_and_clears_it(tmp_path: Path, capsys: pytest.C
 
 
 def test_an_older_database_gains_the_wear_columns_and_the_alert_table_and_loses_nothing(tmp_path: Path) -> None:
-    with sqlite3.connect(tmp_path / DATABASE_NAME) as conn:  # version 2: flights with cylinders_json, no wear
-        conn.executescript(
-            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
-            "INSERT INTO meta VALUES ('schema_version', '2');"
-            "CREATE TABLE engines (serial TEXT PRIMARY KEY, first_seen_utc REAL NOT NULL);"
-            "CREATE TABLE flights (id INTEGER PRIMARY KEY, engine_serial TEXT NOT NULL, status TEXT NOT NULL,"
-            " end_reason TEXT, start_utc REAL NOT NULL, end_utc REAL NOT NULL, duration_s REAL NOT NULL,"
-            " max_cht_c REAL, cht_limit_c REAL NOT NULL, time_above_limit_s REAL NOT NULL, gamma_q_start REAL,"
-            " gamma_q_end REAL, gamma_q_mean REAL, gamma_q_max REAL, gamma_q_slope_per_h REAL, gamma_d_start REAL,"
-            " gamma_d_end REAL, gamma_d_mean REAL, gamma_d_max REAL, gamma_d_slope_per_h REAL,"
-            " worst_state TEXT NOT NULL, time_degraded_s REAL NOT NULL, cycles_total REAL NOT NULL,"
-            " cycles_json TEXT NOT NULL, cylinders_json TEXT, reversals BLOB, updated_utc REAL NOT NULL);"
-            "INSERT INTO engines VALUES ('OLD', 1.7e9);"
-            "INSERT INTO flights VALUES (1, 'OLD', 'finished', 'engine_stopped', 1.7e9, 1.7e9 + 600, 600, 150, 200,"
-            " 0, 1, 1, 1.02, 1, 0, 1, 1, 1, 1, 0, 'NOMINAL', 0, 3, '{}', NULL, NULL, 1.7e9);"
-        )
+    write_old_flight_database(tmp_path / DATABASE_NAME, version=2)  # flights with cylinders_json, no wear
     with StateStore(tmp_path, readonly=True) as store:  # read-only (history while the old daemon runs): NULLs
         (old,) = store.flights("OLD")
         assert old.wear_index is None and old.wear_samples == 0 and store.alerts() == []
