@@ -255,12 +255,6 @@ def _calibrate_channel(
     for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
         feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder, keep_reference=True))
     indices, wear = wear_reference(feeds, config.wear)
-    shown = ", ".join("-" if i is None else f"{100.0 * i:+.2f} %" for i in indices)
-    if wear is None:
-        print(f"wear index per flight: {shown}; no wear reference (fewer than 3 flights with one)")
-    else:
-        print(f"wear index per flight: {shown}; reference {100.0 * wear.mean:+.2f} % sd {100.0 * wear.sd:.2f} %"
-              f" over {wear.flights} flights (the across-flight detector's, wear.reference)")  # fmt: skip
     feeds = [dataclasses.replace(f, reference=()) for f in feeds]  # the per-step reference is not needed further
     choose = args.baseline_s is None
     if choose and cross_validation_blocker(feeds, config.detector) is None:  # replay again with the overlays
@@ -296,6 +290,12 @@ def _calibrate_channel(
             f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest statistic"
             f" seen ({c.empirical_max:.3f})"
         )
+    shown = ", ".join("-" if i is None else f"{100.0 * i:+.2f} %" for i in indices)
+    if wear is None:
+        print(f"wear index per flight: {shown}; no wear reference (fewer than 3 flights with one)")
+    else:
+        print(f"wear index per flight: {shown}; reference {100.0 * wear.mean:+.2f} % sd {100.0 * wear.sd:.2f} %"
+              f" over {wear.flights} flights (the across-flight detector's, wear.reference)")  # fmt: skip
     return result, flights, wear
 
 
