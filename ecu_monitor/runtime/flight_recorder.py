@@ -19,13 +19,21 @@ import json
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from ecu_monitor.estimation.regions import REGION_HIGH, REGION_NAMES, power_fraction, region_of
 from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
-from ecu_monitor.runtime.persistence import FlightRecord, FlightRules, FlightSample, MaintenanceAlert, StateStore
+from ecu_monitor.runtime.persistence import (
+    TREND_STATS,
+    FlightRecord,
+    FlightRules,
+    FlightSample,
+    MaintenanceAlert,
+    StateStore,
+    trend_values,
+)
 from ecu_monitor.runtime.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
 
 __all__ = [
@@ -76,24 +84,27 @@ def held_inputs(pipeline: Any) -> HeldInputs:
 def flight_samples(rows: Sequence[Any], held: HeldInputs, wall_offset_s: float) -> list[FlightSample]:
     """The recorder's samples of health rows (HealthSnapshot) whose held inputs were ``held``; wall time = the
     row's time + ``wall_offset_s``. A row's CHT is the reading, or the estimate where the probe is faulty."""
+    trends = trend_values()
     return [
         FlightSample(
             time_s=row.time_s,
             wall_time_s=row.time_s + wall_offset_s,
             rpm=held.rpm,
             cht_c=_trusted_cht(row),
-            gamma_q=float(row.gamma_q),
-            gamma_d=float(row.gamma_d),
+            trends={name: float(getattr(row, name)) for name in trends},
             state=str(row.state),
+            cylinders=tuple(
+                (_trusted_cht(c), {name: float(getattr(c, name)) for name in trends}, str(c.state))
+                for c in row.cylinders
+            ),
+            cht_spread_c=float(row.cht_spread_c),
+            hottest_cylinder=int(row.hottest_cylinder),
+            spread_alarm=bool(row.spread_alarm),
             model_c=held.model_c,
             oat_c=held.oat_c,
             airspeed_mps=held.airspeed_mps,
             power=held.power,
             deviation=float(row.deviation),
-            cylinders=tuple((_trusted_cht(c), float(c.gamma_q), float(c.gamma_d), str(c.state)) for c in row.cylinders),
-            cht_spread_c=float(row.cht_spread_c),
-            hottest_cylinder=int(row.hottest_cylinder),
-            spread_alarm=bool(row.spread_alarm),
         )
         for row in rows
     ]
@@ -180,7 +191,8 @@ class _Phase:
 
     def add(self, sample: FlightSample) -> None:
         self.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
-        for name, value in (("deviation", sample.deviation), ("gamma_q", sample.gamma_q), ("gamma_d", sample.gamma_d)):
+        gamma_q, gamma_d = sample.trends.get("gamma_q", math.nan), sample.trends.get("gamma_d", math.nan)
+        for name, value in (("deviation", sample.deviation), ("gamma_q", gamma_q), ("gamma_d", gamma_d)):
             if math.isfinite(value):
                 self.sums[name][0] += value
                 self.sums[name][1] += 1
@@ -211,18 +223,17 @@ class _CylinderFlight:
         self.max_cht_c = -math.inf
         self.worst_state = "NOMINAL"
         self.time_degraded_s = 0.0
-        self.gamma_q = SignalMoments()
-        self.gamma_d = SignalMoments()
+        self.trends = _trend_moments()
 
-    def add(self, t_s: float, dt: float, cht_c: float, gamma_q: float, gamma_d: float, state: str) -> None:
+    def add(self, t_s: float, dt: float, cht_c: float, trends: Mapping[str, float], state: str) -> None:
         if math.isfinite(cht_c):
             self.max_cht_c = max(self.max_cht_c, cht_c)
         if state in ("SUSPECT", "DEGRADED"):
             self.time_degraded_s += dt
         if _STATE_RANK.get(state, 0) > _STATE_RANK.get(self.worst_state, 0):
             self.worst_state = state
-        self.gamma_q.add(t_s, gamma_q)
-        self.gamma_d.add(t_s, gamma_d)
+        for name, moments in self.trends.items():
+            moments.add(t_s, trends[name])
 
     def values(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -231,11 +242,7 @@ class _CylinderFlight:
             "worst_state": self.worst_state,
             "time_degraded_s": self.time_degraded_s,
         }
-        for name, moments in (("gamma_q", self.gamma_q), ("gamma_d", self.gamma_d)):
-            first, last, mean, top, slope = moments.summary()
-            out.update({f"{name}_start": first, f"{name}_end": last, f"{name}_mean": mean, f"{name}_max": top,
-                        f"{name}_slope_per_h": slope})  # fmt: skip
-        return out
+        return {**out, **_trend_summary(self.trends)}
 
     @classmethod
     def restore(cls, stored: dict[str, Any], span_h: float) -> _CylinderFlight:
@@ -244,11 +251,29 @@ class _CylinderFlight:
         cyl.max_cht_c = stored["max_cht_c"] if stored.get("max_cht_c") is not None else -math.inf
         cyl.worst_state = str(stored["worst_state"])
         cyl.time_degraded_s = float(stored["time_degraded_s"])
-        for name, moments in (("gamma_q", cyl.gamma_q), ("gamma_d", cyl.gamma_d)):
-            first, mean, top = stored.get(f"{name}_start"), stored.get(f"{name}_mean"), stored.get(f"{name}_max")
-            if first is not None and mean is not None and top is not None:
-                moments.prior = (first, mean, top, stored.get(f"{name}_slope_per_h"), span_h)
+        _restore_trends(cyl.trends, stored, span_h)
         return cyl
+
+
+def _trend_moments() -> dict[str, SignalMoments]:
+    """The running statistics of each trend value (persistence.trend_values)."""
+    return {name: SignalMoments() for name in trend_values()}
+
+
+def _trend_summary(trends: dict[str, SignalMoments]) -> dict[str, float | None]:
+    """The trend columns (persistence.trend_columns) of running statistics."""
+    out: dict[str, float | None] = {}
+    for name, moments in trends.items():
+        out.update(zip((f"{name}_{stat}" for stat in TREND_STATS), moments.summary(), strict=True))
+    return out
+
+
+def _restore_trends(trends: dict[str, SignalMoments], stored: Mapping[str, Any], span_h: float) -> None:
+    """Running statistics continued from the stored trend columns of a flight cut by a restart."""
+    for name, moments in trends.items():
+        first, mean, top = stored.get(f"{name}_start"), stored.get(f"{name}_mean"), stored.get(f"{name}_max")
+        if first is not None and mean is not None and top is not None:
+            moments.prior = (first, mean, top, stored.get(f"{name}_slope_per_h"), span_h)
 
 
 class _OpenFlight:
@@ -266,8 +291,7 @@ class _OpenFlight:
         self.time_above_limit_s = 0.0
         self.time_degraded_s = 0.0
         self.worst_state = "NOMINAL"
-        self.gamma_q = SignalMoments()
-        self.gamma_d = SignalMoments()
+        self.trends = _trend_moments()
         self.reversals = ReversalFilter(hysteresis)
         self.wear = FlightWear(wear)
         self.high_power_s: float | None = None  # None until a power value is seen
@@ -296,12 +320,7 @@ class _OpenFlight:
         for phase, name in zip(flight.phases, REGION_NAMES, strict=True):
             phase.restore(record.phases.get(name, {}))
         span_h = record.duration_s / 3600.0
-        for moments, first, mean, top, slope in (
-            (flight.gamma_q, record.gamma_q_start, record.gamma_q_mean, record.gamma_q_max, record.gamma_q_slope_per_h),
-            (flight.gamma_d, record.gamma_d_start, record.gamma_d_mean, record.gamma_d_max, record.gamma_d_slope_per_h),
-        ):
-            if first is not None and mean is not None and top is not None:
-                moments.prior = (first, mean, top, slope, span_h)
+        _restore_trends(flight.trends, record.trends, span_h)
         stored = record.cylinders
         if stored:
             flight.cylinders = [_CylinderFlight.restore(c, span_h) for c in stored.get("per_cylinder", [])]
@@ -314,8 +333,6 @@ class _OpenFlight:
     def values(self, end_running: bool) -> dict[str, object]:
         """Columns of the flights row; the flight ends at the last running sample when ``end_running``."""
         duration_s = self.last_running_time_s - self.start_time_s
-        q_first, q_last, q_mean, q_max, q_slope = self.gamma_q.summary()
-        d_first, d_last, d_mean, d_max, d_slope = self.gamma_d.summary()
         points = self.reversals.points()
         total, histogram = count_cycles(points) if end_running else (0.0, {})
         return {
@@ -323,16 +340,7 @@ class _OpenFlight:
             "duration_s": max(duration_s, 0.0),
             "max_cht_c": self.max_cht_c if math.isfinite(self.max_cht_c) else None,
             "time_above_limit_s": self.time_above_limit_s,
-            "gamma_q_start": q_first,
-            "gamma_q_end": q_last,
-            "gamma_q_mean": q_mean,
-            "gamma_q_max": q_max,
-            "gamma_q_slope_per_h": q_slope,
-            "gamma_d_start": d_first,
-            "gamma_d_end": d_last,
-            "gamma_d_mean": d_mean,
-            "gamma_d_max": d_max,
-            "gamma_d_slope_per_h": d_slope,
+            **_trend_summary(self.trends),
             "worst_state": self.worst_state,
             "time_degraded_s": self.time_degraded_s,
             "cycles_total": total,
@@ -464,14 +472,14 @@ class FlightRecorder:
         if sample.state not in _NOT_ESTIMATING:
             flight.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
             phase.add(sample)
-        flight.gamma_q.add(sample.time_s - flight.start_time_s, sample.gamma_q)
-        flight.gamma_d.add(sample.time_s - flight.start_time_s, sample.gamma_d)
+        for name, moments in flight.trends.items():
+            moments.add(sample.time_s - flight.start_time_s, sample.trends[name])
         if sample.cylinders:
             if len(flight.cylinders) != len(sample.cylinders):
                 flight.cylinders = [_CylinderFlight(n) for n in range(1, len(sample.cylinders) + 1)]
             t_s = sample.time_s - flight.start_time_s
-            for cyl, (cht_c, gamma_q, gamma_d, state) in zip(flight.cylinders, sample.cylinders, strict=True):
-                cyl.add(t_s, dt, cht_c, gamma_q, gamma_d, state)
+            for cyl, (cht_c, trends, state) in zip(flight.cylinders, sample.cylinders, strict=True):
+                cyl.add(t_s, dt, cht_c, trends, state)
             if math.isfinite(sample.cht_spread_c):
                 flight.spread_max_c = max(flight.spread_max_c, sample.cht_spread_c)
             if sample.spread_alarm:

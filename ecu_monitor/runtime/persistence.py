@@ -1,8 +1,9 @@
 """Flight history of each engine in an embedded SQLite database (``<state_dir>/ecu-monitor.sqlite3``).
 
 What is kept, per engine (its serial from the config) and per flight: start and end (UTC), duration
-(hours), maximum CHT, time above the CHT limit, the degradation estimates (gamma_Q, gamma_D: start, end,
-mean, maximum and their slope within the flight per hour), the worst detector state and the time spent
+(hours), maximum CHT, time above the CHT limit, the trend values (the output table's ``history`` rows,
+pipeline/output_table.py: gamma_Q, gamma_D; start, end, mean, maximum and their slope within the flight
+per hour, one column each: :func:`trend_columns`), the worst detector state and the time spent
 SUSPECT/DEGRADED, and the thermal cycles of the CHT history counted by rainflow (ASTM E1049, the
 ``rainflow`` package) as a histogram of cycle ranges. An engine monitored per cylinder also keeps, in
 the same row (``cylinders_json``, written in the same transactions), each cylinder's maximum CHT, gamma
@@ -47,12 +48,13 @@ import logging
 import math
 import sqlite3
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError, EcuMonitorError
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES
 from ecu_monitor.runtime.thermal_cycles import (
     CYCLE_BIN_EDGES_C,
     ReversalFilter,
@@ -63,6 +65,7 @@ from ecu_monitor.runtime.thermal_cycles import (
 __all__ = [
     "CYCLE_BIN_EDGES_C",
     "DATABASE_NAME",
+    "TREND_STATS",
     "FlightRecord",
     "FlightRules",
     "FlightSample",
@@ -71,6 +74,8 @@ __all__ = [
     "StateStore",
     "count_cycles",
     "iter_trend",
+    "trend_columns",
+    "trend_values",
 ]
 
 _log = logging.getLogger(__name__)
@@ -106,22 +111,22 @@ class FlightSample:
     """One health period of the live service, as the recorder needs it.
 
     ``time_s`` is the service's monotonic time (s), ``wall_time_s`` the matching UTC unix time (s);
-    ``rpm`` is None when the engine speed is stale; NaN values mean "not available". ``model_c`` is the
+    ``rpm`` is None when the engine speed is stale; ``trends``: the value of each trend kept per flight
+    (:func:`trend_values`: gamma_q, gamma_d, ...) by name; NaN values mean "not available". ``model_c`` is the
     pipeline's open-loop reference CHT (the nominal model), ``oat_c`` the outside air, ``airspeed_mps`` the
-    airspeed and ``power`` the power fraction (estimation/regions.py) held at that instant: the wear index,
-    the flight phases (regions) and the time at high power. An engine
-    monitored per cylinder adds ``cylinders``: (CHT degC, gamma_Q, gamma_D, state) per cylinder in
-    cylinder order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
+    airspeed, ``power`` the power fraction (estimation/regions.py) held at that instant and ``deviation`` the
+    row's model-deviation symptom: the wear index, the flight phases (regions) and the time at high power. An
+    engine monitored per cylinder adds ``cylinders``: (CHT degC, its trends, state) per cylinder in cylinder
+    order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
     """
 
     time_s: float
     wall_time_s: float
     rpm: float | None
     cht_c: float
-    gamma_q: float
-    gamma_d: float
+    trends: Mapping[str, float]
     state: str
-    cylinders: tuple[tuple[float, float, float, str], ...] = ()
+    cylinders: tuple[tuple[float, Mapping[str, float], str], ...] = ()
     cht_spread_c: float = math.nan
     hottest_cylinder: int = 0
     spread_alarm: bool = False
@@ -146,16 +151,6 @@ class FlightRecord:
     max_cht_c: float | None
     cht_limit_c: float
     time_above_limit_s: float
-    gamma_q_start: float | None
-    gamma_q_end: float | None
-    gamma_q_mean: float | None
-    gamma_q_max: float | None
-    gamma_q_slope_per_h: float | None
-    gamma_d_start: float | None
-    gamma_d_end: float | None
-    gamma_d_mean: float | None
-    gamma_d_max: float | None
-    gamma_d_slope_per_h: float | None
     worst_state: str
     time_degraded_s: float
     cycles_total: float
@@ -171,9 +166,17 @@ class FlightRecord:
     phases: dict[str, Any] = field(default_factory=dict)
     #: engines monitored per cylinder (else empty): ``spread_max_c``, ``spread_alarm_s`` (time with the
     #: spread alarm), ``hottest_s`` (seconds each cylinder was the hottest, by number) and ``per_cylinder``
-    #: (one mapping each: ``number``, ``max_cht_c``, ``gamma_q_start/end/mean/max/slope_per_h``, the
-    #: same for gamma_d, ``worst_state``, ``time_degraded_s``)
+    #: (one mapping each: ``number``, ``max_cht_c``, the trend columns, ``worst_state``, ``time_degraded_s``)
     cylinders: dict[str, Any] = field(default_factory=dict)
+    #: each trend column (:func:`trend_columns`: ``gamma_q_start``, ``gamma_q_mean``, ...) by name (None:
+    #: no value), also read as an attribute: ``record.gamma_q_mean``
+    trends: dict[str, float | None] = field(default_factory=dict)
+
+    def __getattr__(self, name: str) -> float | None:
+        trends = self.__dict__.get("trends", {})
+        if name in trends:
+            return trends[name]
+        raise AttributeError(f"FlightRecord has no field {name!r}")
 
     @property
     def hours(self) -> float:
@@ -181,12 +184,26 @@ class FlightRecord:
         return self.duration_s / 3600.0
 
 
-_FLIGHT_COLUMNS = (
+#: The statistics the flight history keeps of each trend value over a flight.
+TREND_STATS = ("start", "end", "mean", "max", "slope_per_h")
+
+
+def trend_values() -> tuple[str, ...]:
+    """The values whose trend each flight keeps: the output table's ``history`` rows."""
+    return tuple(v.name for v in HEALTH_VALUES if v.history)
+
+
+def trend_columns() -> tuple[str, ...]:
+    """The flights table's trend columns: ``<value>_<stat>`` for each of :func:`trend_values` and TREND_STATS."""
+    return tuple(f"{name}_{stat}" for name in trend_values() for stat in TREND_STATS)
+
+
+_FIXED_COLUMNS = (
     "id, engine_serial, status, end_reason, start_utc, end_utc, duration_s, max_cht_c, cht_limit_c, "
-    "time_above_limit_s, gamma_q_start, gamma_q_end, gamma_q_mean, gamma_q_max, gamma_q_slope_per_h, "
-    "gamma_d_start, gamma_d_end, gamma_d_mean, gamma_d_max, gamma_d_slope_per_h, worst_state, time_degraded_s, "
-    "cycles_total, wear_index, wear_spread, wear_samples, high_power_s, cycles_json, cylinders_json, phases_json"
+    "time_above_limit_s, worst_state, time_degraded_s, cycles_total, wear_index, wear_spread, wear_samples, "
+    "high_power_s, cycles_json, cylinders_json, phases_json"
 )
+_FLIGHT_COLUMNS = ", ".join((_FIXED_COLUMNS, *trend_columns()))
 
 #: Columns added to ``flights`` after version 1, with their SQL types: an older database gains them.
 _ADDED_COLUMNS = (
@@ -249,8 +266,7 @@ CREATE TABLE IF NOT EXISTS flights (
     max_cht_c REAL,
     cht_limit_c REAL NOT NULL,
     time_above_limit_s REAL NOT NULL,
-    gamma_q_start REAL, gamma_q_end REAL, gamma_q_mean REAL, gamma_q_max REAL, gamma_q_slope_per_h REAL,
-    gamma_d_start REAL, gamma_d_end REAL, gamma_d_mean REAL, gamma_d_max REAL, gamma_d_slope_per_h REAL,
+    @@TRENDS@@
     worst_state TEXT NOT NULL,
     time_degraded_s REAL NOT NULL,
     cycles_total REAL NOT NULL,
@@ -279,7 +295,7 @@ CREATE TABLE IF NOT EXISTS maintenance_alerts (
     reference_learned INTEGER NOT NULL,
     cleared_utc REAL
 );
-"""
+""".replace("@@TRENDS@@", "".join(f"{name} REAL, " for name in trend_columns()))
 
 
 class StateStore:
@@ -321,6 +337,9 @@ class StateStore:
         for name, sql_type in _ADDED_COLUMNS:  # an older database: flights gain what they lack
             if name not in columns:
                 self._conn.execute(f"ALTER TABLE flights ADD COLUMN {name} {sql_type}")
+        for name in trend_columns():  # a database older than a trend value: its columns, empty
+            if name not in columns:
+                self._conn.execute(f"ALTER TABLE flights ADD COLUMN {name} REAL")
         self._conn.execute(
             "INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)", (str(_SCHEMA_VERSION),)
         )
@@ -500,11 +519,14 @@ class StateStore:
 
 
 def _record(row: tuple[object, ...]) -> FlightRecord:
-    names = [item.name for item in fields(FlightRecord)]
-    values: dict[str, object] = dict(zip(names[:-3], row[:-3], strict=True))
-    values["cycles_histogram"] = json.loads(str(row[-3])) if row[-3] else {}
-    values["cylinders"] = json.loads(str(row[-2])) if row[-2] else {}
-    values["phases"] = json.loads(str(row[-1])) if row[-1] else {}
+    """A FlightRecord from a row of :data:`_FLIGHT_COLUMNS`."""
+    names = [item.name for item in fields(FlightRecord)][:-4]  # then cycles_histogram, phases, cylinders, trends
+    fixed, trends = row[: len(names) + 3], row[len(names) + 3 :]
+    values: dict[str, object] = dict(zip(names, fixed[:-3], strict=True))
+    values["cycles_histogram"] = json.loads(str(fixed[-3])) if fixed[-3] else {}
+    values["cylinders"] = json.loads(str(fixed[-2])) if fixed[-2] else {}
+    values["phases"] = json.loads(str(fixed[-1])) if fixed[-1] else {}
+    values["trends"] = dict(zip(trend_columns(), trends, strict=True))
     return FlightRecord(**values)  # type: ignore[arg-type]
 
 

@@ -38,7 +38,7 @@ def _fly(recorder: FlightRecorder, start_utc: float, excess: float, seconds: flo
         model = 150.0 if running else 60.0
         recorder.add(FlightSample(
             time_s=t, wall_time_s=start_utc + t, rpm=5000.0 if running else 0.0,
-            cht_c=model + excess * (model - OAT_C), gamma_q=1.0, gamma_d=1.0, state="NOMINAL",
+            cht_c=model + excess * (model - OAT_C), trends={"gamma_q": 1.0, "gamma_d": 1.0}, state="NOMINAL",
             model_c=model, oat_c=OAT_C, airspeed_mps=30.0, power=0.8 if 3000 <= i < 4000 else 0.5, deviation=0.01,
         ))  # fmt: skip
 
