@@ -101,7 +101,8 @@ def test_an_older_database_gains_the_wear_columns_and_the_alert_table_and_loses_
 
 
 def _snap(t: float = 0.0) -> HealthSnapshot:
-    return HealthSnapshot(t, 150.0, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0, (), False)
+    return HealthSnapshot(time_s=t, cht_meas_c=150.0, cht_est_c=150.0, deviation=0.0, state="NOMINAL", gamma_q=1.0,
+                          gamma_d=1.0, headroom_s=900.0, stale_inputs=())  # fmt: skip
 
 
 def test_an_open_alert_is_told_on_every_output() -> None:
