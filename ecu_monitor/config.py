@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import msgspec
 import msgspec.inspect as schema
-import yaml
 from msgspec import UNSET, Meta, UnsetType
 
 from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec
@@ -47,8 +46,10 @@ from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
 from ecu_monitor.estimation.wear import WearReference, WearSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+from ecu_monitor.model.params import MODEL_KIND
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 from ecu_monitor.units import Unit, custom_unit
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
     "CHT_INPUT",
@@ -555,24 +556,14 @@ def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
     """Read and validate a service configuration YAML file: a path, or a shipped config's name
     (``example.yaml``; :func:`ecu_monitor.shipped.resolve_file`)."""
     src = resolve_file(path, "config")
-    try:
-        text = src.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
-        raise ConfigError(f"{src}: cannot read config file ({reason})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{src}: not valid YAML{where}: {problem}") from None
-    return parse_config(data, src)
+    return parse_config(load_yaml_file(src, "config file", ConfigError), src)
 
 
 def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     """Validate already-parsed YAML ``data``; ``src`` names the file in messages and anchors relative paths."""
     source = Path(src)
+    if isinstance(data, dict) and data.get("model") == MODEL_KIND and "heat_map" in data:
+        raise ConfigError(f"{source}: this is a model file (model.yaml), not a service config: give it as --model")
     try:
         file = msgspec.convert(data, ConfigFile)
     except msgspec.ValidationError as exc:

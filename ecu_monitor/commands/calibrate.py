@@ -40,6 +40,7 @@ from typing import Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = ["DEFAULT_OUT", "add_subparser", "candidate_table"]
 
@@ -300,10 +301,7 @@ def _calibrate_channel(
 
 
 def _write(out: Path, text: str) -> None:
-    try:
-        out.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    write_output_bytes(out, text.encode("utf-8"), ConfigError)
 
 
 def _with_baseline(settings: Any, baseline_s: float) -> Any:
@@ -409,8 +407,6 @@ def _plot(flights: list[Any], current: float, calibrated: float, path: Path) -> 
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=120)
-    except OSError as exc:
-        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+        save_figure(fig, path, dpi=120, error=ParameterError)
     finally:
         plt.close(fig)

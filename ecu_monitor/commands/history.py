@@ -33,6 +33,7 @@ from ecu_monitor.runtime.persistence import (
     StateStore,
     iter_trend,
 )
+from ecu_monitor.userfiles import save_figure
 
 __all__ = ["add_subparser", "engine_trend", "format_history", "plot_history", "trend_figure"]
 
@@ -197,7 +198,7 @@ def plot_history(
 
     fig = trend_figure(histories, wear)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    save_figure(fig, out, dpi=110)
     plt.close(fig)
 
 

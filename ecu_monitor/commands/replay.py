@@ -39,6 +39,7 @@ from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
+from ecu_monitor.userfiles import save_figure
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
     from collections.abc import Sequence
@@ -131,9 +132,12 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
+    from ecu_monitor.userfiles import check_output_not_input
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
+    for out in (args.out, args.plot):
+        check_output_not_input(out or "", (args.log, args.config, args.model), ConfigError)
     if args.plot:
         _check_plot_path(Path(args.plot))
     path = Path(args.log)
@@ -212,9 +216,6 @@ _STATE_SHADES = {
     "UNAVAILABLE": "black",
 }
 
-#: Headroom at or above this (s) is drawn as "not limited" (the service's cap for a steady state below the limit).
-_HEADROOM_CAP_S = 6000.0
-
 
 def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float) -> None:
     """One figure of a replay (time in minutes from the first row): CHT measured and estimated (every
@@ -224,7 +225,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -262,7 +263,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_gamma.axhline(1.0, color="grey", lw=0.6)
     ax_gamma.set_ylabel("degradation factor")
     headroom = np.asarray(c["headroom_s"], dtype=float)
-    ax_head.plot(t, np.where(headroom >= _HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
+    ax_head.plot(t, np.where(headroom >= HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
                  label="time to the CHT limit at the present power")  # fmt: skip
     ax_head.set_ylabel("headroom (s)")
     ax_head.set_xlabel("time from the first health row (min)")
@@ -280,9 +281,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_cht.set_title(f"{title}: the service's replay (shaded: state not NOMINAL)")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+        save_figure(fig, path, dpi=110, error=ParameterError)
     finally:
         plt.close(fig)
 
@@ -342,7 +341,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
     """One line per cylinder of an engine monitored per cylinder: its states, first DEGRADED, the spread."""
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     count = result.cylinder_count
     if count == 1:
@@ -370,7 +369,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     c = result.counters
     time_s = result.columns["time_s"]

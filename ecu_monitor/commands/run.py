@@ -114,7 +114,10 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
         raise ConfigError(f"{config.source}: bus.interface: unknown interface {interface!r} (known: {known})")
 
     def open_bus() -> can.BusABC:
-        return can.Bus(**options)
+        bus = can.Bus(**options)
+        if bus.channel_info == can.BusABC.channel_info:  # "unknown" (udp_multicast): the daemon's log names it
+            bus.channel_info = f"{interface} {options.get('channel')}"
+        return bus
 
     first: can.BusABC | None = None
     error: str | None = None
@@ -168,6 +171,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.runtime.persistence import StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
+    from ecu_monitor.runtime.state_lock import StateDirLock
 
     config = load_config(args.config)
     models = config.load_cylinder_params()  # one per cylinder (one for a single CHT channel)
@@ -175,6 +179,7 @@ def _run(args: argparse.Namespace) -> int:
     if not args.min_flight_s >= 0.0:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
     _log_to_journal()
+    lock = StateDirLock(config.state_dir)  # before the store's start-up recovery; held until the process ends
     pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
@@ -224,6 +229,7 @@ def _run(args: argparse.Namespace) -> int:
             code = daemon.run()
         finally:
             store.close()
+            lock.close()
     sys.stdout.flush()
     return code
 

@@ -74,6 +74,7 @@ from ecu_monitor.offline.calibration_replays import (
     statistic_paths,
 )
 from ecu_monitor.shipped import resolve_file, shipped_file
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
     "AIRBORNE_MPS",
@@ -459,10 +460,7 @@ def config_copy_yaml(
     health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
     DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
     src = resolve_file(config_path, "config")
-    try:
-        data = yaml.safe_load(src.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{src}: cannot read config file ({exc})") from None
+    data = load_yaml_file(src, "config file", ConfigError)
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: top level: expected a mapping")
     base = src.resolve().parent

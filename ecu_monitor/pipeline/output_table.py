@@ -26,11 +26,10 @@ import math
 from collections.abc import Iterator
 from typing import Any, ClassVar, Literal, NamedTuple
 
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S
-from ecu_monitor.pipeline.supervision import STATES
-
 __all__ = [
+    "HEADROOM_CAP_S",
     "HEALTH_VALUES",
+    "STATES",
     "CylinderSnapshot",
     "HealthSnapshot",
     "HealthValue",
@@ -41,6 +40,13 @@ __all__ = [
     "engine_values",
     "output_fields",
 ]
+
+#: DegradationState values of health.dbc, by code (the ``state`` rows' values; pipeline/supervision.py
+#: decides them).
+STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
+#: Headroom reported when the limit is not reached within this time, s: the headroom's "not limited at
+#: this power" (the step's march to the limit stops there).
+HEADROOM_CAP_S = 6000.0
 
 #: What a value is: a float (nan: not available), a state (one of STATES; its code on the bus and in the
 #: step's record), a flag (0/1), a cylinder's number (1-based, 0: none), or a set of input names (the
@@ -101,7 +107,7 @@ HEALTH_VALUES: tuple[HealthValue, ...] = (
                 mavlink="GAMMA_Q", history=True),
     HealthValue("gamma_d", "", idle=1.0, dbc="Health_Isolation.GammaDEstimate",
                 cylinder_dbc="Health_Cylinder.CylGammaD", dronecan="gamma_d", mavlink="GAMMA_D", history=True),
-    HealthValue("headroom_s", "s", idle=DEFAULT_CAP_S, idle_unestimated=0.0, dbc="Health_Isolation.ThermalHeadroom",
+    HealthValue("headroom_s", "s", idle=HEADROOM_CAP_S, idle_unestimated=0.0, dbc="Health_Isolation.ThermalHeadroom",
                 dronecan="headroom", mavlink="HDRM{n}"),
     HealthValue("stale_inputs", "", "inputs", "engine"),
     HealthValue("sensor_fault", "", "flag", "engine"),

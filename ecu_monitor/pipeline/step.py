@@ -41,13 +41,14 @@ from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
-from ecu_monitor.pipeline.output_table import output_fields
+from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, output_fields
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
 from ecu_monitor.pipeline.supervision import (
     ACTION_INITIALISE,
     ACTION_NONE,
     CODE_DEGRADED,
     CODE_NOMINAL,
+    CODE_UNAVAILABLE,
     SupervisorState,
     supervise,
 )
@@ -59,15 +60,12 @@ __all__ = [
     "CYLINDER_STATE",
     "DETECTOR_SETTINGS",
     "DETECTOR_STATE",
-    "HEADROOM_CAP_S",
     "Engine",
     "Rows",
     "Traces",
     "compiled",
 ]
 
-#: Headroom reported when the limit is not reached within this time, s ("not limited at this power").
-HEADROOM_CAP_S = 6000.0
 #: The RK4 step of the headroom's march to the limit, s.
 HEADROOM_STEP_S = 2.0
 #: A Newton iterate of the steady state this far below the limit (degC) settles that the steady state is below it.
@@ -572,6 +570,8 @@ def cylinder_step(
         st["iso_deviation"] = iso_deviation
         st["model_c"] = model_c
         st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
+    if action != ACTION_NONE and not math.isfinite(st["cht_est_c"]):
+        code = CODE_UNAVAILABLE  # the filter cannot estimate (it diverged): never NOMINAL, the detector not fed
     state = code
     fed = np.nan
     if st["detector_on"]:

@@ -19,8 +19,6 @@ from typing import NamedTuple
 
 from numba.extending import register_jitable
 
-#: DegradationState values of health.dbc, by code.
-STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
 #: The codes of STATES, by name.
 CODE_NOMINAL, CODE_SUSPECT, CODE_DEGRADED, CODE_STALE, CODE_FAULT, CODE_UNAVAILABLE = range(6)
 #: Supervisor actions on the estimator at a step.

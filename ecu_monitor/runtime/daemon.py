@@ -66,7 +66,7 @@ from ecu_monitor.config import config_default
 from ecu_monitor.runtime.flight_recorder import FlightRecorder, HeldInputs, flight_samples
 from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
 
-__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch"]
+__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch", "bad_datagram"]
 
 _log = logging.getLogger(__name__)
 
@@ -212,6 +212,7 @@ class Daemon:
             "health_dropped": 0,
             "send_errors": 0,
             "receive_errors": 0,
+            "bad_datagrams": 0,
             "open_errors": 0,
             "bus_errors": 0,
             "bus_opens": 0,
@@ -260,7 +261,10 @@ class Daemon:
             try:
                 msg = recv(_RECEIVE_TIMEOUT_S)
             except (can.CanError, OSError) as exc:
-                self._on_receive_error(exc)
+                if bad_datagram(exc):
+                    self._on_bad_datagram(exc)
+                else:
+                    self._on_receive_error(exc)
                 continue
             if msg is not None:
                 guarded("frame", on_frame, msg)
@@ -320,6 +324,15 @@ class Daemon:
         pipeline_counters["bus_errors"] = pipeline_counters.get("bus_errors", 0) + 1
         if counter == "send_errors":
             pipeline_counters["send_errors"] = pipeline_counters.get("send_errors", 0) + 1
+
+    def _on_bad_datagram(self, exc: Exception) -> None:
+        """A datagram that is no CAN frame reached the bus (anyone on the multicast group can send one):
+        counted as a bus error and dropped; the bus is kept (reopening it would lose the frames behind)."""
+        with self._lock:
+            self._count_bus_error("bad_datagrams")
+            seen = self.counters["bad_datagrams"]
+        if seen == 10 ** (len(str(seen)) - 1):  # 1, 10, 100, ...: a flood does not flood the journal
+            _log.warning("%d datagram(s) on the bus were no CAN frame (%s): dropped, the bus kept", seen, exc)
 
     def _on_receive_error(self, exc: Exception) -> None:
         """The receive thread hit an error: count it once, ask the supervisor to reopen."""
@@ -520,6 +533,16 @@ class Daemon:
     def stop(self) -> None:
         """Ask :meth:`run` to return (safe from a signal handler and from any thread)."""
         self._stop.set()
+
+
+def bad_datagram(exc: BaseException) -> bool:
+    """True when a receive error is one bad datagram rather than a failed bus: python-can's
+    CanOperationError raised from a decoding error of the payload (udp_multicast's "could not unpack
+    received message"), not from the operating system."""
+    cause = exc.__cause__
+    return (
+        isinstance(exc, can.CanOperationError) and cause is not None and not isinstance(cause, OSError | can.CanError)
+    )
 
 
 def _finite(value: Any) -> bool:

@@ -315,6 +315,7 @@ class StateStore:
                     raise ConfigError(f"{self.path}: no flight database here")
                 uri = f"file:{self.path}?mode=ro"
                 self._conn = sqlite3.connect(uri, uri=True, timeout=10.0, isolation_level=None)
+                self._conn.execute("SELECT count(*) FROM sqlite_master")  # a file that is no database: here
             else:
                 self.state_dir.mkdir(parents=True, exist_ok=True)
                 self._conn = sqlite3.connect(str(self.path), timeout=10.0, isolation_level=None)
