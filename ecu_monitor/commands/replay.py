@@ -96,11 +96,12 @@ def _replay_into_history(
     from ecu_monitor.offline.replay import replay_live
     from ecu_monitor.runtime.flight_recorder import FlightRecorder, flight_samples, held_inputs
     from ecu_monitor.runtime.persistence import StateStore
+    from ecu_monitor.runtime.state_lock import StateDirLock
 
     times = np.asarray(frames.time_s, dtype=np.float64)
     last = float(np.max(times)) if times.size else 0.0
     offset = 0.0 if times.size and float(np.min(times)) > _UNIX_TIME_S else path.stat().st_mtime - last
-    with StateStore(state_dir) as store:
+    with StateDirLock(state_dir), StateStore(state_dir) as store:  # never beside a daemon on the same history
         recorder = FlightRecorder(
             store, config.engine_serial, models[0].cht_limit_c, wear=config.wear, reference=config.wear_reference
         )
