@@ -44,6 +44,7 @@ from ecu_monitor.bus.mavlink_settings import MavlinkSettings, parse_mavlink_sett
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
+from ecu_monitor.estimation.wear import WearReference, WearSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
 from ecu_monitor.model.params import MODEL_KIND
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
@@ -241,6 +242,18 @@ class _DetectorHead(_DetectorMark, frozen=True):
     uncalibrated: Literal["refuse", "accept"] = "refuse"
 
 
+class _WearReference(_Section, frozen=True):
+    """``wear.reference``: the wear index over nominal flights (``ecu-monitor calibrate`` writes it)."""
+
+    mean: float
+    sd: Annotated[float, Meta(gt=0.0)]
+    flights: Annotated[int, Meta(ge=2)]
+
+
+class _WearHead(_Section, frozen=True):
+    reference: _WearReference | None = None  # None: learned from the engine's own first flights
+
+
 def _optional_keys(name: str, keys: Iterable[str], value: Any) -> Any:
     """A section with the optional keys ``keys``, each a ``value`` (UNSET: not given)."""
     return msgspec.defstruct(
@@ -269,12 +282,14 @@ if TYPE_CHECKING:  # built below from names other modules declare; mypy sees the
     _EstimatorSection = _EstimatorName
     _DetectorSection = _DetectorHead
     _DetectorKeys = _DetectorMark
+    _WearSection = _WearHead
 else:
     _Inputs = _optional_keys("Inputs", (*INPUT_NAMES, *_CYLINDER_NAMES), _Input)
     _Health = _optional_keys("Health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), _Rate)
     _EstimatorSection = _settings_keys("EstimatorSection", EstimatorSettings, _EstimatorName)
     _DetectorSection = _settings_keys("DetectorSection", DetectorSettings, _DetectorHead)
     _DetectorKeys = _settings_keys("DetectorKeys", DetectorSettings, _DetectorMark)
+    _WearSection = _settings_keys("WearSection", WearSettings, _WearHead)
 
 
 class _Cylinders(_Section, frozen=True):
@@ -310,6 +325,7 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
     cylinders: _Cylinders = _Cylinders()
     estimator: _EstimatorSection = _EstimatorSection()
     detector: _DetectorSection = _DetectorSection()
+    wear: _WearSection = _WearSection()  # across flights: the maintenance alert (estimation/wear.py)
     #: inputs stale: keep predicting on the model this long, s, then UNAVAILABLE
     stale_predict_limit_s: _NonNegative = 30.0
     #: the daemon logs a warning when its bus has carried no engine frame for this long, s
@@ -486,6 +502,10 @@ class ServiceConfig:
     cross_detectors: tuple[DetectorSettings | None, ...]
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
     cross_calibrated_for: tuple[str | None, ...]
+    #: ``wear:``: the across-flight detector's settings and the engine's nominal wear reference (None: learned
+    #: from its own first flights)
+    wear: WearSettings = dataclasses.field(default_factory=WearSettings)
+    wear_reference: WearReference | None = None
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
@@ -638,6 +658,10 @@ class _Resolver:
             ),
             cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
             **self.cross_detectors(cylinders, count),
+            wear=self.settings("", WearSettings(), _given(file.wear, WearSettings)),
+            wear_reference=None
+            if file.wear.reference is None
+            else WearReference(file.wear.reference.mean, file.wear.reference.sd, file.wear.reference.flights),
         )
 
     def load(self, key: str, path: Path) -> Any:

@@ -61,6 +61,7 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
                 "MalformedFrames",
                 "BusErrors",
                 "StaleInputsHigh",
+                "MaintenanceAlert",
                 "DetectorArmed",
                 "NotIsolable",
                 "DiagCounter",

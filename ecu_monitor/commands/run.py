@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import functools
 import gc
 import logging
 import os
@@ -31,14 +32,7 @@ if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help s
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.runtime.daemon import DaemonSettings
 
-__all__ = [
-    "add_subparser",
-    "bus_opener",
-    "daemon_settings",
-    "engine_speed_of",
-    "uncalibrated_warning",
-    "unsupported_on_host",
-]
+__all__ = ["add_subparser", "bus_opener", "daemon_settings", "uncalibrated_warning", "unsupported_on_host"]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -173,7 +167,7 @@ def unsupported_on_host(exc: BaseException) -> bool:
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
     from ecu_monitor.runtime.daemon import Daemon
-    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.runtime.persistence import StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
@@ -190,10 +184,18 @@ def _run(args: argparse.Namespace) -> int:
     pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
-        store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)
+        store,
+        config.engine_serial,
+        params.cht_limit_c,
+        FlightRules(min_flight_s=args.min_flight_s),
+        wear=config.wear,
+        reference=config.wear_reference,
     )
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
+    for alert in store.alerts(config.engine_serial, open_only=True):  # kept across restarts: told at each start
+        _log.warning("ALERT %s", alert.text)
+        pipeline.tell(alert.text)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
     # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only
@@ -210,7 +212,7 @@ def _run(args: argparse.Namespace) -> int:
             settings=settings,
             notifier=notifier,
             recorder=recorder,
-            engine_speed=engine_speed_of(pipeline),
+            held_inputs=functools.partial(held_inputs, pipeline),
             receive_filters=pipeline.receive_filters(),
         )
 
@@ -264,15 +266,3 @@ def daemon_settings(config: ServiceConfig, watchdog_s: float | None, uncalibrate
         no_frames_warning_s=config.no_frames_warning_s,
         uncalibrated_warning=uncalibrated,
     )
-
-
-def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:
-    """The engine speed the pipeline holds, rev/min (None while stale or never received).
-
-    Reads the pipeline's sample-and-hold value of input ``rpm`` (the decoder's value; no second decode).
-    """
-
-    def engine_speed() -> float | None:
-        return pipeline.held_input("rpm")
-
-    return engine_speed

@@ -63,9 +63,8 @@ from can.interfaces.virtual import VirtualBus
 
 from ecu_monitor.bus.kernel_filter import attach_kernel_filter
 from ecu_monitor.config import config_default
-from ecu_monitor.runtime.flight_recorder import FlightRecorder
+from ecu_monitor.runtime.flight_recorder import FlightRecorder, HeldInputs, flight_samples
 from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
-from ecu_monitor.runtime.persistence import FlightSample, trend_values
 
 __all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch", "bad_datagram"]
 
@@ -155,8 +154,9 @@ class Daemon:
 
     ``open_bus`` opens (and reopens) the bus: the bus is passed in, the daemon never builds one from a
     config itself. ``recorder`` (optional) receives one :class:`FlightSample` per health row;
-    ``engine_speed()`` (called under the pipeline lock) gives the engine speed held by the pipeline,
-    rev/min, or None when it is stale: the recorder finds flights from it. ``receive_ids`` (the
+    ``held_inputs()`` (called under the pipeline lock; :func:`~ecu_monitor.runtime.flight_recorder.held_inputs`)
+    gives the engine speed held by the pipeline (the recorder finds flights from it), the reference model's
+    CHT, OAT and throttle (the flight's wear index and time at high power). ``receive_ids`` (the
     decoder's frame ids) become the bus's receive filter, so other traffic (kernel-filtered on
     socketcan, and on udp_multicast by a socket filter: :mod:`ecu_monitor.bus.kernel_filter`) and our own
     health frames never reach the pipeline lock; ``receive_filters`` (python-can
@@ -172,7 +172,7 @@ class Daemon:
         settings: DaemonSettings | None = None,
         notifier: SystemdNotifier | None = None,
         recorder: FlightRecorder | None = None,
-        engine_speed: Callable[[], float | None] | None = None,
+        held_inputs: Callable[[], HeldInputs] | None = None,
         receive_ids: Sequence[int] = (),
         receive_filters: Sequence[can.typechecking.CanFilter] | None = None,
         clock: Callable[[], float] = time.monotonic,
@@ -183,7 +183,7 @@ class Daemon:
         self._open_bus = open_bus
         self._notifier = notifier or SystemdNotifier(address="")
         self._recorder = recorder
-        self._engine_speed = engine_speed
+        self._held_inputs = held_inputs
         self._filters: list[can.typechecking.CanFilter] = (
             list(receive_filters)
             if receive_filters is not None
@@ -409,33 +409,11 @@ class Daemon:
             return
         with self._lock:
             rows = self.pipeline.drain_rows()
-            rpm = self._engine_speed() if self._engine_speed is not None else None
+            held = self._held_inputs() if self._held_inputs is not None else HeldInputs(None)
             offset = self._wall_clock() - self._clock()
         self._log_states(rows)
-        trends = trend_values()
-        for row in rows:  # the rows of the last supervisor period (0.1 s): the engine speed held now
-            cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
-            self._recorder.add(
-                FlightSample(
-                    time_s=row.time_s,
-                    wall_time_s=row.time_s + offset,
-                    rpm=rpm,
-                    cht_c=float(cht) if _finite(cht) else math.nan,
-                    trends={name: float(getattr(row, name)) for name in trends},
-                    state=str(row.state),
-                    cylinders=tuple(
-                        (
-                            float(c.cht_meas_c if not c.sensor_fault and _finite(c.cht_meas_c) else c.cht_est_c),
-                            {name: float(getattr(c, name)) for name in trends},
-                            str(c.state),
-                        )
-                        for c in row.cylinders
-                    ),
-                    cht_spread_c=float(row.cht_spread_c),
-                    hottest_cylinder=int(row.hottest_cylinder),
-                    spread_alarm=bool(row.spread_alarm),
-                )
-            )
+        for sample in flight_samples(rows, held, offset):  # the inputs held at the end of this supervisor period
+            self._recorder.add(sample)
         self.counters["rows_recorded"] += len(rows)
 
     def _log_states(self, rows: Sequence[Any]) -> None:
