@@ -4,9 +4,11 @@ detectors. Compiled with numba; the live pipeline calls it frame by frame (:func
 :func:`feed_values`), replay runs :func:`replay_loop` over a whole log's decoded frames, which calls the
 very same two functions. Nothing here is written twice.
 
-Each function binds the arrays of :class:`Engine`, :class:`Rows` and :class:`Traces` it uses to locals
-once (``eng_values = eng.values``): compiled, every read of a tuple's array field counts a reference to it
-atomically, and read once per call instead of once per use the replay's loop runs about a quarter faster.
+Compiled, numba counts a reference to an array atomically every time it is passed or read from a tuple;
+the per-frame path avoids that: the entry points (:func:`replay_loop`, :func:`advance_to`,
+:func:`feed_values`) take :func:`borrowed` views of the records' arrays (the caller keeps them alive for
+the call), and the per-frame and per-step functions are inlined into them (no argument copies or calls);
+each function binds the arrays it uses to locals once (``eng_values = eng.values``).
 
 Everything lives in named records (numpy structured dtypes, read by field name in the compiled code):
 :data:`CYLINDER_SETTINGS` (what the config and the model say, fixed), :data:`CYLINDER_STATE` (what one
@@ -771,6 +773,7 @@ def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
     the last of them (drain it and call again with the same t_s). The first reading starts the clock; a
     jump by more than MAX_CLOCK_GAP_S restarts it (estimation starts afresh); a reading at or before the
     clock's time does nothing."""
+    eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     eng_clock = eng.clock
     eng_early = eng.early
     eng_stamps = eng.stamps
@@ -820,6 +823,7 @@ def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
 def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
     """Hold the first ``count`` decoded (slot, value) pairs of one frame, stamped with the clock's time
     (sample and hold; before the clock starts, at its start); a cylinder's CHT counts a reading."""
+    eng = borrowed(eng)
     eng_clock = eng.clock
     eng_early = eng.early
     eng_settings = eng.settings
@@ -846,6 +850,7 @@ def replay_loop(
     """The live loop over a whole log: for each frame from ``start``, :func:`advance_to` its time then
     :func:`feed_values` its decoded values (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame
     to resume from when ``rows`` filled up, or the frame count when done."""
+    eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     n = frame_time_s.shape[0]
     for f in range(start, n):
         if not advance_to(eng, rows, traces, frame_time_s[f]):
@@ -856,6 +861,14 @@ def replay_loop(
 
 
 # ------------------------------------------------------------------------------------------------ compiling
+
+
+def borrowed(records: Any) -> Any:
+    """The records (a tuple of arrays) as borrowed views: the same data, no reference counted (compiled:
+    the arrays' meminfo and parent pointers cleared, as numba's own views of a record's nested arrays).
+    Only for the duration of a call whose caller holds the arrays; never returned to Python."""
+    return records
+
 
 # The compiled callees of the functions above; compiled() binds them.
 cusum_step: Any = None
@@ -868,6 +881,29 @@ live_isolation: Any = None
 rk4: Any = None
 supervise: Any = None
 unpack_coefficients: Any = None
+
+
+@functools.cache
+def _borrowed_compiled() -> Any:
+    """:func:`borrowed` for numba (an intrinsic: it writes the tuple's LLVM value)."""
+    from numba.core import cgutils, types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def borrowed_views(typingctx: Any, records: Any) -> Any:
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            value = args[0]
+            for index, member in enumerate(records.types):
+                if isinstance(member, types.Array):
+                    array = context.make_array(member)(context, builder, builder.extract_value(value, index))
+                    array.meminfo = cgutils.get_null_value(array.meminfo.type)
+                    array.parent = cgutils.get_null_value(array.parent.type)
+                    value = builder.insert_value(value, array._getvalue(), index)
+            return value  # a new value that owns no reference: nothing to count
+
+        return records(records), codegen
+
+    return borrowed_views
 
 
 @functools.cache
@@ -894,6 +930,7 @@ def compiled() -> Any:
     equations = compiled_equations(False)
     filters = _ekf.compiled_filter()
     callees: dict[str, Any] = {
+        "borrowed": _borrowed_compiled(),
         "cusum_step": _detection._cusum_step,
         "derivatives": equations.derivatives,
         "dissipation": equations.dissipation,
@@ -909,6 +946,9 @@ def compiled() -> Any:
     def compile_(function: Any, **more: Any) -> Any:
         return jit(function, tag, nogil=False, **callees, **more)
 
+    def inline_(function: Any, **more: Any) -> Any:  # the per-frame and per-step skeleton
+        return jit(function, tag, nogil=False, inline="always", **callees, **more)
+
     verdict = compile_(detector_verdict)
     reset = compile_(_reset_detector)
     detector = compile_(detector_step, detector_verdict=verdict)
@@ -919,19 +959,19 @@ def compiled() -> Any:
     initialise = compile_(_initialise_filters, _drive_at=drive_at)
     rate = compile_(_cht_rate)
     ekf_call = compile_(_ekf_call)
-    cylinder = compile_(
+    cylinder = inline_(
         cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at, _initialise_filters=initialise,
         _cht_rate=rate,
         _ekf_call=ekf_call,
     )  # fmt: skip
     cross = compile_(cross_step, detector_step=detector)
-    bad = compile_(_reading_bad)
-    engine = compile_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)
+    bad = inline_(_reading_bad)
+    engine = inline_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)
     tick = compile_(clock_tick)
     copy = compile_(_copy_output)
     write_row = compile_(_write_row, _copy_output=copy)
     write_trace = compile_(_write_trace, _copy_output=copy)
-    advance = compile_(
+    advance = inline_(
         advance_to,
         clock_tick=tick,
         engine_step=engine,
@@ -939,7 +979,7 @@ def compiled() -> Any:
         _write_row=write_row,
         _write_trace=write_trace,
     )
-    feed = compile_(feed_values)
+    feed = inline_(feed_values)
     loop = compile_(replay_loop, advance_to=advance, feed_values=feed)
     return SimpleNamespace(
         advance_to=advance,
