@@ -187,7 +187,7 @@ def _run(args: argparse.Namespace) -> int:
     # finds them loaded.
     with compile_notice(say=_log.info):
         pipeline.warm_up()
-    settings = daemon_settings(config, watchdog_period_s())
+    settings = daemon_settings(config, watchdog_period_s(), pipeline.row_period_s)
     with SystemdNotifier() as notifier:
         daemon = Daemon(
             pipeline,
@@ -219,12 +219,14 @@ def _run(args: argparse.Namespace) -> int:
     return code
 
 
-def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
-    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; and systemd's
-    watchdog period, s (None: no watchdog)."""
+def daemon_settings(config: ServiceConfig, watchdog_s: float | None, tick_s: float | None = None) -> DaemonSettings:
+    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; systemd's
+    watchdog period, s (None: no watchdog); and the tick, s (the pipeline's row period; None: the default)."""
     from ecu_monitor.runtime.daemon import DaemonSettings
 
+    tick = {} if tick_s is None else {"tick_s": tick_s}
     return DaemonSettings(
+        **tick,
         backoff_initial_s=config.reopen_backoff.initial,
         backoff_max_s=config.reopen_backoff.max,
         watchdog_period_s=watchdog_s,
