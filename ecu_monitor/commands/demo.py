@@ -378,7 +378,7 @@ def plot_report(
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -161,9 +161,6 @@ _STATE_SHADES = {
     "UNAVAILABLE": "black",
 }
 
-#: Headroom at or above this (s) is drawn as "not limited" (the service's cap for a steady state below the limit).
-_HEADROOM_CAP_S = 6000.0
-
 
 def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float) -> None:
     """One figure of a replay (time in minutes from the first row): CHT measured and estimated (every
@@ -173,7 +170,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -211,7 +208,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_gamma.axhline(1.0, color="grey", lw=0.6)
     ax_gamma.set_ylabel("degradation factor")
     headroom = np.asarray(c["headroom_s"], dtype=float)
-    ax_head.plot(t, np.where(headroom >= _HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
+    ax_head.plot(t, np.where(headroom >= HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
                  label="time to the CHT limit at the present power")  # fmt: skip
     ax_head.set_ylabel("headroom (s)")
     ax_head.set_xlabel("time from the first health row (min)")
@@ -291,7 +288,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
     """One line per cylinder of an engine monitored per cylinder: its states, first DEGRADED, the spread."""
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     count = result.cylinder_count
     if count == 1:
@@ -319,7 +316,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     c = result.counters
     time_s = result.columns["time_s"]

@@ -57,6 +57,7 @@ from ecu_monitor.model import (
     paper_table_a1,
 )
 from ecu_monitor.model.compiled import simulate_compiled
+from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S
 
 __all__ = [
     "RESET_MODES_COMPARED",
@@ -560,8 +561,10 @@ def headroom_check(
                 k = int(np.searchsorted(t, at))
                 u = InputSeries(*(float(log[c][k]) for c in (x_axis, y_axis, "altitude_m", "airspeed_mps", "oat_c")))
                 est = thermal_headroom(float(iso.cht_c[k]), None, u, params, gamma_q=float(iso.gamma_q[k]),
-                                       gamma_d=float(iso.gamma_d[k]), coeffs=coeffs)  # fmt: skip
-                true_gamma = thermal_headroom(float(iso.cht_c[k]), None, u, params, gamma_q=severity, coeffs=coeffs)
+                                       gamma_d=float(iso.gamma_d[k]), cap_s=HEADROOM_CAP_S, coeffs=coeffs)  # fmt: skip
+                true_gamma = thermal_headroom(
+                    float(iso.cht_c[k]), None, u, params, gamma_q=severity, cap_s=HEADROOM_CAP_S, coeffs=coeffs
+                )
                 actual = crossing - float(t[k]) if math.isfinite(crossing) else math.inf
                 checks.append(HeadroomCheck(severity, seed, float(t[k]), est.time_to_limit_s,
                                             true_gamma.time_to_limit_s, actual))  # fmt: skip

@@ -47,9 +47,8 @@ from ecu_monitor import __version__
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.dronecan import DroneCanEncoder
 from ecu_monitor.config import DroneCanSettings
-from ecu_monitor.pipeline.output_table import HEALTH_VALUES, as_number, cylinder_values, engine_values
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES, STATES, as_number, cylinder_values, engine_values
 from ecu_monitor.pipeline.outputs import HealthSnapshot
-from ecu_monitor.pipeline.supervision import STATES
 
 __all__ = ["HEALTH_CODES", "KEY_VALUES", "LOG_LEVELS", "NODE_NAME", "DroneCanNode", "key_values", "node_health"]
 

@@ -51,9 +51,8 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.mavlink import mavlink_module
 from ecu_monitor.bus.mavlink_settings import MavlinkSettings
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.pipeline.output_table import as_number, engine_values
+from ecu_monitor.pipeline.output_table import STATES, as_number, engine_values
 from ecu_monitor.pipeline.outputs import HealthSnapshot
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.units import UNITS, standard_pressure_kpa
 
 __all__ = [

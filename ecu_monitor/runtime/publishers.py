@@ -129,7 +129,7 @@ class DbcHealthFrames:
     ConfigError."""
 
     def __init__(self, config: ServiceConfig, pipeline: Pipeline) -> None:
-        self.pipeline = pipeline
+        self.pipeline: Pipeline = pipeline
         self.encoder = Encoder([config.health_dbc])
         self.periods = dict(pipeline.periods)
         self._ids = {
