@@ -272,7 +272,10 @@ def _borrowed_views(typingctx: Any, records: Any) -> Any:
 
 @overload(borrowed)
 def _borrowed_compiled(records: Any) -> Any:
-    return lambda records: _borrowed_views(records)
+    def implementation(records: Any) -> Any:  # the same parameters as borrowed's, as numba asks
+        return _borrowed_views(records)  # type: ignore[call-arg]  # typingctx: numba passes it
+
+    return implementation
 
 
 # ------------------------------------------------------------------------------------------------ the rules
