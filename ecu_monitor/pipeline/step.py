@@ -52,6 +52,7 @@ from ecu_monitor.pipeline.supervision import (
     ACTION_NONE,
     CODE_DEGRADED,
     CODE_NOMINAL,
+    CODE_UNAVAILABLE,
     SupervisorState,
     supervise,
 )
@@ -603,6 +604,8 @@ def cylinder_step(
         st["iso_deviation"] = iso_deviation
         st["model_c"] = model_c
         st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
+    if action != ACTION_NONE and not math.isfinite(st["cht_est_c"]):
+        code = CODE_UNAVAILABLE  # the filter cannot estimate (it diverged): never NOMINAL, the detector not fed
     state = code
     fed = np.nan
     if st["detector_on"]:
