@@ -202,7 +202,7 @@ def _run(args: argparse.Namespace) -> int:
     # finds them loaded.
     with compile_notice(say=_log.info):
         pipeline.warm_up()
-    settings = daemon_settings(config, watchdog_period_s(), uncalibrated)
+    settings = daemon_settings(config, watchdog_period_s(), pipeline.row_period_s, uncalibrated)
     if uncalibrated:
         _log.warning("%s", uncalibrated)
     with SystemdNotifier() as notifier:
@@ -254,12 +254,17 @@ def uncalibrated_warning(config: ServiceConfig, models: Any) -> str:
     return f"UNCALIBRATED detector (detector.uncalibrated: accept): {lines[0]}"
 
 
-def daemon_settings(config: ServiceConfig, watchdog_s: float | None, uncalibrated: str = "") -> DaemonSettings:
+def daemon_settings(
+    config: ServiceConfig, watchdog_s: float | None, tick_s: float | None = None, uncalibrated: str = ""
+) -> DaemonSettings:
     """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; systemd's watchdog
-    period, s (None: no watchdog); ``uncalibrated``: the warning every status line carries (empty: none)."""
+    period, s (None: no watchdog); the tick, s (the pipeline's row period; None: the default);
+    ``uncalibrated``: the warning every status line carries (empty: none)."""
     from ecu_monitor.runtime.daemon import DaemonSettings
 
+    tick = {} if tick_s is None else {"tick_s": tick_s}
     return DaemonSettings(
+        **tick,
         backoff_initial_s=config.reopen_backoff.initial,
         backoff_max_s=config.reopen_backoff.max,
         watchdog_period_s=watchdog_s,

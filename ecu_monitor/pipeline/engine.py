@@ -342,6 +342,11 @@ class Pipeline:
     # ------------------------------------------------------------------ live
 
     @property
+    def row_period_s(self) -> float:
+        """How often the output table gets a row, s (its rows fall at the clock's start + whole periods)."""
+        return self._row_period * self.dt_s
+
+    @property
     def steps_done(self) -> int:
         """Fixed steps run since start (grows while the pipeline makes progress)."""
         return int(self._engine.clock[0]["steps"])

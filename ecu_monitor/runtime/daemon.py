@@ -7,8 +7,12 @@ publishers) under one lock:
   and listener dispatch cost ~1-3 us a frame, docs/performance.md "DroneCAN"), each frame is stamped with
   the daemon's monotonic clock, fed to the pipeline, and ``advance_to(now)`` runs at once, so a health
   frame that falls due is sent within the handling of that frame (the low-latency path);
-* the tick thread: every 20 ms ``advance_to(now)``, so the 50 Hz steps and the health frames go on when
-  the frames stop (that is how staleness gets reported);
+* the tick thread: ``advance_to(now)`` at each instant a row of the pipeline's output table falls due
+  (``tick_s``: ``ecu-monitor run`` gives the row period, the health frames' 100 ms with the shipped rates,
+  20 ms on DroneCAN, whose node sends on every step; phased on the clock's start), so the 50 Hz steps and
+  the health frames go on when the frames stop (that is how staleness gets reported). Steps between two
+  rows output nothing: running them together at the next row gives the same rows, and an idle daemon
+  wakes and crosses into the compiled step a fifth as often as with a 20 ms tick;
 * the supervisor (the thread that calls :meth:`Daemon.run`): reopens a failed bus with backoff, feeds
   the health rows to the flight recorder (SQLite writes stay off the frame path), logs each change of the
   engine's state (``engine state DEGRADED (was SUSPECT) at t = ... s``, t on the daemon's monotonic
@@ -74,6 +78,8 @@ _log = logging.getLogger(__name__)
 SEND_FAILURES_TO_REOPEN = 20
 #: Send timeout, s: a full transmit queue must not stall the receive path.
 _SEND_TIMEOUT_S = 0.01
+#: The tick wakes this long after a row's instant, s (a wake-up a hair early would leave the row to the next tick).
+_TICK_LAG_S = 0.001
 #: Receive timeout, s: how soon the receive thread sees that it is asked to stop.
 _RECEIVE_TIMEOUT_S = 0.2
 
@@ -105,7 +111,7 @@ class DaemonSettings:
     (``ecu-monitor run`` passes it: commands/run.py, daemon_settings) defaults to the config's default,
     declared once in :class:`~ecu_monitor.config.ConfigFile`."""
 
-    tick_s: float = 0.02  # the 50 Hz timer
+    tick_s: float = 0.02  # the tick thread's period (module docstring); run: the pipeline's row period
     supervise_s: float = 0.1  # supervisor period: reopen, persistence, watchdog
     status_every_s: float = 10.0  # STATUS= and the INFO log line
     backoff_initial_s: float = config_default("reopen_backoff_s").initial
@@ -284,15 +290,16 @@ class Daemon:
         with self._lock:
             self._send_locked(self.pipeline.advance_to(self._clock()))
 
-    def _tick_loop(self) -> None:
+    def _tick_loop(self, start_s: float) -> None:
+        """Tick at ``start_s`` (the pipeline clock's start) + whole periods, ``_TICK_LAG_S`` after each."""
         period = self.settings.tick_s
-        next_s = self._clock() + period
-        while not self._stop.wait(max(0.0, next_s - self._clock())):
+        next_s = start_s + period
+        while not self._stop.wait(max(0.0, next_s + _TICK_LAG_S - self._clock())):
             self._guarded("tick", self._tick)
             next_s += period
             now = self._clock()
-            if next_s < now - period:  # fell behind (machine suspended, CPU starved): do not burst
-                next_s = now + period
+            if next_s < now - period:  # fell behind (machine suspended, CPU starved): skip, in phase, no burst
+                next_s += period * math.floor((now - next_s) / period)
 
     def _send_locked(self, frames: list[can.Message]) -> None:
         """Send health frames in order (the caller holds the lock, which keeps counters in sequence)."""
@@ -484,8 +491,9 @@ class Daemon:
         self._attach()
         with self._lock:
             self._silence.frame(self._clock())  # the silence counts from the first open, not from the warm-up
+        start_s = self._clock()
         with self._lock:
-            self.pipeline.advance_to(self._clock())
+            self.pipeline.advance_to(start_s)  # the pipeline's clock starts: the tick's phase
         if settings.switch_interval_s is not None:
             self._switch_interval_before = sys.getswitchinterval()
             sys.setswitchinterval(settings.switch_interval_s)
@@ -495,7 +503,9 @@ class Daemon:
             if settings.collect_in_supervisor and gc.isenabled():
                 gc.disable()  # the supervisor collects (_collect), never the bus thread
                 self._manual_gc = True
-        self._tick_thread = threading.Thread(target=self._tick_loop, name="ecu-monitor tick", daemon=True)
+        self._tick_thread = threading.Thread(
+            target=self._tick_loop, args=(start_s,), name="ecu-monitor tick", daemon=True
+        )
         self._tick_thread.start()
         self._notifier.ready(status="running: " + self._status_line())
         _log.info("running; watchdog period %s s", settings.watchdog_period_s)

@@ -299,6 +299,10 @@ class LiveMonitor:
         return self.pipeline.steps_done
 
     @property
+    def row_period_s(self) -> float:
+        return self.pipeline.row_period_s
+
+    @property
     def decoder(self) -> Any:
         return self.pipeline.decoder
 
