@@ -196,7 +196,7 @@ def test_four_cylinders_live_equals_batch_and_a_probe_fault_isolates_its_cylinde
     with open(out, newline="", encoding="utf-8") as handle:
         header = next(csv.reader(handle))
     assert tuple(header) == health_columns(4)
-    assert header[11:13] == ["cyl1_cht_meas_c", "cyl1_cht_est_c"] and header[-3:] == [
+    assert header[15:17] == ["cyl1_cht_meas_c", "cyl1_cht_est_c"] and header[-3:] == [
         "cht_spread_c", "hottest_cylinder", "spread_alarm"]  # fmt: skip
 
 

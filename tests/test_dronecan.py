@@ -454,12 +454,14 @@ def test_node_status_follows_the_engine_state_and_state_changes_are_logged() -> 
         "gamma_d",
         "headroom",
         "state",
+        "not_iso",
+        "det_armed",
     }
-    # the set due at 3.1 s goes out one key a 20 ms step over the seven steps after it that carry no health status
-    sent = [round(t, 6) for t, _, _ in values if 3.1 < t < 3.3]
-    assert sent == [3.12, 3.14, 3.16, 3.18, 3.22, 3.24, 3.26]
+    # the set due at 3.1 s goes out one key a 20 ms step over the nine steps after it that carry no health status
+    sent = [round(t, 6) for t, _, _ in values if 3.1 < t < 3.4]
+    assert sent == [3.12, 3.14, 3.16, 3.18, 3.22, 3.24, 3.26, 3.28, 3.32]
     assert not any(abs(t * 10 - round(t * 10)) < 1e-6 for t, _, _ in values)
-    at_3 = {key: value for t, key, value in values if 3.1 < t < 3.3}
+    at_3 = {key: value for t, key, value in values if 3.1 < t < 3.4}
     assert at_3["cht_meas"] == pytest.approx(120.0, abs=0.25) and at_3["state"] == 0.0
     assert abs(at_3["cht_est"] - 120.0) < 2.0
 

@@ -637,9 +637,11 @@ def test_demo_over_mavlink_tells_the_pilot_nominal_then_degraded(tmp_path: Path,
     texts = (out / "statustext.csv").read_text(encoding="utf-8").splitlines()
     assert texts[0] == "time_s,severity,text"
     assert texts[1].startswith('0.1,INFO,"ENGINE: monitoring, NOMINAL, CHT ')
-    assert re.fullmatch(r'\d+\.\d,CRITICAL,"ENGINE: heat-in \+\d+ %, DEGRADED"', texts[-1]), texts
+    # the cause as the isolation tells it once the split is identifiable, "not isolable" until then
+    cause = r"(heat-in \+\d+ %|CHT \+\d\.\d\d C/s off model, cause not isolable)"
+    assert re.fullmatch(rf'\d+\.\d,CRITICAL,"ENGINE: {cause}, DEGRADED"', texts[-1]), texts
     assert float(texts[-1].split(",")[0]) > 650.0 and "DEGRADED at t = " in printed
-    assert "CRITICAL  ENGINE: heat-in" in printed
+    assert re.search(rf"CRITICAL  ENGINE: {cause}", printed)
     assert (out / "health.csv").stat().st_size > 1000
     assert main(["demo", "--protocol", "mavlink", "--cylinders", "2", "--out", str(out)]) == 2
     assert "EFI_STATUS carries one CHT" in capsys.readouterr().err

@@ -85,7 +85,7 @@ def test_batch_replay_equals_the_live_pipeline_frame_by_frame(flight: dict[str, 
     assert np.array_equal(b["time_s"], v["time_s"])
     for name in NUMERIC:
         assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
-        assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name  # compiled vs Python floats
+        assert np.nanmax(np.abs(b[name] - v[name]), initial=0.0) < 1e-9, name  # compiled vs Python floats
     assert [r.state for r in batch.rows] == [r.state for r in live.rows]
     assert [r.stale_inputs for r in batch.rows] == [r.stale_inputs for r in live.rows]
     states = [r.state for r in batch.rows]
@@ -138,7 +138,8 @@ def test_blf_and_its_canonical_csv_give_the_same_health_csv(flight: dict[str, Pa
         outputs[kind] = _read_csv(out)
     blf, flight_csv, asc = outputs["blf"], outputs["csv"], outputs["asc"]
     assert list(blf[0]) == ["time_s", "cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d",
-                            "headroom_s", "stale_inputs", "sensor_fault", "cht_rate_c_per_min"]  # fmt: skip
+                            "headroom_s", "stale_inputs", "sensor_fault", "cht_rate_c_per_min", "gamma_q_sd",
+                            "gamma_d_sd", "not_isolable", "detector_armed"]  # fmt: skip
     assert asc == blf  # two log formats of the same frames: identical
     assert len(flight_csv) == len(blf)
     assert np.array_equal(_num(flight_csv, "time_s"), _num(blf, "time_s"))
@@ -221,7 +222,7 @@ def test_batch_equals_live_across_a_hole_that_restarts_the_clock(flight: dict[st
     assert not hole.any()
     for name in NUMERIC:
         assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
-        assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name
+        assert np.nanmax(np.abs(b[name] - v[name]), initial=0.0) < 1e-9, name
     assert [r.state for r in batch.rows] == [r.state for r in live.rows]
 
 
@@ -248,7 +249,7 @@ def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str
     assert np.array_equal(b["time_s"], v["time_s"])
     for name in NUMERIC:
         assert np.array_equal(np.isnan(b[name]), np.isnan(v[name])), name
-        assert np.nanmax(np.abs(b[name] - v[name])) < 1e-9, name
+        assert np.nanmax(np.abs(b[name] - v[name]), initial=0.0) < 1e-9, name
 
 
 def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning(

@@ -99,6 +99,8 @@ class ReplayResult:
     reference_feed (batch path, when asked): per clock segment as detector_feed, the open-loop reference
     (:class:`ReferenceFeed`; the first cylinder's on an engine monitored per cylinder).
     events: the engine events (pipeline/events.py), in the order the step wrote them.
+    detector_regions (batch path only): per clock segment as detector_feed, the operating region of each
+    step (estimation/regions.py), what the reference test measures the feed against.
     """
 
     columns: dict[str, NDArray[Any]]
@@ -108,6 +110,7 @@ class ReplayResult:
     cross_feeds: tuple[tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...], ...] = ()
     reference_feed: tuple[ReferenceFeed, ...] = ()
     events: tuple[Event, ...] = ()
+    detector_regions: tuple[NDArray[np.int64], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)
