@@ -225,7 +225,9 @@ class EngineEvents(_Section, frozen=True):
     (``egtN_c`` mapped) further than this from the median of the others' diverges (divergence_min_s),
     counted while the median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
     egt_limit_c, oil_limit_c: an EGT, the oil temperature (``oil_temp_c``) above this (degC) is an
-    exceedance (exceedance_min_s).
+    exceedance (exceedance_min_s). valve_amplitude_c: the exhaust-valve advisory: one cylinder's EGT
+    oscillating at 0.5-3 cycles/min with at least this peak-to-peak amplitude (degC) while every other
+    cylinder's oscillates by less than half of it, for valve_min_s (s).
     """
 
     enabled: bool = True
@@ -239,6 +241,8 @@ class EngineEvents(_Section, frozen=True):
     egt_divergence_from_c: _Number = 500.0
     egt_limit_c: _Number = 900.0
     oil_limit_c: _Number = 118.0
+    valve_amplitude_c: _Positive = 15.0
+    valve_min_s: _Positive = 300.0
 
 
 class _Input(_Section, frozen=True):

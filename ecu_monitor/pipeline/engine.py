@@ -317,6 +317,8 @@ class Pipeline:
             e["egt_divergence_from_c"] = ev.egt_divergence_from_c
             e["egt_limit_c"] = ev.egt_limit_c
             e["oil_limit_c"] = ev.oil_limit_c
+            e["valve_amplitude_c"] = ev.valve_amplitude_c
+            e["valve_min_s"] = ev.valve_min_s
             e["egt_slot"], e["egt_stale_s"] = self._event_input(config, f"egt{number}_c")
             e["oil_slot"], e["oil_stale_s"] = self._event_input(config, "oil_temp_c")
             _detector_record(s["nominal"], own.nominal_settings() if own.reference_on else None)
@@ -325,6 +327,7 @@ class Pipeline:
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)
         state = np.zeros(count, dtype=CYLINDER_STATE)  # made ready by the first advance_to (the clock's start)
+        state["egt_fast"] = math.nan  # the EGT band-pass starts at the first fresh EGT
         engine = Engine(
             clock=clock,
             values=np.full(slots, math.nan),

@@ -1,11 +1,11 @@
 """The engine events: what the step reports besides the health values (docs/service.md, "Engine events";
 the events table in docs/contracts.md).
 
-An event is a condition that held for a while: its start (``time_s``, s), its ``kind`` (one of
-:data:`EVENT_KINDS`; the step writes its index), its ``cylinder`` (1-based), its worst ``value`` over the
-condition (degC or degC/min: the kind's unit in :data:`EVENT_UNITS`), the ``limit`` it crossed, and its
-``duration_s``. The step (pipeline/step.py, ``events_step``) writes an event when its condition ends, or
-when the log ends (``close_events``).
+An event is a condition that held for a while (``valve_advisory`` is an advisory, not an alarm): its
+start (``time_s``, s), its ``kind`` (one of :data:`EVENT_KINDS`; the step writes its index), its
+``cylinder`` (1-based; 0: the engine), its worst ``value`` over the condition (the kind's unit in
+:data:`EVENT_UNITS`), the ``limit`` it crossed, and its ``duration_s``. The step (pipeline/step.py,
+``events_step``) writes an event when its condition ends, or when the log ends (``close_events``).
 """
 
 from __future__ import annotations

@@ -154,6 +154,8 @@ EVENT_SETTINGS = np.dtype(
         ("oil_slot", "i8"),  # the oil temperature (-1: not mapped; watched on cylinder 1's record)
         ("oil_stale_s", "f8"),
         ("oil_limit_c", "f8"),
+        ("valve_amplitude_c", "f8"),  # the exhaust-valve advisory: EGT oscillation, peak to peak
+        ("valve_min_s", "f8"),
     ]
 )
 #: One condition of one cylinder being watched: since when it holds, when it last held, its worst value.
@@ -168,6 +170,16 @@ _CHT_EXCEEDANCE = EVENT_KINDS.index("cht_exceedance")
 _EGT_DIVERGENCE = EVENT_KINDS.index("egt_divergence")
 _EGT_EXCEEDANCE = EVENT_KINDS.index("egt_exceedance")
 _OIL_EXCEEDANCE = EVENT_KINDS.index("oil_exceedance")
+_VALVE_ADVISORY = EVENT_KINDS.index("valve_advisory")
+#: The exhaust-valve advisory's band, 0.5-3 cycles/min: the EGT's low-pass at 3 cycles/min minus its low-pass
+#: at 0.5 cycles/min (first-order, time constants 60 / (2 pi f), s); their difference passes the band at a
+#: gain of 0.58-0.70, VALVE_BAND_GAIN its middle, by which the amplitude is divided.
+VALVE_FAST_S = 60.0 / (2.0 * math.pi * 3.0)
+VALVE_SLOW_S = 60.0 / (2.0 * math.pi * 0.5)
+VALVE_BAND_GAIN = 0.64
+#: The band's mean square is a first-order average with this time constant, s; the amplitude is known once
+#: the band-pass has run twice as long.
+VALVE_WINDOW_S = 60.0
 CYLINDER_SETTINGS = np.dtype(
     [
         ("cht_slot", "i8"),  # its CHT reading in Engine.values
@@ -236,6 +248,11 @@ CYLINDER_STATE = np.dtype(
         ("egt_divergence", EVENT_TRACKER),
         ("egt_high", EVENT_TRACKER),
         ("oil_high", EVENT_TRACKER),
+        ("valve", EVENT_TRACKER),
+        ("egt_fast", "f8"),  # the EGT's band-pass (valve_band): two low-passes, the mean square of their difference
+        ("egt_slow", "f8"),
+        ("egt_band_ms", "f8"),
+        ("egt_band_s", "f8"),  # how long the band-pass has run, s
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -960,10 +977,58 @@ def events_step(eng: Engine, time_s: float) -> None:
         apart = egt - median_of_others(own, i, others)
         _track(eng, st["egt_divergence"], at_power and abs(apart) > es["egt_divergence_c"], apart, time_s,
                _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"])  # fmt: skip
+    valve_advisory(eng, time_s)
     es = eng_settings[0]["events"]
     oil = _fresh(eng, es["oil_slot"], es["oil_stale_s"], time_s)
     _track(eng, eng_state[0]["oil_high"], oil > es["oil_limit_c"], oil, time_s, _OIL_EXCEEDANCE, 0,
            es["oil_limit_c"], es["exceedance_min_s"])  # fmt: skip
+
+
+@njit(nogil=False)
+def valve_band(st: Any, egt: float, dt_s: float) -> float:
+    """One step of cylinder record ``st``'s EGT band-pass (0.5-3 cycles/min) with the fresh EGT (degC; nan:
+    not fresh, the filters start afresh): its peak-to-peak amplitude over VALVE_WINDOW_S (degC, a sine's
+    2 sqrt(2) RMS, divided by the band's gain; nan for the first 2 VALVE_WINDOW_S)."""
+    if math.isnan(egt):
+        st["egt_fast"] = st["egt_slow"] = np.nan
+        return np.nan
+    if math.isnan(st["egt_fast"]):
+        st["egt_fast"] = st["egt_slow"] = egt
+        st["egt_band_ms"] = 0.0
+        st["egt_band_s"] = 0.0
+    st["egt_fast"] += (egt - st["egt_fast"]) * min(dt_s / VALVE_FAST_S, 1.0)
+    st["egt_slow"] += (egt - st["egt_slow"]) * min(dt_s / VALVE_SLOW_S, 1.0)
+    band = st["egt_fast"] - st["egt_slow"]
+    st["egt_band_ms"] += (band * band - st["egt_band_ms"]) * min(dt_s / VALVE_WINDOW_S, 1.0)
+    st["egt_band_s"] += dt_s
+    if st["egt_band_s"] < 2.0 * VALVE_WINDOW_S:
+        return np.nan
+    return 2.0 * math.sqrt(2.0 * st["egt_band_ms"]) / VALVE_BAND_GAIN
+
+
+@njit(nogil=False)
+def valve_advisory(eng: Engine, time_s: float) -> None:
+    """The exhaust-valve advisory: one cylinder's EGT oscillating in the band (:func:`valve_band`) by at least
+    ``valve_amplitude_c`` peak to peak while every other cylinder's with a fresh EGT oscillates by less than
+    half of it (steady power: a power change moves every EGT), for ``valve_min_s``; value: the largest
+    amplitude (degC)."""
+    eng_settings = eng.settings
+    eng_state = eng.state
+    amplitude = eng.symptoms[0]
+    n = eng_state.shape[0]
+    dt_s = eng.clock[0]["dt_s"]
+    for i in range(n):
+        es = eng_settings[i]["events"]
+        amplitude[i] = valve_band(eng_state[i], _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s), dt_s)
+    for i in range(n):
+        es = eng_settings[i]["events"]
+        limit = es["valve_amplitude_c"]
+        holds = n > 1 and amplitude[i] >= limit
+        for j in range(n):
+            if j != i and not amplitude[j] < 0.5 * limit:  # another oscillates too, or is not known
+                holds = False
+        _track(eng, eng_state[i]["valve"], holds, amplitude[i], time_s, _VALVE_ADVISORY, i + 1, limit,
+               es["valve_min_s"])  # fmt: skip
 
 
 @njit(nogil=False)
@@ -981,6 +1046,7 @@ def close_events(eng: Engine) -> None:
             (st["egt_high"], _EGT_EXCEEDANCE, i + 1, es["egt_limit_c"], es["exceedance_min_s"]),
             (st["egt_divergence"], _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"]),
             (st["oil_high"], _OIL_EXCEEDANCE, 0, es["oil_limit_c"], es["exceedance_min_s"]),
+            (st["valve"], _VALVE_ADVISORY, i + 1, es["valve_amplitude_c"], es["valve_min_s"]),
         ):
             if tr["active"]:
                 _write_event(eng, tr, kind, number, limit, min_s)

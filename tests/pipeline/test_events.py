@@ -156,3 +156,72 @@ def test_the_events_table() -> None:
     assert lines[1] == "12.50,shock_cooling,3,-41.23,-33.00,8.00"
     assert lines[2] == "1.00,cht_exceedance,1,,150.00,2.00"
     assert set(EVENT_KINDS) >= {"shock_cooling", "cht_divergence", "cht_exceedance", "valve_advisory"}
+
+
+#: A climb and a quarter of an hour's cruise at steady power (the valve advisory's ground).
+CRUISE_MISSION = {
+    "name": "cruise",
+    "segments": [
+        {"kind": "ground_run", "duration_s": 30, "throttle_pct": 35},
+        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
+         "climb_rate_mps": 3},
+        {"kind": "climb", "target_altitude_m": 400, "climb_rate_mps": 3, "throttle_pct": 90, "airspeed_mps": 21},
+        {"kind": "cruise", "duration_s": 900, "airspeed_mps": 25, "throttle_pct": 65},
+    ],
+}  # fmt: skip
+VALVE_ONSET_S = 300.0
+
+
+@pytest.fixture(scope="module")
+def cruise(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, Any, Any]:
+    """(the cruise flight, the four-cylinder config with EGTs mapped, the models)."""
+    from virtual_bus.missions import mission_from_dict
+    from virtual_bus.recorder import record
+
+    path = tmp_path_factory.mktemp("valve") / "cruise.csv"
+    record(mission_from_dict(CRUISE_MISSION), [path], paper_table_a1(), seed=9)
+    data = copy.deepcopy(FOUR)
+    for n in range(1, 5):
+        data["inputs"][f"egt{n}_c"] = {"signal": f"ECU_Egt1to4.EGT{n}", "unit": "degC", "stale_after_s": 1.0}
+    config = parse_config(data, CONFIGS / "four_cylinders.yaml")
+    return read_csv(path), config, config.load_cylinder_params()
+
+
+def _with_egts(log: Any, oscillating: tuple[int, ...], amplitude_c: float, period_s: float) -> Any:
+    """Four CHTs and four EGTs that follow the throttle (+3 degC per %) with noise; the ``oscillating``
+    cylinders' EGTs swing by ``amplitude_c`` peak to peak with ``period_s`` from VALVE_ONSET_S on."""
+    t = np.asarray(log.time_s)
+    rng = np.random.default_rng(4)
+    power = 3.0 * (np.asarray(log["throttle_pct"]) - 65.0)
+    columns = {f"cht{n}_c": np.asarray(log["cht_c"]) + 3.0 * n for n in range(1, 5)}
+    for n in range(1, 5):
+        egt = 680.0 + 8.0 * n + power + rng.normal(0.0, 2.0, t.size)
+        if n in oscillating:
+            egt = egt + np.where(t >= VALVE_ONSET_S, 0.5 * amplitude_c * np.sin(2 * np.pi * t / period_s), 0.0)
+        columns[f"egt{n}_c"] = np.round(egt)
+    return log.with_columns(**columns)
+
+
+def test_the_valve_advisory_names_the_one_oscillating_cylinder_within_ten_minutes(cruise: tuple[Any, Any, Any]) -> None:
+    log, config, models = cruise
+    flight = _with_egts(log, (3,), 40.0, 60.0)
+    events = replay_frames(config, models, frames_from_flight(flight, config)).events
+    valve = [e for e in events if e.kind == "valve_advisory"]
+    assert [e.cylinder for e in valve] == [3]
+    assert valve[0].time_s + config.events.valve_min_s <= VALVE_ONSET_S + 600.0
+    assert 30.0 < valve[0].value < 55.0  # the amplitude, peak to peak, within the band's gain spread
+    assert not [e for e in events if e.kind == "egt_divergence"]  # +-20 degC: no divergence
+
+
+@pytest.mark.parametrize(
+    ("oscillating", "amplitude_c", "period_s"),
+    [((), 0.0, 60.0), ((1, 3), 40.0, 60.0), ((3,), 8.0, 60.0), ((3,), 40.0, 600.0)],
+    ids=["steady", "two-cylinders", "small", "too-slow"],
+)
+def test_no_valve_advisory_without_one_cylinder_oscillating_in_the_band(
+    cruise: tuple[Any, Any, Any], oscillating: tuple[int, ...], amplitude_c: float, period_s: float
+) -> None:
+    log, config, models = cruise
+    flight = _with_egts(log, oscillating, amplitude_c, period_s)
+    events = replay_frames(config, models, frames_from_flight(flight, config)).events
+    assert not [e for e in events if e.kind == "valve_advisory"]
