@@ -18,6 +18,10 @@ import pytest
 from tests.helpers.netns import Namespace, netns_unavailable
 
 os.environ.setdefault("NUMBA_CACHE_DIR", "")
+# One BLAS thread per process: the suite already runs a worker per core (pytest-xdist), and OpenBLAS's
+# threads spinning against the other worker made a small SVD (the identification's polish) take minutes.
+for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_blas_threads, "1")
 
 
 @pytest.fixture
