@@ -662,6 +662,10 @@ class Encoder:
         """The prepared layout of message ``name`` (None: cantools encodes it); KeyError if no such message."""
         return self._layouts[name]
 
+    def data_signals(self, name: str) -> tuple[str, ...]:
+        """The data signals of message ``name`` in DBC order (counter and checksum excluded); KeyError if none."""
+        return tuple(signal for signal, _, _ in self._messages[name][2])
+
     def has_counter(self, name: str) -> bool:
         """True if message ``name`` carries the rolling counter and checksum of docs/dbc.md."""
         return self._messages[name][1] is not None

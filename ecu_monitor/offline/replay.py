@@ -28,8 +28,8 @@ from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
 from ecu_monitor.pipeline.engine import Pipeline, model_input_names
+from ecu_monitor.pipeline.output_table import output_fields
 from ecu_monitor.pipeline.outputs import (
-    HEALTH_COLUMNS,
     HealthSnapshot,
     ReferenceFeed,
     ReplayResult,
@@ -42,7 +42,6 @@ from ecu_monitor.pipeline.step import Rows, Traces
 from ecu_monitor.pipeline.supervision import CODE_FAULT, CODE_NOMINAL
 
 __all__ = [
-    "HEALTH_COLUMNS",
     "ReplayResult",
     "frames_from_flight",
     "replay_file",
@@ -196,28 +195,15 @@ def _columns(
     """The replay's columns from its output table (ReplayResult.columns)."""
     m = int(rows.count[0])
     results = rows.cylinders[:m]
-    stale = stale_bits(rows.stale[:m])
+    out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[:m].copy(), "stale_inputs": stale_bits(rows.stale[:m])}
     if count == 1:
         r = results[:, 0]
-        return {
-            "time_s": rows.time_s[:m].copy(),
-            "cht_meas_c": r["cht_meas_c"].copy(),
-            "cht_est_c": r["cht_est_c"].copy(),
-            "deviation": r["deviation"].copy(),
-            "gamma_q": r["gamma_q"].copy(),
-            "gamma_d": r["gamma_d"].copy(),
-            "headroom_s": r["headroom_s"].copy(),
-            "cht_rate_c_per_min": r["cht_rate_c_per_min"].copy(),
-            "state": r["state"].astype(np.int64),
-            "stale": stale,
-            "sensor_fault": r["state"] == CODE_FAULT,
-        }
-    out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[:m].copy(), "stale": stale}
+        out.update({name: r[name].copy() for name, _ in output_fields()})
+        out["sensor_fault"] = r["state"] == CODE_FAULT
+        return out
     for i in range(count):
         r = results[:, i]
-        for field in ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s",
-                      "cht_rate_c_per_min"):  # fmt: skip
-            out[f"cyl{i + 1}_{field}"] = r[field].copy()
+        out.update({f"cyl{i + 1}_{name}": r[name].copy() for name, _ in output_fields()})
     out.update(engine_columns(out, count, spread_limit_c))
     return out
 

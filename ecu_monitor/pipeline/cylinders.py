@@ -23,13 +23,12 @@ import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
-import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.pipeline.outputs import CylinderSnapshot
-from ecu_monitor.pipeline.supervision import STATES
+from ecu_monitor.pipeline.output_table import HealthSnapshot
+from ecu_monitor.pipeline.outputs import CylinderSnapshot, column_layout, columns_of, cylinder_snapshots
 
-__all__ = ["SEVERITY", "EngineView", "engine_columns", "engine_view", "lead_index"]
+__all__ = ["SEVERITY", "EngineView", "engine_columns", "engine_snapshot", "engine_view", "lead_index"]
 
 #: Rank of each state when the cylinders are folded into the engine's (higher = more severe).
 SEVERITY: dict[str, int] = {
@@ -82,38 +81,43 @@ def engine_view(cylinders: Sequence[CylinderSnapshot], spread_limit_c: float | N
     return EngineView(lead_index(cylinders), spread, hottest, alarm)
 
 
+def engine_snapshot(
+    time_s: float, stale_inputs: tuple[str, ...], cylinders: Sequence[CylinderSnapshot], spread_limit_c: float | None
+) -> HealthSnapshot:
+    """The engine's snapshot of its cylinders' at one instant: the lead cylinder's values (module docstring),
+    ``sensor_fault`` (any cylinder's probe), the spread, the hottest cylinder, the spread alarm; one
+    cylinder: its own values (``cylinders`` empty). The one place the ``engine`` and ``cylinders`` rows of
+    the output table are computed."""
+    if len(cylinders) == 1:
+        values = cylinders[0].values()
+        del values["number"]
+        values.update(time_s=time_s, stale_inputs=stale_inputs, sensor_fault=cylinders[0].sensor_fault)
+        return HealthSnapshot._of(values)
+    view = engine_view(cylinders, spread_limit_c)
+    lead = cylinders[view.lead]
+    values = lead.values()
+    del values["number"]
+    values.update(
+        time_s=time_s,
+        stale_inputs=stale_inputs,
+        sensor_fault=any(c.sensor_fault for c in cylinders),
+        cylinders=tuple(cylinders),
+        cht_spread_c=view.spread_c,
+        hottest_cylinder=view.hottest,
+        spread_alarm=view.alarm,
+        lead_cylinder=lead.number,
+    )
+    return HealthSnapshot._of(values)
+
+
 def engine_columns(
     columns: dict[str, NDArray[Any]], count: int, spread_limit_c: float | None
 ) -> dict[str, NDArray[Any]]:
-    """The engine columns of a replay (cht_meas_c .. sensor_fault of the lead cylinder, cht_spread_c,
-    hottest_cylinder, spread_alarm) from its per-cylinder columns ``cyl{n}_...``, row by row through
-    :func:`engine_view`, the function the live pipeline calls."""
-    fields = ("cht_meas_c", "cht_est_c", "deviation", "state", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min")
-    per = [
-        [
-            CylinderSnapshot(n, meas, est, dev, STATES[state], gq, gd, head, rate)
-            for meas, est, dev, state, gq, gd, head, rate in zip(
-                *(columns[f"cyl{n}_{k}"].tolist() for k in fields), strict=True
-            )
-        ]
-        for n in range(1, count + 1)
-    ]
-    rows = columns["time_s"].size
-    lead_values = {k: np.empty(rows) for k in fields if k != "state"}
-    state = np.empty(rows, dtype=np.int64)
-    spread = np.empty(rows)
-    hottest = np.empty(rows, dtype=np.int64)
-    alarm = np.empty(rows, dtype=bool)
-    fault = np.empty(rows, dtype=bool)
-    lead_number = np.empty(rows, dtype=np.int64)
-    for i, cylinders in enumerate(zip(*per, strict=True)):
-        view = engine_view(cylinders, spread_limit_c)
-        lead = cylinders[view.lead]
-        for k, out in lead_values.items():
-            out[i] = getattr(lead, k)
-        state[i] = STATES.index(lead.state)
-        spread[i], hottest[i], alarm[i] = view.spread_c, view.hottest, view.alarm
-        fault[i] = any(c.sensor_fault for c in cylinders)
-        lead_number[i] = lead.number
-    return {**lead_values, "state": state, "sensor_fault": fault, "cht_spread_c": spread,
-            "hottest_cylinder": hottest, "spread_alarm": alarm, "lead_cylinder": lead_number}  # fmt: skip
+    """The engine columns of a replay (the lead cylinder's, sensor_fault and the ``cylinders`` rows of the
+    output table) from its per-cylinder columns ``cyl{n}_...``, row by row through :func:`engine_snapshot`,
+    the function the live pipeline calls."""
+    times = columns["time_s"].tolist()
+    snaps = [engine_snapshot(t, (), cyls, spread_limit_c)
+             for t, cyls in zip(times, cylinder_snapshots(columns, count), strict=True)]  # fmt: skip
+    names = [name for name, _ in column_layout(count) if not name.startswith("cyl")]
+    return columns_of(snaps, count, [n for n in names if n not in ("time_s", "stale_inputs")])

@@ -29,7 +29,8 @@ from ecu_monitor.estimation.registry import ESTIMATORS, make_estimator
 from ecu_monitor.model import ThermalParams, coefficients, pack_coefficients
 from ecu_monitor.model.effects import MixtureIndex
 from ecu_monitor.model.inputs import MIXTURE_COLUMNS, input_columns
-from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
+from ecu_monitor.pipeline.output_table import cylinder_snapshot, output_fields
+from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.pipeline.schedule import filter_period_steps
 from ecu_monitor.pipeline.step import (
     CLOCK,
@@ -41,7 +42,7 @@ from ecu_monitor.pipeline.step import (
     Traces,
     compiled,
 )
-from ecu_monitor.pipeline.supervision import CODE_FAULT, CODE_UNAVAILABLE, STATES
+from ecu_monitor.pipeline.supervision import CODE_UNAVAILABLE
 
 if TYPE_CHECKING:
     from can.typechecking import CanFilter
@@ -454,47 +455,15 @@ class Pipeline:
 
     def snapshot_of(self, row: StepRow) -> HealthSnapshot:
         """The snapshot of one row (one cylinder: its own values; several: the engine's view of them)."""
-        from ecu_monitor.pipeline.cylinders import engine_view
+        from ecu_monitor.pipeline.cylinders import engine_snapshot
 
-        results = row.cylinders
-        if len(self.cylinder_params) == 1:
-            r = results[0]
-            state = int(r["state"])
-            return HealthSnapshot(row.time_s, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
-                                  STATES[state], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
-                                  row.stale, state == CODE_FAULT,
-                                  cht_rate_c_per_min=float(r["cht_rate_c_per_min"]))  # fmt: skip
-        cylinders = tuple(
-            CylinderSnapshot(n, float(r["cht_meas_c"]), float(r["cht_est_c"]), float(r["deviation"]),
-                             STATES[int(r["state"])], float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"]),
-                             float(r["cht_rate_c_per_min"]))
-            for n, r in enumerate(results, start=1)
-        )  # fmt: skip
-        view = engine_view(cylinders, self.config.spread_limit_c)
-        lead = cylinders[view.lead]
-        return HealthSnapshot(
-            time_s=row.time_s,
-            cht_meas_c=lead.cht_meas_c,
-            cht_est_c=lead.cht_est_c,
-            deviation=lead.deviation,
-            state=lead.state,
-            gamma_q=lead.gamma_q,
-            gamma_d=lead.gamma_d,
-            headroom_s=lead.headroom_s,
-            stale_inputs=row.stale,
-            sensor_fault=any(c.sensor_fault for c in cylinders),
-            cylinders=cylinders,
-            cht_spread_c=view.spread_c,
-            hottest_cylinder=view.hottest,
-            spread_alarm=view.alarm,
-            cht_rate_c_per_min=lead.cht_rate_c_per_min,
-            lead_cylinder=lead.number,
-        )
+        cylinders = [cylinder_snapshot(n, r) for n, r in enumerate(row.cylinders, start=1)]
+        return engine_snapshot(row.time_s, row.stale, cylinders, self.config.spread_limit_c)
 
     def _empty_snapshot(self) -> HealthSnapshot:
         nothing = np.zeros(len(self.cylinder_params), dtype=CYLINDER_OUTPUT)
-        for field in ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min"):
-            nothing[field] = math.nan
+        for name, _ in output_fields():
+            nothing[name] = math.nan if nothing[name].dtype.kind == "f" else 0
         nothing["state"] = CODE_UNAVAILABLE
         stale = tuple(dict.fromkeys(self._check_names))
         return self.snapshot_of(StepRow(0, math.nan, stale, 0, nothing))

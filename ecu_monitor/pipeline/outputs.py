@@ -1,15 +1,14 @@
-"""The health rows the service produces: :class:`HealthSnapshot` (one per health-status period, with a
-:class:`CylinderSnapshot` per cylinder on an engine monitored per cylinder), the columns of health.csv
-and their layout (:func:`health_table_columns`; the bytes are written from whole columns by
-:mod:`ecu_monitor.pipeline.table`: CSV, Parquet, Arrow), :class:`ReplayResult` (a replay's rows
-as columns)."""
+"""The health rows the service produces, made from the output table (:mod:`ecu_monitor.pipeline.output_table`):
+:class:`HealthSnapshot` (one per health-status period, with a :class:`CylinderSnapshot` per cylinder on an
+engine monitored per cylinder), the columns of health.csv and their layout (:func:`health_columns`,
+:func:`health_table_columns`; the bytes are written from whole columns by :mod:`ecu_monitor.pipeline.table`:
+CSV, Parquet, Arrow), :class:`ReplayResult` (a replay's rows as columns)."""
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -17,113 +16,55 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S
+from ecu_monitor.pipeline.output_table import (
+    HEALTH_VALUES,
+    CylinderSnapshot,
+    HealthSnapshot,
+    HealthValue,
+    cylinder_values,
+    engine_values,
+)
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import TableColumn, write_health_table
 
-#: ThermalHeadroom meaning "not limited" (health.dbc; the headroom module's cap).
-HEADROOM_NOT_LIMITED_S = DEFAULT_CAP_S
-
-
-@dataclass(frozen=True)
-class CylinderSnapshot:
-    """One cylinder at one instant (engines monitored per cylinder, ``cht1_c .. chtN_c``).
-
-    number: 1-based. The other fields mean what HealthSnapshot's do, for this cylinder alone.
-    """
-
-    number: int
-    cht_meas_c: float
-    cht_est_c: float
-    deviation: float
-    state: str
-    gamma_q: float
-    gamma_d: float
-    headroom_s: float
-    cht_rate_c_per_min: float = float("nan")
-
-    @property
-    def sensor_fault(self) -> bool:
-        """The cylinder's CHT probe is faulty."""
-        return self.state == "SENSOR_FAULT"
-
-
-@dataclass(frozen=True)
-class HealthSnapshot:
-    """The service's view of the engine at one instant (one health-status period).
-
-    time_s: step time, s (the advance_to clock). cht_meas_c: last CHT reading held, degC (nan: none).
-    cht_est_c: estimate, degC (nan when UNAVAILABLE). deviation: model-deviation symptom, degC/s.
-    state: one of STATES. gamma_q, gamma_d: isolation estimates (nan when UNAVAILABLE). headroom_s:
-    time to the CHT limit at the present inputs, s (HEADROOM_NOT_LIMITED_S = not limited; nan when
-    UNAVAILABLE). stale_inputs: names of the stale inputs (a cylinder's ``chtN_c`` is reported as
-    ``cht_c``). sensor_fault: the CHT sensor is faulty.
-
-    Per cylinder (empty for a single CHT channel): ``cylinders``, one CylinderSnapshot each; the fields
-    above are then the lead cylinder's (:mod:`ecu_monitor.pipeline.cylinders`, sensor_fault: any
-    cylinder's probe); ``cht_spread_c`` hottest minus coldest trusted estimate, degC (nan: fewer than
-    two); ``hottest_cylinder`` its number (0: none); ``spread_alarm``: the spread exceeds its limit.
-    """
-
-    time_s: float
-    cht_meas_c: float
-    cht_est_c: float
-    deviation: float
-    state: str
-    gamma_q: float
-    gamma_d: float
-    headroom_s: float
-    stale_inputs: tuple[str, ...]
-    sensor_fault: bool
-    cylinders: tuple[CylinderSnapshot, ...] = ()
-    cht_spread_c: float = float("nan")
-    hottest_cylinder: int = 0
-    spread_alarm: bool = False
-    cht_rate_c_per_min: float = float("nan")
-    lead_cylinder: int = 0  # the number of the cylinder the engine-level fields are (0: one CHT channel)
-
-
-#: Columns of health.csv (one row per health-status period): HealthSnapshot fields; stale_inputs as
-#: names joined by "+", sensor_fault as 0/1; empty cells for nan.
-HEALTH_COLUMNS: tuple[str, ...] = (
-    "time_s",
-    "cht_meas_c",
-    "cht_est_c",
-    "deviation",
-    "state",
-    "gamma_q",
-    "gamma_d",
-    "headroom_s",
-    "stale_inputs",
-    "sensor_fault",
-    "cht_rate_c_per_min",
-)
-#: Per-cylinder columns of health.csv (engines monitored per cylinder), ``{n}`` = 1 .. N, after HEALTH_COLUMNS.
-CYLINDER_COLUMNS: tuple[str, ...] = (
-    "cyl{n}_cht_meas_c",
-    "cyl{n}_cht_est_c",
-    "cyl{n}_deviation",
-    "cyl{n}_state",
-    "cyl{n}_gamma_q",
-    "cyl{n}_gamma_d",
-    "cyl{n}_headroom_s",
-    "cyl{n}_cht_rate_c_per_min",
-)
-#: Engine columns of health.csv after the per-cylinder ones: CHT spread (degC), hottest cylinder (1-based,
-#: empty: none), spread alarm (0/1).
-SPREAD_COLUMNS: tuple[str, ...] = ("cht_spread_c", "hottest_cylinder", "spread_alarm")
-#: Float fields of CylinderSnapshot, in CYLINDER_COLUMNS order (the state is the fourth column).
-_CYLINDER_FLOATS: tuple[str, ...] = (
-    "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min",
-)  # fmt: skip
+__all__ = [
+    "CylinderSnapshot",
+    "HealthSnapshot",
+    "ReferenceFeed",
+    "ReplayResult",
+    "column_layout",
+    "column_value",
+    "columns_of",
+    "cylinder_snapshots",
+    "empty_columns",
+    "health_columns",
+    "health_table_columns",
+    "rows_to_columns",
+    "write_health_csv",
+]
 
 
 def health_columns(cylinders: int) -> tuple[str, ...]:
-    """The columns of health.csv for an engine with ``cylinders`` CHT channels (1: HEALTH_COLUMNS alone)."""
+    """The columns of health.csv for an engine with ``cylinders`` CHT channels: the ``csv`` rows of the
+    output table (the engine's values; each cylinder's ``cyl{n}_<name>`` and the ``cylinders`` rows
+    after them on an engine monitored per cylinder)."""
+    return tuple(name for name, v in column_layout(cylinders) if v.csv)
+
+
+def column_layout(cylinders: int) -> list[tuple[str, HealthValue]]:
+    """Every column of a replay (ReplayResult.columns; health.csv's are its ``csv`` ones), in health.csv
+    order, with its row of the output table."""
+    first = [(v.name, v) for v in engine_values(cylinders) if v.scope != "cylinders"]
     if cylinders <= 1:
-        return HEALTH_COLUMNS
-    per = tuple(c.format(n=n) for n in range(1, cylinders + 1) for c in CYLINDER_COLUMNS)
-    return (*HEALTH_COLUMNS, *per, *SPREAD_COLUMNS)
+        return first
+    per = [(f"cyl{n}_{v.name}", v) for n in range(1, cylinders + 1) for v in cylinder_values()]
+    return [*first, *per, *((v.name, v) for v in HEALTH_VALUES if v.scope == "cylinders")]
+
+
+#: The numpy type of a replay column of each kind of value (a state: its code; the stale inputs: the
+#: Health_Diag.StaleInputs bit field, bit i = INPUT_NAMES[i]).
+_COLUMN_TYPES: dict[str, Any] = {"float": np.float64, "state": np.int64, "flag": np.bool_, "cylinder": np.int64,
+                                 "inputs": np.int64}  # fmt: skip
 
 
 class ReferenceFeed(NamedTuple):
@@ -143,11 +84,10 @@ class ReferenceFeed(NamedTuple):
 class ReplayResult:
     """A replay's rows (one per health-status period) as columns, and the frame counters.
 
-    columns: time_s, cht_meas_c, cht_est_c, deviation, gamma_q, gamma_d, headroom_s (float arrays),
-    state (int codes into STATES), stale (int bit field, bit i = INPUT_NAMES[i]), sensor_fault (bool);
-    per cylinder on an engine monitored per cylinder: ``cyl{n}_<field>`` for the float fields of
-    CylinderSnapshot and ``cyl{n}_state`` (int codes), then cht_spread_c (float), hottest_cylinder (int,
-    0: none), spread_alarm (bool), lead_cylinder (int: the cylinder the engine-level columns are).
+    columns: one array per row of the output table (the engine's values; on an engine monitored per
+    cylinder also ``cyl{n}_<name>`` per cylinder row and the ``cylinders`` rows): floats, states as int
+    codes into STATES, flags as bool, cylinder numbers as int (0: none), stale_inputs as the int bit
+    field (bit i = INPUT_NAMES[i]).
     detector_feed (batch path only): per clock segment whose estimator started, what the detector was
     fed: (step times s from its start, symptom per step, nan where the supervisor was not NOMINAL).
     gaps (batch path only): (last frame time before, first after) of every hole in the frames longer
@@ -177,37 +117,16 @@ class ReplayResult:
     @functools.cached_property
     def rows(self) -> list[HealthSnapshot]:
         """The rows as HealthSnapshot objects (what Pipeline.drain_rows gives)."""
-        c = self.columns
-        names = _stale_names()
-        floats = [c[k].tolist() for k in _FLOAT_COLUMNS]
-        rows = [
-            HealthSnapshot(t, meas, est, dev, STATES[state], gq, gd, head, names[stale], fault, cht_rate_c_per_min=rate)
-            for t, meas, est, dev, gq, gd, head, rate, state, stale, fault in zip(
-                *floats, c["state"].tolist(), c["stale"].tolist(), c["sensor_fault"].tolist(), strict=True
-            )
-        ]
         count = self.cylinder_count
+        engine = list(engine_values(count))
+        rows = [
+            dict(zip((v.name for v in engine), values, strict=True))
+            for values in zip(*(_values(v, self.columns[v.name]) for v in engine), strict=True)
+        ]
         if count == 1:
-            return rows
-        per = []
-        for n in range(1, count + 1):
-            meas, est, dev, gq, gd, head, rate = (c[f"cyl{n}_{k}"].tolist() for k in _CYLINDER_FLOATS)
-            states = [STATES[v] for v in c[f"cyl{n}_state"].tolist()]
-            per.append(
-                [
-                    CylinderSnapshot(n, *values)
-                    for values in zip(meas, est, dev, states, gq, gd, head, rate, strict=True)
-                ]
-            )
-        return [
-            dataclasses.replace(row, cylinders=tuple(cyls), cht_spread_c=spread, hottest_cylinder=hottest,
-                                spread_alarm=alarm, lead_cylinder=lead)
-            for row, spread, hottest, alarm, lead, *cyls in zip(
-                rows, c["cht_spread_c"].tolist(), c["hottest_cylinder"].tolist(), c["spread_alarm"].tolist(),
-                c["lead_cylinder"].tolist(), *per,
-                strict=True,
-            )
-        ]  # fmt: skip
+            return [HealthSnapshot(**row) for row in rows]
+        per = cylinder_snapshots(self.columns, count)
+        return [HealthSnapshot(**row, cylinders=cyls) for row, cyls in zip(rows, per, strict=True)]
 
     def write_csv(self, path: str | os.PathLike[str]) -> int:
         """Write the rows to ``path``: health.csv, or Parquet / Arrow by the suffix
@@ -217,30 +136,22 @@ class ReplayResult:
 
 def health_table_columns(columns: dict[str, NDArray[Any]], cylinders: int = 1) -> list[TableColumn]:
     """The columns of :func:`health_columns` from a replay's columns, as the table writer takes them."""
-    bit = ("0", "1")
-    table = [TableColumn(k, columns[k]) for k in ("time_s", "cht_meas_c", "cht_est_c", "deviation")]
-    table.append(TableColumn("state", columns["state"], STATES))
-    table += [TableColumn(k, columns[k]) for k in ("gamma_q", "gamma_d", "headroom_s")]
-    table.append(TableColumn("stale_inputs", columns["stale"], tuple("+".join(n) for n in _stale_names())))
-    table.append(TableColumn("sensor_fault", columns["sensor_fault"].astype(np.int64), bit))
-    table.append(TableColumn("cht_rate_c_per_min", columns["cht_rate_c_per_min"]))
-    if cylinders > 1:
-        for n in range(1, cylinders + 1):
-            for name in CYLINDER_COLUMNS:
-                key = name.format(n=n)
-                labels = STATES if name.endswith("_state") else None
-                table.append(TableColumn(key, columns[key], labels))
-        hottest = ("", *(str(n) for n in range(1, cylinders + 1)))
-        table.append(TableColumn("cht_spread_c", columns["cht_spread_c"]))
-        table.append(TableColumn("hottest_cylinder", columns["hottest_cylinder"], hottest))
-        table.append(TableColumn("spread_alarm", columns["spread_alarm"].astype(np.int64), bit))
-    return table
-
-
-#: Float columns of ReplayResult.columns, in health.csv order.
-_FLOAT_COLUMNS = (
-    "time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min",
-)  # fmt: skip
+    out = []
+    for name, value in column_layout(cylinders):
+        if not value.csv:
+            continue
+        data = columns[name]
+        if value.kind == "flag":
+            out.append(TableColumn(name, data.astype(np.int64), ("0", "1")))
+        elif value.kind == "state":
+            out.append(TableColumn(name, data, STATES))
+        elif value.kind == "cylinder":
+            out.append(TableColumn(name, data, ("", *(str(n) for n in range(1, cylinders + 1)))))
+        elif value.kind == "inputs":
+            out.append(TableColumn(name, data, tuple("+".join(n) for n in _stale_names())))
+        else:
+            out.append(TableColumn(name, data))
+    return out
 
 
 @functools.cache
@@ -249,40 +160,61 @@ def _stale_names() -> tuple[tuple[str, ...], ...]:
     return tuple(tuple(n for i, n in enumerate(INPUT_NAMES) if bits >> i & 1) for bits in range(1 << len(INPUT_NAMES)))
 
 
+def _values(value: HealthValue, column: NDArray[Any]) -> list[Any]:
+    """A replay column as the snapshot values of its row of the output table."""
+    if value.kind == "state":
+        return [STATES[c] for c in column.tolist()]
+    if value.kind == "inputs":
+        names = _stale_names()
+        return [names[c] for c in column.tolist()]
+    return column.tolist()
+
+
+def column_value(value: HealthValue, x: Any) -> Any:
+    """A snapshot's value of ``value`` as it is held in a replay column (a state's code, the stale bits)."""
+    if value.kind == "state":
+        return STATES.index(x)
+    if value.kind == "inputs":
+        return sum(1 << i for i, n in enumerate(INPUT_NAMES) if n in x)
+    return x
+
+
 def empty_columns(cylinders: int = 1) -> dict[str, NDArray[Any]]:
     """The columns of a replay without rows (of an engine with ``cylinders`` CHT channels)."""
-    columns: dict[str, NDArray[Any]] = {k: np.zeros(0) for k in _FLOAT_COLUMNS}
-    columns.update(state=np.zeros(0, dtype=np.int64), stale=np.zeros(0, dtype=np.int64),
-                   sensor_fault=np.zeros(0, dtype=bool))  # fmt: skip
-    if cylinders > 1:
-        for n in range(1, cylinders + 1):
-            columns.update({f"cyl{n}_{k}": np.zeros(0) for k in _CYLINDER_FLOATS})
-            columns[f"cyl{n}_state"] = np.zeros(0, dtype=np.int64)
-        columns.update(cht_spread_c=np.zeros(0), hottest_cylinder=np.zeros(0, dtype=np.int64),
-                       spread_alarm=np.zeros(0, dtype=bool), lead_cylinder=np.zeros(0, dtype=np.int64))  # fmt: skip
-    return columns
+    return {name: np.zeros(0, dtype=_COLUMN_TYPES[v.kind]) for name, v in column_layout(cylinders)}
 
 
-def rows_to_columns(rows: list[HealthSnapshot], cylinders: int = 1) -> dict[str, NDArray[Any]]:
+def cylinder_snapshots(columns: dict[str, NDArray[Any]], cylinders: int) -> list[tuple[CylinderSnapshot, ...]]:
+    """Per row of a replay's columns, its cylinders' snapshots (from the ``cyl{n}_<name>`` columns)."""
+    names = [v.name for v in cylinder_values()]
+    per = []
+    for n in range(1, cylinders + 1):
+        values = [_values(v, columns[f"cyl{n}_{v.name}"]) for v in cylinder_values()]
+        per.append([CylinderSnapshot(number=n, **dict(zip(names, row, strict=True)))
+                    for row in zip(*values, strict=True)])  # fmt: skip
+    return list(zip(*per, strict=True))
+
+
+def rows_to_columns(rows: Sequence[HealthSnapshot], cylinders: int = 1) -> dict[str, NDArray[Any]]:
     """HealthSnapshot rows as the columns of :class:`ReplayResult` (``cylinders``: CHT channels)."""
     if not rows:
         return empty_columns(cylinders)
-    columns: dict[str, NDArray[Any]] = {k: np.array([getattr(r, k) for r in rows], dtype=float) for k in _FLOAT_COLUMNS}
-    columns["state"] = np.array([STATES.index(r.state) for r in rows], dtype=np.int64)
-    columns["stale"] = np.array(
-        [sum(1 << i for i, n in enumerate(INPUT_NAMES) if n in r.stale_inputs) for r in rows], dtype=np.int64
-    )
-    columns["sensor_fault"] = np.array([r.sensor_fault for r in rows], dtype=bool)
-    if cylinders > 1:
-        for i in range(cylinders):
-            n = i + 1
-            for k in _CYLINDER_FLOATS:
-                columns[f"cyl{n}_{k}"] = np.array([getattr(r.cylinders[i], k) for r in rows], dtype=float)
-            columns[f"cyl{n}_state"] = np.array([STATES.index(r.cylinders[i].state) for r in rows], dtype=np.int64)
-        columns["cht_spread_c"] = np.array([r.cht_spread_c for r in rows], dtype=float)
-        columns["hottest_cylinder"] = np.array([r.hottest_cylinder for r in rows], dtype=np.int64)
-        columns["spread_alarm"] = np.array([r.spread_alarm for r in rows], dtype=bool)
-        columns["lead_cylinder"] = np.array([r.lead_cylinder for r in rows], dtype=np.int64)
+    return columns_of(rows, cylinders, [name for name, _ in column_layout(cylinders)])
+
+
+def columns_of(rows: Sequence[HealthSnapshot], cylinders: int, names: Sequence[str]) -> dict[str, NDArray[Any]]:
+    """The replay columns ``names`` of HealthSnapshot rows (``cylinders``: CHT channels)."""
+    columns: dict[str, NDArray[Any]] = {}
+    wanted = set(names)
+    for name, v in column_layout(cylinders):
+        if name not in wanted:
+            continue
+        if name == v.name:
+            items = [getattr(r, name) for r in rows]
+        else:
+            i = int(name[3 : name.index("_")]) - 1
+            items = [getattr(r.cylinders[i], v.name) for r in rows]
+        columns[name] = np.array([column_value(v, x) for x in items], dtype=_COLUMN_TYPES[v.kind])
     return columns
 
 

@@ -43,6 +43,7 @@ from ecu_monitor.model import compiled as _compiled_model
 from ecu_monitor.model import thermal as _thermal
 from ecu_monitor.pipeline import schedule as _schedule
 from ecu_monitor.pipeline import supervision as _supervision
+from ecu_monitor.pipeline.output_table import output_fields
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
 from ecu_monitor.pipeline.supervision import (
     ACTION_INITIALISE,
@@ -165,17 +166,11 @@ CYLINDER_STATE = np.dtype(
         ("cross", DETECTOR_STATE),
     ]
 )
-#: One cylinder's result of a step (what the health outputs are made of).
+#: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
+#: outputs are made of; a state as its code), then what the replay's traces keep.
 CYLINDER_OUTPUT = np.dtype(
     [
-        ("cht_meas_c", "f8"),
-        ("cht_est_c", "f8"),
-        ("deviation", "f8"),
-        ("state", "i8"),
-        ("gamma_q", "f8"),
-        ("gamma_d", "f8"),
-        ("headroom_s", "f8"),
-        ("cht_rate_c_per_min", "f8"),  # the estimated CHT's rate of change, degC/min
+        *output_fields(),
         ("code", "i8"),  # the supervisor's code
         ("fed", "f8"),  # what its detector was fed (nan: nothing)
         ("cross_fed", "f8"),
@@ -711,20 +706,6 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
     return stale
 
 
-def _copy_output(dst: Any, src: Any) -> None:
-    dst["cht_meas_c"] = src["cht_meas_c"]
-    dst["cht_est_c"] = src["cht_est_c"]
-    dst["deviation"] = src["deviation"]
-    dst["state"] = src["state"]
-    dst["gamma_q"] = src["gamma_q"]
-    dst["gamma_d"] = src["gamma_d"]
-    dst["headroom_s"] = src["headroom_s"]
-    dst["cht_rate_c_per_min"] = src["cht_rate_c_per_min"]
-    dst["code"] = src["code"]
-    dst["fed"] = src["fed"]
-    dst["cross_fed"] = src["cross_fed"]
-
-
 def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> None:
     eng_output = eng.output
     rows_count = rows.count
@@ -737,7 +718,7 @@ def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> No
     rows_time_s[r] = time_s
     rows_stale[r] = stale
     for i in range(eng_output.shape[0]):
-        _copy_output(rows_cylinders[r, i], eng_output[i])
+        rows_cylinders[r, i] = eng_output[i]
     rows_count[0] = r + 1
 
 
@@ -762,7 +743,7 @@ def _write_trace(eng: Engine, traces: Traces, time_s: float, restarts: int) -> N
     for i in range(eng_state.shape[0]):
         traces_model_c[n, i] = eng_state[i]["model_c"]
         traces_detector_on[n, i] = eng_state[i]["detector_on"]
-        _copy_output(traces_cylinders[n, i], eng_output[i])
+        traces_cylinders[n, i] = eng_output[i]
     traces_count[0] = n + 1
 
 
@@ -928,9 +909,8 @@ def compiled() -> Any:
     bad = compile_(_reading_bad)
     engine = compile_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)
     tick = compile_(clock_tick)
-    copy = compile_(_copy_output)
-    write_row = compile_(_write_row, _copy_output=copy)
-    write_trace = compile_(_write_trace, _copy_output=copy)
+    write_row = compile_(_write_row)
+    write_trace = compile_(_write_trace)
     advance = compile_(
         advance_to,
         clock_tick=tick,

@@ -65,7 +65,7 @@ from ecu_monitor.bus.kernel_filter import attach_kernel_filter
 from ecu_monitor.config import config_default
 from ecu_monitor.runtime.flight_recorder import FlightRecorder
 from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
-from ecu_monitor.runtime.persistence import FlightSample
+from ecu_monitor.runtime.persistence import FlightSample, trend_values
 
 __all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch"]
 
@@ -398,6 +398,7 @@ class Daemon:
             rpm = self._engine_speed() if self._engine_speed is not None else None
             offset = self._wall_clock() - self._clock()
         self._log_states(rows)
+        trends = trend_values()
         for row in rows:  # the rows of the last supervisor period (0.1 s): the engine speed held now
             cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
             self._recorder.add(
@@ -406,14 +407,12 @@ class Daemon:
                     wall_time_s=row.time_s + offset,
                     rpm=rpm,
                     cht_c=float(cht) if _finite(cht) else math.nan,
-                    gamma_q=float(row.gamma_q),
-                    gamma_d=float(row.gamma_d),
+                    trends={name: float(getattr(row, name)) for name in trends},
                     state=str(row.state),
                     cylinders=tuple(
                         (
                             float(c.cht_meas_c if not c.sensor_fault and _finite(c.cht_meas_c) else c.cht_est_c),
-                            float(c.gamma_q),
-                            float(c.gamma_d),
+                            {name: float(getattr(c, name)) for name in trends},
                             str(c.state),
                         )
                         for c in row.cylinders

@@ -14,14 +14,15 @@ the frames of the transfers due (built by :class:`ecu_monitor.bus.dronecan.Drone
   state's code (Health_Status.DegradationState: 0 NOMINAL .. 5 UNAVAILABLE) in bits 0-3 and the
   stale inputs (Health_Diag.StaleInputs bits) from bit 4.
 * ``uavcan.protocol.debug.KeyValue`` at ``dronecan.key_value_hz``: one transfer per key of
-  :data:`KEY_VALUES` (keys of at most 10 characters, so MAVLink's NAMED_VALUE_FLOAT can relay them);
+  :data:`KEY_VALUES` (the output table's ``dronecan`` names, pipeline/output_table.py; keys of at most
+  10 characters, so MAVLink's NAMED_VALUE_FLOAT can relay them);
   NaN when the value is unknown (no estimate yet). The set is the snapshot of the health-status period
   in which it fell due, sent over the steps that follow until the next one is due, a few keys a step
   (:meth:`DroneCanNode.step_frames`; one a step for one channel at 1 Hz), never in a health-status step:
   a burst of KeyValue frames would hold the bus thread behind the step's health frames (two frames per
   key, 14 or more a set). An engine monitored per cylinder adds
   ``spread`` (degC), ``hottest`` (its number) and, per cylinder n, ``cyl<n>_est`` (degC),
-  ``cyl<n>_gq`` (gamma_Q) and ``cyl<n>_st`` (its state's code).
+  ``cyl<n>_st`` (its state's code) and ``cyl<n>_gq`` (gamma_Q): the ``dronecan_cylinder`` names.
 * ``uavcan.protocol.debug.LogMessage`` when the state changes (and once at start), source
   ``ecu-monitor``, level INFO for NOMINAL, WARNING for SUSPECT, INPUT_STALE and UNAVAILABLE, ERROR for
   DEGRADED and SENSOR_FAULT; at most one a second: a change within a second of the last message is
@@ -46,6 +47,7 @@ from ecu_monitor import __version__
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.dronecan import DroneCanEncoder
 from ecu_monitor.config import DroneCanSettings
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES, as_number, cylinder_values, engine_values
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.pipeline.supervision import STATES
 
@@ -65,16 +67,9 @@ _STATE_HEALTH = {
 }
 #: state -> LogMessage level (uavcan.protocol.debug.LogLevel: 0 DEBUG, 1 INFO, 2 WARNING, 3 ERROR)
 LOG_LEVELS = {"NOMINAL": 1, "SUSPECT": 2, "INPUT_STALE": 2, "UNAVAILABLE": 2, "DEGRADED": 3, "SENSOR_FAULT": 3}
-#: KeyValue key -> HealthSnapshot field (units: degC, degC/s, -, -, s) or "state" (the state's code)
-KEY_VALUES: dict[str, str] = {
-    "cht_est": "cht_est_c",
-    "cht_meas": "cht_meas_c",
-    "cht_dev": "deviation",
-    "gamma_q": "gamma_q",
-    "gamma_d": "gamma_d",
-    "headroom": "headroom_s",
-    "state": "state",
-}
+#: KeyValue key -> HealthSnapshot field: the output table's ``dronecan`` names (the engine's values, or with
+#: one CHT channel its own); per cylinder n its ``dronecan_cylinder`` names (``{n}`` in them)
+KEY_VALUES: dict[str, str] = {v.dronecan: v.name for v in HEALTH_VALUES if v.dronecan and v.scope != "cylinders"}
 _NODE_STATUS = "uavcan.protocol.NodeStatus"
 _GET_NODE_INFO = "uavcan.protocol.GetNodeInfo"
 _GET_NODE_INFO_ID = 1  # its service type id (uavcan.protocol.GetNodeInfo's DSDL)
@@ -224,18 +219,13 @@ class DroneCanNode:
 
 
 def key_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
-    """The KeyValue pairs of one snapshot (module docstring): the engine's, then per cylinder."""
-    out = [(key, float(STATES.index(snap.state)) if name == "state" else float(getattr(snap, name)))
-           for key, name in KEY_VALUES.items()]  # fmt: skip
-    if snap.cylinders:
-        out += [("spread", float(snap.cht_spread_c)), ("hottest", float(snap.hottest_cylinder))]
-        for cyl in snap.cylinders:
-            n = cyl.number
-            out += [
-                (f"cyl{n}_est", cyl.cht_est_c),
-                (f"cyl{n}_gq", cyl.gamma_q),
-                (f"cyl{n}_st", float(STATES.index(cyl.state))),
-            ]
+    """The KeyValue pairs of one snapshot (module docstring): the engine's, then per cylinder; a state as its
+    code, NaN where unknown."""
+    rows = list(engine_values(len(snap.cylinders)))
+    out = [(v.dronecan, as_number(v, getattr(snap, v.name))) for v in rows if v.dronecan]
+    for cyl in snap.cylinders:
+        out += [(v.dronecan_cylinder.format(n=cyl.number), as_number(v, getattr(cyl, v.name)))
+                for v in cylinder_values() if v.dronecan_cylinder]  # fmt: skip
     return out
 
 

@@ -12,9 +12,17 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Mapping
 from typing import Any
 
-from ecu_monitor.runtime.persistence import FlightRecord, FlightRules, FlightSample, StateStore
+from ecu_monitor.runtime.persistence import (
+    TREND_STATS,
+    FlightRecord,
+    FlightRules,
+    FlightSample,
+    StateStore,
+    trend_values,
+)
 from ecu_monitor.runtime.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
 
 __all__ = ["FlightRecorder", "SignalMoments"]
@@ -101,18 +109,17 @@ class _CylinderFlight:
         self.max_cht_c = -math.inf
         self.worst_state = "NOMINAL"
         self.time_degraded_s = 0.0
-        self.gamma_q = SignalMoments()
-        self.gamma_d = SignalMoments()
+        self.trends = _trend_moments()
 
-    def add(self, t_s: float, dt: float, cht_c: float, gamma_q: float, gamma_d: float, state: str) -> None:
+    def add(self, t_s: float, dt: float, cht_c: float, trends: Mapping[str, float], state: str) -> None:
         if math.isfinite(cht_c):
             self.max_cht_c = max(self.max_cht_c, cht_c)
         if state in ("SUSPECT", "DEGRADED"):
             self.time_degraded_s += dt
         if _STATE_RANK.get(state, 0) > _STATE_RANK.get(self.worst_state, 0):
             self.worst_state = state
-        self.gamma_q.add(t_s, gamma_q)
-        self.gamma_d.add(t_s, gamma_d)
+        for name, moments in self.trends.items():
+            moments.add(t_s, trends[name])
 
     def values(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -121,11 +128,7 @@ class _CylinderFlight:
             "worst_state": self.worst_state,
             "time_degraded_s": self.time_degraded_s,
         }
-        for name, moments in (("gamma_q", self.gamma_q), ("gamma_d", self.gamma_d)):
-            first, last, mean, top, slope = moments.summary()
-            out.update({f"{name}_start": first, f"{name}_end": last, f"{name}_mean": mean, f"{name}_max": top,
-                        f"{name}_slope_per_h": slope})  # fmt: skip
-        return out
+        return {**out, **_trend_summary(self.trends)}
 
     @classmethod
     def restore(cls, stored: dict[str, Any], span_h: float) -> _CylinderFlight:
@@ -134,11 +137,29 @@ class _CylinderFlight:
         cyl.max_cht_c = stored["max_cht_c"] if stored.get("max_cht_c") is not None else -math.inf
         cyl.worst_state = str(stored["worst_state"])
         cyl.time_degraded_s = float(stored["time_degraded_s"])
-        for name, moments in (("gamma_q", cyl.gamma_q), ("gamma_d", cyl.gamma_d)):
-            first, mean, top = stored.get(f"{name}_start"), stored.get(f"{name}_mean"), stored.get(f"{name}_max")
-            if first is not None and mean is not None and top is not None:
-                moments.prior = (first, mean, top, stored.get(f"{name}_slope_per_h"), span_h)
+        _restore_trends(cyl.trends, stored, span_h)
         return cyl
+
+
+def _trend_moments() -> dict[str, SignalMoments]:
+    """The running statistics of each trend value (persistence.trend_values)."""
+    return {name: SignalMoments() for name in trend_values()}
+
+
+def _trend_summary(trends: dict[str, SignalMoments]) -> dict[str, float | None]:
+    """The trend columns (persistence.trend_columns) of running statistics."""
+    out: dict[str, float | None] = {}
+    for name, moments in trends.items():
+        out.update(zip((f"{name}_{stat}" for stat in TREND_STATS), moments.summary(), strict=True))
+    return out
+
+
+def _restore_trends(trends: dict[str, SignalMoments], stored: Mapping[str, Any], span_h: float) -> None:
+    """Running statistics continued from the stored trend columns of a flight cut by a restart."""
+    for name, moments in trends.items():
+        first, mean, top = stored.get(f"{name}_start"), stored.get(f"{name}_mean"), stored.get(f"{name}_max")
+        if first is not None and mean is not None and top is not None:
+            moments.prior = (first, mean, top, stored.get(f"{name}_slope_per_h"), span_h)
 
 
 class _OpenFlight:
@@ -156,8 +177,7 @@ class _OpenFlight:
         self.time_above_limit_s = 0.0
         self.time_degraded_s = 0.0
         self.worst_state = "NOMINAL"
-        self.gamma_q = SignalMoments()
-        self.gamma_d = SignalMoments()
+        self.trends = _trend_moments()
         self.reversals = ReversalFilter(hysteresis)
         self.cylinders: list[_CylinderFlight] = []  # engines monitored per cylinder
         self.spread_max_c = -math.inf
@@ -179,12 +199,7 @@ class _OpenFlight:
         flight.worst_state = record.worst_state
         flight.reversals.restore(reversals)
         span_h = record.duration_s / 3600.0
-        for moments, first, mean, top, slope in (
-            (flight.gamma_q, record.gamma_q_start, record.gamma_q_mean, record.gamma_q_max, record.gamma_q_slope_per_h),
-            (flight.gamma_d, record.gamma_d_start, record.gamma_d_mean, record.gamma_d_max, record.gamma_d_slope_per_h),
-        ):
-            if first is not None and mean is not None and top is not None:
-                moments.prior = (first, mean, top, slope, span_h)
+        _restore_trends(flight.trends, record.trends, span_h)
         stored = record.cylinders
         if stored:
             flight.cylinders = [_CylinderFlight.restore(c, span_h) for c in stored.get("per_cylinder", [])]
@@ -197,8 +212,6 @@ class _OpenFlight:
     def values(self, end_running: bool) -> dict[str, object]:
         """Columns of the flights row; the flight ends at the last running sample when ``end_running``."""
         duration_s = self.last_running_time_s - self.start_time_s
-        q_first, q_last, q_mean, q_max, q_slope = self.gamma_q.summary()
-        d_first, d_last, d_mean, d_max, d_slope = self.gamma_d.summary()
         points = self.reversals.points()
         total, histogram = count_cycles(points) if end_running else (0.0, {})
         return {
@@ -206,16 +219,7 @@ class _OpenFlight:
             "duration_s": max(duration_s, 0.0),
             "max_cht_c": self.max_cht_c if math.isfinite(self.max_cht_c) else None,
             "time_above_limit_s": self.time_above_limit_s,
-            "gamma_q_start": q_first,
-            "gamma_q_end": q_last,
-            "gamma_q_mean": q_mean,
-            "gamma_q_max": q_max,
-            "gamma_q_slope_per_h": q_slope,
-            "gamma_d_start": d_first,
-            "gamma_d_end": d_last,
-            "gamma_d_mean": d_mean,
-            "gamma_d_max": d_max,
-            "gamma_d_slope_per_h": d_slope,
+            **_trend_summary(self.trends),
             "worst_state": self.worst_state,
             "time_degraded_s": self.time_degraded_s,
             "cycles_total": total,
@@ -317,14 +321,14 @@ class FlightRecorder:
             flight.time_degraded_s += dt
         if _STATE_RANK.get(sample.state, 0) > _STATE_RANK.get(flight.worst_state, 0):
             flight.worst_state = sample.state
-        flight.gamma_q.add(sample.time_s - flight.start_time_s, sample.gamma_q)
-        flight.gamma_d.add(sample.time_s - flight.start_time_s, sample.gamma_d)
+        for name, moments in flight.trends.items():
+            moments.add(sample.time_s - flight.start_time_s, sample.trends[name])
         if sample.cylinders:
             if len(flight.cylinders) != len(sample.cylinders):
                 flight.cylinders = [_CylinderFlight(n) for n in range(1, len(sample.cylinders) + 1)]
             t_s = sample.time_s - flight.start_time_s
-            for cyl, (cht_c, gamma_q, gamma_d, state) in zip(flight.cylinders, sample.cylinders, strict=True):
-                cyl.add(t_s, dt, cht_c, gamma_q, gamma_d, state)
+            for cyl, (cht_c, trends, state) in zip(flight.cylinders, sample.cylinders, strict=True):
+                cyl.add(t_s, dt, cht_c, trends, state)
             if math.isfinite(sample.cht_spread_c):
                 flight.spread_max_c = max(flight.spread_max_c, sample.cht_spread_c)
             if sample.spread_alarm:

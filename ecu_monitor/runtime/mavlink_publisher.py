@@ -51,6 +51,7 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.mavlink import mavlink_module
 from ecu_monitor.bus.mavlink_settings import MavlinkSettings
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.pipeline.output_table import as_number, engine_values
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.units import UNITS, standard_pressure_kpa
@@ -178,25 +179,18 @@ def text_chunks(text: str, mavlink1: bool = False) -> list[str]:
 
 
 def named_values(snap: HealthSnapshot) -> list[tuple[str, float]]:
-    """The NAMED_VALUE_FLOAT set of a snapshot (docs/contracts.md): per cylinder n (1 for one channel)
-    ``CHTn_EST`` (degC) and ``HDRMn`` (s); the engine's (its lead cylinder's) ``GAMMA_Q``, ``GAMMA_D``,
-    ``ENG_DEV`` (degC/s) and ``ENG_ST`` (the state's code); with several cylinders ``CHT_SPRD`` (degC)
-    and ``CHT_HOT`` (the hottest's number, 0: none)."""
-    if snap.cylinders:
-        out = []
-        for cyl in snap.cylinders:
-            out += [(f"CHT{cyl.number}_EST", cyl.cht_est_c), (f"HDRM{cyl.number}", cyl.headroom_s)]
-    else:
-        out = [("CHT1_EST", snap.cht_est_c), ("HDRM1", snap.headroom_s)]
-    out += [
-        ("GAMMA_Q", snap.gamma_q),
-        ("GAMMA_D", snap.gamma_d),
-        ("ENG_DEV", snap.deviation),
-        ("ENG_ST", float(STATES.index(snap.state))),
-    ]
-    if snap.cylinders:
-        out += [("CHT_SPRD", snap.cht_spread_c), ("CHT_HOT", float(snap.hottest_cylinder))]
-    return [(name, float(value)) for name, value in out]
+    """The NAMED_VALUE_FLOAT set of a snapshot (docs/contracts.md): the output table's ``mavlink`` names; a
+    name with ``{n}`` per cylinder n (1 for one channel: the snapshot's own value), in table order (``CHTn_EST``
+    degC, ``HDRMn`` s); then the engine's (its lead cylinder's) in table order (``ENG_DEV`` degC/s, ``ENG_ST``
+    the state's code, ``GAMMA_Q``, ``GAMMA_D``; with several cylinders ``CHT_SPRD`` degC, ``CHT_HOT`` the
+    hottest's number, 0: none). NaN where unknown."""
+    rows = [v for v in engine_values(len(snap.cylinders)) if v.mavlink]
+    per = [v for v in rows if "{n}" in v.mavlink]
+    out = []
+    for number, cyl in ((c.number, c) for c in snap.cylinders) if snap.cylinders else ((1, snap),):
+        out += [(v.mavlink.format(n=number), as_number(v, getattr(cyl, v.name))) for v in per]
+    out += [(v.mavlink, as_number(v, getattr(snap, v.name))) for v in rows if "{n}" not in v.mavlink]
+    return out
 
 
 @dataclass

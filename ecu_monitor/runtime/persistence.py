@@ -1,8 +1,9 @@
 """Flight history of each engine in an embedded SQLite database (``<state_dir>/ecu-monitor.sqlite3``).
 
 What is kept, per engine (its serial from the config) and per flight: start and end (UTC), duration
-(hours), maximum CHT, time above the CHT limit, the degradation estimates (gamma_Q, gamma_D: start, end,
-mean, maximum and their slope within the flight per hour), the worst detector state and the time spent
+(hours), maximum CHT, time above the CHT limit, the trend values (the output table's ``history`` rows,
+pipeline/output_table.py: gamma_Q, gamma_D; start, end, mean, maximum and their slope within the flight
+per hour, one column each: :func:`trend_columns`), the worst detector state and the time spent
 SUSPECT/DEGRADED, and the thermal cycles of the CHT history counted by rainflow (ASTM E1049, the
 ``rainflow`` package) as a histogram of cycle ranges. An engine monitored per cylinder also keeps, in
 the same row (``cylinders_json``, written in the same transactions), each cylinder's maximum CHT, gamma
@@ -42,12 +43,13 @@ import logging
 import math
 import sqlite3
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError, EcuMonitorError
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES
 from ecu_monitor.runtime.thermal_cycles import (
     CYCLE_BIN_EDGES_C,
     ReversalFilter,
@@ -58,6 +60,7 @@ from ecu_monitor.runtime.thermal_cycles import (
 __all__ = [
     "CYCLE_BIN_EDGES_C",
     "DATABASE_NAME",
+    "TREND_STATS",
     "FlightRecord",
     "FlightRules",
     "FlightSample",
@@ -65,6 +68,8 @@ __all__ = [
     "StateStore",
     "count_cycles",
     "iter_trend",
+    "trend_columns",
+    "trend_values",
 ]
 
 _log = logging.getLogger(__name__)
@@ -98,19 +103,19 @@ class FlightSample:
     """One health period of the live service, as the recorder needs it.
 
     ``time_s`` is the service's monotonic time (s), ``wall_time_s`` the matching UTC unix time (s);
-    ``rpm`` is None when the engine speed is stale; NaN values mean "not available". An engine
-    monitored per cylinder adds ``cylinders``: (CHT degC, gamma_Q, gamma_D, state) per cylinder in
-    cylinder order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
+    ``rpm`` is None when the engine speed is stale; ``trends``: the value of each trend kept per flight
+    (:func:`trend_values`: gamma_q, gamma_d, ...) by name; NaN values mean "not available". An engine
+    monitored per cylinder adds ``cylinders``: (CHT degC, its trends, state) per cylinder in cylinder
+    order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
     """
 
     time_s: float
     wall_time_s: float
     rpm: float | None
     cht_c: float
-    gamma_q: float
-    gamma_d: float
+    trends: Mapping[str, float]
     state: str
-    cylinders: tuple[tuple[float, float, float, str], ...] = ()
+    cylinders: tuple[tuple[float, Mapping[str, float], str], ...] = ()
     cht_spread_c: float = math.nan
     hottest_cylinder: int = 0
     spread_alarm: bool = False
@@ -130,25 +135,23 @@ class FlightRecord:
     max_cht_c: float | None
     cht_limit_c: float
     time_above_limit_s: float
-    gamma_q_start: float | None
-    gamma_q_end: float | None
-    gamma_q_mean: float | None
-    gamma_q_max: float | None
-    gamma_q_slope_per_h: float | None
-    gamma_d_start: float | None
-    gamma_d_end: float | None
-    gamma_d_mean: float | None
-    gamma_d_max: float | None
-    gamma_d_slope_per_h: float | None
     worst_state: str
     time_degraded_s: float
     cycles_total: float
     cycles_histogram: dict[str, float]
     #: engines monitored per cylinder (else empty): ``spread_max_c``, ``spread_alarm_s`` (time with the
     #: spread alarm), ``hottest_s`` (seconds each cylinder was the hottest, by number) and ``per_cylinder``
-    #: (one mapping each: ``number``, ``max_cht_c``, ``gamma_q_start/end/mean/max/slope_per_h``, the
-    #: same for gamma_d, ``worst_state``, ``time_degraded_s``)
+    #: (one mapping each: ``number``, ``max_cht_c``, the trend columns, ``worst_state``, ``time_degraded_s``)
     cylinders: dict[str, Any] = field(default_factory=dict)
+    #: each trend column (:func:`trend_columns`: ``gamma_q_start``, ``gamma_q_mean``, ...) by name (None:
+    #: no value), also read as an attribute: ``record.gamma_q_mean``
+    trends: dict[str, float | None] = field(default_factory=dict)
+
+    def __getattr__(self, name: str) -> float | None:
+        trends = self.__dict__.get("trends", {})
+        if name in trends:
+            return trends[name]
+        raise AttributeError(f"FlightRecord has no field {name!r}")
 
     @property
     def hours(self) -> float:
@@ -156,12 +159,25 @@ class FlightRecord:
         return self.duration_s / 3600.0
 
 
-_FLIGHT_COLUMNS = (
+#: The statistics the flight history keeps of each trend value over a flight.
+TREND_STATS = ("start", "end", "mean", "max", "slope_per_h")
+
+
+def trend_values() -> tuple[str, ...]:
+    """The values whose trend each flight keeps: the output table's ``history`` rows."""
+    return tuple(v.name for v in HEALTH_VALUES if v.history)
+
+
+def trend_columns() -> tuple[str, ...]:
+    """The flights table's trend columns: ``<value>_<stat>`` for each of :func:`trend_values` and TREND_STATS."""
+    return tuple(f"{name}_{stat}" for name in trend_values() for stat in TREND_STATS)
+
+
+_FIXED_COLUMNS = (
     "id, engine_serial, status, end_reason, start_utc, end_utc, duration_s, max_cht_c, cht_limit_c, "
-    "time_above_limit_s, gamma_q_start, gamma_q_end, gamma_q_mean, gamma_q_max, gamma_q_slope_per_h, "
-    "gamma_d_start, gamma_d_end, gamma_d_mean, gamma_d_max, gamma_d_slope_per_h, worst_state, time_degraded_s, "
-    "cycles_total, cycles_json, cylinders_json"
+    "time_above_limit_s, worst_state, time_degraded_s, cycles_total, cycles_json, cylinders_json"
 )
+_FLIGHT_COLUMNS = ", ".join((_FIXED_COLUMNS, *trend_columns()))
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -177,8 +193,7 @@ CREATE TABLE IF NOT EXISTS flights (
     max_cht_c REAL,
     cht_limit_c REAL NOT NULL,
     time_above_limit_s REAL NOT NULL,
-    gamma_q_start REAL, gamma_q_end REAL, gamma_q_mean REAL, gamma_q_max REAL, gamma_q_slope_per_h REAL,
-    gamma_d_start REAL, gamma_d_end REAL, gamma_d_mean REAL, gamma_d_max REAL, gamma_d_slope_per_h REAL,
+    @@TRENDS@@
     worst_state TEXT NOT NULL,
     time_degraded_s REAL NOT NULL,
     cycles_total REAL NOT NULL,
@@ -188,7 +203,7 @@ CREATE TABLE IF NOT EXISTS flights (
     updated_utc REAL NOT NULL
 );
 CREATE INDEX IF NOT EXISTS flights_by_engine ON flights (engine_serial, start_utc);
-"""
+""".replace("@@TRENDS@@", "".join(f"{name} REAL, " for name in trend_columns()))
 
 
 class StateStore:
@@ -229,6 +244,9 @@ class StateStore:
         columns = {row[1] for row in self._conn.execute("PRAGMA table_info(flights)")}
         if "cylinders_json" not in columns:  # a version-1 database: flights gain the per-cylinder column
             self._conn.execute("ALTER TABLE flights ADD COLUMN cylinders_json TEXT")
+        for name in trend_columns():  # a database older than a trend value: its columns, empty
+            if name not in columns:
+                self._conn.execute(f"ALTER TABLE flights ADD COLUMN {name} REAL")
         self._conn.execute(
             "INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)", (str(_SCHEMA_VERSION),)
         )
@@ -356,10 +374,13 @@ class StateStore:
 
 
 def _record(row: tuple[object, ...]) -> FlightRecord:
-    names = [item.name for item in fields(FlightRecord)]
-    values: dict[str, object] = dict(zip(names[:-2], row[:-2], strict=True))
-    values["cycles_histogram"] = json.loads(str(row[-2])) if row[-2] else {}
-    values["cylinders"] = json.loads(str(row[-1])) if row[-1] else {}
+    """A FlightRecord from a row of :data:`_FLIGHT_COLUMNS`."""
+    names = [item.name for item in fields(FlightRecord)][:-3]
+    fixed, trends = row[: len(names) + 2], row[len(names) + 2 :]
+    values: dict[str, object] = dict(zip(names, fixed[:-2], strict=True))
+    values["cycles_histogram"] = json.loads(str(fixed[-2])) if fixed[-2] else {}
+    values["cylinders"] = json.loads(str(fixed[-1])) if fixed[-1] else {}
+    values["trends"] = dict(zip(trend_columns(), trends, strict=True))
     return FlightRecord(**values)  # type: ignore[arg-type]
 
 

@@ -4,7 +4,8 @@ config. :class:`LiveMonitor` is the pipeline with its publishers: frames in, hea
 daemon and the demo run).
 
 * :class:`DbcHealthFrames`: the health.dbc messages (Health_Status, Health_Isolation, Health_Diag,
-  Health_Spread, Health_Cylinder) at their configured rates; a nan value is sent as the signal's idle value.
+  Health_Spread, Health_Cylinder) at their configured rates, each signal from its row of the output table
+  (pipeline/output_table.py; a nan sent as the row's idle value) or a service diagnostic.
 * :class:`DroneCanPublisher`: the service as a DroneCAN node (runtime/dronecan_node.py).
 * :class:`MavlinkHealth`: the service as a MAVLink component (runtime/mavlink_publisher.py).
 """
@@ -12,17 +13,18 @@ daemon and the demo run).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import can
 
 from ecu_monitor.bus.codec import Encoder
+from ecu_monitor.errors import ConfigError
 from ecu_monitor.inputs import stale_bit
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.pipeline.engine import Pipeline, StepRow
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES, HealthValue, bus_number
 from ecu_monitor.pipeline.outputs import HealthSnapshot
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.runtime.dronecan_node import DroneCanNode
 
 if TYPE_CHECKING:
@@ -31,28 +33,85 @@ if TYPE_CHECKING:
     from ecu_monitor.config import ServiceConfig
 
 __all__ = [
-    "HEALTH_SIGNALS",
     "DbcHealthFrames",
     "DroneCanPublisher",
     "LiveMonitor",
     "MavlinkHealth",
     "Publisher",
+    "health_signal_sources",
     "make_publishers",
 ]
 
-#: The data signals of each health message (health.dbc), in the order :meth:`DbcHealthFrames.values` gives them.
-HEALTH_SIGNALS: dict[str, tuple[str, ...]] = {
-    "Health_Status": ("ChtEstimate", "ModelDeviation", "DegradationState", "ChtRate"),
-    "Health_Isolation": ("GammaQEstimate", "GammaDEstimate", "ThermalHeadroom", "ChtLimitMargin"),
-    "Health_Diag": ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh"),
-    "Health_Spread": ("ChtSpread", "HottestCylinder", "SpreadAlarm", "CylinderCount", "FaultyCylinders"),
-    "Health_Cylinder": ("CylinderNumber", "CylChtEstimate", "CylState", "CylGammaQ", "CylGammaD"),
+#: A health.dbc signal's value in one frame: f(snapshot, the frame's cylinder or None, the publisher).
+_Source = Callable[[HealthSnapshot, Any, "DbcHealthFrames"], float]
+
+
+def _margin(snap: HealthSnapshot, cyl: Any, frames: DbcHealthFrames) -> float:
+    """CHT limit minus estimate, degC, the smallest over the cylinders (0 without an estimate)."""
+    limits = frames.limits
+    if snap.cylinders:
+        margins = [limits[c.number - 1] - c.cht_est_c for c in snap.cylinders]
+        margin = min((m for m in margins if math.isfinite(m)), default=math.nan)
+    else:
+        margin = limits[0] - snap.cht_est_c
+    return margin if math.isfinite(margin) else 0.0
+
+
+def _stale_bits(snap: HealthSnapshot) -> int:
+    bits = 0
+    for name in snap.stale_inputs:
+        bits |= stale_bit(name)
+    return bits
+
+
+def _faulty(snap: HealthSnapshot) -> int:
+    faulty = 0
+    for cyl in snap.cylinders:
+        if cyl.sensor_fault:
+            faulty |= 1 << (cyl.number - 1)
+    return faulty
+
+
+#: The health.dbc signals that carry no row of the output table: the service's own diagnostics and what
+#: frames a value (the cylinder a per-cylinder frame describes, how many there are).
+_DIAGNOSTICS: dict[str, _Source] = {
+    "Health_Isolation.ChtLimitMargin": _margin,
+    "Health_Diag.StaleInputs": lambda snap, cyl, frames: _stale_bits(snap) & 0xFF,
+    "Health_Diag.StaleInputsHigh": lambda snap, cyl, frames: _stale_bits(snap) >> 8,
+    "Health_Diag.MalformedFrames": lambda snap, cyl, frames: min(frames.pipeline.counters["malformed"], 65535),
+    "Health_Diag.BusErrors": lambda snap, cyl, frames: min(frames.pipeline.counters["bus_errors"], 255),
+    "Health_Spread.CylinderCount": lambda snap, cyl, frames: len(snap.cylinders) or 1,
+    "Health_Spread.FaultyCylinders": lambda snap, cyl, frames: _faulty(snap),
+    "Health_Cylinder.CylinderNumber": lambda snap, cyl, frames: cyl.number,
 }
-#: Idle values sent for a nan (no estimate): the CHT estimate's floor, no deviation, gammas at 1, the
-#: headroom's "not limited" with an estimate and 0 without one, no margin, no spread.
-_IDLE_CHT_C = -40.0
-_NOT_LIMITED_S = 6000.0
-_STATE_CODE = {name: code for code, name in enumerate(STATES)}
+#: The signals of the frames sent once per cylinder.
+_PER_CYLINDER = {"Health_Cylinder.CylinderNumber", *(v.cylinder_dbc for v in HEALTH_VALUES if v.cylinder_dbc)}
+
+
+def _engine_source(value: HealthValue) -> _Source:
+    def source(snap: HealthSnapshot, cyl: Any, frames: DbcHealthFrames) -> float:
+        return bus_number(value, getattr(snap, value.name), not math.isnan(snap.cht_est_c))
+
+    return source
+
+
+def _cylinder_source(value: HealthValue) -> _Source:
+    def source(snap: HealthSnapshot, cyl: Any, frames: DbcHealthFrames) -> float:
+        return bus_number(value, getattr(cyl, value.name), not math.isnan(cyl.cht_est_c))
+
+    return source
+
+
+def health_signal_sources() -> dict[str, _Source]:
+    """``Message.Signal`` -> its value in a frame: the output table's ``dbc`` and ``cylinder_dbc`` rows (a nan
+    sent as the row's idle value), then the service's diagnostics."""
+    sources: dict[str, _Source] = {}
+    for value in HEALTH_VALUES:
+        if value.dbc:
+            sources[value.dbc] = _engine_source(value)
+        if value.cylinder_dbc:
+            sources[value.cylinder_dbc] = _cylinder_source(value)
+    return {**sources, **_DIAGNOSTICS}
 
 
 class Publisher(Protocol):
@@ -64,7 +123,10 @@ class Publisher(Protocol):
 
 
 class DbcHealthFrames:
-    """The health.dbc frames of each row: every message whose period (steps) divides the row's step."""
+    """The health.dbc frames of each row: every message whose period (steps) divides the row's step; a
+    message with a per-cylinder signal (Health_Cylinder) once per cylinder. Each signal's value comes from
+    :func:`health_signal_sources`; a health.dbc signal of a configured message that has none is a
+    ConfigError."""
 
     def __init__(self, config: ServiceConfig, pipeline: Pipeline) -> None:
         self.pipeline = pipeline
@@ -74,25 +136,37 @@ class DbcHealthFrames:
             name: (int(self.encoder.message(name).frame_id), bool(self.encoder.message(name).is_extended_frame))
             for name in self.periods
         }
-        self._packers = {name: self.encoder.packer(name, HEALTH_SIGNALS[name]) for name in self.periods}
+        known = health_signal_sources()
+        self._sources: dict[str, tuple[_Source, ...]] = {}
+        self._per_cylinder: set[str] = set()
+        for name in self.periods:
+            signals = self.encoder.data_signals(name)
+            missing = [s for s in signals if f"{name}.{s}" not in known]
+            if missing:
+                raise ConfigError(f"{config.health_dbc}: {name}.{missing[0]} is no health value the service makes "
+                                  "(ecu_monitor/pipeline/output_table.py)")  # fmt: skip
+            self._sources[name] = tuple(known[f"{name}.{s}"] for s in signals)
+            if any(f"{name}.{s}" in _PER_CYLINDER for s in signals):
+                self._per_cylinder.add(name)
+        self._packers = {name: self.encoder.packer(name, self.encoder.data_signals(name)) for name in self.periods}
         self._counters = dict.fromkeys(self.periods, 0)
-        self._limits = [m.cht_limit_c for m in pipeline.cylinder_params]
+        #: each cylinder's CHT limit, degC
+        self.limits = [m.cht_limit_c for m in pipeline.cylinder_params]
         pipeline.counters.setdefault("health_frames", 0)
 
     def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
         out: list[can.Message] = []
-        per_cylinder = self.pipeline.cylinder_count > 1
         for row in rows:
             snap: HealthSnapshot | None = None
             for message, period in self.periods.items():
                 if row.k % period:
                     continue
-                if per_cylinder and snap is None:
+                if snap is None:
                     snap = self.pipeline.snapshot_of(row)
-                if message == "Health_Cylinder" and snap is not None:
-                    out += [self._frame(message, row.time_s, _cylinder_values(c)) for c in snap.cylinders]
+                if message in self._per_cylinder:
+                    out += [self._frame(message, row.time_s, self.values(message, snap, c)) for c in snap.cylinders]
                 else:
-                    out.append(self._frame(message, row.time_s, self.values(message, row, snap)))
+                    out.append(self._frame(message, row.time_s, self.values(message, snap)))
         return out
 
     def _frame(self, message: str, time_s: float, values: tuple[float, ...]) -> can.Message:
@@ -103,60 +177,10 @@ class DbcHealthFrames:
         data = self._packers[message](values, counter)
         return can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=extended, data=data)
 
-    def values(self, message: str, row: StepRow, snap: HealthSnapshot | None) -> tuple[float, ...]:
-        """The values of ``message``'s signals in HEALTH_SIGNALS order; ``snap``: the row's snapshot on an
-        engine monitored per cylinder (its lead cylinder's values), None for one cylinder (its own)."""
-        finite = math.isfinite
-        if snap is None:
-            r = row.cylinders[0]
-            est, deviation, code = float(r["cht_est_c"]), float(r["deviation"]), int(r["state"])
-            gamma_q, gamma_d, headroom = float(r["gamma_q"]), float(r["gamma_d"]), float(r["headroom_s"])
-            margin = self._limits[0] - est
-            stale = row.stale
-            rate = float(r["cht_rate_c_per_min"])
-        else:
-            est, deviation, code = snap.cht_est_c, snap.deviation, _STATE_CODE[snap.state]
-            gamma_q, gamma_d, headroom = snap.gamma_q, snap.gamma_d, snap.headroom_s
-            margins = [self._limits[c.number - 1] - c.cht_est_c for c in snap.cylinders]
-            margin = min((m for m in margins if finite(m)), default=math.nan)
-            stale = snap.stale_inputs
-            rate = snap.cht_rate_c_per_min
-        if message == "Health_Status":
-            rate = min(max(rate, -128.0), 127.0) if finite(rate) else 0.0  # the signal's range, degC/min
-            return (est if finite(est) else _IDLE_CHT_C, deviation if finite(deviation) else 0.0, code, rate)
-        if message == "Health_Isolation":
-            return (
-                gamma_q if finite(gamma_q) else 1.0,
-                gamma_d if finite(gamma_d) else 1.0,
-                headroom if finite(headroom) else 0.0 if math.isnan(est) else _NOT_LIMITED_S,
-                margin if finite(margin) else 0.0,
-            )
-        if message == "Health_Spread":
-            snap = self.pipeline.snapshot_of(row) if snap is None else snap
-            faulty = 0
-            for cyl in snap.cylinders:
-                if cyl.sensor_fault:
-                    faulty |= 1 << (cyl.number - 1)
-            spread = snap.cht_spread_c
-            return (spread if finite(spread) else 0.0, snap.hottest_cylinder, int(snap.spread_alarm),
-                    len(snap.cylinders) or 1, faulty)  # fmt: skip
-        bits = 0
-        for name in stale:
-            bits |= stale_bit(name)
-        counters = self.pipeline.counters
-        return (bits & 0xFF, min(counters["malformed"], 65535), min(counters["bus_errors"], 255), bits >> 8)
-
-
-def _cylinder_values(cyl: Any) -> tuple[float, ...]:
-    """Health_Cylinder's signals for one cylinder (nan sent as the signal's idle value)."""
-    est = cyl.cht_est_c
-    return (
-        cyl.number,
-        est if math.isfinite(est) else _IDLE_CHT_C,
-        _STATE_CODE[cyl.state],
-        cyl.gamma_q if math.isfinite(cyl.gamma_q) else 1.0,
-        cyl.gamma_d if math.isfinite(cyl.gamma_d) else 1.0,
-    )
+    def values(self, message: str, snap: HealthSnapshot, cylinder: Any = None) -> tuple[float, ...]:
+        """The values of ``message``'s data signals (DBC order) for ``snap`` (``cylinder``: the
+        CylinderSnapshot a per-cylinder frame describes)."""
+        return tuple(source(snap, cylinder, self) for source in self._sources[message])
 
 
 class DroneCanPublisher:

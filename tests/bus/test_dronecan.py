@@ -478,11 +478,12 @@ def test_key_values_of_an_engine_monitored_per_cylinder() -> None:
     from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
     from ecu_monitor.runtime.dronecan_node import key_values
 
-    cylinders = (
-        CylinderSnapshot(1, 120.0, 121.0, 0.0, "NOMINAL", 1.0, 1.0, 6000.0),
-        CylinderSnapshot(2, 140.0, 141.0, 0.3, "DEGRADED", 1.2, 1.0, 900.0),
-    )
-    snap = HealthSnapshot(10.0, 140.0, 141.0, 0.3, "DEGRADED", 1.2, 1.0, 900.0, (), False, cylinders, 20.0, 2, False)
+    nominal = {"cht_meas_c": 120.0, "cht_est_c": 121.0, "deviation": 0.0, "state": "NOMINAL", "gamma_q": 1.0,
+               "gamma_d": 1.0, "headroom_s": 6000.0}  # fmt: skip
+    degraded = {**nominal, "cht_meas_c": 140.0, "cht_est_c": 141.0, "deviation": 0.3, "state": "DEGRADED",
+                "gamma_q": 1.2, "headroom_s": 900.0}  # fmt: skip
+    cylinders = (CylinderSnapshot(number=1, **nominal), CylinderSnapshot(number=2, **degraded))
+    snap = HealthSnapshot(time_s=10.0, cylinders=cylinders, cht_spread_c=20.0, hottest_cylinder=2, **degraded)
     pairs = dict(key_values(snap))
     assert pairs["state"] == 2.0 and pairs["spread"] == 20.0 and pairs["hottest"] == 2.0
     assert (pairs["cyl1_st"], pairs["cyl2_st"], pairs["cyl2_gq"], pairs["cyl1_est"]) == (0.0, 2.0, 1.2, 121.0)

@@ -37,6 +37,7 @@ from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import read_csv
 from ecu_monitor.model import paper_table_a1
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES
 from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.runtime.mavlink_publisher import (
@@ -287,7 +288,23 @@ def test_the_shipped_config_loads_and_bad_mavlink_keys_name_file_and_key(tmp_pat
 def _snap(
     state: str, t: float = 0.0, gq: float = 1.0, gd: float = 1.0, cht: float = 150.0, **kw: Any
 ) -> HealthSnapshot:
-    return HealthSnapshot(t, cht, cht, 0.02, state, gq, gd, 900.0, kw.pop("stale", ()), False, **kw)
+    values = {"deviation": 0.02, "headroom_s": 900.0, **kw}
+    return HealthSnapshot(
+        time_s=t,
+        cht_meas_c=cht,
+        cht_est_c=cht,
+        state=state,
+        gamma_q=gq,
+        gamma_d=gd,
+        stale_inputs=values.pop("stale", ()),
+        **values,
+    )
+
+
+def _cyl(n: int, cht: float, dev: float, state: str, gq: float, gd: float, headroom: float) -> CylinderSnapshot:
+    return CylinderSnapshot(
+        number=n, cht_meas_c=cht, cht_est_c=cht, deviation=dev, state=state, gamma_q=gq, gamma_d=gd, headroom_s=headroom
+    )
 
 
 def _parse(data: bytes) -> list[Any]:
@@ -325,10 +342,19 @@ def test_statustext_wording_severity_and_chunks_of_at_most_50() -> None:
     assert state_text(_snap("DEGRADED", gq=1.18)) == "ENGINE: heat-in +18 %, DEGRADED"
     assert state_text(_snap("SUSPECT", gq=1.02, gd=0.88)) == "ENGINE: cooling -12 %, SUSPECT"
     assert state_text(_snap("SUSPECT", gq=1.03, gd=1.01)) == "ENGINE: CHT +0.02 C/s off model, SUSPECT"
-    cyl = CylinderSnapshot(3, 190.0, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0)
-    other = CylinderSnapshot(1, 150.0, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0)
-    multi = HealthSnapshot(
-        0.0, 190.0, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0, (), False, (other, cyl), 40.0, 3, lead_cylinder=3
+    cyl = _cyl(3, 190.0, 0.1, "DEGRADED", 1.18, 0.9, 300.0)
+    other = _cyl(1, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0)
+    multi = _snap(
+        "DEGRADED",
+        gq=1.18,
+        gd=0.9,
+        cht=190.0,
+        deviation=0.1,
+        headroom_s=300.0,
+        cylinders=(other, cyl),
+        cht_spread_c=40.0,
+        hottest_cylinder=3,
+        lead_cylinder=3,
     )
     assert state_text(multi) == "ENGINE cyl 3: heat-in +18 %, cooling -10 %, DEGRADED"
     assert state_text(_snap("INPUT_STALE", stale=("cht_c", "airspeed_mps"))) == (
@@ -413,10 +439,13 @@ def test_named_value_float_names_rate_and_values() -> None:
                 names.append(m.name)
                 if m.name == "GAMMA_Q":
                     assert m.value == pytest.approx(1.18)
-    one = ["CHT1_EST", "HDRM1", "GAMMA_Q", "GAMMA_D", "ENG_DEV", "ENG_ST"]
+    # one channel: the output table's per-cylinder names for cylinder 1, then the engine's, in table order
+    rows = [v.mavlink for v in HEALTH_VALUES if v.mavlink and v.scope != "cylinders"]
+    one = [m.format(n=1) for m in rows if "{n}" in m] + [m for m in rows if "{n}" not in m]
+    assert {"CHT1_EST", "HDRM1", "ENG_DEV", "ENG_ST", "GAMMA_Q", "GAMMA_D"} <= set(one)
     assert names == one * 4
-    cyls = tuple(CylinderSnapshot(n, 150.0, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0) for n in range(1, 17))
-    snap = HealthSnapshot(0.0, 150.0, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0, (), False, cyls, 12.0, 16)
+    cyls = tuple(_cyl(n, 150.0, 0.0, "NOMINAL", 1.0, 1.0, 900.0) for n in range(1, 17))
+    snap = _snap("NOMINAL", deviation=0.0, cylinders=cyls, cht_spread_c=12.0, hottest_cylinder=16)
     multi = [name for name, _ in named_values(snap)]
     assert {"CHT16_EST", "HDRM16", "CHT_SPRD", "CHT_HOT", "GAMMA_Q"} <= set(multi)
     assert all(len(name) <= MAX_NAME for name in multi) and len(set(multi)) == len(multi)

@@ -92,7 +92,16 @@ def test_bad_cylinder_configs_name_the_key(change: Any, message: str) -> None:
 
 
 def _cyl(number: int, est: float, state: str = "NOMINAL") -> CylinderSnapshot:
-    return CylinderSnapshot(number, est, est, 0.0, state, 1.0, 1.0, 6000.0)
+    return CylinderSnapshot(
+        number=number,
+        cht_meas_c=est,
+        cht_est_c=est,
+        deviation=0.0,
+        state=state,
+        gamma_q=1.0,
+        gamma_d=1.0,
+        headroom_s=6000.0,
+    )
 
 
 def test_engine_view_lead_spread_hottest_and_alarm() -> None:

@@ -17,13 +17,15 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.cli import main
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.pipeline import table as health_table
-from ecu_monitor.pipeline.outputs import ReplayResult, health_columns, health_table_columns, write_health_csv
+from ecu_monitor.pipeline.outputs import (
+    ReplayResult,
+    column_layout,
+    health_columns,
+    health_table_columns,
+    write_health_csv,
+)
 from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import check_table_path, csv_bytes, format_g10
-
-FLOAT_COLUMNS = ("time_s", "cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s",
-                 "cht_rate_c_per_min")  # fmt: skip
-CYLINDER_FLOATS = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s", "cht_rate_c_per_min")
 
 
 def _boundary_values() -> np.ndarray:
@@ -54,6 +56,7 @@ def test_numbers_are_byte_equal_to_percent_10g(values: list[float]) -> None:
 
 
 def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:
+    """Random replay columns of every row of the output table (nan, inf, -0.0, every state and flag)."""
     rng = np.random.default_rng(seed)
 
     def floats(name: str) -> np.ndarray:
@@ -65,40 +68,42 @@ def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:
         values[rng.random(n) < 0.03] = -0.0
         return values
 
-    columns: dict[str, Any] = {k: floats(k) for k in FLOAT_COLUMNS}
-    columns.update(state=rng.integers(0, len(STATES), n), stale=rng.integers(0, 1 << len(INPUT_NAMES), n),
-                   sensor_fault=rng.random(n) < 0.2)  # fmt: skip
-    if cylinders > 1:
-        for c in range(1, cylinders + 1):
-            columns.update({f"cyl{c}_{k}": floats(k) for k in CYLINDER_FLOATS})
-            columns[f"cyl{c}_state"] = rng.integers(0, len(STATES), n)
-        columns.update(cht_spread_c=floats("cht_spread_c"), hottest_cylinder=rng.integers(0, cylinders + 1, n),
-                       spread_alarm=rng.random(n) < 0.3, lead_cylinder=rng.integers(1, cylinders + 1, n))  # fmt: skip
-    return columns
+    make = {
+        "float": floats,
+        "state": lambda name: rng.integers(0, len(STATES), n),
+        "flag": lambda name: rng.random(n) < 0.2,
+        "cylinder": lambda name: rng.integers(0, cylinders + 1, n),
+        "inputs": lambda name: rng.integers(0, 1 << len(INPUT_NAMES), n),
+    }
+    return {name: make[v.kind](name) for name, v in column_layout(cylinders)}
+
+
+def _cell(kind: str, x: Any) -> str:
+    """One cell of health.csv as Python writes it (the reference of the bulk writer)."""
+    if kind == "float":
+        return f"{x:.10g}" if math.isfinite(x) else ""
+    if kind == "flag":
+        return str(int(x))
+    if kind == "cylinder":
+        return str(x) if x else ""
+    if kind == "inputs":
+        return "+".join(x)
+    return str(x)
 
 
 def _reference_csv(result: ReplayResult) -> bytes:
-    """health.csv row by row with Python's formatter (the writer before the bulk one)."""
-    rows = result.rows
+    """health.csv row by row with Python's formatter (the writer before the bulk one); the first column
+    spells nan and inf."""
     count = result.cylinder_count
-    lines = [",".join(health_columns(count))]
-    for r in rows:
-        line = (
-            f"{r.time_s:.10g},{r.cht_meas_c:.10g},{r.cht_est_c:.10g},{r.deviation:.10g},{r.state},{r.gamma_q:.10g},"
-            f"{r.gamma_d:.10g},{r.headroom_s:.10g},{'+'.join(r.stale_inputs)},{int(r.sensor_fault)},"
-            f"{r.cht_rate_c_per_min:.10g}"
-        )
-        if count > 1:
-            per = "".join(
-                f",{c.cht_meas_c:.10g},{c.cht_est_c:.10g},{c.deviation:.10g},{c.state},{c.gamma_q:.10g},"
-                f"{c.gamma_d:.10g},{c.headroom_s:.10g},{c.cht_rate_c_per_min:.10g}"
-                for c in r.cylinders
-            )
-            hottest = str(r.hottest_cylinder) if r.hottest_cylinder else ""
-            line += f"{per},{r.cht_spread_c:.10g},{hottest},{int(r.spread_alarm)}"
-        lines.append(line)
-    text = "\n".join(lines).replace(",nan", ",").replace(",-inf", ",").replace(",inf", ",") + "\n"
-    return text.encode("ascii")
+    layout = [(name, v) for name, v in column_layout(count) if v.csv]
+    lines = [",".join(name for name, _ in layout)]
+    for r in result.rows:
+        cells = []
+        for name, v in layout:
+            x = getattr(r, name) if name == v.name else getattr(r.cylinders[int(name[3 : name.index("_")]) - 1], v.name)
+            cells.append(f"{x:.10g}" if not cells else _cell(v.kind, x))
+        lines.append(",".join(cells))
+    return ("\n".join(lines) + "\n").encode("ascii")
 
 
 @pytest.mark.parametrize(("n", "cylinders"), [(0, 1), (1, 1), (3000, 1), (1000, 4)])
@@ -122,11 +127,12 @@ def test_parquet_and_arrow_hold_the_csv_columns(suffix: str, tmp_path: Path) -> 
     assert ReplayResult(columns, {}).write_csv(out) == 500
     table = pq.read_table(out) if suffix == ".parquet" else pa_feather.read_table(out)
     assert tuple(table.column_names) == health_columns(2)
-    for name in FLOAT_COLUMNS:
+    for name in (name for name, v in column_layout(2) if v.kind == "float"):
         np.testing.assert_array_equal(table.column(name).to_numpy(), columns[name])
     assert table.column("state").to_pylist() == [STATES[c] for c in columns["state"].tolist()]
     stale = table.column("stale_inputs").to_pylist()
-    assert stale == ["+".join(n for b, n in enumerate(INPUT_NAMES) if c >> b & 1) for c in columns["stale"].tolist()]
+    bits = columns["stale_inputs"].tolist()
+    assert stale == ["+".join(n for b, n in enumerate(INPUT_NAMES) if c >> b & 1) for c in bits]
     assert table.column("sensor_fault").to_pylist() == columns["sensor_fault"].tolist()
     assert table.column("cyl2_state").to_pylist() == [STATES[c] for c in columns["cyl2_state"].tolist()]
     np.testing.assert_array_equal(table.column("cyl1_gamma_q").to_numpy(), columns["cyl1_gamma_q"])

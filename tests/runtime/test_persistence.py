@@ -34,7 +34,8 @@ RULES = FlightRules(running_rpm=1000.0, min_flight_s=60.0, end_after_s=10.0, che
 
 
 def _sample(t: float, rpm: float | None, cht: float, gamma_q: float = 1.0, state: str = "NOMINAL") -> FlightSample:
-    return FlightSample(time_s=t, wall_time_s=1.7e9 + t, rpm=rpm, cht_c=cht, gamma_q=gamma_q, gamma_d=1.0, state=state)
+    trends = {"gamma_q": gamma_q, "gamma_d": 1.0}
+    return FlightSample(time_s=t, wall_time_s=1.7e9 + t, rpm=rpm, cht_c=cht, trends=trends, state=state)
 
 
 def _feed(
@@ -184,10 +185,11 @@ _WRITER = textwrap.dedent(
         for i in range(120):  # 12 s engine run at 10 Hz, checkpoints every 2 s
             t += 0.1
             cht = 150.0 + 40.0 * math.sin(i / 7.0)
-            recorder.add(FlightSample(t, 1.7e9 + t, 5000.0, cht, 1.0 + i * 1e-3, 1.0, "NOMINAL"))
+            trends = {"gamma_q": 1.0 + i * 1e-3, "gamma_d": 1.0}
+            recorder.add(FlightSample(t, 1.7e9 + t, 5000.0, cht, trends, "NOMINAL"))
         for i in range(15):
             t += 0.1
-            recorder.add(FlightSample(t, 1.7e9 + t, 0.0, 100.0, 1.0, 1.0, "NOMINAL"))
+            recorder.add(FlightSample(t, 1.7e9 + t, 0.0, 100.0, {"gamma_q": 1.0, "gamma_d": 1.0}, "NOMINAL"))
         # printed after the flight's commit, in one write (atomic on a pipe)
         sys.stdout.write(f"finished {recorder.finished[-1]}\\n")
     """
@@ -370,8 +372,11 @@ def _cylinder_sample(t: float, rpm: float, degraded_after_s: float) -> FlightSam
     base = 150.0 + 10.0 * math.sin(t / 20.0)
     gamma = 1.0 + max(0.0, t - degraded_after_s) / 1000.0
     state = "DEGRADED" if t >= degraded_after_s + 30.0 else "NOMINAL"
-    cylinders = ((base, 1.0, 1.0, "NOMINAL"), (base + 10.0, 1.01, 1.0, "NOMINAL"), (base - 5.0, gamma, 1.0, state))
-    return FlightSample(t, 1.7e9 + t, rpm, base + 10.0, 1.01, 1.0, state if state == "DEGRADED" else "NOMINAL",
+    cylinders = ((base, {"gamma_q": 1.0, "gamma_d": 1.0}, "NOMINAL"),
+                 (base + 10.0, {"gamma_q": 1.01, "gamma_d": 1.0}, "NOMINAL"),
+                 (base - 5.0, {"gamma_q": gamma, "gamma_d": 1.0}, state))  # fmt: skip
+    return FlightSample(t, 1.7e9 + t, rpm, base + 10.0, {"gamma_q": 1.01, "gamma_d": 1.0},
+                        state if state == "DEGRADED" else "NOMINAL",
                         cylinders, 15.0 + (t > 100.0), 2, t > 100.0)  # fmt: skip
 
 
