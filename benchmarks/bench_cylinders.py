@@ -124,7 +124,7 @@ def main() -> None:
     from ecu_monitor.flightlog import read_csv
     from ecu_monitor.model import paper_table_a1
     from ecu_monitor.offline.replay import replay_file
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
     from virtual_bus.cylinders import cylinder_models
     from virtual_bus.plant import Degradation
 

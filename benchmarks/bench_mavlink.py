@@ -47,7 +47,7 @@ import yaml
 from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.offline.replay import replay_file
-from ecu_monitor.pipeline.supervision import STATES
+from ecu_monitor.pipeline.output_table import STATES
 from ecu_monitor.shipped import DEFAULT_CONFIG, MAVLINK_CONFIG
 from virtual_bus.mavlink_emitter import MavlinkEmitter, MavlinkFrameEncoder
 from virtual_bus.missions import load_mission

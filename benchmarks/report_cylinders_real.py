@@ -51,7 +51,7 @@ def main() -> None:
     from ecu_monitor.gap.segments import SEGMENT_NAMES, segment_flight
     from ecu_monitor.model import load_model
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     models = tuple(load_model(m) for m in args.models)
     config = load_config("four_cylinders.yaml").replace(spread_limit_c=args.spread_limit)

@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import msgspec
 import msgspec.inspect as schema
-import yaml
 from msgspec import UNSET, Meta, UnsetType
 
 from ecu_monitor.bus.codec import INPUT_NAMES, INPUT_QUANTITIES, SignalSpec
@@ -45,9 +44,12 @@ from ecu_monitor.bus.mavlink_settings import MavlinkSettings, parse_mavlink_sett
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
+from ecu_monitor.estimation.wear import WearReference, WearSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
+from ecu_monitor.model.params import MODEL_KIND
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
 from ecu_monitor.units import Unit, custom_unit
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
     "CHT_INPUT",
@@ -237,6 +239,18 @@ class _DetectorHead(_DetectorMark, frozen=True):
     symptom: Symptom = "estimator"
 
 
+class _WearReference(_Section, frozen=True):
+    """``wear.reference``: the wear index over nominal flights (``ecu-monitor calibrate`` writes it)."""
+
+    mean: float
+    sd: Annotated[float, Meta(gt=0.0)]
+    flights: Annotated[int, Meta(ge=2)]
+
+
+class _WearHead(_Section, frozen=True):
+    reference: _WearReference | None = None  # None: learned from the engine's own first flights
+
+
 def _optional_keys(name: str, keys: Iterable[str], value: Any) -> Any:
     """A section with the optional keys ``keys``, each a ``value`` (UNSET: not given)."""
     return msgspec.defstruct(
@@ -265,12 +279,14 @@ if TYPE_CHECKING:  # built below from names other modules declare; mypy sees the
     _EstimatorSection = _EstimatorName
     _DetectorSection = _DetectorHead
     _DetectorKeys = _DetectorMark
+    _WearSection = _WearHead
 else:
     _Inputs = _optional_keys("Inputs", (*INPUT_NAMES, *_CYLINDER_NAMES), _Input)
     _Health = _optional_keys("Health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), _Rate)
     _EstimatorSection = _settings_keys("EstimatorSection", EstimatorSettings, _EstimatorName)
     _DetectorSection = _settings_keys("DetectorSection", DetectorSettings, _DetectorHead)
     _DetectorKeys = _settings_keys("DetectorKeys", DetectorSettings, _DetectorMark)
+    _WearSection = _settings_keys("WearSection", WearSettings, _WearHead)
 
 
 class _Cylinders(_Section, frozen=True):
@@ -306,6 +322,7 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
     cylinders: _Cylinders = _Cylinders()
     estimator: _EstimatorSection = _EstimatorSection()
     detector: _DetectorSection = _DetectorSection()
+    wear: _WearSection = _WearSection()  # across flights: the maintenance alert (estimation/wear.py)
     #: inputs stale: keep predicting on the model this long, s, then UNAVAILABLE
     stale_predict_limit_s: _NonNegative = 30.0
     #: the daemon logs a warning when its bus has carried no engine frame for this long, s
@@ -479,6 +496,10 @@ class ServiceConfig:
     cross_detectors: tuple[DetectorSettings | None, ...]
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
     cross_calibrated_for: tuple[str | None, ...]
+    #: ``wear:``: the across-flight detector's settings and the engine's nominal wear reference (None: learned
+    #: from its own first flights)
+    wear: WearSettings = dataclasses.field(default_factory=WearSettings)
+    wear_reference: WearReference | None = None
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
@@ -535,24 +556,14 @@ def load_config(path: str | os.PathLike[str]) -> ServiceConfig:
     """Read and validate a service configuration YAML file: a path, or a shipped config's name
     (``example.yaml``; :func:`ecu_monitor.shipped.resolve_file`)."""
     src = resolve_file(path, "config")
-    try:
-        text = src.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
-        raise ConfigError(f"{src}: cannot read config file ({reason})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{src}: not valid YAML{where}: {problem}") from None
-    return parse_config(data, src)
+    return parse_config(load_yaml_file(src, "config file", ConfigError), src)
 
 
 def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     """Validate already-parsed YAML ``data``; ``src`` names the file in messages and anchors relative paths."""
     source = Path(src)
+    if isinstance(data, dict) and data.get("model") == MODEL_KIND and "heat_map" in data:
+        raise ConfigError(f"{source}: this is a model file (model.yaml), not a service config: give it as --model")
     try:
         file = msgspec.convert(data, ConfigFile)
     except msgspec.ValidationError as exc:
@@ -640,6 +651,10 @@ class _Resolver:
             ),
             cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
             **self.cross_detectors(cylinders, count),
+            wear=self.settings("", WearSettings(), _given(file.wear, WearSettings)),
+            wear_reference=None
+            if file.wear.reference is None
+            else WearReference(file.wear.reference.mean, file.wear.reference.sd, file.wear.reference.flights),
         )
 
     def load(self, key: str, path: Path) -> Any:

@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Any
 
 import can
-import yaml
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import resolve_file
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = ["BusConfig", "config_mavlink_connection", "config_protocol", "load_bus_config", "open_bus"]
 
@@ -51,12 +51,7 @@ class BusConfig:
 def load_bus_config(path: str | Path) -> BusConfig:
     """Read the ``bus`` section of a YAML file (a path, or a shipped config's name: ``example.yaml``)."""
     path = resolve_file(path, "config")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = load_yaml_file(path, "config file", ConfigError)
     if not isinstance(data, dict) or not isinstance(data.get("bus"), dict):
         raise ConfigError(f"{path}: bus: expected a mapping with interface and channel")
     bus = dict(data["bus"])
@@ -71,8 +66,8 @@ def config_protocol(path: str | Path) -> str:
     """The ``protocol:`` of a YAML config (``dbc`` when absent): what a service config's bus speaks."""
     path = resolve_file(path, "config")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError):
+        data = load_yaml_file(path, "config file", ConfigError)
+    except ConfigError:
         return "dbc"  # load_bus_config reports the file's problem
     protocol = data.get("protocol", "dbc") if isinstance(data, dict) else "dbc"
     if protocol not in ("dbc", "dronecan", "mavlink"):
@@ -83,10 +78,7 @@ def config_protocol(path: str | Path) -> str:
 def config_mavlink_connection(path: str | Path) -> str:
     """The ``mavlink.connection`` of a YAML config (the shipped default ``udpin:0.0.0.0:14550`` when absent)."""
     path = resolve_file(path, "config")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc})") from None
+    data = load_yaml_file(path, "config file", ConfigError)
     section = data.get("mavlink") if isinstance(data, dict) else None
     connection = section.get("connection", "udpin:0.0.0.0:14550") if isinstance(section, dict) else None
     if not isinstance(connection, str):

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ecu_monitor.errors import ConfigError, ParameterError
-from ecu_monitor.model import EFFECT_NAMES, AirspeedCooling, DensityCooling, Effects, MixtureCooling, SensorLag
+from ecu_monitor.model import EFFECT_NAMES, EFFECT_TYPES, Effects
 
 __all__ = [
     "DEGRADATION_FACTORS",
@@ -117,14 +117,6 @@ def gamma_schedule(events: Sequence[Degradation], factor: str, time_s: Any) -> n
     return level
 
 
-_EFFECT_KINDS: dict[str, type] = {
-    "airspeed_cooling": AirspeedCooling,
-    "density_cooling": DensityCooling,
-    "sensor_lag": SensorLag,
-    "mixture_cooling": MixtureCooling,
-}
-
-
 def parse_effect(text: str) -> tuple[str, dict[str, float]]:
     """Parse ``NAME`` or ``NAME:key=value,key=value`` into (name, params); ParameterError if bad."""
     name, _, rest = text.strip().partition(":")
@@ -154,32 +146,25 @@ def parse_effects(specs: Iterable[str], base: Effects | None = None) -> Effects:
         raise ParameterError(f"--effect: {exc}") from None
 
 
-#: The effects the virtual plant draws (mixture_index needs a logged EGT or fuel flow it does not model).
-PLANT_EFFECTS: tuple[str, ...] = ("airspeed_cooling", "density_cooling", "sensor_lag", "mixture_cooling")
+#: The effects the virtual plant draws: those that declare a draw range for a parameter (mixture_index
+#: needs a logged EGT or fuel flow the plant does not model).
+PLANT_EFFECTS: tuple[str, ...] = tuple(
+    name for name, kind in EFFECT_TYPES.items() if any(spec.plant for spec in kind.PARAMETERS.values())
+)
 
 
 def random_effects(seed: int, names: Sequence[str] = PLANT_EFFECTS) -> Effects:
-    """The named effects with sizes drawn from plausible ranges (deterministic for ``seed``).
-
-    airspeed_cooling gain 0.01-0.03 /(m/s), floor 0.3-0.6; density_cooling exponent 0.4-0.8;
-    sensor_lag 4-20 s; mixture_cooling fraction 0.06-0.2 from onset 0.6-0.8.
-    """
+    """The named effects with sizes drawn uniformly from the ranges each effect declares for the plant
+    (``EffectParameter.plant``; the other parameters keep their defaults), deterministic for ``seed``."""
     rng = np.random.default_rng(seed)
-    draws: dict[str, Any] = {
-        "airspeed_cooling": lambda: AirspeedCooling(
-            gain_per_mps=float(rng.uniform(0.01, 0.03)), floor=float(rng.uniform(0.3, 0.6))
-        ),
-        "density_cooling": lambda: DensityCooling(exponent=float(rng.uniform(0.4, 0.8))),
-        "sensor_lag": lambda: SensorLag(time_constant_s=float(rng.uniform(4.0, 20.0))),
-        "mixture_cooling": lambda: MixtureCooling(
-            fraction=float(rng.uniform(0.06, 0.2)), onset=float(rng.uniform(0.6, 0.8))
-        ),
-    }
     chosen: dict[str, Any] = {}
     for name in names:
-        if name not in draws:
+        if name not in PLANT_EFFECTS:
             raise ParameterError(f"random_effects: cannot draw effect {name!r} (drawn: {', '.join(PLANT_EFFECTS)})")
-        chosen[name] = draws[name]()
+        kind = EFFECT_TYPES[name]
+        chosen[name] = kind(
+            **{p: float(rng.uniform(*spec.plant)) for p, spec in kind.PARAMETERS.items() if spec.plant is not None}
+        )
     return Effects(**chosen)
 
 

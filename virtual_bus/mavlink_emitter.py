@@ -43,7 +43,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, NamedTuple
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -225,13 +225,19 @@ class TlogWriter:
     (``mavutil.mavlogfile(path, write=True)``, which writes the bytes it is given); :meth:`on_message_received`
     and :meth:`stop` as python-can's writers, so the recorder feeds it as it feeds them."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, handle: BinaryIO | None = None) -> None:
+        """``handle``: the binary file to write (the caller closes it), else ``path`` is opened."""
         mavlink_module()
         from pymavlink import mavutil
 
         self.path = Path(path)
         if self.path.suffix.lower() != ".tlog":
             raise ConfigError(f"{path}: a MAVLink telemetry log is written to a .tlog")
+        if handle is not None:
+            self._log: Any = handle
+            self._owned = False
+            return
+        self._owned = True
         try:
             self._log = mavutil.mavlogfile(str(self.path), write=True)
         except OSError as exc:
@@ -242,7 +248,8 @@ class TlogWriter:
         self._log.write(struct.pack(">Q", max(0, round(frame.timestamp * _US))) + frame.data)
 
     def stop(self) -> None:
-        self._log.close()
+        if self._owned:
+            self._log.close()
 
 
 def emitter_connection(service_connection: str) -> str:

@@ -69,10 +69,10 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
-import yaml
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import resolve_file, shipped_dir, shipped_files
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
     "MISSIONS_DIR",
@@ -468,14 +468,7 @@ def load_mission(name_or_path: str | Path) -> Mission:
     """Read a mission YAML (a path or a shipped mission's name); problems raise ConfigError naming
     the file and the key."""
     path = resolve_mission(name_or_path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read mission file ({exc.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = load_yaml_file(path, "mission file", ConfigError)
     try:
         return mission_from_dict(data, default_name=path.stem)
     except ValueError as exc:

@@ -14,11 +14,13 @@ no CAN log then, and a .tlog only with it).
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import can
 import numpy as np
@@ -26,6 +28,7 @@ import numpy as np
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import FlightLog, write_csv
 from ecu_monitor.model import Effects, ThermalParams, paper_table_a1
+from ecu_monitor.userfiles import atomic_output
 from virtual_bus.dronecan_emitter import DroneCanFrameEncoder
 from virtual_bus.emitter import FrameEncoder
 from virtual_bus.mavlink_emitter import MavlinkFrameEncoder, TlogWriter
@@ -124,13 +127,12 @@ def record(
     summary = RecordSummary()
     parts: dict[str, list[np.ndarray]] = {name: [] for name in LOG_COLUMNS}
     writers: list[Any] = []
-    try:
+    with contextlib.ExitStack() as outputs:  # each log written atomically: nothing left if the run fails
         for path in can_paths:
-            try:
-                writers.append(can.Logger(str(path)))
-            except OSError as exc:
-                raise ConfigError(f"{path}: cannot write: {exc.strerror or exc}") from None
-        writers += [TlogWriter(path) for path in tlog_paths]
+            writers.append(_can_writer(path, outputs.enter_context(atomic_output(path, ConfigError))))
+            outputs.callback(writers[-1].stop)  # before its file is renamed (or removed)
+        for path in tlog_paths:
+            writers.append(TlogWriter(path, outputs.enter_context(atomic_output(path, ConfigError))))
         blocks = iter_steps(
             mission,
             params,
@@ -150,9 +152,6 @@ def record(
                     summary.frames += 1
             if progress is not None:
                 progress(float(block.time_s[-1]))
-    finally:
-        for writer in writers:
-            writer.stop()
     source = f"virtual-ecu:{mission.name}:seed={seed}"
     if csv_paths:
         log = FlightLog({name: np.concatenate(chunks) for name, chunks in parts.items()}, source=source)
@@ -163,6 +162,15 @@ def record(
     for path in (*can_paths, *tlog_paths):
         summary.files[str(path)] = f"{summary.frames} {'messages' if path in tlog_paths else 'frames'}"
     return summary
+
+
+def _can_writer(path: Path, handle: BinaryIO) -> Any:
+    """python-can's writer of ``path``'s suffix over ``handle`` (through a duplicate of its descriptor:
+    the writer closes its own file when it stops, the handle stays for :func:`atomic_output`'s fsync)."""
+    writer_class = can.io.logger.MESSAGE_WRITERS[path.suffix.lower()]
+    binary = issubclass(writer_class, can.io.generic.BinaryIOMessageWriter)
+    duplicate = os.fdopen(os.dup(handle.fileno()), "wb" if binary else "w", **({} if binary else {"newline": ""}))
+    return writer_class(duplicate)
 
 
 def _take(block: StepBlock, every: int, parts: dict[str, list[np.ndarray]], summary: RecordSummary, keep: bool) -> None:

@@ -7,9 +7,13 @@ with a damaged or unusual log (each repair is logged with ``logging.warning``):
 * an empty file, a file python-can cannot parse, a log without frames: FlightLogError, one line;
 * a log cut in the middle (a .blf whose last object or container is incomplete, a text log whose
   last line is cut): the frames read are kept, with a warning naming the time reached;
+* a frame whose stamp no clock could give (not finite, negative, or alone more than :data:`RESTART_S`
+  ahead of both its neighbours: a logger's glitch): dropped, with a warning counting them;
 * time going back by more than :data:`RESTART_S` (two logs back to back, the second starting its
   clock again): FlightLogError naming the frame, since one log has one clock (split the file and
   give each part on its own);
+* stamps as the logger wrote them (seconds since 1970 for most loggers, since the start of the
+  measurement for others) become time since the log's first frame, as a flight's ``time_s`` is;
 * a hole in time (no frame for more than :data:`GAP_S`): kept; :func:`time_gaps` lists the holes,
   replay reports them and runs no step across one longer than the pipeline's clock-restart limit,
   import writes no row inside one.
@@ -43,6 +47,7 @@ from ecu_monitor.bus.codec import MALFORMED_REASONS, Decoder, SignalSpec
 from ecu_monitor.bus.dbc import load_dbc, shipped_dbc
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import GAP_WARN_S, FlightLog, choose_cht, load_csv
+from ecu_monitor.userfiles import check_input
 
 __all__ = [
     "CAN_LOG_SUFFIXES",
@@ -138,15 +143,8 @@ def time_gaps(time_s: NDArray[np.float64], longer_than_s: float = GAP_S) -> list
 def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
     """Read a python-can log into arrays (rules in the module docstring); FlightLogError if unusable."""
     src = str(path)
-    if os.path.isdir(src):
-        raise FlightLogError(f"{src}: is a directory, not a CAN log")
-    try:
-        size = os.path.getsize(src)
-    except FileNotFoundError:
-        raise FlightLogError(f"{src}: no such file") from None
-    except OSError as exc:
-        raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    if size == 0:
+    check_input(src, "CAN log", FlightLogError)
+    if os.path.getsize(src) == 0:
         raise FlightLogError(f"{src}: empty file (0 bytes), not a CAN log")
     truncated = False
     frames: FrameArrays | None = None
@@ -158,6 +156,9 @@ def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
         frames = _read_with_python_can(src, whole_lines)
     if len(frames) == 0:
         raise FlightLogError(f"{src}: no frames")
+    frames = _drop_stray_stamps(src, frames)
+    since_start = frames.time_s - np.min(frames.time_s)
+    frames = FrameArrays(since_start, *(frames[i] for i in range(1, len(FrameArrays._fields))))
     if truncated:
         reached = float(np.max(frames.time_s))
         _log.warning(
@@ -168,6 +169,32 @@ def read_frames(path: str | os.PathLike[str]) -> FrameArrays:
         )
     _check_one_clock(src, frames.time_s)
     return frames
+
+
+def _drop_stray_stamps(src: str, frames: FrameArrays) -> FrameArrays:
+    """The frames without those whose stamp no clock could give: not finite, negative, or one frame
+    more than RESTART_S ahead of both its neighbours (a logger's glitch, not a second log); warns with
+    the count. FlightLogError if no frame is left."""
+    t = frames.time_s
+    with np.errstate(invalid="ignore"):
+        stray = ~np.isfinite(t) | (t < 0.0)
+        if t.size >= 3:
+            stray[1:-1] |= (t[1:-1] - t[:-2] > RESTART_S) & (t[1:-1] - t[2:] > RESTART_S)
+        if t.size >= 2:
+            stray[0] |= bool(t[0] - t[1] > RESTART_S)
+    if not np.any(stray):
+        return frames
+    first = int(np.argmax(stray))
+    _log.warning(
+        "%s: %d frame(s) with a stamp out of line with their neighbours dropped (first: frame %d, t=%r s)",
+        src,
+        int(np.count_nonzero(stray)),
+        first + 1,
+        float(t[first]),
+    )
+    if np.all(stray):
+        raise FlightLogError(f"{src}: no frame has a usable time stamp")
+    return frames.take(~stray)
 
 
 def _check_one_clock(src: str, time_s: NDArray[np.float64]) -> None:
@@ -205,6 +232,33 @@ def _whole_lines_of_cut_text_log(src: str) -> str | None:
     return raw[: raw.rfind(b"\n") + 1].decode("utf-8", errors="replace")
 
 
+class _SkippedLines(logging.Filter):
+    """While entered, counts and silences what python-can's log readers say about lines they skip (a
+    .trc whose body is another version than its header logs one line per frame: tens of thousands)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+        self.first = ""
+        self._loggers: list[logging.Logger] = []
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        self.count += 1
+        self.first = self.first or record.getMessage()[:120]
+        return False
+
+    def __enter__(self) -> _SkippedLines:
+        names = [name for name in logging.root.manager.loggerDict if name.startswith("can.io")]
+        self._loggers = [logging.getLogger(name) for name in names]
+        for logger in self._loggers:
+            logger.addFilter(self)
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        for logger in self._loggers:
+            logger.removeFilter(self)
+
+
 def _read_with_python_can(src: str, text: str | None = None) -> FrameArrays:
     """Frames through python-can's reader of the file's suffix; ``text``: the log's text to read instead
     of the file (a cut text log without its last line)."""
@@ -218,10 +272,11 @@ def _read_with_python_can(src: str, text: str | None = None) -> FrameArrays:
     dlcs: list[int] = []
     ignored: list[bool] = []
     payload = bytearray()
+    skipped = _SkippedLines()
     try:
         reader_class = can.io.player.MESSAGE_READERS.get(Path(src).suffix.lower())
         opened = can.LogReader(src) if text is None or reader_class is None else reader_class(io.StringIO(text))  # type: ignore[arg-type]  # the text readers take a file object too
-        with opened as reader:
+        with opened as reader, skipped:
             for msg in reader:
                 times.append(msg.timestamp)
                 ids.append(msg.arbitration_id)
@@ -234,9 +289,25 @@ def _read_with_python_can(src: str, text: str | None = None) -> FrameArrays:
         raise FlightLogError(f"{src}: no such file") from None
     except OSError as exc:
         raise FlightLogError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    except (ValueError, struct.error, zlib.error, UnicodeDecodeError, can.io.blf.BLFParseError) as exc:
+    except KeyError as exc:  # a text log whose header does not name a column its reader needs
+        raise FlightLogError(f"{src}: unreadable CAN log: its header names no column {exc.args[0]!r}") from None
+    except (
+        ValueError,
+        IndexError,
+        OverflowError,
+        struct.error,
+        zlib.error,
+        UnicodeDecodeError,
+        can.io.blf.BLFParseError,
+    ) as exc:
         detail = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        if isinstance(exc, OverflowError):
+            detail = f"a time stamp beyond any calendar (its start time or a frame's time: {detail})"
         raise FlightLogError(f"{src}: unreadable CAN log after {len(times)} frames: {detail}") from None
+    if skipped.count and not times:
+        raise FlightLogError(f"{src}: no frames: python-can skipped {skipped.count} line(s), first: {skipped.first}")
+    if skipped.count:
+        _log.warning("%s: python-can skipped %d line(s), first: %s", src, skipped.count, skipped.first)
     return FrameArrays(
         np.asarray(times, dtype=np.float64),
         np.asarray(ids, dtype=np.int64),
@@ -484,6 +555,7 @@ def load_flight(
     default MAVLink mapping (:func:`ecu_monitor.bus.mavlink_log.read_tlog`).
     """
     path = Path(path)
+    check_input(path, "flight log", FlightLogError)
     suffix = path.suffix.lower()
     if suffix == ".csv":
         if dbc_paths or signal_map:

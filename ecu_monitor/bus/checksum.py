@@ -15,7 +15,11 @@ check (seven zero bytes give 0x0A, not 0).
 
 from __future__ import annotations
 
-__all__ = ["CHECKSUM_BYTE", "COUNTER_BYTE", "crc8_sae_j1850", "frame_checksum", "head_checksum"]
+import numpy as np
+from numba.extending import register_jitable
+from numpy.typing import NDArray
+
+__all__ = ["CHECKSUM_BYTE", "COUNTER_BYTE", "crc8_sae_j1850", "frame_checksum"]
 
 #: Index of the byte holding the checksum.
 CHECKSUM_BYTE = 7
@@ -37,23 +41,18 @@ def _make_table() -> tuple[int, ...]:
     return tuple(table)
 
 
+#: The CRC state after byte b from state s is _TABLE[s ^ b].
 _TABLE = _make_table()
 
 
-def crc8_sae_j1850(data: bytes | bytearray | memoryview) -> int:
-    """CRC-8/SAE-J1850 of every byte of ``data`` (table driven, one lookup per byte)."""
+@register_jitable
+def crc8_sae_j1850(data: bytes | bytearray | memoryview | NDArray[np.uint8]) -> int:
+    """CRC-8/SAE-J1850 of every byte of ``data`` (table driven, one lookup per byte): plain Python on
+    bytes (the live decoder and encoders), compiled into the batch decoder's loop over uint8 rows."""
     crc = _INIT
     for byte in data:
         crc = _TABLE[crc ^ byte]
     return crc ^ _XOR_OUT
-
-
-def head_checksum(head: bytes | bytearray) -> int:
-    """:func:`crc8_sae_j1850` of exactly 7 bytes (a frame's bytes 0..6), the loop unrolled: the codec's per-frame
-    call (ValueError for another length)."""
-    t = _TABLE
-    b0, b1, b2, b3, b4, b5, b6 = head
-    return t[t[t[t[t[t[t[_INIT ^ b0] ^ b1] ^ b2] ^ b3] ^ b4] ^ b5] ^ b6] ^ _XOR_OUT
 
 
 def frame_checksum(data: bytes | bytearray | memoryview) -> int:
@@ -64,4 +63,4 @@ def frame_checksum(data: bytes | bytearray | memoryview) -> int:
     """
     if len(data) < CHECKSUM_BYTE:
         raise ValueError(f"frame_checksum needs at least 7 bytes, got {len(data)}")
-    return crc8_sae_j1850(bytes(data[:CHECKSUM_BYTE]))
+    return crc8_sae_j1850(data[:CHECKSUM_BYTE])

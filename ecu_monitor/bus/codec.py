@@ -51,7 +51,7 @@ import numpy as np
 if TYPE_CHECKING:
     from can.typechecking import CanFilter
 
-from ecu_monitor.bus.checksum import CHECKSUM_BYTE, crc8_sae_j1850, frame_checksum, head_checksum
+from ecu_monitor.bus.checksum import CHECKSUM_BYTE, crc8_sae_j1850, frame_checksum
 from ecu_monitor.bus.dbc import Dbc, load_dbc
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.inputs import INPUT_NAMES, INPUT_QUANTITIES
@@ -293,7 +293,7 @@ class Decoder:
             self._malformed("bad_dlc")
             return None
         if plan.counter_name is not None:  # 8 bytes (checked when the plan was made)
-            if payload[CHECKSUM_BYTE] != head_checksum(payload[:CHECKSUM_BYTE]):
+            if payload[CHECKSUM_BYTE] != crc8_sae_j1850(payload[:CHECKSUM_BYTE]):
                 self._malformed("bad_checksum")
                 return None
             counter = payload[6] & 0x0F
@@ -415,19 +415,16 @@ class Decoder:
 
 
 def _crc8_rows(payload: np.ndarray) -> np.ndarray:
-    """CRC-8/SAE-J1850 of bytes 0..6 of every row of an (N, 8) uint8 array (same as frame_checksum),
-    table-driven and compiled (numba, loaded on the first batch decode; 16 h log: 4 M frames)."""
+    """CRC-8/SAE-J1850 of bytes 0..6 of every row of an (N, 8) uint8 array (frame_checksum of each row),
+    compiled (numba, loaded on the first batch decode; 16 h log: 4 M frames)."""
     out = np.empty(len(payload), dtype=np.uint8)
-    _compiled_crc8()(np.ascontiguousarray(payload, dtype=np.uint8), _CRC_TABLE, out)
+    _compiled_crc8()(np.ascontiguousarray(payload, dtype=np.uint8), out)
     return out
 
 
-def _crc8_loop(payload: np.ndarray, table: np.ndarray, out: np.ndarray) -> None:
+def _crc8_loop(payload: np.ndarray, out: np.ndarray) -> None:
     for r in range(payload.shape[0]):
-        crc = 0xFF
-        for col in range(CHECKSUM_BYTE):
-            crc = table[crc ^ payload[r, col]]
-        out[r] = crc ^ 0xFF
+        out[r] = crc8_sae_j1850(payload[r, :CHECKSUM_BYTE])
 
 
 @functools.cache
@@ -435,15 +432,6 @@ def _compiled_crc8() -> Any:
     import numba  # the batch path only: the live decoder and the CLI's start do not load it
 
     return numba.njit(cache=True, nogil=True)(_crc8_loop)
-
-
-def _make_crc_table() -> np.ndarray:
-    """The byte table of crc8_sae_j1850: crc of one byte b from state s is TABLE[s ^ b]."""
-    # crc8_sae_j1850(bytes([b])) = TABLE[0xFF ^ b] ^ 0xFF, so TABLE[i] = crc8(bytes([i ^ 0xFF])) ^ 0xFF
-    return np.array([crc8_sae_j1850(bytes([i ^ 0xFF])) ^ 0xFF for i in range(256)], dtype=np.uint8)
-
-
-_CRC_TABLE: np.ndarray = _make_crc_table()
 
 
 def _extract(payload: np.ndarray, sig: Any, message: Any) -> np.ndarray:
@@ -615,7 +603,7 @@ class FrameLayout:
         if not self._checksum:
             return little.to_bytes(n, "little")
         head = (little & 0xFFFFFFFFFFFFFF).to_bytes(CHECKSUM_BYTE, "little")
-        return head + bytes((head_checksum(head),))
+        return head + bytes((crc8_sae_j1850(head),))
 
 
 class Encoder:

@@ -32,6 +32,7 @@ from typing import Any
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import shipped_dir
+from ecu_monitor.userfiles import read_input_bytes
 
 __all__ = ["Dbc", "load_dbc", "shipped_dbc"]
 
@@ -98,13 +99,7 @@ def _load_cached(src: str, size: int, mtime_ns: int) -> Dbc:
     import cantools
 
     del size, mtime_ns  # part of the cache key only
-    if os.path.isdir(src):
-        raise ConfigError(f"{src}: is a directory, not a DBC file")
-    try:
-        with open(src, "rb") as handle:
-            raw = handle.read()
-    except OSError as exc:
-        raise ConfigError(f"{src}: cannot read DBC file: {exc.strerror or exc}") from None
+    raw = read_input_bytes(src, "DBC file", ConfigError)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:

@@ -32,6 +32,7 @@ cylinders.models, else its model); --out gets ``cylinders: detectors:``, one det
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,7 @@ from typing import Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = ["DEFAULT_OUT", "add_subparser", "candidate_table"]
 
@@ -116,18 +118,32 @@ def _run(args: argparse.Namespace) -> int:
         if not Path(flight).is_file():
             raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")
 
-    from ecu_monitor.offline.calibration import config_copy_yaml, detector_fragment_yaml, model_fingerprint
+    import yaml
+
+    from ecu_monitor.offline.calibration import (
+        config_copy_yaml,
+        detector_fragment_yaml,
+        model_fingerprint,
+        wear_fragment,
+    )
 
     sources = [str(Path(p).resolve()) for p in args.flights]
     if len(config.cylinder_inputs) > 1:
         return _run_cylinders(args, config, config_path, out, candidates, sources)
     if args.models:
         raise ParameterError("--models: the config monitors one CHT channel (cht_c); give its model with --model")
-    result, flights = _calibrate_channel(args, config, params, candidates)
+    result, flights, wear = _calibrate_channel(args, config, params, candidates)
     if args.write_config:
-        text = config_copy_yaml(config_path, result, args.rate, sources, model_fingerprint(params), args.model)
+        text = config_copy_yaml(
+            config_path, result, args.rate, sources, model_fingerprint(params), args.model, wear=wear
+        )
     else:
         text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
+        if wear is not None:
+            text += (
+                "# the engine's nominal wear index over these flights: the across-flight detector's reference\n"
+                + yaml.safe_dump(wear_fragment(wear), sort_keys=False, default_flow_style=False)
+            )
     _write(out, text)
     print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
     if args.plot:
@@ -221,8 +237,9 @@ def _calibrate_cross(args: argparse.Namespace, config: Any, params: list[Any]) -
 
 def _calibrate_channel(
     args: argparse.Namespace, config: Any, params: Any, candidates: list[float], cylinder: int | None = None
-) -> tuple[Any, list[Any]]:
-    """One CHT channel: the baseline choice and the threshold on the flights (prints the tables);
+) -> tuple[Any, list[Any], Any]:
+    """One CHT channel: the baseline choice and the threshold on the flights (prints the tables), and the
+    nominal wear reference of the across-flight detector (None: fewer than 3 flights with a wear index);
     ``cylinder``: the flights' ``cht<cylinder>_c`` is the channel (``config`` maps it as ``cht_c``)."""
     from tqdm import tqdm
 
@@ -232,11 +249,14 @@ def _calibrate_channel(
         choose_settings,
         cross_validation_blocker,
         flight_feeds,
+        wear_reference,
     )
 
     feeds = []
     for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
-        feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder))
+        feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder, keep_reference=True))
+    indices, wear = wear_reference(feeds, config.wear)
+    feeds = [dataclasses.replace(f, reference=()) for f in feeds]  # the per-step reference is not needed further
     choose = args.baseline_s is None
     if choose and cross_validation_blocker(feeds, config.detector) is None:  # replay again with the overlays
         feeds = []
@@ -271,14 +291,17 @@ def _calibrate_channel(
             f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest statistic"
             f" seen ({c.empirical_max:.3f})"
         )
-    return result, flights
+    shown = ", ".join("-" if i is None else f"{100.0 * i:+.2f} %" for i in indices)
+    if wear is None:
+        print(f"wear index per flight: {shown}; no wear reference (fewer than 3 flights with one)")
+    else:
+        print(f"wear index per flight: {shown}; reference {100.0 * wear.mean:+.2f} % sd {100.0 * wear.sd:.2f} %"
+              f" over {wear.flights} flights (the across-flight detector's, wear.reference)")  # fmt: skip
+    return result, flights, wear
 
 
 def _write(out: Path, text: str) -> None:
-    try:
-        out.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    write_output_bytes(out, text.encode("utf-8"), ConfigError)
 
 
 def _with_baseline(settings: Any, baseline_s: float) -> Any:
@@ -384,8 +407,6 @@ def _plot(flights: list[Any], current: float, calibrated: float, path: Path) -> 
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=120)
-    except OSError as exc:
-        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+        save_figure(fig, path, dpi=120, error=ParameterError)
     finally:
         plt.close(fig)

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
+from ecu_monitor.userfiles import atomic_output, save_figure
 
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
@@ -326,7 +327,7 @@ def _run_mavlink(args: argparse.Namespace, out: Path, mission: Any, config: Serv
     print("STATUSTEXT, as the ground station shows it:")
     for time_s, severity, text in texts:
         print(f"  t = {time_s:7.1f} s  {_SEVERITY_NAMES[severity]:<8s}  {text}")
-    with (out / "statustext.csv").open("w", encoding="utf-8") as f:
+    with atomic_output(out / "statustext.csv", text=True) as f:
         f.write("time_s,severity,text\n")
         f.writelines(f'{time_s:.1f},{_SEVERITY_NAMES[severity]},"{text}"\n' for time_s, severity, text in texts)
     plots = _write_report(args, out, log, rows, mission=mission.name, cht_limit_c=params.cht_limit_c, cylinders=False)
@@ -338,21 +339,20 @@ def cylinder_config(count: int, protocol: str = "dbc") -> ServiceConfig:
     """The shipped four_cylinders.yaml for an engine of ``count`` (2-4) cylinders: cht1_c .. cht<count>_c;
     ``protocol="dronecan"``: the shipped dronecan.yaml with those inputs on ``cylinder_status[0..count-1]``
     and four_cylinders.yaml's cylinders and health sections."""
-    import yaml
-
     from ecu_monitor.config import parse_config
     from ecu_monitor.shipped import resolve_file
+    from ecu_monitor.yamlfile import load_yaml_file
 
     if not 2 <= count <= 4:
         raise ConfigError(f"--cylinders: expected 1 to 4 (the cylinders of ECU_Cht1to4), got {count}")
     path = resolve_file("four_cylinders.yaml", "config")
-    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    data = load_yaml_file(path, "config file", ConfigError)
     for n in range(count + 1, 5):
         del data["inputs"][f"cht{n}_c"]
     if protocol != "dronecan":
         return parse_config(data, path)
     dronecan_path = resolve_file("dronecan.yaml", "config")
-    dronecan = yaml.safe_load(dronecan_path.read_text(encoding="utf-8"))
+    dronecan = load_yaml_file(dronecan_path, "config file", ConfigError)
     inputs = {name: spec for name, spec in dronecan["inputs"].items() if not name.startswith("cht")}
     field = "uavcan.equipment.ice.reciprocating.Status.cylinder_status[{}].cylinder_head_temperature"
     for n in range(1, count + 1):
@@ -378,7 +378,7 @@ def plot_report(
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -407,7 +407,7 @@ def plot_report(
     marks(ax)
     ax.legend(loc="lower center", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "cht.png", dpi=110)
+    save_figure(fig, out / "cht.png", dpi=110)
     plt.close(fig)
 
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 6), sharex=True, height_ratios=(2, 1))
@@ -425,7 +425,7 @@ def plot_report(
     ax2.set_ylabel("state")
     marks(ax2)
     fig.tight_layout()
-    fig.savefig(out / "detection.png", dpi=110)
+    save_figure(fig, out / "detection.png", dpi=110)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(11, 4.5))
@@ -438,7 +438,7 @@ def plot_report(
     marks(ax)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "gammas.png", dpi=110)
+    save_figure(fig, out / "gammas.png", dpi=110)
     plt.close(fig)
 
     if rows and rows[0].cylinders:
@@ -456,7 +456,7 @@ def plot_report(
     marks(ax)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "headroom.png", dpi=110)
+    save_figure(fig, out / "headroom.png", dpi=110)
     plt.close(fig)
 
 
@@ -494,5 +494,5 @@ def _plot_cylinders(log: FlightLog, rows: list[HealthSnapshot], out: Path, marks
     for ax in (ax1, ax2, ax3):
         marks(ax)
     fig.tight_layout()
-    fig.savefig(out / "cylinders.png", dpi=110)
+    save_figure(fig, out / "cylinders.png", dpi=110)
     plt.close(fig)

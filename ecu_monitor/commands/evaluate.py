@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import argparse
 import math
-import pickle
 import sys
 import time
+import zipfile
 from pathlib import Path
 from typing import Any
 
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.userfiles import atomic_output, open_input
 
 __all__ = ["add_subparser"]
 
@@ -52,7 +53,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument(
         "--flights-cache",
         metavar="FILE",
-        help="pickle of the simulated flights: loaded if it exists (skips the simulation), else written",
+        help="the simulated flights (.npz): loaded if it exists (skips the simulation), else written",
     )
     parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
@@ -78,6 +79,7 @@ def _run(args: argparse.Namespace) -> int:
         EvaluationConfig,
         headroom_check,
         run_campaign,
+        save_flight_results,
         score,
         write_report,
     )
@@ -105,8 +107,8 @@ def _run(args: argparse.Namespace) -> int:
 
             results = run_campaign(config, progress=progress)
         if cache is not None:
-            with cache.open("wb") as handle:
-                pickle.dump((results, time.monotonic() - started), handle)
+            with atomic_output(cache, ConfigError) as handle:
+                save_flight_results(results, time.monotonic() - started, handle)
     campaign = score(config, results)
     checks = headroom_check()
     command = (
@@ -124,9 +126,12 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _load(path: Path) -> Any:
-    """Flights pickled by an earlier run of this command (a file this command wrote: trusted)."""
+    """Flights an earlier run of this command saved (an .npz of arrays and JSON: nothing in it runs)."""
+    from ecu_monitor.research.evaluation import load_flight_results
+
     try:
-        with path.open("rb") as handle:
-            return pickle.load(handle)
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
-        raise ConfigError(f"{path}: cannot read the flights cache ({exc})") from None
+        with open_input(path, "flights cache", ConfigError) as handle:
+            return load_flight_results(handle)
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"{path}: not a flights cache this command wrote ({reason})") from None

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 from ecu_monitor.commands.identify import choose_heat_axes, parse_heat_axes
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, UserInputError
+from ecu_monitor.userfiles import write_output_bytes
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
     from ecu_monitor.flightlog import FlightLog
@@ -197,8 +198,8 @@ def _run_forms(args: argparse.Namespace, settings: GapSettings) -> int:
         "summary": forms_summary(results),
         "cases": [r.to_dict() for r in results],
     }
-    (out / "forms.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    (out / "forms.md").write_text(forms_markdown(results, command), encoding="utf-8")
+    write_output_bytes(out / "forms.json", (json.dumps(doc, indent=2) + "\n").encode("utf-8"), ConfigError)
+    write_output_bytes(out / "forms.md", forms_markdown(results, command).encode("utf-8"), ConfigError)
     right = sum(r.right for r in results)
     print(f"non-circular blind cases: {right}/{len(results)} verdicts right; {out / 'forms.md'}")
     return 0
@@ -229,8 +230,8 @@ def _run_blind(args: argparse.Namespace, settings: GapSettings) -> int:
         "confusion": confusion_matrix(results),
         "cases": [r.to_dict() for r in results],
     }
-    (out / "blind.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    (out / "blind.md").write_text(blind_markdown(results, command), encoding="utf-8")
+    write_output_bytes(out / "blind.json", (json.dumps(doc, indent=2) + "\n").encode("utf-8"), ConfigError)
+    write_output_bytes(out / "blind.md", blind_markdown(results, command).encode("utf-8"), ConfigError)
     right = sum(r.verdict_right for r in results)
     print(f"blind cases: {right}/{len(results)} verdicts right; {out / 'blind.md'}")
     return 0

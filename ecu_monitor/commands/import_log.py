@@ -25,6 +25,7 @@ from typing import Any
 
 from ecu_monitor.errors import UserInputError
 from ecu_monitor.shipped import resolve_file
+from ecu_monitor.userfiles import check_output_not_input
 
 __all__ = ["add_subparser"]
 
@@ -87,6 +88,7 @@ def _targets(args: argparse.Namespace) -> list[tuple[str, Path]]:
     if args.out is not None:
         if len(sources) > 1:
             raise UserInputError(f"--out {args.out}: {len(sources)} sources given, use --out-dir DIR for several")
+        check_output_not_input(args.out, (sources[0], args.mapping))
         return [(sources[0], Path(args.out))]
     out_dir = Path(args.out_dir)
     if not out_dir.is_dir():

@@ -15,6 +15,12 @@ model; ``ecu-monitor calibrate`` writes it). Defaults: config example.yaml (ship
 names (or --model), its estimator (or --estimator). ``--live`` feeds the frames one by one through
 the live path instead of the batch path (same rows, slower; for checking).
 
+``--history STATE_DIR`` also records the log's flights in the flight history of that state directory
+(the daemon's SQLite database, under the config's engine serial), as the daemon would have: the live
+path, the same flight recorder, its wear index and across-flight detector (an alert it raises is printed
+as a line starting ``ALERT``). A flight's times are the log's own clock when it is a UNIX time (CAN
+loggers), else they end at the log file's modification time.
+
 The protocol comes from the config (``protocol: dbc|dronecan``). Without --config, a CAN log whose
 frames look like DroneCAN (29-bit ids with DroneCAN tail bytes, ``bus.dronecan.looks_like_dronecan``)
 is replayed with the shipped dronecan.yaml, any other log with example.yaml; when no frame of the log
@@ -33,6 +39,7 @@ from ecu_monitor.commands.names import ESTIMATOR_NAMES
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
+from ecu_monitor.userfiles import save_figure
 
 if TYPE_CHECKING:  # the run imports these: --help stays light
     from collections.abc import Sequence
@@ -66,12 +73,54 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
     parser.add_argument(
+        "--history",
+        metavar="STATE_DIR",
+        help="also record the log's flights in the flight history (SQLite) of this state directory, as the daemon"
+        " does (implies --live)",
+    )
+    parser.add_argument(
         "--plot",
         metavar="HEALTH.png",
         help="also draw the replay: CHT measured and estimated, the deviation symptom, gamma_Q/gamma_D and the"
         " headroom over time, the service's state shaded behind (needs the tools extra)",
     )
     parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
+
+
+def _replay_into_history(
+    config: ServiceConfig, models: Sequence[ThermalParams], frames: FrameArrays, path: Path, state_dir: Path
+) -> ReplayResult:
+    """The live replay with its rows fed to the flight recorder of ``state_dir`` (module docstring)."""
+    import numpy as np
+
+    from ecu_monitor.offline.replay import replay_live
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, flight_samples, held_inputs
+    from ecu_monitor.runtime.persistence import StateStore
+    from ecu_monitor.runtime.state_lock import StateDirLock
+
+    times = np.asarray(frames.time_s, dtype=np.float64)
+    last = float(np.max(times)) if times.size else 0.0
+    offset = 0.0 if times.size and float(np.min(times)) > _UNIX_TIME_S else path.stat().st_mtime - last
+    with StateDirLock(state_dir), StateStore(state_dir) as store:  # never beside a daemon on the same history
+        recorder = FlightRecorder(
+            store, config.engine_serial, models[0].cht_limit_c, wear=config.wear, reference=config.wear_reference
+        )
+
+        def record(pipeline: Any, rows: list[Any]) -> None:
+            for sample in flight_samples(rows, held_inputs(pipeline), offset):
+                recorder.add(sample)
+
+        result = replay_live(config, models, frames.messages(), on_rows=record)
+        recorder.close("log_end")
+    kept = ", ".join(str(i) for i in recorder.finished) or "none"
+    print(f"history {store.path}: engine {config.engine_serial}, flights recorded: {kept}")
+    for alert in recorder.alerts:
+        print(f"ALERT {alert.text} (CUSUM {alert.statistic:.1f} >= {alert.threshold:.1f})")
+    return result
+
+
+#: A log whose first stamp is later than this (2001-09-09) runs on the UNIX clock, s.
+_UNIX_TIME_S = 1e9
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -84,9 +133,12 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
+    from ecu_monitor.userfiles import check_output_not_input
 
     started = time.perf_counter()
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
+    for out in (args.out, args.plot):
+        check_output_not_input(out or "", (args.log, args.config, args.model), ConfigError)
     if args.plot:
         _check_plot_path(Path(args.plot))
     path = Path(args.log)
@@ -118,7 +170,11 @@ def _run(args: argparse.Namespace) -> int:
         else:
             needed = (*model_input_names(params, config.input_names), *config.cylinder_inputs)
             frames = frames_from_flight(load_flight(path), config, needed)
-        result = replay_live(config, models, frames.messages()) if args.live else replay_frames(config, models, frames)
+        if args.history:
+            result = _replay_into_history(config, models, frames, path, Path(args.history))
+        else:
+            live = args.live
+            result = replay_live(config, models, frames.messages()) if live else replay_frames(config, models, frames)
         if len(result) == 0:
             span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
             raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
@@ -161,9 +217,6 @@ _STATE_SHADES = {
     "UNAVAILABLE": "black",
 }
 
-#: Headroom at or above this (s) is drawn as "not limited" (the service's cap for a steady state below the limit).
-_HEADROOM_CAP_S = 6000.0
-
 
 def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float) -> None:
     """One figure of a replay (time in minutes from the first row): CHT measured and estimated (every
@@ -173,7 +226,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     import matplotlib
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, STATES
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -211,7 +264,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_gamma.axhline(1.0, color="grey", lw=0.6)
     ax_gamma.set_ylabel("degradation factor")
     headroom = np.asarray(c["headroom_s"], dtype=float)
-    ax_head.plot(t, np.where(headroom >= _HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
+    ax_head.plot(t, np.where(headroom >= HEADROOM_CAP_S, np.nan, headroom), lw=0.9, color="tab:red",
                  label="time to the CHT limit at the present power")  # fmt: skip
     ax_head.set_ylabel("headroom (s)")
     ax_head.set_xlabel("time from the first health row (min)")
@@ -229,9 +282,7 @@ def plot_replay(result: ReplayResult, path: Path, title: str, cht_limit_c: float
     ax_cht.set_title(f"{title}: the service's replay (shaded: state not NOMINAL)")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise ParameterError(f"--plot: cannot write {path} ({exc.strerror or exc})") from None
+        save_figure(fig, path, dpi=110, error=ParameterError)
     finally:
         plt.close(fig)
 
@@ -291,7 +342,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
     """One line per cylinder of an engine monitored per cylinder: its states, first DEGRADED, the spread."""
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     count = result.cylinder_count
     if count == 1:
@@ -319,7 +370,7 @@ def _cylinder_lines(result: ReplayResult) -> list[str]:
 def _summary(out: str, log: Path, estimator: str, result: ReplayResult, rows: int, wall_s: float) -> str:
     import numpy as np
 
-    from ecu_monitor.pipeline.supervision import STATES
+    from ecu_monitor.pipeline.output_table import STATES
 
     c = result.counters
     time_s = result.columns["time_s"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import functools
 import gc
 import logging
 import os
@@ -31,7 +32,7 @@ if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help s
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.runtime.daemon import DaemonSettings
 
-__all__ = ["add_subparser", "bus_opener", "daemon_settings", "engine_speed_of", "unsupported_on_host"]
+__all__ = ["add_subparser", "bus_opener", "daemon_settings", "unsupported_on_host"]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -113,7 +114,10 @@ def bus_opener(config: ServiceConfig) -> Callable[[], can.BusABC]:
         raise ConfigError(f"{config.source}: bus.interface: unknown interface {interface!r} (known: {known})")
 
     def open_bus() -> can.BusABC:
-        return can.Bus(**options)
+        bus = can.Bus(**options)
+        if bus.channel_info == can.BusABC.channel_info:  # "unknown" (udp_multicast): the daemon's log names it
+            bus.channel_info = f"{interface} {options.get('channel')}"
+        return bus
 
     first: can.BusABC | None = None
     error: str | None = None
@@ -163,10 +167,11 @@ def unsupported_on_host(exc: BaseException) -> bool:
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
     from ecu_monitor.runtime.daemon import Daemon
-    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.runtime.persistence import StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
+    from ecu_monitor.runtime.state_lock import StateDirLock
 
     config = load_config(args.config)
     models = config.load_cylinder_params()  # one per cylinder (one for a single CHT channel)
@@ -174,13 +179,22 @@ def _run(args: argparse.Namespace) -> int:
     if not args.min_flight_s >= 0.0:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
     _log_to_journal()
+    lock = StateDirLock(config.state_dir)  # before the store's start-up recovery; held until the process ends
     pipeline = LiveMonitor(config, models)
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(
-        store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)
+        store,
+        config.engine_serial,
+        params.cht_limit_c,
+        FlightRules(min_flight_s=args.min_flight_s),
+        wear=config.wear,
+        reference=config.wear_reference,
     )
     if recorder.recovered:
         _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
+    for alert in store.alerts(config.engine_serial, open_only=True):  # kept across restarts: told at each start
+        _log.warning("ALERT %s", alert.text)
+        pipeline.tell(alert.text)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
     # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only
@@ -195,7 +209,7 @@ def _run(args: argparse.Namespace) -> int:
             settings=settings,
             notifier=notifier,
             recorder=recorder,
-            engine_speed=engine_speed_of(pipeline),
+            held_inputs=functools.partial(held_inputs, pipeline),
             receive_filters=pipeline.receive_filters(),
         )
 
@@ -215,6 +229,7 @@ def _run(args: argparse.Namespace) -> int:
             code = daemon.run()
         finally:
             store.close()
+            lock.close()
     sys.stdout.flush()
     return code
 
@@ -230,15 +245,3 @@ def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSe
         watchdog_period_s=watchdog_s,
         no_frames_warning_s=config.no_frames_warning_s,
     )
-
-
-def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:
-    """The engine speed the pipeline holds, rev/min (None while stale or never received).
-
-    Reads the pipeline's sample-and-hold value of input ``rpm`` (the decoder's value; no second decode).
-    """
-
-    def engine_speed() -> float | None:
-        return pipeline.held_input("rpm")
-
-    return engine_speed

@@ -29,26 +29,23 @@ and the next reading spreads its deviation evenly over the steps since the last 
 The conventional EKF uses Delta_k = 0. CBEKF-AU re-initialises x (and P = R) whenever the reading
 changes level: to the new interval's midpoint (the paper) or to the boundary just crossed (ours).
 
-The functions :func:`predict`, :func:`update`, :func:`deviation_update` and :func:`filter_step` are
-pure and use only scalar arithmetic, so :func:`compiled_filter` compiles these very functions with numba
-(with the model's own compiled equations): the live filter (:class:`ThermalEKF`, ``compiled=True``,
-the default) and the whole-flight runner (:mod:`.runner`) run them; ``compiled=False`` runs the same
-functions as plain Python (the reference in the tests).
+The functions :func:`predict`, :func:`update`, :func:`deviation_update`, :func:`filter_step` and
+:func:`filter_steps` are pure and use only scalar arithmetic: numba compiles them into their compiled
+callers (``register_jitable``; :mod:`ecu_monitor.model.kernels`): the live filter's :func:`live_steps`
+(:class:`ThermalEKF`, ``compiled=True``, the default), the whole-flight runner (:mod:`.runner`) and the
+step; ``compiled=False`` runs the same functions as plain Python (the reference in the tests).
 """
 
 from __future__ import annotations
 
-import functools
 import math
-import sys
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from ecu_monitor.errors import ConfigError, EstimationError
-from ecu_monitor.estimation import quantiser as _quantiser
 from ecu_monitor.estimation.quantiser import level_of, reset_value, sensor_model, sensor_slope
 from ecu_monitor.model import (
     Coefficients,
@@ -60,12 +57,10 @@ from ecu_monitor.model import (
     initial_pade_state,
     pack_coefficients,
     rk4_step,
-    scalar_coefficients,
     unpack_coefficients,
 )
-from ecu_monitor.model import compiled as _compiled_model
-from ecu_monitor.model import thermal as _thermal
-from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
+from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_at
 
 __all__ = [
     "COMPLEX_STEP",
@@ -76,7 +71,6 @@ __all__ = [
     "FilterState",
     "Prediction",
     "ThermalEKF",
-    "compiled_filter",
     "deviation_update",
     "filter_step",
     "live_steps",
@@ -197,6 +191,7 @@ def scalar_drive(inputs: InputSeries, coeffs: Coefficients) -> Drive:
     return Drive(float(d[0]), float(d[1]), float(d[2]), float(d[3]), float(d[4]))
 
 
+@register_jitable
 def predict(
     x: float,
     P: float,
@@ -216,6 +211,7 @@ def predict(
     return Prediction(x_next.real + delta, F * F * P + Q, F, float(w_next))
 
 
+@register_jitable
 def update(x: float, P: float, z: float, R: float, a: float, b: float, c: float = 1.0) -> Correction:
     """Scalar EKF correction (Eq. 26) with the sigmoid sensor model; Joseph-form variance."""
     H = sensor_slope(x, a, b, c)
@@ -226,6 +222,7 @@ def update(x: float, P: float, z: float, R: float, a: float, b: float, c: float 
     return Correction(x + K * innovation, one_minus * one_minus * P + K * K * R, innovation, S, K, H)
 
 
+@register_jitable
 def deviation_update(
     delta: float, reference_prior: float, z: float, steps_since: float, dt: float, tau: float
 ) -> float:
@@ -240,6 +237,7 @@ def deviation_update(
     return sample + keep * (delta - sample)
 
 
+@register_jitable
 def filter_step(
     state: FilterState,
     drive: Drive,
@@ -288,6 +286,7 @@ def filter_step(
     return new_state, corrected.innovation, nis, did_reset
 
 
+@register_jitable
 def filter_steps(
     state: FilterState,
     drive: Drive,
@@ -316,11 +315,10 @@ def filter_steps(
     return state, innovation, nis, did_reset
 
 
+@njit(nogil=False)
 def live_steps(
     state: Any,
     drive: Any,
-    inputs: Any,
-    drive_rows: Any,
     out: Any,
     heat_x: float,
     heat_y: float,
@@ -347,10 +345,10 @@ def live_steps(
 ) -> None:
     """One live filter call in one compiled call: :func:`filter_steps` on the state held in ``state``
     (the FilterState fields, float64[7], updated in place) with the drive held in ``drive`` (the Drive
-    fields, float64[5]); then the drive of this call's inputs (the model's compiled drive kernel, equal
-    bit for bit to :func:`scalar_drive`) replaces it for the next call. ``inputs`` (6, 1) and
-    ``drive_rows`` (4, 1) are scratch; ``out`` gets (innovation, nis, reset as 0/1). The model's coefficients
-    come packed (``ecu_monitor.model.pack_coefficients``: four arrays, cheap for numba's dispatcher to type)."""
+    fields, float64[5]); then the drive of this call's inputs (the model's ``drive_at``, equal bit for
+    bit to :func:`scalar_drive`) replaces it for the next call. ``out`` gets (innovation, nis, reset as
+    0/1). The model's coefficients come packed (``ecu_monitor.model.pack_coefficients``: four arrays,
+    cheap for numba's dispatcher to type)."""
     coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     held = FilterState(state[0], state[1], state[2], state[3], state[4], state[5], state[6])
     new, innovation, nis, did_reset = filter_steps(
@@ -364,25 +362,11 @@ def live_steps(
     state[4] = new.reference
     state[5] = new.steps_since
     state[6] = new.level
-    inputs[0, 0] = heat_x
-    inputs[1, 0] = heat_y
-    inputs[2, 0] = altitude_m
-    inputs[3, 0] = airspeed_mps
-    inputs[4, 0] = oat_c
-    inputs[5, 0] = mixture_index
-    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, drive_rows)
-    drive[0] = drive_rows[0, 0]  # Drive order: q_sl0, altitude gain, ambient, conductance, heat gain
-    drive[1] = drive_rows[1, 0]
-    drive[2] = oat_c
-    drive[3] = drive_rows[3, 0]
-    drive[4] = drive_rows[2, 0]
+    u = (heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index)
+    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
     out[0] = innovation
     out[1] = nis
     out[2] = 1.0 if did_reset else 0.0
-
-
-# The compiled drive kernel live_steps calls; compiled_filter() binds it.
-drive_kernel: Any = None
 
 
 class ThermalEKF:
@@ -414,18 +398,13 @@ class ThermalEKF:
         self.reset_mode = reset
         self._coeffs = coefficients(params)
         self.compiled = compiled
-        self._compiled_coeffs = scalar_coefficients(self._coeffs)
         self._packed_coeffs = pack_coefficients(self._coeffs)
-        self._steps: Any = None  # filter_steps, or its numba twin (loaded on first use)
-        self._live: Any = None  # live_steps compiled (compiled=True; loaded on first use)
         self._state: FilterState | None = None
         self._drive: Drive | None = None
         self._time_s = 0.0
         # compiled live path: state and drive held in preallocated arrays between calls (no allocation)
         self._state_vec = np.zeros(len(FilterState._fields))
         self._drive_vec = np.zeros(len(Drive._fields))
-        self._inputs = np.zeros((6, 1))
-        self._drive_rows = np.zeros((4, 1))
         self._out = np.zeros(3)
 
     @property
@@ -484,14 +463,12 @@ class ThermalEKF:
         drive = self._drive
         if drive is None:  # set together with the state
             raise EstimationError(f"{self.name}: estimate() called before initialise()")
-        if self._steps is None:
-            self._steps = _live_steps(self.compiled)
-        state, innovation, nis, did_reset = self._steps(
+        state, innovation, nis, did_reset = filter_steps(
             self._state,
             drive,
             z,
             measured,
-            self._compiled_coeffs if self.compiled else self._coeffs,
+            self._coeffs,
             s.dt_s,
             s.process_var,
             s.measurement_var,
@@ -521,13 +498,11 @@ class ThermalEKF:
     def _estimate_compiled(self, t_s: float, u: InputSeries, z: float, measured: bool, steps: int) -> Estimate:
         """:meth:`estimate` as one compiled call (:func:`live_steps`): no Python model code, no allocation
         besides the returned Estimate."""
-        if self._live is None:
-            self._live = compiled_filter().live
         s = self.settings
         state = self._state_vec
         out = self._out
-        self._live(
-            state, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
+        live_steps(
+            state, self._drive_vec, out, float(u[0]), float(u[1]), float(u[2]),
             float(u[3]), float(u[4]), float(u[5]), z, measured, *self._packed_coeffs, s.dt_s, s.process_var,
             s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, self.use_deviation,
             _RESET_CODES[self.reset_mode], steps,
@@ -545,46 +520,3 @@ class ThermalEKF:
             reset=bool(out[2]),
             measured=measured,
         )
-
-
-def _live_steps(compiled: bool) -> Any:
-    """:func:`filter_steps`, or its numba twin (:func:`compiled_filter`)."""
-    return compiled_filter().steps if compiled else filter_steps
-
-
-@functools.cache
-def compiled_filter() -> SimpleNamespace:
-    """numba twins of :func:`filter_step` and :func:`filter_steps`, compiled from this very source with
-    the model's compiled equations (ecu_monitor.model.kernels; cached on disk). The live filter and the
-    whole-flight runner both use them."""
-    modules = (_thermal, _quantiser, _compiled_model, sys.modules[__name__])
-    tag = fingerprint([str(m.__file__) for m in modules])
-
-    def compile_(function: Any, **callees: Any) -> Any:
-        return jit(function, tag, **callees)
-
-    equations = compiled_equations(False)
-    rk4_step_ = compile_(_thermal.rk4_step, _rk4=equations.rk4)
-    sigmoid = compile_(_quantiser.sigmoid)
-    sensor_model_ = compile_(_quantiser.sensor_model, sigmoid=sigmoid)
-    sensor_slope_ = compile_(_quantiser.sensor_slope, sigmoid=sigmoid)
-    level_of_ = compile_(_quantiser.level_of)
-    reset_value_ = compile_(_quantiser.reset_value)
-    predict_ = compile_(predict, rk4_step=rk4_step_)
-    update_ = compile_(update, sensor_model=sensor_model_, sensor_slope=sensor_slope_)
-    deviation_update_ = compile_(deviation_update)
-    step = compile_(
-        filter_step,
-        predict=predict_,
-        rk4_step=rk4_step_,
-        update=update_,
-        deviation_update=deviation_update_,
-        level_of=level_of_,
-        reset_value=reset_value_,
-    )
-    steps = compile_(filter_steps, filter_step=step)
-    live = jit(
-        live_steps, tag, nogil=False, filter_steps=steps, drive_kernel=_compiled_model.drive_kernel(),
-        unpack_coefficients=compile_(_thermal.unpack_coefficients),
-    )  # fmt: skip
-    return SimpleNamespace(step=step, steps=steps, live=live, level_of=level_of_)

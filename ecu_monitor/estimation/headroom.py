@@ -29,10 +29,7 @@ from ecu_monitor.model import (
     steady_state_cht,
 )
 
-__all__ = ["DEFAULT_CAP_S", "Headroom", "thermal_headroom"]
-
-#: Headroom reported when the limit is not reached (100 min): "not limited at this power".
-DEFAULT_CAP_S = 6000.0
+__all__ = ["Headroom", "thermal_headroom"]
 
 
 class Headroom(NamedTuple):
@@ -55,7 +52,7 @@ def thermal_headroom(
     gamma_q: float = 1.0,
     gamma_d: float = 1.0,
     limit_c: float | None = None,
-    cap_s: float = DEFAULT_CAP_S,
+    cap_s: float,
     step_s: float = 2.0,
     coeffs: Coefficients | None = None,
     drive: Drive | None = None,

@@ -39,13 +39,12 @@ flight runner run the step compiled with numba (compiled on first use, cached on
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import ConfigError, EstimationError
@@ -61,11 +60,11 @@ from ecu_monitor.model import (
     scalar_coefficients,
     unpack_coefficients,
 )
-from ecu_monitor.model import compiled as _compiled_model
-from ecu_monitor.model import thermal as _thermal
 from ecu_monitor.model.compiled import compute_drive_compiled
+from ecu_monitor.model.equations import derivatives, rk4
 from ecu_monitor.model.inputs import flight_inputs
-from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
+from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_at
 
 __all__ = [
     "ESTIMATOR_NAME",
@@ -153,6 +152,7 @@ class IsolationSettings:
 _COMPLEX_STEP = 1e-30
 
 
+@register_jitable
 def _predict(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float, model: NDArray[np.float64],
              cfg: NDArray[np.float64]) -> None:  # fmt: skip
     """One prediction step of dt (RK4 on T and w, gammas held) and the covariance propagation.
@@ -190,6 +190,7 @@ def _predict(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float, 
     s[_P + 8] = p22 + cfg[_S_QD] * dt
 
 
+@register_jitable
 def _correct(s: NDArray[np.float64], z: float, cfg: NDArray[np.float64]) -> tuple[float, float]:
     """Linear update with h(x) = T (Joseph form); returns (innovation degC, NIS)."""
     r = cfg[_S_R]
@@ -215,6 +216,7 @@ def _correct(s: NDArray[np.float64], z: float, cfg: NDArray[np.float64]) -> tupl
     return innovation, innovation * innovation / s_var
 
 
+@register_jitable
 def _deviation(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float,
                model: NDArray[np.float64]) -> float:  # fmt: skip
     """f(T, gamma_Q, gamma_D) - f(T, 1, 1): the state-derivative change the gammas explain, degC/s."""
@@ -225,6 +227,7 @@ def _deviation(s: NDArray[np.float64], q0: float, hg: float, g: float, te: float
     return with_gammas - derivatives(t, w, q0, hg, te, g, c_w, tau, rad, off, 1.0, 1.0)[0]
 
 
+@njit()
 def _run(
     q0: NDArray[np.float64],
     hg: NDArray[np.float64],
@@ -250,14 +253,14 @@ def _run(
     out[0, 6] = s[_P + 5]
     out[0, 7] = np.nan
     out[0, 8] = np.nan
-    out[0, 9] = deviation(s, q0[0], hg[0], g[0], te[0], model)
+    out[0, 9] = _deviation(s, q0[0], hg[0], g[0], te[0], model)
     for k in range(1, n):
         for _ in range(substeps[k]):
-            predict(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model, cfg)
+            _predict(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model, cfg)
         innovation = np.nan
         nis = np.nan
         if not np.isnan(z[k]):
-            innovation, nis = correct(s, z[k], cfg)
+            innovation, nis = _correct(s, z[k], cfg)
         out[k, 0] = s[_T]
         out[k, 1] = s[_GQ]
         out[k, 2] = s[_GD]
@@ -267,14 +270,13 @@ def _run(
         out[k, 6] = s[_P + 5]
         out[k, 7] = innovation
         out[k, 8] = nis
-        out[k, 9] = deviation(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model)
+        out[k, 9] = _deviation(s, q0[k - 1], hg[k - 1], g[k - 1], te[k - 1], model)
 
 
-def _live(
+@njit(nogil=False)
+def live_steps(
     s: NDArray[np.float64],
     drive: NDArray[np.float64],
-    inputs: NDArray[np.float64],
-    drive_rows: NDArray[np.float64],
     out: NDArray[np.float64],
     heat_x: float,
     heat_y: float,
@@ -294,7 +296,7 @@ def _live(
 ) -> None:
     """One live call in one compiled call: ``steps`` predictions with the held drive (``drive``, the
     Drive fields), the update with z when measured, the deviation; then the drive of this call's inputs
-    (the model's compiled drive kernel) is held for the next call. out = (innovation, NIS, deviation). The
+    (the model's ``drive_at``) is held for the next call. out = (innovation, NIS, deviation). The
     model's coefficients come packed (``ecu_monitor.model.pack_coefficients``)."""
     coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     q0 = drive[0]
@@ -302,50 +304,16 @@ def _live(
     g = drive[3]
     te = drive[2]
     for _ in range(steps):
-        predict(s, q0, hg, g, te, model, cfg)
+        _predict(s, q0, hg, g, te, model, cfg)
     innovation = np.nan
     nis = np.nan
     if measured:
-        innovation, nis = correct(s, z, cfg)
+        innovation, nis = _correct(s, z, cfg)
     out[0] = innovation
     out[1] = nis
-    out[2] = deviation(s, q0, hg, g, te, model)
-    inputs[0, 0] = heat_x
-    inputs[1, 0] = heat_y
-    inputs[2, 0] = altitude_m
-    inputs[3, 0] = airspeed_mps
-    inputs[4, 0] = oat_c
-    inputs[5, 0] = mixture_index
-    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, drive_rows)
-    drive[0] = drive_rows[0, 0]  # Drive order: q_sl0, altitude gain, ambient, conductance, heat gain
-    drive[1] = drive_rows[1, 0]
-    drive[2] = oat_c
-    drive[3] = drive_rows[3, 0]
-    drive[4] = drive_rows[2, 0]
-
-
-# Names the core calls; compiled_kernels() binds them to compiled functions.
-drive_kernel: Any = None
-derivatives: Any = None
-rk4: Any = None
-predict: Any = None
-correct: Any = None
-deviation: Any = None
-
-
-@functools.cache
-def compiled_kernels() -> SimpleNamespace:
-    """The filter's core compiled by numba with the model's compiled equations (cached on disk)."""
-    equations = compiled_equations(False)
-    tag = fingerprint([__file__, str(_compiled_model.__file__), str(_thermal.__file__)])
-    predict_ = jit(_predict, tag, derivatives=equations.derivatives, rk4=equations.rk4)
-    correct_ = jit(_correct, tag)
-    deviation_ = jit(_deviation, tag, derivatives=equations.derivatives)
-    run = jit(_run, tag, predict=predict_, correct=correct_, deviation=deviation_)
-    live = jit(_live, tag, nogil=False, predict=predict_, correct=correct_, deviation=deviation_,
-               drive_kernel=_compiled_model.drive_kernel(),
-               unpack_coefficients=jit(_thermal.unpack_coefficients, tag))  # fmt: skip
-    return SimpleNamespace(predict=predict_, correct=correct_, deviation=deviation_, run=run, live=live)
+    out[2] = _deviation(s, q0, hg, g, te, model)
+    u = (heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index)
+    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
 
 
 def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> NDArray[np.float64]:
@@ -388,15 +356,12 @@ class IsolationFilter:
         self._coeffs = coefficients(params)
         self._packed_coeffs = pack_coefficients(self._coeffs)
         self._model = model_vector(self._coeffs)
-        self._kernels: SimpleNamespace | None = None  # compiled on first use
         self._cfg = self.settings.vector()
         self._state: NDArray[np.float64] | None = None
         self._drive: Drive | None = None
         self._time_s = 0.0
         # the live call's drive, scratch and outputs, preallocated (estimate() allocates no array)
         self._drive_vec = np.zeros(len(Drive._fields))
-        self._inputs = np.zeros((6, 1))
-        self._drive_rows = np.zeros((4, 1))
         self._out = np.zeros(3)
 
     def _require(self) -> tuple[NDArray[np.float64], Drive]:
@@ -449,13 +414,11 @@ class IsolationFilter:
                 f"{self.name}: time must advance by at least one step of {self.settings.dt_s} s"
                 f" (from {self._time_s} to {t_s})"
             )
-        if self._kernels is None:
-            self._kernels = compiled_kernels()
         measured = z_cht_c is not None and math.isfinite(z_cht_c)
         z = float(z_cht_c) if measured and z_cht_c is not None else math.nan
         out = self._out
-        self._kernels.live(
-            s, self._drive_vec, self._inputs, self._drive_rows, out, float(u[0]), float(u[1]), float(u[2]),
+        live_steps(
+            s, self._drive_vec, out, float(u[0]), float(u[1]), float(u[2]),
             float(u[3]), float(u[4]), float(u[5]), z, measured, steps, self._model, self._cfg, *self._packed_coeffs,
         )  # fmt: skip
         innovation, nis, deviation = float(out[0]), float(out[1]), float(out[2])
@@ -530,7 +493,7 @@ def run_isolation(
     state = _initial_state(float(z[0]), 2.0 * float(drive["q_sl0_w"][0]), settings)
     columns = np.empty((10, len(log)))  # written as out[k, i] through its transpose: each column contiguous
     hg = np.ascontiguousarray(drive["heat_gain"] * drive["altitude_gain"])
-    compiled_kernels().run(
+    _run(
         drive["q_sl0_w"], hg, drive["conductance_w_per_c"], drive["ambient_c"], z, substeps,
         model_vector(coefficients(params)), settings.vector(), state, columns.T,
     )  # fmt: skip

@@ -12,13 +12,15 @@ where it climbs from one level to the next with slope up to a/4 = 25. The slope 
 zero elsewhere: an EKF using this model learns from the measurement only while its estimate sits
 near a level boundary (docs/estimators.md).
 
-Everything here is scalar ``math`` on Python floats, so numba compiles the same functions for the
-long-flight runner (:mod:`ecu_monitor.estimation.runner`).
+Everything here is scalar ``math`` on Python floats, so numba compiles the same functions into the
+filters' compiled callers (``register_jitable``).
 """
 
 from __future__ import annotations
 
 import math
+
+from numba.extending import register_jitable
 
 __all__ = [
     "level_of",
@@ -30,6 +32,7 @@ __all__ = [
 ]
 
 
+@register_jitable
 def sigmoid(z: float) -> float:
     """Logistic function 1 / (1 + e^-z), evaluated without overflow for large |z|."""
     if z >= 0.0:
@@ -38,6 +41,7 @@ def sigmoid(z: float) -> float:
     return e / (1.0 + e)
 
 
+@register_jitable
 def sensor_model(x_c: float, a: float, b: float, c: float) -> float:
     """Sigmoid staircase h(x) (degC): the smooth stand-in for rounding x to a step of c degC."""
     u = x_c / c
@@ -45,6 +49,7 @@ def sensor_model(x_c: float, a: float, b: float, c: float) -> float:
     return c * (base + sigmoid(a * (u - base - b)))
 
 
+@register_jitable
 def sensor_slope(x_c: float, a: float, b: float, c: float) -> float:
     """dh/dx of :func:`sensor_model` (dimensionless): a s (1 - s)."""
     u = x_c / c
@@ -52,16 +57,19 @@ def sensor_slope(x_c: float, a: float, b: float, c: float) -> float:
     return a * s * (1.0 - s)
 
 
+@register_jitable
 def quantise(x_c: float, c: float) -> float:
     """What the ECU reports: x rounded to the nearest multiple of c (halves away from the level below)."""
     return c * math.floor(x_c / c + 0.5)
 
 
+@register_jitable
 def level_of(z_c: float, c: float) -> float:
     """Index of the quantisation level of a reading (a float holding an integer)."""
     return float(math.floor(z_c / c + 0.5))
 
 
+@register_jitable
 def reset_value(level_new: float, level_old: float, c: float, boundary: bool) -> float:
     """Where CBEKF-AU re-initialises the estimate when the reading moves from level_old to level_new.
 

@@ -8,10 +8,9 @@ live filter's per-step drive), and runs the scalar filter loop compiled with num
 
 One source of truth: the compiled loop is :func:`trace_loop` below calling
 :func:`ecu_monitor.estimation.ekf.filter_steps` (its ``filter_step`` over substeps), which calls the
-model's own ``rk4_step``; numba gets
-those very functions, each re-bound so that its callees are the compiled twins (no equation is written
-twice; :mod:`ecu_monitor.model.kernels`). ``trace_loop`` also runs as plain Python (the reference in
-the tests). Estimators that are not a :class:`ThermalEKF` (the isolation filter) run step by step
+model's own ``rk4_step``; numba compiles those very functions into the loop (no equation is written
+twice; :mod:`ecu_monitor.model.kernels`). ``trace_loop.py_func`` runs it as plain Python (the reference
+in the tests). Estimators that are not a :class:`ThermalEKF` (the isolation filter) run step by step
 through their ``estimate()``, itself compiled.
 
 numba is loaded on the live path too: :class:`ThermalEKF` and the isolation filter step through the
@@ -21,9 +20,7 @@ bus, ``Pipeline.warm_up``).
 
 from __future__ import annotations
 
-import functools
 import math
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -32,25 +29,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.estimation import ekf as _ekf_module
-from ecu_monitor.estimation import quantiser as _quantiser
 from ecu_monitor.estimation.ekf import (
     _RESET_CODES,
     EstimatorSettings,
     FilterState,
     ThermalEKF,
-    compiled_filter,
     filter_steps,
-    scalar_coefficients,
 )
 from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.estimation.registry import make_estimator
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients
-from ecu_monitor.model import thermal as _thermal
+from ecu_monitor.model import Coefficients, Drive, InputSeries, ThermalParams, coefficients, scalar_coefficients
 from ecu_monitor.model.compiled import compute_drive_compiled
 from ecu_monitor.model.inputs import AMBIENT_COLUMNS, flight_inputs, input_columns
-from ecu_monitor.model.kernels import fingerprint, jit
+from ecu_monitor.model.kernels import njit, python_reference
 
 __all__ = [
     "INPUT_COLUMNS",
@@ -162,6 +154,7 @@ def fixed_step_flight(log: FlightLog, params: ThermalParams, dt_s: float) -> Fix
     return FixedStepFlight(grid, inputs, z, measured, steps)
 
 
+@njit()
 def trace_loop(
     q_sl0_w: NDArray[np.float64],
     altitude_gain: NDArray[np.float64],
@@ -195,7 +188,7 @@ def trace_loop(
     their inputs between calls.
 
     Call 0 initialises from z_c[0] (x = z, P = initial_var, Pade state in steady state), exactly as
-    :meth:`ThermalEKF.initialise`. Plain Python here; :func:`_compiled_loop` compiles it.
+    :meth:`ThermalEKF.initialise`. Its ``.py_func`` is the plain-Python reference.
     """
     z0 = z_c[0]
     state = FilterState(z0, initial_var, 2.0 * q_sl0_w[0], 0.0, z0, 0.0, level_of(z0, c))
@@ -220,21 +213,6 @@ def trace_loop(
         out_reset[k] = did_reset
 
 
-@functools.cache
-def _compiled_loop() -> Callable[..., None]:
-    """numba twin of :func:`trace_loop`, calling the compiled filter steps (cached on disk)."""
-    filter_ = compiled_filter()
-    tag = fingerprint([str(m.__file__) for m in (_thermal, _quantiser, _ekf_module, sys.modules[__name__])])
-    loop: Callable[..., None] = jit(trace_loop, tag, filter_steps=filter_.steps, level_of=filter_.level_of)
-    return loop
-
-
-def compiled_filter_steps() -> Callable[..., Any]:
-    """The numba twin of :func:`ecu_monitor.estimation.ekf.filter_steps` (the live filter's hot loop)."""
-    steps: Callable[..., Any] = compiled_filter().steps
-    return steps
-
-
 def _run_compiled(
     flight: FixedStepFlight, params: ThermalParams, settings: EstimatorSettings, estimator: ThermalEKF, compiled: bool
 ) -> EstimateTrace:
@@ -244,7 +222,7 @@ def _run_compiled(
     arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
     out_x, out_P, out_delta, out_innovation, out_nis = (np.empty(n) for _ in range(5))
     out_reset = np.zeros(n, dtype=np.bool_)
-    loop: Callable[..., None] = _compiled_loop() if compiled else trace_loop
+    loop: Callable[..., None] = trace_loop if compiled else python_reference(trace_loop)
     s = settings
     loop(
         *arrays,
@@ -407,7 +385,7 @@ def run_estimator_on_calls(
     arrays = [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))) for v in drive]
     out_x, out_P, out_delta, out_innovation, out_nis = (np.empty(n) for _ in range(5))
     s = settings
-    _compiled_loop()(
+    trace_loop(
         *arrays, z, np.isfinite(z), np.diff(at, prepend=0), coeffs, s.initial_var, s.dt_s, s.process_var,
         s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, estimator.use_deviation,
         _RESET_CODES[estimator.reset_mode], out_x, out_P, out_delta, out_innovation, out_nis,

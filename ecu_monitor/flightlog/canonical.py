@@ -38,6 +38,7 @@ from ecu_monitor.flightlog.log import (
 )
 from ecu_monitor.flightlog.rules import _assemble, _is_strict
 from ecu_monitor.flightlog.table import _check_widths, _floats, _numbers, _read_table
+from ecu_monitor.userfiles import atomic_output
 
 _log = logging.getLogger(__name__)
 
@@ -106,18 +107,11 @@ def write_csv(log: FlightLog, path: str | os.PathLike[str]) -> None:
     cylinders (``cht1_c..``, ``egt1_c..``), the engine columns, the rest.
 
     Values are written with Python's shortest round-trip representation, so :func:`read_csv` gives
-    back the same floats; NaN is written as a blank field. The file is written to a temporary name
-    and renamed, so an interrupted write never leaves a half file under ``path``.
+    back the same floats; NaN is written as a blank field. Written atomically
+    (:func:`ecu_monitor.userfiles.atomic_output`): an interrupted write never leaves a half file.
     """
-    path = Path(path)
     order = _column_order(log)
     data = [log[c].tolist() for c in order]
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with tmp.open("w", newline="", encoding="utf-8") as fh:
-            fh.write(",".join(order) + "\n")
-            fh.writelines(",".join(map(_fmt, row)) + "\n" for row in zip(*data, strict=True))
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise FlightLogError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+    with atomic_output(path, FlightLogError, text=True) as fh:
+        fh.write(",".join(order) + "\n")
+        fh.writelines(",".join(map(_fmt, row)) + "\n" for row in zip(*data, strict=True))

@@ -125,5 +125,6 @@ def detect_layout(path: str | os.PathLike[str]) -> Path | None:
         problems.append(f"{Path(mapping.path).stem}: {problem}")
     raise FlightLogError(
         f"{src}: not a canonical flight CSV (no column 'time_s') and no known layout fits"
-        f" ({'; '.join(problems)}); give a mapping file (--mapping FILE)"
+        f" ({'; '.join(problems)}); import it with a mapping file first:"
+        f" ecu-monitor import {src} --mapping MAPPING.yaml --out flight.csv (docs/flight_logs.md)"
     )

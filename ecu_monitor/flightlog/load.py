@@ -14,6 +14,7 @@ from ecu_monitor.flightlog.foreign import import_mapped_csv
 from ecu_monitor.flightlog.layout import detect_layout
 from ecu_monitor.flightlog.log import FlightLog
 from ecu_monitor.flightlog.mapping import resolve_mapping
+from ecu_monitor.userfiles import check_input
 
 
 def load_csv(
@@ -29,6 +30,7 @@ def load_csv(
     from the cylinders (``mean``, ``hottest`` or a cylinder number; foreign CSVs default to ``mean``).
     For any suffix, CAN logs included, use :func:`ecu_monitor.bus.canlog.load_flight`."""
     path = Path(path)
+    check_input(path, "flight CSV", FlightLogError)
     if mapping is None or str(mapping) == "auto":
         layout = detect_layout(path)
         if layout is None:

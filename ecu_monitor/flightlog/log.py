@@ -54,6 +54,11 @@ PHYSICAL_LIMITS: Mapping[str, tuple[float, float]] = MappingProxyType(
 MAX_BLANK_RUN = 5
 #: Time gaps longer than this are kept but reported.
 GAP_WARN_S = 5.0
+#: A flight log whose rows come further apart than this (median, s) or that lasts longer than
+#: MAX_FLIGHT_S is refused: its time is not in seconds (an engine monitor logs every 6 s at the slowest;
+#: no piston aircraft flies 48 h), and replaying it would run 50 steps a second over months.
+MAX_MEDIAN_STEP_S = 30.0
+MAX_FLIGHT_S = 48.0 * 3600.0
 
 _REQUIRED_ALWAYS = tuple(c for c in CANONICAL_COLUMNS if c != "throttle_pct")
 _STRICT = frozenset(CANONICAL_COLUMNS + OPTIONAL_COLUMNS)

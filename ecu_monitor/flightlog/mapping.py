@@ -58,12 +58,12 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-import yaml
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog.log import _REQUIRED_ALWAYS, CYLINDER_COLUMN
 from ecu_monitor.shipped import resolve_file, shipped_dir
 from ecu_monitor.units import QUANTITY_OF_COLUMN, UNITS, Unit, custom_unit
+from ecu_monitor.yamlfile import load_yaml_file
 
 #: Shipped mapping files; ``--mapping NAME`` names one when no file NAME exists (:func:`resolve_mapping`).
 MAPPINGS_DIR = shipped_dir("mapping")
@@ -213,16 +213,7 @@ def load_mapping(path: str | os.PathLike[str]) -> CsvMapping:
     """Parse and validate a mapping YAML file (format in the module docstring)."""
     path = Path(path)
     src = str(path)
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{src}: no such mapping file") from None
-    except OSError as exc:
-        raise ConfigError(f"{src}: cannot read: {exc.strerror or exc}") from exc
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{src}: not valid YAML{where}: {getattr(exc, 'problem', exc)}") from exc
+    raw = load_yaml_file(path, "mapping file", ConfigError)
     top = _Keys(
         src,
         "",

@@ -9,7 +9,16 @@ from collections.abc import Callable
 import numpy as np
 
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.flightlog.log import _STRICT, CYLINDER_COLUMN, GAP_WARN_S, MAX_BLANK_RUN, PHYSICAL_LIMITS, FlightLog
+from ecu_monitor.flightlog.log import (
+    _STRICT,
+    CYLINDER_COLUMN,
+    GAP_WARN_S,
+    MAX_BLANK_RUN,
+    MAX_FLIGHT_S,
+    MAX_MEDIAN_STEP_S,
+    PHYSICAL_LIMITS,
+    FlightLog,
+)
 from ecu_monitor.flightlog.table import _note
 
 _log = logging.getLogger(__name__)
@@ -72,6 +81,7 @@ def _assemble(
             time = time[keep]
             lines = lines[keep]
             cols = {k: v[keep] for k, v in cols.items()}
+        _check_time_unit(src, time)
     out: dict[str, np.ndarray] = {"time_s": time}
     for name, values in cols.items():
         blank = np.isnan(values)
@@ -120,6 +130,22 @@ def _assemble(
                 f" (longest {steps[k]:g} s before row {lines[k + 1]})",
             )
     return FlightLog(out, src, tuple(notes))
+
+
+def _check_time_unit(src: str, time: np.ndarray) -> None:
+    """FlightLogError if ``time`` (s, increasing) cannot be a flight's time in seconds, saying what it
+    would be in milliseconds."""
+    if time.size < 2:
+        return
+    median = float(np.median(np.diff(time)))
+    span = float(time[-1] - time[0])
+    if median <= MAX_MEDIAN_STEP_S and span <= MAX_FLIGHT_S:
+        return
+    raise FlightLogError(
+        f"{src}: column 'time_s': rows every {median:g} s over {span / 3600.0:.3g} h is no flight in seconds"
+        f" (at most {MAX_MEDIAN_STEP_S:g} s apart, {MAX_FLIGHT_S / 3600.0:g} h); in milliseconds it would be rows"
+        f" every {median / 1000.0:g} s over {span / 60000.0:.3g} min: give time_s in seconds"
+    )
 
 
 def _run_lengths(mask: np.ndarray) -> np.ndarray:

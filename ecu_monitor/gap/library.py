@@ -43,6 +43,7 @@ import numpy as np
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import (
+    EFFECT_TYPES,
     AirspeedCooling,
     DensityCooling,
     Effects,
@@ -112,7 +113,7 @@ CANDIDATES: tuple[Candidate, ...] = (
     Candidate(
         "airspeed_cooling",
         "airspeed_cooling",
-        "convective conductance grows with airspeed (floor on the ground)",
+        EFFECT_TYPES["airspeed_cooling"].GAP_TEXT,
         (
             FreeParameter("gain_per_mps", 0.0, -0.05, 0.1, "1/(m/s)"),
             FreeParameter("floor", 0.95, 0.1, 1.0, "-", restarts=(0.4,)),
@@ -121,19 +122,19 @@ CANDIDATES: tuple[Candidate, ...] = (
     Candidate(
         "density_cooling",
         "density_cooling",
-        "convective conductance scales with air density",
+        EFFECT_TYPES["density_cooling"].GAP_TEXT,
         (FreeParameter("exponent", 0.0, -1.5, 2.5, "-"),),
     ),
     Candidate(
         "sensor_lag",
         "sensor_lag",
-        "first-order lag of the CHT probe",
+        EFFECT_TYPES["sensor_lag"].GAP_TEXT,
         (FreeParameter("time_constant_s", 1.0, 0.0, 120.0, "s", restarts=(15.0,)),),
     ),
     Candidate(
         "mixture_cooling",
         "mixture_cooling",
-        "less heat into the head at high load (power enrichment)",
+        EFFECT_TYPES["mixture_cooling"].GAP_TEXT,
         (
             FreeParameter("fraction", 0.02, 0.0, 0.6, "-"),
             FreeParameter("onset", 0.6, 0.0, 0.95, "-", restarts=(0.3, 0.85)),
@@ -142,7 +143,7 @@ CANDIDATES: tuple[Candidate, ...] = (
     Candidate(
         "mixture_index",
         "mixture_index",
-        "heat into the head follows the mixture, read from the logged EGT",
+        EFFECT_TYPES["mixture_index"].GAP_TEXT,
         (FreeParameter("gain", 0.0, -0.01, 0.01, "1/degC"),),
     ),
     Candidate(

@@ -27,6 +27,7 @@ from ecu_monitor.gap.diagnosis import EffectScore, GapDiagnosis
 from ecu_monitor.gap.localise import LagSignature
 from ecu_monitor.gap.segments import SEGMENT_NAMES
 from ecu_monitor.model import save_model
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = ["PLOT_FILES", "gap_json", "write_report"]
 
@@ -204,7 +205,7 @@ def _plot_residual_time(diag: GapDiagnosis, path: Path) -> None:
         bottom.set_xlabel("time, min")
         _legend(bottom, present)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -230,7 +231,7 @@ def _plot_residual_inputs(diag: GapDiagnosis, path: Path) -> None:
     _legend(axes.flat[0], {SEGMENT_NAMES[i] for i in np.unique(labels)})
     fig.suptitle(f"Residual of the nominal model against each input ({len(diag.tests)} test flight(s) pooled)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -255,7 +256,7 @@ def _plot_spectrum(diag: GapDiagnosis, path: Path) -> None:
     ax.set_title(f"Residual spectrum ({lag}, r = {diag.lag.correlation:+.2f})")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -284,7 +285,7 @@ def _plot_before_after(diag: GapDiagnosis, path: Path) -> None:
         bottom.set_xlabel("time, min")
         bottom.legend(loc="best", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -480,12 +481,12 @@ def write_report(diag: GapDiagnosis, out_dir: str | Path, command: str | None = 
     except OSError as exc:
         raise ConfigError(f"{out}: cannot create the output directory ({exc.strerror})") from None
     doc = gap_json(diag)
-    (out / "gap.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    write_output_bytes(out / "gap.json", (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode(), ConfigError)
     _plot_residual_time(diag, out / PLOT_FILES[0])
     _plot_residual_inputs(diag, out / PLOT_FILES[1])
     _plot_spectrum(diag, out / PLOT_FILES[2])
     _plot_before_after(diag, out / PLOT_FILES[3])
-    (out / "report.md").write_text(_markdown(diag, doc, command), encoding="utf-8")
+    write_output_bytes(out / "report.md", _markdown(diag, doc, command).encode("utf-8"), ConfigError)
     label = diag.winner.label if diag.winner is not None else "none (unexplained): nominal model unchanged"
     save_model(diag.model, out / "model.yaml", comment=f"ecu-monitor gap: winning effect {label}")
     return doc

@@ -29,6 +29,7 @@ prior (penalty) centred on the base values.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -353,7 +354,7 @@ def _parse_cell(name: str) -> tuple[int, int]:
 
 
 def _effect_dict(effect: Any) -> dict[str, Any]:
-    return {name: getattr(effect, name) for name in effect.__dataclass_fields__}
+    return {f.name: getattr(effect, f.name) for f in dataclasses.fields(effect)}
 
 
 def _nearest_cells(shape: tuple[int, int], cells: Sequence[tuple[int, int]]) -> dict[tuple[int, int], tuple[int, int]]:

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.problem import ErrorStats
 from ecu_monitor.model import ThermalParams
+from ecu_monitor.userfiles import save_figure
 
 __all__ = ["error_table", "plot_cost", "plot_flight", "plot_heat_map"]
 
@@ -73,7 +74,7 @@ def plot_flight(
     bottom.set_xlabel("time, min")
     bottom.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -93,7 +94,7 @@ def plot_cost(history: Sequence[float], path: str | Path, title: str, polish_cos
     ax.grid(alpha=0.3, which="both")
     ax.legend(loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -122,5 +123,5 @@ def plot_heat_map(params: ThermalParams, identified: NDArray[np.bool_], path: st
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)

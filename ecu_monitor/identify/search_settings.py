@@ -23,20 +23,13 @@ MIN_VISIT_S = 20.0
 #: Prior penalty scale: one prior standard deviation costs as much as 1 degC^2 of mean squared error.
 PRIOR_SCALE_C = 1.0
 
-# effect parameter name -> (Coefficients field, lower, upper, log-scaled)
+# effect parameter name -> (Coefficients field, lower, upper, log-scaled): each effect declares its own
+# (the mixture_index gain's range is the source's, default_space)
 _EFFECT_FIELDS: dict[str, tuple[str, float, float, bool]] = {
-    "effects.airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", -0.05, 0.1, False),
-    "effects.airspeed_cooling.reference_mps": ("airspeed_reference_mps", 1.0, 200.0, False),
-    "effects.airspeed_cooling.floor": ("airspeed_floor", 0.05, 1.0, False),
-    "effects.density_cooling.exponent": ("density_exponent", 0.0, 1.5, False),
-    "effects.density_cooling.reference_kg_m3": ("density_reference_kg_m3", 0.3, 1.6, False),
-    "effects.sensor_lag.time_constant_s": ("sensor_lag_s", 0.0, 60.0, False),
-    "effects.mixture_cooling.fraction": ("mixture_fraction", 0.0, 0.6, False),
-    "effects.mixture_cooling.onset": ("mixture_onset", 0.0, 0.95, False),
-    "effects.airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0, 60.0, False),
-    "effects.mixture_index.gain": ("mixture_gain", -0.01, 0.01, False),  # default_space: per source
-    "effects.mixture_index.reference": ("mixture_reference", 0.0, 1200.0, False),
+    f"effects.{name}.{parameter}": (spec.coefficient, *spec.search, False)
+    for name, kind in EFFECT_TYPES.items()
+    for parameter, spec in kind.PARAMETERS.items()
 }
-_EFFECT_TYPES: dict[str, type] = EFFECT_TYPES
+_EFFECT_TYPES: dict[str, type] = dict(EFFECT_TYPES)
 _SCALE_PARAMETERS = {"c_w", "r_ce", "alpha_r_e", "heat_map"}
 _KNOWN_FREE = {"c_w", "r_ce", "tau_w", "alpha_r_e", "a", "b", "heat_map", *_EFFECT_FIELDS}

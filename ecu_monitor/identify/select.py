@@ -40,17 +40,7 @@ from ecu_monitor.identify.problem import (
     reference_point,
 )
 from ecu_monitor.identify.pso import PsoSettings
-from ecu_monitor.model import (
-    AirspeedCooling,
-    DensityCooling,
-    MixtureCooling,
-    SensorLag,
-    ThermalParams,
-    air_density_kg_m3,
-    isa_pressure_pa,
-)
-from ecu_monitor.model.effects import MixtureIndex
-from ecu_monitor.model.inputs import MIXTURE_COLUMNS, mixture_index
+from ecu_monitor.model import EFFECT_NAMES, EFFECT_TYPES, ThermalParams
 
 __all__ = [
     "MIN_GAIN",
@@ -67,26 +57,15 @@ __all__ = [
     "term_is_on",
 ]
 
-#: Terms that identification can switch on or off (module doc).
-TERM_NAMES: tuple[str, ...] = (
-    "airspeed_cooling",
-    "density_cooling",
-    "sensor_lag",
-    "mixture_cooling",
-    "mixture_index",
-    "altitude_factor",
-    "radiation_kelvin",
-)
+#: Terms that identification can switch on or off (module doc): every effect, and two parts of the paper's form.
+TERM_NAMES: tuple[str, ...] = (*EFFECT_NAMES, "altitude_factor", "radiation_kelvin")
 #: A toggle is kept when it lowers the mean held-out RMS error by at least this fraction.
 MIN_GAIN = 0.02
 #: The paper's altitude exponents, used when the altitude factor is switched back on.
 _PAPER_A, _PAPER_B = 1.55, 2.0
+#: Term -> the parameters identification frees with it (each effect declares its own).
 _TERM_FREE: dict[str, tuple[str, ...]] = {
-    "airspeed_cooling": ("effects.airspeed_cooling.gain_per_mps", "effects.airspeed_cooling.prop_wash_mps"),
-    "mixture_index": ("effects.mixture_index.gain",),
-    "density_cooling": ("effects.density_cooling.exponent",),
-    "sensor_lag": ("effects.sensor_lag.time_constant_s",),
-    "mixture_cooling": ("effects.mixture_cooling.fraction", "effects.mixture_cooling.onset"),
+    **{name: tuple(f"effects.{name}.{p}" for p in kind.FREE) for name, kind in EFFECT_TYPES.items()},
     "altitude_factor": (),
     "radiation_kelvin": (),
 }
@@ -129,35 +108,8 @@ def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[Flig
         return _switch_radiation_units(params, on, flights)
     if not on:
         return params.replace(effects=params.effects.replace(name, None))
-    airspeed = np.concatenate([np.asarray(log["airspeed_mps"], dtype=float) for log in flights])
-    if name == "airspeed_cooling":
-        reference = max(1.0, float(np.quantile(airspeed, 0.75)))
-        prop_wash = min(0.5 * reference, 60.0)
-        effect: object = AirspeedCooling(
-            gain_per_mps=0.5 / reference, reference_mps=reference, floor=0.05, prop_wash_mps=prop_wash
-        )
-    elif name == "density_cooling":
-        density = np.concatenate(
-            [
-                np.asarray(air_density_kg_m3(isa_pressure_pa(log["altitude_m"]), log["oat_c"]), dtype=float)
-                for log in flights
-            ]
-        )
-        effect = DensityCooling(exponent=0.5, reference_kg_m3=float(np.clip(np.median(density), 0.3, 1.6)))
-    elif name == "sensor_lag":
-        effect = SensorLag(time_constant_s=10.0)
-    elif name == "mixture_index":
-        source = "egt_c" if all(log.has("egt_c") for log in flights) else "fuel_per_rev"
-        index = np.concatenate([_mixture_of(log, source) for log in flights])
-        effect = MixtureIndex(source=source, gain=0.0, reference=float(np.nanmedian(index)))
-    else:
-        effect = MixtureCooling()
+    effect = EFFECT_TYPES[name].start(flights)  # the effect's own start rule
     return params.replace(effects=params.effects.replace(name, effect))
-
-
-def _mixture_of(log: FlightLog, source: str) -> NDArray[np.float64]:
-    """The flight's lean/rich index of ``source`` (its columns only: the heat-map axes may not be set yet)."""
-    return mixture_index(source, {name: np.asarray(log[name], dtype=float) for name in MIXTURE_COLUMNS[source]})
 
 
 def _switch_radiation_units(params: ThermalParams, kelvin: bool, flights: Sequence[FlightLog]) -> ThermalParams:

@@ -24,30 +24,96 @@ identified model. An effect that is ``None`` in :class:`Effects` is off and the 
   positive, and ``1 + gain * (index - reference)`` near the reference. Where the index is not logged
   (NaN) the factor is 1.
 
-Adding an effect: a frozen dataclass here (validated fields, a docstring with units), an entry in
-:data:`EFFECT_TYPES` and a field in :class:`Effects`; its coefficients (``Coefficients``,
-``EFFECT_COEFFICIENTS``) and its term in :mod:`ecu_monitor.model.equations` (docs/model.md).
+Each effect carries its own definition, as a progpy model carries its own (:class:`Effect`): its
+parameters (:class:`EffectParameter`: the coefficient the equations read, its neutral value, its
+physical range, the identification's search range, the virtual plant's draw), which of them
+identification frees, how identification starts it from the flights (:meth:`Effect.start`) and what the
+gap diagnosis says it is. Everything else (the coefficients, the validation, the search space, the
+terms ``identify --effects`` knows, the gap library's wording, the virtual plant's draws) is made from
+these declarations.
+
+Adding an effect: a frozen dataclass here (its fields with units, its :class:`Effect` declarations), an
+entry in :data:`EFFECT_TYPES` and a field in :class:`Effects`; its coefficients (``Coefficients``) and
+its term in :mod:`ecu_monitor.model.equations` (docs/model.md, "Adding an effect").
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, ClassVar, Protocol
 
-from ecu_monitor.errors import ParameterError
+import numpy as np
+from numpy.typing import NDArray
+
+from ecu_monitor.errors import FlightLogError, ParameterError
+from ecu_monitor.model.atmosphere import SEA_LEVEL_DENSITY_KG_M3, air_density_kg_m3, isa_pressure_pa
 
 __all__ = [
+    "EFFECT_COEFFICIENTS",
     "EFFECT_NAMES",
     "EFFECT_TYPES",
+    "MIXTURE_COLUMNS",
     "MIXTURE_SOURCES",
     "AirspeedCooling",
     "DensityCooling",
+    "Effect",
+    "EffectParameter",
     "Effects",
     "MixtureCooling",
     "MixtureIndex",
     "SensorLag",
+    "mixture_index",
 ]
+
+
+class Columns(Protocol):
+    """What a start rule reads from a flight: its named columns."""
+
+    def has(self, name: str) -> bool: ...
+
+    def __getitem__(self, name: str) -> Any: ...
+
+
+@dataclass(frozen=True)
+class EffectParameter:
+    """One numeric parameter of an effect.
+
+    coefficient: the :class:`~ecu_monitor.model.equations.Coefficients` field the equations read.
+    neutral: that field's value while the effect is off (its factor is then exactly 1).
+    valid: physical range, checked when the effect is made (None: the effect checks it itself).
+    search: the identification's search range when the parameter is free.
+    plant: range the virtual plant draws a random truth from (None: not drawn, the default holds).
+    """
+
+    coefficient: str
+    neutral: float
+    valid: tuple[float, float] | None
+    search: tuple[float, float]
+    plant: tuple[float, float] | None = None
+
+
+class Effect:
+    """The declarations every effect carries (class attributes) and its validation."""
+
+    #: parameter name -> its declaration, in the dataclass's field order.
+    PARAMETERS: ClassVar[dict[str, EffectParameter]]
+    #: the parameters identification fits when it switches the effect on.
+    FREE: ClassVar[tuple[str, ...]]
+    #: what the gap diagnosis says the effect is (one line).
+    GAP_TEXT: ClassVar[str]
+
+    def __post_init__(self) -> None:
+        name = _EFFECT_NAME_OF[type(self)]
+        for parameter, spec in self.PARAMETERS.items():
+            if spec.valid is not None:
+                _check_range(name, parameter, getattr(self, parameter), *spec.valid)
+
+    @classmethod
+    def start(cls, flights: Sequence[Columns]) -> Effect:
+        """The effect as identification switches it on for ``flights`` (its start values)."""
+        return cls()
 
 
 def _check_range(effect: str, name: str, value: float, low: float, high: float) -> None:
@@ -69,7 +135,7 @@ def _plain(value: Any) -> Any:
 
 
 @dataclass(frozen=True)
-class AirspeedCooling:
+class AirspeedCooling(Effect):
     """Convective conductance grows linearly with the cooling air speed max(airspeed, prop wash).
 
     gain_per_mps: relative conductance change per m/s (1/(m/s)), typically 0.005-0.03.
@@ -84,15 +150,27 @@ class AirspeedCooling:
     floor: float = 0.4
     prop_wash_mps: float = 0.0
 
-    def __post_init__(self) -> None:
-        _check_range("airspeed_cooling", "gain_per_mps", self.gain_per_mps, -0.2, 0.2)
-        _check_range("airspeed_cooling", "reference_mps", self.reference_mps, 1.0, 200.0)
-        _check_range("airspeed_cooling", "floor", self.floor, 0.05, 1.0)
-        _check_range("airspeed_cooling", "prop_wash_mps", self.prop_wash_mps, 0.0, 60.0)
+    PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
+        "gain_per_mps": EffectParameter("airspeed_gain_per_mps", 0.0, (-0.2, 0.2), (-0.05, 0.1), (0.01, 0.03)),
+        "reference_mps": EffectParameter("airspeed_reference_mps", 23.0, (1.0, 200.0), (1.0, 200.0)),
+        "floor": EffectParameter("airspeed_floor", 1.0, (0.05, 1.0), (0.05, 1.0), (0.3, 0.6)),
+        "prop_wash_mps": EffectParameter("airspeed_prop_wash_mps", 0.0, (0.0, 60.0), (0.0, 60.0)),
+    }
+    FREE: ClassVar[tuple[str, ...]] = ("gain_per_mps", "prop_wash_mps")
+    GAP_TEXT: ClassVar[str] = "convective conductance grows with airspeed (floor on the ground)"
+
+    @classmethod
+    def start(cls, flights: Sequence[Columns]) -> AirspeedCooling:
+        """Nominal R_Ce at the flights' upper-quartile airspeed, the propeller wash half of it, a gain that
+        halves the conductance at standstill."""
+        airspeed = np.concatenate([np.asarray(log["airspeed_mps"], dtype=float) for log in flights])
+        reference = max(1.0, float(np.quantile(airspeed, 0.75)))
+        prop_wash = min(0.5 * reference, 60.0)
+        return cls(gain_per_mps=0.5 / reference, reference_mps=reference, floor=0.05, prop_wash_mps=prop_wash)
 
 
 @dataclass(frozen=True)
-class DensityCooling:
+class DensityCooling(Effect):
     """Convective conductance scales with air density: (rho/reference_kg_m3)^exponent.
 
     exponent: dimensionless, typically 0.5-0.8; reference_kg_m3: density of the nominal fit (kg/m^3).
@@ -101,23 +179,45 @@ class DensityCooling:
     exponent: float = 0.6
     reference_kg_m3: float = 1.225
 
-    def __post_init__(self) -> None:
-        _check_range("density_cooling", "exponent", self.exponent, -3.0, 3.0)
-        _check_range("density_cooling", "reference_kg_m3", self.reference_kg_m3, 0.3, 1.6)
+    PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
+        "exponent": EffectParameter("density_exponent", 0.0, (-3.0, 3.0), (0.0, 1.5), (0.4, 0.8)),
+        "reference_kg_m3": EffectParameter("density_reference_kg_m3", SEA_LEVEL_DENSITY_KG_M3, (0.3, 1.6), (0.3, 1.6)),
+    }
+    FREE: ClassVar[tuple[str, ...]] = ("exponent",)
+    GAP_TEXT: ClassVar[str] = "convective conductance scales with air density"
+
+    @classmethod
+    def start(cls, flights: Sequence[Columns]) -> DensityCooling:
+        """Exponent 0.5 about the flights' median air density."""
+        density = np.concatenate(
+            [
+                np.asarray(air_density_kg_m3(isa_pressure_pa(log["altitude_m"]), log["oat_c"]), dtype=float)
+                for log in flights
+            ]
+        )
+        return cls(exponent=0.5, reference_kg_m3=float(np.clip(np.median(density), 0.3, 1.6)))
 
 
 @dataclass(frozen=True)
-class SensorLag:
+class SensorLag(Effect):
     """First-order lag of the CHT probe. time_constant_s: probe time constant (s), 0-300."""
 
     time_constant_s: float = 8.0
 
-    def __post_init__(self) -> None:
-        _check_range("sensor_lag", "time_constant_s", self.time_constant_s, 0.0, 300.0)
+    PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
+        "time_constant_s": EffectParameter("sensor_lag_s", 0.0, (0.0, 300.0), (0.0, 60.0), (4.0, 20.0)),
+    }
+    FREE: ClassVar[tuple[str, ...]] = ("time_constant_s",)
+    GAP_TEXT: ClassVar[str] = "first-order lag of the CHT probe"
+
+    @classmethod
+    def start(cls, flights: Sequence[Columns]) -> SensorLag:
+        """A 10 s probe."""
+        return cls(time_constant_s=10.0)
 
 
 @dataclass(frozen=True)
-class MixtureCooling:
+class MixtureCooling(Effect):
     """Less heat into the head at high load from power enrichment.
 
     fraction: heat reduction at full load (0-0.6); onset: normalised load where it starts (0-0.95).
@@ -126,9 +226,12 @@ class MixtureCooling:
     fraction: float = 0.12
     onset: float = 0.7
 
-    def __post_init__(self) -> None:
-        _check_range("mixture_cooling", "fraction", self.fraction, 0.0, 0.6)
-        _check_range("mixture_cooling", "onset", self.onset, 0.0, 0.95)
+    PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
+        "fraction": EffectParameter("mixture_fraction", 0.0, (0.0, 0.6), (0.0, 0.6), (0.06, 0.2)),
+        "onset": EffectParameter("mixture_onset", 0.7, (0.0, 0.95), (0.0, 0.95), (0.6, 0.8)),
+    }
+    FREE: ClassVar[tuple[str, ...]] = ("fraction", "onset")
+    GAP_TEXT: ClassVar[str] = "less heat into the head at high load (power enrichment)"
 
 
 #: Lean/rich indices the mixture_index effect can read -> (unit, accepted range of the reference, the
@@ -137,10 +240,28 @@ MIXTURE_SOURCES: dict[str, tuple[str, float, float, float]] = {
     "egt_c": ("degC", 0.0, 1200.0, 300.0),  # exhaust gas temperature
     "fuel_per_rev": ("mL/rev", 0.0, 5.0, 0.3),  # fuel_flow_lph / rpm, in mL per revolution
 }
+#: Columns each mixture-index source is computed from.
+MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
+    "egt_c": ("egt_c",),
+    "fuel_per_rev": ("fuel_flow_lph", "rpm"),
+}
+#: Below this engine speed (rpm) the fuel per revolution is taken at this speed (engine stopped).
+_MIN_RPM = 100.0
+
+
+def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64]:
+    """The lean/rich index of ``source`` from its columns: EGT (degC) as logged, or the fuel per
+    revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h)."""
+    if source == "egt_c":
+        return np.asarray(columns["egt_c"], dtype=float)
+    if source == "fuel_per_rev":
+        rpm = np.maximum(np.asarray(columns["rpm"], dtype=float), _MIN_RPM)
+        return np.asarray(columns["fuel_flow_lph"], dtype=float) * (1000.0 / 60.0) / rpm
+    raise FlightLogError(f"mixture_index: unknown source {source!r}")
 
 
 @dataclass(frozen=True)
-class MixtureIndex:
+class MixtureIndex(Effect):
     """Heat into the head follows a logged lean/rich index: Q *= exp(gain * (index - reference)).
 
     source: the index, one of :data:`MIXTURE_SOURCES`: "egt_c" (degC) or "fuel_per_rev" (mL/rev).
@@ -152,6 +273,23 @@ class MixtureIndex:
     source: str = "egt_c"
     gain: float = 0.001
     reference: float = 650.0
+
+    # gain and reference: their ranges depend on the source (checked below; the search's gain range too)
+    PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
+        "gain": EffectParameter("mixture_gain", 0.0, None, (-0.01, 0.01)),
+        "reference": EffectParameter("mixture_reference", 0.0, None, (0.0, 1200.0)),
+    }
+    FREE: ClassVar[tuple[str, ...]] = ("gain",)
+    GAP_TEXT: ClassVar[str] = "heat into the head follows the mixture, read from the logged EGT"
+
+    @classmethod
+    def start(cls, flights: Sequence[Columns]) -> MixtureIndex:
+        """No gain, about the flights' median index: EGT where every flight logs it, else fuel per rev."""
+        source = "egt_c" if all(log.has("egt_c") for log in flights) else "fuel_per_rev"
+        index = np.concatenate(
+            [mixture_index(source, {name: log[name] for name in MIXTURE_COLUMNS[source]}) for log in flights]
+        )
+        return cls(source=source, gain=0.0, reference=float(np.nanmedian(index)))
 
     def __post_init__(self) -> None:
         if self.source not in MIXTURE_SOURCES:
@@ -165,7 +303,7 @@ class MixtureIndex:
 
 
 #: Effect name -> its parameter class (the one list of effects).
-EFFECT_TYPES: dict[str, type] = {
+EFFECT_TYPES: dict[str, type[Effect]] = {
     "airspeed_cooling": AirspeedCooling,
     "density_cooling": DensityCooling,
     "sensor_lag": SensorLag,
@@ -173,6 +311,14 @@ EFFECT_TYPES: dict[str, type] = {
     "mixture_index": MixtureIndex,
 }
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)
+_EFFECT_NAME_OF: dict[type, str] = {kind: name for name, kind in EFFECT_TYPES.items()}
+#: "effect.parameter" -> (its Coefficients field, the neutral value while the effect is off: a factor of
+#: exactly 1). :func:`ecu_monitor.model.coefficients` fills the effects' fields from this table.
+EFFECT_COEFFICIENTS: dict[str, tuple[str, float]] = {
+    f"{name}.{parameter}": (spec.coefficient, spec.neutral)
+    for name, kind in EFFECT_TYPES.items()
+    for parameter, spec in kind.PARAMETERS.items()
+}
 
 
 @dataclass(frozen=True)

@@ -6,12 +6,13 @@
     G = (1/R_Ce) * effects' conductance factors
 
 Every function here is plain arithmetic on its arguments plus the primitives ``exp``, ``log``,
-``expm1``, ``maximum``, ``minimum`` and ``finite_or`` (numpy's by default). So the same code runs
-on numpy arrays (a whole flight, a swarm: :mod:`.thermal`), on Python floats with the primitives
-re-bound to the ``math`` module (:data:`SCALAR`, the live filter), and compiled by numba with the
-same re-binding (:func:`ecu_monitor.model.kernels.compiled_equations`: the swarm kernel, the filter
-loops, the isolation filter). Nothing else in the code base writes these equations; a test runs every
-kernel against :func:`ecu_monitor.model.thermal.simulate` with every effect on.
+``expm1``, ``maximum``, ``minimum`` and ``finite_or``. So the same code runs on numpy arrays (a whole
+flight, a swarm: :mod:`.thermal`) and, compiled by numba, inside the kernels, the filters and the step:
+each function is ``register_jitable`` (a plain Python function called from Python, compiled into any
+numba function that calls it, inlined so that it takes that caller's fast-math flags), and each
+primitive declares both its meanings below (numpy's in Python, the ``math`` module's compiled). Nothing
+else in the code base writes these equations; a test runs every kernel against
+:func:`ecu_monitor.model.thermal.simulate` with every effect on.
 
 Per-parameter-set coefficients travel as one indexable row ``coef`` (a :class:`Coefficients`, or a
 row of the swarm kernel's matrix) read with the index constants below (``coef[C_W]``), so a new
@@ -21,27 +22,22 @@ coefficient needs no change to any kernel's argument list.
 from __future__ import annotations
 
 import math
-import types
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba.extending import overload, register_jitable
 
 from ecu_monitor.model.atmosphere import (
     ISA_PRESSURE_EXPONENT,
     KELVIN_OFFSET,
     LAPSE_RATE_K_PER_M,
-    SEA_LEVEL_DENSITY_KG_M3,
     SEA_LEVEL_PRESSURE_PA,
     SEA_LEVEL_TEMPERATURE_K,
 )
 
 __all__ = [
-    "EFFECT_COEFFICIENTS",
     "PARAMETER_FIELDS",
-    "SCALAR",
     "Coefficients",
-    "bind",
     "blend",
     "conditions",
     "derivatives",
@@ -52,22 +48,75 @@ __all__ = [
     "rk4",
 ]
 
-# numpy primitives; bind() swaps them (the names below are what the equations call).
-exp = np.exp
-log = np.log
-expm1 = np.expm1
-maximum = np.maximum
-minimum = np.minimum
+# --------------------------------------------------------------------------------------------------
+# Primitives: numpy's in Python (arrays and scalars alike), the math module's when compiled
+# --------------------------------------------------------------------------------------------------
+
+
+def exp(x: Any) -> Any:
+    """e**x (numpy)."""
+    return np.exp(x)
+
+
+def log(x: Any) -> Any:
+    """Natural logarithm (numpy)."""
+    return np.log(x)
+
+
+def expm1(x: Any) -> Any:
+    """e**x - 1, exact near 0 (numpy)."""
+    return np.expm1(x)
+
+
+def maximum(a: Any, b: Any) -> Any:
+    """Elementwise larger of a and b (numpy)."""
+    return np.maximum(a, b)
+
+
+def minimum(a: Any, b: Any) -> Any:
+    """Elementwise smaller of a and b (numpy)."""
+    return np.minimum(a, b)
 
 
 def finite_or(value: Any, default: Any) -> Any:
-    """value where it is finite, else default (numpy form)."""
+    """value where it is finite, else default (numpy)."""
     return np.where(np.isfinite(value), value, default)
 
 
-def _finite_or_scalar(value: float, default: float) -> float:
-    """value if it is finite, else default (scalar form, also compiled by numba)."""
-    return value if math.isfinite(value) else default
+# (the overloads take their arguments without annotations: numba compares the two signatures)
+@overload(exp, inline="always")
+def _exp_compiled(x):
+    return lambda x: math.exp(x)
+
+
+@overload(log, inline="always")
+def _log_compiled(x):
+    return lambda x: math.log(x)
+
+
+@overload(expm1, inline="always")
+def _expm1_compiled(x):
+    return lambda x: math.expm1(x)
+
+
+@overload(maximum, inline="always")
+def _maximum_compiled(a, b):
+    return lambda a, b: max(a, b)
+
+
+@overload(minimum, inline="always")
+def _minimum_compiled(a, b):
+    return lambda a, b: min(a, b)
+
+
+@overload(finite_or, inline="always")
+def _finite_or_compiled(value, default):
+    return lambda value, default: value if math.isfinite(value) else default
+
+
+#: Decorator of the equations: plain functions in Python, compiled and inlined into any numba function
+#: that calls them (so they take its fast-math flags: exact in the filters, SWARM_FASTMATH in the swarm).
+equation = register_jitable(inline="always")
 
 
 _AIR_GAS_CONSTANT = 287.053  # J/(kg K), as atmosphere.air_density_kg_m3
@@ -107,21 +156,6 @@ class Coefficients(NamedTuple):
 
 #: The per-parameter-set fields of :class:`Coefficients`, in order (a swarm kernel's matrix rows).
 PARAMETER_FIELDS: tuple[str, ...] = Coefficients._fields[: Coefficients._fields.index("radiation_offset_c")]
-#: "effect.parameter" -> (its Coefficients field, the neutral value while the effect is off: a factor of
-#: exactly 1). ``ecu_monitor.model.coefficients`` fills the effects' fields from this table.
-EFFECT_COEFFICIENTS: dict[str, tuple[str, float]] = {
-    "airspeed_cooling.gain_per_mps": ("airspeed_gain_per_mps", 0.0),
-    "airspeed_cooling.reference_mps": ("airspeed_reference_mps", 23.0),
-    "airspeed_cooling.floor": ("airspeed_floor", 1.0),
-    "airspeed_cooling.prop_wash_mps": ("airspeed_prop_wash_mps", 0.0),
-    "density_cooling.exponent": ("density_exponent", 0.0),
-    "density_cooling.reference_kg_m3": ("density_reference_kg_m3", SEA_LEVEL_DENSITY_KG_M3),
-    "sensor_lag.time_constant_s": ("sensor_lag_s", 0.0),
-    "mixture_cooling.fraction": ("mixture_fraction", 0.0),
-    "mixture_cooling.onset": ("mixture_onset", 0.7),
-    "mixture_index.gain": ("mixture_gain", 0.0),
-    "mixture_index.reference": ("mixture_reference", 0.0),
-}
 C_W = PARAMETER_FIELDS.index("c_w")
 R_CE = PARAMETER_FIELDS.index("r_ce")
 RADIATIVE = PARAMETER_FIELDS.index("radiative_conductance")
@@ -146,6 +180,7 @@ MIX_REFERENCE = PARAMETER_FIELDS.index("mixture_reference")
 # --------------------------------------------------------------------------------------------------
 
 
+@equation
 def conditions(heat_x: Any, altitude_m: Any, airspeed_mps: Any, oat_c: Any, x_low: float, x_high: float) -> tuple:
     """Per-time quantities shared by every parameter set.
 
@@ -162,11 +197,13 @@ def conditions(heat_x: Any, altitude_m: Any, airspeed_mps: Any, oat_c: Any, x_lo
     return log_pressure_ratio, log_temperature_ratio, log_density, maximum(airspeed_mps, 0.0), load
 
 
+@equation
 def blend(v00: Any, v01: Any, v10: Any, v11: Any, fx: Any, fy: Any) -> Any:
     """Bilinear blend of a heat-map cell's corners at fractional position (fx, fy)."""
     return (1.0 - fx) * ((1.0 - fy) * v00 + fy * v01) + fx * ((1.0 - fy) * v10 + fy * v11)
 
 
+@equation
 def drive(
     log_pressure_ratio: Any,
     log_temperature_ratio: Any,
@@ -201,6 +238,7 @@ def drive(
 # --------------------------------------------------------------------------------------------------
 
 
+@equation
 def dissipation(cht_c: Any, ambient_c: Any, conductance: Any, radiative_conductance: Any, offset_c: float) -> Any:
     """Heat leaving the head, W: convection G (T - T_e) plus radiation (T^4 - T_e^4)/(alpha R_e)
     (temperatures shifted by offset_c inside T^4: 273.15 for Kelvin, 0 for the paper's degC)."""
@@ -209,6 +247,7 @@ def dissipation(cht_c: Any, ambient_c: Any, conductance: Any, radiative_conducta
     return conductance * (cht_c - ambient_c) + radiative_conductance * (t * t * t * t - e * e * e * e)
 
 
+@equation
 def derivatives(
     cht_c: Any,
     pade_w: Any,
@@ -230,6 +269,7 @@ def derivatives(
     return (heat_in - lost * (1.0 / gamma_d)) * (1.0 / c_w), (2.0 / tau_w) * (2.0 * q_sl0_w - pade_w)
 
 
+@equation
 def rk4(
     cht_c: Any,
     pade_w: Any,
@@ -262,73 +302,13 @@ def rk4(
     )
 
 
+@equation
 def lag_fraction(lag_s: Any, dt_s: float) -> Any:
     """Fraction of the gap the probe closes in dt_s (exact first-order lag); lag 0 gives exactly 1."""
     return -expm1(-dt_s / maximum(lag_s, 1e-300))
 
 
+@equation
 def probe_step(probe_c: Any, cht_c: Any, fraction: Any) -> Any:
     """Probe temperature after one step, given :func:`lag_fraction`."""
     return probe_c + fraction * (cht_c - probe_c)
-
-
-# --------------------------------------------------------------------------------------------------
-# Re-binding: the same functions on other primitives
-# --------------------------------------------------------------------------------------------------
-
-#: Names of the equation functions (re-bound together so they call each other's twins).
-FUNCTIONS: tuple[str, ...] = (
-    "conditions",
-    "blend",
-    "drive",
-    "dissipation",
-    "derivatives",
-    "rk4",
-    "lag_fraction",
-    "probe_step",
-)
-#: The math-module primitives (floats; numba compiles these).
-SCALAR_PRIMITIVES: dict[str, Any] = {
-    "exp": math.exp,
-    "log": math.log,
-    "expm1": math.expm1,
-    "maximum": max,
-    "minimum": min,
-    "finite_or": _finite_or_scalar,
-}
-
-
-def bind(
-    primitives: dict[str, Any], wrap: Callable[[str, Callable[..., Any]], Any] | None = None
-) -> types.SimpleNamespace:
-    """Copies of the equation functions that call ``primitives`` and each other's copies.
-
-    ``wrap(name, function)`` may turn each copy into something else (numba.njit); it runs after all
-    copies share their new namespace, so a wrapped copy calls the wrapped others. Primitives that
-    are Python functions are copied and wrapped too (the originals are never changed).
-    """
-    namespace = dict(globals())
-    copies: dict[str, Any] = {}
-    for name, value in primitives.items():
-        copies[name] = _copy(value, namespace) if isinstance(value, types.FunctionType) else value
-    for name in FUNCTIONS:
-        copies[name] = _copy(globals()[name], namespace)
-    if wrap is not None:
-        copies = {
-            name: wrap(name, value) if isinstance(value, types.FunctionType) else value
-            for name, value in copies.items()
-        }
-    namespace.update(copies)
-    return types.SimpleNamespace(**{name: copies[name] for name in FUNCTIONS})
-
-
-def _copy(function: types.FunctionType, namespace: dict[str, Any]) -> types.FunctionType:
-    clone = types.FunctionType(function.__code__, namespace, function.__name__, function.__defaults__)
-    clone.__module__ = function.__module__
-    clone.__qualname__ = function.__qualname__
-    clone.__doc__ = function.__doc__
-    return clone
-
-
-#: The equations on Python floats (math module): the scalar path of the live filter.
-SCALAR = bind(SCALAR_PRIMITIVES)

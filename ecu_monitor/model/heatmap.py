@@ -13,12 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numba.extending import register_jitable
+from numpy.typing import ArrayLike, NDArray
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.model.equations import blend
 
-__all__ = ["HeatMap", "bilinear", "reference_heat_map"]
+__all__ = ["HeatMap", "bilinear", "heat_cell", "reference_heat_map"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,24 @@ class HeatMap:
             y,
         )
         return float(result) if np.ndim(result) == 0 else result
+
+
+@register_jitable(inline="always")
+def heat_cell(x: float, y: float, xb: NDArray[np.float64], yb: NDArray[np.float64]) -> tuple[int, int, float, float]:
+    """The heat-map cell of the point (x, y), clamped to the breakpoints ``xb``, ``yb``: its lower corner
+    (i, j) and the fractions (fx, fy) in [0, 1] across it, for :func:`~ecu_monitor.model.equations.blend`.
+    Inlined into every compiled function that reads the heat map, so each does the same arithmetic."""
+    nx = xb.shape[0]
+    ny = yb.shape[0]
+    x = min(max(x, xb[0]), xb[nx - 1])
+    y = min(max(y, yb[0]), yb[ny - 1])
+    i = 0
+    while i < nx - 2 and x >= xb[i + 1]:
+        i += 1
+    j = 0
+    while j < ny - 2 and y >= yb[j + 1]:
+        j += 1
+    return i, j, (x - xb[i]) / (xb[i + 1] - xb[i]), (y - yb[j]) / (yb[j + 1] - yb[j])
 
 
 def _cell(breakpoints: np.ndarray, q: ArrayLike) -> tuple[np.ndarray, np.ndarray]:

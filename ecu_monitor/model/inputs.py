@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import FlightLogError
-from ecu_monitor.model.effects import MixtureIndex
+from ecu_monitor.model.effects import MIXTURE_COLUMNS, MixtureIndex, mixture_index
 from ecu_monitor.model.params import ThermalParams
 from ecu_monitor.model.thermal import InputSeries
 
@@ -38,13 +38,6 @@ __all__ = [
 
 #: Flight columns every model reads besides its heat-map axes (InputSeries order).
 AMBIENT_COLUMNS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
-#: Columns each mixture-index source is computed from.
-MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
-    "egt_c": ("egt_c",),
-    "fuel_per_rev": ("fuel_flow_lph", "rpm"),
-}
-#: Below this engine speed (rpm) the fuel per revolution is taken at this speed (engine stopped).
-_MIN_RPM = 100.0
 
 
 class ColumnSource(Protocol):
@@ -72,17 +65,6 @@ def _columns(heat_axes: tuple[str, str], mixture: MixtureIndex | None) -> tuple[
     if mixture is not None:
         names.extend(MIXTURE_COLUMNS[mixture.source])
     return tuple(dict.fromkeys(names))
-
-
-def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64]:
-    """The lean/rich index of ``source`` from its columns: EGT (degC) as logged, or the fuel per
-    revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h)."""
-    if source == "egt_c":
-        return np.asarray(columns["egt_c"], dtype=float)
-    if source == "fuel_per_rev":
-        rpm = np.maximum(np.asarray(columns["rpm"], dtype=float), _MIN_RPM)
-        return np.asarray(columns["fuel_flow_lph"], dtype=float) * (1000.0 / 60.0) / rpm
-    raise FlightLogError(f"mixture_index: unknown source {source!r}")
 
 
 def flight_inputs(log: ColumnSource, params: ThermalParams) -> InputSeries:

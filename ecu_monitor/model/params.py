@@ -20,9 +20,11 @@ import yaml
 from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.model.effects import Effects
 from ecu_monitor.model.heatmap import HeatMap, reference_heat_map
-from ecu_monitor.yamlfile import load_yaml_text
+from ecu_monitor.userfiles import write_output_bytes
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
+    "MAX_STEADY_RISE_C",
     "MODEL_KIND",
     "MODEL_VERSION",
     "NOMINAL_TERMS",
@@ -66,6 +68,11 @@ _SCALARS: dict[str, tuple[float, float]] = {
     "b": (0.0, 10.0),
     "cht_limit_c": (20.0, 500.0),
 }
+#: Highest steady CHT rise above the air a model may predict, degC: the heat map's largest value times
+#: R_Ce (the wall's steady state without radiation). Aluminium melts at 660 degC; three times that still
+#: leaves room for any identified engine while refusing a heat map in the wrong unit (1e9 W made every
+#: filter step NaN).
+MAX_STEADY_RISE_C = 2000.0
 
 
 @dataclass(frozen=True)
@@ -110,6 +117,13 @@ class ThermalParams:
             raise ParameterError("radiation_in_kelvin: expected true or false")
         if not isinstance(self.heat_map, HeatMap):
             raise ParameterError("heat_map: expected a HeatMap")
+        peak_w = max(max(row) for row in self.heat_map.values_w)
+        if peak_w * self.r_ce > MAX_STEADY_RISE_C:
+            raise ParameterError(
+                f"heat_map.values_w: {peak_w:g} W times r_ce {self.r_ce:g} degC/W is a steady CHT"
+                f" {peak_w * self.r_ce:.3g} degC above the air, more than any engine ({MAX_STEADY_RISE_C:g});"
+                " is the heat map in W?"
+            )
         if not isinstance(self.effects, Effects):
             raise ParameterError("effects: expected an Effects")
         if isinstance(self.terms_off, str) or not isinstance(self.terms_off, tuple | list):
@@ -170,6 +184,8 @@ class ThermalParams:
         if not isinstance(data, dict):
             raise ParameterError("expected a mapping at the top level")
         known = {f.name for f in dataclasses.fields(cls)} | {"model", "version"}
+        if "inputs" in data and "engine" in data:
+            raise ParameterError("this is a service config, not a model file: give it as --config")
         for key in data:
             if key not in known:
                 raise ParameterError(f"{key}: unknown key (known: {', '.join(sorted(known))})")
@@ -249,16 +265,7 @@ def paper_table_a1() -> ThermalParams:
 def load_model(path: str | Path) -> ThermalParams:
     """Read model.yaml; any problem raises ConfigError naming the file and the key."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read model file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a model file (not UTF-8 text: byte {exc.start})") from None
-    try:
-        data = load_yaml_text(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = load_yaml_file(path, "model file", ConfigError)
     try:
         return ThermalParams.from_dict(data)
     except ParameterError as exc:
@@ -267,9 +274,6 @@ def load_model(path: str | Path) -> ThermalParams:
 
 def save_model(params: ThermalParams, path: str | Path, comment: str | None = None) -> None:
     """Write model.yaml (loads back to an equal ThermalParams)."""
-    path = Path(path)
     header = "".join(f"# {line}\n" for line in (comment or "").splitlines())
-    try:
-        path.write_text(header + yaml.safe_dump(params.to_dict(), sort_keys=False), encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot write model file ({exc.strerror})") from None
+    text = header + yaml.safe_dump(params.to_dict(), sort_keys=False)
+    write_output_bytes(path, text.encode("utf-8"), ConfigError)

@@ -24,18 +24,20 @@ Inputs are held constant over a step (zero-order hold); the step is RK4.
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 from numpy.typing import NDArray
 
 from ecu_monitor.model import equations as _eq
 from ecu_monitor.model.atmosphere import KELVIN_OFFSET
-from ecu_monitor.model.equations import EFFECT_COEFFICIENTS, Coefficients
-from ecu_monitor.model.heatmap import bilinear
+from ecu_monitor.model.effects import EFFECT_COEFFICIENTS
+from ecu_monitor.model.equations import Coefficients
+from ecu_monitor.model.heatmap import bilinear, heat_cell
+from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.params import ThermalParams
 
 #: A float for one parameter set, or an array for a swarm / a whole flight.
@@ -52,6 +54,7 @@ __all__ = [
     "coefficients",
     "compute_drive",
     "derivatives",
+    "drive_at",
     "initial_pade_state",
     "pack_coefficients",
     "rk4_step",
@@ -157,14 +160,15 @@ def pack_coefficients(coeffs: Coefficients) -> PackedCoefficients:
     )
 
 
+@register_jitable
 def unpack_coefficients(
     scalars: NDArray[np.float64],
     heat_values_w: NDArray[np.float64],
     x_breakpoints: NDArray[np.float64],
     y_breakpoints: NDArray[np.float64],
 ) -> Coefficients:
-    """The :class:`Coefficients` that :func:`pack_coefficients` packed (compiled by numba inside the live
-    filters' calls; equal to ``scalar_coefficients`` of the original, field for field)."""
+    """The :class:`Coefficients` that :func:`pack_coefficients` packed (compiled into the live filters' calls;
+    equal to ``scalar_coefficients`` of the original, field for field)."""
     s = scalars
     return Coefficients(
         s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12], s[13], s[14], s[15],
@@ -196,8 +200,8 @@ def stack_coefficients(params: Sequence[ThermalParams]) -> Coefficients:
 def compute_drive(inputs: InputSeries, coeffs: Coefficients) -> Drive:
     """Drive quantities from the inputs: heat map, altitude scaling and the effects' factors.
 
-    One step of one parameter set (all floats) runs the equations on the math module (~10x cheaper
-    than numpy on scalars); anything else is broadcast with numpy. Same functions either way.
+    One step of one parameter set (all floats) runs :func:`drive_at` compiled (the math module, as every
+    compiled caller); anything else is broadcast with numpy. Same equations either way.
     """
     if _is_scalar_case(inputs, coeffs):
         return _compute_drive_scalar(inputs, coeffs)
@@ -230,27 +234,29 @@ def _is_scalar_case(inputs: InputSeries, coeffs: Coefficients) -> bool:
     )
 
 
-def _cell_scalar(breakpoints: NDArray[np.float64], q: float) -> tuple[int, float]:
-    low, high = float(breakpoints[0]), float(breakpoints[-1])
-    q = low if q < low else high if q > high else q
-    index = min(max(bisect.bisect_right(breakpoints, q) - 1, 0), len(breakpoints) - 2)
-    x0, x1 = float(breakpoints[index]), float(breakpoints[index + 1])
-    return index, (q - x0) / (x1 - x0)
+@register_jitable
+def drive_at(u: Any, coeffs: Any) -> tuple[float, float, float, float, float]:
+    """The model's drive at one operating point ``u`` (the six inputs in :class:`InputSeries` order), in
+    :class:`Drive` order (q_sl0 W, g(z), ambient degC, conductance W/degC, heat factor): the heat-map
+    cell, its blend, the conditions and the effects. The one assembly of the drive; every compiled
+    caller (the drive kernel, the filters, the step) uses it."""
+    xb = coeffs.x_breakpoints
+    v = coeffs.heat_values_w
+    i, j, fx, fy = heat_cell(u[0], u[1], xb, coeffs.y_breakpoints)
+    q_sl0 = _eq.blend(v[i, j], v[i, j + 1], v[i + 1, j], v[i + 1, j + 1], fx, fy)
+    log_p, log_t, log_rho, airspeed, load = _eq.conditions(u[0], u[2], u[3], u[4], xb[0], xb[xb.shape[0] - 1])
+    altitude_gain, heat_gain, conductance = _eq.drive(log_p, log_t, log_rho, airspeed, load, u[5], coeffs)
+    return q_sl0, altitude_gain, u[4], conductance, heat_gain
+
+
+#: :func:`drive_at` compiled (the math module's primitives, as every compiled caller), for one step from Python.
+_drive_compiled = njit()(drive_at)
 
 
 def _compute_drive_scalar(inputs: InputSeries, coeffs: Coefficients) -> Drive:
-    """compute_drive for floats: the same equations bound to the math module."""
-    heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index = (float(v) for v in inputs)
-    c: Any = coeffs
-    i, fx = _cell_scalar(c.x_breakpoints, heat_x)
-    j, fy = _cell_scalar(c.y_breakpoints, heat_y)
-    v = c.heat_values_w
-    q_sl0 = _eq.SCALAR.blend(float(v[i, j]), float(v[i, j + 1]), float(v[i + 1, j]), float(v[i + 1, j + 1]), fx, fy)
-    conditions = _eq.SCALAR.conditions(
-        heat_x, altitude_m, airspeed_mps, oat_c, float(c.x_breakpoints[0]), float(c.x_breakpoints[-1])
-    )
-    altitude_gain, heat_gain, conductance = _eq.SCALAR.drive(*conditions, mixture_index, c)
-    return Drive(float(q_sl0), float(altitude_gain), oat_c, float(conductance), float(heat_gain))
+    """compute_drive for floats: :func:`drive_at` compiled, so a Python filter drives its model exactly as
+    the compiled ones do."""
+    return Drive(*_drive_compiled(tuple(float(v) for v in inputs), scalar_coefficients(coeffs)))
 
 
 def initial_pade_state(drive: Drive) -> Real:
@@ -267,13 +273,14 @@ def derivatives(
     gamma_d: Real = 1.0,
 ) -> tuple[Real, Real]:
     """(dT/dt in degC/s, dw/dt in W/s) of the model (Eq. 18 with the Pade delay)."""
-    return _derivatives(
+    return _eq.derivatives(
         cht_c, pade_w, drive.q_sl0_w, drive.heat_gain * drive.altitude_gain, drive.ambient_c,
         drive.conductance_w_per_c, coeffs.c_w, coeffs.tau_w, coeffs.radiative_conductance,
         coeffs.radiation_offset_c, gamma_q, gamma_d,
     )  # fmt: skip
 
 
+@register_jitable
 def rk4_step(
     cht_c: Real,
     pade_w: Real,
@@ -284,16 +291,11 @@ def rk4_step(
     gamma_d: Real = 1.0,
 ) -> tuple[Real, Real]:
     """One RK4 step of (T, w) over dt_s seconds with the drive held constant."""
-    return _rk4(
+    return _eq.rk4(
         cht_c, pade_w, drive.q_sl0_w, drive.heat_gain * drive.altitude_gain, drive.ambient_c,
         drive.conductance_w_per_c, coeffs.c_w, coeffs.tau_w, coeffs.radiative_conductance,
         coeffs.radiation_offset_c, gamma_q, gamma_d, dt_s,
     )  # fmt: skip
-
-
-# The callees of derivatives() and rk4_step(); the compiled twins re-bind these names.
-_derivatives = _eq.derivatives
-_rk4 = _eq.rk4
 
 
 def sensor_step(probe_c: Real, cht_c: Real, coeffs: Coefficients, dt_s: float) -> Real:
@@ -353,7 +355,7 @@ def _steady_state_scalar(
     ambient = float(drive.ambient_c)
     radiative = float(coeffs.radiative_conductance)
     offset = float(coeffs.radiation_offset_c)
-    dissipation = _eq.SCALAR.dissipation
+    dissipation = _eq.dissipation
     temp = ambient + heat / g_conv
     for _ in range(iterations):
         lost = dissipation(complex(temp, _COMPLEX_STEP), ambient, g_conv, radiative, offset)

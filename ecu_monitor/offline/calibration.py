@@ -54,6 +54,7 @@ from ecu_monitor.estimation.detection import (
     calibrate_threshold,
     cusum_path,
 )
+from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, reference_from_flights
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.calibration_replays import (
     AIRBORNE_MPS,
@@ -73,6 +74,7 @@ from ecu_monitor.offline.calibration_replays import (
     statistic_paths,
 )
 from ecu_monitor.shipped import resolve_file, shipped_file
+from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
     "AIRBORNE_MPS",
@@ -107,6 +109,8 @@ __all__ = [
     "overlay_replays",
     "score_candidate",
     "statistic_paths",
+    "wear_fragment",
+    "wear_reference",
 ]
 
 #: calibrate_threshold needs at least this many whole hours of statistic.
@@ -390,6 +394,26 @@ def _header(result: CalibrationResult, rate_per_100h: float, sources: Sequence[s
     return lines
 
 
+def wear_reference(
+    feeds: Sequence[FlightFeeds], settings: WearSettings
+) -> tuple[list[float | None], WearReference | None]:
+    """Each nominal flight's wear index (the across-flight detector's one rule, :class:`FlightWear`, over what
+    its replay fed the open-loop reference; the replays kept it) and their reference (None: fewer than 3)."""
+    indices: list[float | None] = []
+    for flight in feeds:
+        wear = FlightWear(settings)
+        for segment in flight.reference:
+            wear.add_many(segment.cht_c, segment.model_c, segment.oat_c)
+        indices.append(wear.index)
+    return indices, reference_from_flights(indices)
+
+
+def wear_fragment(reference: WearReference) -> dict[str, Any]:
+    """The ``wear:`` section that stores the engine's nominal wear reference in a service config."""
+    return {"wear": {"reference": {"mean": round(reference.mean, 6), "sd": round(reference.sd, 6),
+                                   "flights": reference.flights}}}  # fmt: skip
+
+
 def model_fingerprint(params: ThermalParams) -> str:
     """16 hex digits of the sha256 of the model's parameters (its model.yaml content, key order and
     file formatting aside): what ``detector.calibrated_for`` records, so a replay or the service can
@@ -424,20 +448,19 @@ def config_copy_yaml(
     cylinders: Sequence[tuple[CalibrationResult, str]] = (),
     cylinder_models: Sequence[str | os.PathLike[str]] = (),
     cross: Sequence[tuple[CalibrationResult | None, str]] = (),
+    wear: WearReference | None = None,
 ) -> str:
     """The service config at ``config_path`` with ``detector.threshold`` replaced, ``detector.calibrated_for``
     set (the :func:`model_fingerprint` of the model used) and ``model`` set to ``model_path`` if given, the
     model the threshold was calibrated with. With ``cylinders`` (per cylinder its result and model
     fingerprint; ``result`` is then the first cylinder's), ``cylinders.detectors`` is written instead
     and ``detector`` kept, and ``cylinders.models`` set to ``cylinder_models`` if given; with ``cross``
-    (the same, for the cross-cylinder detectors) ``cylinders.cross_detectors`` too. Relative file paths (dbc,
+    (the same, for the cross-cylinder detectors) ``cylinders.cross_detectors`` too. With ``wear``, the
+    engine's nominal wear reference is stored (``wear.reference``, :func:`wear_fragment`). Relative file paths (dbc,
     health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
     DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
     src = resolve_file(config_path, "config")
-    try:
-        data = yaml.safe_load(src.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{src}: cannot read config file ({exc})") from None
+    data = load_yaml_file(src, "config file", ConfigError)
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: top level: expected a mapping")
     base = src.resolve().parent
@@ -460,6 +483,9 @@ def config_copy_yaml(
         data["health_dbc"] = dbc(data["health_dbc"])
     if "state_dir" in data:
         data["state_dir"] = absolute(data["state_dir"])
+    if wear is not None:
+        section = data.get("wear")
+        data["wear"] = {**(section if isinstance(section, dict) else {}), **wear_fragment(wear)["wear"]}
     if model_path is not None:
         data["model"] = str(Path(model_path).resolve())
     elif isinstance(data.get("model"), str) and data["model"] not in MODEL_PRESETS:

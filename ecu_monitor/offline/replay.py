@@ -56,15 +56,23 @@ _Feed = tuple[NDArray[np.float64], NDArray[np.float64]]
 
 
 def replay_live(
-    config: Any, params: ThermalParams | Sequence[ThermalParams], frames: Iterable[can.Message]
+    config: Any,
+    params: ThermalParams | Sequence[ThermalParams],
+    frames: Iterable[can.Message],
+    on_rows: Callable[[Pipeline, list[HealthSnapshot]], None] | None = None,
 ) -> ReplayResult:
-    """The replay frame by frame through the live calls (``replay --live``)."""
+    """The replay frame by frame through the live calls (``replay --live``). ``on_rows(pipeline, rows)`` is
+    called with the rows each frame completes, the pipeline's held inputs as they are then (as the daemon
+    reads them: ``replay --history`` records the flights with it)."""
     pipeline = Pipeline(config, params)
     rows: list[HealthSnapshot] = []
     for msg in frames:
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
-        rows.extend(pipeline.drain_rows())
+        new = pipeline.drain_rows()
+        if new and on_rows is not None:
+            on_rows(pipeline, new)
+        rows.extend(new)
     return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters))
 
 

@@ -476,6 +476,12 @@ class Pipeline:
         value = float(self._engine.values[slot])
         return value if math.isfinite(value) else None
 
+    def reference_model_c(self) -> float:
+        """The open-loop reference model's CHT held now for the engine-level (lead) cylinder, degC: the nominal
+        model run from the first reading (nan while the estimator is not running)."""
+        lead = self.snapshot().lead_cylinder
+        return float(self._engine.state[max(lead - 1, 0)]["model_c"])
+
     def receive_filters(self) -> list[CanFilter]:
         """python-can receive filters of the frames the pipeline reads (none on a MAVLink link)."""
         if self.config.protocol == "mavlink":

@@ -26,11 +26,10 @@ import math
 from collections.abc import Iterator
 from typing import Any, ClassVar, Literal, NamedTuple
 
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S
-from ecu_monitor.pipeline.supervision import STATES
-
 __all__ = [
+    "HEADROOM_CAP_S",
     "HEALTH_VALUES",
+    "STATES",
     "CylinderSnapshot",
     "HealthSnapshot",
     "HealthValue",
@@ -41,6 +40,13 @@ __all__ = [
     "engine_values",
     "output_fields",
 ]
+
+#: DegradationState values of health.dbc, by code (the ``state`` rows' values; pipeline/supervision.py
+#: decides them).
+STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
+#: Headroom reported when the limit is not reached within this time, s: the headroom's "not limited at
+#: this power" (the step's march to the limit stops there).
+HEADROOM_CAP_S = 6000.0
 
 #: What a value is: a float (nan: not available), a state (one of STATES; its code on the bus and in the
 #: step's record), a flag (0/1), a cylinder's number (1-based, 0: none), or a set of input names (the
@@ -101,7 +107,7 @@ HEALTH_VALUES: tuple[HealthValue, ...] = (
                 mavlink="GAMMA_Q", history=True),
     HealthValue("gamma_d", "", idle=1.0, dbc="Health_Isolation.GammaDEstimate",
                 cylinder_dbc="Health_Cylinder.CylGammaD", dronecan="gamma_d", mavlink="GAMMA_D", history=True),
-    HealthValue("headroom_s", "s", idle=DEFAULT_CAP_S, idle_unestimated=0.0, dbc="Health_Isolation.ThermalHeadroom",
+    HealthValue("headroom_s", "s", idle=HEADROOM_CAP_S, idle_unestimated=0.0, dbc="Health_Isolation.ThermalHeadroom",
                 dronecan="headroom", mavlink="HDRM{n}"),
     HealthValue("stale_inputs", "", "inputs", "engine"),
     HealthValue("sensor_fault", "", "flag", "engine"),
@@ -179,7 +185,7 @@ class _Values:
 
     def __init_subclass__(cls) -> None:
         for name in cls._fields:
-            setattr(cls, name, property(lambda self, _name=name: self._v[_name], doc=f"the {name} value"))
+            setattr(cls, name, _field(name))
 
     def __init__(self, **values: Any) -> None:
         if not values.keys() <= self._fields.keys():
@@ -211,7 +217,7 @@ class _Values:
         object.__setattr__(self, "_v", state)
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self._v == other._v  # type: ignore[attr-defined]
+        return type(other) is type(self) and self._v == other._v
 
     def __hash__(self) -> int:
         return hash(tuple(self._v.items()))
@@ -222,6 +228,15 @@ class _Values:
     def replace(self, **changes: Any) -> Any:
         """A copy with ``changes``."""
         return type(self)(**{**self._v, **changes})
+
+
+def _field(name: str) -> property:
+    """The read-only attribute of field ``name``."""
+
+    def get(self: _Values) -> Any:
+        return self._v[name]
+
+    return property(get, doc=f"the {name} value")
 
 
 class CylinderSnapshot(_Values):

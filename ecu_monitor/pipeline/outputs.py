@@ -18,13 +18,13 @@ from numpy.typing import NDArray
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.pipeline.output_table import (
     HEALTH_VALUES,
+    STATES,
     CylinderSnapshot,
     HealthSnapshot,
     HealthValue,
     cylinder_values,
     engine_values,
 )
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import TableColumn, write_health_table
 
 __all__ = [

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+from numba.extending import register_jitable
+
 #: A clock jump longer than this (s) restarts the step schedule instead of running every step between.
 MAX_CLOCK_GAP_S = 600.0
 #: The filters (estimator, isolation filter, open-loop reference) are called every this many seconds
@@ -24,6 +26,7 @@ def filter_period_steps(dt_s: float) -> int:
 MAX_CLOCK_S = 1e12
 
 
+@register_jitable
 def clock_tick(t_s: float) -> float:
     """A clock reading rounded to the microsecond (frame stamps and step times alike), so that a frame
     stamped on a step instant compares equal to it whatever the log format's time resolution."""

@@ -29,28 +29,28 @@ The rules, in the order a step applies them:
 
 from __future__ import annotations
 
-import functools
 import math
-import sys
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from ecu_monitor.estimation import detection as _detection
-from ecu_monitor.estimation import ekf as _ekf
-from ecu_monitor.estimation import isolation as _isolation
-from ecu_monitor.model import compiled as _compiled_model
-from ecu_monitor.model import thermal as _thermal
-from ecu_monitor.pipeline import schedule as _schedule
-from ecu_monitor.pipeline import supervision as _supervision
-from ecu_monitor.pipeline.output_table import output_fields
+from ecu_monitor.estimation.detection import _cusum_step as cusum_step
+from ecu_monitor.estimation.ekf import live_steps as live_ekf
+from ecu_monitor.estimation.isolation import live_steps as live_isolation
+from ecu_monitor.estimation.quantiser import level_of
+from ecu_monitor.model.equations import derivatives, dissipation, rk4
+from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_at, unpack_coefficients
+from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S, output_fields
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_GAP_S, MAX_CLOCK_S, clock_tick
 from ecu_monitor.pipeline.supervision import (
     ACTION_INITIALISE,
     ACTION_NONE,
     CODE_DEGRADED,
     CODE_NOMINAL,
+    CODE_UNAVAILABLE,
     SupervisorState,
+    supervise,
 )
 
 __all__ = [
@@ -60,15 +60,12 @@ __all__ = [
     "CYLINDER_STATE",
     "DETECTOR_SETTINGS",
     "DETECTOR_STATE",
-    "HEADROOM_CAP_S",
     "Engine",
     "Rows",
     "Traces",
     "compiled",
 ]
 
-#: Headroom reported when the limit is not reached within this time, s ("not limited at this power").
-HEADROOM_CAP_S = 6000.0
 #: The RK4 step of the headroom's march to the limit, s.
 HEADROOM_STEP_S = 2.0
 #: A Newton iterate of the steady state this far below the limit (degC) settles that the steady state is below it.
@@ -221,7 +218,7 @@ class Engine(NamedTuple):
     iso_model: Any  # float64[cylinders, 4]
     iso_config: Any  # float64[cylinders, 7]
     output: Any  # CYLINDER_OUTPUT[cylinders]: this step's results
-    scratch: Any  # float64[24]: the filters' scratch (inputs 6, drive rows 4, out 3, a drive 5, the inputs u 6)
+    scratch: Any  # float64[24]: the filters' scratch (10 free, out 3, a drive 5, the inputs u 6)
     symptoms: Any  # float64[2, cylinders]: the cross-cylinder step's scratch
 
 
@@ -251,6 +248,7 @@ class Traces(NamedTuple):
 # ------------------------------------------------------------------------------------------------ the rules
 
 
+@njit(nogil=False)
 def _reset_detector(d: Any) -> None:
     d["started"] = False
     d["start_s"] = np.nan
@@ -267,6 +265,7 @@ def _reset_detector(d: Any) -> None:
     d["head"] = 0
 
 
+@njit(nogil=False)
 def detector_verdict(d: Any, s: Any) -> int:
     """The detector's state: 0 NOMINAL, 1 SUSPECT, 2 DEGRADED (latched from the first alarm)."""
     if not math.isnan(d["alarm_s"]):
@@ -274,6 +273,7 @@ def detector_verdict(d: Any, s: Any) -> int:
     return 1 if d["statistic"] >= s["suspect_fraction"] * s["threshold"] else 0
 
 
+@njit(nogil=False)
 def detector_step(d: Any, s: Any, ring: Any, t_s: float, symptom: float) -> int:
     """Feed one symptom sample (nan: skipped) at t_s (s) to the CUSUM ``d`` (DETECTOR_STATE) with
     settings ``s``; returns the state. Samples are averaged over blocks [start + warmup + i block_s, ...
@@ -326,6 +326,7 @@ def detector_step(d: Any, s: Any, ring: Any, t_s: float, symptom: float) -> int:
     return detector_verdict(d, s)
 
 
+@njit(nogil=False)
 def _steady_state_c(
     heat: float, ambient: float, conductance: float, radiative: float, offset: float, below: float
 ) -> float:
@@ -341,6 +342,7 @@ def _steady_state_c(
     return temp
 
 
+@njit(nogil=False)
 def headroom_s(cht_c: float, drive: Any, coeffs: Any, gamma_q: float, gamma_d: float, limit_c: float) -> float:
     """Seconds until the CHT reaches ``limit_c`` at the held drive (Drive order: q_sl0, altitude gain,
     ambient, conductance, heat gain), the heat path in steady state: 0 at or over the limit,
@@ -386,6 +388,7 @@ def headroom_s(cht_c: float, drive: Any, coeffs: Any, gamma_q: float, gamma_d: f
     return HEADROOM_CAP_S
 
 
+@njit(nogil=False)
 def _cht_rate(st: Any, cfg: Any, coeffs: Any) -> float:
     """The rate of change of the estimated CHT, degC/min: the model's heat balance at the estimate (its CHT
     and heat-path state, the drive of the latest inputs, the isolation filter's gammas)."""
@@ -402,21 +405,13 @@ def _cht_rate(st: Any, cfg: Any, coeffs: Any) -> float:
     return 60.0 * rate
 
 
+@njit(nogil=False)
 def _drive_at(eng: Engine, i: int, u: Any, coeffs: Any, drive: Any) -> None:
     """The model's drive of cylinder i at the inputs u (6) into drive (5, Drive order)."""
-    eng_scratch = eng.scratch
-    inputs = eng_scratch[0:6].reshape((6, 1))
-    rows = eng_scratch[6:10].reshape((4, 1))
-    for j in range(6):
-        inputs[j, 0] = u[j]
-    drive_kernel(inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], coeffs, rows)
-    drive[0] = rows[0, 0]
-    drive[1] = rows[1, 0]
-    drive[2] = u[4]
-    drive[3] = rows[3, 0]
-    drive[4] = rows[2, 0]
+    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
 
 
+@njit(nogil=False)
 def _stop_cylinder(st: Any) -> None:
     """Estimation and detection start afresh (at start and after a clock restart)."""
     st["running"] = False
@@ -440,6 +435,7 @@ def _stop_cylinder(st: Any) -> None:
     _reset_detector(st["cross"])
 
 
+@njit(nogil=False)
 def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: float, coeffs: Any) -> None:
     """The reference, the estimator and the isolation filter start from the reading at the inputs u."""
     eng_settings = eng.settings
@@ -470,17 +466,17 @@ def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: flo
     st["last_call_s"] = time_s
 
 
+@njit(nogil=False)
 def _ekf_call(state: Any, drive: Any, cfg: Any, scratch: Any, u: Any, z: float, measured: bool, cs: Any, hv: Any,
               xb: Any, yb: Any, use_deviation: bool, reset_code: int, steps: int) -> None:  # fmt: skip
     """One filter period of an EKF-family filter (the reference or the estimator) on its record fields."""
-    inputs = scratch[0:6].reshape((6, 1))
-    rows = scratch[6:10].reshape((4, 1))
     result = scratch[10:13]
-    live_ekf(state, drive, inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured, cs, hv, xb, yb,
+    live_ekf(state, drive, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured, cs, hv, xb, yb,
              cfg["dt_s"], cfg["process_var"], cfg["measurement_var"], cfg["sigmoid_a"], cfg["sigmoid_b"],
              cfg["quantum_c"], cfg["deviation_time_s"], use_deviation, reset_code, steps)  # fmt: skip
 
 
+@njit(nogil=False)
 def cylinder_step(
     eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, reading_bad: bool, call: bool, headroom_due: bool
 ) -> None:
@@ -507,8 +503,6 @@ def cylinder_step(
     xb = eng_x_breakpoints[i, :n_x]
     yb = eng_y_breakpoints[i, :n_y]
     coeffs = unpack_coefficients(cs, hv, xb, yb)
-    inputs = eng_scratch[0:6].reshape((6, 1))
-    rows = eng_scratch[6:10].reshape((4, 1))
     result = eng_scratch[10:13]
     reading = eng_values[cfg["cht_slot"]]
     new_reading = st["readings"] > st["readings_used"]
@@ -537,7 +531,7 @@ def cylinder_step(
                           cfg["use_deviation"], cfg["reset_code"], steps)  # fmt: skip
                 est_c = st["est"][0]
                 deviation = st["est"][3] / cfg["dt_s"] if cfg["use_deviation"] else 0.0
-            live_isolation(st["iso"], st["iso_drive"], inputs, rows, result, u[0], u[1], u[2], u[3], u[4], u[5], z,
+            live_isolation(st["iso"], st["iso_drive"], result, u[0], u[1], u[2], u[3], u[4], u[5], z,
                            measured, steps, eng_iso_model[i], eng_iso_config[i], cs, hv, xb, yb)  # fmt: skip
             if cfg["iso_estimator"]:  # its estimate is the isolation filter's own
                 est_c = st["iso"][0]
@@ -576,6 +570,8 @@ def cylinder_step(
         st["iso_deviation"] = iso_deviation
         st["model_c"] = model_c
         st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
+    if action != ACTION_NONE and not math.isfinite(st["cht_est_c"]):
+        code = CODE_UNAVAILABLE  # the filter cannot estimate (it diverged): never NOMINAL, the detector not fed
     state = code
     fed = np.nan
     if st["detector_on"]:
@@ -605,6 +601,7 @@ def cylinder_step(
     out["cross_fed"] = np.nan
 
 
+@njit(nogil=False)
 def cross_step(eng: Engine, time_s: float) -> None:
     """The cross-cylinder detectors: each cylinder's symptom minus the median of the other cylinders'
     usable symptoms (estimation/cross_cylinder.py); a cylinder's state becomes the more severe of its two
@@ -645,6 +642,7 @@ def cross_step(eng: Engine, time_s: float) -> None:
             eng_output[i]["state"] = verdict
 
 
+@njit(nogil=False)
 def _reading_bad(eng: Engine, reading: float) -> bool:
     """An implausible CHT reading: outside [min_c, max_c], or the ECU's status says the probe is open."""
     eng_clock = eng.clock
@@ -665,6 +663,7 @@ def _reading_bad(eng: Engine, reading: float) -> bool:
     return False
 
 
+@njit(nogil=False)
 def engine_step(eng: Engine, time_s: float, k: int) -> int:
     """Step k (1-based, at time_s) of every cylinder; returns the stale mask (bit j: stale check j)."""
     eng_check_limit_s = eng.check_limit_s
@@ -706,6 +705,7 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
     return stale
 
 
+@njit(nogil=False)
 def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> None:
     eng_output = eng.output
     rows_count = rows.count
@@ -722,6 +722,7 @@ def _write_row(eng: Engine, rows: Rows, time_s: float, k: int, stale: int) -> No
     rows_count[0] = r + 1
 
 
+@njit(nogil=False)
 def _write_trace(eng: Engine, traces: Traces, time_s: float, restarts: int) -> None:
     eng_model_slots = eng.model_slots
     eng_output = eng.output
@@ -747,6 +748,7 @@ def _write_trace(eng: Engine, traces: Traces, time_s: float, restarts: int) -> N
     traces_count[0] = n + 1
 
 
+@njit(nogil=False)
 def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
     """Run every fixed step at or before t_s (s), rows into ``rows``; False when ``rows`` filled up before
     the last of them (drain it and call again with the same t_s). The first reading starts the clock; a
@@ -798,6 +800,7 @@ def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
     return True
 
 
+@njit(nogil=False)
 def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
     """Hold the first ``count`` decoded (slot, value) pairs of one frame, stamped with the clock's time
     (sample and hold; before the clock starts, at its start); a cylinder's CHT counts a reading."""
@@ -821,6 +824,7 @@ def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
                 eng_state[i]["readings"] += 1
 
 
+@njit(nogil=False)
 def replay_loop(
     eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
 ) -> int:
@@ -838,94 +842,18 @@ def replay_loop(
 
 # ------------------------------------------------------------------------------------------------ compiling
 
-# The compiled callees of the functions above; compiled() binds them.
-cusum_step: Any = None
-derivatives: Any = None
-dissipation: Any = None
-drive_kernel: Any = None
-level_of: Any = None
-live_ekf: Any = None
-live_isolation: Any = None
-rk4: Any = None
-supervise: Any = None
-unpack_coefficients: Any = None
 
-
-@functools.cache
 def compiled() -> Any:
-    """The step's functions compiled by numba (cached on disk, keyed by every source they embed):
-    a namespace with ``advance_to``, ``feed_values``, ``replay_loop``, ``headroom_s``, ``detector_step``."""
+    """The step's compiled entry points (each function here carries ``@njit``; numba compiles it on first
+    call or loads it from the disk cache): a namespace with ``advance_to``, ``feed_values``,
+    ``replay_loop``, ``headroom_s``, ``detector_step``, ``stop_cylinder``."""
     from types import SimpleNamespace
 
-    from ecu_monitor.estimation import quantiser
-    from ecu_monitor.model.kernels import compiled_equations, fingerprint, jit
-
-    modules = (
-        _ekf,
-        _isolation,
-        quantiser,
-        _thermal,
-        _compiled_model,
-        _supervision,
-        _schedule,
-        _detection,
-        sys.modules[__name__],
-    )
-    tag = fingerprint([str(m.__file__) for m in modules])
-    equations = compiled_equations(False)
-    filters = _ekf.compiled_filter()
-    callees: dict[str, Any] = {
-        "cusum_step": _detection._cusum_step,
-        "derivatives": equations.derivatives,
-        "dissipation": equations.dissipation,
-        "drive_kernel": _compiled_model.drive_kernel(),
-        "level_of": filters.level_of,
-        "live_ekf": filters.live,
-        "live_isolation": _isolation.compiled_kernels().live,
-        "rk4": equations.rk4,
-        "supervise": jit(_supervision.supervise, tag, initial_supervisor=jit(_supervision.initial_supervisor, tag)),
-        "unpack_coefficients": jit(_thermal.unpack_coefficients, tag),
-    }
-
-    def compile_(function: Any, **more: Any) -> Any:
-        return jit(function, tag, nogil=False, **callees, **more)
-
-    verdict = compile_(detector_verdict)
-    reset = compile_(_reset_detector)
-    detector = compile_(detector_step, detector_verdict=verdict)
-    steady = compile_(_steady_state_c)
-    headroom = compile_(headroom_s, _steady_state_c=steady)
-    drive_at = compile_(_drive_at)
-    stop = compile_(_stop_cylinder, _reset_detector=reset)
-    initialise = compile_(_initialise_filters, _drive_at=drive_at)
-    rate = compile_(_cht_rate)
-    ekf_call = compile_(_ekf_call)
-    cylinder = compile_(
-        cylinder_step, detector_step=detector, headroom_s=headroom, _drive_at=drive_at, _initialise_filters=initialise,
-        _cht_rate=rate,
-        _ekf_call=ekf_call,
-    )  # fmt: skip
-    cross = compile_(cross_step, detector_step=detector)
-    bad = compile_(_reading_bad)
-    engine = compile_(engine_step, cylinder_step=cylinder, cross_step=cross, _reading_bad=bad)
-    tick = compile_(clock_tick)
-    write_row = compile_(_write_row)
-    write_trace = compile_(_write_trace)
-    advance = compile_(
-        advance_to,
-        clock_tick=tick,
-        engine_step=engine,
-        _stop_cylinder=stop,
-        _write_row=write_row,
-        _write_trace=write_trace,
-    )
-    feed = compile_(feed_values)
-    loop = compile_(replay_loop, advance_to=advance, feed_values=feed)
     return SimpleNamespace(
-        advance_to=advance,
-        feed_values=feed,
-        replay_loop=loop,
-        headroom_s=headroom,
-        detector_step=detector,
-        stop_cylinder=stop,
+        advance_to=advance_to,
+        feed_values=feed_values,
+        replay_loop=replay_loop,
+        headroom_s=headroom_s,
+        detector_step=detector_step,
+        stop_cylinder=_stop_cylinder,
     )

@@ -1,6 +1,5 @@
 """The supervision state machine, every step: which state the service reports and what the estimator
-does (:func:`supervise`, a pure function of floats, so the replay's batch path compiles the very same
-code with numba).
+does (:func:`supervise`, a pure function of floats that numba compiles into the step, ``register_jitable``).
 
 * UNAVAILABLE until every input the model needs is fresh and a plausible CHT reading is held; then
   the estimator starts from that reading;
@@ -18,8 +17,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-#: DegradationState values of health.dbc, by code.
-STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
+from numba.extending import register_jitable
+
 #: The codes of STATES, by name.
 CODE_NOMINAL, CODE_SUSPECT, CODE_DEGRADED, CODE_STALE, CODE_FAULT, CODE_UNAVAILABLE = range(6)
 #: Supervisor actions on the estimator at a step.
@@ -37,11 +36,13 @@ class SupervisorState(NamedTuple):
     model_high_c: float
 
 
+@register_jitable
 def initial_supervisor() -> SupervisorState:
     """The supervisor before the first step."""
     return SupervisorState(False, math.nan, math.nan, math.nan, math.nan, math.nan)
 
 
+@register_jitable
 def supervise(
     sv: SupervisorState,
     time_s: float,

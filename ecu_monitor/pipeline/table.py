@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import ConfigError, FlightLogError
+from ecu_monitor.userfiles import atomic_output
 
 __all__ = [
     "TABLE_SUFFIXES",
@@ -300,12 +301,9 @@ def write_health_table(table: Sequence[TableColumn], path: str | os.PathLike[str
     form = check_table_path(path)
     if form == "csv":
         header, body = _csv_parts(table)
-        try:
-            with open(path, "wb") as handle:
-                handle.write(header)
-                handle.write(body.data)
-        except OSError as exc:
-            raise FlightLogError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        with atomic_output(path, FlightLogError) as handle:
+            handle.write(header)
+            handle.write(body.data)
     else:
         _write_arrow(table, path, form)
     return int(np.size(table[0].values))
@@ -325,14 +323,12 @@ def _write_arrow(table: Sequence[TableColumn], path: str | os.PathLike[str], for
         else:
             codes = pa.array(np.asarray(c.values, dtype=np.int32))
             arrays[c.name] = pa.DictionaryArray.from_arrays(codes, pa.array(list(c.labels)))
-    try:
+    with atomic_output(path, FlightLogError) as handle:
         if form == "parquet":
             import pyarrow.parquet as pq
 
-            pq.write_table(pa.table(arrays), str(path))
+            pq.write_table(pa.table(arrays), handle)
         else:
             import pyarrow.feather as feather
 
-            feather.write_feather(pa.table(arrays), str(path))
-    except OSError as exc:
-        raise FlightLogError(f"{path}: cannot write ({exc})") from None
+            feather.write_feather(pa.table(arrays), handle)

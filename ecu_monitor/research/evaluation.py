@@ -22,6 +22,8 @@ Work is spread over ``workers`` processes (2 by default; short bursts).
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import multiprocessing
 from collections.abc import Callable, Sequence
@@ -57,6 +59,8 @@ from ecu_monitor.model import (
     paper_table_a1,
 )
 from ecu_monitor.model.compiled import simulate_compiled
+from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = [
     "RESET_MODES_COMPARED",
@@ -71,9 +75,11 @@ __all__ = [
     "Variant",
     "headroom_check",
     "isolation_errors",
+    "load_flight_results",
     "plan_cases",
     "residual_effects",
     "run_campaign",
+    "save_flight_results",
     "score",
     "simulate_case",
     "write_report",
@@ -315,6 +321,55 @@ def run_campaign(
             if progress:
                 progress(i + 1, len(jobs))
     return results
+
+
+def save_flight_results(results: Sequence[FlightResult], simulated_s: float, handle: Any) -> None:
+    """Write ``results`` and the seconds their simulation took to binary ``handle`` as an ``.npz``:
+    arrays, and the rest as JSON text (nothing pickled, so loading a file runs no code in it)."""
+    arrays: dict[str, NDArray[Any]] = {}
+    flights = []
+    for i, r in enumerate(results):
+        flights.append(
+            {
+                "case": dataclasses.asdict(r.case),
+                "hours": r.hours,
+                "symptoms": list(r.symptoms),
+                "cht_rms_c": r.cht_rms_c,
+                "model_error_mean_pct": r.model_error_mean_pct,
+                "model_error_peak_c": r.model_error_peak_c,
+                "model_error_mean_c": r.model_error_mean_c,
+            }
+        )
+        arrays.update({f"{i}.time_s": r.time_s, f"{i}.gamma_q": r.gamma_q, f"{i}.gamma_d": r.gamma_d})
+        arrays[f"{i}.steady"] = r.steady
+        arrays.update({f"{i}.symptom.{name}": values for name, values in r.symptoms.items()})
+    meta = json.dumps({"simulated_s": simulated_s, "flights": flights})
+    np.savez(handle, meta=np.array(meta), **arrays)
+
+
+def load_flight_results(handle: Any) -> tuple[list[FlightResult], float]:
+    """(results, simulated seconds) from an ``.npz`` :func:`save_flight_results` wrote; ValueError or
+    KeyError for a file it did not write (pickled objects are refused, never loaded)."""
+    with np.load(handle, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        results = []
+        for i, f in enumerate(meta["flights"]):
+            results.append(
+                FlightResult(
+                    case=FlightCase(**f["case"]),
+                    hours=float(f["hours"]),
+                    time_s=z[f"{i}.time_s"],
+                    symptoms={name: z[f"{i}.symptom.{name}"] for name in f["symptoms"]},
+                    gamma_q=z[f"{i}.gamma_q"],
+                    gamma_d=z[f"{i}.gamma_d"],
+                    cht_rms_c={str(k): float(v) for k, v in f["cht_rms_c"].items()},
+                    model_error_mean_pct=float(f["model_error_mean_pct"]),
+                    model_error_peak_c=float(f["model_error_peak_c"]),
+                    model_error_mean_c=float(f["model_error_mean_c"]),
+                    steady=z[f"{i}.steady"],
+                )
+            )
+    return results, float(meta["simulated_s"])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -560,8 +615,10 @@ def headroom_check(
                 k = int(np.searchsorted(t, at))
                 u = InputSeries(*(float(log[c][k]) for c in (x_axis, y_axis, "altitude_m", "airspeed_mps", "oat_c")))
                 est = thermal_headroom(float(iso.cht_c[k]), None, u, params, gamma_q=float(iso.gamma_q[k]),
-                                       gamma_d=float(iso.gamma_d[k]), coeffs=coeffs)  # fmt: skip
-                true_gamma = thermal_headroom(float(iso.cht_c[k]), None, u, params, gamma_q=severity, coeffs=coeffs)
+                                       gamma_d=float(iso.gamma_d[k]), cap_s=HEADROOM_CAP_S, coeffs=coeffs)  # fmt: skip
+                true_gamma = thermal_headroom(
+                    float(iso.cht_c[k]), None, u, params, gamma_q=severity, cap_s=HEADROOM_CAP_S, coeffs=coeffs
+                )
                 actual = crossing - float(t[k]) if math.isfinite(crossing) else math.inf
                 checks.append(HeadroomCheck(severity, seed, float(t[k]), est.time_to_limit_s,
                                             true_gamma.time_to_limit_s, actual))  # fmt: skip
@@ -686,7 +743,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(folder / "delay_vs_severity.png", dpi=110)
+    save_figure(fig, folder / "delay_vs_severity.png", dpi=110)
     plt.close(fig)
     names.append("delay_vs_severity.png")
     # 2. gamma estimates vs time for a few cases
@@ -716,7 +773,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
         np.atleast_1d(axes)[0].legend(fontsize=8, loc="upper left")
         np.atleast_1d(axes)[-1].set_xlabel("time since onset, s (dotted: +300 s, where isolation is scored)")
         fig.tight_layout()
-        fig.savefig(folder / "gamma_estimates.png", dpi=100)
+        save_figure(fig, folder / "gamma_estimates.png", dpi=100)
         plt.close(fig)
         names.append("gamma_estimates.png")
     # 3. statistic on nominal (scoring) flights with the threshold
@@ -732,7 +789,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(folder / "nominal_statistic.png", dpi=110)
+    save_figure(fig, folder / "nominal_statistic.png", dpi=110)
     plt.close(fig)
     names.append("nominal_statistic.png")
     # 4. headroom predicted vs actual
@@ -754,7 +811,7 @@ def _plots(campaign: Campaign, variant: Variant, checks: Sequence[HeadroomCheck]
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
         fig.tight_layout()
-        fig.savefig(folder / "headroom.png", dpi=110)
+        save_figure(fig, folder / "headroom.png", dpi=110)
         plt.close(fig)
         names.append("headroom.png")
     return names
@@ -927,5 +984,5 @@ def write_report(
         "",
     ]
     path = out / "detection.md"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_output_bytes(path, ("\n".join(lines) + "\n").encode("utf-8"))
     return path

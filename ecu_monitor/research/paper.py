@@ -24,6 +24,7 @@ from ecu_monitor.estimation import EstimatorSettings, run_estimator
 from ecu_monitor.estimation.runner import EstimateTrace, sample_indices
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import ThermalParams, paper_table_a1
+from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = ["INJECT_S", "VARIANTS", "generate", "settle_time", "steady_relative_error"]
 
@@ -245,7 +246,7 @@ def _figure_transient(flight: Flight, gamma_q: float, path: Path) -> None:
     ax.set_xlabel("time, s")
     ax.set_title("(c) relative error")
     ax.legend(fontsize=8, ncol=4)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -261,7 +262,7 @@ def _figure_boxplots(errors: dict[str, dict[float, NDArray[np.float64]]], path: 
         ax.set_xlabel("gamma_Q (gamma_D = 1)")
     np.atleast_1d(axes)[0].set_ylabel("estimate - truth after injection, % (whiskers 1.5 IQR)")
     fig.suptitle("Figure 9: CBEKF-AU error distribution against the degradation level")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -277,7 +278,7 @@ def _figure_deviation(flights: dict[float, Flight], path: Path) -> None:
     ax.set_ylabel("model deviation Delta_k / dt, degC/s")
     ax.set_title("Figure 10: model-deviation term (CBEKF), degradation injected at 150 s")
     ax.legend()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -304,7 +305,7 @@ def _figure_rate_grid(gq: Sequence[float], gd: Sequence[float], rates: NDArray[n
     ax.set_xlabel("gamma_Q")
     ax.set_ylabel("gamma_D")
     ax.set_title("Figure 11: same, as a grid")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -319,7 +320,7 @@ def _figure_tau_sweep(taus: Sequence[float], settle: Sequence[float], path: Path
     ax.set_ylabel("CBEKF settle time after gamma_Q = 1.1, s")
     ax.set_title("CBEKF convergence against the deviation filter")
     ax.legend()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -418,7 +419,8 @@ def generate(out: Path, seeds: int = 4, progress: Callable[[str], None] = print)
 
     elapsed = time.perf_counter() - started
     md = out / "paper_reproduction.md"
-    md.write_text(
+    write_output_bytes(
+        md,
         _report(
             settle,
             steady,
@@ -439,8 +441,7 @@ def generate(out: Path, seeds: int = 4, progress: Callable[[str], None] = print)
             seeds,
             elapsed,
             settings,
-        ),
-        encoding="utf-8",
+        ).encode("utf-8"),
     )
     return md
 

@@ -63,11 +63,10 @@ from can.interfaces.virtual import VirtualBus
 
 from ecu_monitor.bus.kernel_filter import attach_kernel_filter
 from ecu_monitor.config import config_default
-from ecu_monitor.runtime.flight_recorder import FlightRecorder
+from ecu_monitor.runtime.flight_recorder import FlightRecorder, HeldInputs, flight_samples
 from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
-from ecu_monitor.runtime.persistence import FlightSample, trend_values
 
-__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch"]
+__all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch", "bad_datagram"]
 
 _log = logging.getLogger(__name__)
 
@@ -154,8 +153,9 @@ class Daemon:
 
     ``open_bus`` opens (and reopens) the bus: the bus is passed in, the daemon never builds one from a
     config itself. ``recorder`` (optional) receives one :class:`FlightSample` per health row;
-    ``engine_speed()`` (called under the pipeline lock) gives the engine speed held by the pipeline,
-    rev/min, or None when it is stale: the recorder finds flights from it. ``receive_ids`` (the
+    ``held_inputs()`` (called under the pipeline lock; :func:`~ecu_monitor.runtime.flight_recorder.held_inputs`)
+    gives the engine speed held by the pipeline (the recorder finds flights from it), the reference model's
+    CHT, OAT and throttle (the flight's wear index and time at high power). ``receive_ids`` (the
     decoder's frame ids) become the bus's receive filter, so other traffic (kernel-filtered on
     socketcan, and on udp_multicast by a socket filter: :mod:`ecu_monitor.bus.kernel_filter`) and our own
     health frames never reach the pipeline lock; ``receive_filters`` (python-can
@@ -171,7 +171,7 @@ class Daemon:
         settings: DaemonSettings | None = None,
         notifier: SystemdNotifier | None = None,
         recorder: FlightRecorder | None = None,
-        engine_speed: Callable[[], float | None] | None = None,
+        held_inputs: Callable[[], HeldInputs] | None = None,
         receive_ids: Sequence[int] = (),
         receive_filters: Sequence[can.typechecking.CanFilter] | None = None,
         clock: Callable[[], float] = time.monotonic,
@@ -182,7 +182,7 @@ class Daemon:
         self._open_bus = open_bus
         self._notifier = notifier or SystemdNotifier(address="")
         self._recorder = recorder
-        self._engine_speed = engine_speed
+        self._held_inputs = held_inputs
         self._filters: list[can.typechecking.CanFilter] = (
             list(receive_filters)
             if receive_filters is not None
@@ -212,6 +212,7 @@ class Daemon:
             "health_dropped": 0,
             "send_errors": 0,
             "receive_errors": 0,
+            "bad_datagrams": 0,
             "open_errors": 0,
             "bus_errors": 0,
             "bus_opens": 0,
@@ -260,7 +261,10 @@ class Daemon:
             try:
                 msg = recv(_RECEIVE_TIMEOUT_S)
             except (can.CanError, OSError) as exc:
-                self._on_receive_error(exc)
+                if bad_datagram(exc):
+                    self._on_bad_datagram(exc)
+                else:
+                    self._on_receive_error(exc)
                 continue
             if msg is not None:
                 guarded("frame", on_frame, msg)
@@ -320,6 +324,15 @@ class Daemon:
         pipeline_counters["bus_errors"] = pipeline_counters.get("bus_errors", 0) + 1
         if counter == "send_errors":
             pipeline_counters["send_errors"] = pipeline_counters.get("send_errors", 0) + 1
+
+    def _on_bad_datagram(self, exc: Exception) -> None:
+        """A datagram that is no CAN frame reached the bus (anyone on the multicast group can send one):
+        counted as a bus error and dropped; the bus is kept (reopening it would lose the frames behind)."""
+        with self._lock:
+            self._count_bus_error("bad_datagrams")
+            seen = self.counters["bad_datagrams"]
+        if seen == 10 ** (len(str(seen)) - 1):  # 1, 10, 100, ...: a flood does not flood the journal
+            _log.warning("%d datagram(s) on the bus were no CAN frame (%s): dropped, the bus kept", seen, exc)
 
     def _on_receive_error(self, exc: Exception) -> None:
         """The receive thread hit an error: count it once, ask the supervisor to reopen."""
@@ -395,33 +408,11 @@ class Daemon:
             return
         with self._lock:
             rows = self.pipeline.drain_rows()
-            rpm = self._engine_speed() if self._engine_speed is not None else None
+            held = self._held_inputs() if self._held_inputs is not None else HeldInputs(None)
             offset = self._wall_clock() - self._clock()
         self._log_states(rows)
-        trends = trend_values()
-        for row in rows:  # the rows of the last supervisor period (0.1 s): the engine speed held now
-            cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
-            self._recorder.add(
-                FlightSample(
-                    time_s=row.time_s,
-                    wall_time_s=row.time_s + offset,
-                    rpm=rpm,
-                    cht_c=float(cht) if _finite(cht) else math.nan,
-                    trends={name: float(getattr(row, name)) for name in trends},
-                    state=str(row.state),
-                    cylinders=tuple(
-                        (
-                            float(c.cht_meas_c if not c.sensor_fault and _finite(c.cht_meas_c) else c.cht_est_c),
-                            {name: float(getattr(c, name)) for name in trends},
-                            str(c.state),
-                        )
-                        for c in row.cylinders
-                    ),
-                    cht_spread_c=float(row.cht_spread_c),
-                    hottest_cylinder=int(row.hottest_cylinder),
-                    spread_alarm=bool(row.spread_alarm),
-                )
-            )
+        for sample in flight_samples(rows, held, offset):  # the inputs held at the end of this supervisor period
+            self._recorder.add(sample)
         self.counters["rows_recorded"] += len(rows)
 
     def _log_states(self, rows: Sequence[Any]) -> None:
@@ -542,6 +533,16 @@ class Daemon:
     def stop(self) -> None:
         """Ask :meth:`run` to return (safe from a signal handler and from any thread)."""
         self._stop.set()
+
+
+def bad_datagram(exc: BaseException) -> bool:
+    """True when a receive error is one bad datagram rather than a failed bus: python-can's
+    CanOperationError raised from a decoding error of the payload (udp_multicast's "could not unpack
+    received message"), not from the operating system."""
+    cause = exc.__cause__
+    return (
+        isinstance(exc, can.CanOperationError) and cause is not None and not isinstance(cause, OSError | can.CanError)
+    )
 
 
 def _finite(value: Any) -> bool:

@@ -18,7 +18,8 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
 * ``STATUSTEXT`` for the pilot (:func:`state_text`, docs/contracts.md): on every state change (and once
   at start), while INPUT_STALE when more inputs are lost than the last text named (again, with all of
   them: a dropped link loses the inputs of its slower messages first), when a CHT reaches its limit and
-  when it is back below, when the CHT spread alarm rises.
+  when it is back below, when the CHT spread alarm rises, and once for an open maintenance alert of the
+  across-flight detector (:meth:`MavlinkPublisher.tell`, at each start of the daemon), severity WARNING.
   Severity (:data:`SEVERITY`): NOMINAL INFO, UNAVAILABLE NOTICE, SUSPECT and INPUT_STALE WARNING,
   DEGRADED and SENSOR_FAULT CRITICAL, a CHT at its limit ALERT. A text longer than 50 characters is
   sent in chunks of 50 (MAVLink 2 ``id`` and ``chunk_seq``, as the message definition says a long
@@ -51,9 +52,8 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.mavlink import mavlink_module
 from ecu_monitor.bus.mavlink_settings import MavlinkSettings
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.pipeline.output_table import as_number, engine_values
+from ecu_monitor.pipeline.output_table import STATES, as_number, engine_values
 from ecu_monitor.pipeline.outputs import HealthSnapshot
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.units import UNITS, standard_pressure_kpa
 
 __all__ = [
@@ -295,6 +295,10 @@ class MavlinkPublisher:
         return data
 
     # --- STATUSTEXT -------------------------------------------------------------------------------
+
+    def tell(self, text: str) -> None:
+        """A maintenance alert's text: one STATUSTEXT, severity WARNING, as the rate allows."""
+        self._queue(_Text("maintenance", _SEVERITY_WARNING, text))
 
     def _events(self, snap: HealthSnapshot, over: int) -> None:
         """Queue the texts of what changed since the last snapshot."""

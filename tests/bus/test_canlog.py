@@ -4,6 +4,8 @@ reader does with damaged logs (cut, empty, two logs back to back, holes in time)
 from __future__ import annotations
 
 import logging
+import re
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -15,6 +17,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from numpy.typing import NDArray
 
 from ecu_monitor.bus.canlog import DEFAULT_SIGNAL_MAP, import_can_log, load_flight
 from ecu_monitor.bus.checksum import frame_checksum
@@ -107,6 +110,7 @@ def test_can_log_signal_map_errors(tmp_path: Path) -> None:
 
 
 def test_load_flight_unknown_suffix(tmp_path: Path) -> None:
+    (tmp_path / "x.parquet").write_bytes(b"PAR1")
     with pytest.raises(FlightLogError, match=r"unknown log type '.parquet'"):
         load_flight(tmp_path / "x.parquet")
 
@@ -252,3 +256,121 @@ def test_any_damage_to_a_log_is_read_or_one_error(tmp_path: Path, suffix: str, c
         assert len(str(exc).splitlines()) == 1
     else:
         assert len(frames) > 0 and frames.data.shape == (len(frames), 8)
+
+
+# --------------------------------------------------------------------------------------------------
+# A real logger's clock (issue 31)
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc", ".log"])
+def test_epoch_stamps_become_time_since_the_start_of_the_log(suffix: str, tmp_path: Path) -> None:
+    from ecu_monitor.bus.canlog import read_frames
+
+    path = _write_log(tmp_path / f"flight{suffix}", _frames())  # stamped in seconds since 1970
+    frames = read_frames(path)
+    assert frames.time_s.min() == 0.0 and frames.time_s.max() < 2.0
+    log = import_can_log(path, [DEFAULT_ENGINE_DBC])
+    assert 0.0 <= log.time_s[0] < 1.0
+
+
+def test_replay_of_an_epoch_stamped_log_has_one_stamp_per_row(tmp_path: Path) -> None:
+    from ecu_monitor.cli import main
+
+    path = _write_log(tmp_path / "flight.log", _frames())
+    out = tmp_path / "health.csv"
+    assert main(["replay", str(path), "--out", str(out)]) == 0
+    times = read_csv_times(out)
+    assert len(times) >= 10 and times[0] < 1.0
+    assert np.all(np.diff(times) > 0.0)  # 10 Hz rows, each its own stamp
+
+
+def read_csv_times(path: Path) -> NDArray[np.float64]:
+    lines = path.read_text().splitlines()
+    column = lines[0].split(",").index("time_s")
+    return np.array([float(line.split(",")[column]) for line in lines[1:]])
+
+
+def test_one_frame_stamped_far_ahead_is_dropped_and_the_log_read(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from ecu_monitor.bus.canlog import read_frames
+
+    frames = _frames()
+    glitch = frames[60]
+    frames[60] = can.Message(
+        timestamp=99_999_999.0, arbitration_id=glitch.arbitration_id, data=glitch.data, is_extended_id=False
+    )
+    with caplog.at_level(logging.WARNING):
+        read = read_frames(_write_log(tmp_path / "glitch.asc", frames))
+    assert len(read) == len(frames) - 1 and read.time_s.max() < 2.0
+    assert "1 frame(s) with a stamp out of line" in caplog.text
+
+
+def _trc(tmp_path: Path, name: str, edit: Any) -> Path:
+    source = _write_log(tmp_path / "source.trc", _frames()[:50])
+    path = tmp_path / name
+    path.write_text(edit(source.read_text()))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda t: t.replace("$COLUMNS=N,O,T,B,I,d,R,L,D", "$COLUMNS=N,O,B,I,d,R,L,D"), "no column 'T'"),
+        (lambda t: re.sub(r"\$STARTTIME=\S+", "$STARTTIME=1e300", t), "beyond any calendar"),
+        (lambda t: t.replace("$FILEVERSION=2.1", "$FILEVERSION=1.1"), "no frames: python-can skipped 50 line(s)"),
+    ],
+    ids=["no-T-column", "starttime-1e300", "header-1.1-body-2.1"],
+)
+def test_a_broken_trc_is_one_line(tmp_path: Path, caplog: pytest.LogCaptureFixture, edit: Any, words: str) -> None:
+    from ecu_monitor.bus.canlog import read_frames
+
+    path = _trc(tmp_path, "broken.trc", edit)
+    assert path.read_text() != (tmp_path / "source.trc").read_text()
+    with caplog.at_level(logging.INFO), pytest.raises(FlightLogError) as info:
+        read_frames(path)
+    assert words in str(info.value) and len(str(info.value).splitlines()) == 1
+    assert len(caplog.records) <= 1  # not one INFO line per frame
+
+
+_STAMP = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=False, width=64),
+    st.sampled_from([0.0, -1.0, 1e12, 99_999_999.0, T0]),
+)
+
+
+@settings(max_examples=int(__import__("os").environ.get("ECU_FUZZ_EXAMPLES", "40")), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])  # fmt: skip
+@given(
+    suffix=st.sampled_from([".blf", ".asc", ".log"]),
+    stamps=st.lists(st.tuples(st.integers(0, 99), _STAMP), max_size=6),
+    shift=st.sampled_from([0.0, T0, -T0 + 5.0]),
+)
+def test_bad_time_stamps_are_read_or_one_error(
+    tmp_path: Path, suffix: str, stamps: list[tuple[int, float]], shift: float
+) -> None:
+    """A log with some stamps spoiled (NaN, negative, huge, the epoch): frames whose time runs from 0, or
+    one FlightLogError line; never another exception."""
+    from ecu_monitor.bus.canlog import read_frames
+
+    frames = [m for m in _frames()[:100]]
+    for index, stamp in stamps:
+        m = frames[index]
+        frames[index] = can.Message(timestamp=stamp, arbitration_id=m.arbitration_id, data=m.data, is_extended_id=False)
+    frames = [
+        can.Message(timestamp=m.timestamp - T0 + shift if abs(m.timestamp - T0) < 10 else m.timestamp,
+                    arbitration_id=m.arbitration_id, data=m.data, is_extended_id=False)
+        for m in frames
+    ]  # fmt: skip
+    path = tmp_path / f"stamps{suffix}"
+    try:
+        _write_log(path, frames)
+    except (ValueError, OverflowError, OSError, struct.error):
+        return  # python-can cannot write such a stamp: nothing for a logger to hand us either
+    try:
+        read = read_frames(path)
+    except FlightLogError as exc:
+        assert len(str(exc).splitlines()) == 1
+    else:
+        assert np.all(np.isfinite(read.time_s)) and read.time_s.min() == 0.0

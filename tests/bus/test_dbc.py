@@ -9,7 +9,7 @@ from typing import Any
 import cantools
 import pytest
 
-from ecu_monitor.bus.checksum import crc8_sae_j1850, frame_checksum, head_checksum
+from ecu_monitor.bus.checksum import crc8_sae_j1850, frame_checksum
 from tests.helpers import REPO
 
 DBC_DIR = REPO / "ecu_monitor" / "data" / "dbc"
@@ -50,7 +50,15 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
             0x302,
             1000,
             "EcuMonitor",
-            ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh", "DiagCounter", "DiagChecksum"),
+            (
+                "StaleInputs",
+                "MalformedFrames",
+                "BusErrors",
+                "StaleInputsHigh",
+                "MaintenanceAlert",
+                "DiagCounter",
+                "DiagChecksum",
+            ),
         ),
         "Health_Spread": (
             0x303,
@@ -316,16 +324,19 @@ def test_frame_checksum_covers_bytes_0_to_6_only() -> None:
         frame_checksum(b"\x00" * 6)
 
 
-def test_head_checksum_equals_the_loop_on_random_heads() -> None:
-    """The unrolled 7-byte CRC the codec calls per frame is crc8_sae_j1850, byte for byte."""
+def test_the_batch_decoders_compiled_crc_is_the_per_frame_crc_on_random_heads() -> None:
+    """One CRC routine: compiled into the batch decoder's loop over uint8 rows, it gives what it gives in
+    plain Python on bytes (the live decoder and the encoders), byte for byte."""
+    import numpy as np
+
+    from ecu_monitor.bus.codec import _crc8_rows
+
     rng = random.Random(7)
     heads = [bytes(7), b"\xff" * 7, bytes.fromhex("4151ce18590809")]
     heads += [bytes(rng.randrange(256) for _ in range(7)) for _ in range(5000)]
-    for head in heads:
-        assert head_checksum(head) == crc8_sae_j1850(head) == frame_checksum(head)
-    assert head_checksum(bytes.fromhex("4151ce18590809")) == 0xCC
-    with pytest.raises(ValueError):
-        head_checksum(bytes(6))
+    rows = np.array([[*head, 0] for head in heads], dtype=np.uint8)
+    assert _crc8_rows(rows).tolist() == [crc8_sae_j1850(head) for head in heads] == [frame_checksum(h) for h in heads]
+    assert crc8_sae_j1850(bytes.fromhex("4151ce18590809")) == 0xCC
 
 
 # --------------------------------------------------------------------------------------------------

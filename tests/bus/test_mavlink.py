@@ -37,9 +37,8 @@ from ecu_monitor.config import load_config, parse_config
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import read_csv
 from ecu_monitor.model import paper_table_a1
-from ecu_monitor.pipeline.output_table import HEALTH_VALUES
+from ecu_monitor.pipeline.output_table import HEALTH_VALUES, STATES
 from ecu_monitor.pipeline.outputs import CylinderSnapshot, HealthSnapshot
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.runtime.mavlink_publisher import (
     MAX_NAME,
     MAX_TEXT,

@@ -80,7 +80,7 @@ def model_files(draw: st.DrawFn) -> bytes:
             data.pop(key, None)
         elif action == "value":
             data[key] = draw(st.one_of(st.floats(allow_nan=True), st.text(max_size=5), st.none(), st.booleans()))
-        elif action == "ragged" and isinstance(data.get("heat_map"), dict):
+        elif action == "ragged" and isinstance(data.get("heat_map"), dict) and "values_w" in data["heat_map"]:
             rows = data["heat_map"]["values_w"]
             rows[draw(st.integers(0, len(rows) - 1))] = draw(st.lists(st.floats(0, 5000), max_size=8))
         elif action == "nested":
@@ -178,3 +178,71 @@ def test_the_strategies_make_valid_inputs_too() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         (Path(tmp) / "in.csv").write_text(text, encoding="utf-8")
         assert main(["import", f"{tmp}/in.csv", "--out", f"{tmp}/out.csv"]) == 0
+
+
+# --- YAML structure (issue 31): nesting, aliases, huge values, in model.yaml and the service config ----
+
+_LEAF = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(-(10**30), 10**30),
+    st.text(max_size=8),
+    st.none(),
+    st.booleans(),
+    st.sampled_from(["1e9999", "-.inf", ".nan", "~", "0x1F", "1_000", "2026-11-28"]),
+)
+
+
+def _nested(depth: int) -> str:
+    return "[" * depth + "1" + "]" * depth
+
+
+@st.composite
+def yaml_structures(draw: st.DrawFn, base: dict[str, object]) -> bytes:
+    """``base`` (a valid file's data) re-emitted with a key's value made deep, aliased, huge or odd,
+    or an alias bomb, or nesting past any limit put in front."""
+    data = dict(base)
+    key = draw(st.sampled_from(sorted(data)))
+    kind = draw(st.sampled_from(["leaf", "list", "map", "deep", "bomb", "alias", "huge"]))
+    text = yaml.safe_dump({k: v for k, v in data.items() if k != key}, sort_keys=False)
+    if kind == "leaf":
+        text += yaml.safe_dump({key: draw(_LEAF)})
+    elif kind == "list":
+        text += yaml.safe_dump({key: draw(st.lists(_LEAF, max_size=6))})
+    elif kind == "map":
+        text += yaml.safe_dump({key: draw(st.dictionaries(st.text(max_size=4), _LEAF, max_size=4))})
+    elif kind == "deep":
+        text += f"{key}: {_nested(draw(st.sampled_from([2, 63, 65, 1000, 50_000])))}\n"
+    elif kind == "bomb":
+        levels = draw(st.integers(1, 9))
+        bomb = ['l0: &l0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+        bomb += [f"l{i}: &l{i} [{', '.join([f'*l{i - 1}'] * 9)}]" for i in range(1, levels)]
+        text = "\n".join(bomb) + f"\n{text}{key}: *l{levels - 1}\n"
+    elif kind == "alias":
+        value = yaml.safe_dump(base[key], default_flow_style=True).strip().removesuffix("...").strip()
+        text = f"anchor_holder: &v {value}\n{text}{key}: *v\n"
+    else:
+        huge = draw(st.sampled_from(["9" * 5000, "1" + "0" * 400 + ".0", "[" + ", ".join(["1.0"] * 20000) + "]"]))
+        text += f"{key}: {huge}\n"
+    return text.encode()
+
+
+_MODEL_DATA = paper_table_a1().to_dict()
+_CONFIG_DATA = yaml.safe_load(
+    (Path(__file__).resolve().parent.parent / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text()
+)
+
+
+@FUZZ
+@given(model=yaml_structures(_MODEL_DATA))
+def test_simulate_with_model_yaml_of_any_structure(capsys: pytest.CaptureFixture[str], model: bytes) -> None:
+    flight = "\n".join([",".join(COLUMNS), *(",".join(_plausible_row(i * 1.0)) for i in range(30))]) + "\n"
+    argv = ["simulate", "{w}/in.csv", "--model", "{w}/model.yaml", "--out", "{w}/sim.csv"]
+    _run_in_tmp(capsys, {"in.csv": flight.encode(), "model.yaml": model}, argv, "sim.csv")
+
+
+@FUZZ
+@given(config=yaml_structures(_CONFIG_DATA))
+def test_replay_with_config_yaml_of_any_structure(capsys: pytest.CaptureFixture[str], config: bytes) -> None:
+    flight = "\n".join([",".join(COLUMNS), *(",".join(_plausible_row(i * 0.1)) for i in range(30))]) + "\n"
+    argv = ["replay", "{w}/in.csv", "--config", "{w}/config.yaml", "--out", "{w}/health.csv"]
+    _run_in_tmp(capsys, {"in.csv": flight.encode(), "config.yaml": config}, argv, "health.csv")

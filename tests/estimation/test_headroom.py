@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from ecu_monitor.errors import EstimationError
-from ecu_monitor.estimation.headroom import DEFAULT_CAP_S, thermal_headroom
+from ecu_monitor.estimation.headroom import thermal_headroom
 from ecu_monitor.model import Drive, InputSeries, coefficients, compute_drive, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
+from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S
 
 FULL_THROTTLE = InputSeries(100.0, 9030.0, 300.0, 23.0, 13.0)
 
@@ -28,7 +29,7 @@ def _truth_time_to_limit(start_c: float, gamma_q: float, limit_c: float) -> floa
 def test_time_to_limit_matches_the_model_integrated_finely(start_c: float, gamma_q: float) -> None:
     params = paper_table_a1()
     actual = _truth_time_to_limit(start_c, gamma_q, params.cht_limit_c)
-    room = thermal_headroom(start_c, None, FULL_THROTTLE, params, gamma_q=gamma_q)
+    room = thermal_headroom(start_c, None, FULL_THROTTLE, params, gamma_q=gamma_q, cap_s=HEADROOM_CAP_S)
     assert room.limited
     assert room.time_to_limit_s == pytest.approx(actual, rel=0.01, abs=1.0)
     assert room.margin_c == pytest.approx(params.cht_limit_c - start_c)
@@ -38,22 +39,22 @@ def test_time_to_limit_matches_the_model_integrated_finely(start_c: float, gamma
 def test_not_limited_below_steady_state_and_zero_above_the_limit() -> None:
     params = paper_table_a1()
     cruise = InputSeries(50.0, 6050.0, 1000.0, 23.0, 8.5)
-    room = thermal_headroom(95.0, None, cruise, params)
+    room = thermal_headroom(95.0, None, cruise, params, cap_s=HEADROOM_CAP_S)
     assert not room.limited
-    assert room.time_to_limit_s == DEFAULT_CAP_S
+    assert room.time_to_limit_s == HEADROOM_CAP_S
     drive = compute_drive(cruise, coefficients(params))
     assert float(drive.q_sl0_w) > 0.0
     assert room.steady_state_cht_c < params.cht_limit_c
-    hot = thermal_headroom(params.cht_limit_c + 1.0, None, FULL_THROTTLE, params)
+    hot = thermal_headroom(params.cht_limit_c + 1.0, None, FULL_THROTTLE, params, cap_s=HEADROOM_CAP_S)
     assert hot.time_to_limit_s == 0.0 and hot.limited and hot.margin_c == pytest.approx(-1.0)
     # a degradation shortens the headroom
-    nominal = thermal_headroom(120.0, None, FULL_THROTTLE, params)
-    degraded = thermal_headroom(120.0, None, FULL_THROTTLE, params, gamma_d=1.2)
+    nominal = thermal_headroom(120.0, None, FULL_THROTTLE, params, cap_s=HEADROOM_CAP_S)
+    degraded = thermal_headroom(120.0, None, FULL_THROTTLE, params, gamma_d=1.2, cap_s=HEADROOM_CAP_S)
     assert degraded.time_to_limit_s < nominal.time_to_limit_s
     capped = thermal_headroom(100.0, None, FULL_THROTTLE, params, cap_s=10.0)
     assert capped.time_to_limit_s == 10.0 and not capped.limited
     with pytest.raises(EstimationError):
-        thermal_headroom(float("nan"), None, FULL_THROTTLE, params)
+        thermal_headroom(float("nan"), None, FULL_THROTTLE, params, cap_s=HEADROOM_CAP_S)
 
 
 def test_time_to_limit_matches_the_virtual_ecu_truth_plant() -> None:
@@ -76,7 +77,7 @@ def test_time_to_limit_matches_the_virtual_ecu_truth_plant() -> None:
     k = int(high[0]) + 50  # 5 s into the full-throttle leg
     crossing = float(t[np.nonzero(log["cht_true_c"] >= params.cht_limit_c)[0][0]])
     u = InputSeries(*(float(log[c][k]) for c in ("throttle_pct", "rpm", "altitude_m", "airspeed_mps", "oat_c")))
-    room = thermal_headroom(float(log["cht_true_c"][k]), None, u, params)
+    room = thermal_headroom(float(log["cht_true_c"][k]), None, u, params, cap_s=HEADROOM_CAP_S)
     actual = crossing - float(t[k])
     assert actual > 20.0
     assert room.time_to_limit_s == pytest.approx(actual, rel=0.05, abs=5.0)
@@ -102,7 +103,9 @@ def test_the_steps_headroom_equals_the_full_headroom() -> None:
         u = InputSeries(*(float(v) for v in rng.uniform(lo, hi)))
         cht = float(rng.uniform(60.0, params.cht_limit_c + 10.0))
         gamma_q, gamma_d = (float(v) for v in rng.uniform(0.8, 1.4, size=2))
-        full = thermal_headroom(cht, None, u, params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=coeffs)
+        full = thermal_headroom(
+            cht, None, u, params, gamma_q=gamma_q, gamma_d=gamma_d, coeffs=coeffs, cap_s=HEADROOM_CAP_S
+        )
         drive = Drive(*(float(v) for v in compute_drive(u, coeffs)))
         got = headroom(cht, np.array(drive, dtype=float), packed, gamma_q, gamma_d, params.cht_limit_c)
         assert got == pytest.approx(full.time_to_limit_s, rel=0.0, abs=1e-9)

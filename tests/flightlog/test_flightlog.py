@@ -641,7 +641,7 @@ def test_unknown_layout_says_why_no_layout_fits(tmp_path: Path) -> None:
         "g1000: no column 'Lcl Date'" in message
         and "ngafid_processed: no column 'AltB' or 'AltInd' or 'AltMSL'" in message
     )
-    assert "--mapping FILE" in message and "\n" not in message
+    assert "ecu-monitor import" in message and "--mapping MAPPING.yaml" in message and "\n" not in message
 
 
 def test_detect_layout(tmp_path: Path) -> None:

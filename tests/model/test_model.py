@@ -231,7 +231,7 @@ def test_scalar_drive_path_equals_numpy_path():
 
 
 def test_save_model_to_unwritable_place_is_a_one_line_error(tmp_path):
-    with pytest.raises(ConfigError, match="cannot write model file"):
+    with pytest.raises(ConfigError, match=r"model\.yaml: cannot write"):
         save_model(paper_table_a1(), tmp_path / "missing-dir" / "model.yaml")
 
 

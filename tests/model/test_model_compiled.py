@@ -75,14 +75,9 @@ def test_packed_coefficients_unpack_to_the_same_fields_in_python_and_compiled():
     """pack_coefficients / unpack_coefficients (the live filters' compiled calls) lose no field and move none:
     the model's coefficients with every effect on, and distinct values in every scalar slot, compared field by
     field in Python and after numba's unpack."""
-    from ecu_monitor.model import (
-        Coefficients,
-        kernels,
-        pack_coefficients,
-        scalar_coefficients,
-        thermal,
-        unpack_coefficients,
-    )
+    import numba
+
+    from ecu_monitor.model import Coefficients, pack_coefficients, scalar_coefficients, unpack_coefficients
 
     params = paper_table_a1().replace(
         effects=Effects(
@@ -96,7 +91,7 @@ def test_packed_coefficients_unpack_to_the_same_fields_in_python_and_compiled():
     packed = pack_coefficients(original)
     assert len(packed.scalars) == len(Coefficients._fields) - 3  # every field but the heat map and its breakpoints
     distinct = packed._replace(scalars=np.arange(len(packed.scalars)) + 0.5)
-    compiled = kernels.jit(thermal.unpack_coefficients, "test")
+    compiled = numba.njit(lambda *packed: unpack_coefficients(*packed))
     for unpack in (unpack_coefficients, compiled):
         unpacked = unpack(*packed)
         assert unpacked._fields == original._fields

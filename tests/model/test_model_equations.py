@@ -13,7 +13,7 @@ import pytest
 from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.estimation.ekf import EstimatorSettings
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
-from ecu_monitor.estimation.runner import _compiled_loop, trace_loop
+from ecu_monitor.estimation.runner import trace_loop
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import (
     EFFECT_COEFFICIENTS,
@@ -38,7 +38,7 @@ from ecu_monitor.model import (
     simulate,
     stack_coefficients,
 )
-from ecu_monitor.model.compiled import compute_drive_compiled, simulate_compiled, simulate_held
+from ecu_monitor.model.compiled import compute_drive_compiled, simulate_compiled
 
 DT = 0.5
 
@@ -90,25 +90,6 @@ def _random_inputs(rng: np.random.Generator, n: int, hold: int = 4) -> InputSeri
         rng.uniform(-20, 35, m)[k],
         egt[k],
     )
-
-
-@pytest.mark.parametrize(("kelvin", "dt"), [(False, DT), (True, DT), (False, 400.0)])
-def test_held_inputs_run_equals_the_swarm_kernel_at_the_calls_bit_for_bit(kelvin: bool, dt: float) -> None:
-    """simulate_held (the replay's open-loop reference, inputs held between calls) is simulate_compiled
-    over the per-step inputs taken at the calls, to the last bit; dt 400 s makes RK4 diverge (the
-    failure mask: NaN from the first bad step on)."""
-    rng = np.random.default_rng(31 + kelvin)
-    params = _random_params(rng, kelvin)
-    per_call = _random_inputs(rng, 300, hold=1)
-    steps = rng.integers(1, 12, 300)
-    calls = np.cumsum(steps) - steps
-    which = np.repeat(np.arange(300), steps)
-    per_step = InputSeries(*(np.asarray(v)[which] for v in per_call))
-    coeffs = coefficients(params)
-    reference = simulate_compiled(per_step, coeffs, dt, 140.0).cht_c[calls]
-    held = simulate_held(per_call, steps, coeffs, dt, 140.0)
-    assert np.array_equal(held, reference, equal_nan=True)
-    assert np.isnan(held).any() == (dt > DT)
 
 
 @pytest.mark.parametrize("kelvin", [False, True])
@@ -165,7 +146,7 @@ def test_filter_kernels_predict_with_the_reference_model(kelvin: bool) -> None:
     z = np.full(400, np.nan)
     z[0] = 110.0
     s = EstimatorSettings(dt_s=DT)
-    for loop in (_compiled_loop(), trace_loop):
+    for loop in (trace_loop, trace_loop.py_func):
         outs = [np.empty(400) for _ in range(5)] + [np.zeros(400, dtype=np.bool_)]
         loop(*drive, z, np.isfinite(z), np.ones(400, dtype=np.int64), scalar_coefficients(coeffs), s.initial_var,
              DT, s.process_var, s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s,

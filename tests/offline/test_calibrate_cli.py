@@ -26,7 +26,7 @@ from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import paper_table_a1, save_model
 from ecu_monitor.offline.calibration import model_fingerprint
 from ecu_monitor.offline.replay import frames_from_flight, replay_file
-from ecu_monitor.pipeline.supervision import STATES
+from ecu_monitor.pipeline.output_table import STATES
 from ecu_monitor.research.evaluation import residual_effects
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission

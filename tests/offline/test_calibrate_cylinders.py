@@ -28,7 +28,7 @@ from ecu_monitor.flightlog import write_csv
 from ecu_monitor.model import load_model, paper_table_a1, save_model
 from ecu_monitor.offline.calibration import model_fingerprint
 from ecu_monitor.offline.replay import replay_file
-from ecu_monitor.pipeline.supervision import STATES
+from ecu_monitor.pipeline.output_table import STATES
 from ecu_monitor.research.evaluation import residual_effects
 from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
 from tests.helpers import REPO

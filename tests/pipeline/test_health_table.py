@@ -17,6 +17,7 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.cli import main
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.pipeline import table as health_table
+from ecu_monitor.pipeline.output_table import STATES
 from ecu_monitor.pipeline.outputs import (
     ReplayResult,
     column_layout,
@@ -24,7 +25,6 @@ from ecu_monitor.pipeline.outputs import (
     health_table_columns,
     write_health_csv,
 )
-from ecu_monitor.pipeline.supervision import STATES
 from ecu_monitor.pipeline.table import check_table_path, csv_bytes, format_g10
 
 

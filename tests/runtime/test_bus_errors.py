@@ -149,3 +149,17 @@ def test_multicast_yaml_is_one_bus_for_both_commands() -> None:
     assert service.bus["channel"] == emulator.channel
     assert service.bus["port"] == emulator.options["port"]
     assert emulator.options["hop_limit"] == 1  # never routed off the host
+
+
+def test_the_bus_is_named_by_its_interface_and_channel_where_python_can_says_unknown(tmp_path: Path) -> None:
+    """Issue 31: the daemon on the shipped multicast pair logged "bus open: unknown"."""
+    config = load_config(_shipped_config(tmp_path, "example.yaml", bus={"interface": "udp_multicast",
+                                                                        "channel": "239.74.163.2"}))  # fmt: skip
+    try:
+        bus = bus_opener(config)()
+    except OSError as exc:  # a host without multicast routes
+        pytest.skip(f"udp_multicast cannot open here: {exc}")
+    try:
+        assert bus.channel_info == "udp_multicast 239.74.163.2"
+    finally:
+        bus.shutdown()

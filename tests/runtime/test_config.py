@@ -145,7 +145,7 @@ def test_every_error_names_file_and_key(tmp_path: Path, case: str, edit: Callabl
         (None, "no such config file"),
         (b"engine: {serial: [unclosed\n", "not valid YAML at line"),
         (b"- just\n- a list\n", "top level: expected a mapping, got a list"),
-        (b"\xff\xfe\x00garbage", "cannot read config file (not UTF-8 text)"),
+        (b"\xff\xfe\x00garbage", "not a config file (not UTF-8 text"),
         (b"", "top level: expected a mapping, got nothing"),
         (
             b"time_s,rpm,cht_c\n" + b"1.0,2400,180\n" * 5000,

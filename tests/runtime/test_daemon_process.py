@@ -9,6 +9,7 @@ error raised inside the frame path (counted by the keep-alive handler, the daemo
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import socket
@@ -310,6 +311,39 @@ def test_any_error_of_recv_is_a_receive_error_and_reopens_the_bus(
     finally:
         stop_daemon(daemon, thread, result)
         sender_bus.shutdown()
+
+
+class StrayDatagramBus(FlakyBus):
+    """A bus on which, now and then, a datagram arrives that is no CAN frame: python-can's udp_multicast
+    raises CanOperationError("could not unpack received message") from the decoder's error."""
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.fail_recv():
+            try:
+                raise ValueError("unpack(b) received extra data (test)")
+            except ValueError as exc:
+                raise can.CanOperationError("could not unpack received message") from exc
+        return self.inner.recv(timeout), False
+
+
+def test_a_datagram_that_is_no_can_frame_is_counted_and_the_bus_kept(tmp_path: Path) -> None:
+    """Issue 31: one non-CAN datagram every few frames used to close and reopen the bus (~0.5 s each)."""
+    channel = f"stray-{uuid.uuid4().hex}"
+    every_tenth = itertools.cycle([False] * 9 + [True]).__next__
+    opens = []
+    bus = StrayDatagramBus(channel, lambda: False, every_tenth)
+    daemon = Daemon(service_pipeline(tmp_path, channel), lambda: opens.append(bus) or bus)
+    thread, result = run_daemon_thread(daemon)
+    with can.Bus(interface="virtual", channel=channel, receive_own_messages=False) as sender_bus:
+        try:
+            with EcuSender(sender_bus):
+                assert wait_until(lambda: daemon.counters["bad_datagrams"] >= 20, 30.0)
+                assert wait_until(lambda: daemon.counters["frames_in"] > 200, 30.0)
+            assert thread.is_alive()
+            assert len(opens) == 1 and daemon.counters["receive_errors"] == 0
+            assert daemon.counters["bus_errors"] == daemon.counters["bad_datagrams"]
+        finally:
+            stop_daemon(daemon, thread, result)
 
 
 def test_error_in_the_frame_path_is_counted_and_the_daemon_lives(

@@ -27,6 +27,7 @@ from ecu_monitor.runtime.persistence import (
     StateStore,
     count_cycles,
 )
+from tests.helpers.history import write_old_flight_database
 
 SERIAL = "UAV-ENG-TEST"
 LIMIT_C = 200.0
@@ -386,22 +387,7 @@ def test_per_cylinder_aggregates_survive_a_restart_and_old_databases_gain_them(t
     database of schema version 1 gains the column when opened."""
     old = tmp_path / "old"
     old.mkdir()
-    with sqlite3.connect(old / DATABASE_NAME) as conn:  # a version-1 flights table, without cylinders_json
-        conn.executescript(
-            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
-            "INSERT INTO meta VALUES ('schema_version', '1');"
-            "CREATE TABLE engines (serial TEXT PRIMARY KEY, first_seen_utc REAL NOT NULL);"
-            "CREATE TABLE flights (id INTEGER PRIMARY KEY, engine_serial TEXT NOT NULL, status TEXT NOT NULL,"
-            " end_reason TEXT, start_utc REAL NOT NULL, end_utc REAL NOT NULL, duration_s REAL NOT NULL,"
-            " max_cht_c REAL, cht_limit_c REAL NOT NULL, time_above_limit_s REAL NOT NULL, gamma_q_start REAL,"
-            " gamma_q_end REAL, gamma_q_mean REAL, gamma_q_max REAL, gamma_q_slope_per_h REAL, gamma_d_start REAL,"
-            " gamma_d_end REAL, gamma_d_mean REAL, gamma_d_max REAL, gamma_d_slope_per_h REAL,"
-            " worst_state TEXT NOT NULL, time_degraded_s REAL NOT NULL, cycles_total REAL NOT NULL,"
-            " cycles_json TEXT NOT NULL, reversals BLOB, updated_utc REAL NOT NULL);"
-            "INSERT INTO engines VALUES ('OLD', 1.7e9);"
-            "INSERT INTO flights VALUES (1, 'OLD', 'finished', 'engine_stopped', 1.7e9, 1.7e9 + 600, 600, 150, 200,"
-            " 0, 1, 1, 1, 1, 0, 1, 1, 1, 1, 0, 'NOMINAL', 0, 3, '{}', NULL, 1.7e9);"
-        )
+    write_old_flight_database(old / DATABASE_NAME, version=1)  # a version-1 flights table, without cylinders_json
     with StateStore(old) as store:
         (kept,) = store.flights("OLD")
     assert kept.cylinders == {} and kept.max_cht_c == 150.0
