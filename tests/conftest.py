@@ -1,41 +1,38 @@
-"""Settings of the test session.
+"""Settings and fixtures the whole suite shares (helpers that are not fixtures: tests/helpers/).
 
 ``NUMBA_CACHE_DIR=""`` unless the developer set it: numba's own default, ``__pycache__`` beside the
 sources, where the suite's kernels were cached before the command line chose
 ``~/.cache/ecu-monitor/numba`` (ecu_monitor/compile_cache.py). The ``ecu-monitor`` and ``virtual-ecu``
 mains that tests run (in this process or as children) find the variable set and leave it alone, so the
-suite writes nothing into the developer's home. tests/test_compile_cache.py removes it for the
+suite writes nothing into the developer's home. tests/cli/test_compile_cache.py removes it for the
 processes that check the default.
 """
 
 from __future__ import annotations
 
 import os
-import sqlite3
-from pathlib import Path
+from collections.abc import Iterator
+
+import pytest
+
+from tests.helpers.netns import Namespace, netns_unavailable
 
 os.environ.setdefault("NUMBA_CACHE_DIR", "")
+# One BLAS thread per process: the suite already runs a worker per core (pytest-xdist), and OpenBLAS's
+# threads spinning against the other worker made a small SVD (the identification's polish) take minutes.
+for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_blas_threads, "1")
 
 
-def write_old_flight_database(path: Path, version: int) -> None:
-    """A flight database of an older schema at ``path`` (a file): version 1 (no cylinders_json) or 2 (no wear
-    columns, no maintenance_alerts), with engine 'OLD' and one finished flight (gamma_Q mean 1.02, max CHT
-    150 degC, 3 cycles), to check that opening it migrates it without loss."""
-    cylinders = " cylinders_json TEXT," if version >= 2 else ""
-    cylinders_value = " NULL," if version >= 2 else ""
-    with sqlite3.connect(path) as conn:
-        conn.executescript(
-            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);"
-            f"INSERT INTO meta VALUES ('schema_version', '{version}');"
-            "CREATE TABLE engines (serial TEXT PRIMARY KEY, first_seen_utc REAL NOT NULL);"
-            "CREATE TABLE flights (id INTEGER PRIMARY KEY, engine_serial TEXT NOT NULL, status TEXT NOT NULL,"
-            " end_reason TEXT, start_utc REAL NOT NULL, end_utc REAL NOT NULL, duration_s REAL NOT NULL,"
-            " max_cht_c REAL, cht_limit_c REAL NOT NULL, time_above_limit_s REAL NOT NULL, gamma_q_start REAL,"
-            " gamma_q_end REAL, gamma_q_mean REAL, gamma_q_max REAL, gamma_q_slope_per_h REAL, gamma_d_start REAL,"
-            " gamma_d_end REAL, gamma_d_mean REAL, gamma_d_max REAL, gamma_d_slope_per_h REAL,"
-            " worst_state TEXT NOT NULL, time_degraded_s REAL NOT NULL, cycles_total REAL NOT NULL,"
-            f" cycles_json TEXT NOT NULL,{cylinders} reversals BLOB, updated_utc REAL NOT NULL);"
-            "INSERT INTO engines VALUES ('OLD', 1.7e9);"
-            "INSERT INTO flights VALUES (1, 'OLD', 'finished', 'engine_stopped', 1.7e9, 1.7e9 + 600, 600, 150, 200,"
-            f" 0, 1, 1, 1.02, 1, 0, 1, 1, 1, 1, 0, 'NOMINAL', 0, 3, '{{}}',{cylinders_value} NULL, 1.7e9);"
-        )
+@pytest.fixture
+def ns() -> Iterator[Namespace]:
+    """A fresh network namespace (a unique name, its own ports), deleted with its processes afterwards."""
+    reason = netns_unavailable()
+    if reason is not None:
+        pytest.skip(reason)
+    made = Namespace()
+    try:
+        made.create()
+        yield made
+    finally:
+        made.close()

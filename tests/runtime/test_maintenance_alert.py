@@ -8,7 +8,6 @@ from pathlib import Path
 import can
 import dronecan
 import pytest
-from conftest import write_old_flight_database
 
 from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.cli import main
@@ -21,6 +20,7 @@ from ecu_monitor.runtime.dronecan_node import DroneCanNode
 from ecu_monitor.runtime.flight_recorder import FlightRecorder, engine_wear
 from ecu_monitor.runtime.persistence import DATABASE_NAME, FlightRules, FlightSample, StateStore
 from ecu_monitor.runtime.publishers import LiveMonitor
+from tests.helpers.history import write_old_flight_database
 
 SERIAL = "UAV-ENG-WEAR"
 RULES = FlightRules(running_rpm=1000.0, min_flight_s=60.0, end_after_s=10.0, checkpoint_every_s=30.0)
