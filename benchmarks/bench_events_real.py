@@ -74,7 +74,14 @@ def main() -> None:
     parser.add_argument("--cht-limit", type=float, default=260.0, help="degC (default 260: 500 degF)")
     parser.add_argument("--out-dir", type=Path, default=Path("events_real"))
     parser.add_argument("--plot", type=Path)
+    parser.add_argument(
+        "--cost", type=int, default=0, metavar="N",
+        help="instead: replay the first flight N times with the events off and on, alternating; print the ratio",
+    )  # fmt: skip
     args = parser.parse_args()
+    if args.cost:
+        _cost(args.flights[0], args.cht_limit, args.cost)
+        return
     args.out_dir.mkdir(parents=True, exist_ok=True)
     shown = ("shock_cooling", "cht_divergence", "egt_divergence", "valve_advisory", "cht_exceedance",
              "egt_exceedance", "oil_exceedance")  # fmt: skip
@@ -114,6 +121,32 @@ def main() -> None:
                 print(f"- {name}: {(e.time_s - start) / 60.0:.1f} min, {e.text()}")
     if args.plot:
         _plot(args.plot, results)
+
+
+def _cost(item: str, cht_limit_c: float, repeats: int) -> None:
+    """The replay's CPU time with every event on against off (the same frames, alternating runs)."""
+    import time
+
+    import msgspec
+
+    from ecu_monitor.bus.canlog import load_flight
+    from ecu_monitor.offline.replay import frames_from_flight, replay_frames
+
+    flight, model = item.rsplit(":", 1)
+    log = load_flight(flight)
+    on = flight_config(log, Path(model), cht_limit_c)
+    off = on.replace(events=msgspec.structs.replace(on.events, enabled=False))
+    models = on.load_cylinder_params()
+    frames = frames_from_flight(log, on)
+    replay_frames(on, models, frames)  # compiled, cached
+    spent = {"off": 0.0, "on": 0.0}
+    for _ in range(repeats):
+        for name, config in (("off", off), ("on", on)):
+            started = time.process_time()
+            replay_frames(config, models, frames)
+            spent[name] += time.process_time() - started
+    print(f"{Path(flight).name}: CPU per replay, events off {spent['off'] / repeats:.2f} s, on"
+          f" {spent['on'] / repeats:.2f} s: ratio {spent['on'] / spent['off']:.3f} ({repeats} runs each)")  # fmt: skip
 
 
 def _plot(path: Path, results: list[tuple[str, float, float, list[Any]]]) -> None:

@@ -18,6 +18,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
@@ -304,21 +305,9 @@ class Pipeline:
             cross = config.cross_detector(number)
             _detector_record(s["detector"], own)
             _detector_record(s["cross"], cross)
-            ev = config.events
-            e = s["events"]
-            e["enabled"] = ev.enabled
-            e["shock_rate_c_per_min"] = ev.shock_cooling_c_per_min
-            e["shock_min_s"] = ev.shock_cooling_min_s
-            e["divergence_c"] = ev.cht_divergence_c
-            e["divergence_min_s"] = ev.divergence_min_s
-            e["cht_limit_c"] = model.cht_limit_c if ev.cht_limit_c is None else ev.cht_limit_c
-            e["exceedance_min_s"] = ev.exceedance_min_s
-            e["egt_divergence_c"] = ev.egt_divergence_c
-            e["egt_divergence_from_c"] = ev.egt_divergence_from_c
-            e["egt_limit_c"] = ev.egt_limit_c
-            e["oil_limit_c"] = ev.oil_limit_c
-            e["valve_amplitude_c"] = ev.valve_amplitude_c
-            e["valve_min_s"] = ev.valve_min_s
+            e = s["events"]  # the config's events: limits under the same names, the inputs' slots
+            for field, value in msgspec.structs.asdict(config.events).items():
+                e[field] = model.cht_limit_c if field == "cht_limit_c" and value is None else value
             e["egt_slot"], e["egt_stale_s"] = self._event_input(config, f"egt{number}_c")
             e["oil_slot"], e["oil_stale_s"] = self._event_input(config, "oil_temp_c")
             _detector_record(s["nominal"], own.nominal_settings() if own.reference_on else None)

@@ -136,13 +136,14 @@ DETECTOR_STATE = np.dtype(
         ("head", "i8"),  # the oldest of them in the ring
     ]
 )
-#: A cylinder's engine-event limits (config ``events:``; pipeline/events.py).
+#: A cylinder's engine-event limits (config ``events:``, under its keys' names; pipeline/events.py) and the
+#: inputs only the events read.
 EVENT_SETTINGS = np.dtype(
     [
         ("enabled", "?"),
-        ("shock_rate_c_per_min", "f8"),  # the CHT rate below minus this is shock cooling
-        ("shock_min_s", "f8"),
-        ("divergence_c", "f8"),  # the CHT estimate this far from the median of the others' diverges
+        ("shock_cooling_c_per_min", "f8"),  # the CHT rate below minus this is shock cooling
+        ("shock_cooling_min_s", "f8"),
+        ("cht_divergence_c", "f8"),  # the CHT estimate this far from the median of the others' diverges
         ("divergence_min_s", "f8"),
         ("cht_limit_c", "f8"),
         ("exceedance_min_s", "f8"),
@@ -956,14 +957,14 @@ def events_step(eng: Engine, time_s: float) -> None:
         cht = own[i]
         usable = not math.isnan(cht)
         rate = st["cht_rate_c_per_min"]
-        limit = -es["shock_rate_c_per_min"]
+        limit = -es["shock_cooling_c_per_min"]
         _track(eng, st["shock"], usable and rate < limit, rate, time_s, _SHOCK_COOLING, i + 1, limit,
-               es["shock_min_s"])  # fmt: skip
+               es["shock_cooling_min_s"])  # fmt: skip
         _track(eng, st["cht_high"], usable and cht > es["cht_limit_c"], cht, time_s, _CHT_EXCEEDANCE, i + 1,
                es["cht_limit_c"], es["exceedance_min_s"])  # fmt: skip
         apart = cht - median_of_others(own, i, others)
-        _track(eng, st["divergence"], abs(apart) > es["divergence_c"], apart, time_s, _CHT_DIVERGENCE, i + 1,
-               es["divergence_c"], es["divergence_min_s"])  # fmt: skip
+        _track(eng, st["divergence"], abs(apart) > es["cht_divergence_c"], apart, time_s, _CHT_DIVERGENCE, i + 1,
+               es["cht_divergence_c"], es["divergence_min_s"])  # fmt: skip
     for i in range(n):
         es = eng_settings[i]["events"]
         own[i] = _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s)
@@ -1040,9 +1041,9 @@ def close_events(eng: Engine) -> None:
         es = eng_settings[i]["events"]
         st = eng_state[i]
         for tr, kind, number, limit, min_s in (
-            (st["shock"], _SHOCK_COOLING, i + 1, -es["shock_rate_c_per_min"], es["shock_min_s"]),
+            (st["shock"], _SHOCK_COOLING, i + 1, -es["shock_cooling_c_per_min"], es["shock_cooling_min_s"]),
             (st["cht_high"], _CHT_EXCEEDANCE, i + 1, es["cht_limit_c"], es["exceedance_min_s"]),
-            (st["divergence"], _CHT_DIVERGENCE, i + 1, es["divergence_c"], es["divergence_min_s"]),
+            (st["divergence"], _CHT_DIVERGENCE, i + 1, es["cht_divergence_c"], es["divergence_min_s"]),
             (st["egt_high"], _EGT_EXCEEDANCE, i + 1, es["egt_limit_c"], es["exceedance_min_s"]),
             (st["egt_divergence"], _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"]),
             (st["oil_high"], _OIL_EXCEEDANCE, 0, es["oil_limit_c"], es["exceedance_min_s"]),
