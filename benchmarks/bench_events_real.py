@@ -131,13 +131,15 @@ def _cost(item: str, cht_limit_c: float, repeats: int) -> None:
 
     from ecu_monitor.bus.canlog import load_flight
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames
+    from ecu_monitor.pipeline.engine import model_input_names
 
     flight, model = item.rsplit(":", 1)
     log = load_flight(flight)
     on = flight_config(log, Path(model), cht_limit_c)
     off = on.replace(events=msgspec.structs.replace(on.events, enabled=False))
     models = on.load_cylinder_params()
-    frames = frames_from_flight(log, on)
+    needed = (*model_input_names(models[0], on.input_names), *on.cylinder_inputs)  # as replay_file
+    frames = frames_from_flight(log, on, needed)
     replay_frames(on, models, frames)  # compiled, cached
     spent = {"off": 0.0, "on": 0.0}
     for _ in range(repeats):

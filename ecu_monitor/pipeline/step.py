@@ -35,8 +35,8 @@ The rules, in the order a step applies them:
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins;
-* the engine events (:func:`events_step`): shock cooling, CHT divergence and CHT exceedance per cylinder,
-  into ``Engine.events`` when their condition ends.
+* every filter period, the engine events (:func:`events_step`): shock cooling, divergence, exceedances and
+  the exhaust-valve advisory, into ``Engine.events`` when their condition ends.
 """
 
 from __future__ import annotations
@@ -780,9 +780,15 @@ def median_of_others(values: Any, i: int, scratch: Any) -> float:
             m += 1
     if m == 0:
         return np.nan
-    ordered = np.sort(scratch[:m])
+    for a in range(1, m):  # sorted in place (an insertion sort: a few values, no allocation)
+        x = scratch[a]
+        b = a - 1
+        while b >= 0 and scratch[b] > x:
+            scratch[b + 1] = scratch[b]
+            b -= 1
+        scratch[b + 1] = x
     mid = m // 2
-    return ordered[mid] if m % 2 else (ordered[mid - 1] + ordered[mid]) * 0.5
+    return scratch[mid] if m % 2 else (scratch[mid - 1] + scratch[mid]) * 0.5
 
 
 @njit(nogil=False)
@@ -875,11 +881,19 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
         cylinder_step(eng, i, u, time_s, any_stale, reading_bad, call, headroom_due)
     if clock["cross"]:
         cross_step(eng, time_s)
-    events_step(eng, time_s)
+    if call:  # the filter period: the CHT rate is new
+        events_step(eng, time_s)
     return stale
 
 
 # ------------------------------------------------------------------------------------------------ the engine events
+
+
+@njit(nogil=False)
+def _events_period_s(eng: Engine) -> float:
+    """How often the events are checked, s: every filter period (when the CHT rate is new)."""
+    clock = eng.clock[0]
+    return clock["dt_s"] * clock["filter_period"]
 
 
 @njit(nogil=False)
@@ -889,7 +903,7 @@ def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, m
     eng_events = eng.events
     eng_event_count = eng.event_count
     tr["active"] = False
-    duration = tr["last_s"] - tr["start_s"] + eng.clock[0]["dt_s"]
+    duration = tr["last_s"] - tr["start_s"] + _events_period_s(eng)
     if duration < min_s:
         return
     n = eng_event_count[0]
@@ -1017,7 +1031,7 @@ def valve_advisory(eng: Engine, time_s: float) -> None:
     eng_state = eng.state
     amplitude = eng.symptoms[0]
     n = eng_state.shape[0]
-    dt_s = eng.clock[0]["dt_s"]
+    dt_s = _events_period_s(eng)
     for i in range(n):
         es = eng_settings[i]["events"]
         amplitude[i] = valve_band(eng_state[i], _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s), dt_s)
