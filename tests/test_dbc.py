@@ -49,7 +49,15 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
             0x302,
             1000,
             "EcuMonitor",
-            ("StaleInputs", "MalformedFrames", "BusErrors", "StaleInputsHigh", "DiagCounter", "DiagChecksum"),
+            (
+                "StaleInputs",
+                "MalformedFrames",
+                "BusErrors",
+                "StaleInputsHigh",
+                "HistoryDown",
+                "DiagCounter",
+                "DiagChecksum",
+            ),
         ),
         "Health_Spread": (
             0x303,

@@ -168,7 +168,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.runtime.daemon import Daemon
     from ecu_monitor.runtime.flight_recorder import FlightRecorder
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
-    from ecu_monitor.runtime.persistence import StateStore
+    from ecu_monitor.runtime.persistence import DATABASE_NAME, StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
     from ecu_monitor.runtime.state_lock import StateDirLock
 
@@ -180,12 +180,13 @@ def _run(args: argparse.Namespace) -> int:
     _log_to_journal()
     lock = StateDirLock(config.state_dir)  # before the store's start-up recovery; held until the process ends
     pipeline = LiveMonitor(config, models)
-    store = StateStore(config.state_dir)
+    # a history that cannot be opened (read-only, disk full) is retried while the service monitors on
     recorder = FlightRecorder(
-        store, config.engine_serial, params.cht_limit_c, FlightRules(min_flight_s=args.min_flight_s)
+        lambda: StateStore(config.state_dir),
+        config.engine_serial,
+        params.cht_limit_c,
+        FlightRules(min_flight_s=args.min_flight_s),
     )
-    if recorder.recovered:
-        _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
     # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only
@@ -215,11 +216,12 @@ def _run(args: argparse.Namespace) -> int:
             link = f"MAVLink {config.mavlink.connection}" + (f" -> {output}" if output else "")
         else:
             link = f"bus {config.bus.get('interface')}:{config.bus.get('channel')}"
-        _log.info("engine %s, %s, state %s", config.engine_serial, link, store.path)
+        _log.info("engine %s, %s, state %s", config.engine_serial, link, config.state_dir / DATABASE_NAME)
         try:
             code = daemon.run()
         finally:
-            store.close()
+            if recorder.store is not None:
+                recorder.store.close()
             lock.close()
     sys.stdout.flush()
     return code

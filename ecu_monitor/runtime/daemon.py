@@ -436,6 +436,10 @@ class Daemon:
                 )
             )
         self.counters["rows_recorded"] += len(rows)
+        down = int(self._recorder.history_fault is not None)
+        if self.pipeline.counters.get("history_down") != down:
+            with self._lock:
+                self.pipeline.counters["history_down"] = down  # Health_Diag.HistoryDown
 
     def _log_states(self, rows: Sequence[Any]) -> None:
         """One INFO line per change of the engine's state among the health rows, with the row's time on the
@@ -455,7 +459,12 @@ class Daemon:
             f"state {snap.state}, CHT est {snap.cht_est_c:.1f} degC, gamma_Q {snap.gamma_q:.3f}, "
             f"stale {stale}, frames {mine['frames_in']}, malformed {counters.get('malformed', 0)}, "
             f"bus errors {mine['bus_errors']}, health sent {mine['health_sent']}"
-        )
+        ) + self._history_note()
+
+    def _history_note(self) -> str:
+        """``, NO HISTORY: <why>`` while the flight history cannot be written, else nothing."""
+        fault = self._recorder.history_fault if self._recorder is not None else None
+        return f", NO HISTORY: {fault}" if fault else ""
 
     def _supervise_once(self, now: float) -> None:
         with self._lock:
