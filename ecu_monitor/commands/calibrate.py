@@ -126,7 +126,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ParameterError("--models: the config monitors one CHT channel (cht_c); give its model with --model")
     result, flights = _calibrate_channel(args, config, params, candidates)
     if args.write_config:
-        text = config_copy_yaml(config_path, result, args.rate, sources, model_fingerprint(params), args.model)
+        text = config_copy_yaml(config_path, out, result, args.rate, sources, model_fingerprint(params), args.model)
     else:
         text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
     _write(out, text)
@@ -167,6 +167,7 @@ def _run_cylinders(
     if args.write_config:
         text = config_copy_yaml(
             config_path,
+            out,
             results[0],
             args.rate,
             sources,
