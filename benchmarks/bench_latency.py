@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import dataclasses
+import functools
 import gc
 import json
 import os
@@ -144,9 +145,9 @@ def run_daemon(config: Any, open_bus: Callable[[], can.BusABC], ready: threading
     """The daemon as ``ecu-monitor run`` builds it (commands/run.py), its tick off, run until ``stop`` in the
     calling thread (its recorder's SQLite connection lives there); ``ready`` is set once the bus is open.
     Returns the engine frames it took in and the health frames it made."""
-    from ecu_monitor.commands.run import daemon_settings, engine_speed_of
+    from ecu_monitor.commands.run import daemon_settings
     from ecu_monitor.runtime.daemon import Daemon
-    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.persistence import FlightRules, StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor
 
@@ -159,8 +160,8 @@ def run_daemon(config: Any, open_bus: Callable[[], can.BusABC], ready: threading
     store = StateStore(config.state_dir)
     recorder = FlightRecorder(store, config.engine_serial, monitor.params.cht_limit_c, FlightRules())
     settings = dataclasses.replace(daemon_settings(config, None), tick_s=3600.0)
-    filters, speed = monitor.receive_filters(), engine_speed_of(monitor)
-    daemon = Daemon(monitor, opened, settings=settings, recorder=recorder, engine_speed=speed, receive_filters=filters)
+    filters, held = monitor.receive_filters(), functools.partial(held_inputs, monitor)
+    daemon = Daemon(monitor, opened, settings=settings, recorder=recorder, held_inputs=held, receive_filters=filters)
     threading.Thread(target=lambda: (stop.wait(), daemon.stop()), daemon=True).start()
     daemon.run()
     store.close()

@@ -18,7 +18,7 @@ says so exactly when the cache misses (a fresh install, an upgrade, a cleared ca
 kernels another command did not compile) and never on a run that only loads.
 
 No numba at this module's top level: the command line's ``--help`` stays light
-(tests/test_cli_startup.py); numba is imported by :func:`compile_notice`, which only the commands that
+(tests/cli/test_cli_startup.py); numba is imported by :func:`compile_notice`, which only the commands that
 compile call, when they run (demo, replay, simulate, identify, gap, calibrate, results, evaluate through
 :func:`announce_compiles`; ``run`` around its warm-up, logging).
 """

@@ -44,6 +44,7 @@ from ecu_monitor.bus.mavlink_settings import MavlinkSettings, parse_mavlink_sett
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation import ESTIMATORS, EstimatorSettings
 from ecu_monitor.estimation.detection import DetectorSettings
+from ecu_monitor.estimation.wear import WearReference, WearSettings
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1
 from ecu_monitor.model.params import MODEL_KIND
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
@@ -236,6 +237,21 @@ class _DetectorMark(_Section, frozen=True):
 
 class _DetectorHead(_DetectorMark, frozen=True):
     symptom: Symptom = "estimator"
+    #: a detector not calibrated for the model: ``run`` refuses to start (exit 2), or (accept, a test bench)
+    #: runs with a warning in every status line
+    uncalibrated: Literal["refuse", "accept"] = "refuse"
+
+
+class _WearReference(_Section, frozen=True):
+    """``wear.reference``: the wear index over nominal flights (``ecu-monitor calibrate`` writes it)."""
+
+    mean: float
+    sd: Annotated[float, Meta(gt=0.0)]
+    flights: Annotated[int, Meta(ge=2)]
+
+
+class _WearHead(_Section, frozen=True):
+    reference: _WearReference | None = None  # None: learned from the engine's own first flights
 
 
 def _optional_keys(name: str, keys: Iterable[str], value: Any) -> Any:
@@ -266,12 +282,14 @@ if TYPE_CHECKING:  # built below from names other modules declare; mypy sees the
     _EstimatorSection = _EstimatorName
     _DetectorSection = _DetectorHead
     _DetectorKeys = _DetectorMark
+    _WearSection = _WearHead
 else:
     _Inputs = _optional_keys("Inputs", (*INPUT_NAMES, *_CYLINDER_NAMES), _Input)
     _Health = _optional_keys("Health", (*HEALTH_MESSAGES, *CYLINDER_HEALTH_MESSAGES), _Rate)
     _EstimatorSection = _settings_keys("EstimatorSection", EstimatorSettings, _EstimatorName)
     _DetectorSection = _settings_keys("DetectorSection", DetectorSettings, _DetectorHead)
     _DetectorKeys = _settings_keys("DetectorKeys", DetectorSettings, _DetectorMark)
+    _WearSection = _settings_keys("WearSection", WearSettings, _WearHead)
 
 
 class _Cylinders(_Section, frozen=True):
@@ -307,6 +325,7 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
     cylinders: _Cylinders = _Cylinders()
     estimator: _EstimatorSection = _EstimatorSection()
     detector: _DetectorSection = _DetectorSection()
+    wear: _WearSection = _WearSection()  # across flights: the maintenance alert (estimation/wear.py)
     #: inputs stale: keep predicting on the model this long, s, then UNAVAILABLE
     stale_predict_limit_s: _NonNegative = 30.0
     #: the daemon logs a warning when its bus has carried no engine frame for this long, s
@@ -457,6 +476,9 @@ class ServiceConfig:
     #: ``detector.calibrated_for``: fingerprint of the model the threshold was calibrated with (as
     #: ``ecu-monitor calibrate`` writes it, ecu_monitor.offline.calibration.model_fingerprint); None if not given.
     detector_calibrated_for: str | None
+    #: ``detector.uncalibrated``: "refuse" (run exits 2 when the detector was not calibrated for the model) or
+    #: "accept" (a test bench: run anyway, warning in every status line)
+    detector_uncalibrated: str
     #: ``dbc``, ``dronecan`` or ``mavlink`` (:data:`PROTOCOLS`): how the inputs are read
     protocol: str
     #: the service as a DroneCAN node (used when protocol is dronecan)
@@ -480,6 +502,10 @@ class ServiceConfig:
     cross_detectors: tuple[DetectorSettings | None, ...]
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)
     cross_calibrated_for: tuple[str | None, ...]
+    #: ``wear:``: the across-flight detector's settings and the engine's nominal wear reference (None: learned
+    #: from its own first flights)
+    wear: WearSettings = dataclasses.field(default_factory=WearSettings)
+    wear_reference: WearReference | None = None
 
     def cylinder_detector(self, number: int) -> DetectorSettings:
         """The detector settings of cylinder ``number`` (1-based): its ``cylinders.detectors`` entry, else
@@ -618,6 +644,7 @@ class _Resolver:
             sensor_fault=self.sensor_fault(file),
             no_frames_warning_s=file.no_frames_warning_s,
             detector_calibrated_for=file.detector.calibrated_for,
+            detector_uncalibrated=file.detector.uncalibrated,
             protocol=file.protocol,
             dronecan=dronecan,
             mavlink=mavlink,
@@ -631,6 +658,10 @@ class _Resolver:
             ),
             cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
             **self.cross_detectors(cylinders, count),
+            wear=self.settings("", WearSettings(), _given(file.wear, WearSettings)),
+            wear_reference=None
+            if file.wear.reference is None
+            else WearReference(file.wear.reference.mean, file.wear.reference.sd, file.wear.reference.flights),
         )
 
     def load(self, key: str, path: Path) -> Any:

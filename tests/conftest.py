@@ -1,15 +1,38 @@
-"""Settings of the test session.
+"""Settings and fixtures the whole suite shares (helpers that are not fixtures: tests/helpers/).
 
 ``NUMBA_CACHE_DIR=""`` unless the developer set it: numba's own default, ``__pycache__`` beside the
 sources, where the suite's kernels were cached before the command line chose
 ``~/.cache/ecu-monitor/numba`` (ecu_monitor/compile_cache.py). The ``ecu-monitor`` and ``virtual-ecu``
 mains that tests run (in this process or as children) find the variable set and leave it alone, so the
-suite writes nothing into the developer's home. tests/test_compile_cache.py removes it for the
+suite writes nothing into the developer's home. tests/cli/test_compile_cache.py removes it for the
 processes that check the default.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+
+import pytest
+
+from tests.helpers.netns import Namespace, netns_unavailable
 
 os.environ.setdefault("NUMBA_CACHE_DIR", "")
+# One BLAS thread per process: the suite already runs a worker per core (pytest-xdist), and OpenBLAS's
+# threads spinning against the other worker made a small SVD (the identification's polish) take minutes.
+for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_blas_threads, "1")
+
+
+@pytest.fixture
+def ns() -> Iterator[Namespace]:
+    """A fresh network namespace (a unique name, its own ports), deleted with its processes afterwards."""
+    reason = netns_unavailable()
+    if reason is not None:
+        pytest.skip(reason)
+    made = Namespace()
+    try:
+        made.create()
+        yield made
+    finally:
+        made.close()

@@ -6,6 +6,13 @@
                        [--protocol dbc|dronecan|mavlink]
     virtual-ecu run --config FILE | --interface NAME --channel CH | --protocol mavlink --connection LINK
                     --mission FILE|NAME [--degrade ...] [--effect ...] [--realtime] [--speed X]
+    virtual-ecu campaign --flights N --out-dir DIR [--wear gamma_q+0.005] [--format blf] [--duration S]
+                         [--seed N] [--effect ...] [--model model.yaml] [--protocol ...]
+
+``campaign``: N flights of one engine, each a random mission of its own seed, with a per-flight degradation
+schedule (``--wear gamma_q+0.005``: gamma_Q 1.0 on the first flight, 1.005 on the second, ..., from engine
+start), one log per flight (``DIR/flight_001.blf`` ...), a day apart on the UNIX clock (virtual_bus/campaign.py):
+``ecu-monitor replay LOG --history STATE_DIR`` each in turn gives the engine's history of slow wear.
 
 ``--protocol``: engine.dbc frames (dbc, the default), DroneCAN messages (virtual_bus/dronecan_emitter.py) or
 an autopilot's MAVLink stream (virtual_bus/mavlink_emitter.py: recorded to a .tlog, sent over ``--connection``,
@@ -189,7 +196,57 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--speed", type=float, default=1.0, help="with --realtime: times real time (default 1)")
     run.add_argument("--start-time", type=float, default=0.0, help="timestamp of mission time 0, s (default 0)")
     run.set_defaults(func=_run)
+
+    camp = sub.add_parser("campaign", help="fly N random missions of one engine with a per-flight degradation schedule")
+    camp.add_argument("--flights", type=int, required=True, metavar="N", help="number of flights")
+    camp.add_argument("--out-dir", required=True, metavar="DIR", help="one log per flight: DIR/flight_001.<format> ...")
+    camp.add_argument(
+        "--wear",
+        default="gamma_q+0",
+        metavar="SPEC",
+        help="per-flight schedule gamma_q|gamma_d+STEP from 1.0 on the first flight (default gamma_q+0: nominal)",
+    )
+    camp.add_argument("--format", choices=("blf", "asc", "log", "csv"), default="blf", help="log format (default blf)")
+    camp.add_argument("--duration", type=float, default=3600.0, help="each random mission's length, s (default 3600)")
+    camp.add_argument("--seed", type=int, default=0, help="the campaign's seed (each flight draws its own from it)")
+    camp.add_argument("--start-time", type=float, default=1.7e9, help="UNIX time of the first flight (default 1.7e9)")
+    camp.add_argument(
+        "--effect", action="append", default=[], metavar="SPEC", help="unmodelled effect in the truth (as record)"
+    )
+    camp.add_argument("--model", metavar="model.yaml", help="truth model (default: the paper's Table A1)")
+    camp.add_argument("--protocol", choices=("dbc", "dronecan"), default="dbc", help="frames (default dbc)")
+    camp.set_defaults(func=_campaign)
     return parser
+
+
+def _campaign(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ecu_monitor.model import load_model, paper_table_a1
+    from virtual_bus.campaign import WearSchedule, campaign_flights
+    from virtual_bus.plant import parse_effects
+    from virtual_bus.recorder import record
+
+    schedule = WearSchedule.parse(args.wear)
+    params = load_model(args.model) if args.model else paper_table_a1()
+    effects = parse_effects(args.effect, base=params.effects) if args.effect else None
+    out_dir = Path(args.out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{out_dir}: --out-dir: cannot create it ({exc.strerror})") from None
+    flights = campaign_flights(args.flights, schedule, seed=args.seed, duration_s=args.duration,
+                               start_time_s=args.start_time)  # fmt: skip
+    for flight in flights:
+        path = out_dir / f"flight_{flight.number:03d}.{args.format}"
+        progress = _Progress(f"virtual-ecu campaign flight {flight.number}/{args.flights}")
+        summary = record(flight.mission, [path], params, effects=effects, degradation=flight.degradation,
+                         seed=flight.seed, start_time_s=flight.start_time_s, protocol=args.protocol,
+                         progress=lambda t, p=progress: p(f"t = {t:.0f} s"))  # fmt: skip
+        progress.done()
+        print(f"{path}: {schedule.factor} {schedule.value(flight.number):.4f}, {summary.duration_s / 60.0:.0f} min,"
+              f" max CHT {summary.max_cht_c:.0f} degC")  # fmt: skip
+    return 0
 
 
 def _record(args: argparse.Namespace) -> int:

@@ -29,7 +29,7 @@ One place turns CAN frames into numbers and back (docs/architecture.md, docs/dbc
   prepared once into a :class:`FrameLayout` (bit positions, masks, the signal's own scaled-to-raw
   conversion) that packs a frame with integer arithmetic, without cantools' per-call checks and
   dictionaries; messages it cannot pack exactly (float or multiplexed signals, a DBC range wider than
-  the signal's bits) keep cantools' encoder. Both give the same bytes (tests/test_codec.py checks
+  the signal's bits) keep cantools' encoder. Both give the same bytes (tests/bus/test_codec.py checks
   them against cantools over random and clipped values).
 
 Units: the one table is :data:`ecu_monitor.units.UNITS` (a signal's unit is a name of it or a custom

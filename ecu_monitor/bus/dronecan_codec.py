@@ -21,7 +21,7 @@ by hand. A payload then unpacks with ``int``/``struct`` arithmetic into plain va
 
 Stricter than the package on bad input, never looser: a payload too short for its fields, an array longer than its
 DSDL capacity or a union tag beyond its fields raises :class:`PayloadError` (the package would take an over-long
-array). tests/test_dronecan_codec.py checks both directions bit for bit against the package itself.
+array). tests/bus/test_dronecan_codec.py checks both directions bit for bit against the package itself.
 
 :func:`transfer_frames` splits a payload into the frames of one transfer (transfer CRC seeded by the data type's
 ``base_crc`` for a multi-frame transfer, tail bytes: start, end, toggle, transfer id) as

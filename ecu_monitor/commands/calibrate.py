@@ -32,6 +32,7 @@ cylinders.models, else its model); --out gets ``cylinders: detectors:``, one det
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -117,18 +118,32 @@ def _run(args: argparse.Namespace) -> int:
         if not Path(flight).is_file():
             raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")
 
-    from ecu_monitor.offline.calibration import config_copy_yaml, detector_fragment_yaml, model_fingerprint
+    import yaml
+
+    from ecu_monitor.offline.calibration import (
+        config_copy_yaml,
+        detector_fragment_yaml,
+        model_fingerprint,
+        wear_fragment,
+    )
 
     sources = [str(Path(p).resolve()) for p in args.flights]
     if len(config.cylinder_inputs) > 1:
         return _run_cylinders(args, config, config_path, out, candidates, sources)
     if args.models:
         raise ParameterError("--models: the config monitors one CHT channel (cht_c); give its model with --model")
-    result, flights = _calibrate_channel(args, config, params, candidates)
+    result, flights, wear = _calibrate_channel(args, config, params, candidates)
     if args.write_config:
-        text = config_copy_yaml(config_path, out, result, args.rate, sources, model_fingerprint(params), args.model)
+        text = config_copy_yaml(
+            config_path, out, result, args.rate, sources, model_fingerprint(params), args.model, wear=wear
+        )
     else:
         text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
+        if wear is not None:
+            text += (
+                "# the engine's nominal wear index over these flights: the across-flight detector's reference\n"
+                + yaml.safe_dump(wear_fragment(wear), sort_keys=False, default_flow_style=False)
+            )
     _write(out, text)
     print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
     if args.plot:
@@ -223,8 +238,9 @@ def _calibrate_cross(args: argparse.Namespace, config: Any, params: list[Any]) -
 
 def _calibrate_channel(
     args: argparse.Namespace, config: Any, params: Any, candidates: list[float], cylinder: int | None = None
-) -> tuple[Any, list[Any]]:
-    """One CHT channel: the baseline choice and the threshold on the flights (prints the tables);
+) -> tuple[Any, list[Any], Any]:
+    """One CHT channel: the baseline choice and the threshold on the flights (prints the tables), and the
+    nominal wear reference of the across-flight detector (None: fewer than 3 flights with a wear index);
     ``cylinder``: the flights' ``cht<cylinder>_c`` is the channel (``config`` maps it as ``cht_c``)."""
     from tqdm import tqdm
 
@@ -234,11 +250,14 @@ def _calibrate_channel(
         choose_settings,
         cross_validation_blocker,
         flight_feeds,
+        wear_reference,
     )
 
     feeds = []
     for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
-        feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder))
+        feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder, keep_reference=True))
+    indices, wear = wear_reference(feeds, config.wear)
+    feeds = [dataclasses.replace(f, reference=()) for f in feeds]  # the per-step reference is not needed further
     choose = args.baseline_s is None
     if choose and cross_validation_blocker(feeds, config.detector) is None:  # replay again with the overlays
         feeds = []
@@ -258,6 +277,7 @@ def _calibrate_channel(
     for line in _table(flights, config.detector.threshold, settings.block_s):
         print(line)
     result = calibrate_flights(flights, args.rate, settings, choice)
+    result = _with_engine_reference(result, feeds, settings, args.rate)
     c = result.calibration
     print(
         f"threshold h = {c.threshold:.3f} for {args.rate:g} false alarm(s) per 100 h"
@@ -273,7 +293,40 @@ def _calibrate_channel(
             f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest statistic"
             f" seen ({c.empirical_max:.3f})"
         )
-    return result, flights
+    shown = ", ".join("-" if i is None else f"{100.0 * i:+.2f} %" for i in indices)
+    if wear is None:
+        print(f"wear index per flight: {shown}; no wear reference (fewer than 3 flights with one)")
+    else:
+        print(f"wear index per flight: {shown}; reference {100.0 * wear.mean:+.2f} % sd {100.0 * wear.sd:.2f} %"
+              f" over {wear.flights} flights (the across-flight detector's, wear.reference)")  # fmt: skip
+    return result, flights, wear
+
+
+def _with_engine_reference(result: Any, feeds: list[Any], settings: Any, rate: float) -> Any:
+    """``result`` whose settings carry the engine's reference learned on the flights (printed per region), or
+    as it is (and why) when the flights are too few."""
+    import dataclasses
+
+    from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
+    from ecu_monitor.estimation.regions import REGION_NAMES
+    from ecu_monitor.offline.calibration_reference import calibrate_reference
+
+    try:
+        ref = calibrate_reference(feeds, settings, rate)
+    except ParameterError as exc:
+        print(f"engine reference: none ({exc}); the detector tests against its in-flight baseline only")
+        return result
+    print(f"engine reference (symptom per region over {len(feeds)} nominal flights; level = mean + "
+          f"{NOMINAL_SPREAD_Z:g} x spread across flights):")  # fmt: skip
+    print("  region         " + "".join(f"{n[:12]:>13}" for n in ref.flights) + "         mean       spread")
+    for r, name in enumerate(REGION_NAMES):
+        cells = "".join(f"{v:13.4f}" for v in ref.flight_means[:, r])
+        print(f"  {name:<14} {cells} {ref.mean[r]:12.4f} {ref.spread[r]:12.4f}")
+    c = ref.calibration
+    worst = ", ".join(f"{n} {m:.2f}" for n, m in zip(ref.flights, ref.held_out_max, strict=True))
+    print(f"reference test h = {c.threshold:.3f} ({c.hours} whole hours, each flight against the others' reference;"
+          f" largest statistic per flight: {worst})")  # fmt: skip
+    return dataclasses.replace(result, current=ref.settings(result.current))
 
 
 def _write(out: Path, text: str) -> None:

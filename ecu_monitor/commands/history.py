@@ -7,6 +7,12 @@ as ``recovered`` (or resumes it) at that checkpoint: the database alone cannot t
 Per engine: flights, hours, maximum CHT, time above the CHT limit, gamma_Q / gamma_D per flight and
 their trend over engine hours (least-squares slope per 100 h), and the thermal cycles counted by
 rainflow. ``--plot out.png`` draws the same trend.
+
+Across flights: each flight's wear index (how much hotter than the nominal model the head ran, %) and the
+across-flight detector's CUSUM over the flights since the last cleared alert (estimation/wear.py; with
+``--config``, its ``wear:`` settings and reference). An engine with an open maintenance alert gets a line
+starting ``ALERT``, and the plot marks the flight that raised it. ``--clear-alert`` records that the
+maintenance was done (the detector starts again from the next flight).
 """
 
 from __future__ import annotations
@@ -18,10 +24,18 @@ from pathlib import Path
 from typing import Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.runtime.persistence import CYCLE_BIN_EDGES_C, FlightRecord, StateStore, iter_trend
+from ecu_monitor.estimation.wear import WearReference, WearSettings
+from ecu_monitor.runtime.flight_recorder import EngineWear, engine_wear
+from ecu_monitor.runtime.persistence import (
+    CYCLE_BIN_EDGES_C,
+    FlightRecord,
+    MaintenanceAlert,
+    StateStore,
+    iter_trend,
+)
 from ecu_monitor.userfiles import save_figure
 
-__all__ = ["add_subparser", "engine_trend", "format_history", "plot_history"]
+__all__ = ["add_subparser", "engine_trend", "format_history", "plot_history", "trend_figure"]
 
 #: Cycles at least this large (degC range) are shown as "large" (full heat-up / cool-down cycles).
 LARGE_CYCLE_C = 50.0
@@ -40,6 +54,11 @@ def add_subparser(subparsers: Any) -> None:
     source.add_argument("--state-dir", metavar="DIR", help="the daemon's state directory")
     parser.add_argument("--engine", metavar="SERIAL", help="only this engine")
     parser.add_argument("--plot", metavar="out.png", help="write the trend plot here")
+    parser.add_argument(
+        "--clear-alert",
+        action="store_true",
+        help="maintenance done: clear the open maintenance alerts of --engine (the detector restarts after it)",
+    )
     parser.set_defaults(func=_run)
 
 
@@ -90,20 +109,32 @@ def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
-def format_history(serial: str, records: list[FlightRecord]) -> str:
-    """The printed history of one engine: a summary line, the trend, one row per flight."""
+def format_history(
+    serial: str, records: list[FlightRecord], wear: EngineWear | None = None, alerts: tuple[MaintenanceAlert, ...] = ()
+) -> str:
+    """The printed history of one engine: its open alerts (``ALERT ...``), a summary line, the trend, the
+    across-flight detector, one row per flight."""
     trend = engine_trend(records)
     running = sum(1 for r in records if r.status == "running")
     count = f"{len(records)} flights" + (f" ({running} running)" if running else "")
     lines = [
+        f"ALERT {a.text} (CUSUM {a.statistic:.1f} >= {a.threshold:.1f}); clear with --clear-alert once maintained"
+        for a in alerts
+        if a.cleared_utc is None
+    ]
+    lines += [
         f"engine {serial}: {count}, {trend['hours']:.2f} h, max CHT {_fmt(trend['max_cht_c'], '.1f')} "
         f"degC, {trend['time_above_limit_s']:.0f} s above limit, {trend['cycles']:.1f} thermal cycles "
         f"({trend['large_cycles']:.1f} of >= {LARGE_CYCLE_C:g} degC)",
         f"  trend: gamma_Q {_fmt(trend['gamma_q_last'], '.3f')} ({_fmt(trend['gamma_q_per_100h'], '+.4f')} per 100 h),"
         f" gamma_D {_fmt(trend['gamma_d_last'], '.3f')} ({_fmt(trend['gamma_d_per_100h'], '+.4f')} per 100 h)",
-        f"  {'#':>4} {'start (UTC)':<19} {'hours':>6} {'maxCHT':>6} {'>lim s':>7} {'gQ mean':>7} {'gQ end':>7} "
-        f"{'gD mean':>7} {'worst':<12} {'cycles':>6} {'>=50C':>5} status",
     ]
+    if wear is not None:
+        lines.append(_wear_line(wear))
+    lines.append(
+        f"  {'#':>4} {'start (UTC)':<19} {'hours':>6} {'maxCHT':>6} {'>lim s':>7} {'gQ mean':>7} {'gQ end':>7} "
+        f"{'gD mean':>7} {'wear %':>6} {'worst':<12} {'cycles':>6} {'>=50C':>5} status"
+    )
     for record in records:
         start = dt.datetime.fromtimestamp(record.start_utc, tz=dt.UTC).strftime("%Y-%m-%d %H:%M:%S")
         if record.status == "running":
@@ -114,11 +145,26 @@ def format_history(serial: str, records: list[FlightRecord]) -> str:
         lines.append(
             f"  {record.id:>4} {start:<19} {record.hours:>6.2f} {_fmt(record.max_cht_c, '6.1f'):>6} "
             f"{record.time_above_limit_s:>7.0f} {_fmt(record.gamma_q_mean, '7.3f'):>7} "
-            f"{_fmt(record.gamma_q_end, '7.3f'):>7} {_fmt(record.gamma_d_mean, '7.3f'):>7} {record.worst_state:<12} "
+            f"{_fmt(record.gamma_q_end, '7.3f'):>7} {_fmt(record.gamma_d_mean, '7.3f'):>7} "
+            f"{_fmt(_percent(record.wear_index), '+6.1f'):>6} {record.worst_state:<12} "
             f"{record.cycles_total:>6.1f} {_large_cycles(record):>5.1f} {status}"
         )
         lines.extend(_cylinder_lines(record))
     return "\n".join(lines)
+
+
+def _wear_line(wear: EngineWear) -> str:
+    """The across-flight detector in one line: its last CUSUM against h, the reference."""
+    verdict, reference = wear.verdict, wear.verdict.reference
+    statistic = next((s for s in reversed(verdict.statistic) if s is not None), None)
+    if reference is None:
+        return f"  across flights: learning the engine's reference ({len(wear.flights)} flights so far)"
+    source = f"its first {reference.flights} flights" if verdict.learned else f"{reference.flights} nominal flights"
+    state = "ALERT" if verdict.alerted else "no alert"
+    return (
+        f"  across flights: CUSUM {_fmt(statistic, '.2f')} of h {verdict.threshold:.2f} ({state}); wear index"
+        f" reference {100.0 * reference.mean:+.2f} % sd {100.0 * reference.sd:.2f} % from {source}"
+    )
 
 
 def _cylinder_lines(record: FlightRecord) -> list[str]:
@@ -143,27 +189,31 @@ def _cylinder_lines(record: FlightRecord) -> list[str]:
     return out
 
 
-def plot_history(histories: dict[str, list[FlightRecord]], out: Path) -> None:
-    """Trend plot over engine hours: gamma estimates, max CHT and time above limit, cumulative cycles."""
+def plot_history(
+    histories: dict[str, list[FlightRecord]], out: Path, wear: dict[str, EngineWear] | None = None
+) -> None:
+    """Trend plot over engine hours: gamma estimates, max CHT and time above limit, cumulative cycles, the wear
+    index with the across-flight CUSUM (an alert marked on every panel)."""
     import matplotlib.pyplot as plt
 
-    fig = trend_figure(histories)
+    fig = trend_figure(histories, wear)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, out, dpi=110)
     plt.close(fig)
 
 
-def trend_figure(histories: dict[str, list[FlightRecord]]) -> Any:
-    """The figure of :func:`plot_history` (axes: gamma, max CHT with time-above bars, cycles)."""
+def trend_figure(histories: dict[str, list[FlightRecord]], wear: dict[str, EngineWear] | None = None) -> Any:
+    """The figure of :func:`plot_history` (axes: gamma, max CHT with time-above bars, cycles, wear and CUSUM)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
-    ax_gamma, ax_cht, ax_cycles = axes
+    fig, axes = plt.subplots(4, 1, figsize=(9, 11.5), sharex=True)
+    ax_gamma, ax_cht, ax_cycles, ax_wear = axes
     for serial, records in histories.items():
         points = list(iter_trend(records))
+        _wear_panel(ax_wear, axes, serial, points, (wear or {}).get(serial))
         hours = [h for h, _ in points]
         ax_gamma.plot(hours, [r.gamma_q_mean for _, r in points], "o-", label=f"{serial} gamma_Q (flight mean)")
         ax_gamma.plot(hours, [r.gamma_d_mean for _, r in points], "s--", label=f"{serial} gamma_D (flight mean)")
@@ -201,12 +251,43 @@ def trend_figure(histories: dict[str, list[FlightRecord]]) -> Any:
     ax_gamma.set_title("Engine health trend per flight (x: engine hours at the end of the flight)")
     ax_cht.set_ylabel("max CHT, degC (limit dotted)")
     ax_cycles.set_ylabel("thermal cycles (rainflow), cumulative")
-    ax_cycles.set_xlabel("engine hours")
+    ax_wear.set_ylabel("wear index, % (CUSUM dashed)")
+    ax_wear.set_xlabel("engine hours")
     for ax in axes:
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def _percent(value: float | None) -> float | None:
+    return None if value is None else 100.0 * value
+
+
+def _wear_panel(
+    ax: Any, axes: Any, serial: str, points: list[tuple[float, FlightRecord]], wear: EngineWear | None
+) -> None:
+    """Each flight's wear index (%), the across-flight CUSUM on a twin axis with its h, the alert on every panel."""
+    hours = [h for h, _ in points]
+    ax.plot(hours, [math.nan if r.wear_index is None else 100.0 * r.wear_index for _, r in points], "o-",
+            label=f"{serial} wear index")  # fmt: skip
+    ax.axhline(0.0, color="grey", linewidth=0.8)
+    if wear is None:
+        return
+    at_hours = {r.id: h for h, r in points}
+    cusum = ax.twinx()
+    xs = [at_hours.get(r.id, math.nan) for r in wear.flights]
+    cusum.plot(xs, [math.nan if s is None else s for s in wear.verdict.statistic], "k--", linewidth=1.0,
+               label=f"{serial} across-flight CUSUM")  # fmt: skip
+    cusum.axhline(wear.verdict.threshold, color="red", linewidth=0.8, linestyle=":")
+    cusum.set_ylabel("CUSUM (h dotted)")
+    cusum.set_ylim(bottom=0.0)
+    if wear.verdict.alert_at is not None:
+        x = xs[wear.verdict.alert_at]
+        for panel in axes:
+            panel.axvline(x, color="red", linewidth=1.5, alpha=0.7)
+        ax.annotate(f"ALERT {serial}", (x, 0.95), xycoords=("data", "axes fraction"), color="red", ha="right",
+                    fontsize=9)  # fmt: skip
 
 
 def _cylinder_value(record: FlightRecord, index: int, key: str) -> float:
@@ -217,9 +298,19 @@ def _cylinder_value(record: FlightRecord, index: int, key: str) -> float:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import time
+
     from ecu_monitor.config import load_config
 
-    state_dir = Path(args.state_dir) if args.state_dir else load_config(args.config).state_dir
+    config = load_config(args.config) if args.config else None
+    state_dir = Path(args.state_dir) if config is None else config.state_dir
+    settings = config.wear if config is not None else WearSettings()
+    if args.clear_alert:
+        if args.engine is None:
+            raise ConfigError("--clear-alert: give --engine SERIAL (the engine that was maintained)")
+        with StateStore(state_dir) as store:
+            cleared = store.clear_alerts(args.engine, time.time())
+        print(f"engine {args.engine}: {cleared} maintenance alert(s) cleared")
     with StateStore(state_dir, readonly=True) as store:
         serials = store.engines()
         if args.engine is not None:
@@ -227,14 +318,30 @@ def _run(args: argparse.Namespace) -> int:
                 raise ConfigError(f"{store.path}: --engine: no engine {args.engine!r} (engines: {', '.join(serials)})")
             serials = [args.engine]
         histories = {serial: store.flights(serial, include_running=True) for serial in serials}
+        alerts = {serial: tuple(store.alerts(serial)) for serial in serials}
+        wear = {
+            serial: engine_wear(store, serial, settings, _reference(config, alerts[serial], serial))
+            for serial in serials
+        }
     if not histories:
         print(f"{store.path}: no engine recorded yet")
         return 0
-    print("\n\n".join(format_history(serial, records) for serial, records in histories.items()))
+    print("\n\n".join(format_history(s, records, wear[s], alerts[s]) for s, records in histories.items()))
     if args.plot:
         with_flights = {serial: records for serial, records in histories.items() if records}
         if not with_flights:
             raise ConfigError(f"{store.path}: --plot: no flight to plot")
-        plot_history(with_flights, Path(args.plot))
+        plot_history(with_flights, Path(args.plot), wear)
         print(f"plot written to {args.plot}")
     return 0
+
+
+def _reference(config: Any, alerts: tuple[MaintenanceAlert, ...], serial: str) -> WearReference | None:
+    """The wear reference the detector used: the config's (``--config``, this engine's serial), else the one its
+    last alert stored (when that was not learned), else None (learned from the first flights)."""
+    if config is not None and config.engine_serial == serial:
+        return config.wear_reference  # type: ignore[no-any-return]
+    stored = next((a for a in reversed(alerts) if not a.reference_learned), None)
+    if stored is None:
+        return None
+    return WearReference(stored.reference_mean, stored.reference_sd, stored.reference_flights)

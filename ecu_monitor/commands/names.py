@@ -2,7 +2,7 @@
 
 ``ecu-monitor --help`` and each subcommand's help build their parsers without importing numpy,
 numba, scipy or matplotlib (the command's run imports them). The lists below are copies of the
-values their own modules define; tests/test_cli_startup.py checks each copy equals its source, so a
+values their own modules define; tests/cli/test_cli_startup.py checks each copy equals its source, so a
 change there fails a test that names this file. Lists that grow often (the gap's candidate effects,
 identification's terms) are not copied: their help says an unknown name lists them.
 """

@@ -15,6 +15,12 @@ model; ``ecu-monitor calibrate`` writes it). Defaults: config example.yaml (ship
 names (or --model), its estimator (or --estimator). ``--live`` feeds the frames one by one through
 the live path instead of the batch path (same rows, slower; for checking).
 
+``--history STATE_DIR`` also records the log's flights in the flight history of that state directory
+(the daemon's SQLite database, under the config's engine serial), as the daemon would have: the live
+path, the same flight recorder, its wear index and across-flight detector (an alert it raises is printed
+as a line starting ``ALERT``). A flight's times are the log's own clock when it is a UNIX time (CAN
+loggers), else they end at the log file's modification time.
+
 The protocol comes from the config (``protocol: dbc|dronecan``). Without --config, a CAN log whose
 frames look like DroneCAN (29-bit ids with DroneCAN tail bytes, ``bus.dronecan.looks_like_dronecan``)
 is replayed with the shipped dronecan.yaml, any other log with example.yaml; when no frame of the log
@@ -67,12 +73,54 @@ def add_subparser(subparsers: Any) -> None:
     )
     parser.add_argument("--live", action="store_true", help="feed frames one by one through the live path")
     parser.add_argument(
+        "--history",
+        metavar="STATE_DIR",
+        help="also record the log's flights in the flight history (SQLite) of this state directory, as the daemon"
+        " does (implies --live)",
+    )
+    parser.add_argument(
         "--plot",
         metavar="HEALTH.png",
         help="also draw the replay: CHT measured and estimated, the deviation symptom, gamma_Q/gamma_D and the"
         " headroom over time, the service's state shaded behind (needs the tools extra)",
     )
     parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
+
+
+def _replay_into_history(
+    config: ServiceConfig, models: Sequence[ThermalParams], frames: FrameArrays, path: Path, state_dir: Path
+) -> ReplayResult:
+    """The live replay with its rows fed to the flight recorder of ``state_dir`` (module docstring)."""
+    import numpy as np
+
+    from ecu_monitor.offline.replay import replay_live
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, flight_samples, held_inputs
+    from ecu_monitor.runtime.persistence import StateStore
+    from ecu_monitor.runtime.state_lock import StateDirLock
+
+    times = np.asarray(frames.time_s, dtype=np.float64)
+    last = float(np.max(times)) if times.size else 0.0
+    offset = 0.0 if times.size and float(np.min(times)) > _UNIX_TIME_S else path.stat().st_mtime - last
+    with StateDirLock(state_dir), StateStore(state_dir) as store:  # never beside a daemon on the same history
+        recorder = FlightRecorder(
+            store, config.engine_serial, models[0].cht_limit_c, wear=config.wear, reference=config.wear_reference
+        )
+
+        def record(pipeline: Any, rows: list[Any]) -> None:
+            for sample in flight_samples(rows, held_inputs(pipeline), offset):
+                recorder.add(sample)
+
+        result = replay_live(config, models, frames.messages(), on_rows=record)
+        recorder.close("log_end")
+    kept = ", ".join(str(i) for i in recorder.finished) or "none"
+    print(f"history {store.path}: engine {config.engine_serial}, flights recorded: {kept}")
+    for alert in recorder.alerts:
+        print(f"ALERT {alert.text} (CUSUM {alert.statistic:.1f} >= {alert.threshold:.1f})")
+    return result
+
+
+#: A log whose first stamp is later than this (2001-09-09) runs on the UNIX clock, s.
+_UNIX_TIME_S = 1e9
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -122,7 +170,11 @@ def _run(args: argparse.Namespace) -> int:
         else:
             needed = (*model_input_names(params, config.input_names), *config.cylinder_inputs)
             frames = frames_from_flight(load_flight(path), config, needed)
-        result = replay_live(config, models, frames.messages()) if args.live else replay_frames(config, models, frames)
+        if args.history:
+            result = _replay_into_history(config, models, frames, path, Path(args.history))
+        else:
+            live = args.live
+            result = replay_live(config, models, frames.messages()) if live else replay_frames(config, models, frames)
         if len(result) == 0:
             span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
             raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
@@ -248,7 +300,7 @@ def fit_warnings(
     measured CHT, and a detector threshold not calibrated for ``params`` (by its fingerprint)."""
     import numpy as np
 
-    from ecu_monitor.offline.calibration import model_fingerprint
+    from ecu_monitor.offline.calibration import uncalibrated_detectors
 
     out = []
     cht = np.asarray(result.columns["cht_meas_c"], dtype=float)
@@ -260,30 +312,7 @@ def fit_warnings(
             f"the model's CHT limit {limit:g} degC is below what the engine read (up to {float(cht.max()):.1f} degC,"
             f" {share:.0f} % of the rows above): headroom is 0 there; set the engine's cht_limit_c in the model"
         )
-    if config.cylinder_detectors and models:  # one detector per cylinder: each checked against its model
-        for number, (model, calibrated_for) in enumerate(
-            zip(models, config.cylinder_calibrated_for, strict=True), start=1
-        ):
-            if calibrated_for != model_fingerprint(model):
-                out.append(
-                    f"cylinder {number}'s detector threshold {config.cylinder_detector(number).threshold:g} was not"
-                    f" calibrated for its model ({calibrated_for or 'no calibrated_for'}, this model is"
-                    f" {model_fingerprint(model)}); calibrate it on nominal flights: ecu-monitor calibrate"
-                )
-        return out
-    fingerprint = model_fingerprint(params)
-    calibrated = config.detector_calibrated_for
-    if calibrated != fingerprint:
-        why = (
-            f"{config.source} has no detector.calibrated_for"
-            if calibrated is None
-            else f"it was calibrated for model {calibrated}, this model is {fingerprint}"
-        )
-        out.append(
-            f"the detector threshold {config.detector.threshold:g} was not calibrated for this model ({why});"
-            " calibrate it on nominal flights: ecu-monitor calibrate"
-        )
-    return out
+    return out + uncalibrated_detectors(config, models or (params,))
 
 
 def _cylinder_lines(result: ReplayResult) -> list[str]:

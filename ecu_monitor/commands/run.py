@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import functools
 import gc
 import logging
 import os
@@ -31,7 +32,7 @@ if TYPE_CHECKING:  # the run imports these (python-can, numba kernels): --help s
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.runtime.daemon import DaemonSettings
 
-__all__ = ["add_subparser", "bus_opener", "daemon_settings", "engine_speed_of", "unsupported_on_host"]
+__all__ = ["add_subparser", "bus_opener", "daemon_settings", "uncalibrated_warning", "unsupported_on_host"]
 
 _log = logging.getLogger("ecu_monitor.run")
 
@@ -166,7 +167,7 @@ def unsupported_on_host(exc: BaseException) -> bool:
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
     from ecu_monitor.runtime.daemon import Daemon
-    from ecu_monitor.runtime.flight_recorder import FlightRecorder
+    from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
     from ecu_monitor.runtime.persistence import DATABASE_NAME, StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
@@ -177,6 +178,7 @@ def _run(args: argparse.Namespace) -> int:
     params = models[0]
     if not args.min_flight_s >= 0.0:
         raise ConfigError(f"--min-flight-s: expected a number >= 0, got {args.min_flight_s!r}")
+    uncalibrated = uncalibrated_warning(config, models)
     _log_to_journal()
     lock = StateDirLock(config.state_dir)  # before the store's start-up recovery; held until the process ends
     pipeline = LiveMonitor(config, models)
@@ -186,14 +188,22 @@ def _run(args: argparse.Namespace) -> int:
         config.engine_serial,
         params.cht_limit_c,
         FlightRules(min_flight_s=args.min_flight_s),
+        wear=config.wear,
+        reference=config.wear_reference,
     )
+    # kept across restarts: told at each start (not while the history cannot be opened)
+    for alert in recorder.store.alerts(config.engine_serial, open_only=True) if recorder.store else ():
+        _log.warning("ALERT %s", alert.text)
+        pipeline.tell(alert.text)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
     # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only
     # finds them loaded.
     with compile_notice(say=_log.info):
         pipeline.warm_up()
-    settings = daemon_settings(config, watchdog_period_s())
+    settings = daemon_settings(config, watchdog_period_s(), pipeline.row_period_s, uncalibrated)
+    if uncalibrated:
+        _log.warning("%s", uncalibrated)
     with SystemdNotifier() as notifier:
         daemon = Daemon(
             pipeline,
@@ -201,7 +211,7 @@ def _run(args: argparse.Namespace) -> int:
             settings=settings,
             notifier=notifier,
             recorder=recorder,
-            engine_speed=engine_speed_of(pipeline),
+            held_inputs=functools.partial(held_inputs, pipeline),
             receive_filters=pipeline.receive_filters(),
         )
 
@@ -227,26 +237,37 @@ def _run(args: argparse.Namespace) -> int:
     return code
 
 
-def daemon_settings(config: ServiceConfig, watchdog_s: float | None) -> DaemonSettings:
-    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; and systemd's
-    watchdog period, s (None: no watchdog)."""
+def uncalibrated_warning(config: ServiceConfig, models: Any) -> str:
+    """The warning a test bench runs with when a detector was not calibrated for its model (the config says
+    ``detector: {uncalibrated: accept}``), else empty; ConfigError (one line, exit 2) when the config does not
+    accept it: a threshold calibrated for another model false-alarms (or misses) on this one."""
+    from ecu_monitor.offline.calibration import uncalibrated_detectors
+
+    lines = uncalibrated_detectors(config, models)
+    if not lines:
+        return ""
+    if config.detector_uncalibrated != "accept":
+        raise ConfigError(
+            f"{config.source}: detector: {lines[0]}; a test bench may run anyway with"
+            " detector: {uncalibrated: accept}"
+        )
+    return f"UNCALIBRATED detector (detector.uncalibrated: accept): {lines[0]}"
+
+
+def daemon_settings(
+    config: ServiceConfig, watchdog_s: float | None, tick_s: float | None = None, uncalibrated: str = ""
+) -> DaemonSettings:
+    """The daemon's settings from the config: bus reopen backoff, s; silence warning, s; systemd's watchdog
+    period, s (None: no watchdog); the tick, s (the pipeline's row period; None: the default);
+    ``uncalibrated``: the warning every status line carries (empty: none)."""
     from ecu_monitor.runtime.daemon import DaemonSettings
 
+    tick = {} if tick_s is None else {"tick_s": tick_s}
     return DaemonSettings(
+        **tick,
         backoff_initial_s=config.reopen_backoff.initial,
         backoff_max_s=config.reopen_backoff.max,
         watchdog_period_s=watchdog_s,
         no_frames_warning_s=config.no_frames_warning_s,
+        uncalibrated_warning=uncalibrated,
     )
-
-
-def engine_speed_of(pipeline: Any) -> Callable[[], float | None]:
-    """The engine speed the pipeline holds, rev/min (None while stale or never received).
-
-    Reads the pipeline's sample-and-hold value of input ``rpm`` (the decoder's value; no second decode).
-    """
-
-    def engine_speed() -> float | None:
-        return pipeline.held_input("rpm")
-
-    return engine_speed

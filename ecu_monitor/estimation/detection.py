@@ -56,8 +56,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import ConfigError, ParameterError
+from ecu_monitor.estimation.regions import REGION_COUNT, REGION_NAMES
 
 __all__ = [
+    "NOMINAL_SPREAD_Z",
     "STATES",
     "Detector",
     "DetectorOutput",
@@ -77,6 +79,8 @@ State = Literal["NOMINAL", "SUSPECT", "DEGRADED"]
 #: Detector states, in order of severity.
 STATES: tuple[State, State, State] = ("NOMINAL", "SUSPECT", "DEGRADED")
 _EULER_GAMMA = 0.5772156649015329
+#: The reference test's level in a region sits this many spreads (across nominal flights) above its mean.
+NOMINAL_SPREAD_Z = 2.0
 
 
 @dataclass(frozen=True)
@@ -95,6 +99,14 @@ class DetectorSettings:
         block's excess counts in full).
     scale_floor: the spread at and below which a block's excess counts in full, symptom unit (> 0 when
         scale_s is on); above it the excess is weighed by scale_floor / spread.
+    nominal_threshold: h of the second test, against the engine's own reference (0 = no reference): a
+        plain CUSUM (no warm-up, no baseline, the same k and blocks) of the symptom minus its nominal level
+        in the sample's operating region (:mod:`.regions`), from engine start; ``ecu-monitor calibrate``
+        learns it with the two below.
+    nominal_mean: per region (REGION_NAMES order) the mean of the symptom over nominal flights, symptom
+        unit (nan: no nominal data in that region, not tested there).
+    nominal_spread: per region the spread across flights of each flight's mean there (standard deviation),
+        symptom unit. The level tested against is mean + NOMINAL_SPREAD_Z x spread.
 
     The defaults are the variant kept by ``ecu-monitor evaluate`` for the CBEKF's model deviation on the
     paper's Table A1 model (docs/results/detection.md: h calibrated on 53 nominal flight hours for 1
@@ -112,8 +124,12 @@ class DetectorSettings:
     baseline_freeze: bool = False
     scale_s: float = 0.0
     scale_floor: float = 0.0
+    nominal_threshold: float = 0.0
+    nominal_mean: tuple[float, ...] = ()
+    nominal_spread: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        self._check_nominal()
         if not isinstance(self.baseline_freeze, bool):
             raise ConfigError(f"detector.baseline_freeze: expected true or false, got {self.baseline_freeze!r}")
         names = (
@@ -144,6 +160,49 @@ class DetectorSettings:
             raise ConfigError("detector.scale_s: expected 0 (off) or at least block_s; scale_floor >= 0")
         if self.scale_s > 0.0 and self.scale_floor <= 0.0:
             raise ConfigError("detector.scale_floor: expected > 0 with scale_s on (ecu-monitor calibrate learns it)")
+
+    def _check_nominal(self) -> None:
+        for name in ("nominal_mean", "nominal_spread"):
+            values = getattr(self, name)
+            if not isinstance(values, list | tuple) or any(
+                isinstance(v, bool) or not isinstance(v, int | float) for v in values
+            ):
+                raise ConfigError(f"detector.{name}: expected a list of numbers, got {values!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in values))
+        value = self.nominal_threshold
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0.0 or math.isinf(value):
+            raise ConfigError(f"detector.nominal_threshold: expected a number >= 0 (0: off), got {value!r}")
+        if self.nominal_threshold > 0.0:
+            if len(self.nominal_mean) != REGION_COUNT or len(self.nominal_spread) != REGION_COUNT:
+                raise ConfigError(
+                    f"detector.nominal_mean, nominal_spread: expected {REGION_COUNT} values each (regions"
+                    f" {', '.join(REGION_NAMES)}) with nominal_threshold on"
+                )
+            if any(not (s >= 0.0) and not math.isnan(s) for s in self.nominal_spread):
+                raise ConfigError("detector.nominal_spread: expected values >= 0 (nan: no data)")
+
+    @property
+    def reference_on(self) -> bool:
+        """The test against the engine's reference runs (calibrated)."""
+        return self.nominal_threshold > 0.0
+
+    def nominal_levels(self) -> tuple[float, ...]:
+        """The level of the symptom per region the reference test measures against: mean + NOMINAL_SPREAD_Z x
+        spread (nan where the reference has no data)."""
+        return tuple(m + NOMINAL_SPREAD_Z * s for m, s in zip(self.nominal_mean, self.nominal_spread, strict=True))
+
+    def nominal_settings(self) -> DetectorSettings:
+        """The reference test as a plain CUSUM of the symptom minus its level: these blocks, k and suspect
+        fraction, h = nominal_threshold (1e300 while not calibrated), no warm-up, no baseline."""
+        return DetectorSettings(
+            threshold=self.nominal_threshold if self.reference_on else 1e300,
+            reference=self.reference,
+            warmup_s=0.0,
+            suspect_fraction=self.suspect_fraction,
+            block_s=self.block_s,
+            baseline_s=0.0,
+            baseline_delay_s=0.0,
+        )
 
     @property
     def delay_blocks(self) -> int:

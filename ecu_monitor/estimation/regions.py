@@ -15,7 +15,7 @@ fuel_flow_lph on a log without throttle) between the first and last x breakpoint
 A missing airspeed (nan) counts as airborne; a missing power input puts an airborne sample in ``cruise
 power`` (the region whose reference is the broadest).
 
-The functions are scalar and plain Python arithmetic so numba compiles them into the step unchanged;
+The functions are scalar, compiled by numba (the step calls them; ``.py_func`` is the plain Python);
 :func:`regions_of` applies the same function to whole arrays (offline summaries).
 """
 
@@ -27,10 +27,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ecu_monitor.model.kernels import njit
+
 __all__ = [
     "GROUND_AIRSPEED_MPS",
     "HIGH_POWER",
     "LOW_POWER",
+    "REGION_COUNT",
     "REGION_CRUISE",
     "REGION_GROUND",
     "REGION_HIGH",
@@ -60,8 +63,11 @@ REGION_CRUISE = 3
 REGION_HIGH = 4
 #: The regions' names, by index.
 REGION_NAMES: tuple[str, ...] = ("start", "ground", "low power", "cruise power", "high power")
+#: How many regions there are.
+REGION_COUNT = len(REGION_NAMES)
 
 
+@njit(nogil=False)
 def power_fraction(x: float, x_low: float, x_high: float) -> float:
     """The power input ``x`` (the heat map's x-axis unit: throttle %, fuel flow L/h) as a fraction of the
     range [x_low, x_high] (its first and last breakpoint), clipped to [0, 1]; nan when x is nan or the
@@ -72,6 +78,7 @@ def power_fraction(x: float, x_low: float, x_high: float) -> float:
     return min(1.0, max(0.0, f))
 
 
+@njit(nogil=False)
 def region_of(elapsed_s: float, airspeed_mps: float, power: float) -> int:
     """The region index (see :data:`REGION_NAMES`) of a sample ``elapsed_s`` seconds after engine start
     at airspeed ``airspeed_mps`` (m/s, nan = unknown: airborne) and power fraction ``power`` (1, from
@@ -87,6 +94,7 @@ def region_of(elapsed_s: float, airspeed_mps: float, power: float) -> int:
     return REGION_CRUISE
 
 
+@njit(nogil=False)
 def isolable_region(region: int) -> bool:
     """Whether gamma_Q and gamma_D can be told apart in this region at all: only airborne at cruise or
     high power, where the heat into the head is large enough that a change of it (gamma_Q) and a change

@@ -47,7 +47,7 @@ def fingerprint() -> str:
     return digest.hexdigest()[:12]
 
 
-def njit(*, fastmath: frozenset[str] | bool = False, nogil: bool = True) -> Callable[[F], F]:
+def njit(*, fastmath: frozenset[str] | bool = False, nogil: bool = True, inline: bool = False) -> Callable[[F], F]:
     """``numba.njit`` with the package's options, applied to the function itself: cached on disk (an entry
     per :func:`fingerprint`), numpy's error model (a division by zero gives inf or NaN, as in the
     reference, instead of a check per division that would stop the particle loop from vectorising).
@@ -56,12 +56,14 @@ def njit(*, fastmath: frozenset[str] | bool = False, nogil: bool = True) -> Call
     flags (:data:`SWARM_FASTMATH`); the building blocks numba inlines into the function get its flags.
     ``nogil=False`` for the live path's short calls (tens of microseconds): releasing the GIL around them
     lets another thread take it, and getting it back can then wait for that thread (up to the
-    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain."""
+    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain.
+    ``inline``: numba inlines the function into its compiled callers (no call, no argument copies)."""
     flags: Any = set(fastmath) if isinstance(fastmath, frozenset) else fastmath
+    more: dict[str, Any] = {"inline": "always"} if inline else {}
 
     def decorate(function: F) -> F:
         function.__qualname__ = f"{function.__qualname__}_{fingerprint()}"  # the cache entry's name
-        compiled: F = numba.njit(cache=True, nogil=nogil, fastmath=flags, error_model="numpy")(function)
+        compiled: F = numba.njit(cache=True, nogil=nogil, fastmath=flags, error_model="numpy", **more)(function)
         return compiled
 
     return decorate

@@ -53,6 +53,7 @@ from ecu_monitor.estimation.detection import (
     calibrate_threshold,
     cusum_path,
 )
+from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, reference_from_flights
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.calibration_replays import (
     AIRBORNE_MPS,
@@ -107,6 +108,9 @@ __all__ = [
     "overlay_replays",
     "score_candidate",
     "statistic_paths",
+    "uncalibrated_detectors",
+    "wear_fragment",
+    "wear_reference",
 ]
 
 #: calibrate_threshold needs at least this many whole hours of statistic.
@@ -390,12 +394,62 @@ def _header(result: CalibrationResult, rate_per_100h: float, sources: Sequence[s
     return lines
 
 
+def wear_reference(
+    feeds: Sequence[FlightFeeds], settings: WearSettings
+) -> tuple[list[float | None], WearReference | None]:
+    """Each nominal flight's wear index (the across-flight detector's one rule, :class:`FlightWear`, over what
+    its replay fed the open-loop reference; the replays kept it) and their reference (None: fewer than 3)."""
+    indices: list[float | None] = []
+    for flight in feeds:
+        wear = FlightWear(settings)
+        for segment in flight.reference:
+            wear.add_many(segment.cht_c, segment.model_c, segment.oat_c)
+        indices.append(wear.index)
+    return indices, reference_from_flights(indices)
+
+
+def wear_fragment(reference: WearReference) -> dict[str, Any]:
+    """The ``wear:`` section that stores the engine's nominal wear reference in a service config."""
+    return {"wear": {"reference": {"mean": round(reference.mean, 6), "sd": round(reference.sd, 6),
+                                   "flights": reference.flights}}}  # fmt: skip
+
+
 def model_fingerprint(params: ThermalParams) -> str:
     """16 hex digits of the sha256 of the model's parameters (its model.yaml content, key order and
     file formatting aside): what ``detector.calibrated_for`` records, so a replay or the service can
     tell whether the threshold was calibrated for the model in use."""
     text = json.dumps(params.to_dict(), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def uncalibrated_detectors(config: ServiceConfig, models: Sequence[ThermalParams]) -> list[str]:
+    """One line per detector of ``config`` not calibrated for its model (``models``: one per cylinder, or the
+    one model), by the model's :func:`model_fingerprint` against ``calibrated_for``; empty when all are."""
+    out = []
+    if config.cylinder_detectors and len(models) > 1:  # one detector per cylinder: each checked against its model
+        for number, (model, calibrated_for) in enumerate(
+            zip(models, config.cylinder_calibrated_for, strict=True), start=1
+        ):
+            if calibrated_for != model_fingerprint(model):
+                out.append(
+                    f"cylinder {number}'s detector threshold {config.cylinder_detector(number).threshold:g} was not"
+                    f" calibrated for its model ({calibrated_for or 'no calibrated_for'}, this model is"
+                    f" {model_fingerprint(model)}); calibrate it on nominal flights: ecu-monitor calibrate"
+                )
+        return out
+    fingerprint = model_fingerprint(models[0])
+    calibrated = config.detector_calibrated_for
+    if calibrated != fingerprint:
+        why = (
+            f"{config.source} has no detector.calibrated_for"
+            if calibrated is None
+            else f"it was calibrated for model {calibrated}, this model is {fingerprint}"
+        )
+        out.append(
+            f"the detector threshold {config.detector.threshold:g} was not calibrated for this model ({why});"
+            " calibrate it on nominal flights: ecu-monitor calibrate"
+        )
+    return out
 
 
 def detector_fragment_yaml(
@@ -407,7 +461,7 @@ def detector_fragment_yaml(
     them together), and ``calibrated_for``, the :func:`model_fingerprint` of the model used."""
     settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
     body = yaml.safe_dump(
-        {"detector": {"symptom": symptom, **dataclasses.asdict(settings), "calibrated_for": calibrated_for}},
+        {"detector": {"symptom": symptom, **_settings_yaml(settings), "calibrated_for": calibrated_for}},
         sort_keys=False,
         default_flow_style=False,
     )
@@ -425,6 +479,7 @@ def config_copy_yaml(
     cylinders: Sequence[tuple[CalibrationResult, str]] = (),
     cylinder_models: Sequence[str | os.PathLike[str]] = (),
     cross: Sequence[tuple[CalibrationResult | None, str]] = (),
+    wear: WearReference | None = None,
 ) -> str:
     """The service config at ``config_path``, to be written to ``out_path``, with ``detector.threshold``
     replaced, ``detector.calibrated_for`` set (the :func:`model_fingerprint` of the model used) and
@@ -432,7 +487,8 @@ def config_copy_yaml(
     ``cylinders`` (per cylinder its result and model fingerprint; ``result`` is then the first
     cylinder's), ``cylinders.detectors`` is written instead and ``detector`` kept, and ``cylinders.models``
     set to ``cylinder_models`` if given; with ``cross`` (the same, for the cross-cylinder detectors)
-    ``cylinders.cross_detectors`` too.
+    ``cylinders.cross_detectors`` too. With ``wear``, the engine's nominal wear reference is stored
+    (``wear.reference``, :func:`wear_fragment`).
 
     File paths (dbc, health_dbc, model, state_dir; ``model_path`` and ``cylinder_models`` as given on the
     command line, from the working directory) given relative are written relative to the folder of
@@ -465,6 +521,9 @@ def config_copy_yaml(
         data["health_dbc"] = named(data["health_dbc"])
     if "state_dir" in data:
         data["state_dir"] = portable(data["state_dir"])
+    if wear is not None:
+        section = data.get("wear")
+        data["wear"] = {**(section if isinstance(section, dict) else {}), **wear_fragment(wear)["wear"]}
     if model_path is not None:
         data["model"] = named(os.fspath(model_path), here)
     elif isinstance(data.get("model"), str):
@@ -493,6 +552,8 @@ def config_copy_yaml(
     detector["baseline_s"] = result.current.baseline_s
     detector["baseline_delay_s"] = result.current.baseline_delay_s
     detector["baseline_freeze"] = result.current.baseline_freeze
+    for key in ("nominal_threshold", "nominal_mean", "nominal_spread"):
+        detector[key] = _settings_yaml(result.current)[key]
     detector["calibrated_for"] = calibrated_for
     data["detector"] = detector
     header = _header(result, rate_per_100h, sources)
@@ -548,7 +609,12 @@ def cylinder_config(config: ServiceConfig, number: int, model: str | None = None
 def _cylinder_entry(result: CalibrationResult, calibrated_for: str) -> dict[str, Any]:
     """One ``cylinders.detectors`` entry: the settings it was calibrated with and its model's fingerprint."""
     settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
-    return {**dataclasses.asdict(settings), "calibrated_for": calibrated_for}
+    return {**_settings_yaml(settings), "calibrated_for": calibrated_for}
+
+
+def _settings_yaml(settings: DetectorSettings) -> dict[str, Any]:
+    """The detector settings as YAML values (the reference's per-region tuples as lists)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(settings).items()}
 
 
 def _cylinder_headers(

@@ -123,6 +123,7 @@ def nominal_feeds(
         log_start_s,
         overlays,
         result.reference_feed,
+        result.detector_regions,
     )
 
 
@@ -144,7 +145,8 @@ class FlightFeeds:
     detector (per clock segment, (time s, symptom)), the times of its first and last health rows, s,
     the log's first time, s, and the replays with overlays (empty when not asked or when the flight
     has no room for onsets, see :func:`airborne_onsets`); reference: the nominal replay's open-loop
-    reference per clock segment, when kept (``keep_reference``; else empty)."""
+    reference per clock segment, when kept (``keep_reference``; else empty); regions: the operating region
+    of each step of the feed (per clock segment)."""
 
     name: str
     feed: Feed
@@ -153,6 +155,7 @@ class FlightFeeds:
     log_start_s: float
     overlays: tuple[OverlayRun, ...]
     reference: tuple[ReferenceFeed, ...] = ()
+    regions: tuple[NDArray[np.int64], ...] = ()
 
     def statistic_for(self, settings: DetectorSettings) -> FlightStatistic:
         """The flight's detector statistic with these settings (no new replay)."""

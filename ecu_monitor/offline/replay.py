@@ -56,15 +56,23 @@ _Feed = tuple[NDArray[np.float64], NDArray[np.float64]]
 
 
 def replay_live(
-    config: Any, params: ThermalParams | Sequence[ThermalParams], frames: Iterable[can.Message]
+    config: Any,
+    params: ThermalParams | Sequence[ThermalParams],
+    frames: Iterable[can.Message],
+    on_rows: Callable[[Pipeline, list[HealthSnapshot]], None] | None = None,
 ) -> ReplayResult:
-    """The replay frame by frame through the live calls (``replay --live``)."""
+    """The replay frame by frame through the live calls (``replay --live``). ``on_rows(pipeline, rows)`` is
+    called with the rows each frame completes, the pipeline's held inputs as they are then (as the daemon
+    reads them: ``replay --history`` records the flights with it)."""
     pipeline = Pipeline(config, params)
     rows: list[HealthSnapshot] = []
     for msg in frames:
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
-        rows.extend(pipeline.drain_rows())
+        new = pipeline.drain_rows()
+        if new and on_rows is not None:
+            on_rows(pipeline, new)
+        rows.extend(new)
     return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters))
 
 
@@ -170,9 +178,10 @@ def _run(
     feeds: tuple[_Feed, ...] = ()
     cross: tuple[tuple[_Feed, ...], ...] = ()
     reference: tuple[ReferenceFeed, ...] = ()
+    regions: tuple[NDArray[np.int64], ...] = ()
     if traces:
-        feeds, cross, reference = _feeds(kept, count, config, keep_reference)
-    return ReplayResult(columns, counters, feeds, gaps, cross, reference)
+        feeds, cross, reference, regions = _feeds(kept, count, config, keep_reference)
+    return ReplayResult(columns, counters, feeds, gaps, cross, reference, regions)
 
 
 def _values_by_frame(
@@ -210,14 +219,15 @@ def _columns(
 
 def _feeds(
     kept: Traces, count: int, config: Any, keep_reference: bool
-) -> tuple[tuple[_Feed, ...], tuple[tuple[_Feed, ...], ...], tuple[ReferenceFeed, ...]]:
+) -> tuple[tuple[_Feed, ...], tuple[tuple[_Feed, ...], ...], tuple[ReferenceFeed, ...], tuple[NDArray[np.int64], ...]]:
     """Per clock segment whose detectors started: what the first cylinder's detector was fed, what each
-    cylinder's cross-cylinder detector was fed, and the open-loop reference."""
+    cylinder's cross-cylinder detector was fed, the open-loop reference, and the first cylinder's regions."""
     n = int(kept.count[0])
     time_s = kept.time_s[:n]
     segments = np.flatnonzero(np.diff(kept.restart[:n])) + 1
     bounds = [0, *segments.tolist(), n]
     feeds: list[_Feed] = []
+    regions: list[NDArray[np.int64]] = []
     reference: list[ReferenceFeed] = []
     cross: list[list[_Feed]] = [[] for _ in range(count)]
     for a, b in itertools.pairwise(bounds):
@@ -229,13 +239,15 @@ def _feeds(
             out = kept.cylinders[first:b, i]
             if i == 0:
                 feeds.append((time_s[first:b].copy(), out["fed"].copy()))
+                regions.append(out["region"].astype(np.int64))
                 if keep_reference:
                     off = out["code"] != CODE_NOMINAL
                     values = (out["cht_meas_c"], kept.model_c[first:b, 0], kept.oat_c[first:b])
                     reference.append(ReferenceFeed(time_s[first:b].copy(), *(np.where(off, np.nan, v) for v in values)))
             if config.cross_detector(i + 1) is not None:
                 cross[i].append((time_s[first:b].copy(), out["cross_fed"].copy()))
-    return tuple(feeds), tuple(tuple(c) for c in cross) if config.cross_detectors else (), tuple(reference)
+    cross_feeds = tuple(tuple(c) for c in cross) if config.cross_detectors else ()
+    return tuple(feeds), cross_feeds, tuple(reference), tuple(regions)
 
 
 def replay_file(

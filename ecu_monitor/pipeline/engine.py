@@ -300,6 +300,8 @@ class Pipeline:
             cross = config.cross_detector(number)
             _detector_record(s["detector"], own)
             _detector_record(s["cross"], cross)
+            _detector_record(s["nominal"], own.nominal_settings() if own.reference_on else None)
+            s["nominal_level"][:] = own.nominal_levels() if own.reference_on else np.nan
             for d in (own, cross):
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)
@@ -319,7 +321,7 @@ class Pipeline:
             open_values=np.array([float(v) for v in sf.open_values], dtype=np.float64),
             settings=settings,
             state=state,
-            rings=np.zeros((count, 2, capacity)),
+            rings=np.zeros((count, 3, capacity)),  # the detector's, the cross-cylinder's, the reference test's
             coeff_scalars=scalars,
             heat_values=heat,
             x_breakpoints=xb,
@@ -338,6 +340,11 @@ class Pipeline:
         return self._functions
 
     # ------------------------------------------------------------------ live
+
+    @property
+    def row_period_s(self) -> float:
+        """How often the output table gets a row, s (its rows fall at the clock's start + whole periods)."""
+        return self._row_period * self.dt_s
 
     @property
     def steps_done(self) -> int:
@@ -465,6 +472,7 @@ class Pipeline:
         for name, _ in output_fields():
             nothing[name] = math.nan if nothing[name].dtype.kind == "f" else 0
         nothing["state"] = CODE_UNAVAILABLE
+        nothing["region"] = -1
         stale = tuple(dict.fromkeys(self._check_names))
         return self.snapshot_of(StepRow(0, math.nan, stale, 0, nothing))
 
@@ -475,6 +483,12 @@ class Pipeline:
             return None
         value = float(self._engine.values[slot])
         return value if math.isfinite(value) else None
+
+    def reference_model_c(self) -> float:
+        """The open-loop reference model's CHT held now for the engine-level (lead) cylinder, degC: the nominal
+        model run from the first reading (nan while the estimator is not running)."""
+        lead = self.snapshot().lead_cylinder
+        return float(self._engine.state[max(lead - 1, 0)]["model_c"])
 
     def receive_filters(self) -> list[CanFilter]:
         """python-can receive filters of the frames the pipeline reads (none on a MAVLink link)."""

@@ -118,6 +118,12 @@ HEALTH_VALUES: tuple[HealthValue, ...] = (
                 dronecan="hottest", mavlink="CHT_HOT"),
     HealthValue("spread_alarm", "", "flag", "cylinders", dbc="Health_Spread.SpreadAlarm"),
     HealthValue("lead_cylinder", "", "cylinder", "cylinders", csv=False),
+    HealthValue("gamma_q_sd", "", mavlink="GAMMA_Q_SD"),
+    HealthValue("gamma_d_sd", "", mavlink="GAMMA_D_SD"),
+    HealthValue("not_isolable", "", "flag", dbc="Health_Diag.NotIsolable",
+                cylinder_dbc="Health_Cylinder.CylNotIsolable", dronecan="not_iso", mavlink="NOT_ISO"),
+    HealthValue("detector_armed", "", idle=0.0, dbc="Health_Diag.DetectorArmed", dronecan="det_armed",
+                mavlink="DET_ARMED"),
 )  # fmt: skip
 
 

@@ -97,6 +97,8 @@ class ReplayResult:
     cross-cylinder detector was fed (as detector_feed).
     reference_feed (batch path, when asked): per clock segment as detector_feed, the open-loop reference
     (:class:`ReferenceFeed`; the first cylinder's on an engine monitored per cylinder).
+    detector_regions (batch path only): per clock segment as detector_feed, the operating region of each
+    step (estimation/regions.py), what the reference test measures the feed against.
     """
 
     columns: dict[str, NDArray[Any]]
@@ -105,6 +107,7 @@ class ReplayResult:
     gaps: tuple[tuple[float, float], ...] = ()
     cross_feeds: tuple[tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...], ...] = ()
     reference_feed: tuple[ReferenceFeed, ...] = ()
+    detector_regions: tuple[NDArray[np.int64], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)

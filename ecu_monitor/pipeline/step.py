@@ -4,9 +4,11 @@ detectors. Compiled with numba; the live pipeline calls it frame by frame (:func
 :func:`feed_values`), replay runs :func:`replay_loop` over a whole log's decoded frames, which calls the
 very same two functions. Nothing here is written twice.
 
-Each function binds the arrays of :class:`Engine`, :class:`Rows` and :class:`Traces` it uses to locals
-once (``eng_values = eng.values``): compiled, every read of a tuple's array field counts a reference to it
-atomically, and read once per call instead of once per use the replay's loop runs about a quarter faster.
+Compiled, numba counts a reference to an array atomically every time it is passed or read from a tuple;
+the per-frame path avoids that: the entry points (:func:`replay_loop`, :func:`advance_to`,
+:func:`feed_values`) take :func:`borrowed` views of the records' arrays (the caller keeps them alive for
+the call), and the per-frame and per-step functions are inlined into them (no argument copies or calls);
+each function binds the arrays it uses to locals once (``eng_values = eng.values``).
 
 Everything lives in named records (numpy structured dtypes, read by field name in the compiled code):
 :data:`CYLINDER_SETTINGS` (what the config and the model say, fixed), :data:`CYLINDER_STATE` (what one
@@ -21,7 +23,15 @@ The rules, in the order a step applies them:
 * every filter period: the open-loop reference EKF (the stuck-probe test's model), then the estimator and
   the isolation filter with the reading the supervisor lets through;
 * the detector (a CUSUM over block means of the symptom, :func:`detector_step`), fed the symptom on
-  NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches;
+  NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches. Two
+  tests, the more severe verdict wins: against the in-flight adaptive baseline (after its warm-up), and,
+  once ``calibrate`` has learned the engine's reference, against the symptom's nominal level in the
+  step's operating region (estimation/regions.py, the time since the first initialisation being the
+  engine's start) from engine start, which no baseline can absorb; ``detector_armed`` says which run;
+* isolation: the gammas are published only where they can be told apart (``not_isolable`` False): a
+  degradation is declared (DEGRADED: something to isolate), cruise or high power airborne, both standard
+  deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
+  ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable");
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins.
@@ -33,11 +43,14 @@ import math
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba.core import cgutils, types
+from numba.extending import intrinsic, overload
 
 from ecu_monitor.estimation.detection import _cusum_step as cusum_step
 from ecu_monitor.estimation.ekf import live_steps as live_ekf
 from ecu_monitor.estimation.isolation import live_steps as live_isolation
 from ecu_monitor.estimation.quantiser import level_of
+from ecu_monitor.estimation.regions import REGION_COUNT, isolable_region, power_fraction, region_of
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
@@ -54,17 +67,30 @@ from ecu_monitor.pipeline.supervision import (
 )
 
 __all__ = [
+    "ARMED_BASELINE",
+    "ARMED_REFERENCE",
     "CLOCK",
     "CYLINDER_OUTPUT",
     "CYLINDER_SETTINGS",
     "CYLINDER_STATE",
     "DETECTOR_SETTINGS",
     "DETECTOR_STATE",
+    "ISOLATION_CORRELATION_MIN",
+    "ISOLATION_SD_MAX",
     "Engine",
     "Rows",
     "Traces",
     "compiled",
 ]
+
+#: ``armed`` bits: the test against the engine's reference (calibrated nominal levels) is running
+ARMED_REFERENCE = 1
+#: ``armed`` bits: the test against the in-flight adaptive baseline is running (after its warm-up)
+ARMED_BASELINE = 2
+#: The isolation's standard deviation of either gamma above which the split is not told (1).
+ISOLATION_SD_MAX = 0.05
+#: The correlation of the gamma_Q and gamma_D estimates at and below which only their product is seen (1).
+ISOLATION_CORRELATION_MIN = -0.9
 
 #: The RK4 step of the headroom's march to the limit, s.
 HEADROOM_STEP_S = 2.0
@@ -130,6 +156,8 @@ CYLINDER_SETTINGS = np.dtype(
         ("n_y", "i8"),
         ("detector", DETECTOR_SETTINGS),
         ("cross", DETECTOR_SETTINGS),
+        ("nominal", DETECTOR_SETTINGS),  # the test against the engine's reference (on: calibrated)
+        ("nominal_level", "f8", (REGION_COUNT,)),  # its level per region, symptom unit (nan: none there)
     ]
 )
 CYLINDER_STATE = np.dtype(
@@ -159,8 +187,10 @@ CYLINDER_STATE = np.dtype(
         ("headroom_s", "f8"),
         ("cht_rate_c_per_min", "f8"),
         ("detector_on", "?"),  # since the first initialisation
+        ("on_s", "f8"),  # when: the engine's start for the regions, s
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
+        ("nominal", DETECTOR_STATE),
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -171,6 +201,7 @@ CYLINDER_OUTPUT = np.dtype(
         ("code", "i8"),  # the supervisor's code
         ("fed", "f8"),  # what its detector was fed (nan: nothing)
         ("cross_fed", "f8"),
+        ("region", "i8"),  # the operating region (estimation/regions.py; -1: not started)
     ]
 )
 #: The schedule and its counters.
@@ -243,6 +274,36 @@ class Traces(NamedTuple):
     oat_c: Any  # float64[capacity]: the held OAT
     detector_on: Any  # bool[capacity, cylinders]
     cylinders: Any  # CYLINDER_OUTPUT[capacity, cylinders]
+
+
+def borrowed(records: Any) -> Any:
+    """The records (a tuple of arrays) as borrowed views: the same data, no reference counted (compiled:
+    the arrays' meminfo and parent pointers cleared, as numba's own views of a record's nested arrays).
+    Only for the duration of a call whose caller holds the arrays; never returned to Python."""
+    return records
+
+
+@intrinsic
+def _borrowed_views(typingctx: Any, records: Any) -> Any:
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        value = args[0]
+        for index, member in enumerate(records.types):
+            if isinstance(member, types.Array):
+                array = context.make_array(member)(context, builder, builder.extract_value(value, index))
+                array.meminfo = cgutils.get_null_value(array.meminfo.type)
+                array.parent = cgutils.get_null_value(array.parent.type)
+                value = builder.insert_value(value, array._getvalue(), index)
+        return value  # a new value that owns no reference: nothing to count
+
+    return records(records), codegen
+
+
+@overload(borrowed)
+def _borrowed_compiled(records: Any) -> Any:
+    def implementation(records: Any) -> Any:  # the same parameters as borrowed's, as numba asks
+        return _borrowed_views(records)  # type: ignore[call-arg]  # typingctx: numba passes it
+
+    return implementation
 
 
 # ------------------------------------------------------------------------------------------------ the rules
@@ -433,6 +494,8 @@ def _stop_cylinder(st: Any) -> None:
     st["detector_on"] = False
     _reset_detector(st["detector"])
     _reset_detector(st["cross"])
+    _reset_detector(st["nominal"])
+    st["on_s"] = np.nan
 
 
 @njit(nogil=False)
@@ -476,7 +539,7 @@ def _ekf_call(state: Any, drive: Any, cfg: Any, scratch: Any, u: Any, z: float, 
              cfg["quantum_c"], cfg["deviation_time_s"], use_deviation, reset_code, steps)  # fmt: skip
 
 
-@njit(nogil=False)
+@njit(nogil=False, inline=True)
 def cylinder_step(
     eng: Engine, i: int, u: Any, time_s: float, any_stale: bool, reading_bad: bool, call: bool, headroom_due: bool
 ) -> None:
@@ -559,6 +622,8 @@ def cylinder_step(
         st["model_c"] = reading
         st["pending"] = False
         st["headroom_s"] = np.nan
+        if not st["detector_on"]:
+            st["on_s"] = time_s
         st["detector_on"] = True
         st["cht_rate_c_per_min"] = _cht_rate(st, cfg, coeffs)
     elif call:
@@ -574,10 +639,24 @@ def cylinder_step(
         code = CODE_UNAVAILABLE  # the filter cannot estimate (it diverged): never NOMINAL, the detector not fed
     state = code
     fed = np.nan
+    region = -1
+    armed = 0
     if st["detector_on"]:
+        power = power_fraction(u[0], xb[0], xb[n_x - 1])
+        region = region_of(time_s - st["on_s"], u[3], power)
         symptom = st["deviation"] if cfg["estimator_symptom"] else st["iso_deviation"]
         fed = symptom if code == CODE_NOMINAL else np.nan
         verdict = detector_step(st["detector"], cfg["detector"], eng_rings[i, 0], time_s, fed)
+        baseline = st["detector"]["baseline"]
+        if time_s >= st["detector"]["start_s"] + cfg["detector"]["warmup_s"] and (
+            cfg["detector"]["baseline_s"] <= 0.0 or not math.isnan(baseline)
+        ):
+            armed |= ARMED_BASELINE
+        if cfg["nominal"]["on"]:  # against the engine's own reference, from engine start
+            level = cfg["nominal_level"][region]
+            if not math.isnan(level):
+                armed |= ARMED_REFERENCE
+            verdict = max(verdict, detector_step(st["nominal"], cfg["nominal"], eng_rings[i, 2], time_s, fed - level))
         if code == CODE_NOMINAL:
             state = verdict
     if action == ACTION_NONE or not (
@@ -599,6 +678,30 @@ def cylinder_step(
     out["code"] = code
     out["fed"] = fed
     out["cross_fed"] = np.nan
+    out["region"] = region
+    out["detector_armed"] = armed
+    gamma_q_sd = gamma_d_sd = np.nan
+    isolable = False
+    if st["running"] and math.isfinite(st["gamma_q"]):
+        iso = st["iso"]
+        gamma_q_sd = math.sqrt(max(iso[8], 0.0))
+        gamma_d_sd = math.sqrt(max(iso[12], 0.0))
+        product = gamma_q_sd * gamma_d_sd
+        correlation = iso[9] / product if product > 0.0 else -1.0
+        isolable = (
+            state == CODE_DEGRADED  # a degradation declared: something to isolate
+            and region >= 0
+            and isolable_region(region)
+            and gamma_q_sd <= ISOLATION_SD_MAX
+            and gamma_d_sd <= ISOLATION_SD_MAX
+            and correlation > ISOLATION_CORRELATION_MIN
+        )
+    out["gamma_q_sd"] = gamma_q_sd
+    out["gamma_d_sd"] = gamma_d_sd
+    out["not_isolable"] = not isolable
+    if not isolable:
+        out["gamma_q"] = np.nan
+        out["gamma_d"] = np.nan
 
 
 @njit(nogil=False)
@@ -642,7 +745,7 @@ def cross_step(eng: Engine, time_s: float) -> None:
             eng_output[i]["state"] = verdict
 
 
-@njit(nogil=False)
+@njit(nogil=False, inline=True)
 def _reading_bad(eng: Engine, reading: float) -> bool:
     """An implausible CHT reading: outside [min_c, max_c], or the ECU's status says the probe is open."""
     eng_clock = eng.clock
@@ -663,7 +766,7 @@ def _reading_bad(eng: Engine, reading: float) -> bool:
     return False
 
 
-@njit(nogil=False)
+@njit(nogil=False, inline=True)
 def engine_step(eng: Engine, time_s: float, k: int) -> int:
     """Step k (1-based, at time_s) of every cylinder; returns the stale mask (bit j: stale check j)."""
     eng_check_limit_s = eng.check_limit_s
@@ -748,12 +851,13 @@ def _write_trace(eng: Engine, traces: Traces, time_s: float, restarts: int) -> N
     traces_count[0] = n + 1
 
 
-@njit(nogil=False)
+@njit(nogil=False, inline=True)
 def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
     """Run every fixed step at or before t_s (s), rows into ``rows``; False when ``rows`` filled up before
     the last of them (drain it and call again with the same t_s). The first reading starts the clock; a
     jump by more than MAX_CLOCK_GAP_S restarts it (estimation starts afresh); a reading at or before the
     clock's time does nothing."""
+    eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     eng_clock = eng.clock
     eng_early = eng.early
     eng_stamps = eng.stamps
@@ -800,10 +904,11 @@ def advance_to(eng: Engine, rows: Rows, traces: Traces, t_s: float) -> bool:
     return True
 
 
-@njit(nogil=False)
+@njit(nogil=False, inline=True)
 def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
     """Hold the first ``count`` decoded (slot, value) pairs of one frame, stamped with the clock's time
     (sample and hold; before the clock starts, at its start); a cylinder's CHT counts a reading."""
+    eng = borrowed(eng)
     eng_clock = eng.clock
     eng_early = eng.early
     eng_settings = eng.settings
@@ -831,6 +936,7 @@ def replay_loop(
     """The live loop over a whole log: for each frame from ``start``, :func:`advance_to` its time then
     :func:`feed_values` its decoded values (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame
     to resume from when ``rows`` filled up, or the frame count when done."""
+    eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     n = frame_time_s.shape[0]
     for f in range(start, n):
         if not advance_to(eng, rows, traces, frame_time_s[f]):

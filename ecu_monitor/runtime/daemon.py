@@ -7,8 +7,12 @@ publishers) under one lock:
   and listener dispatch cost ~1-3 us a frame, docs/performance.md "DroneCAN"), each frame is stamped with
   the daemon's monotonic clock, fed to the pipeline, and ``advance_to(now)`` runs at once, so a health
   frame that falls due is sent within the handling of that frame (the low-latency path);
-* the tick thread: every 20 ms ``advance_to(now)``, so the 50 Hz steps and the health frames go on when
-  the frames stop (that is how staleness gets reported);
+* the tick thread: ``advance_to(now)`` at each instant a row of the pipeline's output table falls due
+  (``tick_s``: ``ecu-monitor run`` gives the row period, the health frames' 100 ms with the shipped rates,
+  20 ms on DroneCAN, whose node sends on every step; phased on the clock's start), so the 50 Hz steps and
+  the health frames go on when the frames stop (that is how staleness gets reported). Steps between two
+  rows output nothing: running them together at the next row gives the same rows, and an idle daemon
+  wakes and crosses into the compiled step a fifth as often as with a 20 ms tick;
 * the supervisor (the thread that calls :meth:`Daemon.run`): reopens a failed bus with backoff, feeds
   the health rows to the flight recorder (SQLite writes stay off the frame path), logs each change of the
   engine's state (``engine state DEGRADED (was SUSPECT) at t = ... s``, t on the daemon's monotonic
@@ -63,9 +67,8 @@ from can.interfaces.virtual import VirtualBus
 
 from ecu_monitor.bus.kernel_filter import attach_kernel_filter
 from ecu_monitor.config import config_default
-from ecu_monitor.runtime.flight_recorder import FlightRecorder
+from ecu_monitor.runtime.flight_recorder import FlightRecorder, HeldInputs, flight_samples
 from ecu_monitor.runtime.notify import SystemdNotifier, WatchdogGate
-from ecu_monitor.runtime.persistence import FlightSample, trend_values
 
 __all__ = ["SEND_FAILURES_TO_REOPEN", "Daemon", "DaemonSettings", "PipelineLike", "SilenceWatch", "bad_datagram"]
 
@@ -75,6 +78,8 @@ _log = logging.getLogger(__name__)
 SEND_FAILURES_TO_REOPEN = 20
 #: Send timeout, s: a full transmit queue must not stall the receive path.
 _SEND_TIMEOUT_S = 0.01
+#: The tick wakes this long after a row's instant, s (a wake-up a hair early would leave the row to the next tick).
+_TICK_LAG_S = 0.001
 #: Receive timeout, s: how soon the receive thread sees that it is asked to stop.
 _RECEIVE_TIMEOUT_S = 0.2
 
@@ -106,7 +111,7 @@ class DaemonSettings:
     (``ecu-monitor run`` passes it: commands/run.py, daemon_settings) defaults to the config's default,
     declared once in :class:`~ecu_monitor.config.ConfigFile`."""
 
-    tick_s: float = 0.02  # the 50 Hz timer
+    tick_s: float = 0.02  # the tick thread's period (module docstring); run: the pipeline's row period
     supervise_s: float = 0.1  # supervisor period: reopen, persistence, watchdog
     status_every_s: float = 10.0  # STATUS= and the INFO log line
     backoff_initial_s: float = config_default("reopen_backoff_s").initial
@@ -117,6 +122,7 @@ class DaemonSettings:
     # warn once when the bus carries no engine frame this long
     no_frames_warning_s: float = config_default("no_frames_warning_s")
     switch_interval_s: float | None = None  # sys.setswitchinterval while running (module docstring, "GIL")
+    uncalibrated_warning: str = ""  # a detector not calibrated for its model, accepted: said in every status line
 
 
 class SilenceWatch:
@@ -154,8 +160,9 @@ class Daemon:
 
     ``open_bus`` opens (and reopens) the bus: the bus is passed in, the daemon never builds one from a
     config itself. ``recorder`` (optional) receives one :class:`FlightSample` per health row;
-    ``engine_speed()`` (called under the pipeline lock) gives the engine speed held by the pipeline,
-    rev/min, or None when it is stale: the recorder finds flights from it. ``receive_ids`` (the
+    ``held_inputs()`` (called under the pipeline lock; :func:`~ecu_monitor.runtime.flight_recorder.held_inputs`)
+    gives the engine speed held by the pipeline (the recorder finds flights from it), the reference model's
+    CHT, OAT and throttle (the flight's wear index and time at high power). ``receive_ids`` (the
     decoder's frame ids) become the bus's receive filter, so other traffic (kernel-filtered on
     socketcan, and on udp_multicast by a socket filter: :mod:`ecu_monitor.bus.kernel_filter`) and our own
     health frames never reach the pipeline lock; ``receive_filters`` (python-can
@@ -171,7 +178,7 @@ class Daemon:
         settings: DaemonSettings | None = None,
         notifier: SystemdNotifier | None = None,
         recorder: FlightRecorder | None = None,
-        engine_speed: Callable[[], float | None] | None = None,
+        held_inputs: Callable[[], HeldInputs] | None = None,
         receive_ids: Sequence[int] = (),
         receive_filters: Sequence[can.typechecking.CanFilter] | None = None,
         clock: Callable[[], float] = time.monotonic,
@@ -182,7 +189,7 @@ class Daemon:
         self._open_bus = open_bus
         self._notifier = notifier or SystemdNotifier(address="")
         self._recorder = recorder
-        self._engine_speed = engine_speed
+        self._held_inputs = held_inputs
         self._filters: list[can.typechecking.CanFilter] = (
             list(receive_filters)
             if receive_filters is not None
@@ -283,15 +290,16 @@ class Daemon:
         with self._lock:
             self._send_locked(self.pipeline.advance_to(self._clock()))
 
-    def _tick_loop(self) -> None:
+    def _tick_loop(self, start_s: float) -> None:
+        """Tick at ``start_s`` (the pipeline clock's start) + whole periods, ``_TICK_LAG_S`` after each."""
         period = self.settings.tick_s
-        next_s = self._clock() + period
-        while not self._stop.wait(max(0.0, next_s - self._clock())):
+        next_s = start_s + period
+        while not self._stop.wait(max(0.0, next_s + _TICK_LAG_S - self._clock())):
             self._guarded("tick", self._tick)
             next_s += period
             now = self._clock()
-            if next_s < now - period:  # fell behind (machine suspended, CPU starved): do not burst
-                next_s = now + period
+            if next_s < now - period:  # fell behind (machine suspended, CPU starved): skip, in phase, no burst
+                next_s += period * math.floor((now - next_s) / period)
 
     def _send_locked(self, frames: list[can.Message]) -> None:
         """Send health frames in order (the caller holds the lock, which keeps counters in sequence)."""
@@ -408,33 +416,11 @@ class Daemon:
             return
         with self._lock:
             rows = self.pipeline.drain_rows()
-            rpm = self._engine_speed() if self._engine_speed is not None else None
+            held = self._held_inputs() if self._held_inputs is not None else HeldInputs(None)
             offset = self._wall_clock() - self._clock()
         self._log_states(rows)
-        trends = trend_values()
-        for row in rows:  # the rows of the last supervisor period (0.1 s): the engine speed held now
-            cht = row.cht_meas_c if not row.sensor_fault and _finite(row.cht_meas_c) else row.cht_est_c
-            self._recorder.add(
-                FlightSample(
-                    time_s=row.time_s,
-                    wall_time_s=row.time_s + offset,
-                    rpm=rpm,
-                    cht_c=float(cht) if _finite(cht) else math.nan,
-                    trends={name: float(getattr(row, name)) for name in trends},
-                    state=str(row.state),
-                    cylinders=tuple(
-                        (
-                            float(c.cht_meas_c if not c.sensor_fault and _finite(c.cht_meas_c) else c.cht_est_c),
-                            {name: float(getattr(c, name)) for name in trends},
-                            str(c.state),
-                        )
-                        for c in row.cylinders
-                    ),
-                    cht_spread_c=float(row.cht_spread_c),
-                    hottest_cylinder=int(row.hottest_cylinder),
-                    spread_alarm=bool(row.spread_alarm),
-                )
-            )
+        for sample in flight_samples(rows, held, offset):  # the inputs held at the end of this supervisor period
+            self._recorder.add(sample)
         self.counters["rows_recorded"] += len(rows)
         down = int(self._recorder.history_fault is not None)
         if self.pipeline.counters.get("history_down") != down:
@@ -455,11 +441,15 @@ class Daemon:
             counters = dict(self.pipeline.counters)
             mine = dict(self.counters)
         stale = ",".join(snap.stale_inputs) if snap.stale_inputs else "none"
+        warning = self.settings.uncalibrated_warning
+        isolation = f"gamma_Q {snap.gamma_q:.3f}" if not snap.not_isolable else "gamma_Q not isolable"
         return (
-            f"state {snap.state}, CHT est {snap.cht_est_c:.1f} degC, gamma_Q {snap.gamma_q:.3f}, "
+            f"state {snap.state}, CHT est {snap.cht_est_c:.1f} degC, {isolation}, "
             f"stale {stale}, frames {mine['frames_in']}, malformed {counters.get('malformed', 0)}, "
             f"bus errors {mine['bus_errors']}, health sent {mine['health_sent']}"
-        ) + self._history_note()
+            + (f"; WARNING {warning}" if warning else "")
+            + self._history_note()
+        )
 
     def _history_note(self) -> str:
         """``, NO HISTORY: <why>`` while the flight history cannot be written, else nothing."""
@@ -511,8 +501,9 @@ class Daemon:
         self._attach()
         with self._lock:
             self._silence.frame(self._clock())  # the silence counts from the first open, not from the warm-up
+        start_s = self._clock()
         with self._lock:
-            self.pipeline.advance_to(self._clock())
+            self.pipeline.advance_to(start_s)  # the pipeline's clock starts: the tick's phase
         if settings.switch_interval_s is not None:
             self._switch_interval_before = sys.getswitchinterval()
             sys.setswitchinterval(settings.switch_interval_s)
@@ -522,7 +513,9 @@ class Daemon:
             if settings.collect_in_supervisor and gc.isenabled():
                 gc.disable()  # the supervisor collects (_collect), never the bus thread
                 self._manual_gc = True
-        self._tick_thread = threading.Thread(target=self._tick_loop, name="ecu-monitor tick", daemon=True)
+        self._tick_thread = threading.Thread(
+            target=self._tick_loop, args=(start_s,), name="ecu-monitor tick", daemon=True
+        )
         self._tick_thread.start()
         self._notifier.ready(status="running: " + self._status_line())
         _log.info("running; watchdog period %s s", settings.watchdog_period_s)

@@ -27,7 +27,9 @@ the frames of the transfers due (built by :class:`ecu_monitor.bus.dronecan.Drone
   ``ecu-monitor``, level INFO for NOMINAL, WARNING for SUSPECT, INPUT_STALE and UNAVAILABLE, ERROR for
   DEGRADED and SENSOR_FAULT; at most one a second: a change within a second of the last message is
   told when the second is up, if the state still differs from the one last told. Per cylinder, the
-  state is the engine's (its lead cylinder's) and the text names that cylinder.
+  state is the engine's (its lead cylinder's) and the text names that cylinder. An open maintenance alert
+  of the across-flight detector (:meth:`DroneCanNode.tell`, at each start of the daemon) is one more
+  LogMessage, level WARNING, its text cut to 90 characters.
 
 It answers ``uavcan.protocol.GetNodeInfo`` requests addressed to it (:meth:`DroneCanNode.take_request`,
 called by the pipeline for every frame it is fed): the response, sent with the frames of the next step
@@ -77,6 +79,9 @@ NODE_NAME = "org.ecu-monitor.cht"
 _KEY_VALUE = "uavcan.protocol.debug.KeyValue"
 _LOG_MESSAGE = "uavcan.protocol.debug.LogMessage"
 _LOG_SOURCE = "ecu-monitor"
+#: LogMessage level of a maintenance alert (WARNING) and the longest text a LogMessage carries (uint8[<=90])
+_WARNING = 2
+_MAX_LOG_TEXT = 90
 _VERSION = tuple(int(part) for part in __version__.split(".")[:2])
 _LOG_EVERY_S = 1.0
 _SLACK_S = 1e-3  # periods are counted on the health-status instants, rounded to the microsecond
@@ -117,6 +122,11 @@ class DroneCanNode:
         self._estimated = False
         self._told: str | None = None  # the state the last LogMessage told
         self._told_s = -math.inf
+        self._notices: list[str] = []  # maintenance alerts to tell (LogMessage, WARNING) with the next period
+
+    def tell(self, text: str) -> None:
+        """A maintenance alert's text, sent as a WARNING LogMessage with the next health-status period."""
+        self._notices.append(text)
 
     def frames(self, time_s: float, snap: HealthSnapshot) -> list[can.Message]:
         """The frames due at ``time_s`` (s) for that health-status period's snapshot."""
@@ -145,6 +155,10 @@ class DroneCanNode:
             self._per_step = math.ceil(len(self._pending) / self._spread_steps) if self._spread_steps else 0
         if self.settings.log_messages and snap.state != self._told and time_s - self._told_s >= _LOG_EVERY_S - _SLACK_S:
             out += self._log_message(time_s, snap)
+        if self._notices:
+            text, self._notices = self._notices[0], self._notices[1:]  # one a period: a LogMessage is many frames
+            values = {"level": {"value": _WARNING}, "source": _LOG_SOURCE, "text": text[:_MAX_LOG_TEXT]}
+            out += self.encoder.frames(_LOG_MESSAGE, values, time_s, self.settings.priority)
         return out
 
     def step_frames(self, time_s: float) -> list[can.Message]:
@@ -211,7 +225,8 @@ class DroneCanNode:
         if lead:
             text += f" cyl {lead}"
         if math.isfinite(snap.cht_est_c):
-            text += f": est {snap.cht_est_c:.1f} C, gamma_Q {snap.gamma_q:.2f}"
+            isolation = f"gamma_Q {snap.gamma_q:.2f}" if not snap.not_isolable else "cause not isolable"
+            text += f": est {snap.cht_est_c:.1f} C, {isolation}"
         self._told, self._told_s = snap.state, time_s
         values = {"level": {"value": LOG_LEVELS[snap.state]}, "source": _LOG_SOURCE, "text": text}
         return self.encoder.frames(_LOG_MESSAGE, values, time_s, self.settings.priority)

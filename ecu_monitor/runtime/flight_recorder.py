@@ -5,35 +5,115 @@ stale) for ``end_after_s``; a run shorter than ``min_flight_s`` is not kept. A r
 checkpointed every ``checkpoint_every_s``; a flight left running by a crash is recovered, and resumed when
 the engine is still running at restart (one engine run stays one flight). See runtime/persistence.py for
 the durability rules of the store.
+
+Across flights: each finished flight keeps its wear index (:class:`~ecu_monitor.estimation.wear.FlightWear`
+over the samples' CHT, reference model CHT and OAT); after it, the across-flight detector
+(:func:`engine_wear`) runs over the engine's flights since its last cleared alert, and an alert it raises
+is stored (:class:`~ecu_monitor.runtime.persistence.MaintenanceAlert`) once, until maintenance clears it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
-from collections.abc import Callable, Mapping
-from typing import Any
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 from ecu_monitor.errors import StorageError
+from ecu_monitor.estimation.regions import REGION_HIGH, REGION_NAMES, power_fraction, region_of
+from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
 from ecu_monitor.runtime.persistence import (
     TREND_STATS,
     FlightRecord,
     FlightRules,
     FlightSample,
+    MaintenanceAlert,
     StateStore,
     trend_values,
 )
 from ecu_monitor.runtime.thermal_cycles import ReversalFilter, count_cycles, pack_reversals
 
-__all__ = ["FlightRecorder", "SignalMoments"]
+__all__ = [
+    "EngineWear",
+    "FlightRecorder",
+    "HeldInputs",
+    "SignalMoments",
+    "engine_wear",
+    "flight_samples",
+    "held_inputs",
+]
 
 _log = logging.getLogger(__name__)
 
 #: Detector states ranked from best to worst (health.dbc DegradationState order of concern).
 _STATE_RANK = {"NOMINAL": 0, "INPUT_STALE": 1, "UNAVAILABLE": 2, "SENSOR_FAULT": 3, "SUSPECT": 4, "DEGRADED": 5}
+#: States in which the estimator (and its reference model) is not running: no wear sample then.
+_NOT_ESTIMATING = frozenset({"UNAVAILABLE", "SENSOR_FAULT"})
 #: Longest gap between two samples that still counts as covered time, s (a longer gap adds nothing).
 _MAX_SAMPLE_GAP_S = 2.0
+
+
+class HeldInputs(NamedTuple):
+    """What the recorder reads from the pipeline besides its rows, at one instant: engine speed, rev/min
+    (None: stale), the reference model's CHT, OAT, airspeed and the power fraction of the heat map's power
+    input (estimation/regions.py; nan: not available)."""
+
+    rpm: float | None
+    model_c: float = math.nan
+    oat_c: float = math.nan
+    airspeed_mps: float = math.nan
+    power: float = math.nan
+
+
+def held_inputs(pipeline: Any) -> HeldInputs:
+    """The pipeline's held inputs and reference model CHT now (a Pipeline or a LiveMonitor; call under its lock)."""
+
+    def value(name: str) -> float:
+        held = pipeline.held_input(name)
+        return math.nan if held is None else float(held)
+
+    heat_map = pipeline.params.heat_map
+    power = power_fraction(value(heat_map.x_axis), heat_map.x_breakpoints[0], heat_map.x_breakpoints[-1])
+    rpm = pipeline.held_input("rpm")
+    return HeldInputs(rpm, pipeline.reference_model_c(), value("oat_c"), value("airspeed_mps"), power)
+
+
+def flight_samples(rows: Sequence[Any], held: HeldInputs, wall_offset_s: float) -> list[FlightSample]:
+    """The recorder's samples of health rows (HealthSnapshot) whose held inputs were ``held``; wall time = the
+    row's time + ``wall_offset_s``. A row's CHT is the reading, or the estimate where the probe is faulty."""
+    trends = trend_values()
+    return [
+        FlightSample(
+            time_s=row.time_s,
+            wall_time_s=row.time_s + wall_offset_s,
+            rpm=held.rpm,
+            cht_c=_trusted_cht(row),
+            trends={name: float(getattr(row, name)) for name in trends},
+            state=str(row.state),
+            cylinders=tuple(
+                (_trusted_cht(c), {name: float(getattr(c, name)) for name in trends}, str(c.state))
+                for c in row.cylinders
+            ),
+            cht_spread_c=float(row.cht_spread_c),
+            hottest_cylinder=int(row.hottest_cylinder),
+            spread_alarm=bool(row.spread_alarm),
+            model_c=held.model_c,
+            oat_c=held.oat_c,
+            airspeed_mps=held.airspeed_mps,
+            power=held.power,
+            deviation=float(row.deviation),
+        )
+        for row in rows
+    ]
+
+
+def _trusted_cht(row: Any) -> float:
+    cht = row.cht_meas_c if not row.sensor_fault and math.isfinite(row.cht_meas_c) else row.cht_est_c
+    return float(cht) if math.isfinite(cht) else math.nan
 
 
 class SignalMoments:
@@ -102,6 +182,40 @@ class SignalMoments:
         return first, self.last, sv / n, max(max_p, self.maximum), slope
 
 
+class _Phase:
+    """One flight phase's (region's) part of the flight in progress: its time, wear index, symptom and gammas."""
+
+    def __init__(self, wear: WearSettings) -> None:
+        self.seconds = 0.0
+        self.wear = FlightWear(wear)
+        self.sums = {"deviation": [0.0, 0], "gamma_q": [0.0, 0], "gamma_d": [0.0, 0]}
+
+    def add(self, sample: FlightSample) -> None:
+        self.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
+        gamma_q, gamma_d = sample.trends.get("gamma_q", math.nan), sample.trends.get("gamma_d", math.nan)
+        for name, value in (("deviation", sample.deviation), ("gamma_q", gamma_q), ("gamma_d", gamma_d)):
+            if math.isfinite(value):
+                self.sums[name][0] += value
+                self.sums[name][1] += 1
+
+    def values(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"seconds": self.seconds, "wear_index": self.wear.index, "wear_spread": self.wear.spread,
+                               "wear_samples": self.wear.n}  # fmt: skip
+        for name, (total, count) in self.sums.items():
+            out[f"{name}_mean"] = total / count if count else None
+            out[f"{name}_samples"] = count
+        return out
+
+    def restore(self, stored: dict[str, Any]) -> None:
+        """Continue from the stored part (a flight cut by a restart)."""
+        self.seconds = float(stored.get("seconds", 0.0))
+        self.wear.restore(int(stored.get("wear_samples", 0)), stored.get("wear_index"), stored.get("wear_spread"))
+        for name in self.sums:
+            mean, count = stored.get(f"{name}_mean"), int(stored.get(f"{name}_samples", 0))
+            if mean is not None and count:
+                self.sums[name] = [mean * count, count]
+
+
 class _CylinderFlight:
     """One cylinder's aggregates of the flight in progress (engines monitored per cylinder)."""
 
@@ -166,7 +280,7 @@ def _restore_trends(trends: dict[str, SignalMoments], stored: Mapping[str, Any],
 class _OpenFlight:
     """Aggregates of the flight in progress."""
 
-    def __init__(self, flight_id: int | None, sample: FlightSample, hysteresis: float) -> None:
+    def __init__(self, flight_id: int | None, sample: FlightSample, hysteresis: float, wear: WearSettings) -> None:
         self.flight_id = flight_id  # None until the history takes its row
         self.start_time_s = sample.time_s
         self.start_utc = sample.wall_time_s
@@ -180,6 +294,9 @@ class _OpenFlight:
         self.worst_state = "NOMINAL"
         self.trends = _trend_moments()
         self.reversals = ReversalFilter(hysteresis)
+        self.wear = FlightWear(wear)
+        self.high_power_s: float | None = None  # None until a power value is seen
+        self.phases = [_Phase(wear) for _ in REGION_NAMES]  # per region (estimation/regions.py)
         self.cylinders: list[_CylinderFlight] = []  # engines monitored per cylinder
         self.spread_max_c = -math.inf
         self.spread_alarm_s = 0.0
@@ -187,10 +304,10 @@ class _OpenFlight:
 
     @classmethod
     def resume(
-        cls, record: FlightRecord, reversals: list[float], sample: FlightSample, hysteresis: float
+        cls, record: FlightRecord, reversals: list[float], sample: FlightSample, hysteresis: float, wear: WearSettings
     ) -> _OpenFlight:
         """Continue a flight cut by a restart: its aggregates from the row, its clock from its start (UTC)."""
-        flight = cls(record.id, sample, hysteresis)
+        flight = cls(record.id, sample, hysteresis, wear)
         flight.start_time_s = sample.time_s - (sample.wall_time_s - record.start_utc)
         flight.start_utc = record.start_utc
         flight.last_checkpoint_s = sample.time_s
@@ -199,6 +316,10 @@ class _OpenFlight:
         flight.time_degraded_s = record.time_degraded_s
         flight.worst_state = record.worst_state
         flight.reversals.restore(reversals)
+        flight.wear.restore(record.wear_samples, record.wear_index, record.wear_spread)
+        flight.high_power_s = record.high_power_s
+        for phase, name in zip(flight.phases, REGION_NAMES, strict=True):
+            phase.restore(record.phases.get(name, {}))
         span_h = record.duration_s / 3600.0
         _restore_trends(flight.trends, record.trends, span_h)
         stored = record.cylinders
@@ -226,8 +347,16 @@ class _OpenFlight:
             "cycles_total": total,
             "cycles_json": json.dumps(histogram),
             "cylinders_json": self._cylinders_json(),
+            "wear_index": self.wear.index,
+            "wear_spread": self.wear.spread,
+            "wear_samples": self.wear.n,
+            "high_power_s": self.high_power_s,
+            "phases_json": json.dumps(self._phases()),
             "reversals": pack_reversals(points),
         }
+
+    def _phases(self) -> dict[str, Any]:
+        return {name: phase.values() for name, phase in zip(REGION_NAMES, self.phases, strict=True) if phase.seconds}
 
     def _cylinders_json(self) -> str | None:
         if not self.cylinders:
@@ -245,7 +374,9 @@ class FlightRecorder:
 
     ``add(sample)`` once per health period; ``close(reason)`` at service stop finishes a flight in
     progress (kept if long enough). Flights left running by a crash are recovered when the store is
-    first reached. ``finished`` lists the ids committed by this recorder.
+    first reached. ``finished`` lists the ids committed by this recorder. ``wear`` and ``reference``: the
+    across-flight detector's settings and the engine's nominal wear reference (None: learned from its first
+    flights); ``alerts`` lists the alerts this recorder raised.
 
     ``store`` is a store, or a function that opens one. While the history cannot be opened or written
     (:class:`~ecu_monitor.errors.StorageError`: a read-only database, a full disk) the recorder goes on in
@@ -261,6 +392,8 @@ class FlightRecorder:
         cht_limit_c: float,
         rules: FlightRules | None = None,
         *,
+        wear: WearSettings | None = None,
+        reference: WearReference | None = None,
         retry_s: float = 30.0,
     ) -> None:
         self._opener = None if isinstance(store, StateStore) else store
@@ -269,6 +402,9 @@ class FlightRecorder:
         self.cht_limit_c = float(cht_limit_c)
         self.rules = rules or FlightRules()
         self.retry_s = float(retry_s)
+        self.wear = wear or WearSettings()
+        self.reference = reference
+        self.alerts: list[MaintenanceAlert] = []
         self.finished: list[int] = []
         self.recovered: list[int] = []
         self.resumed: int | None = None
@@ -376,6 +512,7 @@ class FlightRecorder:
                 if values is not None and flight.flight_id is not None:
                     self.finished.append(flight.flight_id)
                     _log.info("flight %d of engine %s written to the history", flight.flight_id, self.serial)
+                    self._check_wear()
             if self._flight is not None:
                 self._store_flight(self._flight, self._flight.values(end_running=False))
         except StorageError as exc:
@@ -388,7 +525,7 @@ class FlightRecorder:
     # --- flights ---------------------------------------------------------------------------------------
 
     def _begin(self, sample: FlightSample) -> _OpenFlight:
-        flight = _OpenFlight(None, sample, self.rules.cycle_hysteresis_c)
+        flight = _OpenFlight(None, sample, self.rules.cycle_hysteresis_c, self.wear)
         if self.history_fault is None:
             self._write(flight, {}, sample.time_s)
         _log.info("flight %s of engine %s started", flight.flight_id or "(in memory)", self.serial)
@@ -411,7 +548,7 @@ class FlightRecorder:
         _log.info(
             "flight %d of engine %s resumed after a restart (%.0f s since its checkpoint)", cut.id, self.serial, gap_s
         )
-        return _OpenFlight.resume(record, reversals, sample, self.rules.cycle_hysteresis_c)
+        return _OpenFlight.resume(record, reversals, sample, self.rules.cycle_hysteresis_c, self.wear)
 
     def _accumulate(self, flight: _OpenFlight, sample: FlightSample) -> None:
         dt = sample.time_s - flight.last_time_s
@@ -428,6 +565,14 @@ class FlightRecorder:
             flight.time_degraded_s += dt
         if _STATE_RANK.get(sample.state, 0) > _STATE_RANK.get(flight.worst_state, 0):
             flight.worst_state = sample.state
+        region = region_of(sample.time_s - flight.start_time_s, sample.airspeed_mps, sample.power)
+        if math.isfinite(sample.power):
+            flight.high_power_s = (flight.high_power_s or 0.0) + (dt if region == REGION_HIGH else 0.0)
+        phase = flight.phases[region]
+        phase.seconds += dt
+        if sample.state not in _NOT_ESTIMATING:
+            flight.wear.add(sample.cht_c, sample.model_c, sample.oat_c)
+            phase.add(sample)
         for name, moments in flight.trends.items():
             moments.add(sample.time_s - flight.start_time_s, sample.trends[name])
         if sample.cylinders:
@@ -463,7 +608,24 @@ class FlightRecorder:
         assert flight.flight_id is not None
         self.finished.append(flight.flight_id)
         _log.info("flight %d of engine %s finished (%s, %.0f s)", flight.flight_id, self.serial, reason, duration_s)
+        try:
+            self._check_wear()
+        except StorageError as exc:
+            self._down(exc, now_s)
         return flight.flight_id
+
+    def _check_wear(self) -> None:
+        """Run the across-flight detector after a flight; store an alert it raises (once while open)."""
+        store = self._connected()
+        if store.alerts(self.serial, open_only=True):
+            return
+        result = engine_wear(store, self.serial, self.wear, self.reference)
+        alert = result.alert()
+        if alert is None:
+            return
+        alert = dataclasses.replace(alert, id=store.raise_alert(alert))
+        self.alerts.append(alert)
+        _log.warning("%s (CUSUM %.1f >= %.1f)", alert.text, alert.statistic, alert.threshold)
 
     def close(self, reason: str = "service_stop") -> int | None:
         """Finish the flight in progress (service stop); returns its id if it was written. Flights the
@@ -476,3 +638,43 @@ class FlightRecorder:
         if lost:
             _log.error("%d flight(s) not written to the history (%s)", len(lost), self.history_fault)
         return flight_id
+
+
+@dataclass(frozen=True)
+class EngineWear:
+    """The across-flight detector over one engine's flights since its last cleared alert (oldest first)."""
+
+    serial: str
+    flights: tuple[FlightRecord, ...]
+    verdict: WearVerdict
+
+    def alert(self) -> MaintenanceAlert | None:
+        """The alert the verdict raises (id 0: not stored yet), None without one."""
+        at, reference = self.verdict.alert_at, self.verdict.reference
+        if at is None or reference is None:
+            return None
+        flight = self.flights[at]
+        return MaintenanceAlert(
+            id=0,
+            engine_serial=self.serial,
+            flight_id=flight.id,
+            raised_utc=time.time(),
+            wear_index=float(flight.wear_index or 0.0),
+            statistic=float(self.verdict.statistic[at] or 0.0),
+            threshold=self.verdict.threshold,
+            reference_mean=reference.mean,
+            reference_sd=reference.sd,
+            reference_flights=reference.flights,
+            reference_learned=self.verdict.learned,
+            cleared_utc=None,
+        )
+
+
+def engine_wear(
+    store: StateStore, serial: str, settings: WearSettings, reference: WearReference | None = None
+) -> EngineWear:
+    """The across-flight detector over ``serial``'s finished and recovered flights since its last cleared alert."""
+    cleared = [a.cleared_utc for a in store.alerts(serial) if a.cleared_utc is not None]
+    since = max(cleared, default=-math.inf)
+    flights = tuple(r for r in store.flights(serial) if r.start_utc > since)
+    return EngineWear(serial, flights, wear_verdict([r.wear_index for r in flights], settings, reference))

@@ -18,7 +18,8 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
 * ``STATUSTEXT`` for the pilot (:func:`state_text`, docs/contracts.md): on every state change (and once
   at start), while INPUT_STALE when more inputs are lost than the last text named (again, with all of
   them: a dropped link loses the inputs of its slower messages first), when a CHT reaches its limit and
-  when it is back below, when the CHT spread alarm rises.
+  when it is back below, when the CHT spread alarm rises, and once for an open maintenance alert of the
+  across-flight detector (:meth:`MavlinkPublisher.tell`, at each start of the daemon), severity WARNING.
   Severity (:data:`SEVERITY`): NOMINAL INFO, UNAVAILABLE NOTICE, SUSPECT and INPUT_STALE WARNING,
   DEGRADED and SENSOR_FAULT CRITICAL, a CHT at its limit ALERT. A text longer than 50 characters is
   sent in chunks of 50 (MAVLink 2 ``id`` and ``chunk_seq``, as the message definition says a long
@@ -140,9 +141,10 @@ def _deviation_words(snap: HealthSnapshot) -> str:
                 parts.append((abs(pct), f"{word} {pct:+d} %"))
     if parts:
         return ", ".join(text for _, text in sorted(parts, reverse=True))
+    cause = "" if not snap.not_isolable or math.isfinite(snap.gamma_q) else ", cause not isolable"
     if math.isfinite(snap.deviation):
-        return f"CHT {snap.deviation:+.2f} C/s off model"
-    return "CHT off model"
+        return f"CHT {snap.deviation:+.2f} C/s off model{cause}"
+    return f"CHT off model{cause}"
 
 
 def state_text(snap: HealthSnapshot, first: bool = False) -> str:
@@ -294,6 +296,10 @@ class MavlinkPublisher:
         return data
 
     # --- STATUSTEXT -------------------------------------------------------------------------------
+
+    def tell(self, text: str) -> None:
+        """A maintenance alert's text: one STATUSTEXT, severity WARNING, as the rate allows."""
+        self._queue(_Text("maintenance", _SEVERITY_WARNING, text))
 
     def _events(self, snap: HealthSnapshot, over: int) -> None:
         """Queue the texts of what changed since the last snapshot."""

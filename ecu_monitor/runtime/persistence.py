@@ -8,7 +8,12 @@ SUSPECT/DEGRADED, and the thermal cycles of the CHT history counted by rainflow 
 ``rainflow`` package) as a histogram of cycle ranges. An engine monitored per cylinder also keeps, in
 the same row (``cylinders_json``, written in the same transactions), each cylinder's maximum CHT, gamma
 statistics, worst state and time SUSPECT/DEGRADED, the largest CHT spread, the time with the spread
-alarm and how long each cylinder was the hottest.
+alarm and how long each cylinder was the hottest. Across flights (schema 3): each flight's wear index (how much
+hotter than the nominal model the head ran, with its spread within the flight and the samples it rests on;
+:mod:`ecu_monitor.estimation.wear`) and its time at high power; the ``maintenance_alerts`` table keeps each
+alert the across-flight detector raised (engine, flight, when, the index, the CUSUM and its threshold, the
+reference) until maintenance clears it. An older database gains the new columns and table when opened for
+writing; nothing in it is lost.
 
 Flights are found from the engine speed: a flight starts when rpm reaches ``FlightRules.running_rpm``
 and ends when it has stayed below (or been stale) for ``end_after_s``; a run shorter than
@@ -65,6 +70,7 @@ __all__ = [
     "FlightRecord",
     "FlightRules",
     "FlightSample",
+    "MaintenanceAlert",
     "ReversalFilter",
     "StateStore",
     "count_cycles",
@@ -77,7 +83,9 @@ _log = logging.getLogger(__name__)
 
 #: File name of the database inside the state directory.
 DATABASE_NAME = "ecu-monitor.sqlite3"
-_SCHEMA_VERSION = 2  # 2: flights.cylinders_json (engines monitored per cylinder); a version-1 file gains it
+#: 2: flights.cylinders_json (engines monitored per cylinder); 3: the wear index, time at high power and the
+#: maintenance_alerts table. An older file gains what it lacks (:data:`_ADDED_COLUMNS`).
+_SCHEMA_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -105,8 +113,11 @@ class FlightSample:
 
     ``time_s`` is the service's monotonic time (s), ``wall_time_s`` the matching UTC unix time (s);
     ``rpm`` is None when the engine speed is stale; ``trends``: the value of each trend kept per flight
-    (:func:`trend_values`: gamma_q, gamma_d, ...) by name; NaN values mean "not available". An engine
-    monitored per cylinder adds ``cylinders``: (CHT degC, its trends, state) per cylinder in cylinder
+    (:func:`trend_values`: gamma_q, gamma_d, ...) by name; NaN values mean "not available". ``model_c`` is the
+    pipeline's open-loop reference CHT (the nominal model), ``oat_c`` the outside air, ``airspeed_mps`` the
+    airspeed, ``power`` the power fraction (estimation/regions.py) held at that instant and ``deviation`` the
+    row's model-deviation symptom: the wear index, the flight phases (regions) and the time at high power. An
+    engine monitored per cylinder adds ``cylinders``: (CHT degC, its trends, state) per cylinder in cylinder
     order, its ``cht_spread_c``, ``hottest_cylinder`` (0: none) and ``spread_alarm``.
     """
 
@@ -120,6 +131,11 @@ class FlightSample:
     cht_spread_c: float = math.nan
     hottest_cylinder: int = 0
     spread_alarm: bool = False
+    model_c: float = math.nan
+    oat_c: float = math.nan
+    airspeed_mps: float = math.nan
+    power: float = math.nan
+    deviation: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -139,7 +155,16 @@ class FlightRecord:
     worst_state: str
     time_degraded_s: float
     cycles_total: float
+    #: the flight's wear index (estimation/wear.py; None: too few samples), the spread of its samples within
+    #: the flight, how many samples; the time at high power (region ``high power``), s (None: power unknown)
+    wear_index: float | None
+    wear_spread: float | None
+    wear_samples: int
+    high_power_s: float | None
     cycles_histogram: dict[str, float]
+    #: per flight phase (the regions of estimation/regions.py, by name): ``seconds``, ``wear_index``,
+    #: ``deviation_mean`` (the model-deviation symptom, degC/s), ``gamma_q_mean``, ``gamma_d_mean`` (None: none)
+    phases: dict[str, Any] = field(default_factory=dict)
     #: engines monitored per cylinder (else empty): ``spread_max_c``, ``spread_alarm_s`` (time with the
     #: spread alarm), ``hottest_s`` (seconds each cylinder was the hottest, by number) and ``per_cylinder``
     #: (one mapping each: ``number``, ``max_cht_c``, the trend columns, ``worst_state``, ``time_degraded_s``)
@@ -176,9 +201,57 @@ def trend_columns() -> tuple[str, ...]:
 
 _FIXED_COLUMNS = (
     "id, engine_serial, status, end_reason, start_utc, end_utc, duration_s, max_cht_c, cht_limit_c, "
-    "time_above_limit_s, worst_state, time_degraded_s, cycles_total, cycles_json, cylinders_json"
+    "time_above_limit_s, worst_state, time_degraded_s, cycles_total, wear_index, wear_spread, wear_samples, "
+    "high_power_s, cycles_json, cylinders_json, phases_json"
 )
 _FLIGHT_COLUMNS = ", ".join((_FIXED_COLUMNS, *trend_columns()))
+
+#: Columns added to ``flights`` after version 1, with their SQL types: an older database gains them.
+_ADDED_COLUMNS = (
+    ("cylinders_json", "TEXT"),
+    ("wear_index", "REAL"),
+    ("wear_spread", "REAL"),
+    ("wear_samples", "INTEGER NOT NULL DEFAULT 0"),
+    ("high_power_s", "REAL"),
+    ("phases_json", "TEXT"),
+)
+
+
+@dataclass(frozen=True)
+class MaintenanceAlert:
+    """An alert of the across-flight detector (estimation/wear.py), kept until maintenance clears it.
+
+    ``flight_id`` the flight after which it was raised, ``raised_utc`` when (unix s), ``wear_index`` that
+    flight's index, ``statistic`` the CUSUM then and ``threshold`` its h, the reference (mean, sd, flights;
+    ``reference_learned``: from the engine's own first flights), ``cleared_utc`` None while open.
+    """
+
+    id: int
+    engine_serial: str
+    flight_id: int
+    raised_utc: float
+    wear_index: float
+    statistic: float
+    threshold: float
+    reference_mean: float
+    reference_sd: float
+    reference_flights: int
+    reference_learned: bool
+    cleared_utc: float | None
+
+    @property
+    def text(self) -> str:
+        """One line for the pilot and the maintainer (the history's ALERT line, the publishers' text)."""
+        return (
+            f"MAINTENANCE {self.engine_serial}: head {100.0 * self.wear_index:+.1f}% hotter than nominal"
+            f" (ref {100.0 * self.reference_mean:+.1f}%) after flight {self.flight_id}"
+        )
+
+
+_ALERT_COLUMNS = (
+    "id, engine_serial, flight_id, raised_utc, wear_index, statistic, threshold, reference_mean, reference_sd, "
+    "reference_flights, reference_learned, cleared_utc"
+)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -200,10 +273,29 @@ CREATE TABLE IF NOT EXISTS flights (
     cycles_total REAL NOT NULL,
     cycles_json TEXT NOT NULL,
     cylinders_json TEXT,
+    wear_index REAL,
+    wear_spread REAL,
+    wear_samples INTEGER NOT NULL DEFAULT 0,
+    high_power_s REAL,
+    phases_json TEXT,
     reversals BLOB,
     updated_utc REAL NOT NULL
 );
 CREATE INDEX IF NOT EXISTS flights_by_engine ON flights (engine_serial, start_utc);
+CREATE TABLE IF NOT EXISTS maintenance_alerts (
+    id INTEGER PRIMARY KEY,
+    engine_serial TEXT NOT NULL REFERENCES engines(serial),
+    flight_id INTEGER NOT NULL,
+    raised_utc REAL NOT NULL,
+    wear_index REAL NOT NULL,
+    statistic REAL NOT NULL,
+    threshold REAL NOT NULL,
+    reference_mean REAL NOT NULL,
+    reference_sd REAL NOT NULL,
+    reference_flights INTEGER NOT NULL,
+    reference_learned INTEGER NOT NULL,
+    cleared_utc REAL
+);
 """.replace("@@TRENDS@@", "".join(f"{name} REAL, " for name in trend_columns()))
 
 
@@ -256,8 +348,9 @@ class StateStore:
             if statement.strip():
                 self._conn.execute(statement)
         columns = {row[1] for row in self._conn.execute("PRAGMA table_info(flights)")}
-        if "cylinders_json" not in columns:  # a version-1 database: flights gain the per-cylinder column
-            self._conn.execute("ALTER TABLE flights ADD COLUMN cylinders_json TEXT")
+        for name, sql_type in _ADDED_COLUMNS:  # an older database: flights gain what they lack
+            if name not in columns:
+                self._conn.execute(f"ALTER TABLE flights ADD COLUMN {name} {sql_type}")
         for name in trend_columns():  # a database older than a trend value: its columns, empty
             if name not in columns:
                 self._conn.execute(f"ALTER TABLE flights ADD COLUMN {name} REAL")
@@ -367,7 +460,50 @@ class StateStore:
             conn.execute("UPDATE flights SET status = 'running', end_reason = NULL WHERE id = ?", (flight_id,))
         return _record(row[:-1]), unpack_reversals(row[-1])
 
+    def raise_alert(self, alert: MaintenanceAlert) -> int:
+        """Store a maintenance alert (its ``id`` is ignored); returns its id."""
+        names = _ALERT_COLUMNS.split(", ")[1:]
+        values = [getattr(alert, name) for name in names]
+        with self._transaction() as conn:
+            cursor = conn.execute(
+                f"INSERT INTO maintenance_alerts ({', '.join(names)}) VALUES ({', '.join('?' * len(names))})", values
+            )
+            if cursor.lastrowid is None:
+                raise EcuMonitorError("flight database: insert gave no row id")
+            return int(cursor.lastrowid)
+
+    def clear_alerts(self, serial: str, when_utc: float) -> int:
+        """Clear an engine's open alerts (maintenance done); returns how many."""
+        with self._transaction() as conn:
+            cursor = conn.execute(
+                "UPDATE maintenance_alerts SET cleared_utc = ? WHERE engine_serial = ? AND cleared_utc IS NULL",
+                (when_utc, serial),
+            )
+            return int(cursor.rowcount)
+
     # --- reading -------------------------------------------------------------------------------------
+
+    def alerts(self, serial: str | None = None, open_only: bool = False) -> list[MaintenanceAlert]:
+        """Maintenance alerts of one engine (or all), oldest first; ``open_only``: those not cleared."""
+        if not self._has_table("maintenance_alerts"):  # a read-only older database
+            return []
+        where = ["cleared_utc IS NULL"] if open_only else []
+        params: tuple[object, ...] = ()
+        if serial is not None:
+            where.append("engine_serial = ?")
+            params = (serial,)
+        clause = f" WHERE {' AND '.join(where)}" if where else ""
+        rows = self._conn.execute(
+            f"SELECT {_ALERT_COLUMNS} FROM maintenance_alerts{clause} ORDER BY raised_utc, id", params
+        )
+        return [
+            MaintenanceAlert(*row[:10], bool(row[10]), row[11])  # type: ignore[arg-type]
+            for row in rows.fetchall()
+        ]
+
+    def _has_table(self, name: str) -> bool:
+        query = "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?"
+        return self._conn.execute(query, (name,)).fetchone() is not None
 
     def engines(self) -> list[str]:
         """Engine serials, sorted."""
@@ -381,8 +517,17 @@ class StateStore:
             where.append("engine_serial = ?")
             params = (serial,)
         clause = f" WHERE {' AND '.join(where)}" if where else ""
-        rows = self._conn.execute(f"SELECT {_FLIGHT_COLUMNS} FROM flights{clause} ORDER BY start_utc, id", params)
+        query = f"SELECT {self._flight_columns()} FROM flights{clause} ORDER BY start_utc, id"
+        rows = self._conn.execute(query, params)
         return [_record(row) for row in rows.fetchall()]
+
+    def _flight_columns(self) -> str:
+        """_FLIGHT_COLUMNS, with a column an older database opened read-only lacks read as NULL (0 for a count)."""
+        present = {row[1] for row in self._conn.execute("PRAGMA table_info(flights)")}
+        return ", ".join(
+            name if name in present else f"{0 if name == 'wear_samples' else 'NULL'} AS {name}"
+            for name in _FLIGHT_COLUMNS.split(", ")
+        )
 
     def integrity_ok(self) -> bool:
         """``PRAGMA integrity_check`` says ok."""
@@ -403,11 +548,12 @@ class StateStore:
 
 def _record(row: tuple[object, ...]) -> FlightRecord:
     """A FlightRecord from a row of :data:`_FLIGHT_COLUMNS`."""
-    names = [item.name for item in fields(FlightRecord)][:-3]
-    fixed, trends = row[: len(names) + 2], row[len(names) + 2 :]
-    values: dict[str, object] = dict(zip(names, fixed[:-2], strict=True))
-    values["cycles_histogram"] = json.loads(str(fixed[-2])) if fixed[-2] else {}
-    values["cylinders"] = json.loads(str(fixed[-1])) if fixed[-1] else {}
+    names = [item.name for item in fields(FlightRecord)][:-4]  # then cycles_histogram, phases, cylinders, trends
+    fixed, trends = row[: len(names) + 3], row[len(names) + 3 :]
+    values: dict[str, object] = dict(zip(names, fixed[:-3], strict=True))
+    values["cycles_histogram"] = json.loads(str(fixed[-3])) if fixed[-3] else {}
+    values["cylinders"] = json.loads(str(fixed[-2])) if fixed[-2] else {}
+    values["phases"] = json.loads(str(fixed[-1])) if fixed[-1] else {}
     values["trends"] = dict(zip(trend_columns(), trends, strict=True))
     return FlightRecord(**values)  # type: ignore[arg-type]
 

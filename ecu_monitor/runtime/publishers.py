@@ -80,6 +80,7 @@ _DIAGNOSTICS: dict[str, _Source] = {
     "Health_Diag.StaleInputsHigh": lambda snap, cyl, frames: _stale_bits(snap) >> 8,
     "Health_Diag.MalformedFrames": lambda snap, cyl, frames: min(frames.pipeline.counters["malformed"], 65535),
     "Health_Diag.BusErrors": lambda snap, cyl, frames: min(frames.pipeline.counters["bus_errors"], 255),
+    "Health_Diag.MaintenanceAlert": lambda snap, cyl, frames: int(frames.maintenance_alert),
     "Health_Diag.HistoryDown": lambda snap, cyl, frames: frames.pipeline.counters.get("history_down", 0),
     "Health_Spread.CylinderCount": lambda snap, cyl, frames: len(snap.cylinders) or 1,
     "Health_Spread.FaultyCylinders": lambda snap, cyl, frames: _faulty(snap),
@@ -122,6 +123,10 @@ class Publisher(Protocol):
         """The frames the rows make, oldest first."""
         ...
 
+    def tell(self, text: str) -> None:
+        """An open maintenance alert (its one-line text), told from the next row on (module docstring)."""
+        ...
+
 
 class DbcHealthFrames:
     """The health.dbc frames of each row: every message whose period (steps) divides the row's step; a
@@ -153,7 +158,11 @@ class DbcHealthFrames:
         self._counters = dict.fromkeys(self.periods, 0)
         #: each cylinder's CHT limit, degC
         self.limits = [m.cht_limit_c for m in pipeline.cylinder_params]
+        self.maintenance_alert = False  # Health_Diag.MaintenanceAlert: an open alert told (set, never cleared)
         pipeline.counters.setdefault("health_frames", 0)
+
+    def tell(self, text: str) -> None:
+        self.maintenance_alert = True
 
     def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
         out: list[can.Message] = []
@@ -208,6 +217,9 @@ class DroneCanPublisher:
         self.pipeline.counters["dronecan_frames"] += len(out)
         return out
 
+    def tell(self, text: str) -> None:
+        self.node.tell(text)
+
     def take_request(self, msg: can.Message, time_s: float) -> bool:
         """A service request to the node (GetNodeInfo), taken here: not an input."""
         taken = bool(msg.arbitration_id & 0x80) and self.node.take_request(msg, time_s)
@@ -229,6 +241,9 @@ class MavlinkHealth:
             config.mavlink, [m.cht_limit_c for m in pipeline.cylinder_params], {s.message for s in config.inputs}
         )
         pipeline.counters["mavlink_messages"] = 0
+
+    def tell(self, text: str) -> None:
+        self.publisher.tell(text)
 
     def publish(self, rows: Sequence[StepRow]) -> list[Any]:
         out: list[Any] = []
@@ -286,6 +301,10 @@ class LiveMonitor:
         return self.pipeline.steps_done
 
     @property
+    def row_period_s(self) -> float:
+        return self.pipeline.row_period_s
+
+    @property
     def decoder(self) -> Any:
         return self.pipeline.decoder
 
@@ -315,6 +334,14 @@ class LiveMonitor:
 
     def held_input(self, name: str) -> float | None:
         return self.pipeline.held_input(name)
+
+    def tell(self, text: str) -> None:
+        """Tell an open maintenance alert on every output (each publisher's :meth:`Publisher.tell`)."""
+        for publisher in self.publishers:
+            publisher.tell(text)
+
+    def reference_model_c(self) -> float:
+        return self.pipeline.reference_model_c()
 
     def warm_up(self) -> float:
         return self.pipeline.warm_up()

@@ -16,7 +16,7 @@ from ecu_monitor.errors import ParameterError
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.offline.replay import frames_from_flight, replay_frames
 from ecu_monitor.pipeline.engine import model_input_names
-from ecu_monitor.pipeline.supervision import STATES
+from ecu_monitor.pipeline.output_table import STATES
 
 FLIGHT = Path(__file__).resolve().parents[1] / "data" / "flight_small.csv"
 
