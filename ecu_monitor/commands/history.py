@@ -21,11 +21,9 @@ import argparse
 import datetime as dt
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.estimation.wear import WearReference, WearSettings
-from ecu_monitor.runtime.flight_recorder import EngineWear, engine_wear
 from ecu_monitor.runtime.persistence import (
     CYCLE_BIN_EDGES_C,
     FlightRecord,
@@ -33,6 +31,10 @@ from ecu_monitor.runtime.persistence import (
     StateStore,
     iter_trend,
 )
+
+if TYPE_CHECKING:  # the across-flight detector imports numpy: only the command's run loads it
+    from ecu_monitor.estimation.wear import WearReference
+    from ecu_monitor.runtime.flight_recorder import EngineWear
 from ecu_monitor.userfiles import save_figure
 
 __all__ = ["add_subparser", "engine_trend", "format_history", "plot_history", "trend_figure"]
@@ -301,6 +303,8 @@ def _run(args: argparse.Namespace) -> int:
     import time
 
     from ecu_monitor.config import load_config
+    from ecu_monitor.estimation.wear import WearSettings
+    from ecu_monitor.runtime.flight_recorder import engine_wear
 
     config = load_config(args.config) if args.config else None
     state_dir = Path(args.state_dir) if config is None else config.state_dir
@@ -341,6 +345,8 @@ def _reference(config: Any, alerts: tuple[MaintenanceAlert, ...], serial: str) -
     last alert stored (when that was not learned), else None (learned from the first flights)."""
     if config is not None and config.engine_serial == serial:
         return config.wear_reference  # type: ignore[no-any-return]
+    from ecu_monitor.estimation.wear import WearReference
+
     stored = next((a for a in reversed(alerts) if not a.reference_learned), None)
     if stored is None:
         return None

@@ -22,6 +22,7 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import given  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
+from tests.helpers import REPO  # noqa: E402
 from tests.helpers.fuzz import EXAMPLES, check_cli_outcome, fuzz_settings  # noqa: E402
 
 FUZZ = fuzz_settings(EXAMPLES)
@@ -227,9 +228,7 @@ def yaml_structures(draw: st.DrawFn, base: dict[str, object]) -> bytes:
 
 
 _MODEL_DATA = paper_table_a1().to_dict()
-_CONFIG_DATA = yaml.safe_load(
-    (Path(__file__).resolve().parent.parent / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text()
-)
+_CONFIG_DATA = yaml.safe_load((REPO / "ecu_monitor" / "data" / "configs" / "example.yaml").read_text())
 
 
 @FUZZ
