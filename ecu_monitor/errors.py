@@ -19,6 +19,7 @@ __all__ = [
     "EstimationError",
     "FlightLogError",
     "ParameterError",
+    "StorageError",
     "UserInputError",
     "run_command",
 ]
@@ -51,6 +52,11 @@ class ParameterError(UserInputError):
 
 class BusError(EcuMonitorError):
     """The CAN bus failed (open, send or receive) in a way the caller must handle."""
+
+
+class StorageError(EcuMonitorError):
+    """The service's flight history cannot be opened or written (read-only, disk full): the service
+    monitors on, keeps the flight in memory and retries (runtime/flight_recorder.py)."""
 
 
 class EstimationError(EcuMonitorError):

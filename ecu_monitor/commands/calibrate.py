@@ -135,7 +135,7 @@ def _run(args: argparse.Namespace) -> int:
     result, flights, wear = _calibrate_channel(args, config, params, candidates)
     if args.write_config:
         text = config_copy_yaml(
-            config_path, result, args.rate, sources, model_fingerprint(params), args.model, wear=wear
+            config_path, out, result, args.rate, sources, model_fingerprint(params), args.model, wear=wear
         )
     else:
         text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
@@ -182,6 +182,7 @@ def _run_cylinders(
     if args.write_config:
         text = config_copy_yaml(
             config_path,
+            out,
             results[0],
             args.rate,
             sources,

@@ -169,7 +169,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.runtime.daemon import Daemon
     from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
-    from ecu_monitor.runtime.persistence import StateStore
+    from ecu_monitor.runtime.persistence import DATABASE_NAME, StateStore
     from ecu_monitor.runtime.publishers import LiveMonitor  # the estimator stack: imported only when running
     from ecu_monitor.runtime.state_lock import StateDirLock
 
@@ -182,18 +182,17 @@ def _run(args: argparse.Namespace) -> int:
     _log_to_journal()
     lock = StateDirLock(config.state_dir)  # before the store's start-up recovery; held until the process ends
     pipeline = LiveMonitor(config, models)
-    store = StateStore(config.state_dir)
+    # a history that cannot be opened (read-only, disk full) is retried while the service monitors on
     recorder = FlightRecorder(
-        store,
+        lambda: StateStore(config.state_dir),
         config.engine_serial,
         params.cht_limit_c,
         FlightRules(min_flight_s=args.min_flight_s),
         wear=config.wear,
         reference=config.wear_reference,
     )
-    if recorder.recovered:
-        _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", recorder.recovered)
-    for alert in store.alerts(config.engine_serial, open_only=True):  # kept across restarts: told at each start
+    # kept across restarts: told at each start (not while the history cannot be opened)
+    for alert in recorder.store.alerts(config.engine_serial, open_only=True) if recorder.store else ():
         _log.warning("ALERT %s", alert.text)
         pipeline.tell(alert.text)
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
@@ -227,11 +226,12 @@ def _run(args: argparse.Namespace) -> int:
             link = f"MAVLink {config.mavlink.connection}" + (f" -> {output}" if output else "")
         else:
             link = f"bus {config.bus.get('interface')}:{config.bus.get('channel')}"
-        _log.info("engine %s, %s, state %s", config.engine_serial, link, store.path)
+        _log.info("engine %s, %s, state %s", config.engine_serial, link, config.state_dir / DATABASE_NAME)
         try:
             code = daemon.run()
         finally:
-            store.close()
+            if recorder.store is not None:
+                recorder.store.close()
             lock.close()
     sys.stdout.flush()
     return code

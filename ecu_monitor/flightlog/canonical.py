@@ -20,6 +20,7 @@ Canonical CSV rules (:func:`read_csv`)
 
 from __future__ import annotations
 
+import itertools
 import logging
 import os
 from pathlib import Path
@@ -37,7 +38,7 @@ from ecu_monitor.flightlog.log import (
     FlightLog,
 )
 from ecu_monitor.flightlog.rules import _assemble, _is_strict
-from ecu_monitor.flightlog.table import _check_widths, _floats, _numbers, _read_table
+from ecu_monitor.flightlog.table import BLOCK_ROWS, _check_widths, _floats, _numbers, _read_rows
 from ecu_monitor.userfiles import atomic_output
 
 _log = logging.getLogger(__name__)
@@ -48,8 +49,8 @@ def read_csv(path: str | os.PathLike[str]) -> FlightLog:
     path = Path(path)
     src = str(path)
     notes: list[str] = []
-    table = _read_table(path, notes)
-    header = table.header
+    rows = _read_rows(path, notes)
+    header = rows.header
     present = set(header)
     for name in _REQUIRED_ALWAYS:
         if name not in present:
@@ -67,22 +68,35 @@ def read_csv(path: str | os.PathLike[str]) -> FlightLog:
         if name in seen:
             raise FlightLogError(f"{src}: row 1, column '{name}': duplicate column name")
         seen.add(name)
-    _check_widths(src, table)
-    lines = np.array([line for line, _ in table.rows], dtype=np.int64)
-    cols: dict[str, np.ndarray] = {}
     for i, name in enumerate(header):
         if not name:
             _log.debug("%s: column %d has no name: dropped", src, i + 1)
-            continue
-        fields = [row[i] for _, row in table.rows]
-        if _is_strict(name):
-            cols[name] = _numbers(src, name, fields, lines)
-            continue
-        arr = _floats(fields)
-        if arr is None:
-            _log.debug("%s: column '%s' holds text: dropped", src, name)
-        else:
-            cols[name] = arr
+    # streamed: BLOCK_ROWS rows of text at a time into arrays sized by the file's lines (no text kept)
+    kept = {i: name for i, name in enumerate(header) if name}
+    cols = {name: np.empty(rows.most, dtype=np.float64) for name in kept.values()}
+    lines = np.empty(rows.most, dtype=np.int64)
+    at = 0
+    while block := list(itertools.islice(rows.rows, BLOCK_ROWS)):
+        _check_widths(src, len(header), block)
+        end = at + len(block)
+        if end > lines.size:  # more rows than lines counted (mixed line ends): grow
+            lines = np.resize(lines, 2 * end)
+            cols = {name: np.resize(values, 2 * end) for name, values in cols.items()}
+        lines[at:end] = [line for line, _ in block]
+        for i, name in list(kept.items()):
+            fields = [row[i] for _, row in block]
+            if _is_strict(name):
+                cols[name][at:end] = _numbers(src, name, fields, lines[at:end])
+                continue
+            arr = _floats(fields)
+            if arr is None:
+                _log.debug("%s: column '%s' holds text: dropped", src, name)
+                del kept[i], cols[name]
+            else:
+                cols[name][at:end] = arr
+        at = end
+    lines = lines[:at]
+    cols = {name: values[:at] for name, values in cols.items()}
     time = cols.pop("time_s")
     if np.any(np.isnan(time)):
         k = int(np.argmax(np.isnan(time)))

@@ -229,7 +229,7 @@ def import_mapped_csv(
     if not table.rows:
         raise FlightLogError(f"{src}: only a units row after the header, no data rows")
     _drop_repeated_headers(src, table, notes)
-    _check_widths(src, table)
+    _check_widths(src, len(table.header), table.rows)
     _drop_duplicate_rows(src, table, notes)
     lines = np.array([line for line, _ in table.rows], dtype=np.int64)
     time = _parse_time(src, mapping.time, table, index, lines, notes)

@@ -19,7 +19,7 @@ longer delay, then no freeze. With fewer than :data:`MIN_CROSS_FLIGHTS` flights 
 the config's settings are kept (today's behaviour).
 
 Helpers write the result as a ``detector:`` YAML fragment, or as a full copy of the service config
-with the detector settings replaced (relative paths made absolute, so the copy loads from anywhere).
+with the detector settings replaced (relative paths made relative to the copy, so they move together).
 """
 
 from __future__ import annotations
@@ -43,7 +43,6 @@ from ecu_monitor.config import (
     CHT_INPUT,
     CYLINDER_HEALTH_MESSAGES,
     CYLINDER_INPUT,
-    MODEL_PRESETS,
     ServiceConfig,
 )
 from ecu_monitor.errors import ConfigError, ParameterError
@@ -73,7 +72,7 @@ from ecu_monitor.offline.calibration_replays import (
     overlay_replays,
     statistic_paths,
 )
-from ecu_monitor.shipped import resolve_file, shipped_file
+from ecu_monitor.shipped import resolve_file
 from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
@@ -471,6 +470,7 @@ def detector_fragment_yaml(
 
 def config_copy_yaml(
     config_path: str | os.PathLike[str],
+    out_path: str | os.PathLike[str],
     result: CalibrationResult,
     rate_per_100h: float,
     sources: Sequence[str],
@@ -481,53 +481,60 @@ def config_copy_yaml(
     cross: Sequence[tuple[CalibrationResult | None, str]] = (),
     wear: WearReference | None = None,
 ) -> str:
-    """The service config at ``config_path`` with ``detector.threshold`` replaced, ``detector.calibrated_for``
-    set (the :func:`model_fingerprint` of the model used) and ``model`` set to ``model_path`` if given, the
-    model the threshold was calibrated with. With ``cylinders`` (per cylinder its result and model
-    fingerprint; ``result`` is then the first cylinder's), ``cylinders.detectors`` is written instead
-    and ``detector`` kept, and ``cylinders.models`` set to ``cylinder_models`` if given; with ``cross``
-    (the same, for the cross-cylinder detectors) ``cylinders.cross_detectors`` too. With ``wear``, the
-    engine's nominal wear reference is stored (``wear.reference``, :func:`wear_fragment`). Relative file paths (dbc,
-    health_dbc, model, state_dir) are made absolute so the copy loads from any folder; names of shipped
-    DBCs stay names. The original's comments are not kept (the YAML is re-emitted)."""
+    """The service config at ``config_path``, to be written to ``out_path``, with ``detector.threshold``
+    replaced, ``detector.calibrated_for`` set (the :func:`model_fingerprint` of the model used) and
+    ``model`` set to ``model_path`` if given, the model the threshold was calibrated with. With
+    ``cylinders`` (per cylinder its result and model fingerprint; ``result`` is then the first
+    cylinder's), ``cylinders.detectors`` is written instead and ``detector`` kept, and ``cylinders.models``
+    set to ``cylinder_models`` if given; with ``cross`` (the same, for the cross-cylinder detectors)
+    ``cylinders.cross_detectors`` too. With ``wear``, the engine's nominal wear reference is stored
+    (``wear.reference``, :func:`wear_fragment`).
+
+    File paths (dbc, health_dbc, model, state_dir; ``model_path`` and ``cylinder_models`` as given on the
+    command line, from the working directory) given relative are written relative to the folder of
+    ``out_path``, so the copy and its files move together to the machine that runs it; absolute paths,
+    ``~/...`` and names of shipped files stay as given. A ``virtual`` bus (one process's buses: a test or
+    a replay) gets a comment saying to set the engine's bus. The original's comments are not kept (the
+    YAML is re-emitted)."""
     src = resolve_file(config_path, "config")
     data = load_yaml_file(src, "config file", ConfigError)
     if not isinstance(data, dict):
         raise ConfigError(f"{src}: top level: expected a mapping")
     base = src.resolve().parent
+    out_dir = Path(out_path).resolve().parent
+    here = Path.cwd()
 
-    def absolute(value: Any) -> Any:
-        if not isinstance(value, str):
+    def portable(value: Any, given_in: Path = base) -> Any:
+        if not isinstance(value, str) or value.startswith("~") or Path(value).is_absolute():
             return value
-        path = Path(os.path.expanduser(value))
-        return str(path if path.is_absolute() else (base / path).resolve())
+        return os.path.relpath((given_in / value).resolve(), out_dir)
 
-    def dbc(value: Any) -> Any:
-        """A shipped DBC's name stays a name (unless a file of that name sits beside the config)."""
-        if isinstance(value, str) and not (base / value).exists() and shipped_file("dbc", value) is not None:
+    def named(value: Any, given_in: Path = base) -> Any:
+        """A shipped file's name (a DBC, a model preset) stays a name unless a file of that name is there."""
+        if isinstance(value, str) and not (given_in / value).exists():
             return value
-        return absolute(value)
+        return portable(value, given_in)
 
     if "dbc" in data:
-        data["dbc"] = [dbc(v) for v in data["dbc"]] if isinstance(data["dbc"], list) else dbc(data["dbc"])
+        data["dbc"] = [named(v) for v in data["dbc"]] if isinstance(data["dbc"], list) else named(data["dbc"])
     if "health_dbc" in data:
-        data["health_dbc"] = dbc(data["health_dbc"])
+        data["health_dbc"] = named(data["health_dbc"])
     if "state_dir" in data:
-        data["state_dir"] = absolute(data["state_dir"])
+        data["state_dir"] = portable(data["state_dir"])
     if wear is not None:
         section = data.get("wear")
         data["wear"] = {**(section if isinstance(section, dict) else {}), **wear_fragment(wear)["wear"]}
     if model_path is not None:
-        data["model"] = str(Path(model_path).resolve())
-    elif isinstance(data.get("model"), str) and data["model"] not in MODEL_PRESETS:
-        data["model"] = absolute(data["model"])
+        data["model"] = named(os.fspath(model_path), here)
+    elif isinstance(data.get("model"), str):
+        data["model"] = named(data["model"])
     if cylinders:
         section = data.get("cylinders")
         section = dict(section) if isinstance(section, dict) else {}
         if cylinder_models:
-            section["models"] = [str(Path(m).resolve()) for m in cylinder_models]
+            section["models"] = [named(os.fspath(m), here) for m in cylinder_models]
         elif isinstance(section.get("models"), list):
-            section["models"] = [m if m in MODEL_PRESETS else absolute(m) for m in section["models"]]
+            section["models"] = [named(m) for m in section["models"]]
         section["detectors"] = [_cylinder_entry(r, c) for r, c in cylinders]
         if cross:
             section["cross_detectors"] = [None if r is None else _cylinder_entry(r, c) for r, c in cross]
@@ -538,7 +545,7 @@ def config_copy_yaml(
             f"# copy of {src.resolve()} with cylinders.detectors (one calibrated detector per cylinder) written"
             " (comments of the original not kept)"
         )
-        return "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+        return _config_text(header, data)
     detector = data.get("detector")
     detector = dict(detector) if isinstance(detector, dict) else {}
     detector["threshold"] = _rounded(result.calibration.threshold)
@@ -554,7 +561,21 @@ def config_copy_yaml(
         f"# copy of {src.resolve()} with detector.threshold and baseline settings replaced"
         " (comments of the original not kept)"
     )
-    return "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+    return _config_text(header, data)
+
+
+def _config_text(header: list[str], data: dict[str, Any]) -> str:
+    """The header comment lines and the config's YAML; a ``virtual`` bus commented: set the engine's."""
+    lines = yaml.safe_dump(data, sort_keys=False, default_flow_style=None).splitlines()
+    bus = data.get("bus")
+    if isinstance(bus, dict) and bus.get("interface") == "virtual":
+        at = next(i for i, line in enumerate(lines) if line.startswith("bus:"))
+        lines.insert(
+            at,
+            "# bus: 'virtual' connects only the buses of one process (tests, replays): set the engine's bus"
+            " before 'ecu-monitor run' (e.g. interface: socketcan, channel: can0)",
+        )
+    return "\n".join([*header, *lines]) + "\n"
 
 
 def cylinder_config(config: ServiceConfig, number: int, model: str | None = None) -> ServiceConfig:

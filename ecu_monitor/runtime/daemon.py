@@ -422,6 +422,10 @@ class Daemon:
         for sample in flight_samples(rows, held, offset):  # the inputs held at the end of this supervisor period
             self._recorder.add(sample)
         self.counters["rows_recorded"] += len(rows)
+        down = int(self._recorder.history_fault is not None)
+        if self.pipeline.counters.get("history_down") != down:
+            with self._lock:
+                self.pipeline.counters["history_down"] = down  # Health_Diag.HistoryDown
 
     def _log_states(self, rows: Sequence[Any]) -> None:
         """One INFO line per change of the engine's state among the health rows, with the row's time on the
@@ -444,7 +448,13 @@ class Daemon:
             f"stale {stale}, frames {mine['frames_in']}, malformed {counters.get('malformed', 0)}, "
             f"bus errors {mine['bus_errors']}, health sent {mine['health_sent']}"
             + (f"; WARNING {warning}" if warning else "")
+            + self._history_note()
         )
+
+    def _history_note(self) -> str:
+        """``, NO HISTORY: <why>`` while the flight history cannot be written, else nothing."""
+        fault = self._recorder.history_fault if self._recorder is not None else None
+        return f", NO HISTORY: {fault}" if fault else ""
 
     def _supervise_once(self, now: float) -> None:
         with self._lock:

@@ -19,10 +19,11 @@ import json
 import logging
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from ecu_monitor.errors import StorageError
 from ecu_monitor.estimation.regions import REGION_HIGH, REGION_NAMES, power_fraction, region_of
 from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
 from ecu_monitor.runtime.persistence import (
@@ -279,8 +280,8 @@ def _restore_trends(trends: dict[str, SignalMoments], stored: Mapping[str, Any],
 class _OpenFlight:
     """Aggregates of the flight in progress."""
 
-    def __init__(self, flight_id: int, sample: FlightSample, hysteresis: float, wear: WearSettings) -> None:
-        self.flight_id = flight_id
+    def __init__(self, flight_id: int | None, sample: FlightSample, hysteresis: float, wear: WearSettings) -> None:
+        self.flight_id = flight_id  # None until the history takes its row
         self.start_time_s = sample.time_s
         self.start_utc = sample.wall_time_s
         self.last_running_time_s = sample.time_s
@@ -372,38 +373,50 @@ class FlightRecorder:
     """Finds flights in the stream of samples and writes them to a :class:`StateStore`.
 
     ``add(sample)`` once per health period; ``close(reason)`` at service stop finishes a flight in
-    progress (kept if long enough). Flights left running by a crash are recovered when the recorder is
-    created. ``finished`` lists the ids committed by this recorder. ``wear`` and ``reference``: the
+    progress (kept if long enough). Flights left running by a crash are recovered when the store is
+    first reached. ``finished`` lists the ids committed by this recorder. ``wear`` and ``reference``: the
     across-flight detector's settings and the engine's nominal wear reference (None: learned from its first
     flights); ``alerts`` lists the alerts this recorder raised.
+
+    ``store`` is a store, or a function that opens one. While the history cannot be opened or written
+    (:class:`~ecu_monitor.errors.StorageError`: a read-only database, a full disk) the recorder goes on in
+    memory: ``history_fault`` says why, the flight in progress and those finished meanwhile are kept, and
+    every ``retry_s`` of sample time the store is tried again (reopened, when given as a function) and
+    they are written.
     """
 
     def __init__(
         self,
-        store: StateStore,
+        store: StateStore | Callable[[], StateStore],
         serial: str,
         cht_limit_c: float,
         rules: FlightRules | None = None,
         *,
         wear: WearSettings | None = None,
         reference: WearReference | None = None,
+        retry_s: float = 30.0,
     ) -> None:
-        self.store = store
+        self._opener = None if isinstance(store, StateStore) else store
+        self.store: StateStore | None = store if isinstance(store, StateStore) else None
         self.serial = serial
         self.cht_limit_c = float(cht_limit_c)
         self.rules = rules or FlightRules()
+        self.retry_s = float(retry_s)
         self.wear = wear or WearSettings()
         self.reference = reference
         self.alerts: list[MaintenanceAlert] = []
         self.finished: list[int] = []
-        self.recovered = store.recover(serial, self.rules.min_flight_s)
-        store.ensure_engine(serial)
-        self._flight: _OpenFlight | None = None
-        #: the flight a crash cut, resumed if the engine is still running when samples come back
-        self._resumable = max(
-            (r for r in store.flights(serial) if r.id in self.recovered), key=lambda r: r.end_utc, default=None
-        )
+        self.recovered: list[int] = []
         self.resumed: int | None = None
+        #: why the history cannot be written now (the StorageError's line), or None
+        self.history_fault: str | None = None
+        self._flight: _OpenFlight | None = None
+        #: finished flights not yet written: (flight, its final values, or None: delete its row)
+        self._unsaved: list[tuple[_OpenFlight, dict[str, object] | None]] = []
+        self._resumable: FlightRecord | None = None  # the flight a crash cut, resumed if the engine still runs
+        self._started = False  # crash recovery done (once, at the first store reached)
+        self._retry_at_s = -math.inf
+        self._sync(-math.inf)
 
     @property
     def in_flight(self) -> bool:
@@ -412,6 +425,8 @@ class FlightRecorder:
 
     def add(self, sample: FlightSample) -> None:
         """Account one sample; opens, checkpoints and finishes flights as the rpm says."""
+        if self.history_fault is not None and sample.time_s >= self._retry_at_s:
+            self._sync(sample.time_s)
         rules = self.rules
         running = sample.rpm is not None and math.isfinite(sample.rpm) and sample.rpm >= rules.running_rpm
         flight = self._flight
@@ -422,27 +437,113 @@ class FlightRecorder:
             flight = self._flight = self._resume(sample) or self._begin(sample)
         if not running:
             if sample.time_s - flight.last_running_time_s >= rules.end_after_s:
-                self._finish("engine_stopped")
+                self._finish("engine_stopped", sample.time_s)
             return
         self._accumulate(flight, sample)
         if sample.time_s - flight.last_checkpoint_s >= rules.checkpoint_every_s:
-            self.store.write_flight(flight.flight_id, flight.values(end_running=False))
+            if self.history_fault is None:
+                self._write(flight, flight.values(end_running=False), sample.time_s)
             flight.last_checkpoint_s = sample.time_s
 
+    # --- the store, and going on without it -----------------------------------------------------------
+
+    def _connected(self) -> StateStore:
+        """The store, opened and its crash recovery done (StorageError if it cannot be)."""
+        if self.store is None:
+            assert self._opener is not None
+            self.store = self._opener()
+        store = self.store
+        if not self._started:
+            self.recovered = store.recover(self.serial, self.rules.min_flight_s)
+            store.ensure_engine(self.serial)
+            self._started = True
+            if self.recovered:
+                _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", self.recovered)
+            if self._flight is None:
+                self._resumable = max(
+                    (r for r in store.flights(self.serial) if r.id in self.recovered),
+                    key=lambda r: r.end_utc,
+                    default=None,
+                )
+        return store
+
+    def _store_flight(self, flight: _OpenFlight, values: dict[str, object] | None) -> None:
+        """Write a flight's row (inserted first if it has none yet); ``values`` None: delete it."""
+        store = self._connected()
+        if flight.flight_id is None:
+            if values is None:
+                return  # a short run never written: nothing to delete
+            flight.flight_id = store.begin_flight(self.serial, flight.start_utc, self.cht_limit_c)
+        if values is None:
+            store.discard_flight(flight.flight_id)
+        elif values:
+            store.write_flight(flight.flight_id, values)
+
+    def _write(self, flight: _OpenFlight, values: dict[str, object] | None, now_s: float) -> bool:
+        """:meth:`_store_flight`; False (and the history marked down) when it cannot be written."""
+        try:
+            self._store_flight(flight, values)
+        except StorageError as exc:
+            self._down(exc, now_s)
+            return False
+        return True
+
+    def _down(self, exc: StorageError, now_s: float) -> None:
+        if str(exc) != self.history_fault:
+            _log.error(
+                "%s: monitoring goes on, flights kept in memory and written when it can be (tried every %.0f s)",
+                exc,
+                self.retry_s,
+            )
+        self.history_fault = str(exc)
+        self._retry_at_s = now_s + self.retry_s
+        if self._opener is not None and self.store is not None:
+            self.store.close()  # reopened at the next try: a remounted or repaired file is seen afresh
+            self.store = None
+
+    def _sync(self, now_s: float) -> None:
+        """Reach the store and write what waits in memory: finished flights, then the running one."""
+        try:
+            self._connected()
+            while self._unsaved:
+                flight, values = self._unsaved[0]
+                self._store_flight(flight, values)
+                self._unsaved.pop(0)
+                if values is not None and flight.flight_id is not None:
+                    self.finished.append(flight.flight_id)
+                    _log.info("flight %d of engine %s written to the history", flight.flight_id, self.serial)
+                    self._check_wear()
+            if self._flight is not None:
+                self._store_flight(self._flight, self._flight.values(end_running=False))
+        except StorageError as exc:
+            self._down(exc, now_s)
+            return
+        if self.history_fault is not None:
+            _log.info("flight history writable again")
+            self.history_fault = None
+
+    # --- flights ---------------------------------------------------------------------------------------
+
     def _begin(self, sample: FlightSample) -> _OpenFlight:
-        flight_id = self.store.begin_flight(self.serial, sample.wall_time_s, self.cht_limit_c)
-        _log.info("flight %d of engine %s started", flight_id, self.serial)
-        return _OpenFlight(flight_id, sample, self.rules.cycle_hysteresis_c, self.wear)
+        flight = _OpenFlight(None, sample, self.rules.cycle_hysteresis_c, self.wear)
+        if self.history_fault is None:
+            self._write(flight, {}, sample.time_s)
+        _log.info("flight %s of engine %s started", flight.flight_id or "(in memory)", self.serial)
+        return flight
 
     def _resume(self, sample: FlightSample) -> _OpenFlight | None:
         """The flight a restart cut, reopened when this first running sample continues its engine run."""
         cut, self._resumable = self._resumable, None
-        if cut is None:
+        if cut is None or self.store is None or self.history_fault is not None:
             return None
         gap_s = sample.wall_time_s - cut.end_utc
         if not 0.0 <= gap_s <= self.rules.checkpoint_every_s + self.rules.end_after_s:
             return None
-        record, reversals = self.store.reopen_flight(cut.id)
+        try:
+            record, reversals = self.store.reopen_flight(cut.id)
+        except StorageError as exc:
+            self._down(exc, sample.time_s)
+            return None
         self.resumed = record.id
         _log.info(
             "flight %d of engine %s resumed after a restart (%.0f s since its checkpoint)", cut.id, self.serial, gap_s
@@ -487,39 +588,56 @@ class FlightRecorder:
             if sample.hottest_cylinder:
                 flight.hottest_s[sample.hottest_cylinder] = flight.hottest_s.get(sample.hottest_cylinder, 0.0) + dt
 
-    def _finish(self, reason: str) -> int | None:
+    def _finish(self, reason: str, now_s: float) -> int | None:
         flight = self._flight
         if flight is None:
             return None
         self._flight = None
         duration_s = flight.last_running_time_s - flight.start_time_s
         if duration_s < self.rules.min_flight_s:
-            self.store.discard_flight(flight.flight_id)
+            if self.history_fault is not None or not self._write(flight, None, now_s):
+                self._unsaved.append((flight, None))
             _log.info("engine run of %.0f s not kept (shorter than %.0f s)", duration_s, self.rules.min_flight_s)
             return None
         values = flight.values(end_running=True)
         values.update(status="finished", end_reason=reason)
-        self.store.write_flight(flight.flight_id, values)
+        if self.history_fault is not None or not self._write(flight, values, now_s):
+            self._unsaved.append((flight, values))
+            _log.info("flight of engine %s finished (%s, %.0f s): kept in memory", self.serial, reason, duration_s)
+            return None
+        assert flight.flight_id is not None
         self.finished.append(flight.flight_id)
         _log.info("flight %d of engine %s finished (%s, %.0f s)", flight.flight_id, self.serial, reason, duration_s)
-        self._check_wear()
+        try:
+            self._check_wear()
+        except StorageError as exc:
+            self._down(exc, now_s)
         return flight.flight_id
 
     def _check_wear(self) -> None:
         """Run the across-flight detector after a flight; store an alert it raises (once while open)."""
-        if self.store.alerts(self.serial, open_only=True):
+        store = self._connected()
+        if store.alerts(self.serial, open_only=True):
             return
-        result = engine_wear(self.store, self.serial, self.wear, self.reference)
+        result = engine_wear(store, self.serial, self.wear, self.reference)
         alert = result.alert()
         if alert is None:
             return
-        alert = dataclasses.replace(alert, id=self.store.raise_alert(alert))
+        alert = dataclasses.replace(alert, id=store.raise_alert(alert))
         self.alerts.append(alert)
         _log.warning("%s (CUSUM %.1f >= %.1f)", alert.text, alert.statistic, alert.threshold)
 
     def close(self, reason: str = "service_stop") -> int | None:
-        """Finish the flight in progress (service stop); returns its id if it was kept."""
-        return self._finish(reason)
+        """Finish the flight in progress (service stop); returns its id if it was written. Flights the
+        history could not take by then are lost with the process: logged."""
+        now_s = math.inf
+        if self.history_fault is not None:
+            self._sync(now_s)
+        flight_id = self._finish(reason, now_s)
+        lost = [f for f, values in self._unsaved if values is not None]
+        if lost:
+            _log.error("%d flight(s) not written to the history (%s)", len(lost), self.history_fault)
+        return flight_id
 
 
 @dataclass(frozen=True)

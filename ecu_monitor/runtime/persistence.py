@@ -43,6 +43,7 @@ signal), in bounded memory for a 16-hour flight.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -53,7 +54,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ecu_monitor.errors import ConfigError, EcuMonitorError
+from ecu_monitor.errors import ConfigError, EcuMonitorError, StorageError
 from ecu_monitor.pipeline.output_table import HEALTH_VALUES
 from ecu_monitor.runtime.thermal_cycles import (
     CYCLE_BIN_EDGES_C,
@@ -301,9 +302,10 @@ CREATE TABLE IF NOT EXISTS maintenance_alerts (
 class StateStore:
     """The SQLite database of flights in ``state_dir`` (created if missing). Context manager; ``close()``.
 
-    One connection, used from one thread at a time (the daemon's supervisor thread). Errors opening or
-    writing the database raise :class:`~ecu_monitor.errors.EcuMonitorError` subclasses: a state
-    directory that cannot be created is a ConfigError (user input).
+    One connection, used from one thread at a time (the daemon's supervisor thread). A state directory
+    that cannot be created is a ConfigError (user input); a database that cannot be opened for writing
+    or written (read-only, disk full) a :class:`~ecu_monitor.errors.StorageError`, the transaction rolled
+    back; ``readonly=True`` (``history``) opens it with ``mode=ro``.
     """
 
     def __init__(self, state_dir: str | Path, *, readonly: bool = False) -> None:
@@ -319,16 +321,27 @@ class StateStore:
             else:
                 self.state_dir.mkdir(parents=True, exist_ok=True)
                 self._conn = sqlite3.connect(str(self.path), timeout=10.0, isolation_level=None)
-                self._conn.execute("PRAGMA journal_mode=WAL")
-                self._conn.execute("PRAGMA synchronous=FULL")
-                self._conn.execute("PRAGMA foreign_keys=ON")
-                with self._transaction():
-                    self._create_schema()
+                self._closed = False
+                try:
+                    self._conn.execute("PRAGMA journal_mode=WAL")
+                    self._conn.execute("PRAGMA synchronous=FULL")
+                    self._conn.execute("PRAGMA foreign_keys=ON")
+                    with self._transaction():
+                        self._create_schema()
+                except (sqlite3.Error, StorageError):
+                    self.close()
+                    raise
         except OSError as exc:
             raise ConfigError(f"{self.state_dir}: state_dir: cannot use it ({exc.strerror})") from None
         except sqlite3.Error as exc:
-            raise ConfigError(f"{self.path}: cannot open the flight database ({exc})") from None
+            if readonly:
+                raise ConfigError(f"{self.path}: cannot open the flight database ({exc})") from None
+            raise self._storage_error(exc) from None
         self._closed = False
+
+    def _storage_error(self, exc: sqlite3.Error) -> StorageError:
+        """The one-line error of a database the service cannot write (read-only, disk full, ...)."""
+        return StorageError(f"{self.path}: cannot write the flight history ({exc})")
 
     def _create_schema(self) -> None:
         for statement in _SCHEMA.split(";"):
@@ -346,21 +359,35 @@ class StateStore:
         )
 
     class _Txn:
-        def __init__(self, conn: sqlite3.Connection) -> None:
-            self.conn = conn
+        """One write transaction; a failure of SQLite (read-only, disk full) rolls back and raises
+        StorageError."""
+
+        def __init__(self, store: StateStore) -> None:
+            self.store = store
+            self.conn = store._conn
 
         def __enter__(self) -> sqlite3.Connection:
-            self.conn.execute("BEGIN IMMEDIATE")
+            try:
+                self.conn.execute("BEGIN IMMEDIATE")
+            except sqlite3.Error as exc:
+                raise self.store._storage_error(exc) from None
             return self.conn
 
-        def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-            if exc_type is None:
-                self.conn.execute("COMMIT")
-            else:
-                self.conn.execute("ROLLBACK")
+        def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+            if exc is None:
+                try:
+                    self.conn.execute("COMMIT")
+                    return
+                except sqlite3.Error as error:
+                    exc = error
+            if self.conn.in_transaction:
+                with contextlib.suppress(sqlite3.Error):
+                    self.conn.execute("ROLLBACK")
+            if isinstance(exc, sqlite3.Error):
+                raise self.store._storage_error(exc) from None
 
     def _transaction(self) -> StateStore._Txn:
-        return StateStore._Txn(self._conn)
+        return StateStore._Txn(self)
 
     # --- writing -------------------------------------------------------------------------------------
 

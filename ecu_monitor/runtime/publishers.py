@@ -81,6 +81,7 @@ _DIAGNOSTICS: dict[str, _Source] = {
     "Health_Diag.MalformedFrames": lambda snap, cyl, frames: min(frames.pipeline.counters["malformed"], 65535),
     "Health_Diag.BusErrors": lambda snap, cyl, frames: min(frames.pipeline.counters["bus_errors"], 255),
     "Health_Diag.MaintenanceAlert": lambda snap, cyl, frames: int(frames.maintenance_alert),
+    "Health_Diag.HistoryDown": lambda snap, cyl, frames: frames.pipeline.counters.get("history_down", 0),
     "Health_Spread.CylinderCount": lambda snap, cyl, frames: len(snap.cylinders) or 1,
     "Health_Spread.FaultyCylinders": lambda snap, cyl, frames: _faulty(snap),
     "Health_Cylinder.CylinderNumber": lambda snap, cyl, frames: cyl.number,
@@ -284,6 +285,7 @@ class LiveMonitor:
         self.counters = self.pipeline.counters
         self.counters.setdefault("health_frames", 0)
         self.counters.setdefault("send_errors", 0)
+        self.counters.setdefault("history_down", 0)  # 1 while the flight history cannot be written (the daemon)
         self._node = next((p for p in self.publishers if isinstance(p, DroneCanPublisher)), None)
 
     @property

@@ -65,6 +65,7 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
                 "MaintenanceAlert",
                 "DetectorArmed",
                 "NotIsolable",
+                "HistoryDown",
                 "DiagCounter",
                 "DiagChecksum",
             ),

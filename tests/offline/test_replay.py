@@ -255,8 +255,9 @@ def test_batch_equals_live_with_a_mixture_index_after_a_restart(flight: dict[str
 def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning(
     flight: dict[str, Path], caplog: pytest.LogCaptureFixture
 ) -> None:
-    """A real log's fuel flow above engine.dbc's FuelFlow range (50 L/h; a Lycoming at full power burns
-    ~57) is sent clamped, as that ECU would send it, and the replay says so once, naming the column."""
+    """engine.dbc's FuelFlow covers the engines users fly (a Lycoming at full power burns ~57 L/h, a big
+    Continental ~150): no warning. A value past its range (500 L/h: a cc/min column given as L/h, say) is
+    sent clamped, as that ECU would send it, and the replay says so once, naming the column."""
     from ecu_monitor.flightlog import load_csv
     from ecu_monitor.offline.replay import frames_from_flight
 
@@ -266,20 +267,27 @@ def test_csv_values_outside_a_dbc_signal_range_are_sent_clamped_with_one_warning
     with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
         frames_from_flight(log, config)
     assert not caplog.records  # the virtual ECU's own flight stays inside its DBC
-    hot = log.with_columns(fuel_flow_lph=np.where(np.arange(fuel.size) % 10 == 0, 57.5, fuel))
+    lycoming = log.with_columns(fuel_flow_lph=np.where(np.arange(fuel.size) % 10 == 0, 150.0, 57.5))
+    with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
+        frames = frames_from_flight(lycoming, config)
+    assert not caplog.records
+    fast = frames.arbitration_id == 0x100  # ECU_Fast: FuelFlow at bit 32, 0.01 L/h
+    raw = frames.data[fast][:, 4].astype(int) | (frames.data[fast][:, 5].astype(int) << 8)
+    assert raw.max() * 0.01 == pytest.approx(150.0)
+    hot = log.with_columns(fuel_flow_lph=np.where(np.arange(fuel.size) % 10 == 0, 575.0, fuel))
     with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
         frames = frames_from_flight(hot, config)
     [record] = caplog.records
     text = record.getMessage()
-    assert "fuel_flow_lph" in text and "ECU_Fast.FuelFlow" in text and "[0, 50]" in text and "57.5" in text
+    assert "fuel_flow_lph" in text and "ECU_Fast.FuelFlow" in text and "[0, 500]" in text and "575" in text
     assert f"in {(fuel.size + 9) // 10} of {fuel.size} rows" in text
     caplog.clear()
     with caplog.at_level("WARNING", logger="ecu_monitor.offline.flight_frames"):
         frames_from_flight(hot, config)  # calibrate replays a flight many times: told once
     assert not caplog.records
-    fast = frames.arbitration_id == 0x100  # ECU_Fast: FuelFlow at bit 32, 0.01 L/h; 50 L/h the largest sent
+    fast = frames.arbitration_id == 0x100  # 500 L/h the largest sent
     raw = frames.data[fast][:, 4].astype(int) | (frames.data[fast][:, 5].astype(int) << 8)
-    assert raw.max() * 0.01 == pytest.approx(50.0)
+    assert raw.max() * 0.01 == pytest.approx(500.0)
 
 
 def test_replay_of_a_log_without_throttle_on_a_throttle_model_says_which_model_it_needs(

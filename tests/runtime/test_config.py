@@ -279,13 +279,21 @@ def test_a_config_written_back_by_calibrate_loads_to_the_same_config(tmp_path: P
     original = load_config(source)
     (tmp_path / "out").mkdir()
     copy_path = tmp_path / "out" / "copy.yaml"
-    copy_path.write_text(config_copy_yaml(source, _calibration(5.25), 1.0, ["f.csv"], "0123456789abcdef"), "utf-8")
+    text = config_copy_yaml(source, copy_path, _calibration(5.25), 1.0, ["f.csv"], "0123456789abcdef")
+    copy_path.write_text(text, "utf-8")
     written = load_config(copy_path)
     assert written.detector.threshold == 5.25 and written.detector.baseline_s == 300.0
     assert written.detector_calibrated_for == "0123456789abcdef"
-    assert written.dbc_paths == original.dbc_paths == (tmp_path / "dbc" / "mine.dbc",)
-    assert written.state_dir == original.state_dir == tmp_path / "state"
-    same = original.replace(source=copy_path, detector=written.detector, detector_calibrated_for="0123456789abcdef")
+    # the same files, named from the copy's folder (out/../dbc/mine.dbc)
+    assert [p.resolve() for p in written.dbc_paths] == list(original.dbc_paths) == [tmp_path / "dbc" / "mine.dbc"]
+    assert written.state_dir.resolve() == original.state_dir == tmp_path / "state"
+    same = original.replace(
+        source=copy_path,
+        detector=written.detector,
+        detector_calibrated_for="0123456789abcdef",
+        dbc_paths=written.dbc_paths,
+        state_dir=written.state_dir,
+    )
     assert written == same
 
 
@@ -297,8 +305,10 @@ def test_a_four_cylinder_config_written_back_keeps_its_cylinders(tmp_path: Path)
     marks = [f"{n:016x}" for n in range(4)]
     per_cylinder = [(_calibration(2.0 + n), marks[n]) for n in range(4)]
     cross = [(None, ""), *[(_calibration(1.5), marks[n]) for n in range(1, 4)]]
-    text = config_copy_yaml(source, per_cylinder[0][0], 1.0, ["f.csv"], marks[0], cylinders=per_cylinder, cross=cross)
     copy_path = tmp_path / "copy.yaml"
+    text = config_copy_yaml(
+        source, copy_path, per_cylinder[0][0], 1.0, ["f.csv"], marks[0], cylinders=per_cylinder, cross=cross
+    )
     copy_path.write_text(text, encoding="utf-8")
     written = load_config(copy_path)
     assert [d.threshold for d in written.cylinder_detectors] == [2.0, 3.0, 4.0, 5.0]
