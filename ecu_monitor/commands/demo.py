@@ -27,6 +27,7 @@ measured / estimated / true), detection.png (deviation symptom and detector stat
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import threading
@@ -249,10 +250,16 @@ def _write_report(
         )
     else:
         lead = f" (SUSPECT from t = {suspect:.1f} s)" if suspect is not None else ""
+        # the last isolable estimate: at the end of a flight (descent, ground) the gammas cannot be told apart
+        isolated = [r for r in rows if not r.not_isolable and math.isfinite(r.gamma_q)]
+        estimate = (
+            f"gamma_Q estimate {isolated[-1].gamma_q:.3f} (last isolable, t = {isolated[-1].time_s:.0f} s)"
+            if isolated
+            else "gamma_Q not isolable during the flight"
+        )
         print(
             f"gamma_Q = {args.gamma_q:g} injected at t = {args.inject_at:.0f} s: DEGRADED at t = {detected:.1f} s, "
-            f"detected after {detected - args.inject_at:.1f} s{lead}; gamma_Q estimate at the end "
-            f"{rows[-1].gamma_q:.3f}"
+            f"detected after {detected - args.inject_at:.1f} s{lead}; {estimate}"
         )
     return plots
 
