@@ -417,7 +417,7 @@ class ConfigFile(_Section, frozen=True, kw_only=True):
                     f"inputs.{name}", f"missing (every configuration maps {every}; cht_c or cht1_c .. chtN_c)"
                 )
         count = _cylinder_count(given)
-        beyond = [name for name in given if name.startswith("egt") and int(name[3:-2]) > count]
+        beyond = [name for name in given if name in EVENT_INPUTS[:MAX_CYLINDERS] and int(name[3:-2]) > count]
         if beyond:
             raise _SectionError(
                 f"inputs.{beyond[0]}", f"an EGT of a cylinder the config does not monitor ({count} CHT channel(s))"
