@@ -6,8 +6,6 @@ from __future__ import annotations
 import logging
 import re
 import struct
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -25,20 +23,10 @@ from ecu_monitor.bus.codec import Encoder
 from ecu_monitor.bus.dbc import shipped_dbc
 from ecu_monitor.errors import ConfigError, FlightLogError
 from ecu_monitor.flightlog import read_csv
+from tests.helpers import run_cli
 
 DEFAULT_ENGINE_DBC = shipped_dbc("engine.dbc")
 RUSEFI_DBC = shipped_dbc("third_party/rusEFI_CAN_verbose.dbc")
-
-
-def _cli(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ecu_monitor.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=60,
-        check=False,
-    )
 
 
 # --------------------------------------------------------------------------------------------------
@@ -150,7 +138,7 @@ def test_cli_import_can_log_of_another_ecu_is_configuration(tmp_path: Path) -> N
     out = tmp_path / "flight.csv"
     args: list[str | Path] = ["import", path, "--out", out, "--dbc", RUSEFI_DBC, "--dbc", DEFAULT_ENGINE_DBC]
     args += [arg for column, ref in signals.items() for arg in ("--signal", f"{column}={ref}")]
-    result = _cli(*args, cwd=tmp_path)
+    result = run_cli(*args, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     log = read_csv(out)
     assert set(log.names) == {"time_s", *signals}
@@ -191,7 +179,7 @@ def test_a_log_cut_in_the_middle_is_read_up_to_the_cut_with_a_warning(
 def test_a_zero_byte_log_exits_2_with_one_line(command: str, tmp_path: Path) -> None:
     empty = tmp_path / "empty.blf"
     empty.write_bytes(b"")
-    result = _cli(command, empty, "--out", tmp_path / "out.csv", cwd=tmp_path)
+    result = run_cli(command, empty, "--out", tmp_path / "out.csv", cwd=tmp_path)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and f"{empty}: empty file (0 bytes)" in lines[0]
@@ -201,7 +189,7 @@ def test_two_logs_back_to_back_are_refused_with_one_line(tmp_path: Path) -> None
     first = _write_log(tmp_path / "a.log", _frames())
     both = tmp_path / "both.log"
     both.write_bytes(first.read_bytes() * 2)  # cat a.log a.log > both.log: the clock restarts
-    result = _cli("import", both, "--out", tmp_path / "out.csv", cwd=tmp_path)
+    result = run_cli("import", both, "--out", tmp_path / "out.csv", cwd=tmp_path)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "time goes back" in lines[0] and "two logs back to back" in lines[0]

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import logging
 import math
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +30,7 @@ from ecu_monitor.flightlog import (
     seconds_above,
     write_csv,
 )
-from tests.helpers import REPO
+from tests.helpers import REPO, run_cli
 
 DATA = REPO / "tests" / "data"
 # CI places the clone beside shared/ (../shared/data/g1000 relative to the repository root).
@@ -348,19 +346,8 @@ def test_g1000_import() -> None:
 # --------------------------------------------------------------------------------------------------
 
 
-def _cli(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ecu_monitor.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=60,
-        check=False,
-    )
-
-
 def test_cli_import_bad_csv_exits_2_with_one_line(tmp_path: Path) -> None:
-    result = _cli("import", DATA / "bad_rpm_text.csv", "--out", tmp_path / "out.csv", cwd=tmp_path)
+    result = run_cli("import", DATA / "bad_rpm_text.csv", "--out", tmp_path / "out.csv", cwd=tmp_path)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "bad_rpm_text.csv: row 3, column 'rpm': 'abc' is not a number" in lines[0]
@@ -369,7 +356,7 @@ def test_cli_import_bad_csv_exits_2_with_one_line(tmp_path: Path) -> None:
 
 def test_cli_import_bad_mapping_exits_2_with_one_line(tmp_path: Path) -> None:
     args = ("import", DATA / "foreign_small.csv", "--mapping", DATA / "bad_mapping_unit.yaml")
-    result = _cli(*args, "--out", tmp_path / "out.csv", cwd=tmp_path)
+    result = run_cli(*args, "--out", tmp_path / "out.csv", cwd=tmp_path)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "bad_mapping_unit.yaml: key 'columns.altitude_m.unit'" in lines[0]
@@ -378,7 +365,7 @@ def test_cli_import_bad_mapping_exits_2_with_one_line(tmp_path: Path) -> None:
 def test_cli_import_mapped_csv(tmp_path: Path) -> None:
     out = tmp_path / "flight.csv"
     args = ("--log-level", "ERROR", "import", DATA / "foreign_small.csv", "--mapping", DATA / "foreign_small.yaml")
-    result = _cli(*args, "--out", out, cwd=tmp_path)
+    result = run_cli(*args, "--out", out, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().startswith(f"{out}: 4 rows, 2.0 s") and "4 warning(s)" in result.stdout
     assert read_csv(out).names == ("time_s", "throttle_pct", "rpm", "altitude_m", "airspeed_mps", "oat_c", "cht_c")
@@ -683,7 +670,7 @@ def test_cli_import_several_files_one_line_per_bad_file(tmp_path: Path) -> None:
     bad = _write(tmp_path, "Clock,Height\n1,2\n", "other.csv")
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    result = _cli(
+    result = run_cli(
         "--log-level", "ERROR", "import", good, twin, bad, "--out-dir", out_dir, "--cht", "hottest", cwd=tmp_path
     )
     assert result.returncode == 2
@@ -692,7 +679,9 @@ def test_cli_import_several_files_one_line_per_bad_file(tmp_path: Path) -> None:
     assert f"{twin}: 2 engines" in errors[0] and f"{bad}: not a canonical flight CSV" in errors[1]
     assert result.stdout.count("\n") == 1 and "cht_c = hottest of cylinders 1, 2 (per row)" in result.stdout
     assert read_csv(out_dir / good.name).has("cht2_c")
-    result = _cli("--log-level", "ERROR", "import", twin, "--engine", "2", "--out", tmp_path / "e2.csv", cwd=tmp_path)
+    result = run_cli(
+        "--log-level", "ERROR", "import", twin, "--engine", "2", "--out", tmp_path / "e2.csv", cwd=tmp_path
+    )
     assert result.returncode == 0, result.stderr
     assert "cht_c = cylinder 1 (the only one)" in result.stdout
 
