@@ -31,9 +31,9 @@ import time
 import numpy as np
 
 from ecu_monitor.gap import GapSettings, diagnose, write_report
-from ecu_monitor.gap.library import candidate, candidates_for, flight_references
-from ecu_monitor.gap.refit import RefitSettings, prepare_flight, refit
 from ecu_monitor.identify import identify
+from ecu_monitor.identify.library import candidate, candidates_for, flight_references
+from ecu_monitor.identify.refit import RefitSettings, prepare_flight, refit
 from ecu_monitor.model import AirspeedCooling, Effects, SensorLag, paper_table_a1
 from ecu_monitor.research.blind import perturbed_nominal
 from virtual_bus.plant import fly
