@@ -184,12 +184,16 @@ class GapDiagnosis:
             return None
         flights = "the test flight" if len(self.tests) == 1 else f"the {len(self.tests)} test flights"
         versus = lead.versus
-        why = (
-            f"p = {versus.p_value:.2f} against the control (needs <= {versus.level:.3f})"
-            + ("" if versus.material else f", {versus.shrink_pct:.0f} % below it (not material)")
-            if versus is not None
-            else "not tested"
-        )
+        reasons = []
+        if versus is not None and not versus.significant:
+            reasons.append(f"p = {versus.p_value:.2f} against the control, needs <= {versus.level:.3f}")
+        if versus is not None and not versus.material:
+            bar = self.settings.significance
+            reasons.append(
+                f"{versus.shrink_pct:.0f} % below the control, material from {bar.min_shrink_pct:.0f} %"
+                f" and {bar.min_rms_drop_c:g} degC"
+            )
+        why = "; ".join(reasons) or "not tested"
         advice = "add flights" if self.folds > 1 else "add flights or run --leave-one-out"
         return (
             f"{lead.label}: held-out {-lead.shrink_pct:+.0f} % on {flights} ({lead.test_rms_c:.2f} degC,"

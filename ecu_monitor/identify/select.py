@@ -15,14 +15,16 @@ the base has them), identified once per fold, and, round by round, toggles the o
 gives the lowest mean held-out RMS error among those worth it: a term added must lower the error by
 at least :data:`MIN_GAIN`, an effect removed must not raise it by more (the simpler form that predicts
 as well wins), both against the current form and the *control* (the current form re-tuned by the same
-refit with no toggle). A term is thus kept only when flights the fit never saw say it helps. A toggle
-is screened by the gap diagnosis's warm-started local refit (:func:`ecu_monitor.identify.refit.refit`:
-the term's own parameters, R_Ce and the heat scale) from each fold's current fit, which was fitted
-without the flight it is scored on, so nothing leaks; the folds of the chosen form are then polished
-in the whole search space (the held-out errors reported) and the chosen form is identified once on
-every flight (PSO and polish). Starting full rather than empty matters: a term screened locally from
-a poor fit (the paper form on an engine that needs three terms) shows little of its worth, a term
-removed from a good fit shows all of it.
+refit with no toggle). A term is thus kept only when flights the fit never saw say it helps. An
+effect toggled is screened by the gap diagnosis's warm-started local refit
+(:func:`ecu_monitor.identify.refit.refit`: the term's own parameters, R_Ce and the heat scale) from
+each fold's current fit, which was fitted without the flight it is scored on, so nothing leaks; a
+part of the paper's form toggled (``altitude_factor``, ``radiation_kelvin``) changes what the whole
+heat map means and is screened by a polish of the whole search space from the same fit. The folds of
+the chosen form are then polished in the whole search space (the held-out errors reported) and the
+chosen form is identified once on every flight (PSO and polish). Starting full rather than empty
+matters: an effect screened locally from a poor fit (the paper form on an engine that needs three
+terms) shows little of its worth, one removed from a good fit shows all of it.
 """
 
 from __future__ import annotations
@@ -199,6 +201,7 @@ class _Shared:
     flights: tuple[FlightLog, ...]
     settings: PsoSettings
     error_dt_s: float | None
+    free: tuple[str, ...] = DEFAULT_FREE
 
 
 def _identify_fold(shared: _Shared, task: tuple[int, ThermalParams, tuple[str, ...], tuple[str, str], Any]) -> Fold:
@@ -244,12 +247,17 @@ def _screen_entries(name: str, on: bool) -> list[Candidate]:
 
 
 def _screen_fold(shared: _Shared, task: tuple[int, ThermalParams, str, bool]) -> Fold:
-    """Fold ``k``'s current fit with one term toggled (none for ``name`` ""), refitted locally (the gap's
+    """Fold ``k``'s current fit with one effect toggled (none for ``name`` ""), refitted locally (the gap's
     joint least squares of the term's parameters, R_Ce and the heat scale,
-    :func:`ecu_monitor.identify.refit.refit`) on the fold's training flights; scored on the flight held out."""
+    :func:`ecu_monitor.identify.refit.refit`) on the fold's training flights; scored on the flight held out.
+    A part of the paper's form toggled is polished in the whole search space instead."""
     k, params, name, on = task
     train = _fold_flights(shared.flights, k)
     start = _set_term(params, name, on, train) if name else params  # "": the control
+    if name and name not in EFFECT_TYPES:
+        # a part of the paper's form (the altitude factor, the radiation's units) changes what the whole
+        # heat map means: two scale factors cannot judge it, a polish of the whole search space can
+        return _polish_fold(shared, (k, start, model_form(start, train, {}, shared.free)[1]))
     dt = shared.settings.dt_s
     prepared = [prepare_refit_flight(log, start.heat_axes, dt, start.effects.mixture_index) for log in train]
     fit = refit(start, prepared, _screen_entries(name, on), {}, RefitSettings(dt_s=dt))
@@ -348,7 +356,7 @@ def select_terms(
     steps: list[tuple[int, str, float, bool]] = [(0, "start: " + _form_label(start), cv.mean_rms_c, True)]
     say(f"start ({_form_label(start)}): held-out mean RMS {cv.mean_rms_c:.2f} degC")
     state = {name: term_is_on(start, name) for name in usable}
-    shared = _Shared(tuple(flights), settings, error_dt_s)
+    shared = _Shared(tuple(flights), settings, error_dt_s, tuple(free))
     n = len(cv.folds)
     for round_ in range(1, len(usable) + 1):
         toggles = [(name, not state[name]) for name in usable if name not in _toggled(steps)]
