@@ -1,8 +1,9 @@
 """A virtual fleet from nothing: ``ecu-monitor fleet demo DIR``.
 
 ``engines`` engines of one type (the paper's model, ``paper_table_a1``), ``flights`` flights shared among
-them, each a random mission of the virtual ECU (virtual_bus/campaign.py: its own seed, a day apart on the
-log's clock); ``degrading`` of the engines wear slowly from engine start, each at its own rate (gamma_Q
+them, each a short random mission of the virtual ECU (virtual_bus/campaign.py: its own seed, a day apart on
+the log's clock; a climb of 300-900 m above the field, 15-25 minutes flown; CSVs at 1 Hz as an engine monitor
+records them); ``degrading`` of the engines wear slowly from engine start, each at its own rate (gamma_Q
 grows by the rate each flight: the campaign's WearSchedule), the others stay nominal. The engine type's
 nominal wear reference is what ``ecu-monitor calibrate`` stores: the wear index over ``reference_flights``
 nominal flights of the type (a sister engine's, flown apart), written as the engines' detector file. Every
@@ -31,7 +32,11 @@ from ecu_monitor.errors import ConfigError
 __all__ = ["DEFAULT_RATES", "VirtualFleet", "make_virtual_fleet"]
 
 #: gamma_Q growth per flight of the degrading engines (the first of them the fastest).
-DEFAULT_RATES = (0.03, 0.02, 0.012)
+DEFAULT_RATES = (0.03, 0.02, 0.015)
+#: Climb above the field of the short random missions, m (virtual_bus/random_missions.py).
+SHORT_CLIMB_M = (300.0, 900.0)
+#: Sample period of the CSVs, s (CAN logs carry every frame at its DBC rate).
+_RECORD_DT_S = 1.0
 #: The virtual engines' serials: VF-001, VF-002, ...
 _SERIAL = "VF-{:03d}"
 
@@ -53,7 +58,7 @@ def _record(path: Path, flight: Any) -> str:
 
     effects = residual_effects(flight.seed)
     record(flight.mission, [path], paper_table_a1(), effects=effects, degradation=flight.degradation,
-           seed=flight.seed, start_time_s=flight.start_time_s)  # fmt: skip
+           seed=flight.seed, start_time_s=flight.start_time_s, record_dt_s=_RECORD_DT_S)  # fmt: skip
     return str(path)
 
 
@@ -97,15 +102,18 @@ def make_virtual_fleet(
     for i, count in enumerate(per_engine):
         serial = _SERIAL.format(i + 1)
         schedule = WearSchedule("gamma_q", degrading.get(serial, 0.0))
-        for flight in campaign_flights(count, schedule, seed=seed * 1000 + i + 1, duration_s=duration_s):
+        flown = campaign_flights(
+            count, schedule, seed=seed * 1000 + i + 1, duration_s=duration_s, climb_m=SHORT_CLIMB_M
+        )
+        for flight in flown:
             work.append((root / "logs" / serial / f"flight_{flight.number:03d}.{log_format}", flight))
     reference = [(root / "reference" / f"flight_{f.number:03d}.{log_format}", f)
                  for f in campaign_flights(reference_flights, WearSchedule(), seed=seed * 1000 + 999,
-                                           duration_s=duration_s)]  # fmt: skip
+                                           duration_s=duration_s, climb_m=SHORT_CLIMB_M)]  # fmt: skip
     for path, _ in [*work, *reference]:
         path.parent.mkdir(parents=True, exist_ok=True)
     say(f"fleet demo: flying {len(work)} flights of {engines} engines and {len(reference)} reference flights"
-        f" (random missions of about {duration_s / 60.0:.0f} min and more)")  # fmt: skip
+        f" (short random missions, 15-25 min)")  # fmt: skip
     futures = [client.submit(_record, path, flight, pure=False) for path, flight in [*reference, *work]]
     for done, _ in enumerate(as_completed(futures), start=1):
         if done % 10 == 0 or done == len(futures):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -120,10 +121,15 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
     from ecu_monitor.pipeline.engine import model_input_names
 
     config, models = engine_setup(engine)
+    clock: float | None = None  # the log's first stamp, on its own clock
     if suffix == ".tlog":
+        from ecu_monitor.bus.mavlink_log import iter_tlog
+
+        clock = next((time_s for time_s, _ in iter_tlog(job.path)), None)
         result = replay_tlog(job.path, config, models, keep_feeds=True, keep_reference=True)
     elif suffix in CAN_LOG_SUFFIXES:
         result = replay_frames(config, models, read_frames(job.path), keep_feeds=True, keep_reference=True)
+        clock = _first_can_stamp(job.path)
     elif suffix == ".csv":
         log = load_flight(job.path, mapping=engine.mapping, engine=engine.engine)
         needed = (*model_input_names(models[0], config.input_names), *config.cylinder_inputs)
@@ -137,7 +143,8 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
     wear = FlightWear(config.wear)
     for feed in result.reference_feed:
         wear.add_many(feed.cht_c, feed.model_c, feed.oat_c)
-    flight = _flight_row(job, result, models[0].cht_limit_c, wear.index)
+    start_utc = clock if clock is not None and clock > _UNIX_TIME_S else None
+    flight = _flight_row(job, result, models[0].cht_limit_c, wear.index, start_utc)
     t0 = float(result.columns["time_s"][0])
     events = [
         {"log": job.name, "key": job.key, "flight": 1, "time_s": e.time_s - t0, "kind": e.kind,
@@ -148,8 +155,10 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
     return LogSummary(job, [flight], events)
 
 
-def _flight_row(job: LogJob, result: Any, cht_limit_c: float, wear_index: float | None) -> dict[str, Any]:
-    """The flight row of a replay (FLIGHT_FIELDS)."""
+def _flight_row(
+    job: LogJob, result: Any, cht_limit_c: float, wear_index: float | None, start_utc: float | None
+) -> dict[str, Any]:
+    """The flight row of a replay (FLIGHT_FIELDS); ``start_utc``: the log's first stamp on a UNIX clock."""
     from ecu_monitor.estimation.regions import REGION_NAMES
     from ecu_monitor.pipeline.output_table import STATE_CONCERN, STATES
 
@@ -177,7 +186,7 @@ def _flight_row(job: LogJob, result: Any, cht_limit_c: float, wear_index: float 
         "key": job.key,
         "flight": 1,
         "position": job.position,
-        "start_utc": start if start > _UNIX_TIME_S else None,
+        "start_utc": start_utc,
         "duration_s": float(dt.sum()),
         **regions,
         "max_cht_c": _finite_max(cht),
@@ -231,6 +240,16 @@ def _database(job: LogJob) -> LogSummary:
             "events": 0,
         })  # fmt: skip
     return LogSummary(job, rows, [])
+
+
+def _first_can_stamp(path: Path) -> float | None:
+    """The stamp of a CAN log's first frame on the logger's own clock (read_frames counts from 0), s."""
+    import can
+
+    with can.LogReader(str(path)) as reader:
+        for message in reader:
+            return float(message.timestamp)
+    return None
 
 
 def _row_seconds(time_s: np.ndarray) -> np.ndarray:
