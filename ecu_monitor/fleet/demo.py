@@ -132,7 +132,7 @@ def make_virtual_fleet(
     fleet = {
         "defaults": {"config": "example.yaml", "detector": "detector.yaml", "overhaul_hours": 2000},
         "engines": [{"serial": _SERIAL.format(i + 1), "logs": [f"logs/{_SERIAL.format(i + 1)}/*.{log_format}"],
-                     "hours_since_overhaul": float(rng.uniform(0.0, 1500.0).round(0))} for i in range(engines)],
+                     "hours_since_overhaul": float(round(rng.uniform(0.0, 1500.0)))} for i in range(engines)],
     }  # fmt: skip
     fleet_file = root / "FLEET.yaml"
     fleet_file.write_text(
