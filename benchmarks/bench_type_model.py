@@ -5,8 +5,8 @@ airframe it never saw, with zero, 20 minutes and one whole flight of that airfra
 
 DIR holds the G1000 exports ngafid_c172s_n550nd_*.csv and cafuc_*.csv, DIR2 (default DIR/../g1000) the
 2011 172S log_*.csv. The airframe of each flight is its G1000 system_id. For each airframe X, the type
-model (``identify --type``: the shared fit, then each airframe's own heat scale and probe lag where its
-data need them) is fitted on the other airframes' flights only, then:
+model (``identify --type``: the shared fit, then each airframe's own heat scale, cooling scale and probe
+lag where its data need them) is fitted on the other airframes' flights only, then:
 
 - zero flights: the type model as is, scored on every flight of X;
 - 20 minutes: ``--base TYPE --first-minutes 20`` on one flight of X, scored on X's other flights, or,
@@ -34,7 +34,7 @@ from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings, flight_errors
 from ecu_monitor.identify.select import parse_terms
 from ecu_monitor.identify.type_model import adapt, describe_terms, first_minutes, fit_type
-from ecu_monitor.model import ThermalParams, paper_table_a1
+from ecu_monitor.model import ThermalParams, paper_table_a1, save_model
 
 REPO = Path(__file__).resolve().parents[1]
 AXES = ("fuel_flow_lph", "rpm")
@@ -87,6 +87,7 @@ def main() -> int:
     parser.add_argument("--g1000", type=Path, help="directory of the 2011 log (default DATA/../g1000)")
     parser.add_argument("--quick", action="store_true", help="fewer PSO iterations (a smoke run)")
     parser.add_argument("--only", help="comma-separated system_ids to hold out (default every airframe)")
+    parser.add_argument("--save", type=Path, help="write each fold's type model into this directory")
     args = parser.parse_args()
     g1000 = args.g1000 or args.data.parent / "g1000"
     paths = sorted(args.data.glob("ngafid_c172s_*.csv")) + sorted(args.data.glob("cafuc_c172*.csv"))
@@ -107,6 +108,9 @@ def main() -> int:
             grid=GRID, settings=settings, terms=terms, progress=lambda line: print(line, file=sys.stderr),
         )  # fmt: skip
         timings["type fit (CPU s)"].append(time.process_time() - started)
+        if args.save:
+            args.save.mkdir(parents=True, exist_ok=True)
+            save_model(fit.params, args.save / f"type_without_{name}.yaml")
         kept = "; ".join(f"{LABELS.get(a, a)}: {describe_terms(f.terms)}" for a, f in fit.airframes.items())
         zero = _rms(_plain(fit.params), own)
         short, whole, short_terms, whole_terms = [], [], [], []

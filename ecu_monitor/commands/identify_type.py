@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--type",
         action="store_true",
         help="one type model over flights of several airframes of one engine type, with each airframe's own terms"
-        " (heat scale, probe lag) where its data need them",
+        " (heat scale, cooling scale, probe lag) where its data need them",
     )
     parser.add_argument("--type-name", metavar="NAME", help="the engine type's name in the model (default: OUT's stem)")
     parser.add_argument(

@@ -5,22 +5,25 @@ parameters are identified on every flight (PSO and polish, the terms as ``--effe
 refined jointly with each airframe's own terms (a least-squares polish from that fit). An airframe's
 own terms (:data:`AIRFRAME_TERMS`) are
 
-- ``heat_scale``: the heat into its head relative to the type's heat map (baffles, probe depth, a
-  leaner engine): every heat-map value times the scale;
+- ``heat_scale``: the heat into its head relative to the type's heat map (probe depth, a leaner
+  engine): every heat-map value times the scale;
+- ``cooling_scale``: its convective cooling relative to the type's (baffles, cowling, cowl flaps):
+  the conductance 1/R_Ce times the scale, so the head's time constant and its rise above the air shrink
+  together;
 - ``probe_lag``: its CHT probe's time constant, s (another probe or mounting).
 
 Each airframe keeps a term only where its own data say it is needed: its terms are fitted on the first
 half of each of its flights (the shared parameters fixed) and scored on the second halves, and a term
 is kept when it lowers that held-out RMS by at least :data:`~ecu_monitor.identify.select.MIN_GAIN`.
-Each term carries a prior centred on "no difference from the type" (:data:`HEAT_SCALE_SIGMA`,
+Each term carries a prior centred on "no difference from the type" (:data:`SCALE_SIGMA`,
 :data:`PROBE_LAG_SIGMA_S`), which also keeps the common level of all airframes in the shared heat map.
 
 ``identify --base TYPE.yaml FLIGHT`` (:func:`adapt`) fits only one new airframe's terms on its flight
 (or its first minutes), the type's shared parameters fixed: a few small least-squares fits.
 
 A CHT offset (the same degrees at every operating point) is not among the terms: the model, and so the
-estimator, replay and run, has no output offset; the heat scale is the term that moves an airframe's
-head temperature at its operating points.
+estimator, replay and run, has no output offset; the heat and cooling scales are the terms that move an
+airframe's head temperature at its operating points.
 """
 
 from __future__ import annotations
@@ -37,22 +40,25 @@ from numpy.typing import NDArray
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.fit import IdentificationResult, polish
-from ecu_monitor.identify.flights import ErrorStats, flight_errors, prepare_flight, run_grid
+from ecu_monitor.identify.flights import ErrorStats, flight_errors, prepare_flight
+from ecu_monitor.identify.objective import pooled_residuals
 from ecu_monitor.identify.problem import DEFAULT_FREE, ParameterSpace
 from ecu_monitor.identify.pso import PsoSettings
 from ecu_monitor.identify.search_settings import PRIOR_SCALE_C
 from ecu_monitor.identify.select import MIN_GAIN, identify_flights
 from ecu_monitor.model import AirframeTerms, Coefficients, SensorLag, ThermalParams, coefficients
 from ecu_monitor.model.equations import PARAMETER_FIELDS
-from ecu_monitor.model.params import HEAT_SCALE_RANGE
+from ecu_monitor.model.params import SCALE_RANGE
 
 __all__ = [
     "AIRFRAME_TERMS",
-    "HEAT_SCALE_SIGMA",
     "MIN_PART_S",
     "PROBE_LAG_SIGMA_S",
+    "SCALE_SIGMA",
+    "TERMS",
     "Adaptation",
     "AirframeFit",
+    "AirframeTerm",
     "TypeFit",
     "adapt",
     "airframe_model",
@@ -62,18 +68,34 @@ __all__ = [
     "fit_type",
 ]
 
-#: The terms an airframe may have of its own (module doc).
-AIRFRAME_TERMS: tuple[str, ...] = ("heat_scale", "probe_lag")
-#: Prior width of an airframe's heat scale, in its logarithm (a 10 % hotter head costs 1 sigma).
-HEAT_SCALE_SIGMA = math.log(1.10)
+#: Prior width of an airframe's heat and cooling scales, in their logarithm (10 % from the type costs 1 sigma).
+SCALE_SIGMA = math.log(1.10)
 #: Prior width of an airframe's probe lag about the type's, s.
 PROBE_LAG_SIGMA_S = 15.0
-#: Search range of an airframe's probe lag, s (the sensor_lag effect's own search range).
-PROBE_LAG_RANGE_S: tuple[float, float] = SensorLag.PARAMETERS["time_constant_s"].search
 #: Shortest half of a flight that chooses an airframe's terms (fit on one half, score the other), s.
 MIN_PART_S = 300.0
 #: The type model's probe lag where it has none of its own (the prior's centre), s.
 _NO_LAG_S = 0.0
+
+
+@dataclass(frozen=True)
+class AirframeTerm:
+    """One term an airframe may have of its own: its :class:`AirframeTerms` field, its search range, whether
+    it is searched in its logarithm (a scale) and its prior width (in the searched coordinate)."""
+
+    field: str
+    bounds: tuple[float, float]
+    log_scaled: bool
+    sigma: float
+
+
+#: The terms an airframe may have of its own (module doc), by name.
+TERMS: dict[str, AirframeTerm] = {
+    "heat_scale": AirframeTerm("heat_scale", SCALE_RANGE, True, SCALE_SIGMA),
+    "cooling_scale": AirframeTerm("cooling_scale", SCALE_RANGE, True, SCALE_SIGMA),
+    "probe_lag": AirframeTerm("probe_lag_s", SensorLag.PARAMETERS["time_constant_s"].search, False, PROBE_LAG_SIGMA_S),
+}
+AIRFRAME_TERMS: tuple[str, ...] = tuple(TERMS)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -84,8 +106,9 @@ _NO_LAG_S = 0.0
 @dataclass(frozen=True)
 class TypeSpace:
     """Search coordinates of a type fit: ``shared``'s coordinates (None: the shared model is fixed), then
-    for each of ``airframes`` airframes its ``terms`` (heat scale searched in its logarithm, probe lag in s).
-    The same interface as :class:`ParameterSpace` where the polish reads it."""
+    for each of ``airframes`` airframes its ``terms`` (:data:`TERMS`: scales searched in their logarithm).
+    The same interface as :class:`ParameterSpace` where the polish reads it. ``lag_prior_s``: the type's
+    probe lag, the centre of an airframe's own."""
 
     shared: ParameterSpace | None
     airframes: int
@@ -100,22 +123,24 @@ class TypeSpace:
     def dimension(self) -> int:
         return self.shared_dimension + self.airframes * len(self.terms)
 
-    def _bounds(self, term: str) -> tuple[float, float]:
-        if term == "heat_scale":
-            return math.log(HEAT_SCALE_RANGE[0]), math.log(HEAT_SCALE_RANGE[1])
-        return PROBE_LAG_RANGE_S
+    def _searched(self, term: str) -> tuple[float, float, float]:
+        """(lower, upper bound, prior centre) of a term in its searched coordinate."""
+        spec = TERMS[term]
+        if spec.log_scaled:
+            return math.log(spec.bounds[0]), math.log(spec.bounds[1]), 0.0
+        return spec.bounds[0], spec.bounds[1], self.lag_prior_s
 
     def from_unit(self, unit: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Coordinates (P, D): shared ones as the shared space gives them, then heat scale and lag values."""
+        """Coordinates (P, D): shared ones as the shared space gives them, then each airframe's term values."""
         u = np.atleast_2d(np.asarray(unit, dtype=float))
         out = np.empty_like(u)
         d = self.shared_dimension
         if self.shared is not None:
             out[:, :d] = self.shared.from_unit(u[:, :d])
         for k, term in enumerate(self.terms * self.airframes):
-            lo, hi = self._bounds(term)
+            lo, hi, _ = self._searched(term)
             value = lo + u[:, d + k] * (hi - lo)
-            out[:, d + k] = np.exp(value) if term == "heat_scale" else value
+            out[:, d + k] = np.exp(value) if TERMS[term].log_scaled else value
         return out
 
     def to_unit(self, vectors: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,43 +151,40 @@ class TypeSpace:
         if self.shared is not None:
             out[:, :d] = self.shared.to_unit(v[:, :d])
         for k, term in enumerate(self.terms * self.airframes):
-            lo, hi = self._bounds(term)
-            value = np.log(v[:, d + k]) if term == "heat_scale" else v[:, d + k]
+            lo, hi, _ = self._searched(term)
+            value = np.log(v[:, d + k]) if TERMS[term].log_scaled else v[:, d + k]
             out[:, d + k] = (value - lo) / (hi - lo)
         return np.clip(out, 0.0, 1.0)
 
     def neutral(self) -> NDArray[np.float64]:
         """The airframe coordinates of "no difference from the type" (A * len(terms),)."""
-        one = [1.0 if term == "heat_scale" else self.lag_prior_s for term in self.terms]
+        one = [1.0 if TERMS[term].log_scaled else self.lag_prior_s for term in self.terms]
         return np.asarray(one * self.airframes, dtype=float)
 
-    def split(
-        self, vectors: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """(shared coordinates (P, d), heat scales (P, A), probe lags (P, A); NaN where a term is not searched)."""
+    def split(self, vectors: NDArray[np.float64]) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
+        """(shared coordinates (P, d), term name -> its values (P, A) for every term of :data:`TERMS`: the
+        type's own, 1 or NaN for the probe lag, where the term is not searched)."""
         v = np.atleast_2d(np.asarray(vectors, dtype=float))
         d = self.shared_dimension
         own = v[:, d:].reshape(v.shape[0], self.airframes, len(self.terms))
-        p = v.shape[0]
-        scale = (
-            own[:, :, self.terms.index("heat_scale")] if "heat_scale" in self.terms else np.ones((p, self.airframes))
-        )
-        lag = (
-            own[:, :, self.terms.index("probe_lag")]
-            if "probe_lag" in self.terms
-            else np.full((p, self.airframes), np.nan)
-        )
-        return v[:, :d], scale, lag
+        shape = (v.shape[0], self.airframes)
+        values = {
+            term: own[:, :, self.terms.index(term)]
+            if term in self.terms
+            else np.full(shape, 1.0 if TERMS[term].log_scaled else np.nan)
+            for term in TERMS
+        }
+        return v[:, :d], values
 
     def prior_residual_matrix(self, vectors: NDArray[np.float64]) -> NDArray[np.float64]:
         """The shared space's prior terms, then each airframe term's distance from the type (degC)."""
-        shared, scale, lag = self.split(vectors)
+        shared, values = self.split(vectors)
         parts = [] if self.shared is None else [self.shared.prior_residual_matrix(shared)]
-        if "heat_scale" in self.terms:
-            parts.append(PRIOR_SCALE_C * np.log(scale) / HEAT_SCALE_SIGMA)
-        if "probe_lag" in self.terms:
-            parts.append(PRIOR_SCALE_C * (lag - self.lag_prior_s) / PROBE_LAG_SIGMA_S)
-        return np.concatenate(parts, axis=1) if parts else np.zeros((scale.shape[0], 0))
+        for term in self.terms:
+            _, _, centre = self._searched(term)
+            value = np.log(values[term]) if TERMS[term].log_scaled else values[term]
+            parts.append(PRIOR_SCALE_C * (value - centre) / TERMS[term].sigma)
+        return np.concatenate(parts, axis=1) if parts else np.zeros((shared.shape[0], 0))
 
 
 class TypeObjective:
@@ -196,22 +218,20 @@ class TypeObjective:
     def residuals(self, unit: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         """Simulated minus measured CHT (P, samples of all flights) and the failure mask (P,)."""
         unit = np.atleast_2d(unit)
-        shared, scale, lag = self.space.split(self.space.from_unit(unit))
+        shared, values = self.space.split(self.space.from_unit(unit))
         base = self._shared_coefficients(shared, unit.shape[0])
         heat = np.asarray(base.heat_values_w, dtype=float)
-        parts = []
-        failed = np.zeros(unit.shape[0], dtype=bool)
-        for grid, group in zip(self.grids, self.groups, strict=True):
-            own_lag = lag[:, group]
-            coeffs = base._replace(
-                heat_values_w=np.ascontiguousarray(heat * scale[:, group, None, None]),
-                sensor_lag_s=np.where(np.isfinite(own_lag), own_lag, base.sensor_lag_s),
+
+        def of_flight(k: int) -> Coefficients:  # the flight's airframe's terms on the shared coefficients
+            group = self.groups[k]
+            lag = values["probe_lag"][:, group]
+            return base._replace(
+                heat_values_w=np.ascontiguousarray(heat * values["heat_scale"][:, group, None, None]),
+                r_ce=base.r_ce / values["cooling_scale"][:, group],
+                sensor_lag_s=np.where(np.isfinite(lag), lag, base.sensor_lag_s),
             )
-            probe, bad = run_grid(grid, coeffs)
-            parts.append(probe.T - grid.measured_c[None, :])
-            failed |= np.asarray(bad, dtype=bool)
-        residual = np.concatenate(parts, axis=1)
-        failed |= ~np.all(np.isfinite(residual), axis=1)
+
+        residual, failed = pooled_residuals(self.grids, of_flight)
         self.evaluations += unit.shape[0]
         return residual, failed
 
@@ -222,11 +242,14 @@ class TypeObjective:
 
 
 def airframe_model(type_params: ThermalParams, terms: AirframeTerms) -> ThermalParams:
-    """The model of one airframe: the type's shared parameters with the airframe's terms applied (heat
-    map times its heat scale, its probe lag), recording the airframe and no engine type."""
+    """The model of one airframe: the type's shared parameters with the airframe's terms applied (heat map
+    times its heat scale, R_Ce divided by its cooling scale, its probe lag), recording the airframe and no
+    engine type."""
     params = type_params.replace(engine_type="", airframes=(terms,))
     if terms.heat_scale is not None:
         params = params.replace(heat_map=params.heat_map.with_values(params.heat_map.values_array() * terms.heat_scale))
+    if terms.cooling_scale is not None:
+        params = params.replace(r_ce=params.r_ce / terms.cooling_scale)
     if terms.probe_lag_s is not None:
         params = params.replace(
             effects=params.effects.replace("sensor_lag", SensorLag(time_constant_s=terms.probe_lag_s))
@@ -239,37 +262,32 @@ def _type_lag_s(params: ThermalParams) -> float:
     return _NO_LAG_S if lag is None else float(lag.time_constant_s)
 
 
-def _terms_of(airframe: str, terms: Sequence[str], scale: float, lag: float) -> AirframeTerms:
-    return AirframeTerms(
-        airframe,
-        heat_scale=float(scale) if "heat_scale" in terms else None,
-        probe_lag_s=float(lag) if "probe_lag" in terms else None,
-    )
-
-
 def _fit_airframe(
-    shared: ThermalParams, flights: Sequence[FlightLog], terms: Sequence[str], settings: PsoSettings
-) -> tuple[float, float]:
-    """One airframe's heat scale and probe lag fitted on ``flights`` with the shared model fixed (the terms
-    not in ``terms`` stay the type's: scale 1, the type's lag)."""
-    type_lag = _type_lag_s(shared)
+    shared: ThermalParams, flights: Sequence[FlightLog], terms: Sequence[str], settings: PsoSettings, airframe: str
+) -> AirframeTerms:
+    """One airframe's ``terms`` fitted on ``flights`` with the shared model fixed (a least-squares polish
+    from "no difference from the type")."""
     if not terms:
-        return 1.0, type_lag
-    space = TypeSpace(None, 1, tuple(terms), type_lag)
+        return AirframeTerms(airframe)
+    space = TypeSpace(None, 1, tuple(terms), _type_lag_s(shared))
     objective = TypeObjective(flights, [0] * len(flights), space, shared, settings.dt_s)
     start = space.to_unit(space.neutral()[None, :])[0]
     best, _cost = polish(objective, start, settings.polish_evaluations)
-    _, scale, lag = space.split(space.from_unit(best[None, :]))
-    return float(scale[0, 0]), float(lag[0, 0]) if "probe_lag" in terms else type_lag
+    _, values = space.split(space.from_unit(best[None, :]))
+    return AirframeTerms(airframe, **{TERMS[t].field: float(values[t][0, 0]) for t in terms})
 
 
-def _centred(shared: ThermalParams, scales: NDArray[np.float64], lags: NDArray[np.float64]) -> ThermalParams:
+def _centred(shared: ThermalParams, values: dict[str, NDArray[np.float64]]) -> ThermalParams:
     """The shared model as the type's typical airframe: its heat map times the airframes' geometric-mean
-    heat scale, its probe lag their median lag (when they were fitted)."""
-    factor = float(np.exp(np.mean(np.log(scales))))
-    shared = shared.replace(heat_map=shared.heat_map.with_values(shared.heat_map.values_array() * factor))
-    if np.all(np.isfinite(lags)):
-        lag = SensorLag(time_constant_s=float(np.median(lags)))
+    heat scale, R_Ce divided by their geometric-mean cooling scale, its probe lag their median lag (where
+    these were fitted: ``values``, term -> (A,))."""
+    heat = float(np.exp(np.mean(np.log(values["heat_scale"]))))
+    cooling = float(np.exp(np.mean(np.log(values["cooling_scale"]))))
+    shared = shared.replace(
+        heat_map=shared.heat_map.with_values(shared.heat_map.values_array() * heat), r_ce=shared.r_ce / cooling
+    )
+    if np.all(np.isfinite(values["probe_lag"])):
+        lag = SensorLag(time_constant_s=float(np.median(values["probe_lag"])))
         shared = shared.replace(effects=shared.effects.replace("sensor_lag", lag))
     return shared
 
@@ -306,8 +324,7 @@ def choose_terms(
     scores: dict[tuple[str, ...], float] = {}
     for size in range(len(candidates) + 1):
         for subset in itertools.combinations(candidates, size):
-            scale, lag = _fit_airframe(shared, first, subset, settings)
-            model = airframe_model(shared, _terms_of("-", subset, scale, lag))
+            model = airframe_model(shared, _fit_airframe(shared, first, subset, settings, "-"))
             scores[subset] = _pooled_rms(model, second, settings.dt_s)
     best = min(scores.values())
     chosen = min((s for s, v in scores.items() if v <= best * (1.0 + min_gain)), key=lambda s: (len(s), scores[s]))
@@ -388,15 +405,15 @@ def fit_type(
         best, cost = polish(objective, start, settings.polish_evaluations)
         if cost < stage.best_cost:
             vector = joint.from_unit(best[None, :])
-            _, scales, lags = joint.split(vector)
-            shared = _centred(stage.space.to_params(vector[0, : joint.shared_dimension]), scales[0], lags[0])
+            _, values = joint.split(vector)
+            fitted = stage.space.to_params(vector[0, : joint.shared_dimension])
+            shared = _centred(fitted, {term: v[0] for term, v in values.items()})
             joint_cost = cost
     fits: dict[str, AirframeFit] = {}
     for name in names:
         own = [log for log, a in zip(flights, airframes, strict=True) if a == name]
         chosen, held_out = choose_terms(shared, own, candidates, settings)
-        scale, lag = _fit_airframe(shared, own, chosen, settings)
-        kept = _terms_of(name, chosen, scale, lag)
+        kept = _fit_airframe(shared, own, chosen, settings, name)
         model = airframe_model(shared, kept)
         fits[name] = AirframeFit(
             kept,
@@ -418,19 +435,22 @@ class Adaptation:
     elapsed_s: float
 
 
-def adapt(type_params: ThermalParams, flights: Sequence[FlightLog], airframe: str, settings: PsoSettings) -> Adaptation:
+def adapt(
+    type_params: ThermalParams,
+    flights: Sequence[FlightLog],
+    airframe: str,
+    settings: PsoSettings,
+    candidates: Sequence[str] = AIRFRAME_TERMS,
+) -> Adaptation:
     """A new airframe's model from a type model and its flights: only its own terms are fitted (the type's
-    shared parameters fixed), chosen among those the type's airframes needed (all of them when none did)
-    by held-out error on the halves of its flights."""
+    shared parameters fixed), chosen among ``candidates`` by held-out error on the halves of its flights (as
+    :func:`fit_type` chooses each of its airframes')."""
     if not type_params.engine_type:
         raise ParameterError("--base: not a type model (made by identify --type): it has no engine type")
     started = time.perf_counter()
     shared = type_params.replace(engine_type="", airframes=())
-    needed = [t for t in AIRFRAME_TERMS if any(_has(a, t) for a in type_params.airframes)]
-    candidates = tuple(needed) or AIRFRAME_TERMS
     chosen, held_out = choose_terms(shared, flights, candidates, settings)
-    scale, lag = _fit_airframe(shared, flights, chosen, settings)
-    terms = _terms_of(airframe, chosen, scale, lag)
+    terms = _fit_airframe(shared, flights, chosen, settings, airframe)
     params = airframe_model(shared, terms).replace(engine_type="")
     fit = AirframeFit(
         terms,
@@ -441,17 +461,17 @@ def adapt(type_params: ThermalParams, flights: Sequence[FlightLog], airframe: st
     return Adaptation(params, fit, time.perf_counter() - started)
 
 
-def _has(terms: AirframeTerms, term: str) -> bool:
-    return (terms.heat_scale if term == "heat_scale" else terms.probe_lag_s) is not None
-
-
 def describe_terms(terms: AirframeTerms) -> str:
     """One airframe's own terms in words ("heat scale 1.042, probe lag 21.0 s" or "no terms of its own")."""
-    kept = []
-    if terms.heat_scale is not None:
-        kept.append(f"heat scale {terms.heat_scale:.3f}")
-    if terms.probe_lag_s is not None:
-        kept.append(f"probe lag {terms.probe_lag_s:.1f} s")
+    kept = [
+        f"{label} {value:.3f}" if unit == "" else f"{label} {value:.1f} {unit}"
+        for label, value, unit in (
+            ("heat scale", terms.heat_scale, ""),
+            ("cooling scale", terms.cooling_scale, ""),
+            ("probe lag", terms.probe_lag_s, "s"),
+        )
+        if value is not None
+    ]
     return ", ".join(kept) or "no terms of its own (the type as is)"
 
 

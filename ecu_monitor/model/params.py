@@ -24,11 +24,11 @@ from ecu_monitor.userfiles import write_output_bytes
 from ecu_monitor.yamlfile import load_yaml_file
 
 __all__ = [
-    "HEAT_SCALE_RANGE",
     "MAX_STEADY_RISE_C",
     "MODEL_KIND",
     "MODEL_VERSION",
     "NOMINAL_TERMS",
+    "SCALE_RANGE",
     "AirframeTerms",
     "ThermalParams",
     "airframe_warning",
@@ -77,8 +77,15 @@ _SCALARS: dict[str, tuple[float, float]] = {
 #: leaves room for any identified engine while refusing a heat map in the wrong unit (1e9 W made every
 #: filter step NaN).
 MAX_STEADY_RISE_C = 2000.0
-#: Accepted range of an airframe's heat scale (:class:`AirframeTerms`), dimensionless.
-HEAT_SCALE_RANGE: tuple[float, float] = (0.5, 2.0)
+#: Accepted range of an airframe's heat and cooling scales (:class:`AirframeTerms`), dimensionless.
+SCALE_RANGE: tuple[float, float] = (0.5, 2.0)
+
+#: The terms an airframe may have of its own (:class:`AirframeTerms` fields) and their accepted ranges.
+_AIRFRAME_TERM_RANGES: dict[str, tuple[float, float]] = {
+    "heat_scale": SCALE_RANGE,
+    "cooling_scale": SCALE_RANGE,
+    "probe_lag_s": (0.0, 300.0),
+}
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,8 @@ class AirframeTerms:
 
     id: the airframe's name: a G1000 ``system_id``, a log's engine serial or a name the user gave.
     heat_scale: the airframe's heat into the head relative to the type's heat map (dimensionless),
+        None when the airframe does not need its own.
+    cooling_scale: the airframe's convective conductance 1/R_Ce relative to the type's (dimensionless),
         None when the airframe does not need its own.
     probe_lag_s: the airframe's CHT probe time constant (s), None when it does not need its own.
 
@@ -97,12 +106,13 @@ class AirframeTerms:
 
     id: str
     heat_scale: float | None = None
+    cooling_scale: float | None = None
     probe_lag_s: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
             raise ParameterError(f"airframes: id: expected a name, got {self.id!r}")
-        for name, (low, high) in (("heat_scale", HEAT_SCALE_RANGE), ("probe_lag_s", (0.0, 300.0))):
+        for name, (low, high) in _AIRFRAME_TERM_RANGES.items():
             value = getattr(self, name)
             if value is None:
                 continue
@@ -114,19 +124,17 @@ class AirframeTerms:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for YAML: the id and the terms the airframe has."""
-        terms = {name: getattr(self, name) for name in ("heat_scale", "probe_lag_s") if getattr(self, name) is not None}
+        terms = {name: getattr(self, name) for name in _AIRFRAME_TERM_RANGES if getattr(self, name) is not None}
         return {"id": self.id, **terms}
 
     @classmethod
     def from_dict(cls, data: Any) -> AirframeTerms:
         """Parse one entry of ``airframes:``; raises ParameterError naming the key."""
         if not isinstance(data, dict) or "id" not in data:
-            raise ParameterError(
-                f"airframes: expected entries {{id: NAME, heat_scale: S, probe_lag_s: T}}, got {data!r}"
-            )
+            raise ParameterError(f"airframes: expected entries {{id: NAME, heat_scale: S, ...}}, got {data!r}")
         for key in data:
-            if key not in ("id", "heat_scale", "probe_lag_s"):
-                raise ParameterError(f"airframes: {key}: unknown key (known: heat_scale, id, probe_lag_s)")
+            if key != "id" and key not in _AIRFRAME_TERM_RANGES:
+                raise ParameterError(f"airframes: {key}: unknown key (known: id, {', '.join(_AIRFRAME_TERM_RANGES)})")
         values = {k: (_number(v, f"airframes.{k}") if k != "id" and v is not None else v) for k, v in data.items()}
         return cls(id=str(values.pop("id")), **values)
 

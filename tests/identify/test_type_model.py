@@ -77,7 +77,7 @@ def test_the_type_model_recovers_each_airframes_heat_scale(type_fit):
 def test_base_adapts_a_new_airframe_from_its_first_20_minutes(type_fit):
     terms = {t.id: t for t in type_fit.params.airframes}
     new = _flight(4, 0.9, duration_s=3600)  # airframe C: heat scale 0.9
-    result = adapt(type_fit.params, [first_minutes(new, 20)], "C", SETTINGS)
+    result = adapt(type_fit.params, [first_minutes(new, 20)], "C", SETTINGS, candidates=("heat_scale",))
     assert result.elapsed_s < 60.0
     assert result.fit.terms.heat_scale is not None
     assert _scale(result.fit.terms) / _scale(terms["A"]) == pytest.approx(0.9, rel=0.04)
@@ -91,12 +91,14 @@ def test_base_adapts_a_new_airframe_from_its_first_20_minutes(type_fit):
 
 
 def test_airframe_model_applies_the_terms_and_round_trips(tmp_path: Path):
-    type_params = paper_table_a1().replace(engine_type="c172", airframes=(AirframeTerms("X", 1.1, 20.0),))
+    terms = AirframeTerms("X", heat_scale=1.1, cooling_scale=0.8, probe_lag_s=20.0)
+    type_params = paper_table_a1().replace(engine_type="c172", airframes=(terms,))
     path = tmp_path / "type.yaml"
     save_model(type_params, path)
     assert load_model(path) == type_params
     model = airframe_model(type_params, type_params.airframes[0])
     assert np.allclose(model.heat_map.values_array(), 1.1 * type_params.heat_map.values_array())
+    assert model.r_ce == pytest.approx(type_params.r_ce / 0.8)  # 20 % less cooling
     assert model.effects.sensor_lag is not None and model.effects.sensor_lag.time_constant_s == 20.0
     (tmp_path / "bad.yaml").write_text(path.read_text().replace("heat_scale: 1.1", "heat_scale: 9.0"))
     with pytest.raises(ConfigError, match="heat_scale"):
