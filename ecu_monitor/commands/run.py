@@ -205,7 +205,7 @@ def _run(args: argparse.Namespace) -> int:
     settings = daemon_settings(config, watchdog_period_s(), pipeline.row_period_s, uncalibrated)
     if uncalibrated:
         _log.warning("%s", uncalibrated)
-    mismatch = airframe_warning(params, config.engine_serial, "the model", f"engine {config.engine_serial}")
+    mismatch = airframe_warning(params, config.engine_serial, "its model", str(config.source))
     if mismatch:  # a model made for another airframe (the config's engine serial is not among its airframes)
         _log.warning("%s", mismatch)
     with SystemdNotifier() as notifier:
