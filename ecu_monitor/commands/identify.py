@@ -228,6 +228,16 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     terms: dict[str, bool] | str | None = None
     if args.effects:
         terms = "auto" if args.effects.strip() == "auto" else _parse_terms(args.effects)
+    base = load_model(args.base) if args.base else paper_table_a1()
+    if base.engine_type and args.type:
+        raise UserInputError(
+            f"--type with --base {args.base}: that is already a type model; give its flights without --base"
+        )
+    if (args.type or base.engine_type) and (args.validate or args.plots or args.cylinder == "all"):
+        raise UserInputError("--validate, --plots and --cylinder all: not with --type or --base TYPE.yaml")
+    if args.first_minutes is not None and not base.engine_type:
+        raise UserInputError("--first-minutes: applies to --base TYPE.yaml (adapting a type model to an airframe)")
+    fleet = identify_type.flight_airframes(args.flights, args.airframe) if args.type or base.engine_type else []
     plots = None if not args.plots else Path(args.plots) / (f"cyl{cylinder}" if cylinder is not None else "")
     if plots is not None:
         _make_dir(plots)
@@ -235,13 +245,6 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     flights = _load(args.flights, args.mapping, cylinder)
     validation = _load(args.validate, args.mapping, cylinder)
     axes = choose_heat_axes(args.heat_axes, flights)
-    base = load_model(args.base) if args.base else paper_table_a1()
-    if base.engine_type and args.type:
-        raise UserInputError(
-            f"--type with --base {args.base}: that is already a type model; give its flights without --base"
-        )
-    if args.first_minutes is not None and not base.engine_type:
-        raise UserInputError("--first-minutes: applies to --base TYPE.yaml (adapting a type model to an airframe)")
     if args.cht_limit is not None:
         base = base.replace(cht_limit_c=args.cht_limit)
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
@@ -259,11 +262,11 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     notes = None if args.quiet else (lambda line: print(line, file=sys.stderr))
     try:
         if base.engine_type:  # --base TYPE.yaml: fit only the new airframe's own terms
-            return identify_type.run_adapt(args, settings, flights, base)
+            return identify_type.run_adapt(args, settings, flights, fleet, base)
         if args.type:
             context = {"base": base, "heat_axes": axes, "grid": grid, "terms": terms, "free": free}
             context |= {"progress": notes, "pso_progress": progress}
-            return identify_type.run_type(args, settings, flights, context)
+            return identify_type.run_type(args, settings, flights, fleet, context)
         result, cv, selection = identify_flights(
             flights,
             base=base,

@@ -118,13 +118,15 @@ def known_airframes(paths: list[str], specs: list[str]) -> tuple[AirframeTerms, 
     return tuple(AirframeTerms(a) for a in ids)
 
 
-def run_type(args: argparse.Namespace, settings: Any, flights: list[FlightLog], context: dict[str, Any]) -> int:
-    """``identify --type FLIGHTS... --out TYPE.yaml`` on the loaded ``flights``; ``context`` holds identify's
-    checked base, heat axes, grid, terms, free parameters and progress callbacks."""
+def run_type(
+    args: argparse.Namespace, settings: Any, flights: list[FlightLog], airframes: list[str], context: dict[str, Any]
+) -> int:
+    """``identify --type FLIGHTS... --out TYPE.yaml`` on the loaded ``flights`` of ``airframes``
+    (:func:`flight_airframes`); ``context`` holds identify's checked base, heat axes, grid, terms, free
+    parameters and progress callbacks."""
     from ecu_monitor.identify.type_model import fit_type
 
     out = Path(args.out)
-    airframes = flight_airframes(args.flights, args.airframe)
     name = args.type_name or out.stem
     fit = fit_type(flights, airframes, engine_type=name, settings=settings, **context)
     lines = [
@@ -145,12 +147,15 @@ def run_type(args: argparse.Namespace, settings: Any, flights: list[FlightLog], 
     return 0
 
 
-def run_adapt(args: argparse.Namespace, settings: Any, flights: list[FlightLog], type_params: ThermalParams) -> int:
-    """``identify --base TYPE.yaml FLIGHT... --out AIRFRAME.yaml [--first-minutes M]``."""
+def run_adapt(
+    args: argparse.Namespace, settings: Any, flights: list[FlightLog], airframes: list[str], type_params: ThermalParams
+) -> int:
+    """``identify --base TYPE.yaml FLIGHT... --out AIRFRAME.yaml [--first-minutes M]`` on the loaded ``flights``
+    of ``airframes`` (:func:`flight_airframes`: one airframe)."""
     from ecu_monitor.identify.type_model import adapt, first_minutes
 
     out = Path(args.out)
-    airframes = sorted(set(flight_airframes(args.flights, args.airframe)))
+    airframes = sorted(set(airframes))
     if len(airframes) != 1:
         raise UserInputError(
             f"--base {args.base}: the flights are of {len(airframes)} airframes ({', '.join(airframes)}):"
