@@ -33,6 +33,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -210,10 +211,12 @@ class TypeObjective:
     def _shared_coefficients(self, shared_vectors: NDArray[np.float64], p: int) -> Coefficients:
         if self.space.shared is not None:
             return self.space.shared.coefficient_arrays(shared_vectors)
-        one = coefficients(self.shared)
-        fields = {name: np.full(p, float(getattr(one, name))) for name in PARAMETER_FIELDS}
-        heat = np.broadcast_to(np.asarray(one.heat_values_w, dtype=float), (p, *np.shape(one.heat_values_w)))
-        return one._replace(heat_values_w=heat, **fields)
+        one = coefficients(self.shared)  # the fixed shared model as a swarm of p equal particles
+        fields: dict[str, Any] = {name: np.full(p, float(getattr(one, name))) for name in PARAMETER_FIELDS}
+        fields["heat_values_w"] = np.broadcast_to(
+            np.asarray(one.heat_values_w, dtype=float), (p, *np.shape(one.heat_values_w))
+        )
+        return one._replace(**fields)
 
     def residuals(self, unit: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         """Simulated minus measured CHT (P, samples of all flights) and the failure mask (P,)."""

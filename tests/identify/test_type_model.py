@@ -153,3 +153,27 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
     assert [a.id for a in model.airframes] == ["C"] and not model.engine_type
     assert main(["identify", paths[2], "--first-minutes", "20", "--out", str(tmp_path / "x.yaml"), *quick]) == 2
     assert "--first-minutes" in capsys.readouterr().err
+
+
+def test_replay_warns_when_the_model_was_made_for_another_airframe(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    """A G1000 export of airframe 25BA2E6F4 replayed with a model made for 2E90B4BED: one warning line."""
+    from ecu_monitor.cli import main
+    from ecu_monitor.model import HeatMap
+
+    lines = [
+        '#airframe_info, log_version="1.01", airframe_name="Cessna 172S", system_id="25BA2E6F4"',
+        "#yyy-mm-dd, hh:mm:ss, hh:mm, ft, deg C, kt, gph, rpm, deg F, deg F, deg F, deg F, deg F, fpm",
+        "  Lcl Date, Lcl Time, UTCOfst, AltB, OAT, IAS, E1 FFlow, E1 RPM, E1 CHT1, E1 CHT2, E1 EGT1, E1 EGT2,"
+        " E1 OilT, VSpd",
+    ]
+    for k in range(300):
+        lines.append(f"2023-04-24, 10:{k // 60:02d}:{k % 60:02d}, +08:00, 1000, 15.0, 60.0, 10.0, 2400, 300, 320,"
+                     " 1300, 1400, 180, 0")  # fmt: skip
+    log = tmp_path / "g1000.csv"
+    log.write_text("\n".join(lines) + "\n")
+    heat = HeatMap("fuel_flow_lph", "rpm", (0.0, 60.0), (0.0, 3000.0), ((0.0, 0.0), (900.0, 900.0)))
+    model = tmp_path / "n550nd.yaml"
+    save_model(paper_table_a1().replace(heat_map=heat, airframes=(AirframeTerms("2E90B4BED"),)), model)
+    assert main(["replay", str(log), "--model", str(model), "--out", str(tmp_path / "h.csv")]) == 0
+    warned = [line for line in capsys.readouterr().out.splitlines() if "airframe 25BA2E6F4" in line]
+    assert len(warned) == 1 and "2E90B4BED" in warned[0] and warned[0].startswith("warning:")
