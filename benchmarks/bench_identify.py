@@ -5,6 +5,7 @@
     .venv/bin/python benchmarks/bench_identify.py --study variants # PSO variants and DE, several seeds
     .venv/bin/python benchmarks/bench_identify.py --study g1000 --plots docs/results/identification
     nice -n 10 .venv/bin/python benchmarks/bench_identify.py --study plants --seeds 10  # randomised plants
+    nice -n 10 .venv/bin/python benchmarks/bench_identify.py --study term-search  # --effects auto vs named terms
 
 Virtual flights: the virtual ECU (virtual_bus.plant.fly) flies random_mission(1) (train) and
 random_mission(2) (held out), both about one hour, truth = the paper's Table A1, CHT sampled at 1 Hz
@@ -505,11 +506,57 @@ def study_plants(seeds: int, first_seed: int) -> None:
     print(f"{passed_rise} of {seeds} meet mean < 1 % and peak < 5 % of the flight's mean rise above OAT")
 
 
+#: The terms docs/identify_your_engine.md names for N550ND: the named-term identification of --study term-search.
+NAMED_TERMS = "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index"
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its finished children (the forked fold workers)."""
+    own = os.times()
+    return own.user + own.system + own.children_user + own.children_system
+
+
+def study_term_search(minutes: float | None) -> None:
+    """``identify --effects auto`` against one identification with the terms named, on the four given
+    N550ND flights (1 s step, leave-one-flight-out on both), in one run: wall and CPU time, the ratio,
+    the held-out errors and the terms chosen."""
+    from ecu_monitor.identify.select import identify_flights, parse_terms
+
+    paths = sorted((REPO.parent / "shared" / "data" / "real").glob("ngafid_c172s_n550nd_*.csv"))
+    flights = [load_flight(p, mapping="g1000") for p in paths]
+    if minutes:
+        flights = [f.select(f.time_s[0], f.time_s[0] + 60.0 * minutes) for f in flights]
+    settings = PsoSettings(dt_s=1.0)
+    rows = []
+    for label, terms in (("named terms", parse_terms(NAMED_TERMS)), ("--effects auto", "auto")):
+        wall, cpu = time.perf_counter(), _cpu_s()
+        _, cv, selection = identify_flights(
+            flights, base=paper_table_a1(), heat_axes=("fuel_flow_lph", "rpm"), grid=None, settings=settings,
+            terms=terms, progress=lambda line: print(f"  {line}", flush=True),
+        )  # fmt: skip
+        wall, cpu = time.perf_counter() - wall, _cpu_s() - cpu
+        assert cv is not None
+        chosen = ", ".join(f"{'+' if on else '-'}{name}" for name, on in (selection.terms if selection else {}).items())
+        rows.append((label, wall, cpu, cv.rms_c, chosen or terms_label(NAMED_TERMS)))
+        print(f"{label}: {wall:.0f} s wall, {cpu:.0f} s CPU, held-out {np.round(cv.rms_c, 2)}", flush=True)
+    cut = f" (first {minutes:g} min each)" if minutes else ""
+    print(f"\nFour N550ND flights{cut}, step 1 s, {os.cpu_count()} cores\n")
+    print("| identification | wall, s | CPU, s | wall / named | held-out RMS per flight, degC | mean | terms |")
+    print("|---|---|---|---|---|---|---|")
+    for label, wall, cpu, rms, chosen in rows:
+        per = ", ".join(f"{x:.2f}" for x in rms)
+        print(f"| {label} | {wall:.0f} | {cpu:.0f} | {wall / rows[0][1]:.2f} | {per} | {rms.mean():.2f} | {chosen} |")
+
+
+def terms_label(text: str) -> str:
+    return ", ".join(t if t.startswith("-") else f"+{t}" for t in text.split(","))
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--study",
-        choices=("main", "dt", "variants", "g1000", "g1000-effects", "virtual-plots", "plants"),
+        choices=("main", "dt", "variants", "g1000", "g1000-effects", "virtual-plots", "plants", "term-search"),
         default="main",
     )
     parser.add_argument("--seed", type=int, default=0)
@@ -517,7 +564,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=5, help="seeds for --study variants")
     parser.add_argument("--data", choices=("virtual", "g1000"), default="virtual", help="for --study variants")
     parser.add_argument("--plots", type=Path, help="directory for PNGs (g1000, virtual-plots)")
+    parser.add_argument("--minutes", type=float, help="term-search: only the first MINUTES of each flight (quick)")
     args = parser.parse_args(argv)
+    if args.study == "term-search":
+        study_term_search(args.minutes)
+        return
     if args.study == "main":
         study_main(args.seed, args.record_dt)
     elif args.study == "dt":

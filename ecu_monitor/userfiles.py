@@ -11,6 +11,11 @@ output. The rename replaces the output's directory entry, so an output that is a
 replaced by the file, never written through to the link's target. On any failure (a full disk, an
 error, Ctrl-C) the temporary file is removed and the old output, if any, is left as it was. An output
 that is one of the command's inputs is refused before any work.
+
+Checking before the work (:func:`check_output_file`, :func:`prepare_output_dir`): every command that
+writes checks its outputs before it reads a flight or fits a model, so a mistyped path costs a second,
+not a finished run: a file output that names a directory, sits in a folder that does not exist or
+cannot be written; a directory output that is a file or cannot be created or written.
 """
 
 from __future__ import annotations
@@ -29,8 +34,10 @@ __all__ = [
     "MAX_TEXT_BYTES",
     "atomic_output",
     "check_input",
+    "check_output_file",
     "check_output_not_input",
     "open_input",
+    "prepare_output_dir",
     "read_input_bytes",
     "read_input_text",
     "save_figure",
@@ -136,6 +143,51 @@ def check_output_not_input(
             continue
         if same:
             raise error(f"{os.fspath(out)}: is the input {os.fspath(given)}: give another output file")
+
+
+def _prove_writable(folder: Path) -> str | None:
+    """None if a file can be created in ``folder`` (made and removed at once), else the reason."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return None
+    except OSError as exc:
+        return exc.strerror or str(exc)
+
+
+def check_output_file(path: str | os.PathLike[str], option: str, error: type[UserInputError] = UserInputError) -> Path:
+    """``path`` as a Path if a file can be written there; else ``error`` in one line naming ``option`` and
+    the path: a name ending in a separator or naming a directory, an existing non-regular file, a folder
+    that does not exist or cannot be written."""
+    text = os.fspath(path)
+    out = Path(text)
+    if text.endswith(("/", os.sep)) or out.is_dir():
+        raise error(f"{option} {text}: a directory; give a file name")
+    if out.exists() and not out.is_file():
+        raise error(f"{option} {text}: {_kind(out.stat().st_mode)}; give a file name")
+    folder = out.parent
+    if not folder.is_dir():
+        raise error(f"{option} {text}: no such folder {folder}")
+    reason = _prove_writable(folder)
+    if reason is not None:
+        raise error(f"{option} {text}: cannot write in {folder} ({reason})")
+    return out
+
+
+def prepare_output_dir(path: str | os.PathLike[str], option: str, error: type[UserInputError] = UserInputError) -> Path:
+    """The directory ``path`` created (with its parents) and proved writable; else ``error`` in one line
+    naming ``option`` and the path."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        what = "a file" if out.is_file() else _kind(out.stat().st_mode)
+        raise error(f"{option} {out}: {what}, not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise error(f"{option} {out}: cannot create the directory ({exc.strerror or exc})") from None
+    reason = _prove_writable(out)
+    if reason is not None:
+        raise error(f"{option} {out}: cannot write in the directory ({reason})")
+    return out
 
 
 def _umask() -> int:

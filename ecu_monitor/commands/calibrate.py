@@ -40,7 +40,7 @@ from typing import Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
-from ecu_monitor.userfiles import save_figure, write_output_bytes
+from ecu_monitor.userfiles import check_output_file, save_figure, write_output_bytes
 
 __all__ = ["DEFAULT_OUT", "add_subparser", "candidate_table"]
 
@@ -389,10 +389,9 @@ def _check(args: argparse.Namespace, config_path: Path) -> Path:
     out = Path(args.out) if args.out else Path(DEFAULT_OUT)
     if args.write_config and out.resolve() == config_path.resolve():
         raise ParameterError(f"--out: {out} is the input config; write the copy to a new file")
-    if out.parent != Path("") and not out.parent.is_dir():
-        raise ParameterError(f"--out: no such folder {out.parent}")
-    if args.plot and Path(args.plot).parent != Path("") and not Path(args.plot).parent.is_dir():
-        raise ParameterError(f"--plot: no such folder {Path(args.plot).parent}")
+    check_output_file(out, "--out", ParameterError)
+    if args.plot:
+        check_output_file(args.plot, "--plot", ParameterError)
     return out
 
 

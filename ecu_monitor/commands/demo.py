@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.shipped import DEFAULT_CONFIG, DRONECAN_CONFIG, MAVLINK_CONFIG
-from ecu_monitor.userfiles import atomic_output, save_figure
+from ecu_monitor.userfiles import atomic_output, prepare_output_dir, save_figure
 
 if TYPE_CHECKING:  # the run and the plots import these: --help stays light
     import can
@@ -130,11 +130,7 @@ def _run(args: argparse.Namespace) -> int:
     from virtual_bus.plant import Degradation, collect, iter_steps, record_every
     from virtual_bus.recorder import frame_encoder
 
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
+    out = prepare_output_dir(args.out, "--out", ConfigError)
     mission = load_mission(args.mission)
     if args.protocol == "mavlink":
         if args.cylinders != 1:

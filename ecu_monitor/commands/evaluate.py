@@ -69,6 +69,11 @@ def _check(args: argparse.Namespace) -> None:
         raise ConfigError(f"--target: expected a rate in (0, 100), got {args.target!r}")
     if not (math.isfinite(args.full_size_hours) and 0.0 <= args.full_size_hours <= 2000.0):
         raise ConfigError(f"--full-size-hours: expected [0, 2000], got {args.full_size_hours!r}")
+    from ecu_monitor.userfiles import check_output_file, prepare_output_dir
+
+    prepare_output_dir(args.out, "--out", ConfigError)
+    if args.flights_cache and not Path(args.flights_cache).exists():
+        check_output_file(args.flights_cache, "--flights-cache", ConfigError)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -136,15 +136,9 @@ def _flights(args: argparse.Namespace) -> tuple[list[FlightLog], list[FlightLog]
 
 def _writable_out(path: str) -> Path:
     """Create the output directory and prove it writable before the long work (ConfigError if not)."""
-    out = Path(path)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".gap-write-check"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot write the output directory ({exc.strerror})") from None
-    return out
+    from ecu_monitor.userfiles import prepare_output_dir
+
+    return prepare_output_dir(path, "--out", ConfigError)
 
 
 def _candidate_ids(args: argparse.Namespace) -> tuple[str, ...] | None:
@@ -255,10 +249,22 @@ def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> Th
     return params
 
 
+def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> list[ThermalParams]:
+    """For each flight, the nominal model identified on the others (PSO; the folds on every core)."""
+    from ecu_monitor.identify import DEFAULT_FREE, PsoSettings
+    from ecu_monitor.identify.select import leave_one_flight_out
+    from ecu_monitor.model import paper_table_a1
+
+    _say(f"no --model: identifying one nominal model per held-out flight (PSO, heat axes {','.join(axes)})")
+    cv = leave_one_flight_out(trains, paper_table_a1(), DEFAULT_FREE, axes, None, PsoSettings(), progress=_say)
+    return [fold.params for fold in cv.folds]
+
+
 def _run(args: argparse.Namespace) -> int:
+    _writable_out(args.out)  # before any work or heavy import
     from ecu_monitor.gap import cross_validate, diagnose, write_report
-    from ecu_monitor.gap.library import candidates_for
     from ecu_monitor.identify import model_inputs
+    from ecu_monitor.identify.library import candidates_for
     from ecu_monitor.model import load_model
 
     if args.blind is not None:
@@ -272,13 +278,9 @@ def _run(args: argparse.Namespace) -> int:
     for log in (*trains, *tests):
         model_inputs(log, axes)  # fail early, naming the flight and the missing column
     settings = _settings(args, candidates_for(axes, [*trains, *tests]))
-    _writable_out(args.out)
     started = time.perf_counter()
     if args.leave_one_out:
-        nominals = []
-        for k in range(len(trains)):
-            others = [log for i, log in enumerate(trains) if i != k]
-            nominals.append(nominal or _identify(others, axes, f"fold {k + 1}/{len(trains)}: "))
+        nominals = [nominal] * len(trains) if nominal is not None else _fold_nominals(trains, axes)
         final = nominal or _identify(trains, axes, "all flights: ")
         diag = cross_validate(nominals, trains, final, settings, progress=_say)
     else:
@@ -288,7 +290,9 @@ def _run(args: argparse.Namespace) -> int:
     doc = write_report(diag, args.out, command)
     verdict = doc["verdict"]
     base = doc["baseline"]
-    if verdict["effect"] is None:
+    if verdict["effect"] is None and verdict["lead"] is not None:
+        print(verdict["lead"]["text"])
+    elif verdict["effect"] is None:
         print(
             "unexplained: no effect improves the held-out flight significantly;"
             f" test RMS {base['test_rms_c']:.2f} degC,"

@@ -305,7 +305,11 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
     from ecu_monitor.estimation.wear import WearSettings
     from ecu_monitor.runtime.flight_recorder import engine_wear
+    from ecu_monitor.userfiles import check_output_file, prepare_output_dir
 
+    if args.plot:  # its folder is made for it
+        prepare_output_dir(Path(args.plot).parent, "--plot", ConfigError)
+        check_output_file(args.plot, "--plot", ConfigError)
     config = load_config(args.config) if args.config else None
     state_dir = Path(args.state_dir) if config is None else config.state_dir
     settings = config.wear if config is not None else WearSettings()

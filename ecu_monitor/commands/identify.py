@@ -181,10 +181,14 @@ def _settings(args: argparse.Namespace) -> PsoSettings:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ecu_monitor.userfiles import check_output_file, prepare_output_dir
+
+    out = check_output_file(args.out, "--out")  # before any work or heavy import: identify takes minutes
+    if args.plots:
+        prepare_output_dir(args.plots, "--plots")
     from ecu_monitor.flightlog import cylinder_columns, require_distinct
 
     cylinder = parse_cylinder(args.cylinder)
-    out = Path(args.out)
     if cylinder != "all":
         return _run_one(args, cylinder if isinstance(cylinder, int) else None, out)
     require_distinct([*args.flights, *(args.validate or [])], "identify")
@@ -219,10 +223,9 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     from ecu_monitor.identify.report import error_table
     from ecu_monitor.identify.select import identify_flights
     from ecu_monitor.model import load_model, paper_table_a1, save_model
+    from ecu_monitor.userfiles import prepare_output_dir
 
-    settings = _settings(args)  # validate the numbers and the output places before the (slow) work
-    if not out.parent.is_dir():
-        raise UserInputError(f"{out}: the directory {out.parent} does not exist")
+    settings = _settings(args)  # validate the numbers before the (slow) work (the outputs: in _run)
     if args.cht_limit is not None and not 20.0 <= args.cht_limit <= 500.0:
         raise UserInputError(f"--cht-limit: expected a temperature in [20, 500] degC, got {args.cht_limit:g}")
     terms: dict[str, bool] | str | None = None
@@ -240,7 +243,7 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     fleet = identify_type.flight_airframes(args.flights, args.airframe) if args.type or base.engine_type else []
     plots = None if not args.plots else Path(args.plots) / (f"cyl{cylinder}" if cylinder is not None else "")
     if plots is not None:
-        _make_dir(plots)
+        prepare_output_dir(plots, "--plots")
     require_distinct([*args.flights, *(args.validate or [])], "identify")
     flights = _load(args.flights, args.mapping, cylinder)
     validation = _load(args.validate, args.mapping, cylinder)
@@ -379,13 +382,6 @@ def _limit_warnings(flights: list[FlightLog], limit_c: float, given: bool) -> li
                 f"{Path(log.source).name}: measured CHT reaches {peak:.1f} degC, above the limit {limit_c:g} degC{hint}"
             )
     return out
-
-
-def _make_dir(directory: Path) -> None:
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserInputError(f"{directory}: cannot create the plot directory ({exc.strerror})") from None
 
 
 def _plots(

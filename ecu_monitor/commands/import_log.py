@@ -25,7 +25,7 @@ from typing import Any
 
 from ecu_monitor.errors import UserInputError
 from ecu_monitor.shipped import resolve_file
-from ecu_monitor.userfiles import check_output_not_input
+from ecu_monitor.userfiles import check_output_file, check_output_not_input
 
 __all__ = ["add_subparser"]
 
@@ -89,10 +89,12 @@ def _targets(args: argparse.Namespace) -> list[tuple[str, Path]]:
         if len(sources) > 1:
             raise UserInputError(f"--out {args.out}: {len(sources)} sources given, use --out-dir DIR for several")
         check_output_not_input(args.out, (sources[0], args.mapping))
-        return [(sources[0], Path(args.out))]
+        return [(sources[0], check_output_file(args.out, "--out"))]
     out_dir = Path(args.out_dir)
     if not out_dir.is_dir():
         raise UserInputError(f"--out-dir {out_dir}: no such directory")
+    for source in sources:
+        check_output_file(out_dir / f"{Path(source).stem}.csv", "--out-dir")
     targets = [(s, out_dir / f"{Path(s).stem}.csv") for s in sources]
     seen: dict[Path, str] = {}
     for source, target in targets:

@@ -141,12 +141,14 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
-    from ecu_monitor.userfiles import check_output_not_input
+    from ecu_monitor.userfiles import check_output_file, check_output_not_input
 
     started = time.perf_counter()
+    for option, out in (("--out", args.out), ("--plot", args.plot), ("--events", args.events)):
+        if out:
+            check_output_not_input(out, (args.log, args.config, args.model), ConfigError)
+            check_output_file(out, option, ConfigError)
     check_table_path(args.out)  # an unknown suffix or a missing pyarrow: one line before any work
-    for out in (args.out, args.plot, args.events):
-        check_output_not_input(out or "", (args.log, args.config, args.model), ConfigError)
     if args.plot:
         _check_plot_path(Path(args.plot))
     path = Path(args.log)

@@ -7,7 +7,6 @@ CBEKF-AU; writes the paper's Figures 7-11 and paper_reproduction.md (ecu_monitor
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
 from ecu_monitor.compile_cache import announce_compiles
@@ -35,8 +34,9 @@ def add_subparser(subparsers: Any) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.research.paper import generate
+    from ecu_monitor.userfiles import prepare_output_dir
 
-    out = Path(args.out)
+    out = prepare_output_dir(args.out, "--out")
     md = generate(out, seeds=max(1, int(args.seeds)))
     print(f"{md}: written with the figures in {out}/")
     return 0

@@ -45,9 +45,10 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.flightlog import FlightLog, write_csv
     from ecu_monitor.identify import ErrorStats, simulate_flight
     from ecu_monitor.model import load_model, paper_table_a1
-    from ecu_monitor.userfiles import check_output_not_input
+    from ecu_monitor.userfiles import check_output_file, check_output_not_input
 
     check_output_not_input(args.out, (args.flight, args.model), FlightLogError)
+    check_output_file(args.out, "--out", FlightLogError)
     params = load_model(args.model) if args.model else paper_table_a1()
     log = load_flight(args.flight, mapping=args.mapping)
     if not log.has("cht_c"):

@@ -8,11 +8,11 @@ Start with :func:`diagnose` (nominal model + train and test flights -> :class:`G
 """
 
 from ecu_monitor.gap.diagnose import EffectScore, GapDiagnosis, GapSettings, cross_validate, diagnose
-from ecu_monitor.gap.library import CANDIDATE_IDS, CANDIDATES, Candidate, FreeParameter
-from ecu_monitor.gap.refit import FitResult, RefitSettings, refit
 from ecu_monitor.gap.report import gap_json, write_report
 from ecu_monitor.gap.segments import SEGMENT_NAMES, SegmentSettings, segment_flight
 from ecu_monitor.gap.significance import SignificanceSettings, improvement_test
+from ecu_monitor.identify.library import CANDIDATE_IDS, CANDIDATES, Candidate, FreeParameter
+from ecu_monitor.identify.refit import FitResult, RefitSettings, refit
 
 __all__ = [
     "CANDIDATES",

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -30,7 +31,6 @@ import numpy as np
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnosis import JOINT_REFIT, EffectScore, GapDiagnosis, GapSettings, HeldOutFlight, rms_of
-from ecu_monitor.gap.library import Candidate, candidate, flight_references
 from ecu_monitor.gap.localise import (
     correlations,
     heat_map_coverage,
@@ -39,7 +39,11 @@ from ecu_monitor.gap.localise import (
     residual_spectrum,
     segment_breakdown,
 )
-from ecu_monitor.gap.refit import (
+from ecu_monitor.gap.scoring import RefitFold, innovation_whiteness, score_fits, second_effect_acts, segment_gain_shares
+from ecu_monitor.gap.segments import Segmentation, segment_flight
+from ecu_monitor.identify.library import candidate, flight_references
+from ecu_monitor.identify.parallel import run_tasks
+from ecu_monitor.identify.refit import (
     FitResult,
     PreparedFlight,
     prepare_flight,
@@ -47,8 +51,6 @@ from ecu_monitor.gap.refit import (
     reidentify,
     simulate_probe,
 )
-from ecu_monitor.gap.scoring import RefitFold, innovation_whiteness, score_fits, second_effect_acts, segment_gain_shares
-from ecu_monitor.gap.segments import Segmentation, segment_flight
 from ecu_monitor.model import ThermalParams
 
 __all__ = [
@@ -182,6 +184,24 @@ def _material_lead(singles: Sequence[EffectScore]) -> EffectScore | None:
     return min(material, key=lambda s: s.test_rms_c) if material else None
 
 
+@dataclass(frozen=True)
+class _FitWork:
+    """What every refit task reads (a forked worker inherits it): the folds and the settings."""
+
+    folds: tuple[RefitFold, ...]
+    settings: GapSettings
+
+
+def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...]]) -> FitResult:
+    """The candidates ``ids`` (none: the control) refitted on fold ``k`` (the settings' refit mode)."""
+    k, ids = task
+    fold, settings = work.folds[k], work.settings
+    entries = [candidate(cid) for cid in ids]
+    if settings.refit_mode == "reidentify":
+        return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
+    return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
+
+
 def _references(logs: Sequence[FlightLog], settings: GapSettings) -> dict[str, float]:
     pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c", "egt_c"))
     return flight_references(pooled, settings.segments.ground_airspeed_mps)
@@ -227,25 +247,26 @@ def _diagnose(
         base_test, _end_to_end(train_logs, axes), _end_to_end(test_logs, axes), axes, hm.x_breakpoints, hm.y_breakpoints
     )
 
-    def fit_one(fold: RefitFold, entries: list[Candidate]) -> FitResult:
-        if settings.refit_mode == "reidentify":
-            return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
-        return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
+    work = _FitWork(tuple(folds), settings)
 
-    def fit_candidates(entries: list[Candidate]) -> list[FitResult]:
-        return [fit_one(fold, entries) for fold in folds]
+    def fit_batch(label: str, batch: Sequence[tuple[str, ...]]) -> list[list[FitResult]]:
+        """Every candidate set of ``batch`` refitted on every fold, on every core: one list of fold fits per set."""
+        n = len(folds)
+        tasks = [(k, ids) for ids in batch for k in range(n)]
+        fits = run_tasks(_fit_task, work, tasks, label, say)
+        return [fits[i * n : (i + 1) * n] for i in range(len(batch))]
 
     def score(fits: list[FitResult], role: str, reference: EffectScore | None, n: float, test: Any) -> EffectScore:
         return score_fits(fits, folds, tests, baseline_rms, engine, role, reference, n, test)
 
     fold_note = f", {len(folds)} folds" if len(folds) > 1 else ""
-    say(f"refit: control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note})")
-    control = score(fit_candidates([]), "control", None, 1, settings.significance)
+    say(
+        f"refit: the control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note}) and"
+        f" {', '.join(settings.candidates)}"
+    )
+    control_fits, *single_fits = fit_batch("refits", [(), *((cid,) for cid in settings.candidates)])
+    control = score(control_fits, "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
-    single_fits: list[list[FitResult]] = []
-    for number, cid in enumerate(settings.candidates, start=1):
-        say(f"refit: {cid} ({number}/{len(settings.candidates)})")
-        single_fits.append(fit_candidates([candidate(cid)]))
     shares = train_led_shares([_train_cost(fits) for fits in single_fits])
     singles = [
         score(fits, "single", control, 1.0 / share, settings.significance)
@@ -264,10 +285,9 @@ def _diagnose(
         reference, role, n_pair_tests = (
             (winner, "pair", len(others)) if winner is not None else (control, "pair_vs_control", n_tests + len(others))
         )
-        for cid in others:
-            say(f"refit: pair {first}+{cid}")
-            fits = fit_candidates([candidate(first), candidate(cid)])
-            pairs.append(score(fits, role, reference, n_pair_tests, pair_test))
+        say(f"refit: pairs {first}+ {', '.join(others)}")
+        pair_fits = fit_batch("pair refits", [(first, cid) for cid in others])
+        pairs = [score(fits, role, reference, n_pair_tests, pair_test) for fits in pair_fits]
         train_bar = settings.significance.min_shrink_pct
         better = [
             p
@@ -285,8 +305,8 @@ def _diagnose(
         model = winner.fit.params
         if len(folds) > 1:
             say(f"refit: {winner.label} on all {len(trains)} flights (model.yaml)")
-            final = RefitFold(final_nominal, trains, references, ())
-            model = fit_one(final, [candidate(cid) for cid in winner.fit.ids]).params
+            final = _FitWork((RefitFold(final_nominal, trains, references, ()),), settings)
+            model = _fit_task(final, (0, winner.fit.ids)).params
     else:
         gain = {}
         winner_segment = where[0].segment

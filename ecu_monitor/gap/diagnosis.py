@@ -10,20 +10,20 @@ from typing import Any
 import numpy as np
 
 from ecu_monitor.errors import ParameterError
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate
 from ecu_monitor.gap.localise import (
     LagSignature,
     SegmentShare,
     Spectrum,
 )
-from ecu_monitor.gap.refit import (
+from ecu_monitor.gap.segments import SEGMENT_NAMES, Segmentation, SegmentSettings
+from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings
+from ecu_monitor.identify import PsoSettings
+from ecu_monitor.identify.library import DEFAULT_CANDIDATE_IDS, candidate
+from ecu_monitor.identify.refit import (
     FitResult,
     PreparedFlight,
     RefitSettings,
 )
-from ecu_monitor.gap.segments import SEGMENT_NAMES, Segmentation, SegmentSettings
-from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings
-from ecu_monitor.identify import PsoSettings
 from ecu_monitor.model import ThermalParams
 
 #: The re-identification of "reidentify" mode: no swarm iterations, so the best of the initial swarm
@@ -39,8 +39,8 @@ class GapSettings:
     """Settings of the diagnosis: candidates tried, refit, significance, segmentation, pairs.
 
     refit_mode "local" (default) refits the candidate's parameters and two nominal factors from the
-    nominal model (:func:`ecu_monitor.gap.refit.refit`); "reidentify" re-identifies the whole nominal
-    model jointly with them (:func:`ecu_monitor.gap.refit.reidentify`, with ``pso``: by default
+    nominal model (:func:`ecu_monitor.identify.refit.refit`); "reidentify" re-identifies the whole nominal
+    model jointly with them (:func:`ecu_monitor.identify.refit.reidentify`, with ``pso``: by default
     :data:`JOINT_REFIT`, a joint least-squares refit from the given model), the choice
     when the nominal model was identified on the train flight itself.
 
@@ -165,6 +165,40 @@ class GapDiagnosis:
     def test(self) -> PreparedFlight:
         """The first test flight."""
         return self.tests[0].flight
+
+    @property
+    def lead(self) -> EffectScore | None:
+        """With no winner: the candidate with the lowest held-out RMS when it is below both the control's
+        and the baseline's (a gain the test could not confirm: too few flights, or not significant across
+        them); None when there is a winner or no candidate shrinks the held-out error."""
+        if self.winner is not None or not self.effects:
+            return None
+        best = min(self.effects, key=lambda s: s.test_rms_c)
+        below = min(self.control.test_rms_c, rms_of(self.baseline_test_residual))
+        return best if best.test_rms_c < below else None
+
+    def lead_sentence(self) -> str | None:
+        """The lead (:attr:`lead`) in one line: what it does on the held-out flights and why it is not named."""
+        lead = self.lead
+        if lead is None:
+            return None
+        flights = "the test flight" if len(self.tests) == 1 else f"the {len(self.tests)} test flights"
+        versus = lead.versus
+        reasons = []
+        if versus is not None and not versus.significant:
+            reasons.append(f"p = {versus.p_value:.2f} against the control, needs <= {versus.level:.3f}")
+        if versus is not None and not versus.material:
+            bar = self.settings.significance
+            reasons.append(
+                f"{versus.shrink_pct:.0f} % below the control, material from {bar.min_shrink_pct:.0f} %"
+                f" and {bar.min_rms_drop_c:g} degC"
+            )
+        why = "; ".join(reasons) or "not tested"
+        advice = "add flights" if self.folds > 1 else "add flights or run --leave-one-out"
+        return (
+            f"{lead.label}: held-out {-lead.shrink_pct:+.0f} % on {flights} ({lead.test_rms_c:.2f} degC,"
+            f" control {self.control.test_rms_c:.2f}), not confirmed across flights ({why}): {advice}"
+        )
 
     @property
     def verdict_ids(self) -> tuple[str, ...]:

@@ -78,6 +78,22 @@ def _effect_entry(score: EffectScore) -> dict[str, Any]:
     }
 
 
+def _lead_entry(diag: GapDiagnosis) -> dict[str, Any] | None:
+    """verdict.lead: with no winner, the candidate that still shrinks the held-out error (not confirmed)."""
+    lead = diag.lead
+    if lead is None:
+        return None
+    return {
+        "id": lead.label,
+        "shrink_pct": lead.shrink_pct,
+        "shrink_vs_control_pct": lead.versus.shrink_pct if lead.versus else None,
+        "p_value": lead.versus.p_value if lead.versus else None,
+        "test_rms_c": lead.test_rms_c,
+        "confirmed": False,
+        "text": diag.lead_sentence(),
+    }
+
+
 def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
     """The gap.json document of a diagnosis (docs/contracts.md section 3, plus extra keys beside)."""
     base_test = diag.baseline_test_residual
@@ -93,6 +109,7 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
         "test_rms_c": winner.test_rms_c if winner is not None else float(np.sqrt(np.mean(base_test**2))),
         "test_peak_c": winner.test_peak_c if winner is not None else float(np.max(np.abs(base_test))),
         "segment_gain_share": diag.segment_gain,
+        "lead": _lead_entry(diag),
         "flights_confirming": [row["flight"] for row in detail if row.get("shrink_vs_control_pct", 0.0) > 0.0],
         "segments_holding": _segments_holding(detail),
         "per_flight": [
@@ -382,8 +399,10 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
         )
     else:
         top = diag.where[0]
+        lead = diag.lead_sentence()
         lines.append(
-            f"**Unexplained.** No candidate effect improves the held-out test flight significantly and materially "
+            (f"**Not confirmed: {lead}.** " if lead else "**Unexplained.** ")
+            + "No candidate effect improves the held-out test flight significantly and materially "
             f"over the re-tuned nominal model; none is named. The residual lies mostly in the **{top.segment}** "
             f"segment ({100 * top.share:.0f} % of the squared error, RMS {top.rms_c:.2f} degC, mean "
             f"{top.mean_c:+.2f} degC). model.yaml is the nominal model unchanged."

@@ -13,17 +13,17 @@ import numpy as np
 from ecu_monitor.estimation import run_estimator
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnosis import EffectScore, GapSettings, HeldOutFlight, rms_of, shrink_percent
-from ecu_monitor.gap.library import candidate
 from ecu_monitor.gap.localise import (
     ljung_box,
 )
-from ecu_monitor.gap.refit import (
+from ecu_monitor.gap.segments import SEGMENT_NAMES
+from ecu_monitor.gap.significance import SignificanceSettings, improvement_test
+from ecu_monitor.identify.library import candidate
+from ecu_monitor.identify.refit import (
     FitResult,
     PreparedFlight,
     simulate_probe,
 )
-from ecu_monitor.gap.segments import SEGMENT_NAMES
-from ecu_monitor.gap.significance import SignificanceSettings, improvement_test
 from ecu_monitor.model import ThermalParams
 
 

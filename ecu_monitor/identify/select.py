@@ -9,12 +9,22 @@ T^4 in kelvin instead of the paper's degC). :func:`model_form` switches terms on
 parameters to fit with them.
 
 :func:`leave_one_flight_out` fits the model on all flights but one and scores the flight left out, for
-every flight. :func:`select_terms` (``identify --effects auto``) starts from the base model's form and,
-round by round, toggles the one term that lowers the mean held-out RMS error the most, while it lowers
-it by at least :data:`MIN_GAIN`: a term is kept only when flights the fit never saw say it helps, and a
-term of the paper's form is dropped when they say it hurts. The candidate toggles of a round are
-refitted by a least-squares polish that starts from each fold's current fit (fitted without the flight
-it is scored on, so nothing leaks); the chosen form is then identified afresh (PSO and polish).
+every flight (the folds on every core). :func:`select_terms` (``identify --effects auto``) starts from
+the *full* form (every candidate effect the flights can carry switched on, the paper form's parts as
+the base has them), identified once per fold, and, round by round, toggles the one term whose toggle
+gives the lowest mean held-out RMS error among those worth it: a term added must lower the error by
+at least :data:`MIN_GAIN`, an effect removed must not raise it by more (the simpler form that predicts
+as well wins), both against the current form and the *control* (the current form re-tuned by the same
+refit with no toggle). A term is thus kept only when flights the fit never saw say it helps. An
+effect toggled is screened by the gap diagnosis's warm-started local refit
+(:func:`ecu_monitor.identify.refit.refit`: the term's own parameters, R_Ce and the heat scale) from
+each fold's current fit, which was fitted without the flight it is scored on, so nothing leaks; a
+part of the paper's form toggled (``altitude_factor``, ``radiation_kelvin``) changes what the whole
+heat map means and is screened by a polish of the whole search space from the same fit. The folds of
+the chosen form are then polished in the whole search space (the held-out errors reported) and the
+chosen form is identified once on every flight (PSO and polish). Starting full rather than empty
+matters: an effect screened locally from a poor fit (the paper form on an engine that needs three
+terms) shows little of its worth, one removed from a good fit shows all of it.
 """
 
 from __future__ import annotations
@@ -23,23 +33,27 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ecu_monitor.errors import ParameterError
+from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.fit import IdentificationResult, identify, polish
+from ecu_monitor.identify.library import CANDIDATE_IDS, Candidate, candidate
 from ecu_monitor.identify.objective import SwarmObjective
+from ecu_monitor.identify.parallel import run_tasks
 from ecu_monitor.identify.problem import (
     DEFAULT_FREE,
     ErrorStats,
-    ParameterSpace,
     default_space,
     flight_errors,
     reference_point,
 )
 from ecu_monitor.identify.pso import PsoSettings
+from ecu_monitor.identify.refit import RefitSettings, refit
+from ecu_monitor.identify.refit import prepare_flight as prepare_refit_flight
 from ecu_monitor.model import EFFECT_NAMES, EFFECT_TYPES, ThermalParams
 
 __all__ = [
@@ -154,10 +168,8 @@ class Fold:
 
     held_out: str  # the held-out flight's source
     params: ThermalParams
-    space: ParameterSpace
-    vector: NDArray[np.float64]
     errors: ErrorStats  # on the held-out flight (reference step)
-    train_cost: float
+    train_cost: float  # the fit's cost on its training flights, degC
 
 
 @dataclass(frozen=True)
@@ -182,59 +194,87 @@ def _fold_flights(flights: Sequence[FlightLog], k: int) -> list[FlightLog]:
     return [log for i, log in enumerate(flights) if i != k]
 
 
+@dataclass(frozen=True)
+class _Shared:
+    """What every fold task reads (a forked worker inherits it): the flights and the settings."""
+
+    flights: tuple[FlightLog, ...]
+    settings: PsoSettings
+    error_dt_s: float | None
+    free: tuple[str, ...] = DEFAULT_FREE
+
+
+def _identify_fold(shared: _Shared, task: tuple[int, ThermalParams, tuple[str, ...], tuple[str, str], Any]) -> Fold:
+    """Identify (PSO and polish) on every flight but ``k`` from ``base``; score flight ``k``."""
+    k, base, free, heat_axes, grid = task
+    train = _fold_flights(shared.flights, k)
+    result = identify(train, base=base, heat_axes=heat_axes, free=free, grid=grid, settings=shared.settings)
+    errors = flight_errors(result.params, shared.flights[k], shared.error_dt_s)
+    return Fold(shared.flights[k].source, result.params, errors, result.best_cost)
+
+
 def leave_one_flight_out(
     flights: Sequence[FlightLog],
-    base: ThermalParams,
+    base: ThermalParams | Sequence[ThermalParams],
     free: Sequence[str],
     heat_axes: tuple[str, str],
     grid: tuple[int, int] | None,
     settings: PsoSettings,
     error_dt_s: float | None = None,
-    pso_progress: Callable[[int, float, float], None] | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> CrossValidation:
-    """Identify on every flight but one and score the one left out, for each flight (at least 2)."""
+    """Identify on every flight but one and score the one left out, for each flight (at least 2), the
+    folds on every core. ``base``: one start for every fold, or one per fold (a warm start that has not
+    seen its held-out flight; the swarm holds it as one particle)."""
     if len(flights) < 2:
         raise ParameterError("leave-one-flight-out needs at least 2 flights")
-    folds = []
-    for k, log in enumerate(flights):
-        train = _fold_flights(flights, k)
-        result = identify(
-            train, base=base, heat_axes=heat_axes, free=free, grid=grid, settings=settings, progress=pso_progress
-        )
-        folds.append(
-            Fold(
-                held_out=log.source,
-                params=result.params,
-                space=result.space,
-                vector=result.best_vector,
-                errors=flight_errors(result.params, log, error_dt_s),
-                train_cost=result.best_cost,
-            )
-        )
+    bases = [base] * len(flights) if isinstance(base, ThermalParams) else list(base)
+    shared = _Shared(tuple(flights), settings, error_dt_s)
+    tasks = [(k, bases[k], tuple(free), heat_axes, grid) for k in range(len(flights))]
+    folds = run_tasks(_identify_fold, shared, tasks, "leave-one-flight-out identifications", progress)
     return CrossValidation(tuple(folds))
 
 
-def _refit_fold(
-    fold: Fold,
-    flights: Sequence[FlightLog],
-    k: int,
-    term: str,
-    on: bool,
-    free: Sequence[str],
-    settings: PsoSettings,
-    error_dt_s: float | None,
-) -> Fold:
-    """The fold's current fit with one term toggled, polished on the fold's training flights."""
-    train = _fold_flights(flights, k)
-    start = _set_term(fold.params, term, on, train)
-    start, names = model_form(start, train, {}, free)
-    space = default_space(train, base=start, heat_axes=start.heat_axes, free=names)
-    objective = SwarmObjective(train, space, settings.dt_s)
-    unit, cost = polish(objective, space.to_unit(space.from_params(start)), settings.polish_evaluations)
-    vector = space.from_unit(unit)
-    params = space.to_params(vector)
-    errors = flight_errors(params, flights[k], error_dt_s)
-    return Fold(fold.held_out, params, space, vector, errors, cost)
+def _screen_entries(name: str, on: bool) -> list[Candidate]:
+    """The library candidates whose parameters the screening refit frees with a toggle: the term's own
+    when it is switched on (the altitude exponents for the altitude factor), none for a removal (the
+    refit then re-tunes only R_Ce and the heat scale, as the gap's control does)."""
+    if not on:
+        return []
+    if name == "altitude_factor":
+        return [candidate("heat_altitude_scaling")]
+    return [candidate(name)] if name in CANDIDATE_IDS else []
+
+
+def _screen_fold(shared: _Shared, task: tuple[int, ThermalParams, str, bool]) -> Fold:
+    """Fold ``k``'s current fit with one effect toggled (none for ``name`` ""), refitted locally (the gap's
+    joint least squares of the term's parameters, R_Ce and the heat scale,
+    :func:`ecu_monitor.identify.refit.refit`) on the fold's training flights; scored on the flight held out.
+    A part of the paper's form toggled is polished in the whole search space instead."""
+    k, params, name, on = task
+    train = _fold_flights(shared.flights, k)
+    start = _set_term(params, name, on, train) if name else params  # "": the control
+    if name and name not in EFFECT_TYPES:
+        # a part of the paper's form (the altitude factor, the radiation's units) changes what the whole
+        # heat map means: two scale factors cannot judge it, a polish of the whole search space can
+        return _polish_fold(shared, (k, start, model_form(start, train, {}, shared.free)[1]))
+    dt = shared.settings.dt_s
+    prepared = [prepare_refit_flight(log, start.heat_axes, dt, start.effects.mixture_index) for log in train]
+    fit = refit(start, prepared, _screen_entries(name, on), {}, RefitSettings(dt_s=dt))
+    errors = flight_errors(fit.params, shared.flights[k], shared.error_dt_s)
+    return Fold(shared.flights[k].source, fit.params, errors, fit.train_rms_c)
+
+
+def _polish_fold(shared: _Shared, task: tuple[int, ThermalParams, tuple[str, ...]]) -> Fold:
+    """Fold ``k``'s fit polished in the whole search space (every free parameter, the heat map
+    breakpoints) on the fold's training flights, and scored on the flight held out."""
+    k, start, free = task
+    train = _fold_flights(shared.flights, k)
+    space = default_space(train, base=start, heat_axes=start.heat_axes, free=free)
+    objective = SwarmObjective(train, space, shared.settings.dt_s)
+    unit, cost = polish(objective, space.to_unit(space.from_params(start)), shared.settings.polish_evaluations)
+    params = space.to_params(space.from_unit(unit))
+    return Fold(shared.flights[k].source, params, flight_errors(params, shared.flights[k], shared.error_dt_s), cost)
 
 
 #: Shortest half-flight ``--effects auto`` splits a single flight into, s.
@@ -270,6 +310,29 @@ class Selection:
     elapsed_s: float
 
 
+def _full_form(base: ThermalParams, flights: Sequence[FlightLog], candidates: Sequence[str]) -> dict[str, bool]:
+    """Every candidate effect switched on that the flights can start (a term that needs a column the flights
+    lack stays off and out of the search); the paper form's parts as the base has them."""
+    terms = {}
+    for name in candidates:
+        if name not in EFFECT_TYPES:
+            continue
+        try:
+            _set_term(base, name, True, flights)
+        except (FlightLogError, ParameterError):
+            continue
+        terms[name] = True
+    return terms
+
+
+def _passes(name: str, on: bool, trial: float, reference: float, min_gain: float) -> bool:
+    """Whether a toggle is worth keeping: a term added must lower the held-out error by ``min_gain``; an
+    effect removed must not raise it by more than that (the simpler form that predicts as well wins)."""
+    if not on and name in EFFECT_TYPES:
+        return trial < reference * (1.0 + min_gain)
+    return trial < reference * (1.0 - min_gain)
+
+
 def select_terms(
     flights: Sequence[FlightLog],
     base: ThermalParams,
@@ -281,42 +344,57 @@ def select_terms(
     min_gain: float = MIN_GAIN,
     error_dt_s: float | None = None,
     progress: Callable[[str], None] | None = None,
-    pso_progress: Callable[[int, float, float], None] | None = None,
 ) -> Selection:
     """Choose the terms by leave-one-flight-out held-out error (module doc); needs at least 2 flights."""
     started = time.perf_counter()
-    usable = list(candidates)
-    start, names = model_form(base, flights, {}, free)
-    cv = leave_one_flight_out(flights, start, names, heat_axes, grid, settings, error_dt_s, pso_progress)
+    say = progress or (lambda line: None)
+    full = _full_form(base, flights, candidates)
+    usable = [name for name in candidates if name in full or name not in EFFECT_TYPES]
+    start, names = model_form(base, flights, full, free)
+    say(f"start ({_form_label(start)}): one identification per held-out flight")
+    cv = leave_one_flight_out(flights, start, names, heat_axes, grid, settings, error_dt_s, progress)
     steps: list[tuple[int, str, float, bool]] = [(0, "start: " + _form_label(start), cv.mean_rms_c, True)]
-    if progress:
-        progress(f"start ({_form_label(start)}): held-out mean RMS {cv.mean_rms_c:.2f} degC")
+    say(f"start ({_form_label(start)}): held-out mean RMS {cv.mean_rms_c:.2f} degC")
     state = {name: term_is_on(start, name) for name in usable}
-    tried: set[str] = set()
+    shared = _Shared(tuple(flights), settings, error_dt_s, tuple(free))
+    n = len(cv.folds)
     for round_ in range(1, len(usable) + 1):
+        toggles = [(name, not state[name]) for name in usable if name not in _toggled(steps)]
+        if not toggles:
+            break
+        # the control (no toggle, the same local re-tuning) first: a toggle is judged against it too
+        tasks = [(k, fold.params, name, on) for name, on in [("", False), *toggles] for k, fold in enumerate(cv.folds)]
+        label = f"round {round_}: {len(toggles)} term(s) and the control x {n} folds (local refits)"
+        screened = run_tasks(_screen_fold, shared, tasks, label, progress)
+        trials = [CrossValidation(tuple(screened[i * n : (i + 1) * n])) for i in range(len(toggles) + 1)]
+        control = trials[0]
+        reference = min(cv.mean_rms_c, control.mean_rms_c)
+        say(f"round {round_}: control (current form re-tuned): held-out mean RMS {control.mean_rms_c:.2f} degC")
         best: tuple[float, str, CrossValidation] | None = None
-        for name in usable:
-            if name in tried:
-                continue
-            on = not state[name]
-            folds = tuple(
-                _refit_fold(fold, flights, k, name, on, free, settings, error_dt_s) for k, fold in enumerate(cv.folds)
-            )
-            trial = CrossValidation(folds)
+        for (name, on), trial in zip(toggles, trials[1:], strict=True):
             label = ("+" if on else "-") + name
             steps.append((round_, label, trial.mean_rms_c, False))
-            if progress:
-                progress(f"round {round_}: {label}: held-out mean RMS {trial.mean_rms_c:.2f} degC")
-            if best is None or trial.mean_rms_c < best[0]:
+            say(f"round {round_}: {label}: held-out mean RMS {trial.mean_rms_c:.2f} degC")
+            if _passes(name, on, trial.mean_rms_c, reference, min_gain) and (
+                best is None or trial.mean_rms_c < best[0]
+            ):
                 best = (trial.mean_rms_c, name, trial)
-        if best is None or not best[0] < cv.mean_rms_c * (1.0 - min_gain):
+        if best is None:
             break
         _, name, cv = best
         state[name] = not state[name]
-        tried.add(name)  # a term toggled once is not toggled back
         label = ("+" if state[name] else "-") + name
         steps = [(r, s, v, kept or (r == round_ and s == label)) for r, s, v, kept in steps]
-    return Selection(state, tuple(steps), cv, time.perf_counter() - started)
+    chosen, names = model_form(base, flights, state, free)
+    say(f"chosen ({_form_label(chosen)}): each fold polished in the whole search space")
+    tasks_polish = [(k, fold.params, names) for k, fold in enumerate(cv.folds)]
+    polished = run_tasks(_polish_fold, shared, tasks_polish, "polish of the chosen form's folds", progress)
+    return Selection(state, tuple(steps), CrossValidation(tuple(polished)), time.perf_counter() - started)
+
+
+def _toggled(steps: Sequence[tuple[int, str, float, bool]]) -> set[str]:
+    """Terms toggled in a kept step (a term toggled once is not toggled back)."""
+    return {label[1:] for r, label, _, kept in steps if kept and r > 0}
 
 
 def identify_flights(
@@ -337,19 +415,20 @@ def identify_flights(
     """The normal real-data path: choose the terms (``"auto"`` among ``candidates``, a dict, or None =
     the base's form), fit one model on every flight, and (``lofo`` with 2+ flights) its
     leave-one-flight-out errors. With one flight, ``"auto"`` chooses on its two halves (each predicts
-    the other) and fits the chosen form on the whole flight."""
+    the other) and fits the chosen form on the whole flight. ``progress`` gets lines on the folds and
+    the term search, ``pso_progress`` the swarm's iterations of the final identification."""
     selection = None
     if terms == "auto":
         chosen_on = list(flights) if len(flights) >= 2 else split_halves(flights[0])
         selection = select_terms(chosen_on, base, heat_axes, grid, settings, candidates=candidates, free=free,
-                                 error_dt_s=error_dt_s, progress=progress, pso_progress=pso_progress)  # fmt: skip
+                                 error_dt_s=error_dt_s, progress=progress)  # fmt: skip
         chosen = selection.terms
     else:
         chosen = dict(terms) if isinstance(terms, dict) else {}
     form, names = model_form(base, flights, chosen, free)
     cv = selection.cross_validation if selection is not None and len(flights) >= 2 else None
     if cv is None and lofo and len(flights) >= 2:
-        cv = leave_one_flight_out(flights, form, names, heat_axes, grid, settings, error_dt_s, pso_progress)
+        cv = leave_one_flight_out(flights, form, names, heat_axes, grid, settings, error_dt_s, progress)
     result = identify(
         flights, base=form, heat_axes=heat_axes, free=names, grid=grid, settings=settings, progress=pso_progress
     )

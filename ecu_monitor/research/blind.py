@@ -32,9 +32,9 @@ import numpy as np
 
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnose import GapDiagnosis, GapSettings, diagnose
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS as CANDIDATE_IDS
-from ecu_monitor.gap.refit import prepare_flight
 from ecu_monitor.gap.segments import SEGMENT_NAMES, segment_flight
+from ecu_monitor.identify.library import DEFAULT_CANDIDATE_IDS as CANDIDATE_IDS
+from ecu_monitor.identify.refit import prepare_flight
 from ecu_monitor.model import Effects, ThermalParams, coefficients, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
 from virtual_bus.plant import Degradation, fly, gamma_schedule, random_effects

@@ -34,8 +34,8 @@ import numpy as np
 
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnose import GapDiagnosis, GapSettings, diagnose
-from ecu_monitor.gap.library import candidate, flight_references
-from ecu_monitor.gap.refit import prepare_flight, refit, simulate_probe
+from ecu_monitor.identify.library import candidate, flight_references
+from ecu_monitor.identify.refit import prepare_flight, refit, simulate_probe
 from ecu_monitor.model import Effects, ThermalParams, coefficients, paper_table_a1
 from ecu_monitor.model.compiled import simulate_compiled
 from ecu_monitor.research.blind import MEASURED_COLUMNS, perturbed_nominal

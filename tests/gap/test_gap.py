@@ -12,10 +12,10 @@ from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap import GapSettings, diagnose, gap_json, improvement_test, segment_flight, write_report
 from ecu_monitor.gap.diagnose import EffectScore, _material_lead, train_led_shares, train_shrink_pct
-from ecu_monitor.gap.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
 from ecu_monitor.gap.localise import lag_signature, ljung_box, segment_breakdown
-from ecu_monitor.gap.refit import FitResult, prepare_flight, refit, simulate_probe
-from ecu_monitor.gap.significance import ImprovementTest
+from ecu_monitor.gap.significance import ImprovementTest, SignificanceSettings
+from ecu_monitor.identify.library import DEFAULT_CANDIDATE_IDS, candidate, candidates_for, flight_references
+from ecu_monitor.identify.refit import FitResult, prepare_flight, refit, simulate_probe
 from ecu_monitor.model import MixtureIndex, SensorLag, load_model, paper_table_a1
 from ecu_monitor.research.blind import CASE_KINDS, blind_case, run_blind_case
 from virtual_bus.plant import fly
@@ -168,7 +168,7 @@ def test_refit_recovers_a_mixture_effect_read_from_the_logged_egt() -> None:
 
 def test_nominal_candidates_search_only_values_the_model_accepts() -> None:
     # a refit reaching a bound must still build a valid model (a, b >= 0 since model.yaml checks them)
-    from ecu_monitor.gap.library import CANDIDATES
+    from ecu_monitor.identify.library import CANDIDATES
 
     nominal = paper_table_a1()
     for entry in CANDIDATES:
@@ -181,7 +181,7 @@ def test_nominal_candidates_search_only_values_the_model_accepts() -> None:
 
 def test_effect_candidates_come_from_the_effects_and_search_only_values_they_accept() -> None:
     # each model effect's candidate is made from its declarations; a refit at a bound builds a valid effect
-    from ecu_monitor.gap.library import CANDIDATES, effects_for
+    from ecu_monitor.identify.library import CANDIDATES, effects_for
     from ecu_monitor.model import EFFECT_TYPES, Effects
 
     effect_entries = [entry for entry in CANDIDATES if entry.effect != "nominal"]
@@ -250,7 +250,7 @@ def test_gap_json_schema_and_outputs(tmp_path: Path) -> None:
 
 def test_refit_sigma_not_identifiable_when_round_off_or_wider_than_bounds():
     """A sigma of 8.5e-16 on floor in [0.1, 1] or of 62 on onset in [0, 0.95] means nothing: inf."""
-    from ecu_monitor.gap.refit import identifiable_std
+    from ecu_monitor.identify.refit import identifiable_std
 
     std = identifiable_std(
         np.array([8.5e-16, 62.0, 0.05, np.nan]), np.array([0.1, 0.0, 0.0, 0.0]), np.array([1.0, 0.95, 0.95, 1.0])
@@ -297,3 +297,17 @@ def test_a_pair_must_also_shrink_the_train_rms_of_its_reference() -> None:
     assert train_shrink_pct(score(("airspeed_cooling", "mixture_cooling"), (0.421,)), single) == pytest.approx(50.0)
     # folds pooled as a mean square: sqrt(mean(3^2, 4^2) / mean(6^2, 8^2)) = 0.5
     assert train_shrink_pct(score(("a",), (3.0, 4.0)), score(("b",), (6.0, 8.0))) == pytest.approx(50.0)
+
+
+def test_an_effect_the_test_cannot_confirm_is_named_with_its_shrink_not_a_bare_unexplained() -> None:
+    """Issue 28 item 2: with nothing material (a bar of 100 %), the verdict stays null but says what it
+    found on the held-out flight and what to do about it."""
+    case = blind_case(3, BLIND_SEED, SCHEMA_DURATION_S)  # sensor lag
+    strict = GapSettings(significance=SignificanceSettings(min_shrink_pct=100.0), whiteness_estimator=None)
+    diag = diagnose(case.nominal, case.train, case.test, strict)
+    assert diag.winner is None
+    verdict = gap_json(diag)["verdict"]
+    lead = verdict["lead"]
+    assert verdict["effect"] is None and lead["id"] == "sensor_lag" and lead["shrink_pct"] > 50.0
+    assert lead["text"].startswith("sensor_lag: held-out -") and "not confirmed" in lead["text"]
+    assert "--leave-one-out" in lead["text"] and not lead["confirmed"]

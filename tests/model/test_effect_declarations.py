@@ -12,8 +12,8 @@ import pytest
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.library import CANDIDATES
 from ecu_monitor.identify import search_settings
+from ecu_monitor.identify.library import CANDIDATES
 from ecu_monitor.identify.select import TERM_NAMES, model_form
 from ecu_monitor.model import EFFECT_COEFFICIENTS, EFFECT_TYPES, Coefficients, coefficients, paper_table_a1
 from virtual_bus.faults import PLANT_EFFECTS, random_effects

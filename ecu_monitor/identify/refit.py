@@ -3,7 +3,7 @@ nominal model, and its open-loop score on any flight.
 
 The fit is a bounded nonlinear least squares (``scipy.optimize.least_squares``, trust-region
 reflective) of measured minus simulated CHT over the train flight, on the candidate's free
-parameters plus the re-tuned nominal factors of :data:`ecu_monitor.gap.library.RETUNED_NOMINAL`.
+parameters plus the re-tuned nominal factors of :data:`ecu_monitor.identify.library.RETUNED_NOMINAL`.
 The Jacobian is a forward difference evaluated as one swarm call of the compiled simulator (the
 base point and every perturbed point are particles of the same run).
 
@@ -26,9 +26,12 @@ from scipy.optimize import least_squares
 
 from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.library import RETUNED_BOUNDS, RETUNED_NOMINAL, Candidate, FreeParameter, effects_for
-from ecu_monitor.identify import DEFAULT_FREE, IDENTIFICATION_DT_S, FlightGrid, PsoSettings, default_space, identify
-from ecu_monitor.identify import prepare_flight as prepare_grid
+from ecu_monitor.identify.fit import identify
+from ecu_monitor.identify.flights import FlightGrid
+from ecu_monitor.identify.flights import prepare_flight as prepare_grid
+from ecu_monitor.identify.library import RETUNED_BOUNDS, RETUNED_NOMINAL, Candidate, FreeParameter, effects_for
+from ecu_monitor.identify.problem import DEFAULT_FREE, IDENTIFICATION_DT_S, default_space
+from ecu_monitor.identify.pso import PsoSettings
 from ecu_monitor.model import MixtureIndex, ThermalParams, coefficients, simulate, stack_coefficients
 from ecu_monitor.model.compiled import simulate_compiled
 
@@ -77,12 +80,15 @@ class PreparedFlight(NamedTuple):
 EGT_INDEX = MixtureIndex(source="egt_c", gain=0.0, reference=650.0)
 
 
-def prepare_flight(log: FlightLog, heat_axes: tuple[str, str], dt_s: float) -> PreparedFlight:
-    """Put ``log`` on a uniform integration step ``dt_s`` (with its EGT as the mixture index when the
-    log carries one); FlightLogError if a column is missing."""
+def prepare_flight(
+    log: FlightLog, heat_axes: tuple[str, str], dt_s: float, mixture: MixtureIndex | None = None
+) -> PreparedFlight:
+    """Put ``log`` on a uniform integration step ``dt_s`` with the index of ``mixture`` (by default its
+    EGT as the mixture index when the log carries one); FlightLogError if a column is missing."""
     if len(log) < 10:
         raise FlightLogError(f"{log.source}: too short for a gap diagnosis ({len(log)} samples)")
-    mixture = EGT_INDEX if log.has("egt_c") else None
+    if mixture is None:
+        mixture = EGT_INDEX if log.has("egt_c") else None
     grid = prepare_grid(log, heat_axes, dt_s, record_period_s=max(dt_s, 1.0), mixture=mixture)
     spacing = float(np.median(np.diff(log.time_s)))
     return PreparedFlight(log, grid, np.asarray(grid.measured_c, dtype=float), spacing)

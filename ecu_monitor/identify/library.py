@@ -36,6 +36,7 @@ Added for real data (not in the default set, :data:`DEFAULT_CANDIDATE_IDS`; ask 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -203,10 +204,17 @@ def effects_for(
     values: Mapping[str, Mapping[str, float]],
     references: Mapping[str, float],
 ) -> Effects:
-    """``base`` with each candidate's effect switched on at ``values[candidate.id]``."""
+    """``base`` with each candidate's effect switched on at ``values[candidate.id]``; an effect ``base``
+    already has keeps its other fields (its reference, a propeller wash, its index source) and takes the
+    values (a warm start from an identified model keeps the form that model was identified with)."""
     effects = base
     for entry in entries:
         if entry.effect == "nominal":
             continue
-        effects = effects.replace(entry.effect, _make(entry, values[entry.id], references))
+        current = getattr(base, entry.effect)
+        if current is not None:
+            fitted = {name: float(value) for name, value in values[entry.id].items()}
+            effects = effects.replace(entry.effect, dataclasses.replace(current, **fitted))
+        else:
+            effects = effects.replace(entry.effect, _make(entry, values[entry.id], references))
     return effects
