@@ -348,10 +348,12 @@ def calibrate_flights(
     whole = sum(f.whole_hours(settings.block_s) for f in flights)
     if whole < MIN_WHOLE_HOURS:
         given = sum(f.hours for f in flights)
+        shortest_min = (settings.warmup_s + 3600.0) / 60.0
         raise ParameterError(
             f"{len(flights)} flight(s) give {given:.2f} flight hours, {whole} whole hour(s) of detector statistic "
             f"after the {settings.warmup_s:g} s warm-up of each flight; calibration needs at least {MIN_WHOLE_HOURS}"
-            " whole hours: add nominal flights"
+            f" whole hours: add nominal flights giving {MIN_WHOLE_HOURS - whole} more (a flight gives one whole hour"
+            f" per full hour after its warm-up: none under {shortest_min:g} min)"
         )
     paths = [stat for f in flights for _, stat in f.paths]
     calibration = calibrate_threshold(paths, rate_per_100h, sample_period_s=settings.block_s)

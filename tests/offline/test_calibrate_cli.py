@@ -196,6 +196,7 @@ def test_fewer_than_two_hours_exits_2_with_the_hours(nominal, capsys):
     folder, _ = nominal
     line = _one_line_exit_2([str(folder / "short.csv"), "--out", str(folder / "x.yaml")], capsys)
     assert "0.33 flight hours" in line and "0 whole hour" in line and "at least 2" in line
+    assert "giving 2 more" in line and "none under 70 min" in line  # how much more, and what counts
     assert not (folder / "x.yaml").exists()
 
 
