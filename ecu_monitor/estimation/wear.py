@@ -44,7 +44,6 @@ __all__ = [
     "WearVerdict",
     "cusum_threshold",
     "reference_from_flights",
-    "sd_upper_bound",
     "wear_ratios",
     "wear_verdict",
 ]
@@ -94,18 +93,12 @@ class WearReference:
             raise ConfigError(f"wear reference: expected at least 2 flights, got {self.flights!r}")
 
     def sd_upper(self, confidence: float) -> float:
-        """Upper confidence bound of the spread (:func:`sd_upper_bound` over these flights)."""
-        return sd_upper_bound(self.sd, self.flights, confidence)
-
-
-def sd_upper_bound(sd: float, count: int, confidence: float) -> float:
-    """One-sided upper confidence bound of a standard deviation ``sd`` measured on ``count`` (>= 2) values:
-    sd * sqrt(df / chi2_(1 - confidence)(df)), df = count - 1 (Wilson-Hilferty's quantile, floored for tiny df)."""
-    df = count - 1
-    z = statistics.NormalDist().inv_cdf(1.0 - confidence)
-    c = 2.0 / (9.0 * df)
-    quantile = df * max(1.0 - c + z * math.sqrt(c), 0.05) ** 3
-    return sd * math.sqrt(df / quantile)
+        """Upper confidence bound of the spread: sd * sqrt(df / chi2_(1 - confidence)(df)), df = flights - 1."""
+        df = self.flights - 1
+        z = statistics.NormalDist().inv_cdf(1.0 - confidence)
+        c = 2.0 / (9.0 * df)
+        quantile = df * max(1.0 - c + z * math.sqrt(c), 0.05) ** 3  # Wilson-Hilferty; floored for tiny df
+        return self.sd * math.sqrt(df / quantile)
 
 
 def reference_from_flights(indices: Sequence[float | None]) -> WearReference | None:
