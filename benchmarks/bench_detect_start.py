@@ -15,9 +15,10 @@
    detection, the fault is called Q when mean(gamma_Q) - 1 > mean(gamma_D) - 1, else D (no isolable row:
    not isolated, counted wrong).
 
-``--replays DIR`` stores each flight's replay (feeds kept, no reference) and scores detection offline from
-it with the step's arithmetic (the two tests of the pipeline's detector step): a changed reference rule is
-re-scored without flying again; isolation is not scored then (its flag needs the replay with the reference).
+``--replays DIR`` stores the replays of the calibration and nominal flights (their detector feeds) and
+reuses them when there: the nominal flights are then scored offline with the step's arithmetic (its two tests
+over the stored feed; no isolation to score on them), so a changed reference rule is re-scored without flying
+them again. The faulty flights are always replayed with the calibrated detector (isolation scored).
 
 Every flight: ``virtual_bus.random_missions.random_mission(seed, 3600 s)`` flown by the truth plant with
 unmodelled effects of residual size (``research.evaluation.residual_effects``: what an identified model
@@ -111,8 +112,8 @@ def _first_alarms(flight: Any, settings: Any) -> tuple[float, float]:
 
 
 def stored_replay(job: tuple[int, str | None, str]) -> str:
-    """``--replays``: the flight flown and replayed once (the config's detector, feeds kept) into DIR, reused
-    when there; returns its file."""
+    """``--replays``: the flight flown and replayed once (feeds kept: they do not depend on the detector) into DIR,
+    reused when there; returns its file."""
     import pickle
     from pathlib import Path
 
@@ -136,7 +137,7 @@ def _load_replay(path: str) -> Any:
 
 
 def score_stored(job: tuple[int, str | None, Any, str]) -> dict[str, Any]:
-    """``--replays``: one scored flight from its stored replay, detection only (offline, both tests)."""
+    """``--replays``: one scored nominal flight from its stored replay: detection only (offline, both tests)."""
     seed, fault, settings, path = job
     flight = _load_replay(path)
     in_flight_s, reference_s = _first_alarms(flight, settings)
@@ -200,9 +201,9 @@ def main() -> None:
         scored += [(base + 100 * (j + 1) + i, fault) for i in range(args.faulty)]
     scored += [(base + 500 + i, None) for i in range(args.nominal)]
     with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
+        nominal = [seed for seed, fault in scored if fault is None]
         if args.replays:
-            stored = pool.map(stored_replay, [(seed, None, args.replays) for seed in calibration_seeds]
-                              + [(seed, fault, args.replays) for seed, fault in scored])  # fmt: skip
+            stored = pool.map(stored_replay, [(seed, None, args.replays) for seed in calibration_seeds + nominal])
             feeds = [_load_replay(p) for p in stored[: len(calibration_seeds)]]
         else:
             feeds = pool.map(calibration_flight, calibration_seeds)
@@ -214,8 +215,10 @@ def main() -> None:
             print(f"  {name:<13} mean {ref.mean[r]:+.4f} spread {ref.spread[r]:.4f} degC/s")
         print(f"  reference test h = {settings.nominal_threshold:g} ({ref.calibration.hours} whole hours)")
         if args.replays:
+            faulty = [(seed, fault) for seed, fault in scored if fault is not None]
+            results = pool.map(score_flight, [(seed, fault, settings) for seed, fault in faulty])
             paths = stored[len(calibration_seeds) :]
-            results = [score_stored((seed, fault, settings, p)) for (seed, fault), p in zip(scored, paths, strict=True)]
+            results += [score_stored((seed, None, settings, p)) for seed, p in zip(nominal, paths, strict=True)]
         else:
             results = pool.map(score_flight, [(seed, fault, settings) for seed, fault in scored])
     command = "nice -n 10 .venv/bin/python benchmarks/bench_detect_start.py " + shlex.join(sys.argv[1:])
@@ -230,8 +233,8 @@ def main() -> None:
         detected = [r for r in rows if math.isfinite(r["first_degraded_s"])]
         right = sum(r["call"] == gamma for r in detected)
         median = float(np.median(delays[np.isfinite(delays)])) if np.isfinite(delays).any() else math.inf
-        called = "not scored (--replays)" if args.replays else f"{right} of {len(detected)}"
-        print(f"| {fault} | {target / 60:g} min | {hits} of {len(rows)} | {median / 60:.1f} min | {called} |")
+        print(f"| {fault} | {target / 60:g} min | {hits} of {len(rows)} | {median / 60:.1f} min |"
+              f" {right} of {len(detected)} |")  # fmt: skip
         summary[fault] = {"hits": hits, "flights": len(rows), "right": right, "detected": len(detected)}
     nominal = [r for r in results if r["fault"] is None]
     false = sum(math.isfinite(r["first_degraded_s"]) for r in nominal)

@@ -71,3 +71,20 @@ def test_reference_settings_are_checked() -> None:
         DetectorSettings(nominal_threshold=-1.0)
     off = DetectorSettings()
     assert not off.reference_on and off.nominal_settings().threshold == 1e300
+
+
+def test_a_reference_learned_for_another_model_is_turned_off() -> None:
+    import dataclasses
+
+    from ecu_monitor.config import load_config
+    from ecu_monitor.offline.calibration import without_foreign_reference
+    from ecu_monitor.shipped import DEFAULT_CONFIG
+
+    config = load_config(DEFAULT_CONFIG)  # the shipped reference: the virtual ECU's, for the shipped model
+    params = config.load_params()
+    assert config.detector.reference_on
+    assert without_foreign_reference(config, (params,)) is None
+    other = dataclasses.replace(params, cht_limit_c=params.cht_limit_c + 10.0)  # another engine's model
+    stripped = without_foreign_reference(config, (other,))
+    assert stripped is not None and not stripped.detector.reference_on
+    assert stripped.detector.threshold == config.detector.threshold  # the in-flight test as it was
