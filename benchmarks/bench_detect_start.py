@@ -174,6 +174,16 @@ def score_flight(job: tuple[int, str | None, Any]) -> dict[str, Any]:
             "in_flight_alarm_s": in_flight_s, "reference_alarm_s": reference_s}  # fmt: skip
 
 
+def _scored(pool: Any, jobs: list[tuple[int, str | None, Any]]) -> list[dict[str, Any]]:
+    """score_flight over the jobs, one progress line per flight on stderr as it ends."""
+    results = []
+    for r in pool.imap_unordered(score_flight, jobs):
+        results.append(r)
+        print(f"[{len(results)}/{len(jobs)}] seed {r['seed']} {r['fault'] or 'nominal'}: first DEGRADED"
+              f" {r['first_degraded_s']:.0f} s, call {r['call'] or '-'}", file=sys.stderr, flush=True)  # fmt: skip
+    return sorted(results, key=lambda r: (r["fault"] or "~", r["seed"]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--calibration", type=int, default=12)
@@ -216,11 +226,11 @@ def main() -> None:
         print(f"  reference test h = {settings.nominal_threshold:g} ({ref.calibration.hours} whole hours)")
         if args.replays:
             faulty = [(seed, fault) for seed, fault in scored if fault is not None]
-            results = pool.map(score_flight, [(seed, fault, settings) for seed, fault in faulty])
+            results = _scored(pool, [(seed, fault, settings) for seed, fault in faulty])
             paths = stored[len(calibration_seeds) :]
             results += [score_stored((seed, None, settings, p)) for seed, p in zip(nominal, paths, strict=True)]
         else:
-            results = pool.map(score_flight, [(seed, fault, settings) for seed, fault in scored])
+            results = _scored(pool, [(seed, fault, settings) for seed, fault in scored])
     command = "nice -n 10 .venv/bin/python benchmarks/bench_detect_start.py " + shlex.join(sys.argv[1:])
     print(f"\n{command}  ({time.monotonic() - started:.0f} s)\n")
     print("| fault from engine start | target | detected in target | median delay | isolation right |")
