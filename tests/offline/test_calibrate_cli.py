@@ -98,9 +98,9 @@ def test_calibrate_prints_a_table_and_writes_the_fragment(calibrated):
     shipped = load_config(DEFAULT_CONFIG).detector
     calibrated_settings = {k: v for k, v in fragment["detector"].items() if k not in ("symptom", "calibrated_for")}
     assert fragment["detector"]["calibrated_for"] == model_fingerprint(load_config(DEFAULT_CONFIG).load_params())
-    assert DetectorSettings(**calibrated_settings) == dataclasses.replace(  # two flights: no engine reference,
-        shipped, threshold=fragment["detector"]["threshold"], **NO_REFERENCE  # not the shipped virtual ECU's
-    )
+    # two flights: no engine reference of their own, and not the shipped virtual ECU's either
+    written = dataclasses.replace(shipped, threshold=fragment["detector"]["threshold"], **NO_REFERENCE)
+    assert DetectorSettings(**calibrated_settings) == written
     text = calibrated["fragment"].read_text()
     assert "nominal_11.blf" in text and "nominal_12.blf" in text and "# method:" in text
     assert calibrated["plot"].stat().st_size > 10_000
