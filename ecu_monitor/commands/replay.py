@@ -136,7 +136,8 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
     from ecu_monitor.config import load_config
     from ecu_monitor.estimation import ESTIMATORS
-    from ecu_monitor.model import load_model
+    from ecu_monitor.flightlog import log_airframe
+    from ecu_monitor.model import airframe_warning, load_model
     from ecu_monitor.offline.calibration import without_foreign_reference
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
@@ -169,6 +170,9 @@ def _run(args: argparse.Namespace) -> int:
     params = models[0]
     stripped = without_foreign_reference(config, models)
     config = stripped or config
+    mismatch = airframe_warning(params, log_airframe(path), str(args.model or config.source), path.name)
+    if mismatch:
+        print(f"warning: {mismatch}")
     result: ReplayResult
     if tlog:
         result = replay_live(config, models, tlog_messages(path)) if args.live else replay_tlog(path, config, models)
