@@ -1,6 +1,7 @@
 """The engine's own reference, learned by ``ecu-monitor calibrate`` from nominal flights: what the detector's
 symptom looks like in each operating region (:mod:`ecu_monitor.estimation.regions`) on a healthy engine, and
-the threshold of the test that measures each flight against it from engine start.
+the threshold of the test that measures each flight against it from engine start (from the end of the start
+region: :data:`UNLEARNED_REGIONS`).
 
 Per flight and region, the mean of the symptom the service fed its detector (degC/s for the CBEKF's
 deviation); per region, the mean of these flight means (``nominal_mean``) and their standard deviation
@@ -52,7 +53,7 @@ MIN_REGION_S = 60.0
 #: Regions the reference does not learn, so its test does not run there: the start (the head's warm-up from
 #: cold), whose symptom follows the start's initial conditions (head and outside temperature, the filters'
 #: first state) more than the engine: across nominal virtual flights its flight means were the most spread
-#: and heavy-tailed (4 spreads out in 2 of 50), the cause of every false DEGRADED of the first reference.
+#: and heavy-tailed (3.7 and 4.4 spreads out in 2 of 50), where every false DEGRADED of the first reference rose.
 UNLEARNED_REGIONS: tuple[int, ...] = (REGION_START,)
 
 
