@@ -52,8 +52,9 @@ MIN_REFERENCE_FLIGHTS = 3
 MIN_REGION_S = 60.0
 #: Regions the reference does not learn, so its test does not run there: the start (the head's warm-up from
 #: cold), whose symptom follows the start's initial conditions (head and outside temperature, the filters'
-#: first state) more than the engine: across nominal virtual flights its flight means were the most spread
-#: and heavy-tailed (3.7 and 4.4 spreads out in 2 of 50), where every false DEGRADED of the first reference rose.
+#: first state) more than the engine: on nominal virtual flights its flight means were the most spread and
+#: heavy-tailed, and it raised every false DEGRADED while learned (docs/results/detection.md, "The reference
+#: without the start region").
 UNLEARNED_REGIONS: tuple[int, ...] = (REGION_START,)
 
 
