@@ -138,6 +138,7 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.estimation import ESTIMATORS
     from ecu_monitor.flightlog import log_airframe
     from ecu_monitor.model import airframe_warning, load_model
+    from ecu_monitor.offline.calibration import without_foreign_reference
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
@@ -169,6 +170,8 @@ def _run(args: argparse.Namespace) -> int:
         config = config.replace(estimator_name=args.estimator)
     models = (load_model(args.model),) * len(config.cylinder_inputs) if args.model else config.load_cylinder_params()
     params = models[0]
+    stripped = without_foreign_reference(config, models)
+    config = stripped or config
     mismatch = airframe_warning(params, log_airframe(path), str(args.model or config.source), path.name)
     if mismatch:
         print(f"warning: {mismatch}")
@@ -213,6 +216,8 @@ def _run(args: argparse.Namespace) -> int:
                   f" the log looks like {kind}: give --config with {other}")  # fmt: skip
     for line in fit_warnings(config, params, result, models):
         print(f"warning: {line}")
+    if stripped is not None:
+        print("warning: the config's engine reference (detector.nominal_*) is another model's: its test was off")
     if args.plot:
         plot_replay(result, Path(args.plot), title=path.name, cht_limit_c=params.cht_limit_c)
         print(f"plot: {args.plot}")

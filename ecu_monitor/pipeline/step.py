@@ -27,7 +27,8 @@ The rules, in the order a step applies them:
   tests, the more severe verdict wins: against the in-flight adaptive baseline (after its warm-up), and,
   once ``calibrate`` has learned the engine's reference, against the symptom's nominal level in the
   step's operating region (estimation/regions.py, the time since the first initialisation being the
-  engine's start) from engine start, which no baseline can absorb; ``detector_armed`` says which run;
+  engine's start) wherever the reference has a level (``calibrate`` learns none for the start region: from
+  5 min after engine start), which no baseline can absorb; ``detector_armed`` says which run;
 * isolation: the gammas are published only where they can be told apart (``not_isolable`` False): a
   degradation is declared (DEGRADED: something to isolate), cruise or high power airborne, both standard
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
@@ -717,7 +718,7 @@ def cylinder_step(
             cfg["detector"]["baseline_s"] <= 0.0 or not math.isnan(baseline)
         ):
             armed |= ARMED_BASELINE
-        if cfg["nominal"]["on"]:  # against the engine's own reference, from engine start
+        if cfg["nominal"]["on"]:  # against the engine's own reference, where it has a level (nan: not tested)
             level = cfg["nominal_level"][region]
             if not math.isnan(level):
                 armed |= ARMED_REFERENCE
