@@ -36,7 +36,8 @@ The rules, in the order a step applies them:
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins;
 * every filter period, the engine events (:func:`events_step`): shock cooling, divergence, exceedances and
-  the exhaust-valve advisory, into ``Engine.events`` when their condition ends.
+  the exhaust-valve advisory, into ``Engine.events``: a start record once a condition has held for its
+  minimum time, an end record when it ends.
 """
 
 from __future__ import annotations
@@ -149,8 +150,9 @@ EVENT_SETTINGS = np.dtype(
         ("exceedance_min_s", "f8"),
         ("egt_slot", "i8"),  # its EGT in Engine.values (-1: not mapped)
         ("egt_stale_s", "f8"),
-        ("egt_divergence_c", "f8"),
+        ("egt_divergence_c", "f8"),  # beyond the cylinder's normal offset from the others' median (learned)
         ("egt_divergence_from_c", "f8"),  # counted while the median EGT is above this (at power)
+        ("egt_normal_s", "f8"),  # the normal offset's averaging time, and how long it learns before counting
         ("egt_limit_c", "f8"),
         ("oil_slot", "i8"),  # the oil temperature (-1: not mapped; watched on cylinder 1's record)
         ("oil_stale_s", "f8"),
@@ -159,12 +161,15 @@ EVENT_SETTINGS = np.dtype(
         ("valve_min_s", "f8"),
     ]
 )
-#: One condition of one cylinder being watched: since when it holds, when it last held, its worst value.
-EVENT_TRACKER = np.dtype([("active", "?"), ("start_s", "f8"), ("last_s", "f8"), ("peak", "f8")])
-#: One event (pipeline/events.py: the kind is an index into EVENT_KINDS, the cylinder 1-based).
+#: One condition of one cylinder being watched: since when it holds, when it last held, its worst value, and
+#: whether its start was written (it has held for its minimum time).
+EVENT_TRACKER = np.dtype([("active", "?"), ("start_s", "f8"), ("last_s", "f8"), ("peak", "f8"), ("announced", "?")])
+#: One event record (pipeline/events.py: the kind is an index into EVENT_KINDS, the cylinder 1-based;
+#: ``ongoing``: its start, written once the condition has held for its minimum time, else its end).
 EVENT = np.dtype(
-    [("time_s", "f8"), ("kind", "i8"), ("cylinder", "i8"), ("value", "f8"), ("limit", "f8"), ("duration_s", "f8")]
-)
+    [("time_s", "f8"), ("kind", "i8"), ("cylinder", "i8"), ("value", "f8"), ("limit", "f8"), ("duration_s", "f8"),
+     ("ongoing", "?")]
+)  # fmt: skip
 _SHOCK_COOLING = EVENT_KINDS.index("shock_cooling")
 _CHT_DIVERGENCE = EVENT_KINDS.index("cht_divergence")
 _CHT_EXCEEDANCE = EVENT_KINDS.index("cht_exceedance")
@@ -254,6 +259,8 @@ CYLINDER_STATE = np.dtype(
         ("egt_slow", "f8"),
         ("egt_band_ms", "f8"),
         ("egt_band_s", "f8"),  # how long the band-pass has run, s
+        ("egt_offset", "f8"),  # its EGT's normal offset from the others' median at power, degC (nan: none yet)
+        ("egt_offset_s", "f8"),  # how long that offset has been learned, s
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -897,15 +904,26 @@ def _events_period_s(eng: Engine) -> float:
 
 
 @njit(nogil=False)
+def _held_s(eng: Engine, tr: Any) -> float:
+    """How long the tracker's condition has held, s: from its start to the end of the last step it held in."""
+    return tr["last_s"] - tr["start_s"] + _events_period_s(eng)
+
+
+@njit(nogil=False)
 def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, min_s: float) -> None:
-    """The tracker's condition ended: an event if it lasted ``min_s`` (s) or more (its duration: from its
-    start to the end of the last step it held in); the tracker is free again."""
+    """The tracker's condition ended: its end record if it lasted ``min_s`` (s) or more (then its start was
+    written: :func:`_track`); the tracker is free again."""
+    tr["active"] = False
+    if tr["announced"]:
+        _record_event(eng, tr, kind, cylinder, limit, False)
+
+
+@njit(nogil=False)
+def _record_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, ongoing: bool) -> None:
+    """One event record of the tracker into ``Engine.events`` (counted as dropped when it is full)."""
     eng_events = eng.events
     eng_event_count = eng.event_count
-    tr["active"] = False
-    duration = tr["last_s"] - tr["start_s"] + _events_period_s(eng)
-    if duration < min_s:
-        return
+    duration = _held_s(eng, tr)
     n = eng_event_count[0]
     if n >= eng_events.shape[0]:
         eng_event_count[1] += 1
@@ -917,22 +935,27 @@ def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, m
     e["value"] = tr["peak"]
     e["limit"] = limit
     e["duration_s"] = duration
+    e["ongoing"] = ongoing
     eng_event_count[0] = n + 1
 
 
 @njit(nogil=False)
 def _track(eng: Engine, tr: Any, holds: bool, value: float, time_s: float, kind: int, cylinder: int, limit: float,
            min_s: float) -> None:  # fmt: skip
-    """One step of a condition's tracker: it holds (its worst value is the one furthest from zero) or it
-    ended (:func:`_write_event`)."""
+    """One step of a condition's tracker: it holds (its worst value is the one furthest from zero; its start
+    record written when it has held for ``min_s``, s) or it ended (:func:`_write_event`)."""
     if holds:
         if not tr["active"]:
             tr["active"] = True
+            tr["announced"] = False
             tr["start_s"] = time_s
             tr["peak"] = value
         elif abs(value) > abs(tr["peak"]):
             tr["peak"] = value
         tr["last_s"] = time_s
+        if not tr["announced"] and _held_s(eng, tr) >= min_s:
+            tr["announced"] = True
+            _record_event(eng, tr, kind, cylinder, limit, True)
     elif tr["active"]:
         _write_event(eng, tr, kind, cylinder, limit, min_s)
 
@@ -989,14 +1012,34 @@ def events_step(eng: Engine, time_s: float) -> None:
         egt = own[i]
         _track(eng, st["egt_high"], egt > es["egt_limit_c"], egt, time_s, _EGT_EXCEEDANCE, i + 1,
                es["egt_limit_c"], es["exceedance_min_s"])  # fmt: skip
-        apart = egt - median_of_others(own, i, others)
-        _track(eng, st["egt_divergence"], at_power and abs(apart) > es["egt_divergence_c"], apart, time_s,
+        beyond = egt_beyond_normal(st, egt - median_of_others(own, i, others), at_power, es["egt_normal_s"],
+                                   _events_period_s(eng))  # fmt: skip
+        _track(eng, st["egt_divergence"], abs(beyond) > es["egt_divergence_c"], beyond, time_s,
                _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"])  # fmt: skip
     valve_advisory(eng, time_s)
     es = eng_settings[0]["events"]
     oil = _fresh(eng, es["oil_slot"], es["oil_stale_s"], time_s)
     _track(eng, eng_state[0]["oil_high"], oil > es["oil_limit_c"], oil, time_s, _OIL_EXCEEDANCE, 0,
            es["oil_limit_c"], es["exceedance_min_s"])  # fmt: skip
+
+
+@njit(nogil=False)
+def egt_beyond_normal(st: Any, apart: float, at_power: bool, normal_s: float, dt_s: float) -> float:
+    """How far cylinder record ``st``'s EGT is from its normal offset to the others' median, degC (``apart``:
+    its EGT minus that median now): the offset is learned at power, a first-order average with time
+    constant ``normal_s`` (s), not while the cylinder diverges; nan off power, without an EGT, and until
+    the offset has been learned for ``normal_s`` (an engine's EGTs spread by their own amount: the
+    divergence is a change of it, docs/service.md, "Engine events")."""
+    if not at_power or math.isnan(apart):
+        return np.nan
+    if math.isnan(st["egt_offset"]):
+        st["egt_offset"] = apart
+        st["egt_offset_s"] = 0.0
+    beyond = apart - st["egt_offset"]
+    if not st["egt_divergence"]["active"]:
+        st["egt_offset"] += beyond * min(dt_s / normal_s, 1.0)
+        st["egt_offset_s"] += dt_s
+    return beyond if st["egt_offset_s"] >= normal_s else np.nan
 
 
 @njit(nogil=False)
