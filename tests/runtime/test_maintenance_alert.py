@@ -97,7 +97,7 @@ def test_an_older_database_gains_the_wear_columns_and_the_alert_table_and_loses_
         assert (kept.gamma_q_mean, kept.max_cht_c, kept.cycles_total) == (1.02, 150.0, 3.0)
         assert kept.wear_index is None and kept.high_power_s is None
         version = store._conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
-    assert version == "3"
+    assert version == "4"
 
 
 def _snap(t: float = 0.0) -> HealthSnapshot:
