@@ -64,10 +64,10 @@ class Injections:
     dive: bool = False
 
 
-def _lag(target: np.ndarray, time_s: np.ndarray, tau_s: float) -> np.ndarray:
-    """First-order lag of ``target`` with time constant ``tau_s`` (s), from its first value."""
+def _lag(target: np.ndarray, time_s: np.ndarray, tau_s: float, start: float) -> np.ndarray:
+    """First-order lag of ``target`` with time constant ``tau_s`` (s), from ``start`` (the engine cold)."""
     out = np.empty_like(target)
-    value = float(target[0])
+    value = start
     dt = np.diff(time_s, prepend=time_s[0]).tolist()
     for k, (x, d) in enumerate(zip(target.tolist(), dt, strict=True)):
         value += (x - value) * min(d / tau_s, 1.0)
@@ -85,7 +85,7 @@ def with_exhaust_and_oil(log: FlightLog, cylinders: int, seed: int, injections: 
     throttle = np.clip(np.asarray(log["throttle_pct"], dtype=float), 0.0, 100.0)
     offsets = rng.uniform(-EGT_SPREAD_C, EGT_SPREAD_C, cylinders)
     columns: dict[str, np.ndarray] = {}
-    burning = _lag(oat + EGT_RISE_C + EGT_PER_PCT_C * throttle, t, EGT_LAG_S)
+    burning = _lag(oat + EGT_RISE_C + EGT_PER_PCT_C * throttle, t, EGT_LAG_S, float(oat[0]))
     for n in range(1, cylinders + 1):
         egt = burning + offsets[n - 1]
         if n == injections.valve_cylinder:
@@ -96,7 +96,7 @@ def with_exhaust_and_oil(log: FlightLog, cylinders: int, seed: int, injections: 
         columns[f"egt{n}_c"] = np.round(egt + rng.normal(0.0, EGT_NOISE_C, t.size))
     target = oat + OIL_RISE_C * (1.0 + throttle / 100.0) / 2.0
     excursion = (t >= injections.oil_start_s) & (t < injections.oil_start_s + injections.oil_s)
-    oil = _lag(target + np.where(excursion, injections.oil_rise_c, 0.0), t, OIL_LAG_S)
+    oil = _lag(target + np.where(excursion, injections.oil_rise_c, 0.0), t, OIL_LAG_S, float(oat[0]))
     columns["oil_true_c"] = oil
     columns["oil_temp_c"] = np.round(oil + rng.normal(0.0, OIL_NOISE_C, t.size))
     return log.with_columns(**columns)
