@@ -549,7 +549,7 @@ class ServiceConfig:
     #: each ``cylinders.detectors`` entry's ``calibrated_for`` (its model's fingerprint; None: not given)
     cylinder_calibrated_for: tuple[str | None, ...]
     #: ``cylinders.cross_detector`` / ``cross_detectors``: one more detector per cylinder, on the
-    #: cross-cylinder symptom (its symptom minus the median of the others', estimation/cross_cylinder.py);
+    #: cross-cylinder symptom (its symptom minus the median of the others', pipeline/step.py cross_step);
     #: empty: off. Each cylinder's state is the more severe of its two detectors' verdicts.
     cross_detectors: tuple[DetectorSettings | None, ...]
     #: each ``cylinders.cross_detectors`` entry's ``calibrated_for`` (None: not given)

@@ -29,7 +29,7 @@ docs/results/detection_real.md), so ``ecu-monitor calibrate`` does not choose it
 k (``reference``) is the drift allowance: about half the symptom of the smallest degradation to
 detect; h (``threshold``) is set from nominal flights by :func:`calibrate_threshold` for a target
 false-alarm rate. The state is SUSPECT once S >= suspect_fraction * h and DEGRADED once S >= h; the
-DEGRADED state latches (the first alarm time is kept) until :meth:`Detector.reset`. Nothing
+DEGRADED state latches (the first alarm time is kept) until the detector is reset. Nothing
 accumulates during the first ``warmup_s`` seconds (engine start: the model's transient from a cold
 start is not a degradation).
 
@@ -46,10 +46,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numba
 import numpy as np
@@ -60,9 +59,6 @@ from ecu_monitor.estimation.regions import REGION_COUNT, REGION_NAMES
 
 __all__ = [
     "NOMINAL_SPREAD_Z",
-    "STATES",
-    "Detector",
-    "DetectorOutput",
     "DetectorSettings",
     "ThresholdCalibration",
     "block_means",
@@ -75,9 +71,6 @@ __all__ = [
     "scale_blocks",
 ]
 
-State = Literal["NOMINAL", "SUSPECT", "DEGRADED"]
-#: Detector states, in order of severity.
-STATES: tuple[State, State, State] = ("NOMINAL", "SUSPECT", "DEGRADED")
 _EULER_GAMMA = 0.5772156649015329
 #: The reference test's level in a region sits this many spreads (across nominal flights) above its mean.
 NOMINAL_SPREAD_Z = 2.0
@@ -210,100 +203,6 @@ class DetectorSettings:
         return round(self.baseline_delay_s / self.block_s)
 
 
-@dataclass(frozen=True)
-class DetectorOutput:
-    """State after one update: state, CUSUM statistic S (symptom unit x s), time of the first alarm
-    (s; nan while none)."""
-
-    state: State
-    statistic: float
-    alarm_time_s: float
-
-
-class Detector:
-    """Live one-sided CUSUM: call :meth:`update` with every estimator step's symptom.
-
-    Samples are averaged over blocks [start + warmup + i block_s, ... + block_s) (a block closes at the
-    first sample at or after its end, the same blocks as :func:`block_means`); the statistic moves
-    once per closed block. Non-finite symptoms are skipped.
-    """
-
-    def __init__(self, settings: DetectorSettings) -> None:
-        self.settings = settings
-        self.reset()
-
-    def reset(self) -> None:
-        """Back to NOMINAL with S = 0 (e.g. after maintenance); the warm-up starts again."""
-        self._start_s: float | None = None
-        self._block_end_s = math.nan
-        self._sum = 0.0
-        self._count = 0
-        self._statistic = 0.0
-        self._baseline = math.nan
-        self._scale = math.nan
-        self._learned = 0.0
-        self._recent: deque[float] = deque()  # block means not yet old enough for the baseline
-        self._steady = True  # every sample of the current block was steady
-        self._alarm_time_s = math.nan
-
-    @property
-    def statistic(self) -> float:
-        """Current CUSUM statistic."""
-        return self._statistic
-
-    def output(self) -> DetectorOutput:
-        """The detector's state now (what :meth:`update` returned last); no effect."""
-        return self._output()
-
-    def _output(self) -> DetectorOutput:
-        return DetectorOutput(STATES[self._state_index()], self._statistic, self._alarm_time_s)
-
-    def _state_index(self) -> int:
-        """The state's index in :data:`STATES`."""
-        if not math.isnan(self._alarm_time_s):
-            return 2
-        s = self.settings
-        return 1 if self._statistic >= s.suspect_fraction * s.threshold else 0
-
-    def update(self, t_s: float, deviation: float, steady: bool = True) -> DetectorOutput:
-        """Feed one symptom sample at time t_s (s); returns the detector's state. steady False (from
-        :class:`SteadyGate`) marks a transient of the inputs: the block holds the statistic."""
-        self.step(t_s, deviation, steady)
-        return self._output()
-
-    def step(self, t_s: float, deviation: float, steady: bool = True) -> int:
-        """:meth:`update` returning only the state's index in :data:`STATES` (0 NOMINAL, 1 SUSPECT, 2
-        DEGRADED), without building a :class:`DetectorOutput` (the live pipeline's call, every step)."""
-        s = self.settings
-        if self._start_s is None:
-            self._start_s = t_s
-            self._block_end_s = t_s + s.warmup_s + s.block_s
-        if t_s < self._start_s + s.warmup_s:
-            return self._state_index()
-        if t_s >= self._block_end_s - 1e-9:  # this sample opens a new block: close the previous one(s)
-            closed = math.floor((t_s - self._block_end_s) / s.block_s + 1e-9) + 1
-            means = [self._sum / self._count if self._count else math.nan] + [math.nan] * (closed - 1)
-            for mean in means:  # blocks without a sample (a gap) count as empty, as in block_means
-                self._recent.append(mean)
-                lagged = self._recent.popleft() if len(self._recent) > s.delay_blocks else math.nan
-                self._statistic, self._baseline, self._scale, self._learned = _cusum_step(
-                    self._statistic, self._baseline, self._scale, self._learned, mean, lagged, s.reference,
-                    s.block_s, s.baseline_s, self._steady or math.isnan(mean), s.baseline_freeze, s.scale_s,
-                    s.scale_floor,
-                )  # fmt: skip
-                self._steady = True
-                if self._statistic >= s.threshold and math.isnan(self._alarm_time_s):
-                    self._alarm_time_s = t_s
-            self._sum = 0.0
-            self._count = 0
-            self._block_end_s += s.block_s * closed
-        if math.isfinite(deviation):
-            self._sum += deviation
-            self._count += 1
-        self._steady = self._steady and bool(steady)
-        return self._state_index()
-
-
 # --------------------------------------------------------------------------------------------------
 # Whole flights (vectorised / compiled), calibration and scoring
 # --------------------------------------------------------------------------------------------------
@@ -313,7 +212,8 @@ def block_means(
     time_s: NDArray[np.float64], symptom: NDArray[np.float64], settings: DetectorSettings
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(block end times s, block means) of a symptom over a flight, after the warm-up: the blocks
-    :class:`Detector` forms (samples in [start + warmup + i*block_s, ... + block_s); empty blocks nan)."""
+     live step's detector forms (pipeline/step.py ``detector_step``: samples in [start + warmup + i*block_s,
+    ... + block_s); empty blocks nan)."""
     t = np.asarray(time_s, dtype=float)
     x = np.asarray(symptom, dtype=float)
     begin = t[0] + settings.warmup_s
@@ -434,8 +334,8 @@ def cusum_blocks(
     steady: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """The CUSUM over given block means (nan = a block without a sample), compiled: (statistic after
-    each block, indices of the blocks that raised an alarm). The statistic :class:`Detector` holds
-    after closing the same blocks; restart and steady (per block) as in :func:`cusum_path`."""
+    each block, indices of the blocks that raised an alarm). The statistic the live step's detector
+    holds after closing the same blocks; restart and steady (per block) as in :func:`cusum_path`."""
     stat, alarms, _ = _cusum_compiled(means, settings, restart, steady)
     return stat, alarms
 

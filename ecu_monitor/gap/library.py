@@ -8,7 +8,9 @@ parameters, :data:`RETUNED_NOMINAL`: a factor on R_Ce and a factor on the whole 
 candidate wins only by what its own term adds, not by re-tuning the nominal model (the control gets
 the same re-tuning and is the yardstick of the significance test).
 
-Candidates:
+The candidate of each model effect is made from that effect's declarations (ecu_monitor.model.effects:
+its gap text and the parameters it declares a ``GapRefit`` for); the parameters it fixes are in
+:data:`REFERENCE_KEYS`. Candidates:
 
 - ``airspeed_cooling``: conductance ``x max(floor, 1 + gain (v - v_ref))``; free gain_per_mps and
   floor; v_ref = median airborne airspeed of the train flight.
@@ -36,28 +38,19 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.model import (
-    EFFECT_TYPES,
-    AirspeedCooling,
-    DensityCooling,
-    Effects,
-    MixtureCooling,
-    MixtureIndex,
-    SensorLag,
-    air_density_kg_m3,
-    isa_pressure_pa,
-)
+from ecu_monitor.model import EFFECT_TYPES, Effects, air_density_kg_m3, isa_pressure_pa
+from ecu_monitor.model.effects import Effect
 
 __all__ = [
     "CANDIDATES",
     "CANDIDATE_IDS",
     "DEFAULT_CANDIDATE_IDS",
+    "REFERENCE_KEYS",
     "RETUNED_NOMINAL",
     "Candidate",
     "FreeParameter",
@@ -75,14 +68,13 @@ RETUNED_BOUNDS: tuple[float, float] = (-0.5, 0.5)
 
 @dataclass(frozen=True)
 class FreeParameter:
-    """A parameter refitted with its candidate: start value, bounds, unit, and further start values
+    """A parameter refitted with its candidate: start value, bounds, and further start values
     (``restarts``) for a cost with local minima (the refit keeps the best train fit over all starts)."""
 
     name: str
     start: float
     low: float
     high: float
-    unit: str
     restarts: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
@@ -109,50 +101,26 @@ class Candidate:
             raise ParameterError(f"gap candidate {self.id!r}: fixed values only for nominal parameters")
 
 
+def _effect_candidate(name: str, kind: type[Effect]) -> Candidate:
+    """The candidate of one model effect, made from its declarations: its gap text, and the parameters it
+    declares a gap refit for (:class:`ecu_monitor.model.effects.GapRefit`)."""
+    free = tuple(
+        FreeParameter(parameter, spec.gap.start, spec.gap.low, spec.gap.high, spec.gap.restarts)
+        for parameter, spec in kind.PARAMETERS.items()
+        if spec.gap is not None
+    )
+    return Candidate(name, name, kind.GAP_TEXT, free)
+
+
 CANDIDATES: tuple[Candidate, ...] = (
-    Candidate(
-        "airspeed_cooling",
-        "airspeed_cooling",
-        EFFECT_TYPES["airspeed_cooling"].GAP_TEXT,
-        (
-            FreeParameter("gain_per_mps", 0.0, -0.05, 0.1, "1/(m/s)"),
-            FreeParameter("floor", 0.95, 0.1, 1.0, "-", restarts=(0.4,)),
-        ),
-    ),
-    Candidate(
-        "density_cooling",
-        "density_cooling",
-        EFFECT_TYPES["density_cooling"].GAP_TEXT,
-        (FreeParameter("exponent", 0.0, -1.5, 2.5, "-"),),
-    ),
-    Candidate(
-        "sensor_lag",
-        "sensor_lag",
-        EFFECT_TYPES["sensor_lag"].GAP_TEXT,
-        (FreeParameter("time_constant_s", 1.0, 0.0, 120.0, "s", restarts=(15.0,)),),
-    ),
-    Candidate(
-        "mixture_cooling",
-        "mixture_cooling",
-        EFFECT_TYPES["mixture_cooling"].GAP_TEXT,
-        (
-            FreeParameter("fraction", 0.02, 0.0, 0.6, "-"),
-            FreeParameter("onset", 0.6, 0.0, 0.95, "-", restarts=(0.3, 0.85)),
-        ),
-    ),
-    Candidate(
-        "mixture_index",
-        "mixture_index",
-        EFFECT_TYPES["mixture_index"].GAP_TEXT,
-        (FreeParameter("gain", 0.0, -0.01, 0.01, "1/degC"),),
-    ),
+    *(_effect_candidate(name, kind) for name, kind in EFFECT_TYPES.items()),
     Candidate(
         "heat_altitude_scaling",
         "nominal",
         "altitude exponents a, b of the heat into the head re-fitted (heat map on fuel flow)",
         (
-            FreeParameter("a", 1.55, 0.0, 4.0, "-"),
-            FreeParameter("b", 2.0, 0.0, 4.0, "-"),
+            FreeParameter("a", 1.55, 0.0, 4.0),
+            FreeParameter("b", 2.0, 0.0, 4.0),
         ),
     ),
     Candidate(
@@ -211,24 +179,22 @@ def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> di
     return references
 
 
-def _make(entry: Candidate, values: Mapping[str, float], references: Mapping[str, float]) -> Any:
-    if entry.effect == "airspeed_cooling":
-        return AirspeedCooling(
-            gain_per_mps=float(values["gain_per_mps"]),
-            reference_mps=float(references["reference_mps"]),
-            floor=float(np.clip(values["floor"], 0.05, 1.0)),
-        )
-    if entry.effect == "density_cooling":
-        return DensityCooling(exponent=float(values["exponent"]), reference_kg_m3=float(references["reference_kg_m3"]))
-    if entry.effect == "sensor_lag":
-        return SensorLag(time_constant_s=float(values["time_constant_s"]))
-    if entry.effect == "mixture_cooling":
-        return MixtureCooling(fraction=float(values["fraction"]), onset=float(values["onset"]))
-    if entry.effect == "mixture_index":
-        if "reference_egt_c" not in references:
-            raise ParameterError(f"gap candidate {entry.id!r}: the train flights log no EGT (column egt_c)")
-        return MixtureIndex(source="egt_c", gain=float(values["gain"]), reference=references["reference_egt_c"])
-    raise ParameterError(f"gap candidate {entry.id!r}: no model effect {entry.effect!r}")
+#: The effect parameters the gap fixes from the train flights (not refitted): effect -> parameter -> the
+#: key of :func:`flight_references` that gives it.
+REFERENCE_KEYS: dict[str, dict[str, str]] = {
+    "airspeed_cooling": {"reference_mps": "reference_mps"},
+    "density_cooling": {"reference_kg_m3": "reference_kg_m3"},
+    "mixture_index": {"reference": "reference_egt_c"},
+}
+
+
+def _make(entry: Candidate, values: Mapping[str, float], references: Mapping[str, float]) -> Effect:
+    fixed: dict[str, float] = {}
+    for parameter, key in REFERENCE_KEYS.get(entry.effect, {}).items():
+        if key not in references:
+            raise ParameterError(f"gap candidate {entry.id!r}: the train flights give no {key}")
+        fixed[parameter] = float(references[key])
+    return EFFECT_TYPES[entry.effect](**fixed, **{name: float(value) for name, value in values.items()})
 
 
 def effects_for(

@@ -27,10 +27,10 @@ identified model. An effect that is ``None`` in :class:`Effects` is off and the 
 Each effect carries its own definition, as a progpy model carries its own (:class:`Effect`): its
 parameters (:class:`EffectParameter`: the coefficient the equations read, its neutral value, its
 physical range, the identification's search range, the virtual plant's draw), which of them
-identification frees, how identification starts it from the flights (:meth:`Effect.start`) and what the
-gap diagnosis says it is. Everything else (the coefficients, the validation, the search space, the
-terms ``identify --effects`` knows, the gap library's wording, the virtual plant's draws) is made from
-these declarations.
+identification frees, how identification starts it from the flights (:meth:`Effect.start`), what the
+gap diagnosis says it is and how it refits it (:class:`GapRefit`). Everything else (the coefficients,
+the validation, the search space, the terms ``identify --effects`` knows, the gap library's candidates,
+the virtual plant's draws) is made from these declarations.
 
 Adding an effect: a frozen dataclass here (its fields with units, its :class:`Effect` declarations), an
 entry in :data:`EFFECT_TYPES` and a field in :class:`Effects`; its coefficients (``Coefficients``) and
@@ -61,6 +61,7 @@ __all__ = [
     "Effect",
     "EffectParameter",
     "Effects",
+    "GapRefit",
     "MixtureCooling",
     "MixtureIndex",
     "SensorLag",
@@ -85,6 +86,7 @@ class EffectParameter:
     valid: physical range, checked when the effect is made (None: the effect checks it itself).
     search: the identification's search range when the parameter is free.
     plant: range the virtual plant draws a random truth from (None: not drawn, the default holds).
+    gap: how the gap diagnosis refits it (None: the gap does not free it).
     """
 
     coefficient: str
@@ -92,6 +94,23 @@ class EffectParameter:
     valid: tuple[float, float] | None
     search: tuple[float, float]
     plant: tuple[float, float] | None = None
+    gap: GapRefit | None = None
+
+
+@dataclass(frozen=True)
+class GapRefit:
+    """How the gap diagnosis refits a parameter from the nominal model: its start value (when the nominal
+    model does not have the effect on), bounds, and further start values for a cost with local minima."""
+
+    start: float
+    low: float
+    high: float
+    restarts: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        for value in (self.start, *self.restarts):
+            if not self.low <= value <= self.high:
+                raise ParameterError(f"gap refit: start {value} outside [{self.low}, {self.high}]")
 
 
 class Effect:
@@ -151,9 +170,13 @@ class AirspeedCooling(Effect):
     prop_wash_mps: float = 0.0
 
     PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
-        "gain_per_mps": EffectParameter("airspeed_gain_per_mps", 0.0, (-0.2, 0.2), (-0.05, 0.1), (0.01, 0.03)),
+        "gain_per_mps": EffectParameter(
+            "airspeed_gain_per_mps", 0.0, (-0.2, 0.2), (-0.05, 0.1), (0.01, 0.03), GapRefit(0.0, -0.05, 0.1)
+        ),
         "reference_mps": EffectParameter("airspeed_reference_mps", 23.0, (1.0, 200.0), (1.0, 200.0)),
-        "floor": EffectParameter("airspeed_floor", 1.0, (0.05, 1.0), (0.05, 1.0), (0.3, 0.6)),
+        "floor": EffectParameter(
+            "airspeed_floor", 1.0, (0.05, 1.0), (0.05, 1.0), (0.3, 0.6), GapRefit(0.95, 0.1, 1.0, (0.4,))
+        ),
         "prop_wash_mps": EffectParameter("airspeed_prop_wash_mps", 0.0, (0.0, 60.0), (0.0, 60.0)),
     }
     FREE: ClassVar[tuple[str, ...]] = ("gain_per_mps", "prop_wash_mps")
@@ -180,7 +203,9 @@ class DensityCooling(Effect):
     reference_kg_m3: float = 1.225
 
     PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
-        "exponent": EffectParameter("density_exponent", 0.0, (-3.0, 3.0), (0.0, 1.5), (0.4, 0.8)),
+        "exponent": EffectParameter(
+            "density_exponent", 0.0, (-3.0, 3.0), (0.0, 1.5), (0.4, 0.8), GapRefit(0.0, -1.5, 2.5)
+        ),
         "reference_kg_m3": EffectParameter("density_reference_kg_m3", SEA_LEVEL_DENSITY_KG_M3, (0.3, 1.6), (0.3, 1.6)),
     }
     FREE: ClassVar[tuple[str, ...]] = ("exponent",)
@@ -205,7 +230,9 @@ class SensorLag(Effect):
     time_constant_s: float = 8.0
 
     PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
-        "time_constant_s": EffectParameter("sensor_lag_s", 0.0, (0.0, 300.0), (0.0, 60.0), (4.0, 20.0)),
+        "time_constant_s": EffectParameter(
+            "sensor_lag_s", 0.0, (0.0, 300.0), (0.0, 60.0), (4.0, 20.0), GapRefit(1.0, 0.0, 120.0, (15.0,))
+        ),
     }
     FREE: ClassVar[tuple[str, ...]] = ("time_constant_s",)
     GAP_TEXT: ClassVar[str] = "first-order lag of the CHT probe"
@@ -227,8 +254,12 @@ class MixtureCooling(Effect):
     onset: float = 0.7
 
     PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
-        "fraction": EffectParameter("mixture_fraction", 0.0, (0.0, 0.6), (0.0, 0.6), (0.06, 0.2)),
-        "onset": EffectParameter("mixture_onset", 0.7, (0.0, 0.95), (0.0, 0.95), (0.6, 0.8)),
+        "fraction": EffectParameter(
+            "mixture_fraction", 0.0, (0.0, 0.6), (0.0, 0.6), (0.06, 0.2), GapRefit(0.02, 0.0, 0.6)
+        ),
+        "onset": EffectParameter(
+            "mixture_onset", 0.7, (0.0, 0.95), (0.0, 0.95), (0.6, 0.8), GapRefit(0.6, 0.0, 0.95, (0.3, 0.85))
+        ),
     }
     FREE: ClassVar[tuple[str, ...]] = ("fraction", "onset")
     GAP_TEXT: ClassVar[str] = "less heat into the head at high load (power enrichment)"
@@ -276,7 +307,7 @@ class MixtureIndex(Effect):
 
     # gain and reference: their ranges depend on the source (checked below; the search's gain range too)
     PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
-        "gain": EffectParameter("mixture_gain", 0.0, None, (-0.01, 0.01)),
+        "gain": EffectParameter("mixture_gain", 0.0, None, (-0.01, 0.01), gap=GapRefit(0.0, -0.01, 0.01)),
         "reference": EffectParameter("mixture_reference", 0.0, None, (0.0, 1200.0)),
     }
     FREE: ClassVar[tuple[str, ...]] = ("gain",)

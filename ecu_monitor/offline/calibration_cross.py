@@ -4,7 +4,7 @@ config with ``cylinders.cross_detector``).
 Each flight is replayed once with every cylinder (the service's batch path, its own models and the
 config's cross-cylinder settings); what each cylinder's cross-cylinder detector was fed
 (:attr:`ReplayResult.cross_feeds`: its symptom minus the median of the other cylinders',
-estimation/cross_cylinder.py) is run through the CUSUM without alarms, and each cylinder's threshold is
+pipeline/step.py cross_step) is run through the CUSUM without alarms, and each cylinder's threshold is
 set from its own statistics by the single-channel procedure (:func:`calibrate_flights`: the Gumbel
 quantile of the hourly maxima, never below 1.1 x the largest value seen when the flights hold fewer
 hours than one expected alarm). The baseline settings are the config's.

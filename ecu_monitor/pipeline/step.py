@@ -801,8 +801,9 @@ def median_of_others(values: Any, i: int, scratch: Any) -> float:
 @njit(nogil=False)
 def cross_step(eng: Engine, time_s: float) -> None:
     """The cross-cylinder detectors: each cylinder's symptom minus the median of the other cylinders'
-    usable symptoms (estimation/cross_cylinder.py); a cylinder's state becomes the more severe of its two
-    detectors' verdicts."""
+    usable symptoms; a cylinder's state becomes the more severe of its two detectors' verdicts. The model
+    error common to every cylinder (the operating point, the day) cancels; the median keeps one degraded
+    cylinder out of the others' reference (docs/detection_isolation.md, section 10)."""
     eng_output = eng.output
     eng_rings = eng.rings
     eng_settings = eng.settings

@@ -42,7 +42,6 @@ from ecu_monitor.estimation.detection import (
     cusum_path,
 )
 from ecu_monitor.estimation.ekf import EstimatorSettings
-from ecu_monitor.estimation.headroom import thermal_headroom
 from ecu_monitor.estimation.isolation import IsolationSettings, run_isolation
 from ecu_monitor.estimation.runner import run_estimator
 from ecu_monitor.estimation.steady_gate import GateSettings, steady_mask
@@ -56,10 +55,13 @@ from ecu_monitor.model import (
     SensorLag,
     ThermalParams,
     coefficients,
+    compute_drive,
+    pack_coefficients,
     paper_table_a1,
 )
 from ecu_monitor.model.compiled import simulate_compiled
-from ecu_monitor.pipeline.output_table import HEADROOM_CAP_S
+from ecu_monitor.model.thermal import unpack_coefficients
+from ecu_monitor.pipeline.step import headroom_s
 from ecu_monitor.userfiles import save_figure, write_output_bytes
 
 __all__ = [
@@ -589,6 +591,7 @@ def headroom_check(
     params = params or paper_table_a1()
     isolation = isolation or IsolationSettings()
     coeffs = coefficients(params)
+    packed = unpack_coefficients(*pack_coefficients(coeffs))  # what the step reads
     limit = params.cht_limit_c
     checks: list[HeadroomCheck] = []
     for severity in severities:
@@ -614,14 +617,12 @@ def headroom_check(
             while at < min(crossing, start + 2400.0):
                 k = int(np.searchsorted(t, at))
                 u = InputSeries(*(float(log[c][k]) for c in (x_axis, y_axis, "altitude_m", "airspeed_mps", "oat_c")))
-                est = thermal_headroom(float(iso.cht_c[k]), None, u, params, gamma_q=float(iso.gamma_q[k]),
-                                       gamma_d=float(iso.gamma_d[k]), cap_s=HEADROOM_CAP_S, coeffs=coeffs)  # fmt: skip
-                true_gamma = thermal_headroom(
-                    float(iso.cht_c[k]), None, u, params, gamma_q=severity, cap_s=HEADROOM_CAP_S, coeffs=coeffs
-                )
+                drive = np.array([float(v) for v in compute_drive(u, coeffs)])
+                cht = float(iso.cht_c[k])
+                est = headroom_s(cht, drive, packed, float(iso.gamma_q[k]), float(iso.gamma_d[k]), limit)
+                true_gamma = headroom_s(cht, drive, packed, severity, 1.0, limit)
                 actual = crossing - float(t[k]) if math.isfinite(crossing) else math.inf
-                checks.append(HeadroomCheck(severity, seed, float(t[k]), est.time_to_limit_s,
-                                            true_gamma.time_to_limit_s, actual))  # fmt: skip
+                checks.append(HeadroomCheck(severity, seed, float(t[k]), est, true_gamma, actual))
                 at += 10.0
     return checks
 

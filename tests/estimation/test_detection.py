@@ -1,4 +1,5 @@
-"""Detection: the one-sided CUSUM, its live/vectorised equality and the threshold calibration."""
+"""Detection: the one-sided CUSUM over whole flights and the threshold calibration (the live step's detector:
+tests/pipeline/test_detector_step.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,6 @@ import pytest
 
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.estimation.detection import (
-    Detector,
     DetectorSettings,
     block_means,
     calibrate_threshold,
@@ -59,42 +59,6 @@ def test_cusum_detects_a_step_and_not_noise_at_the_calibrated_threshold() -> Non
     delay = alarm_times[0] - 1800.0
     expected = cal.threshold / (0.12 - 0.04)
     assert 0.0 < delay < 2.0 * expected + 30.0
-
-
-def test_live_detector_equals_the_vectorised_path() -> None:
-    rng = np.random.default_rng(2)
-    t = np.arange(0.0, 1500.0, 0.1)
-    x = 0.02 * rng.standard_normal(t.size) + np.where(t > 900.0, 0.15, 0.0)
-    cases = (
-        (0.0, 0.0, False, 0.0),
-        (200.0, 0.0, False, 0.0),
-        (200.0, 30.0, False, 0.0),
-        (200.0, 30.0, True, 0.0),
-        (200.0, 30.0, True, 300.0),  # self-normalised: the noise's spread (~0.016) above the floor
-        (200.0, 30.0, False, 300.0),
-    )
-    for baseline_s, delay_s, freeze, scale_s in cases:
-        settings = DetectorSettings(
-            threshold=5.0, reference=0.05, warmup_s=100.0, block_s=1.0, baseline_s=baseline_s,
-            baseline_delay_s=delay_s, baseline_freeze=freeze, scale_s=scale_s, scale_floor=0.01 if scale_s else 0.0,
-        )  # fmt: skip
-        ends, stat, alarms = cusum_path(t, x, settings)
-        det = Detector(settings)
-        live_stats = []
-        first_alarm = math.nan
-        states = set()
-        for ti, xi in zip(t, x, strict=True):
-            out = det.update(float(ti), float(xi))
-            states.add(out.state)
-            if out.statistic != (live_stats[-1] if live_stats else None):
-                live_stats.append(out.statistic)
-            first_alarm = out.alarm_time_s
-        assert alarms.size == 1
-        assert first_alarm == pytest.approx(alarms[0], abs=0.11)
-        assert det.statistic == pytest.approx(stat[-1], rel=1e-9, abs=1e-12)
-        assert states == {"NOMINAL", "SUSPECT", "DEGRADED"}
-        assert 900.0 < alarms[0] < 1000.0
-        assert ends.size == stat.size
 
 
 def test_baseline_absorbs_a_constant_offset_but_not_a_step() -> None:
@@ -267,10 +231,6 @@ def test_steady_gate_holds_the_test_after_a_throttle_change_and_on_the_ground() 
     detector = DetectorSettings(threshold=5.0, reference=0.05, warmup_s=0.0, baseline_s=0.0)
     assert cusum_path(t, symptom, detector)[2].size == 1
     assert cusum_path(t, symptom, detector, steady=mask)[2].size == 0
-    live = Detector(detector)
-    for ti, xi, si in zip(t, symptom, mask, strict=True):
-        out = live.update(float(ti), float(xi), bool(si))
-    assert out.state == "NOMINAL"
     late = np.where((t >= 600.0) & (t < 700.0), 0.3, 0.0)
     assert cusum_path(t, late, detector, steady=mask)[2].size == 1
 

@@ -179,6 +179,23 @@ def test_nominal_candidates_search_only_values_the_model_accepts() -> None:
                 nominal.replace(**{free.name: value})  # raises ParameterError outside the accepted range
 
 
+def test_effect_candidates_come_from_the_effects_and_search_only_values_they_accept() -> None:
+    # each model effect's candidate is made from its declarations; a refit at a bound builds a valid effect
+    from ecu_monitor.gap.library import CANDIDATES, effects_for
+    from ecu_monitor.model import EFFECT_TYPES, Effects
+
+    effect_entries = [entry for entry in CANDIDATES if entry.effect != "nominal"]
+    assert [entry.id for entry in effect_entries] == list(EFFECT_TYPES)
+    references = {"reference_mps": 30.0, "reference_kg_m3": 1.1, "reference_egt_c": 650.0}
+    for entry in effect_entries:
+        assert entry.description == EFFECT_TYPES[entry.effect].GAP_TEXT and entry.free
+        for bound in ("low", "high"):
+            values = {entry.id: {free.name: getattr(free, bound) for free in entry.free}}
+            effects_for(Effects(), [entry], values, references)  # raises ParameterError outside the valid range
+    with pytest.raises(ParameterError, match="reference_egt_c"):
+        effects_for(Effects(), [candidate("mixture_index")], {"mixture_index": {"gain": 0.0}}, {})
+
+
 def test_gap_settings_reject_unknown_candidates() -> None:
     with pytest.raises(ParameterError):
         GapSettings(candidates=("no_such_effect",))

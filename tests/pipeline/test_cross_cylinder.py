@@ -1,5 +1,5 @@
-"""The cross-cylinder symptom (estimation/cross_cylinder.py): the live step equals the compiled batch
-form, the median of the others, unusable cylinders left out."""
+"""The cross-cylinder symptom (pipeline/step.py ``cross_step``): each cylinder's symptom minus the median
+of the other cylinders' usable ones (``median_of_others``), unusable cylinders left out."""
 
 from __future__ import annotations
 
@@ -8,31 +8,38 @@ import math
 import numpy as np
 import pytest
 
-from ecu_monitor.errors import ParameterError
-from ecu_monitor.estimation.cross_cylinder import cross_cylinder_step, cross_cylinder_symptoms
+from ecu_monitor.pipeline.step import median_of_others
+
+
+def _cross(symptoms: list[float]) -> list[float]:
+    """What cross_step feeds each cylinder's cross detector (nan: the cylinder's own symptom is not usable)."""
+    own = np.array(symptoms, dtype=float)
+    scratch = np.empty(own.size)
+    return [float(own[i] - median_of_others(own, i, scratch)) for i in range(own.size)]
 
 
 def test_each_cylinder_minus_the_median_of_the_others() -> None:
-    assert cross_cylinder_step([0.1, 0.2, 0.4, 1.0]) == pytest.approx([0.1 - 0.4, 0.2 - 0.4, 0.4 - 0.2, 1.0 - 0.2])
+    assert _cross([0.1, 0.2, 0.4, 1.0]) == pytest.approx([0.1 - 0.4, 0.2 - 0.4, 0.4 - 0.2, 1.0 - 0.2])
     # a common offset cancels: only what differs from the others is left
-    assert cross_cylinder_step([5.1, 5.2, 5.4, 6.0]) == pytest.approx([-0.3, -0.2, 0.2, 0.8])
+    assert _cross([5.1, 5.2, 5.4, 6.0]) == pytest.approx([-0.3, -0.2, 0.2, 0.8])
     # two others: their mean; one other: that one; none: nan
-    assert cross_cylinder_step([1.0, math.nan, 0.5, 0.0]) == pytest.approx([0.75, math.nan, 0.0, -0.75], nan_ok=True)
-    assert cross_cylinder_step([1.0, 0.25]) == [0.75, -0.75]
-    assert all(math.isnan(x) for x in cross_cylinder_step([1.0, math.nan, math.nan]))
+    assert _cross([1.0, math.nan, 0.5, 0.0]) == pytest.approx([0.75, math.nan, 0.0, -0.75], nan_ok=True)
+    assert _cross([1.0, 0.25]) == [0.75, -0.75]
+    assert all(math.isnan(x) for x in _cross([1.0, math.nan, math.nan]))
 
 
-def test_the_batch_form_equals_the_live_step_bit_for_bit() -> None:
+def test_the_median_of_the_others_equals_numpys() -> None:
     rng = np.random.default_rng(4)
     for count in (2, 3, 4, 6):
-        values = rng.normal(0.05, 0.1, (count, 500))
+        values = rng.normal(0.05, 0.1, (200, count))
         values[rng.uniform(size=values.shape) < 0.2] = np.nan
-        batch = cross_cylinder_symptoms(values)
-        live = np.array([cross_cylinder_step(values[:, k].tolist()) for k in range(values.shape[1])]).T
-        assert np.array_equal(np.isnan(batch), np.isnan(live))
-        assert np.array_equal(batch[np.isfinite(batch)], live[np.isfinite(live)])
-    with pytest.raises(ParameterError, match="cylinders, steps"):
-        cross_cylinder_symptoms(np.zeros(3))
+        scratch = np.empty(count)
+        for row in values:
+            for i in range(count):
+                others = np.delete(row, i)
+                expected = np.nanmedian(others) if np.isfinite(others).any() else math.nan
+                assert median_of_others(row, i, scratch) == pytest.approx(expected, nan_ok=True, rel=0, abs=0)
+                assert median_of_others.py_func(row, i, scratch) == pytest.approx(expected, nan_ok=True, rel=0, abs=0)
 
 
 def test_calibrate_keeps_a_cylinders_cross_detector_only_if_no_held_out_flight_alarms() -> None:
