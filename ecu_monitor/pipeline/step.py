@@ -185,7 +185,7 @@ VALVE_SLOW_S = 60.0 / (2.0 * math.pi * 0.5)
 VALVE_BAND_GAIN = 0.64
 #: The band's mean square is a first-order average with this time constant, s; the amplitude is known once
 #: the band-pass has run twice as long.
-VALVE_WINDOW_S = 60.0
+VALVE_WINDOW_S = 30.0
 CYLINDER_SETTINGS = np.dtype(
     [
         ("cht_slot", "i8"),  # its CHT reading in Engine.values

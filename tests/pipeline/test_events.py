@@ -270,3 +270,20 @@ def test_a_cylinder_whose_egt_always_runs_apart_does_not_diverge(dive: tuple[Any
     config = parse_config(data, CONFIGS / "four_cylinders.yaml")
     events = replay_frames(config, models, frames_from_flight(log.with_columns(**egts), config)).events
     assert not [e for e in events if e.kind == "egt_divergence"]
+
+
+def test_the_live_monitor_sends_an_event_frame_as_each_event_starts(dive: tuple[Any, Any, Any]) -> None:
+    """The daemon's monitor over the dive: one Health_Event frame per start record, in order, from it."""
+    from ecu_monitor.runtime.publishers import LiveMonitor
+
+    _, frames, models = dive
+    monitor = LiveMonitor(_config(cht_divergence_c=20.0), models)
+    sent = []
+    for msg in frames.messages():
+        sent += monitor.advance_to(msg.timestamp)
+        monitor.feed(msg)
+    starts = [e for e in monitor.drain_events() if e.ongoing]
+    message = monitor.publishers[0].encoder.message("Health_Event")
+    decoded = [message.decode(bytes(f.data)) for f in sent if f.arbitration_id == message.frame_id]
+    assert starts and [(d["EventKind"], d["EventCylinder"]) for d in decoded] == [(e.kind, e.cylinder) for e in starts]
+    assert monitor.drain_events() == []
