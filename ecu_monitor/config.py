@@ -227,10 +227,10 @@ class EngineEvents(_Section, frozen=True):
     cht_limit_c: an estimated CHT above this (degC) is an exceedance once it lasts exceedance_min_s (s);
     None: each cylinder's model's ``cht_limit_c`` (model.yaml). egt_divergence_c: a cylinder's EGT
     (``egtN_c`` mapped) whose offset from the median of the others' moves further than this (degC) from its
-    normal offset diverges (divergence_min_s); the normal offset is the cylinder's own, learned at power
-    (an average over egt_normal_s, s, counted once it has learned that long: every engine's EGTs spread by
-    their own amount), counted while the median of the EGTs is above egt_divergence_from_c (at power: at
-    idle they scatter).
+    normal offset diverges (divergence_min_s); the normal offset is the cylinder's own in each power band,
+    learned at steady power (an average over egt_normal_s, s, counted once it has learned that long: every
+    engine's EGTs spread by their own amount, another at another power), counted at steady power while the
+    median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
     egt_limit_c, oil_limit_c: an EGT, the oil temperature (``oil_temp_c``) above this (degC) is an
     exceedance (exceedance_min_s). valve_amplitude_c: the exhaust-valve advisory: one cylinder's EGT
     oscillating at 0.5-3 cycles/min with at least this peak-to-peak amplitude (degC) while every other
@@ -246,7 +246,7 @@ class EngineEvents(_Section, frozen=True):
     exceedance_min_s: _NonNegative = 2.0
     egt_divergence_c: _Positive = 60.0
     egt_divergence_from_c: _Number = 500.0
-    egt_normal_s: _Positive = 180.0
+    egt_normal_s: _Positive = 120.0
     egt_limit_c: _Number = 900.0
     oil_limit_c: _Number = 118.0
     valve_amplitude_c: _Positive = 15.0

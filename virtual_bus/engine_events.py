@@ -65,7 +65,7 @@ class Injections:
 
 
 def _lag(target: np.ndarray, time_s: np.ndarray, tau_s: float, start: float) -> np.ndarray:
-    """First-order lag of ``target`` with time constant ``tau_s`` (s), from ``start`` (the engine cold)."""
+    """First-order lag of ``target`` with time constant ``tau_s`` (s), from ``start``."""
     out = np.empty_like(target)
     value = start
     dt = np.diff(time_s, prepend=time_s[0]).tolist()
@@ -85,7 +85,9 @@ def with_exhaust_and_oil(log: FlightLog, cylinders: int, seed: int, injections: 
     throttle = np.clip(np.asarray(log["throttle_pct"], dtype=float), 0.0, 100.0)
     offsets = rng.uniform(-EGT_SPREAD_C, EGT_SPREAD_C, cylinders)
     columns: dict[str, np.ndarray] = {}
-    burning = _lag(oat + EGT_RISE_C + EGT_PER_PCT_C * throttle, t, EGT_LAG_S, float(oat[0]))
+    target = oat + EGT_RISE_C + EGT_PER_PCT_C * throttle
+    burning = _lag(target, t, EGT_LAG_S, float(target[0]))  # lit at once (a cold probe's reading below 0 degC
+    # would not fit the ECU's EGT signal)
     for n in range(1, cylinders + 1):
         egt = burning + offsets[n - 1]
         if n == injections.valve_cylinder:

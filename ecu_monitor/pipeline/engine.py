@@ -317,7 +317,8 @@ class Pipeline:
                     capacity = max(capacity, d.delay_blocks + 1)
         state = np.zeros(count, dtype=CYLINDER_STATE)  # made ready by the first advance_to (the clock's start)
         state["egt_fast"] = math.nan  # the EGT band-pass starts at the first fresh EGT
-        state["egt_offset"] = math.nan  # the EGT's normal offset, learned from the first EGT at power
+        state["egt_offset"] = math.nan  # the EGT's normal offsets, learned from the first EGT at steady power
+        state["power_held"] = math.nan
         engine = Engine(
             clock=clock,
             values=np.full(slots, math.nan),

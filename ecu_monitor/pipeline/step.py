@@ -177,6 +177,14 @@ _EGT_DIVERGENCE = EVENT_KINDS.index("egt_divergence")
 _EGT_EXCEEDANCE = EVENT_KINDS.index("egt_exceedance")
 _OIL_EXCEEDANCE = EVENT_KINDS.index("oil_exceedance")
 _VALVE_ADVISORY = EVENT_KINDS.index("valve_advisory")
+#: EGT divergence: each cylinder's normal EGT offset is learned per power band (the power fraction of the
+#: heat map's x input, estimation/regions.py: below 0.5, below 0.8, above; unknown: the middle one), and
+#: only at steady power: the fraction within EGT_STEADY_FRACTION of where it was when it last moved by more,
+#: for EGT_STEADY_S or longer (a power change moves the cylinders' EGTs at different speeds).
+EGT_BANDS = 3
+EGT_BAND_EDGES = (0.5, 0.8)
+EGT_STEADY_S = 30.0
+EGT_STEADY_FRACTION = 0.05
 #: The exhaust-valve advisory's band, 0.5-3 cycles/min: the EGT's low-pass at 3 cycles/min minus its low-pass
 #: at 0.5 cycles/min (first-order, time constants 60 / (2 pi f), s); their difference passes the band at a
 #: gain of 0.58-0.70, VALVE_BAND_GAIN its middle, by which the amplitude is divided.
@@ -259,8 +267,10 @@ CYLINDER_STATE = np.dtype(
         ("egt_slow", "f8"),
         ("egt_band_ms", "f8"),
         ("egt_band_s", "f8"),  # how long the band-pass has run, s
-        ("egt_offset", "f8"),  # its EGT's normal offset from the others' median at power, degC (nan: none yet)
-        ("egt_offset_s", "f8"),  # how long that offset has been learned, s
+        ("egt_offset", "f8", (EGT_BANDS,)),  # its EGT's normal offset from the others' median per power band, degC
+        ("egt_offset_s", "f8", (EGT_BANDS,)),  # how long each has been learned, s
+        ("power_held", "f8"),  # cylinder 1's record: the power fraction the steady power holds near (nan: none yet)
+        ("power_steady_s", "f8"),  # cylinder 1's record: how long the power has stayed near it, s
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -1006,14 +1016,15 @@ def events_step(eng: Engine, time_s: float) -> None:
     for i in range(n):
         es = eng_settings[i]["events"]
         own[i] = _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s)
-    at_power = median_of_others(own, -1, others) > eng_settings[0]["events"]["egt_divergence_from_c"]
+    band, steady = _power_band(eng, _events_period_s(eng))
+    at_power = steady and median_of_others(own, -1, others) > eng_settings[0]["events"]["egt_divergence_from_c"]
     for i in range(n):
         es = eng_settings[i]["events"]
         st = eng_state[i]
         egt = own[i]
         _track(eng, st["egt_high"], egt > es["egt_limit_c"], egt, time_s, _EGT_EXCEEDANCE, i + 1,
                es["egt_limit_c"], es["exceedance_min_s"])  # fmt: skip
-        beyond = egt_beyond_normal(st, egt - median_of_others(own, i, others), at_power, es["egt_normal_s"],
+        beyond = egt_beyond_normal(st, egt - median_of_others(own, i, others), at_power, band, es["egt_normal_s"],
                                    _events_period_s(eng))  # fmt: skip
         _track(eng, st["egt_divergence"], abs(beyond) > es["egt_divergence_c"], beyond, time_s,
                _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"])  # fmt: skip
@@ -1025,22 +1036,43 @@ def events_step(eng: Engine, time_s: float) -> None:
 
 
 @njit(nogil=False)
-def egt_beyond_normal(st: Any, apart: float, at_power: bool, normal_s: float, dt_s: float) -> float:
-    """How far cylinder record ``st``'s EGT is from its normal offset to the others' median, degC (``apart``:
-    its EGT minus that median now): the offset is learned at power, a first-order average with time
-    constant ``normal_s`` (s), not while the cylinder diverges; nan off power, without an EGT, and until
-    the offset has been learned for ``normal_s`` (an engine's EGTs spread by their own amount: the
-    divergence is a change of it, docs/service.md, "Engine events")."""
+def _power_band(eng: Engine, dt_s: float) -> tuple[int, bool]:
+    """The power band of this step (EGT_BANDS) and whether the power has been steady (EGT_STEADY_S), from the
+    heat map's x input (the step's u[0]); unknown power: the middle band, steady."""
+    st = eng.state[0]
+    xb = eng.x_breakpoints[0]
+    power = power_fraction(eng.scratch[18], xb[0], xb[eng.settings[0]["n_x"] - 1])
+    if math.isnan(power):
+        return 1, True
+    if math.isnan(st["power_held"]) or abs(power - st["power_held"]) > EGT_STEADY_FRACTION:
+        st["power_held"] = power  # the power moved: steady from here
+        st["power_steady_s"] = 0.0
+    else:
+        st["power_steady_s"] += dt_s
+    band = 0 if power < EGT_BAND_EDGES[0] else 1 if power < EGT_BAND_EDGES[1] else 2
+    return band, st["power_steady_s"] >= EGT_STEADY_S
+
+
+@njit(nogil=False)
+def egt_beyond_normal(st: Any, apart: float, at_power: bool, band: int, normal_s: float, dt_s: float) -> float:
+    """How far cylinder record ``st``'s EGT is from its normal offset to the others' median in power band
+    ``band``, degC (``apart``: its EGT minus that median now): the offset is learned at steady power
+    (``at_power``), a first-order average with time constant ``normal_s`` (s), not while the cylinder
+    diverges; nan otherwise, without an EGT, and until the band's offset has been learned for ``normal_s``
+    (an engine's EGTs spread by their own amount, and by another at another power: the divergence is a
+    change of it, docs/service.md, "Engine events")."""
     if not at_power or math.isnan(apart):
         return np.nan
-    if math.isnan(st["egt_offset"]):
-        st["egt_offset"] = apart
-        st["egt_offset_s"] = 0.0
-    beyond = apart - st["egt_offset"]
+    offsets = st["egt_offset"]
+    learned = st["egt_offset_s"]
+    if math.isnan(offsets[band]):
+        offsets[band] = apart
+        learned[band] = 0.0
+    beyond = apart - offsets[band]
     if not st["egt_divergence"]["active"]:
-        st["egt_offset"] += beyond * min(dt_s / normal_s, 1.0)
-        st["egt_offset_s"] += dt_s
-    return beyond if st["egt_offset_s"] >= normal_s else np.nan
+        offsets[band] += beyond * min(dt_s / normal_s, 1.0)
+        learned[band] += dt_s
+    return beyond if learned[band] >= normal_s else np.nan
 
 
 @njit(nogil=False)

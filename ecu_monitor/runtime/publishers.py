@@ -180,13 +180,13 @@ class DbcHealthFrames:
         self.limits = [m.cht_limit_c for m in pipeline.cylinder_params]
         self.maintenance_alert = False  # Health_Diag.MaintenanceAlert: an open alert told (set, never cleared)
         pipeline.counters.setdefault("health_frames", 0)
-        self._event_packer: Callable[[Sequence[float], int], bytes] | None = None
         try:
             event = self.encoder.message(_EVENT_FRAME)
         except KeyError:  # a health.dbc of the user's without the event frame: events go out on no frame
             event = None
+        self._events_framed = event is not None
         if event is not None:
-            self._event_packer = self.encoder.packer(_EVENT_FRAME, _EVENT_SIGNALS)
+            self._packers[_EVENT_FRAME] = self.encoder.packer(_EVENT_FRAME, _EVENT_SIGNALS)
             self._ids[_EVENT_FRAME] = (int(event.frame_id), bool(event.is_extended_frame))
             self._counters[_EVENT_FRAME] = 0
 
@@ -195,15 +195,10 @@ class DbcHealthFrames:
 
     def announce(self, event: Event) -> list[can.Message]:
         """The Health_Event frame of the event (none when the health.dbc has no such message)."""
-        if self._event_packer is None:
+        if not self._events_framed:
             return []
         values = (EVENT_KINDS.index(event.kind), event.cylinder, _finite_or_zero(event.value), event.limit)
-        counter = self._counters[_EVENT_FRAME]
-        self._counters[_EVENT_FRAME] = (counter + 1) % 16
-        frame_id, extended = self._ids[_EVENT_FRAME]
-        self.pipeline.counters["health_frames"] += 1
-        return [can.Message(timestamp=self.pipeline.now_s, arbitration_id=frame_id, is_extended_id=extended,
-                            data=self._event_packer(values, counter))]  # fmt: skip
+        return [self._frame(_EVENT_FRAME, self.pipeline.now_s, values)]
 
     def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
         out: list[can.Message] = []
