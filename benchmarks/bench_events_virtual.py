@@ -68,7 +68,7 @@ def truth_onsets(log: Any, injections: Any, events: Any) -> list[tuple[str, int,
         onset = _first(t, np.abs(heads[d - 1] - others) > events.cht_divergence_c, deg.start_s)
         if onset is not None:
             out.append(("cht_divergence", d, deg.start_s, onset))
-    if injections.oil_rise_c > 0.0:
+    if injections.oil_to_c > 0.0:
         onset = _first(t, np.asarray(log["oil_true_c"]) > events.oil_limit_c, injections.oil_start_s)
         if onset is not None:
             out.append(("oil_exceedance", 0, injections.oil_start_s, onset))
@@ -161,9 +161,10 @@ def main() -> None:
                 if e.kind == kind and e.cylinder != cylinder and kind != "shock_cooling":
                     wrong.append(f"seed {seed}: {e.text()} (injected at cylinder {cylinder})")
                     used.add(i)
+        injected = {injections.valve_cylinder, injections.divergence.cylinder if injections.divergence else 0}
         for i, e in enumerate(events):
             if i not in used:
-                others[e.kind] += 1
+                others[f"{e.kind} ({'an injected' if e.cylinder in injected else 'another'} cylinder)"] += 1
                 if e.kind == "shock_cooling":
                     shocks_true[_truth_shock_cooled(log, e)] += 1
         hot = injections.divergence.cylinder if injections.divergence else "-"

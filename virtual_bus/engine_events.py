@@ -12,7 +12,7 @@ what the engine events also read to the flown log:
 
 The injections (:class:`Injections`): an exhaust valve's EGT swinging (one cylinder's EGT plus a sine of the
 given peak-to-peak amplitude and period from its onset to its end), an oil excursion (the oil's target up
-by ``oil_rise_c`` for a while: a blocked oil cooler), a CHT divergence (a
+to ``oil_to_c`` for a while: a blocked oil cooler), a CHT divergence (a
 :class:`~virtual_bus.faults.Degradation` of one cylinder's gamma_Q, flown by the plant) and a power-off dive
 (a segment of the mission: throttle closed at high speed). :func:`event_mission` draws a mission with all
 four from a seed.
@@ -48,16 +48,16 @@ class Injections:
     """What is injected into one flight (times in s of flight time; cylinders 1-based; 0: none).
 
     valve_cylinder: the cylinder whose EGT swings, ``valve_pp_c`` peak to peak with ``valve_period_s``,
-    from ``valve_start_s`` to ``valve_end_s``; oil_rise_c: the oil's target up by that from ``oil_start_s``
-    for ``oil_s``; divergence: the CHT divergence's degradation (None: none); dive: whether the mission has a
-    power-off dive."""
+    from ``valve_start_s`` to ``valve_end_s``; oil_to_c: the oil's target, degC, from ``oil_start_s`` for
+    ``oil_s`` (0: no excursion); divergence: the CHT divergence's degradation (None: none); dive: whether
+    the mission has a power-off dive."""
 
     valve_cylinder: int = 0
     valve_pp_c: float = 0.0
     valve_period_s: float = 60.0
     valve_start_s: float = 0.0
     valve_end_s: float = 0.0
-    oil_rise_c: float = 0.0
+    oil_to_c: float = 0.0
     oil_start_s: float = 0.0
     oil_s: float = 0.0
     divergence: Degradation | None = None
@@ -98,7 +98,9 @@ def with_exhaust_and_oil(log: FlightLog, cylinders: int, seed: int, injections: 
         columns[f"egt{n}_c"] = np.round(egt + rng.normal(0.0, EGT_NOISE_C, t.size))
     target = oat + OIL_RISE_C * (1.0 + throttle / 100.0) / 2.0
     excursion = (t >= injections.oil_start_s) & (t < injections.oil_start_s + injections.oil_s)
-    oil = _lag(target + np.where(excursion, injections.oil_rise_c, 0.0), t, OIL_LAG_S, float(oat[0]))
+    if injections.oil_to_c > 0.0:
+        target = np.where(excursion, injections.oil_to_c, target)
+    oil = _lag(target, t, OIL_LAG_S, float(oat[0]))
     columns["oil_true_c"] = oil
     columns["oil_temp_c"] = np.round(oil + rng.normal(0.0, OIL_NOISE_C, t.size))
     return log.with_columns(**columns)
@@ -169,7 +171,7 @@ def event_mission(seed: int, cylinders: int) -> tuple[Mission, Injections]:
         valve_period_s=float(rng.uniform(20.0, 120.0)),  # 0.5-3 cycles/min
         valve_start_s=valve_start,
         valve_end_s=steady_from + steady_s,
-        oil_rise_c=float(rng.uniform(40.0, 55.0)),
+        oil_to_c=float(rng.uniform(128.0, 145.0)),  # 10-27 degC past the shipped 118 degC limit
         oil_start_s=varied_from + float(rng.uniform(60.0, 250.0)),
         oil_s=float(rng.uniform(240.0, 360.0)),
         divergence=Degradation(
