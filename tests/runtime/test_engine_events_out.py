@@ -4,7 +4,6 @@ event frame, a DroneCAN LogMessage and a MAVLink STATUSTEXT (pipeline/events.py,
 
 from __future__ import annotations
 
-import dronecan
 import pytest
 
 from ecu_monitor.bus.mavlink_settings import MavlinkSettings
@@ -17,6 +16,7 @@ from ecu_monitor.runtime.flight_recorder import FlightRecorder
 from ecu_monitor.runtime.mavlink_publisher import MavlinkPublisher
 from ecu_monitor.runtime.persistence import DATABASE_NAME, FlightRules, FlightSample, StateStore
 from ecu_monitor.runtime.publishers import DbcHealthFrames, LiveMonitor
+from tests.helpers.dronecan_logs import log_messages
 from tests.helpers.history import write_old_flight_database
 
 SERIAL = "UAV-ENG-EVENTS"
@@ -113,17 +113,7 @@ def test_an_event_that_starts_goes_out_on_every_output() -> None:
     node = DroneCanNode(DroneCanSettings(), 200.0, 0.1, 5)
     node.tell(text)
     node.tell("ENGINE cyl 2: valve advisory +40 C", advisory=True)
-    manager = dronecan.transport.TransferManager()
-    logs = []
-    for t in (0.1, 0.2, 0.3):
-        for msg in node.frames(t, _snap(t)):
-            done = manager.receive_frame(dronecan.transport.Frame(msg.arbitration_id, msg.data))
-            if done:
-                transfer = dronecan.transport.Transfer()
-                transfer.from_frames(done)
-                payload = transfer.payload
-                if dronecan.get_dronecan_data_type(payload).full_name.endswith("LogMessage"):
-                    logs.append((payload.level.value, payload.text.decode()))
+    logs = log_messages(msg for t in (0.1, 0.2, 0.3) for msg in node.frames(t, _snap(t)))
     assert (2, text) in logs and (1, "ENGINE cyl 2: valve advisory +40 C") in logs
     # MAVLink: one STATUSTEXT, WARNING
     pub = MavlinkPublisher(MavlinkSettings(statustext_per_s=10.0), 200.0)
