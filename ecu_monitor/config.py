@@ -138,6 +138,10 @@ class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class _Engine(_Section, frozen=True):
     serial: _Text  # the engine's serial: persistence keeps its flights and trends under it
+    #: its hours since overhaul as the logbook gives them (0 after an overhaul), h: the history counts on from
+    #: its running hours when this value is first seen (None: not tracked)
+    overhaul_hours: _NonNegative | None = None
+    tbo_hours: _Positive | None = None  # its time between overhauls, h: ``history`` says when it is due
 
 
 class Backoff(_Section, frozen=True):
@@ -223,8 +227,11 @@ class EngineEvents(_Section, frozen=True):
     cylinders' diverges, once it lasts divergence_min_s (s); needs two or more CHT channels.
     cht_limit_c: an estimated CHT above this (degC) is an exceedance once it lasts exceedance_min_s (s);
     None: each cylinder's model's ``cht_limit_c`` (model.yaml). egt_divergence_c: a cylinder's EGT
-    (``egtN_c`` mapped) further than this from the median of the others' diverges (divergence_min_s),
-    counted while the median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
+    (``egtN_c`` mapped) whose offset from the median of the others' moves further than this (degC) from its
+    normal offset diverges (divergence_min_s); the normal offset is the cylinder's own in each power band,
+    learned at steady power (an average over egt_normal_s, s, counted once it has learned that long: every
+    engine's EGTs spread by their own amount, another at another power), counted at steady power while the
+    median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
     egt_limit_c, oil_limit_c: an EGT, the oil temperature (``oil_temp_c``) above this (degC) is an
     exceedance (exceedance_min_s). valve_amplitude_c: the exhaust-valve advisory: one cylinder's EGT
     oscillating at 0.5-3 cycles/min with at least this peak-to-peak amplitude (degC) while every other
@@ -238,8 +245,9 @@ class EngineEvents(_Section, frozen=True):
     divergence_min_s: _NonNegative = 10.0
     cht_limit_c: _Number | None = None
     exceedance_min_s: _NonNegative = 2.0
-    egt_divergence_c: _Positive = 80.0
+    egt_divergence_c: _Positive = 60.0
     egt_divergence_from_c: _Number = 500.0
+    egt_normal_s: _Positive = 120.0
     egt_limit_c: _Number = 900.0
     oil_limit_c: _Number = 118.0
     valve_amplitude_c: _Positive = 15.0
@@ -549,6 +557,10 @@ class ServiceConfig:
     cross_calibrated_for: tuple[str | None, ...]
     #: ``events:``: the engine events' limits
     events: EngineEvents
+    #: ``engine.overhaul_hours``, ``engine.tbo_hours``: the engine's hours since overhaul as last given (the
+    #: history counts on from there) and its time between overhauls, h (None: not given)
+    overhaul_hours: float | None
+    tbo_hours: float | None
     #: ``wear:``: the across-flight detector's settings and the engine's nominal wear reference (None: learned
     #: from its own first flights)
     wear: WearSettings = dataclasses.field(default_factory=WearSettings)
@@ -706,6 +718,8 @@ class _Resolver:
             cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
             **self.cross_detectors(cylinders, count),
             events=file.events,
+            overhaul_hours=file.engine.overhaul_hours,
+            tbo_hours=file.engine.tbo_hours,
             wear=self.settings("", WearSettings(), _given(file.wear, WearSettings)),
             wear_reference=None
             if file.wear.reference is None

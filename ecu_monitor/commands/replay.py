@@ -110,12 +110,18 @@ def _replay_into_history(
     offset = 0.0 if times.size and float(np.min(times)) > _UNIX_TIME_S else path.stat().st_mtime - last
     with StateDirLock(state_dir), StateStore(state_dir) as store:  # never beside a daemon on the same history
         recorder = FlightRecorder(
-            store, config.engine_serial, models[0].cht_limit_c, wear=config.wear, reference=config.wear_reference
+            store,
+            config.engine_serial,
+            models[0].cht_limit_c,
+            wear=config.wear,
+            reference=config.wear_reference,
+            hours=(config.overhaul_hours, config.tbo_hours),
         )
 
-        def record(pipeline: Any, rows: list[Any]) -> None:
+        def record(pipeline: Any, rows: list[Any], events: list[Any]) -> None:
             for sample in flight_samples(rows, held_inputs(pipeline), offset):
                 recorder.add(sample)
+            recorder.add_events(events)
 
         result = replay_live(config, models, frames.messages(), on_rows=record)
         recorder.close("log_end")

@@ -28,7 +28,7 @@ from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
 from ecu_monitor.pipeline.engine import Pipeline, model_input_names
-from ecu_monitor.pipeline.events import Event
+from ecu_monitor.pipeline.events import Event, finished
 from ecu_monitor.pipeline.output_table import output_fields
 from ecu_monitor.pipeline.outputs import (
     HealthSnapshot,
@@ -60,11 +60,12 @@ def replay_live(
     config: Any,
     params: ThermalParams | Sequence[ThermalParams],
     frames: Iterable[can.Message],
-    on_rows: Callable[[Pipeline, list[HealthSnapshot]], None] | None = None,
+    on_rows: Callable[[Pipeline, list[HealthSnapshot], list[Event]], None] | None = None,
 ) -> ReplayResult:
-    """The replay frame by frame through the live calls (``replay --live``). ``on_rows(pipeline, rows)`` is
-    called with the rows each frame completes, the pipeline's held inputs as they are then (as the daemon
-    reads them: ``replay --history`` records the flights with it)."""
+    """The replay frame by frame through the live calls (``replay --live``). ``on_rows(pipeline, rows,
+    events)`` is called with the rows and the event records (pipeline/events.py) each frame completes, the
+    pipeline's held inputs as they are then (as the daemon reads them: ``replay --history`` records the
+    flights with it)."""
     pipeline = Pipeline(config, params)
     rows: list[HealthSnapshot] = []
     events: list[Event] = []
@@ -72,13 +73,14 @@ def replay_live(
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
         new = pipeline.drain_rows()
-        if new and on_rows is not None:
-            on_rows(pipeline, new)
+        fresh = pipeline.take_events()
+        if (new or fresh) and on_rows is not None:
+            on_rows(pipeline, new, fresh)
         rows.extend(new)
-        events += pipeline.take_events()
+        events += fresh
     events += pipeline.close_events()
     return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters),
-                        events=tuple(events))  # fmt: skip
+                        events=tuple(finished(events)))  # fmt: skip
 
 
 def replay_frames(
@@ -177,7 +179,7 @@ def _run(
     count = pipeline.cylinder_count
     traces = keep_feeds or keep_reference
     rows, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces)
-    events = tuple(pipeline.close_events())
+    events = tuple(finished(pipeline.close_events()))
     for key in ("steps", "clock_restarts", "events_dropped"):
         counters[key] = pipeline.counters[key]
     columns = _columns(rows, count, config.spread_limit_c, pipeline.stale_bits)
