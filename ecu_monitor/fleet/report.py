@@ -37,7 +37,8 @@ table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: left; vertical-align: top; }
 th { background: #f2f2f2; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
 tr.alert td { background: #fde2e2; } .badge { padding: 0.1em 0.4em; border-radius: 0.3em; color: #fff; }
-.badge.alert { background: #c0392b; } .badge.ok { background: #27ae60; } .badge.learn { background: #7f8c8d; }
+.badge { white-space: nowrap; } .badge.alert { background: #c0392b; } .badge.ok { background: #27ae60; }
+.badge.learn { background: #7f8c8d; }
 img { max-width: 100%; } .muted { color: #777; }
 """
 

@@ -96,8 +96,8 @@ class EngineSettings:
 
 @dataclass(frozen=True)
 class LogJob:
-    """One log of one engine: its path, its name relative to the fleet's folder, its position in the
-    engine's listing (globs in order, each sorted) and its key (content and engine settings, sha256)."""
+    """One log of one engine: its path, its name (relative to the fleet's folder; absolute outside it), its
+    position in the engine's listing (globs in order, each sorted) and its key (content and engine settings)."""
 
     serial: str
     path: Path
@@ -134,7 +134,8 @@ class Fleet:
                         continue
                     seen.add(resolved)
                     key = _key(path, digest)
-                    name = os.path.relpath(path, base)
+                    inside = path.resolve().is_relative_to(base.resolve())
+                    name = os.path.relpath(path, base) if inside else str(path.resolve())
                     out.append(LogJob(engine.serial, path, name, len(seen) - 1, key))
         return out, empty
 

@@ -37,7 +37,7 @@ _MAX_ROW_GAP_S = 2.0
 
 #: The columns of a flight row (the flights dataset, besides the serial) and their meaning.
 FLIGHT_FIELDS: dict[str, str] = {
-    "log": "the log's path relative to FLEET.yaml's folder",
+    "log": "the log's path relative to FLEET.yaml's folder (absolute outside it)",
     "key": "sha256 of the log's content and the engine's settings (24 hex digits)",
     "flight": "the flight's number in the log (1; a daemon database: its flight id)",
     "position": "the log's position in the engine's listing (globs in order, each sorted)",
@@ -47,7 +47,7 @@ FLIGHT_FIELDS: dict[str, str] = {
     "low_power_s": "time at low power, s",
     "cruise_power_s": "time at cruise power, s",
     "high_power_s": "time at high power, s",
-    "max_cht_c": "the highest CHT read, degC",
+    "max_cht_c": "the highest CHT read on any cylinder, degC",
     "max_cht_cyl_c": "the highest CHT of each cylinder, degC (one for an engine with one CHT channel)",
     "time_above_limit_s": "time with the CHT above the model's limit, s",
     "gamma_q_mean": "mean heat-input factor gamma_Q estimate",
@@ -122,6 +122,7 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
 
     config, models = engine_setup(engine)
     clock: float | None = None  # the log's first stamp, on its own clock
+    logged: list[float | None] = []  # each cylinder's max CHT as a flight CSV logged it (cht1_c ..)
     if suffix == ".tlog":
         from ecu_monitor.bus.mavlink_log import iter_tlog
 
@@ -131,7 +132,10 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
         result = replay_frames(config, models, read_frames(job.path), keep_feeds=True, keep_reference=True)
         clock = _first_can_stamp(job.path)
     elif suffix == ".csv":
+        from ecu_monitor.flightlog import cylinder_columns
+
         log = load_flight(job.path, mapping=engine.mapping, engine=engine.engine)
+        logged = [_finite_max(log[name]) for name in cylinder_columns(log, "cht")]
         needed = (*model_input_names(models[0], config.input_names), *config.cylinder_inputs)
         frames = frames_from_flight(log, config, needed)
         result = replay_frames(config, models, frames, keep_feeds=True, keep_reference=True)
@@ -144,7 +148,7 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
     for feed in result.reference_feed:
         wear.add_many(feed.cht_c, feed.model_c, feed.oat_c)
     start_utc = clock if clock is not None and clock > _UNIX_TIME_S else None
-    flight = _flight_row(job, result, models[0].cht_limit_c, wear.index, start_utc)
+    flight = _flight_row(job, result, models[0].cht_limit_c, wear.index, start_utc, logged)
     t0 = float(result.columns["time_s"][0])
     events = [
         {"log": job.name, "key": job.key, "flight": 1, "time_s": e.time_s - t0, "kind": e.kind,
@@ -156,9 +160,15 @@ def _replay(job: LogJob, engine: EngineSettings, suffix: str) -> LogSummary:
 
 
 def _flight_row(
-    job: LogJob, result: Any, cht_limit_c: float, wear_index: float | None, start_utc: float | None
+    job: LogJob,
+    result: Any,
+    cht_limit_c: float,
+    wear_index: float | None,
+    start_utc: float | None,
+    logged: Sequence[float | None] = (),
 ) -> dict[str, Any]:
-    """The flight row of a replay (FLIGHT_FIELDS); ``start_utc``: the log's first stamp on a UNIX clock."""
+    """The flight row of a replay (FLIGHT_FIELDS); ``start_utc``: the log's first stamp on a UNIX clock;
+    ``logged``: each cylinder's max CHT in the log, when it has more cylinders than the replay monitors."""
     from ecu_monitor.estimation.regions import REGION_NAMES
     from ecu_monitor.pipeline.output_table import STATE_CONCERN, STATES
 
@@ -168,6 +178,9 @@ def _flight_row(
     count = result.cylinder_count
     cht_names = ["cht_meas_c"] if count == 1 else [f"cyl{n}_cht_meas_c" for n in range(1, count + 1)]
     per_cylinder = [_finite_max(c[name]) for name in cht_names]
+    if len(logged) > len(per_cylinder):  # a CSV with every cylinder replayed on one channel (their mean)
+        per_cylinder = list(logged)
+    hottest = max((v for v in per_cylinder if v is not None), default=None)
     cht = np.asarray(c["cht_meas_c"], dtype=np.float64)
     states = np.asarray(c["state"])
     seen = {STATES[int(code)] for code in np.unique(states)}
@@ -189,7 +202,7 @@ def _flight_row(
         "start_utc": start_utc,
         "duration_s": float(dt.sum()),
         **regions,
-        "max_cht_c": _finite_max(cht),
+        "max_cht_c": hottest,
         "max_cht_cyl_c": per_cylinder,
         "time_above_limit_s": float(dt[np.nan_to_num(cht, nan=-np.inf) > cht_limit_c].sum()),
         "gamma_q_mean": _finite_mean(c["gamma_q"]),
