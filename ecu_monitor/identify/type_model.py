@@ -281,11 +281,11 @@ def _fit_airframe(
 
 
 def _centred(shared: ThermalParams, values: dict[str, NDArray[np.float64]]) -> ThermalParams:
-    """The shared model as the type's typical airframe: its heat map times the airframes' geometric-mean
-    heat scale, R_Ce divided by their geometric-mean cooling scale, its probe lag their median lag (where
-    these were fitted: ``values``, term -> (A,))."""
-    heat = float(np.exp(np.mean(np.log(values["heat_scale"]))))
-    cooling = float(np.exp(np.mean(np.log(values["cooling_scale"]))))
+    """The shared model as the type's typical airframe, the median one (an airframe unlike the others does
+    not pull it): its heat map times the airframes' median heat scale, R_Ce divided by their median
+    cooling scale, its probe lag their median lag (where these were fitted: ``values``, term -> (A,))."""
+    heat = float(np.median(values["heat_scale"]))
+    cooling = float(np.median(values["cooling_scale"]))
     shared = shared.replace(
         heat_map=shared.heat_map.with_values(shared.heat_map.values_array() * heat), r_ce=shared.r_ce / cooling
     )
