@@ -13,7 +13,7 @@ for a unit it does not know, ``{scale: S, offset: O}`` (canonical value = raw ph
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` whose one-line message names the file,
 the key path and what was expected, e.g. ``x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
 (the CLI prints it and exits 2); msgspec's ValidationError (``... - at `$.inputs.rpm.unit```) is
-put in that form in one place, :func:`_config_error`.
+put in that form in one place, :func:`validation_error`.
 
 ``protocol: dronecan`` (default ``dbc``) reads DroneCAN messages instead (:mod:`ecu_monitor.bus.dronecan`,
 the shipped dronecan.yaml): each input names ``field: data.type.Name.field.path`` instead of
@@ -75,6 +75,7 @@ __all__ = [
     "config_default",
     "load_config",
     "parse_config",
+    "validation_error",
 ]
 
 #: Bus protocols of the inputs: DBC-described frames, DroneCAN messages, or an autopilot's MAVLink telemetry.
@@ -619,7 +620,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     try:
         file = msgspec.convert(data, ConfigFile)
     except msgspec.ValidationError as exc:
-        raise _config_error(source, exc, data) from None
+        raise validation_error(source, exc, data) from None
     return _Resolver(source).config(file, order=list(data["inputs"]))  # the inputs in the file's order
 
 
@@ -901,10 +902,11 @@ _AT = re.compile(r" - at `(?:key` in `)?(\$[^`]*)`$")
 _STEP = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
 
 
-def _config_error(src: Path, exc: msgspec.ValidationError, data: Any) -> ConfigError:
+def validation_error(src: Path, exc: msgspec.ValidationError, data: Any, root: type = ConfigFile) -> ConfigError:
     """msgspec's ``Expected `float`, got `str` - at `$.detector.threshold``` as
     ``<src>: detector.threshold: expected a number, got str 'abc'``: the key path, what the schema expects
-    there (its description, else its type and range) and what the file has."""
+    there (its description, else its type and range) and what the file has. ``root``: the file's schema
+    (a service config's, or another YAML file's such as a fleet file)."""
     text = str(exc)
     at = _AT.search(text)
     path: list[str | int] = []
@@ -922,9 +924,9 @@ def _config_error(src: Path, exc: msgspec.ValidationError, data: Any) -> ConfigE
         return ConfigError(f"{src}: {_where([*path, match.group(1)])}: missing")
     if match := re.fullmatch(r"Object contains unknown field `(.*)`", problem):
         key = match.group(1)
-        known = _known(_type_at(path))
+        known = _known(_type_at(path, root))
         return ConfigError(f"{src}: {_where([*path, key])}: unknown key '{key}' (known: {known})")
-    expected = _expected(_type_at(path)) or problem[:1].lower() + problem[1:]
+    expected = _expected(_type_at(path, root)) or problem[:1].lower() + problem[1:]
     return ConfigError(f"{src}: {_where(path)}: expected {expected}, got {_kind(_value_at(data, path))}")
 
 
@@ -949,9 +951,9 @@ def _options(kind: schema.Type | None) -> list[schema.Type]:
     return [] if kind is None or isinstance(kind, schema.NoneType) else [kind]
 
 
-def _type_at(path: list[str | int]) -> schema.Type | None:
-    """The schema's type at ``path`` in the file (None where it has none)."""
-    kind: schema.Type | None = schema.type_info(ConfigFile)
+def _type_at(path: list[str | int], root: type = ConfigFile) -> schema.Type | None:
+    """The type of schema ``root`` at ``path`` in the file (None where it has none)."""
+    kind: schema.Type | None = schema.type_info(root)
     for step in path:
         options = _options(kind)
         kind = None

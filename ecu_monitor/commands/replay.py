@@ -136,7 +136,8 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
     from ecu_monitor.config import load_config
     from ecu_monitor.estimation import ESTIMATORS
-    from ecu_monitor.model import load_model
+    from ecu_monitor.flightlog import log_airframe
+    from ecu_monitor.model import airframe_warning, load_model
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
@@ -166,6 +167,9 @@ def _run(args: argparse.Namespace) -> int:
         config = config.replace(estimator_name=args.estimator)
     models = (load_model(args.model),) * len(config.cylinder_inputs) if args.model else config.load_cylinder_params()
     params = models[0]
+    mismatch = airframe_warning(params, log_airframe(path), str(args.model or config.source), path.name)
+    if mismatch:
+        print(f"warning: {mismatch}")
     result: ReplayResult
     if tlog:
         result = replay_live(config, models, tlog_messages(path)) if args.live else replay_tlog(path, config, models)

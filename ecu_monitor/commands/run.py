@@ -166,6 +166,7 @@ def unsupported_on_host(exc: BaseException) -> bool:
 
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
+    from ecu_monitor.model import airframe_warning
     from ecu_monitor.runtime.daemon import Daemon
     from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
@@ -204,6 +205,9 @@ def _run(args: argparse.Namespace) -> int:
     settings = daemon_settings(config, watchdog_period_s(), pipeline.row_period_s, uncalibrated)
     if uncalibrated:
         _log.warning("%s", uncalibrated)
+    mismatch = airframe_warning(params, config.engine_serial, "its model", str(config.source))
+    if mismatch:  # a model made for another airframe (the config's engine serial is not among its airframes)
+        _log.warning("%s", mismatch)
     with SystemdNotifier() as notifier:
         daemon = Daemon(
             pipeline,

@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 from ecu_monitor.errors import StorageError
 from ecu_monitor.estimation.regions import REGION_HIGH, REGION_NAMES, power_fraction, region_of
 from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
+from ecu_monitor.pipeline.output_table import STATE_CONCERN
 from ecu_monitor.runtime.persistence import (
     TREND_STATS,
     FlightRecord,
@@ -49,8 +50,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-#: Detector states ranked from best to worst (health.dbc DegradationState order of concern).
-_STATE_RANK = {"NOMINAL": 0, "INPUT_STALE": 1, "UNAVAILABLE": 2, "SENSOR_FAULT": 3, "SUSPECT": 4, "DEGRADED": 5}
 #: States in which the estimator (and its reference model) is not running: no wear sample then.
 _NOT_ESTIMATING = frozenset({"UNAVAILABLE", "SENSOR_FAULT"})
 #: Longest gap between two samples that still counts as covered time, s (a longer gap adds nothing).
@@ -231,7 +230,7 @@ class _CylinderFlight:
             self.max_cht_c = max(self.max_cht_c, cht_c)
         if state in ("SUSPECT", "DEGRADED"):
             self.time_degraded_s += dt
-        if _STATE_RANK.get(state, 0) > _STATE_RANK.get(self.worst_state, 0):
+        if STATE_CONCERN.get(state, 0) > STATE_CONCERN.get(self.worst_state, 0):
             self.worst_state = state
         for name, moments in self.trends.items():
             moments.add(t_s, trends[name])
@@ -563,7 +562,7 @@ class FlightRecorder:
                 flight.time_above_limit_s += dt
         if sample.state in ("SUSPECT", "DEGRADED"):
             flight.time_degraded_s += dt
-        if _STATE_RANK.get(sample.state, 0) > _STATE_RANK.get(flight.worst_state, 0):
+        if STATE_CONCERN.get(sample.state, 0) > STATE_CONCERN.get(flight.worst_state, 0):
             flight.worst_state = sample.state
         region = region_of(sample.time_s - flight.start_time_s, sample.airspeed_mps, sample.power)
         if math.isfinite(sample.power):
