@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -195,15 +196,33 @@ def _run(
 def _values_by_frame(
     names: tuple[str, ...], decoded: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]], n: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-    """The decoded values in frame order: (index of each frame's first value, n + 1; slot; value)."""
+    """The decoded values in frame order: (index of each frame's first value, n + 1; slot; value). Within
+    a frame, the values keep the order of ``names`` (a stable counting sort by frame, compiled)."""
     rows = [decoded[name][0] for name in names]
-    frame = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
+    frame = np.concatenate(rows).astype(np.int64, copy=False) if rows else np.zeros(0, dtype=np.int64)
     slots = np.concatenate([np.full(r.size, i, dtype=np.int64) for i, r in enumerate(rows)]) if rows else frame
-    values = np.concatenate([decoded[name][1] for name in names]) if rows else np.zeros(0)
-    order = np.argsort(frame, kind="stable")
-    frame = frame[order]
-    first = np.searchsorted(frame, np.arange(n + 1)).astype(np.int64)
-    return first, np.ascontiguousarray(slots[order]), np.ascontiguousarray(values[order], dtype=np.float64)
+    values = np.concatenate([decoded[name][1] for name in names]).astype(np.float64) if rows else np.zeros(0)
+    return _by_frame(frame, slots, values, n)
+
+
+@numba.njit(cache=True, nogil=True)
+def _by_frame(
+    frame: NDArray[np.int64], slots: NDArray[np.int64], values: NDArray[np.float64], n: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:  # pragma: no cover - compiled
+    first = np.zeros(n + 1, dtype=np.int64)
+    for f in frame:
+        first[f + 1] += 1
+    for f in range(n):
+        first[f + 1] += first[f]
+    fill = first[:n].copy()
+    out_slots = np.empty_like(slots)
+    out_values = np.empty_like(values)
+    for k in range(frame.size):
+        at = fill[frame[k]]
+        out_slots[at] = slots[k]
+        out_values[at] = values[k]
+        fill[frame[k]] = at + 1
+    return first, out_slots, out_values
 
 
 def _columns(
