@@ -1,7 +1,8 @@
 """CPU use of the daemon at 50 Hz in steady state with other traffic on the bus, against idle python-can
 Notifier processes on the same bus.
 
-    sudo .venv/bin/python benchmarks/bench_cpu.py [--warmup 10] [--seconds 20] [--traffic 4000] [--protocol dbc]
+    sudo .venv/bin/python benchmarks/bench_cpu.py [--warmup 10] [--seconds 20] [--traffic 4000] [--protocol dbc] \
+        [--events on|off]
 
 Everything runs inside a network namespace made for the run (loopback only, multicast routed to lo,
 deleted at the end), on python-can's udp_multicast interface:
@@ -18,6 +19,9 @@ deleted at the end), on python-can's udp_multicast interface:
   (0x400-0x7FF, bursts every 2.5 ms, as ``bench_latency.py``). udp_multicast itself has no kernel filter: the
   plain idle Notifier receives and unpacks every one of them before python-can's id filter drops them; the
   daemon and the filtered Notifier have them dropped by their socket filter in the kernel (as socketcan would).
+
+``--events off`` runs the daemon with ``events: {enabled: false}`` (the engine events off; default on, as
+shipped), to measure what the events cost.
 
 After ``--warmup`` seconds, utime + stime of each process are read from /proc/<pid>/stat at the start and
 the end of ``--seconds``; CPU % = (delta ticks / CLK_TCK) / wall seconds * 100 (100 % = one core).
@@ -36,6 +40,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import yaml
 from netns import kill_all, multicast_namespace
 
 REPO = Path(__file__).resolve().parent.parent
@@ -112,11 +117,15 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--traffic", type=float, default=4000.0, help="other frames per second on the bus")
     parser.add_argument("--protocol", choices=("dbc", "dronecan"), default="dbc")
+    parser.add_argument("--events", choices=("on", "off"), default="on", help="the engine events (default on)")
     args = parser.parse_args()
     port = 43000 + os.getpid() % 1000
     procs: dict[str, subprocess.Popen[bytes]] = {}
     with multicast_namespace(GROUP, port, "bench_cpu", args.protocol) as space:
         ns, config = space.name, space.config
+        if args.events == "off":
+            data = yaml.safe_load(config.read_text(encoding="utf-8"))
+            config.write_text(yaml.safe_dump({**data, "events": {"enabled": False}}, sort_keys=False))
         notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         notify.bind(str(space.tmp / "notify"))  # a path, not an abstract name: those are per network namespace
         notify.settimeout(1.0)
@@ -166,7 +175,8 @@ def main() -> None:
             notify.close()
     usage = {name: (after[name] - before[name]) / wall * 100.0 for name in before}
     print(
-        f"udp_multicast in a network namespace, {args.protocol}, {wall:.1f} s after {args.warmup:g} s warm-up, "
+        f"udp_multicast in a network namespace, {args.protocol}, events {args.events}, {wall:.1f} s after"
+        f" {args.warmup:g} s warm-up, "
         f"other traffic {args.traffic:g} frames/s asked, {traffic_hz:.0f} sent, load {load:.1f}\n"
     )
     print("| process | CPU, % of one core |")

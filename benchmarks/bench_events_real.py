@@ -34,9 +34,10 @@ MARKERS = {
 }
 
 
-def flight_config(log: Any, model: Path, cht_limit_c: float) -> Any:
+def flight_config(log: Any, model: Path | str, cht_limit_c: float | None) -> Any:
     """four_cylinders.yaml with the flight's CHTs (cht_c alone when it has one), its EGTs (as many as CHT
-    channels), its oil temperature and manifold pressure when logged, ``model``, no cross detector."""
+    channels), its oil temperature and manifold pressure when logged, ``model`` (a file, or a preset's name),
+    no cross detector, the CHT limit ``cht_limit_c`` (None: the model's)."""
     from ecu_monitor.config import parse_config
 
     data = yaml.safe_load((CONFIGS / "four_cylinders.yaml").read_text(encoding="utf-8"))
@@ -59,8 +60,8 @@ def flight_config(log: Any, model: Path, cht_limit_c: float) -> Any:
         inputs["manifold_pressure_kpa"] = {"signal": "ECU_Slow.ManifoldPressure", "unit": "kPa", "stale_after_s": 3.0}
     data["cylinders"].pop("cross_detector", None)
     data["cylinders"].pop("spread_limit_c", None)
-    data["model"] = str(model.resolve())
-    data["events"] = {"cht_limit_c": cht_limit_c}
+    data["model"] = str(model.resolve()) if isinstance(model, Path) else model
+    data["events"] = {} if cht_limit_c is None else {"cht_limit_c": cht_limit_c}
     return parse_config(data, CONFIGS / "four_cylinders.yaml")
 
 

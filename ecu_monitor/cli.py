@@ -35,6 +35,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "evaluate",
     "calibrate": "calibrate",
     "files": "files",
+    "fleet": "fleet",
 }
 COMMAND_MODULES: tuple[str, ...] = tuple(COMMANDS.values())
 

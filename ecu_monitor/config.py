@@ -13,7 +13,7 @@ for a unit it does not know, ``{scale: S, offset: O}`` (canonical value = raw ph
 Every problem raises :class:`~ecu_monitor.errors.ConfigError` whose one-line message names the file,
 the key path and what was expected, e.g. ``x.yaml: inputs.rpm.unit: unknown unit 'rps' ...``
 (the CLI prints it and exits 2); msgspec's ValidationError (``... - at `$.inputs.rpm.unit```) is
-put in that form in one place, :func:`_config_error`.
+put in that form in one place, :func:`validation_error`.
 
 ``protocol: dronecan`` (default ``dbc``) reads DroneCAN messages instead (:mod:`ecu_monitor.bus.dronecan`,
 the shipped dronecan.yaml): each input names ``field: data.type.Name.field.path`` instead of
@@ -75,6 +75,7 @@ __all__ = [
     "config_default",
     "load_config",
     "parse_config",
+    "validation_error",
 ]
 
 #: Bus protocols of the inputs: DBC-described frames, DroneCAN messages, or an autopilot's MAVLink telemetry.
@@ -137,6 +138,10 @@ class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class _Engine(_Section, frozen=True):
     serial: _Text  # the engine's serial: persistence keeps its flights and trends under it
+    #: its hours since overhaul as the logbook gives them (0 after an overhaul), h: the history counts on from
+    #: its running hours when this value is first seen (None: not tracked)
+    overhaul_hours: _NonNegative | None = None
+    tbo_hours: _Positive | None = None  # its time between overhauls, h: ``history`` says when it is due
 
 
 class Backoff(_Section, frozen=True):
@@ -222,8 +227,11 @@ class EngineEvents(_Section, frozen=True):
     cylinders' diverges, once it lasts divergence_min_s (s); needs two or more CHT channels.
     cht_limit_c: an estimated CHT above this (degC) is an exceedance once it lasts exceedance_min_s (s);
     None: each cylinder's model's ``cht_limit_c`` (model.yaml). egt_divergence_c: a cylinder's EGT
-    (``egtN_c`` mapped) further than this from the median of the others' diverges (divergence_min_s),
-    counted while the median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
+    (``egtN_c`` mapped) whose offset from the median of the others' moves further than this (degC) from its
+    normal offset diverges (divergence_min_s); the normal offset is the cylinder's own in each power band,
+    learned at steady power (an average over egt_normal_s, s, counted once it has learned that long: every
+    engine's EGTs spread by their own amount, another at another power), counted at steady power while the
+    median of the EGTs is above egt_divergence_from_c (at power: at idle they scatter).
     egt_limit_c, oil_limit_c: an EGT, the oil temperature (``oil_temp_c``) above this (degC) is an
     exceedance (exceedance_min_s). valve_amplitude_c: the exhaust-valve advisory: one cylinder's EGT
     oscillating at 0.5-3 cycles/min with at least this peak-to-peak amplitude (degC) while every other
@@ -237,8 +245,9 @@ class EngineEvents(_Section, frozen=True):
     divergence_min_s: _NonNegative = 10.0
     cht_limit_c: _Number | None = None
     exceedance_min_s: _NonNegative = 2.0
-    egt_divergence_c: _Positive = 80.0
+    egt_divergence_c: _Positive = 60.0
     egt_divergence_from_c: _Number = 500.0
+    egt_normal_s: _Positive = 120.0
     egt_limit_c: _Number = 900.0
     oil_limit_c: _Number = 118.0
     valve_amplitude_c: _Positive = 15.0
@@ -548,6 +557,10 @@ class ServiceConfig:
     cross_calibrated_for: tuple[str | None, ...]
     #: ``events:``: the engine events' limits
     events: EngineEvents
+    #: ``engine.overhaul_hours``, ``engine.tbo_hours``: the engine's hours since overhaul as last given (the
+    #: history counts on from there) and its time between overhauls, h (None: not given)
+    overhaul_hours: float | None
+    tbo_hours: float | None
     #: ``wear:``: the across-flight detector's settings and the engine's nominal wear reference (None: learned
     #: from its own first flights)
     wear: WearSettings = dataclasses.field(default_factory=WearSettings)
@@ -619,7 +632,7 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
     try:
         file = msgspec.convert(data, ConfigFile)
     except msgspec.ValidationError as exc:
-        raise _config_error(source, exc, data) from None
+        raise validation_error(source, exc, data) from None
     return _Resolver(source).config(file, order=list(data["inputs"]))  # the inputs in the file's order
 
 
@@ -705,6 +718,8 @@ class _Resolver:
             cylinder_calibrated_for=tuple(entry.calibrated_for for entry in cylinders.detectors or ()),
             **self.cross_detectors(cylinders, count),
             events=file.events,
+            overhaul_hours=file.engine.overhaul_hours,
+            tbo_hours=file.engine.tbo_hours,
             wear=self.settings("", WearSettings(), _given(file.wear, WearSettings)),
             wear_reference=None
             if file.wear.reference is None
@@ -901,10 +916,11 @@ _AT = re.compile(r" - at `(?:key` in `)?(\$[^`]*)`$")
 _STEP = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
 
 
-def _config_error(src: Path, exc: msgspec.ValidationError, data: Any) -> ConfigError:
+def validation_error(src: Path, exc: msgspec.ValidationError, data: Any, root: type = ConfigFile) -> ConfigError:
     """msgspec's ``Expected `float`, got `str` - at `$.detector.threshold``` as
     ``<src>: detector.threshold: expected a number, got str 'abc'``: the key path, what the schema expects
-    there (its description, else its type and range) and what the file has."""
+    there (its description, else its type and range) and what the file has. ``root``: the file's schema
+    (a service config's, or another YAML file's such as a fleet file)."""
     text = str(exc)
     at = _AT.search(text)
     path: list[str | int] = []
@@ -922,9 +938,9 @@ def _config_error(src: Path, exc: msgspec.ValidationError, data: Any) -> ConfigE
         return ConfigError(f"{src}: {_where([*path, match.group(1)])}: missing")
     if match := re.fullmatch(r"Object contains unknown field `(.*)`", problem):
         key = match.group(1)
-        known = _known(_type_at(path))
+        known = _known(_type_at(path, root))
         return ConfigError(f"{src}: {_where([*path, key])}: unknown key '{key}' (known: {known})")
-    expected = _expected(_type_at(path)) or problem[:1].lower() + problem[1:]
+    expected = _expected(_type_at(path, root)) or problem[:1].lower() + problem[1:]
     return ConfigError(f"{src}: {_where(path)}: expected {expected}, got {_kind(_value_at(data, path))}")
 
 
@@ -949,9 +965,9 @@ def _options(kind: schema.Type | None) -> list[schema.Type]:
     return [] if kind is None or isinstance(kind, schema.NoneType) else [kind]
 
 
-def _type_at(path: list[str | int]) -> schema.Type | None:
-    """The schema's type at ``path`` in the file (None where it has none)."""
-    kind: schema.Type | None = schema.type_info(ConfigFile)
+def _type_at(path: list[str | int], root: type = ConfigFile) -> schema.Type | None:
+    """The type of schema ``root`` at ``path`` in the file (None where it has none)."""
+    kind: schema.Type | None = schema.type_info(root)
     for step in path:
         options = _options(kind)
         kind = None

@@ -78,15 +78,17 @@ def campaign_flights(
     duration_s: float = 3600.0,
     start_time_s: float = 1.7e9,
     every_s: float = 86400.0,
+    climb_m: tuple[float, float] | None = None,
 ) -> Iterator[CampaignFlight]:
-    """The campaign's flights in order (module docstring); each mission drawn from its own seed."""
+    """The campaign's flights in order (module docstring); each mission drawn from its own seed
+    (``climb_m``: as :func:`~virtual_bus.random_missions.random_mission`'s, for short flights)."""
     if flights < 1:
         raise ConfigError(f"--flights: expected at least 1, got {flights!r}")
     for number in range(1, flights + 1):
         flight_seed = seed * 100_003 + number
         yield CampaignFlight(
             number,
-            random_mission(flight_seed, duration_s),
+            random_mission(flight_seed, duration_s, climb_m=climb_m),
             flight_seed,
             schedule.degradation(number),
             start_time_s + (number - 1) * every_s,

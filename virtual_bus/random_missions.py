@@ -24,18 +24,21 @@ from virtual_bus.missions import (
 __all__ = ["random_mission"]
 
 
-def random_mission(seed: int, duration_s: float = 3600.0) -> Mission:
+def random_mission(seed: int, duration_s: float = 3600.0, *, climb_m: tuple[float, float] | None = None) -> Mission:
     """A varied mission of about ``duration_s`` seconds drawn from ``seed`` (deterministic).
 
     Ground run, take-off, a (step-)climb to 600-3800 m, cruise legs with random throttle/speed
     variations and altitude changes, a descent and a landing; day offset -15..+20 degC, field
     elevation 0-1200 m. The flown duration differs from ``duration_s`` by the step-climb plateaus.
+    ``climb_m`` (low, high): climb this far above the field instead (short flights: (300, 900) m with
+    ``duration_s`` 600 flies 10-20 minutes); the other draws are those of the same seed without it.
     """
     if not math.isfinite(duration_s) or duration_s < 600.0:
         raise ValueError(f"duration_s: expected at least 600 s, got {duration_s!r}")
     rng = np.random.default_rng(seed)
     field = float(rng.uniform(0.0, 1200.0))
-    cruise_alt = float(field + rng.uniform(600.0, 3800.0 - min(field, 600.0)))
+    low, high = (600.0, 3800.0 - min(field, 600.0)) if climb_m is None else climb_m
+    cruise_alt = float(field + rng.uniform(low, high))
     climb_rate = float(rng.uniform(2.0, 4.0))
     descent_rate = float(rng.uniform(2.5, 5.0))
     ground_s = float(rng.uniform(60.0, 300.0))

@@ -304,18 +304,19 @@ def _calibrate_channel(
 
 def _with_engine_reference(result: Any, feeds: list[Any], settings: Any, rate: float) -> Any:
     """``result`` whose settings carry the engine's reference learned on the flights (printed per region), or
-    as it is (and why) when the flights are too few."""
+    none (and why) when the flights are too few: never the config's, which is another engine's (the shipped
+    one is the virtual ECU's)."""
     import dataclasses
 
     from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
     from ecu_monitor.estimation.regions import REGION_NAMES
-    from ecu_monitor.offline.calibration_reference import calibrate_reference
+    from ecu_monitor.offline.calibration_reference import calibrate_reference, with_reference
 
     try:
         ref = calibrate_reference(feeds, settings, rate)
     except ParameterError as exc:
         print(f"engine reference: none ({exc}); the detector tests against its in-flight baseline only")
-        return result
+        return dataclasses.replace(result, current=with_reference(result.current, (), (), 0.0))
     print(f"engine reference (symptom per region over {len(feeds)} nominal flights; level = mean + "
           f"{NOMINAL_SPREAD_Z:g} x spread across flights):")  # fmt: skip
     print("  region         " + "".join(f"{n[:12]:>13}" for n in ref.flights) + "         mean       spread")

@@ -13,6 +13,11 @@ across-flight detector's CUSUM over the flights since the last cleared alert (es
 ``--config``, its ``wear:`` settings and reference). An engine with an open maintenance alert gets a line
 starting ``ALERT``, and the plot marks the flight that raised it. ``--clear-alert`` records that the
 maintenance was done (the detector starts again from the next flight).
+
+Engine hours: the running hours recorded, the time since overhaul and what is left to the TBO
+(``engine.overhaul_hours``, ``engine.tbo_hours`` as the daemon or ``replay --history`` last stored them);
+an engine whose overhaul is due gets an ``ALERT`` line. Under each flight, the engine events that started
+in it, by kind and cylinder.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 from ecu_monitor.errors import ConfigError
 from ecu_monitor.runtime.persistence import (
     CYCLE_BIN_EDGES_C,
+    EngineHours,
     FlightRecord,
     MaintenanceAlert,
     StateStore,
@@ -112,10 +118,14 @@ def _fmt(value: float | None, spec: str) -> str:
 
 
 def format_history(
-    serial: str, records: list[FlightRecord], wear: EngineWear | None = None, alerts: tuple[MaintenanceAlert, ...] = ()
+    serial: str,
+    records: list[FlightRecord],
+    wear: EngineWear | None = None,
+    alerts: tuple[MaintenanceAlert, ...] = (),
+    hours: EngineHours | None = None,
 ) -> str:
-    """The printed history of one engine: its open alerts (``ALERT ...``), a summary line, the trend, the
-    across-flight detector, one row per flight."""
+    """The printed history of one engine: its open alerts (``ALERT ...``, the overhaul due among them), a
+    summary line, its hours, the trend, the across-flight detector, one row per flight with its events."""
     trend = engine_trend(records)
     running = sum(1 for r in records if r.status == "running")
     count = f"{len(records)} flights" + (f" ({running} running)" if running else "")
@@ -124,6 +134,8 @@ def format_history(
         for a in alerts
         if a.cleared_utc is None
     ]
+    if hours is not None and hours.due:
+        lines.append(f"ALERT OVERHAUL DUE engine {serial}: {hours.text()}")
     lines += [
         f"engine {serial}: {count}, {trend['hours']:.2f} h, max CHT {_fmt(trend['max_cht_c'], '.1f')} "
         f"degC, {trend['time_above_limit_s']:.0f} s above limit, {trend['cycles']:.1f} thermal cycles "
@@ -131,6 +143,8 @@ def format_history(
         f"  trend: gamma_Q {_fmt(trend['gamma_q_last'], '.3f')} ({_fmt(trend['gamma_q_per_100h'], '+.4f')} per 100 h),"
         f" gamma_D {_fmt(trend['gamma_d_last'], '.3f')} ({_fmt(trend['gamma_d_per_100h'], '+.4f')} per 100 h)",
     ]
+    if hours is not None:
+        lines.append(f"  engine hours: {hours.text()}")
     if wear is not None:
         lines.append(_wear_line(wear))
     lines.append(
@@ -152,7 +166,23 @@ def format_history(
             f"{record.cycles_total:>6.1f} {_large_cycles(record):>5.1f} {status}"
         )
         lines.extend(_cylinder_lines(record))
+        if record.events:
+            lines.append(f"       events: {_events_text(record.events)}")
     return "\n".join(lines)
+
+
+def _events_text(events: dict[str, dict[str, int]]) -> str:
+    """A flight's event counts: ``shock_cooling 3 (cyl 1: 1, cyl 3: 2), oil_exceedance 1 (engine)``."""
+
+    def where(cylinder: str) -> str:
+        return "engine" if cylinder == "0" else f"cyl {cylinder}"
+
+    parts = []
+    for kind, counts in sorted(events.items()):
+        total = sum(counts.values())
+        each = ", ".join(f"{where(c)}: {n}" for c, n in sorted(counts.items(), key=lambda kv: int(kv[0])))
+        parts.append(f"{kind} {total} ({each})")
+    return ", ".join(parts)
 
 
 def _wear_line(wear: EngineWear) -> str:
@@ -326,6 +356,7 @@ def _run(args: argparse.Namespace) -> int:
                 raise ConfigError(f"{store.path}: --engine: no engine {args.engine!r} (engines: {', '.join(serials)})")
             serials = [args.engine]
         histories = {serial: store.flights(serial, include_running=True) for serial in serials}
+        hours = {serial: store.engine_hours(serial) for serial in serials}
         alerts = {serial: tuple(store.alerts(serial)) for serial in serials}
         wear = {
             serial: engine_wear(store, serial, settings, _reference(config, alerts[serial], serial))
@@ -334,7 +365,7 @@ def _run(args: argparse.Namespace) -> int:
     if not histories:
         print(f"{store.path}: no engine recorded yet")
         return 0
-    print("\n\n".join(format_history(s, records, wear[s], alerts[s]) for s, records in histories.items()))
+    print("\n\n".join(format_history(s, records, wear[s], alerts[s], hours[s]) for s, records in histories.items()))
     if args.plot:
         with_flights = {serial: records for serial, records in histories.items() if records}
         if not with_flights:

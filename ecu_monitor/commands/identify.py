@@ -28,6 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ecu_monitor.commands import identify_type
 from ecu_monitor.commands.names import IDENTIFY_DEFAULT_FREE as DEFAULT_FREE
 from ecu_monitor.commands.names import PSO_DT_S, PSO_ITERATIONS, PSO_PARTICLES
 from ecu_monitor.compile_cache import announce_compiles
@@ -88,6 +89,7 @@ def add_subparser(subparsers: Any) -> None:
         " carries, one model each (OUT with _cylN before its suffix) for the service's cylinders.models",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    identify_type.add_arguments(parser)  # --type, --airframe, --first-minutes (a type model and its adaptation)
     parser.set_defaults(func=announce_compiles(_run))  # a first run says it compiles
 
 
@@ -229,6 +231,16 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     terms: dict[str, bool] | str | None = None
     if args.effects:
         terms = "auto" if args.effects.strip() == "auto" else _parse_terms(args.effects)
+    base = load_model(args.base) if args.base else paper_table_a1()
+    if base.engine_type and args.type:
+        raise UserInputError(
+            f"--type with --base {args.base}: that is already a type model; give its flights without --base"
+        )
+    if (args.type or base.engine_type) and (args.validate or args.plots or args.cylinder == "all"):
+        raise UserInputError("--validate, --plots and --cylinder all: not with --type or --base TYPE.yaml")
+    if args.first_minutes is not None and not base.engine_type:
+        raise UserInputError("--first-minutes: applies to --base TYPE.yaml (adapting a type model to an airframe)")
+    fleet = identify_type.flight_airframes(args.flights, args.airframe) if args.type or base.engine_type else []
     plots = None if not args.plots else Path(args.plots) / (f"cyl{cylinder}" if cylinder is not None else "")
     if plots is not None:
         prepare_output_dir(plots, "--plots")
@@ -236,7 +248,6 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     flights = _load(args.flights, args.mapping, cylinder)
     validation = _load(args.validate, args.mapping, cylinder)
     axes = choose_heat_axes(args.heat_axes, flights)
-    base = load_model(args.base) if args.base else paper_table_a1()
     if args.cht_limit is not None:
         base = base.replace(cht_limit_c=args.cht_limit)
     free = tuple(n.strip() for n in args.free.split(",") if n.strip()) if args.free else DEFAULT_FREE
@@ -253,6 +264,12 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     progress = None if bar is None else _progress_bar(bar)
     notes = None if args.quiet else (lambda line: print(line, file=sys.stderr))
     try:
+        if base.engine_type:  # --base TYPE.yaml: fit only the new airframe's own terms
+            return identify_type.run_adapt(args, settings, flights, fleet, base)
+        if args.type:
+            context = {"base": base, "heat_axes": axes, "grid": grid, "terms": terms, "free": free}
+            context |= {"progress": notes, "pso_progress": progress}
+            return identify_type.run_type(args, settings, flights, fleet, context)
         result, cv, selection = identify_flights(
             flights,
             base=base,
@@ -268,7 +285,7 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
     finally:
         if bar is not None:
             bar.close()
-    params = result.params
+    params = result.params.replace(engine_type="", airframes=identify_type.known_airframes(args.flights, args.airframe))
     rows: list[tuple[str, str, ErrorStats]] = [
         ("train", Path(log.source).name, e) for log, e in zip(flights, result.train_errors, strict=True)
     ]

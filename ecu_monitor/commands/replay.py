@@ -110,12 +110,18 @@ def _replay_into_history(
     offset = 0.0 if times.size and float(np.min(times)) > _UNIX_TIME_S else path.stat().st_mtime - last
     with StateDirLock(state_dir), StateStore(state_dir) as store:  # never beside a daemon on the same history
         recorder = FlightRecorder(
-            store, config.engine_serial, models[0].cht_limit_c, wear=config.wear, reference=config.wear_reference
+            store,
+            config.engine_serial,
+            models[0].cht_limit_c,
+            wear=config.wear,
+            reference=config.wear_reference,
+            hours=(config.overhaul_hours, config.tbo_hours),
         )
 
-        def record(pipeline: Any, rows: list[Any]) -> None:
+        def record(pipeline: Any, rows: list[Any], events: list[Any]) -> None:
             for sample in flight_samples(rows, held_inputs(pipeline), offset):
                 recorder.add(sample)
+            recorder.add_events(events)
 
         result = replay_live(config, models, frames.messages(), on_rows=record)
         recorder.close("log_end")
@@ -136,7 +142,9 @@ def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.bus.canlog import CAN_LOG_SUFFIXES, load_flight, read_frames
     from ecu_monitor.config import load_config
     from ecu_monitor.estimation import ESTIMATORS
-    from ecu_monitor.model import load_model
+    from ecu_monitor.flightlog import log_airframe
+    from ecu_monitor.model import airframe_warning, load_model
+    from ecu_monitor.offline.calibration import without_foreign_reference
     from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live, replay_tlog, tlog_messages
     from ecu_monitor.pipeline.engine import model_input_names
     from ecu_monitor.pipeline.table import check_table_path
@@ -168,6 +176,11 @@ def _run(args: argparse.Namespace) -> int:
         config = config.replace(estimator_name=args.estimator)
     models = (load_model(args.model),) * len(config.cylinder_inputs) if args.model else config.load_cylinder_params()
     params = models[0]
+    stripped = without_foreign_reference(config, models)
+    config = stripped or config
+    mismatch = airframe_warning(params, log_airframe(path), str(args.model or config.source), path.name)
+    if mismatch:
+        print(f"warning: {mismatch}")
     result: ReplayResult
     if tlog:
         result = replay_live(config, models, tlog_messages(path)) if args.live else replay_tlog(path, config, models)
@@ -209,6 +222,8 @@ def _run(args: argparse.Namespace) -> int:
                   f" the log looks like {kind}: give --config with {other}")  # fmt: skip
     for line in fit_warnings(config, params, result, models):
         print(f"warning: {line}")
+    if stripped is not None:
+        print("warning: the config's engine reference (detector.nominal_*) is another model's: its test was off")
     if args.plot:
         plot_replay(result, Path(args.plot), title=path.name, cht_limit_c=params.cht_limit_c)
         print(f"plot: {args.plot}")

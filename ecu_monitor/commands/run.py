@@ -166,6 +166,7 @@ def unsupported_on_host(exc: BaseException) -> bool:
 
 def _run(args: argparse.Namespace) -> int:
     from ecu_monitor.config import load_config
+    from ecu_monitor.model import airframe_warning
     from ecu_monitor.runtime.daemon import Daemon
     from ecu_monitor.runtime.flight_recorder import FlightRecorder, held_inputs
     from ecu_monitor.runtime.notify import SystemdNotifier, watchdog_period_s
@@ -190,11 +191,16 @@ def _run(args: argparse.Namespace) -> int:
         FlightRules(min_flight_s=args.min_flight_s),
         wear=config.wear,
         reference=config.wear_reference,
+        hours=(config.overhaul_hours, config.tbo_hours),
     )
     # kept across restarts: told at each start (not while the history cannot be opened)
     for alert in recorder.store.alerts(config.engine_serial, open_only=True) if recorder.store else ():
         _log.warning("ALERT %s", alert.text)
         pipeline.tell(alert.text)
+    hours = recorder.store.engine_hours(config.engine_serial) if recorder.store else None
+    if hours is not None and hours.due:
+        _log.warning("ALERT engine %s: %s", config.engine_serial, hours.text())
+        pipeline.tell(f"MAINTENANCE {config.engine_serial}: overhaul due ({hours.since_overhaul_h:.0f} h)")
     open_bus = mavlink_opener(config) if config.protocol == "mavlink" else bus_opener(config)
     # The estimators' kernels compiled (first run, an empty numba cache: 8 s on 2 cores, logged) or loaded, once
     # the config and the bus are known good; the daemon's own warm-up before it opens the bus then only
@@ -204,6 +210,9 @@ def _run(args: argparse.Namespace) -> int:
     settings = daemon_settings(config, watchdog_period_s(), pipeline.row_period_s, uncalibrated)
     if uncalibrated:
         _log.warning("%s", uncalibrated)
+    mismatch = airframe_warning(params, config.engine_serial, "its model", str(config.source))
+    if mismatch:  # a model made for another airframe (the config's engine serial is not among its airframes)
+        _log.warning("%s", mismatch)
     with SystemdNotifier() as notifier:
         daemon = Daemon(
             pipeline,

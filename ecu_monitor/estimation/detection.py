@@ -94,8 +94,9 @@ class DetectorSettings:
         scale_s is on); above it the excess is weighed by scale_floor / spread.
     nominal_threshold: h of the second test, against the engine's own reference (0 = no reference): a
         plain CUSUM (no warm-up, no baseline, the same k and blocks) of the symptom minus its nominal level
-        in the sample's operating region (:mod:`.regions`), from engine start; ``ecu-monitor calibrate``
-        learns it with the two below.
+        in the sample's operating region (:mod:`.regions`), from engine start wherever the reference has a
+        level (``ecu-monitor calibrate`` learns none for the start region); calibrate learns it with the two
+        below.
     nominal_mean: per region (REGION_NAMES order) the mean of the symptom over nominal flights, symptom
         unit (nan: no nominal data in that region, not tested there).
     nominal_spread: per region the spread across flights of each flight's mean there (standard deviation),

@@ -33,6 +33,7 @@ Where each part lives (every name below is importable from ``ecu_monitor.flightl
 ``table``          reading a delimited text file into header and rows, with one-line errors
 ``rules``          the canonical rules both readers apply (limits, time order, blanks, gaps)
 ``load``           :func:`load_csv`: one entry for any flight CSV
+``identity``       :func:`log_airframe`: the airframe (G1000 system_id) or engine serial a log names
 =================  =================================================================================
 """
 
@@ -40,6 +41,7 @@ from ecu_monitor.flightlog.canonical import read_csv, write_csv
 from ecu_monitor.flightlog.cht_limit import ChtPeak, cht_limit_warning, cht_peak, seconds_above
 from ecu_monitor.flightlog.cylinders import choose_cht, cylinder_columns, describe_cht, parse_cht_choice
 from ecu_monitor.flightlog.foreign import import_mapped_csv
+from ecu_monitor.flightlog.identity import log_airframe
 from ecu_monitor.flightlog.layout import detect_layout
 from ecu_monitor.flightlog.load import load_csv, require_distinct
 from ecu_monitor.flightlog.log import (
@@ -88,6 +90,7 @@ __all__ = [
     "import_mapped_csv",
     "load_csv",
     "load_mapping",
+    "log_airframe",
     "parse_cht_choice",
     "read_csv",
     "require_distinct",

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,6 +11,7 @@ from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.flights import measured_cht, model_inputs
 from ecu_monitor.model import HeatMap
+from ecu_monitor.model.heatmap import heat_cells
 
 __all__ = ["heat_map_breakpoints", "observed_rise_map", "reference_point", "visited_weight_s"]
 
@@ -58,8 +58,7 @@ def observed_rise_map(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArra
         series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
         rise = measured_cht(log) - np.asarray(series.oat_c)
         rises.append(rise)
-        i, fx = _cell_weights(xb, series.heat_x)
-        j, fy = _cell_weights(yb, series.heat_y)
+        i, j, fx, fy = heat_cells(series.heat_x, series.heat_y, xb, yb)
         for di, wx in ((0, 1.0 - fx), (1, fx)):
             for dj, wy in ((0, 1.0 - fy), (1, fy)):
                 np.add.at(total, (i + di, j + dj), wx * wy * rise)
@@ -68,12 +67,6 @@ def observed_rise_map(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArra
     seen = weight > 1.0
     out = np.where(seen, total / np.maximum(weight, 1e-12), median)
     return np.maximum(np.maximum.accumulate(np.maximum(out, 1.0), axis=0), 1.0)
-
-
-def _cell_weights(breakpoints: NDArray[np.float64], q: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    qc = np.clip(np.asarray(q, dtype=float), breakpoints[0], breakpoints[-1])
-    cell = np.clip(np.searchsorted(breakpoints, qc, side="right") - 1, 0, breakpoints.size - 2)
-    return cell, (qc - breakpoints[cell]) / (breakpoints[cell + 1] - breakpoints[cell])
 
 
 def reference_point(flights: Sequence[FlightLog]) -> tuple[float, float]:
@@ -95,14 +88,7 @@ def visited_weight_s(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray
         series = model_inputs(log, (heat_map.x_axis, heat_map.y_axis))
         t = np.asarray(log.time_s, dtype=float)
         interval = np.diff(t, append=t[-1] + (float(np.median(np.diff(t))) if t.size > 1 else 1.0))
-        for ix, (bp, q) in enumerate(((xb, series.heat_x), (yb, series.heat_y))):
-            qc = np.clip(np.asarray(q, dtype=float), bp[0], bp[-1])
-            cell = np.clip(np.searchsorted(bp, qc, side="right") - 1, 0, bp.size - 2)
-            frac = (qc - bp[cell]) / (bp[cell + 1] - bp[cell])
-            if ix == 0:
-                xi, xf = cell, frac
-            else:
-                yi, yf = cell, frac
+        xi, yi, xf, yf = heat_cells(series.heat_x, series.heat_y, xb, yb)
         for di, wx in ((0, 1.0 - xf), (1, xf)):
             for dj, wy in ((0, 1.0 - yf), (1, yf)):
                 np.add.at(total, (xi + di, yi + dj), wx * wy * interval)

@@ -2,19 +2,35 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.identify.flights import prepare_flight, run_grid
+from ecu_monitor.identify.flights import FlightGrid, prepare_flight, run_grid
 
 if TYPE_CHECKING:
     from ecu_monitor.identify.problem import ParameterSpace
+    from ecu_monitor.model import Coefficients
 
-__all__ = ["SwarmObjective"]
+__all__ = ["SwarmObjective", "pooled_residuals"]
+
+
+def pooled_residuals(
+    grids: Sequence[FlightGrid], coefficients_of: Callable[[int], Coefficients]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Simulated (probe) minus measured CHT of every flight side by side (P, samples of all flights), flight
+    k simulated with ``coefficients_of(k)`` (a swarm of P), and the mask (P,) of particles not finite."""
+    parts = []
+    failed: NDArray[np.bool_] | None = None
+    for k, grid in enumerate(grids):
+        probe, bad = run_grid(grid, coefficients_of(k))
+        parts.append(probe.T - grid.measured_c[None, :])
+        failed = np.asarray(bad, dtype=bool) if failed is None else failed | np.asarray(bad, dtype=bool)
+    residual = np.concatenate(parts, axis=1)
+    return residual, np.asarray(failed) | ~np.all(np.isfinite(residual), axis=1)
 
 
 class SwarmObjective:
@@ -39,14 +55,7 @@ class SwarmObjective:
         unit = np.atleast_2d(unit)
         vectors = self.space.from_unit(unit)
         coeffs = self.space.coefficient_arrays(vectors)
-        parts = []
-        failed = np.zeros(unit.shape[0], dtype=bool)
-        for grid in self.grids:
-            probe, bad = run_grid(grid, coeffs)
-            parts.append(probe.T - grid.measured_c[None, :])
-            failed |= np.asarray(bad, dtype=bool)
-        residual = np.concatenate(parts, axis=1)
-        failed |= ~np.all(np.isfinite(residual), axis=1)
+        residual, failed = pooled_residuals(self.grids, lambda _flight: coeffs)
         self.evaluations += unit.shape[0]
         self.failed += int(failed.sum())
         return residual, failed

@@ -18,7 +18,15 @@ from ecu_monitor.model.effects import (
 )
 from ecu_monitor.model.heatmap import HeatMap, bilinear, reference_heat_map
 from ecu_monitor.model.inputs import AMBIENT_COLUMNS, flight_inputs, input_columns
-from ecu_monitor.model.params import NOMINAL_TERMS, ThermalParams, load_model, paper_table_a1, save_model
+from ecu_monitor.model.params import (
+    NOMINAL_TERMS,
+    AirframeTerms,
+    ThermalParams,
+    airframe_warning,
+    load_model,
+    paper_table_a1,
+    save_model,
+)
 from ecu_monitor.model.thermal import (
     EFFECT_COEFFICIENTS,
     STATE_NAMES,
@@ -48,6 +56,7 @@ __all__ = [
     "MIXTURE_SOURCES",
     "NOMINAL_TERMS",
     "STATE_NAMES",
+    "AirframeTerms",
     "AirspeedCooling",
     "Coefficients",
     "DensityCooling",
@@ -61,6 +70,7 @@ __all__ = [
     "SensorLag",
     "ThermalParams",
     "air_density_kg_m3",
+    "airframe_warning",
     "bilinear",
     "coefficients",
     "compute_drive",

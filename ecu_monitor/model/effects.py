@@ -100,17 +100,13 @@ class EffectParameter:
 @dataclass(frozen=True)
 class GapRefit:
     """How the gap diagnosis refits a parameter from the nominal model: its start value (when the nominal
-    model does not have the effect on), bounds, and further start values for a cost with local minima."""
+    model does not have the effect on), bounds, and further start values for a cost with local minima
+    (checked inside the bounds by the gap library's ``FreeParameter``)."""
 
     start: float
     low: float
     high: float
     restarts: tuple[float, ...] = ()
-
-    def __post_init__(self) -> None:
-        for value in (self.start, *self.restarts):
-            if not self.low <= value <= self.high:
-                raise ParameterError(f"gap refit: start {value} outside [{self.low}, {self.high}]")
 
 
 class Effect:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numba.extending import register_jitable
 from numpy.typing import ArrayLike, NDArray
@@ -19,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.model.equations import blend
 
-__all__ = ["HeatMap", "bilinear", "heat_cell", "reference_heat_map"]
+__all__ = ["HeatMap", "bilinear", "heat_cell", "heat_cells", "reference_heat_map"]
 
 
 @dataclass(frozen=True)
@@ -101,12 +102,33 @@ def heat_cell(x: float, y: float, xb: NDArray[np.float64], yb: NDArray[np.float6
     return i, j, (x - xb[i]) / (xb[i + 1] - xb[i]), (y - yb[j]) / (yb[j + 1] - yb[j])
 
 
-def _cell(breakpoints: np.ndarray, q: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """Cell index (lower breakpoint) and fractional position inside it, clamped to the grid."""
-    q = np.clip(np.asarray(q, dtype=float), breakpoints[0], breakpoints[-1])
-    index = np.clip(np.searchsorted(breakpoints, q, side="right") - 1, 0, breakpoints.size - 2)
-    fraction = (q - breakpoints[index]) / (breakpoints[index + 1] - breakpoints[index])
-    return index, fraction
+@numba.njit(cache=True)
+def _heat_cells(
+    x: NDArray[np.float64], y: NDArray[np.float64], xb: NDArray[np.float64], yb: NDArray[np.float64]
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover
+    n = x.shape[0]
+    i = np.empty(n, dtype=np.intp)
+    j = np.empty(n, dtype=np.intp)
+    fx = np.empty(n)
+    fy = np.empty(n)
+    for k in range(n):
+        i[k], j[k], fx[k], fy[k] = heat_cell(x[k], y[k], xb, yb)
+    return i, j, fx, fy
+
+
+def heat_cells(
+    x: ArrayLike, y: ArrayLike, xb: ArrayLike, yb: ArrayLike
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`heat_cell` at every point of ``x``, ``y`` (broadcast together), compiled: the cells' lower
+    corners (i, j) and the fractions (fx, fy) across them, each of the broadcast shape."""
+    xs, ys = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    flat = _heat_cells(
+        np.ascontiguousarray(xs).ravel(),
+        np.ascontiguousarray(ys).ravel(),
+        np.ascontiguousarray(xb, dtype=np.float64),
+        np.ascontiguousarray(yb, dtype=np.float64),
+    )
+    return tuple(part.reshape(xs.shape) for part in flat)  # type: ignore[return-value]
 
 
 def bilinear(
@@ -117,8 +139,7 @@ def bilinear(
     With values of shape (P, n, m) and scalar x, y the result has shape (P,) (one per particle); with
     values (n, m) and x, y of shape (N,) it has shape (N,) (a whole flight at once).
     """
-    i, fx = _cell(x_breakpoints, x)
-    j, fy = _cell(y_breakpoints, y)
+    i, j, fx, fy = heat_cells(x, y, x_breakpoints, y_breakpoints)
     return blend(values[..., i, j], values[..., i, j + 1], values[..., i + 1, j], values[..., i + 1, j + 1], fx, fy)
 
 

@@ -28,7 +28,10 @@ __all__ = [
     "MODEL_KIND",
     "MODEL_VERSION",
     "NOMINAL_TERMS",
+    "SCALE_RANGE",
+    "AirframeTerms",
     "ThermalParams",
+    "airframe_warning",
     "load_model",
     "paper_table_a1",
     "save_model",
@@ -38,7 +41,8 @@ MODEL_KIND = "cht-0d-single-zone"
 #: The model.yaml schema version this code reads and writes.
 MODEL_VERSION = 1
 #: Keys every model.yaml must give: a missing one is an error, never a silent default (the defaults
-#: are the paper's engine, not the reader's). ``effects`` and ``terms_off`` may be left out (none).
+#: are the paper's engine, not the reader's). ``effects``, ``terms_off``, ``engine_type`` and ``airframes`` may be
+#: left out (none).
 REQUIRED_KEYS: tuple[str, ...] = (
     "model",
     "version",
@@ -73,6 +77,66 @@ _SCALARS: dict[str, tuple[float, float]] = {
 #: leaves room for any identified engine while refusing a heat map in the wrong unit (1e9 W made every
 #: filter step NaN).
 MAX_STEADY_RISE_C = 2000.0
+#: Accepted range of an airframe's heat and cooling scales (:class:`AirframeTerms`), dimensionless.
+SCALE_RANGE: tuple[float, float] = (0.5, 2.0)
+
+#: The terms an airframe may have of its own (:class:`AirframeTerms` fields) and their accepted ranges.
+_AIRFRAME_TERM_RANGES: dict[str, tuple[float, float]] = {
+    "heat_scale": SCALE_RANGE,
+    "cooling_scale": SCALE_RANGE,
+    "probe_lag_s": (0.0, 300.0),
+}
+
+
+@dataclass(frozen=True)
+class AirframeTerms:
+    """An airframe a model was made for (``airframes:`` in model.yaml) and its own terms.
+
+    id: the airframe's name: a G1000 ``system_id``, a log's engine serial or a name the user gave.
+    heat_scale: the airframe's heat into the head relative to the type's heat map (dimensionless),
+        None when the airframe does not need its own.
+    cooling_scale: the airframe's convective conductance 1/R_Ce relative to the type's (dimensionless),
+        None when the airframe does not need its own.
+    probe_lag_s: the airframe's CHT probe time constant (s), None when it does not need its own.
+
+    In a type model (``engine_type`` set) the terms apply on top of the type's shared parameters
+    (``ecu_monitor.identify.type_model.airframe_model``); in any other model they are a record of
+    what is already in its parameters.
+    """
+
+    id: str
+    heat_scale: float | None = None
+    cooling_scale: float | None = None
+    probe_lag_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.id, str) or not self.id.strip():
+            raise ParameterError(f"airframes: id: expected a name, got {self.id!r}")
+        for name, (low, high) in _AIRFRAME_TERM_RANGES.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+                raise ParameterError(
+                    f"airframes: {self.id}: {name}: expected a number in [{low:g}, {high:g}], got {value!r}"
+                )
+            object.__setattr__(self, name, float(value))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for YAML: the id and the terms the airframe has."""
+        terms = {name: getattr(self, name) for name in _AIRFRAME_TERM_RANGES if getattr(self, name) is not None}
+        return {"id": self.id, **terms}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> AirframeTerms:
+        """Parse one entry of ``airframes:``; raises ParameterError naming the key."""
+        if not isinstance(data, dict) or "id" not in data:
+            raise ParameterError(f"airframes: expected entries {{id: NAME, heat_scale: S, ...}}, got {data!r}")
+        for key in data:
+            if key != "id" and key not in _AIRFRAME_TERM_RANGES:
+                raise ParameterError(f"airframes: {key}: unknown key (known: id, {', '.join(_AIRFRAME_TERM_RANGES)})")
+        values = {k: (_number(v, f"airframes.{k}") if k != "id" and v is not None else v) for k, v in data.items()}
+        return cls(id=str(values.pop("id")), **values)
 
 
 @dataclass(frozen=True)
@@ -91,6 +155,9 @@ class ThermalParams:
     cht_limit_c: CHT limit of the engine for headroom and the step-climb, degC.
     terms_off: terms of the paper's model switched off (names from :data:`NOMINAL_TERMS`), so that
         identification can test whether a term belongs on an engine; () is the paper's model.
+    engine_type: the engine type of a type model (``identify --type``); "" for a model of one engine.
+    airframes: the airframes the model was made for, with their own terms (:class:`AirframeTerms`);
+        () when the flights named none.
     """
 
     c_w: float = 570.0
@@ -104,6 +171,8 @@ class ThermalParams:
     effects: Effects = field(default_factory=Effects)
     cht_limit_c: float = 150.0
     terms_off: tuple[str, ...] = ()
+    engine_type: str = ""
+    airframes: tuple[AirframeTerms, ...] = ()
 
     def __post_init__(self) -> None:
         for name, (low, high) in _SCALARS.items():
@@ -132,6 +201,15 @@ class ThermalParams:
             if term not in NOMINAL_TERMS:
                 raise ParameterError(f"terms_off: unknown term {term!r} (known: {', '.join(NOMINAL_TERMS)})")
         object.__setattr__(self, "terms_off", tuple(t for t in NOMINAL_TERMS if t in self.terms_off))
+        if not isinstance(self.engine_type, str):
+            raise ParameterError(f"engine_type: expected a name, got {self.engine_type!r}")
+        entries = self.airframes
+        if not isinstance(entries, tuple | list) or not all(isinstance(a, AirframeTerms) for a in entries):
+            raise ParameterError("airframes: expected a list of airframe entries")
+        object.__setattr__(self, "airframes", tuple(self.airframes))
+        ids = [a.id for a in self.airframes]
+        if len(set(ids)) != len(ids):
+            raise ParameterError(f"airframes: an airframe is listed twice ({', '.join(ids)})")
 
     def term_on(self, term: str) -> bool:
         """Whether a term of the paper's model (one of :data:`NOMINAL_TERMS`) is in this model."""
@@ -171,6 +249,8 @@ class ThermalParams:
             },
             "effects": self.effects.to_dict(),
             **({"terms_off": list(self.terms_off)} if self.terms_off else {}),
+            **({"engine_type": self.engine_type} if self.engine_type else {}),
+            **({"airframes": [a.to_dict() for a in self.airframes]} if self.airframes else {}),
         }
 
     @classmethod
@@ -212,6 +292,13 @@ class ThermalParams:
             if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
                 raise ParameterError(f"terms_off: expected a list of term names, got {data['terms_off']!r}")
             kwargs["terms_off"] = tuple(terms)
+        if "engine_type" in data:
+            kwargs["engine_type"] = "" if data["engine_type"] is None else str(data["engine_type"])
+        if "airframes" in data:
+            entries = data["airframes"] or []
+            if not isinstance(entries, list):
+                raise ParameterError(f"airframes: expected a list, got {data['airframes']!r}")
+            kwargs["airframes"] = tuple(AirframeTerms.from_dict(entry) for entry in entries)
         params = cls(**kwargs)  # validates the values given
         for key in REQUIRED_KEYS:
             if key not in data:
@@ -277,3 +364,16 @@ def save_model(params: ThermalParams, path: str | Path, comment: str | None = No
     header = "".join(f"# {line}\n" for line in (comment or "").splitlines())
     text = header + yaml.safe_dump(params.to_dict(), sort_keys=False)
     write_output_bytes(path, text.encode("utf-8"), ConfigError)
+
+
+def airframe_warning(params: ThermalParams, airframe: str | None, model_name: str, log_name: str) -> str | None:
+    """One line when a model made for other airframes (``params.airframes``) is used on a log or an engine of
+    another (``airframe``: its G1000 system_id or engine serial); None when either is unknown or they agree."""
+    made_for = [a.id for a in params.airframes]
+    if not airframe or not made_for or airframe in made_for:
+        return None
+    kind = f"the {params.engine_type} type model" if params.engine_type else "a model"
+    return (
+        f"{log_name}: airframe {airframe}, but {model_name} is {kind} made for {', '.join(made_for)}:"
+        " expect a larger error (identify --base TYPE.yaml adapts a type model to an airframe)"
+    )

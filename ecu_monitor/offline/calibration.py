@@ -111,6 +111,7 @@ __all__ = [
     "uncalibrated_detectors",
     "wear_fragment",
     "wear_reference",
+    "without_foreign_reference",
 ]
 
 #: calibrate_threshold needs at least this many whole hours of statistic.
@@ -348,10 +349,12 @@ def calibrate_flights(
     whole = sum(f.whole_hours(settings.block_s) for f in flights)
     if whole < MIN_WHOLE_HOURS:
         given = sum(f.hours for f in flights)
+        shortest_min = (settings.warmup_s + 3600.0) / 60.0
         raise ParameterError(
             f"{len(flights)} flight(s) give {given:.2f} flight hours, {whole} whole hour(s) of detector statistic "
             f"after the {settings.warmup_s:g} s warm-up of each flight; calibration needs at least {MIN_WHOLE_HOURS}"
-            " whole hours: add nominal flights"
+            f" whole hours: add nominal flights giving {MIN_WHOLE_HOURS - whole} more (a flight gives one whole hour"
+            f" per full hour after its warm-up: none under {shortest_min:g} min)"
         )
     paths = [stat for f in flights for _, stat in f.paths]
     calibration = calibrate_threshold(paths, rate_per_100h, sample_period_s=settings.block_s)
@@ -420,6 +423,17 @@ def model_fingerprint(params: ThermalParams) -> str:
     tell whether the threshold was calibrated for the model in use."""
     text = json.dumps(params.to_dict(), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def without_foreign_reference(config: ServiceConfig, models: Sequence[ThermalParams]) -> ServiceConfig | None:
+    """``config`` with its engine reference off when its detector was not calibrated for the model (the reference
+    is another engine's, e.g. the shipped virtual ECU's: tested against, a healthy engine reads DEGRADED);
+    None when it keeps it (calibrated for the model, or no reference)."""
+    from ecu_monitor.offline.calibration_reference import with_reference
+
+    if not config.detector.reference_on or config.cylinder_detectors or not uncalibrated_detectors(config, models):
+        return None
+    return config.replace(detector=with_reference(config.detector, (), (), 0.0))
 
 
 def uncalibrated_detectors(config: ServiceConfig, models: Sequence[ThermalParams]) -> list[str]:

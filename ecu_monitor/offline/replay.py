@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -28,7 +29,7 @@ from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
 from ecu_monitor.pipeline.engine import Pipeline, model_input_names
-from ecu_monitor.pipeline.events import Event
+from ecu_monitor.pipeline.events import Event, finished
 from ecu_monitor.pipeline.output_table import output_fields
 from ecu_monitor.pipeline.outputs import (
     HealthSnapshot,
@@ -60,11 +61,12 @@ def replay_live(
     config: Any,
     params: ThermalParams | Sequence[ThermalParams],
     frames: Iterable[can.Message],
-    on_rows: Callable[[Pipeline, list[HealthSnapshot]], None] | None = None,
+    on_rows: Callable[[Pipeline, list[HealthSnapshot], list[Event]], None] | None = None,
 ) -> ReplayResult:
-    """The replay frame by frame through the live calls (``replay --live``). ``on_rows(pipeline, rows)`` is
-    called with the rows each frame completes, the pipeline's held inputs as they are then (as the daemon
-    reads them: ``replay --history`` records the flights with it)."""
+    """The replay frame by frame through the live calls (``replay --live``). ``on_rows(pipeline, rows,
+    events)`` is called with the rows and the event records (pipeline/events.py) each frame completes, the
+    pipeline's held inputs as they are then (as the daemon reads them: ``replay --history`` records the
+    flights with it)."""
     pipeline = Pipeline(config, params)
     rows: list[HealthSnapshot] = []
     events: list[Event] = []
@@ -72,13 +74,14 @@ def replay_live(
         pipeline.advance_to(msg.timestamp)
         pipeline.feed(msg)
         new = pipeline.drain_rows()
-        if new and on_rows is not None:
-            on_rows(pipeline, new)
+        fresh = pipeline.take_events()
+        if (new or fresh) and on_rows is not None:
+            on_rows(pipeline, new, fresh)
         rows.extend(new)
-        events += pipeline.take_events()
+        events += fresh
     events += pipeline.close_events()
     return ReplayResult(rows_to_columns(rows, len(pipeline.cylinder_params)), dict(pipeline.counters),
-                        events=tuple(events))  # fmt: skip
+                        events=tuple(finished(events)))  # fmt: skip
 
 
 def replay_frames(
@@ -177,7 +180,7 @@ def _run(
     count = pipeline.cylinder_count
     traces = keep_feeds or keep_reference
     rows, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces)
-    events = tuple(pipeline.close_events())
+    events = tuple(finished(pipeline.close_events()))
     for key in ("steps", "clock_restarts", "events_dropped"):
         counters[key] = pipeline.counters[key]
     columns = _columns(rows, count, config.spread_limit_c, pipeline.stale_bits)
@@ -193,15 +196,33 @@ def _run(
 def _values_by_frame(
     names: tuple[str, ...], decoded: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]], n: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-    """The decoded values in frame order: (index of each frame's first value, n + 1; slot; value)."""
+    """The decoded values in frame order: (index of each frame's first value, n + 1; slot; value). Within
+    a frame, the values keep the order of ``names`` (a stable counting sort by frame, compiled)."""
     rows = [decoded[name][0] for name in names]
-    frame = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
+    frame = np.concatenate(rows).astype(np.int64, copy=False) if rows else np.zeros(0, dtype=np.int64)
     slots = np.concatenate([np.full(r.size, i, dtype=np.int64) for i, r in enumerate(rows)]) if rows else frame
-    values = np.concatenate([decoded[name][1] for name in names]) if rows else np.zeros(0)
-    order = np.argsort(frame, kind="stable")
-    frame = frame[order]
-    first = np.searchsorted(frame, np.arange(n + 1)).astype(np.int64)
-    return first, np.ascontiguousarray(slots[order]), np.ascontiguousarray(values[order], dtype=np.float64)
+    values = np.concatenate([decoded[name][1] for name in names]).astype(np.float64) if rows else np.zeros(0)
+    return _by_frame(frame, slots, values, n)
+
+
+@numba.njit(cache=True, nogil=True)
+def _by_frame(
+    frame: NDArray[np.int64], slots: NDArray[np.int64], values: NDArray[np.float64], n: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:  # pragma: no cover - compiled
+    first = np.zeros(n + 1, dtype=np.int64)
+    for f in frame:
+        first[f + 1] += 1
+    for f in range(n):
+        first[f + 1] += first[f]
+    fill = first[:n].copy()
+    out_slots = np.empty_like(slots)
+    out_values = np.empty_like(values)
+    for k in range(frame.size):
+        at = fill[frame[k]]
+        out_slots[at] = slots[k]
+        out_values[at] = values[k]
+        fill[frame[k]] = at + 1
+    return first, out_slots, out_values
 
 
 def _columns(

@@ -317,6 +317,8 @@ class Pipeline:
                     capacity = max(capacity, d.delay_blocks + 1)
         state = np.zeros(count, dtype=CYLINDER_STATE)  # made ready by the first advance_to (the clock's start)
         state["egt_fast"] = math.nan  # the EGT band-pass starts at the first fresh EGT
+        state["egt_offset"] = math.nan  # the EGT's normal offsets, learned from the first EGT at steady power
+        state["power_held"] = math.nan
         engine = Engine(
             clock=clock,
             values=np.full(slots, math.nan),
@@ -442,8 +444,8 @@ class Pipeline:
             return []
         records = self._engine.events[:n].tolist()
         count[0] = 0
-        return [Event(t, EVENT_KINDS[kind], cylinder, value, limit, duration)
-                for t, kind, cylinder, value, limit, duration in records]  # fmt: skip
+        return [Event(t, EVENT_KINDS[kind], cylinder, value, limit, duration, ongoing)
+                for t, kind, cylinder, value, limit, duration, ongoing in records]  # fmt: skip
 
     def close_events(self) -> list[Event]:
         """End every event condition still holding (the log ended) and take the events

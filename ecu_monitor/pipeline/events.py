@@ -5,7 +5,10 @@ An event is a condition that held for a while (``valve_advisory`` is an advisory
 start (``time_s``, s), its ``kind`` (one of :data:`EVENT_KINDS`; the step writes its index), its
 ``cylinder`` (1-based; 0: the engine), its worst ``value`` over the condition (the kind's unit in
 :data:`EVENT_UNITS`), the ``limit`` it crossed, and its ``duration_s``. The step (pipeline/step.py,
-``events_step``) writes an event when its condition ends, or when the log ends (``close_events``).
+``events_step``) writes two records of each event: its start (``ongoing`` True, the worst value and the
+duration so far), once the condition has held for its minimum time, which the health outputs publish at
+once (:meth:`Event.start_text`); and its end (``ongoing`` False), when the condition ends or the log
+ends (``close_events``), which the events table lists (:func:`finished`). Every start has its end.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import math
 from collections.abc import Iterable
 from typing import NamedTuple
 
-__all__ = ["EVENT_COLUMNS", "EVENT_KINDS", "EVENT_UNITS", "Event", "events_csv"]
+__all__ = ["EVENT_COLUMNS", "EVENT_KINDS", "EVENT_UNITS", "Event", "events_csv", "finished"]
 
 #: The kinds of event, in code order (the step's ``kind`` is the index here).
 EVENT_KINDS: tuple[str, ...] = (
@@ -49,6 +52,19 @@ class Event(NamedTuple):
     value: float
     limit: float
     duration_s: float
+    ongoing: bool = False  # the start record (module docstring)
+
+    @property
+    def advisory(self) -> bool:
+        """An advisory for the maintainer (the exhaust-valve advisory), not an alarm for the pilot."""
+        return self.kind == "valve_advisory"
+
+    def start_text(self) -> str:
+        """The one line the health outputs publish when the event starts, at most 50 characters (one
+        STATUSTEXT chunk): ``ENGINE cyl 3: shock cooling -41 C/min``."""
+        who = f"ENGINE cyl {self.cylinder}" if self.cylinder else "ENGINE"
+        unit = EVENT_UNITS[self.kind].replace("deg", "")
+        return f"{who}: {self.kind.replace('_', ' ')} {self.value:+.0f} {unit}"[:50]
 
     def text(self) -> str:
         """One line for a person: ``cylinder 3 shock_cooling -41.2 degC/min (limit -33) for 12 s``."""
@@ -57,6 +73,11 @@ class Event(NamedTuple):
             f"cylinder {self.cylinder} {self.kind} {self.value:.1f} {unit} (limit {self.limit:g})"
             f" for {self.duration_s:.0f} s"
         )
+
+
+def finished(events: Iterable[Event]) -> list[Event]:
+    """The end records of ``events`` (the events table's rows), in order."""
+    return [e for e in events if not e.ongoing]
 
 
 def events_csv(events: Iterable[Event]) -> str:

@@ -30,6 +30,7 @@ __all__ = [
     "HEADROOM_CAP_S",
     "HEALTH_VALUES",
     "STATES",
+    "STATE_CONCERN",
     "CylinderSnapshot",
     "HealthSnapshot",
     "HealthValue",
@@ -44,6 +45,8 @@ __all__ = [
 #: DegradationState values of health.dbc, by code (the ``state`` rows' values; pipeline/supervision.py
 #: decides them).
 STATES: tuple[str, ...] = ("NOMINAL", "SUSPECT", "DEGRADED", "INPUT_STALE", "SENSOR_FAULT", "UNAVAILABLE")
+#: The states ranked from best to worst by concern (a flight's worst state: the flight history, the fleet).
+STATE_CONCERN = {"NOMINAL": 0, "INPUT_STALE": 1, "UNAVAILABLE": 2, "SENSOR_FAULT": 3, "SUSPECT": 4, "DEGRADED": 5}
 #: Headroom reported when the limit is not reached within this time, s: the headroom's "not limited at
 #: this power" (the step's march to the limit stops there).
 HEADROOM_CAP_S = 6000.0

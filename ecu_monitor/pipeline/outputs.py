@@ -98,7 +98,7 @@ class ReplayResult:
     cross-cylinder detector was fed (as detector_feed).
     reference_feed (batch path, when asked): per clock segment as detector_feed, the open-loop reference
     (:class:`ReferenceFeed`; the first cylinder's on an engine monitored per cylinder).
-    events: the engine events (pipeline/events.py), in the order the step wrote them.
+    events: the engine events (pipeline/events.py), their end records in the order the step wrote them.
     detector_regions (batch path only): per clock segment as detector_feed, the operating region of each
     step (estimation/regions.py), what the reference test measures the feed against.
     """

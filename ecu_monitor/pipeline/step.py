@@ -27,7 +27,8 @@ The rules, in the order a step applies them:
   tests, the more severe verdict wins: against the in-flight adaptive baseline (after its warm-up), and,
   once ``calibrate`` has learned the engine's reference, against the symptom's nominal level in the
   step's operating region (estimation/regions.py, the time since the first initialisation being the
-  engine's start) from engine start, which no baseline can absorb; ``detector_armed`` says which run;
+  engine's start) wherever the reference has a level (``calibrate`` learns none for the start region: from
+  5 min after engine start), which no baseline can absorb; ``detector_armed`` says which run;
 * isolation: the gammas are published only where they can be told apart (``not_isolable`` False): a
   degradation is declared (DEGRADED: something to isolate), cruise or high power airborne, both standard
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
@@ -36,7 +37,8 @@ The rules, in the order a step applies them:
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins;
 * every filter period, the engine events (:func:`events_step`): shock cooling, divergence, exceedances and
-  the exhaust-valve advisory, into ``Engine.events`` when their condition ends.
+  the exhaust-valve advisory, into ``Engine.events``: a start record once a condition has held for its
+  minimum time, an end record when it ends.
 """
 
 from __future__ import annotations
@@ -149,8 +151,9 @@ EVENT_SETTINGS = np.dtype(
         ("exceedance_min_s", "f8"),
         ("egt_slot", "i8"),  # its EGT in Engine.values (-1: not mapped)
         ("egt_stale_s", "f8"),
-        ("egt_divergence_c", "f8"),
+        ("egt_divergence_c", "f8"),  # beyond the cylinder's normal offset from the others' median (learned)
         ("egt_divergence_from_c", "f8"),  # counted while the median EGT is above this (at power)
+        ("egt_normal_s", "f8"),  # the normal offset's averaging time, and how long it learns before counting
         ("egt_limit_c", "f8"),
         ("oil_slot", "i8"),  # the oil temperature (-1: not mapped; watched on cylinder 1's record)
         ("oil_stale_s", "f8"),
@@ -159,12 +162,15 @@ EVENT_SETTINGS = np.dtype(
         ("valve_min_s", "f8"),
     ]
 )
-#: One condition of one cylinder being watched: since when it holds, when it last held, its worst value.
-EVENT_TRACKER = np.dtype([("active", "?"), ("start_s", "f8"), ("last_s", "f8"), ("peak", "f8")])
-#: One event (pipeline/events.py: the kind is an index into EVENT_KINDS, the cylinder 1-based).
+#: One condition of one cylinder being watched: since when it holds, when it last held, its worst value, and
+#: whether its start was written (it has held for its minimum time).
+EVENT_TRACKER = np.dtype([("active", "?"), ("start_s", "f8"), ("last_s", "f8"), ("peak", "f8"), ("announced", "?")])
+#: One event record (pipeline/events.py: the kind is an index into EVENT_KINDS, the cylinder 1-based;
+#: ``ongoing``: its start, written once the condition has held for its minimum time, else its end).
 EVENT = np.dtype(
-    [("time_s", "f8"), ("kind", "i8"), ("cylinder", "i8"), ("value", "f8"), ("limit", "f8"), ("duration_s", "f8")]
-)
+    [("time_s", "f8"), ("kind", "i8"), ("cylinder", "i8"), ("value", "f8"), ("limit", "f8"), ("duration_s", "f8"),
+     ("ongoing", "?")]
+)  # fmt: skip
 _SHOCK_COOLING = EVENT_KINDS.index("shock_cooling")
 _CHT_DIVERGENCE = EVENT_KINDS.index("cht_divergence")
 _CHT_EXCEEDANCE = EVENT_KINDS.index("cht_exceedance")
@@ -172,6 +178,14 @@ _EGT_DIVERGENCE = EVENT_KINDS.index("egt_divergence")
 _EGT_EXCEEDANCE = EVENT_KINDS.index("egt_exceedance")
 _OIL_EXCEEDANCE = EVENT_KINDS.index("oil_exceedance")
 _VALVE_ADVISORY = EVENT_KINDS.index("valve_advisory")
+#: EGT divergence: each cylinder's normal EGT offset is learned per power band (the power fraction of the
+#: heat map's x input, estimation/regions.py: below 0.5, below 0.8, above; unknown: the middle one), and
+#: only at steady power: the fraction within EGT_STEADY_FRACTION of where it was when it last moved by more,
+#: for EGT_STEADY_S or longer (a power change moves the cylinders' EGTs at different speeds).
+EGT_BANDS = 3
+EGT_BAND_EDGES = (0.5, 0.8)
+EGT_STEADY_S = 30.0
+EGT_STEADY_FRACTION = 0.05
 #: The exhaust-valve advisory's band, 0.5-3 cycles/min: the EGT's low-pass at 3 cycles/min minus its low-pass
 #: at 0.5 cycles/min (first-order, time constants 60 / (2 pi f), s); their difference passes the band at a
 #: gain of 0.58-0.70, VALVE_BAND_GAIN its middle, by which the amplitude is divided.
@@ -180,7 +194,7 @@ VALVE_SLOW_S = 60.0 / (2.0 * math.pi * 0.5)
 VALVE_BAND_GAIN = 0.64
 #: The band's mean square is a first-order average with this time constant, s; the amplitude is known once
 #: the band-pass has run twice as long.
-VALVE_WINDOW_S = 60.0
+VALVE_WINDOW_S = 30.0
 CYLINDER_SETTINGS = np.dtype(
     [
         ("cht_slot", "i8"),  # its CHT reading in Engine.values
@@ -254,6 +268,10 @@ CYLINDER_STATE = np.dtype(
         ("egt_slow", "f8"),
         ("egt_band_ms", "f8"),
         ("egt_band_s", "f8"),  # how long the band-pass has run, s
+        ("egt_offset", "f8", (EGT_BANDS,)),  # its EGT's normal offset from the others' median per power band, degC
+        ("egt_offset_s", "f8", (EGT_BANDS,)),  # how long each has been learned, s
+        ("power_held", "f8"),  # cylinder 1's record: the power fraction the steady power holds near (nan: none yet)
+        ("power_steady_s", "f8"),  # cylinder 1's record: how long the power has stayed near it, s
     ]
 )
 #: One cylinder's result of a step: a field per ``cylinder`` row of the output table (what the health
@@ -717,7 +735,7 @@ def cylinder_step(
             cfg["detector"]["baseline_s"] <= 0.0 or not math.isnan(baseline)
         ):
             armed |= ARMED_BASELINE
-        if cfg["nominal"]["on"]:  # against the engine's own reference, from engine start
+        if cfg["nominal"]["on"]:  # against the engine's own reference, where it has a level (nan: not tested)
             level = cfg["nominal_level"][region]
             if not math.isnan(level):
                 armed |= ARMED_REFERENCE
@@ -898,15 +916,26 @@ def _events_period_s(eng: Engine) -> float:
 
 
 @njit(nogil=False)
+def _held_s(eng: Engine, tr: Any) -> float:
+    """How long the tracker's condition has held, s: from its start to the end of the last step it held in."""
+    return tr["last_s"] - tr["start_s"] + _events_period_s(eng)
+
+
+@njit(nogil=False)
 def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, min_s: float) -> None:
-    """The tracker's condition ended: an event if it lasted ``min_s`` (s) or more (its duration: from its
-    start to the end of the last step it held in); the tracker is free again."""
+    """The tracker's condition ended: its end record if it lasted ``min_s`` (s) or more (then its start was
+    written: :func:`_track`); the tracker is free again."""
+    tr["active"] = False
+    if tr["announced"]:
+        _record_event(eng, tr, kind, cylinder, limit, False)
+
+
+@njit(nogil=False)
+def _record_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, ongoing: bool) -> None:
+    """One event record of the tracker into ``Engine.events`` (counted as dropped when it is full)."""
     eng_events = eng.events
     eng_event_count = eng.event_count
-    tr["active"] = False
-    duration = tr["last_s"] - tr["start_s"] + _events_period_s(eng)
-    if duration < min_s:
-        return
+    duration = _held_s(eng, tr)
     n = eng_event_count[0]
     if n >= eng_events.shape[0]:
         eng_event_count[1] += 1
@@ -918,22 +947,27 @@ def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, m
     e["value"] = tr["peak"]
     e["limit"] = limit
     e["duration_s"] = duration
+    e["ongoing"] = ongoing
     eng_event_count[0] = n + 1
 
 
 @njit(nogil=False)
 def _track(eng: Engine, tr: Any, holds: bool, value: float, time_s: float, kind: int, cylinder: int, limit: float,
            min_s: float) -> None:  # fmt: skip
-    """One step of a condition's tracker: it holds (its worst value is the one furthest from zero) or it
-    ended (:func:`_write_event`)."""
+    """One step of a condition's tracker: it holds (its worst value is the one furthest from zero; its start
+    record written when it has held for ``min_s``, s) or it ended (:func:`_write_event`)."""
     if holds:
         if not tr["active"]:
             tr["active"] = True
+            tr["announced"] = False
             tr["start_s"] = time_s
             tr["peak"] = value
         elif abs(value) > abs(tr["peak"]):
             tr["peak"] = value
         tr["last_s"] = time_s
+        if not tr["announced"] and _held_s(eng, tr) >= min_s:
+            tr["announced"] = True
+            _record_event(eng, tr, kind, cylinder, limit, True)
     elif tr["active"]:
         _write_event(eng, tr, kind, cylinder, limit, min_s)
 
@@ -983,21 +1017,63 @@ def events_step(eng: Engine, time_s: float) -> None:
     for i in range(n):
         es = eng_settings[i]["events"]
         own[i] = _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s)
-    at_power = median_of_others(own, -1, others) > eng_settings[0]["events"]["egt_divergence_from_c"]
+    band, steady = _power_band(eng, _events_period_s(eng))
+    at_power = steady and median_of_others(own, -1, others) > eng_settings[0]["events"]["egt_divergence_from_c"]
     for i in range(n):
         es = eng_settings[i]["events"]
         st = eng_state[i]
         egt = own[i]
         _track(eng, st["egt_high"], egt > es["egt_limit_c"], egt, time_s, _EGT_EXCEEDANCE, i + 1,
                es["egt_limit_c"], es["exceedance_min_s"])  # fmt: skip
-        apart = egt - median_of_others(own, i, others)
-        _track(eng, st["egt_divergence"], at_power and abs(apart) > es["egt_divergence_c"], apart, time_s,
+        beyond = egt_beyond_normal(st, egt - median_of_others(own, i, others), at_power, band, es["egt_normal_s"],
+                                   _events_period_s(eng))  # fmt: skip
+        _track(eng, st["egt_divergence"], abs(beyond) > es["egt_divergence_c"], beyond, time_s,
                _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"])  # fmt: skip
     valve_advisory(eng, time_s)
     es = eng_settings[0]["events"]
     oil = _fresh(eng, es["oil_slot"], es["oil_stale_s"], time_s)
     _track(eng, eng_state[0]["oil_high"], oil > es["oil_limit_c"], oil, time_s, _OIL_EXCEEDANCE, 0,
            es["oil_limit_c"], es["exceedance_min_s"])  # fmt: skip
+
+
+@njit(nogil=False)
+def _power_band(eng: Engine, dt_s: float) -> tuple[int, bool]:
+    """The power band of this step (EGT_BANDS) and whether the power has been steady (EGT_STEADY_S), from the
+    heat map's x input (the step's u[0]); unknown power: the middle band, steady."""
+    st = eng.state[0]
+    xb = eng.x_breakpoints[0]
+    power = power_fraction(eng.scratch[18], xb[0], xb[eng.settings[0]["n_x"] - 1])
+    if math.isnan(power):
+        return 1, True
+    if math.isnan(st["power_held"]) or abs(power - st["power_held"]) > EGT_STEADY_FRACTION:
+        st["power_held"] = power  # the power moved: steady from here
+        st["power_steady_s"] = 0.0
+    else:
+        st["power_steady_s"] += dt_s
+    band = 0 if power < EGT_BAND_EDGES[0] else 1 if power < EGT_BAND_EDGES[1] else 2
+    return band, st["power_steady_s"] >= EGT_STEADY_S
+
+
+@njit(nogil=False)
+def egt_beyond_normal(st: Any, apart: float, at_power: bool, band: int, normal_s: float, dt_s: float) -> float:
+    """How far cylinder record ``st``'s EGT is from its normal offset to the others' median in power band
+    ``band``, degC (``apart``: its EGT minus that median now): the offset is learned at steady power
+    (``at_power``), a first-order average with time constant ``normal_s`` (s), not while the cylinder
+    diverges; nan otherwise, without an EGT, and until the band's offset has been learned for ``normal_s``
+    (an engine's EGTs spread by their own amount, and by another at another power: the divergence is a
+    change of it, docs/service.md, "Engine events")."""
+    if not at_power or math.isnan(apart):
+        return np.nan
+    offsets = st["egt_offset"]
+    learned = st["egt_offset_s"]
+    if math.isnan(offsets[band]):
+        offsets[band] = apart
+        learned[band] = 0.0
+    beyond = apart - offsets[band]
+    if not st["egt_divergence"]["active"]:
+        offsets[band] += beyond * min(dt_s / normal_s, 1.0)
+        learned[band] += dt_s
+    return beyond if learned[band] >= normal_s else np.nan
 
 
 @njit(nogil=False)

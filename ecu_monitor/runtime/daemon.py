@@ -99,6 +99,8 @@ class PipelineLike(Protocol):
 
     def drain_rows(self) -> list[Any]: ...
 
+    def drain_events(self) -> list[Any]: ...
+
     def warm_up(self) -> float: ...
 
     @property
@@ -412,15 +414,20 @@ class Daemon:
         if self._recorder is None:
             with self._lock:
                 rows = self.pipeline.drain_rows()
+                events = self.pipeline.drain_events()
             self._log_states(rows)
+            _log_events(events)
             return
         with self._lock:
             rows = self.pipeline.drain_rows()
+            events = self.pipeline.drain_events()
             held = self._held_inputs() if self._held_inputs is not None else HeldInputs(None)
             offset = self._wall_clock() - self._clock()
         self._log_states(rows)
+        _log_events(events)
         for sample in flight_samples(rows, held, offset):  # the inputs held at the end of this supervisor period
             self._recorder.add(sample)
+        self._recorder.add_events(events)
         self.counters["rows_recorded"] += len(rows)
         down = int(self._recorder.history_fault is not None)
         if self.pipeline.counters.get("history_down") != down:
@@ -557,6 +564,15 @@ class Daemon:
     def stop(self) -> None:
         """Ask :meth:`run` to return (safe from a signal handler and from any thread)."""
         self._stop.set()
+
+
+def _log_events(events: Sequence[Any]) -> None:
+    """One log line per engine event: WARNING when it starts, INFO when it ends (pipeline/events.py)."""
+    for event in events:
+        if event.ongoing:
+            _log.warning("engine event: %s", event.start_text())
+        else:
+            _log.info("engine event ended: %s", event.text())
 
 
 def bad_datagram(exc: BaseException) -> bool:

@@ -29,7 +29,8 @@ the frames of the transfers due (built by :class:`ecu_monitor.bus.dronecan.Drone
   told when the second is up, if the state still differs from the one last told. Per cylinder, the
   state is the engine's (its lead cylinder's) and the text names that cylinder. An open maintenance alert
   of the across-flight detector (:meth:`DroneCanNode.tell`, at each start of the daemon) is one more
-  LogMessage, level WARNING, its text cut to 90 characters.
+  LogMessage, level WARNING, its text cut to 90 characters; so is each engine event that starts
+  (runtime/publishers.py), level INFO for an advisory. One such text a health-status period, in order.
 
 It answers ``uavcan.protocol.GetNodeInfo`` requests addressed to it (:meth:`DroneCanNode.take_request`,
 called by the pipeline for every frame it is fed): the response, sent with the frames of the next step
@@ -79,8 +80,10 @@ NODE_NAME = "org.ecu-monitor.cht"
 _KEY_VALUE = "uavcan.protocol.debug.KeyValue"
 _LOG_MESSAGE = "uavcan.protocol.debug.LogMessage"
 _LOG_SOURCE = "ecu-monitor"
-#: LogMessage level of a maintenance alert (WARNING) and the longest text a LogMessage carries (uint8[<=90])
+#: LogMessage level of a maintenance alert or an engine event (WARNING), of an advisory (INFO), and the longest
+#: text a LogMessage carries (uint8[<=90])
 _WARNING = 2
+_INFO = 1
 _MAX_LOG_TEXT = 90
 _VERSION = tuple(int(part) for part in __version__.split(".")[:2])
 _LOG_EVERY_S = 1.0
@@ -122,11 +125,12 @@ class DroneCanNode:
         self._estimated = False
         self._told: str | None = None  # the state the last LogMessage told
         self._told_s = -math.inf
-        self._notices: list[str] = []  # maintenance alerts to tell (LogMessage, WARNING) with the next period
+        self._notices: list[tuple[str, int]] = []  # texts to tell (LogMessage) and their levels, oldest first
 
-    def tell(self, text: str) -> None:
-        """A maintenance alert's text, sent as a WARNING LogMessage with the next health-status period."""
-        self._notices.append(text)
+    def tell(self, text: str, advisory: bool = False) -> None:
+        """A maintenance alert's or an engine event's text, sent as a LogMessage (WARNING; INFO for an
+        ``advisory``) with the next health-status period."""
+        self._notices.append((text, _INFO if advisory else _WARNING))
 
     def frames(self, time_s: float, snap: HealthSnapshot) -> list[can.Message]:
         """The frames due at ``time_s`` (s) for that health-status period's snapshot."""
@@ -156,8 +160,8 @@ class DroneCanNode:
         if self.settings.log_messages and snap.state != self._told and time_s - self._told_s >= _LOG_EVERY_S - _SLACK_S:
             out += self._log_message(time_s, snap)
         if self._notices:
-            text, self._notices = self._notices[0], self._notices[1:]  # one a period: a LogMessage is many frames
-            values = {"level": {"value": _WARNING}, "source": _LOG_SOURCE, "text": text[:_MAX_LOG_TEXT]}
+            (text, level), self._notices = self._notices[0], self._notices[1:]  # one a period: many frames each
+            values = {"level": {"value": level}, "source": _LOG_SOURCE, "text": text[:_MAX_LOG_TEXT]}
             out += self.encoder.frames(_LOG_MESSAGE, values, time_s, self.settings.priority)
         return out
 

@@ -10,6 +10,11 @@ Across flights: each finished flight keeps its wear index (:class:`~ecu_monitor.
 over the samples' CHT, reference model CHT and OAT); after it, the across-flight detector
 (:func:`engine_wear`) runs over the engine's flights since its last cleared alert, and an alert it raises
 is stored (:class:`~ecu_monitor.runtime.persistence.MaintenanceAlert`) once, until maintenance clears it.
+
+Engine events (pipeline/events.py): :meth:`FlightRecorder.add_events` counts each event that starts while a
+flight is open in that flight, by kind and cylinder (an event while the engine is not running is not a
+flight's). The engine's overhaul hours and TBO (``engine:`` in the config) are kept in the history when it
+is first reached (:meth:`~ecu_monitor.runtime.persistence.StateStore.set_engine_hours`).
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ from typing import Any, NamedTuple
 from ecu_monitor.errors import StorageError
 from ecu_monitor.estimation.regions import REGION_HIGH, REGION_NAMES, power_fraction, region_of
 from ecu_monitor.estimation.wear import FlightWear, WearReference, WearSettings, WearVerdict, wear_verdict
+from ecu_monitor.pipeline.events import Event
+from ecu_monitor.pipeline.output_table import STATE_CONCERN
 from ecu_monitor.runtime.persistence import (
     TREND_STATS,
     FlightRecord,
@@ -49,8 +56,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-#: Detector states ranked from best to worst (health.dbc DegradationState order of concern).
-_STATE_RANK = {"NOMINAL": 0, "INPUT_STALE": 1, "UNAVAILABLE": 2, "SENSOR_FAULT": 3, "SUSPECT": 4, "DEGRADED": 5}
 #: States in which the estimator (and its reference model) is not running: no wear sample then.
 _NOT_ESTIMATING = frozenset({"UNAVAILABLE", "SENSOR_FAULT"})
 #: Longest gap between two samples that still counts as covered time, s (a longer gap adds nothing).
@@ -231,7 +236,7 @@ class _CylinderFlight:
             self.max_cht_c = max(self.max_cht_c, cht_c)
         if state in ("SUSPECT", "DEGRADED"):
             self.time_degraded_s += dt
-        if _STATE_RANK.get(state, 0) > _STATE_RANK.get(self.worst_state, 0):
+        if STATE_CONCERN.get(state, 0) > STATE_CONCERN.get(self.worst_state, 0):
             self.worst_state = state
         for name, moments in self.trends.items():
             moments.add(t_s, trends[name])
@@ -301,6 +306,7 @@ class _OpenFlight:
         self.spread_max_c = -math.inf
         self.spread_alarm_s = 0.0
         self.hottest_s: dict[int, float] = {}
+        self.events: dict[str, dict[str, int]] = {}  # kind -> cylinder (text) -> events started
 
     @classmethod
     def resume(
@@ -329,6 +335,7 @@ class _OpenFlight:
             flight.spread_max_c = float(spread) if spread is not None else -math.inf
             flight.spread_alarm_s = float(stored.get("spread_alarm_s", 0.0))
             flight.hottest_s = {int(k): float(v) for k, v in stored.get("hottest_s", {}).items()}
+        flight.events = {kind: dict(counts) for kind, counts in record.events.items()}
         return flight
 
     def values(self, end_running: bool) -> dict[str, object]:
@@ -352,6 +359,7 @@ class _OpenFlight:
             "wear_samples": self.wear.n,
             "high_power_s": self.high_power_s,
             "phases_json": json.dumps(self._phases()),
+            "events_json": json.dumps(self.events),
             "reversals": pack_reversals(points),
         }
 
@@ -395,6 +403,7 @@ class FlightRecorder:
         wear: WearSettings | None = None,
         reference: WearReference | None = None,
         retry_s: float = 30.0,
+        hours: tuple[float | None, float | None] = (None, None),
     ) -> None:
         self._opener = None if isinstance(store, StateStore) else store
         self.store: StateStore | None = store if isinstance(store, StateStore) else None
@@ -404,6 +413,7 @@ class FlightRecorder:
         self.retry_s = float(retry_s)
         self.wear = wear or WearSettings()
         self.reference = reference
+        self.hours = hours  # the engine's overhaul hours and TBO as the config gives them (None: not given)
         self.alerts: list[MaintenanceAlert] = []
         self.finished: list[int] = []
         self.recovered: list[int] = []
@@ -445,6 +455,16 @@ class FlightRecorder:
                 self._write(flight, flight.values(end_running=False), sample.time_s)
             flight.last_checkpoint_s = sample.time_s
 
+    def add_events(self, events: Sequence[Event]) -> None:
+        """Count the engine events that started (their start records) in the open flight (module docstring)."""
+        flight = self._flight
+        if flight is None:
+            return
+        for event in events:
+            if event.ongoing:
+                counts = flight.events.setdefault(event.kind, {})
+                counts[str(event.cylinder)] = counts.get(str(event.cylinder), 0) + 1
+
     # --- the store, and going on without it -----------------------------------------------------------
 
     def _connected(self) -> StateStore:
@@ -456,6 +476,7 @@ class FlightRecorder:
         if not self._started:
             self.recovered = store.recover(self.serial, self.rules.min_flight_s)
             store.ensure_engine(self.serial)
+            store.set_engine_hours(self.serial, *self.hours)
             self._started = True
             if self.recovered:
                 _log.warning("flights %s were left open by a crash: kept up to their last checkpoint", self.recovered)
@@ -563,7 +584,7 @@ class FlightRecorder:
                 flight.time_above_limit_s += dt
         if sample.state in ("SUSPECT", "DEGRADED"):
             flight.time_degraded_s += dt
-        if _STATE_RANK.get(sample.state, 0) > _STATE_RANK.get(flight.worst_state, 0):
+        if STATE_CONCERN.get(sample.state, 0) > STATE_CONCERN.get(flight.worst_state, 0):
             flight.worst_state = sample.state
         region = region_of(sample.time_s - flight.start_time_s, sample.airspeed_mps, sample.power)
         if math.isfinite(sample.power):

@@ -19,7 +19,9 @@ object packed by one ``mavutil.mavlink.MAVLink`` instance with the service's ``s
   at start), while INPUT_STALE when more inputs are lost than the last text named (again, with all of
   them: a dropped link loses the inputs of its slower messages first), when a CHT reaches its limit and
   when it is back below, when the CHT spread alarm rises, and once for an open maintenance alert of the
-  across-flight detector (:meth:`MavlinkPublisher.tell`, at each start of the daemon), severity WARNING.
+  across-flight detector (:meth:`MavlinkPublisher.tell`, at each start of the daemon), severity WARNING,
+  and once when an engine event starts (:meth:`MavlinkPublisher.announce`, its
+  :meth:`~ecu_monitor.pipeline.events.Event.start_text`), severity WARNING, NOTICE for an advisory.
   Severity (:data:`SEVERITY`): NOMINAL INFO, UNAVAILABLE NOTICE, SUSPECT and INPUT_STALE WARNING,
   DEGRADED and SENSOR_FAULT CRITICAL, a CHT at its limit ALERT. A text longer than 50 characters is
   sent in chunks of 50 (MAVLink 2 ``id`` and ``chunk_seq``, as the message definition says a long
@@ -52,6 +54,7 @@ from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.bus.mavlink import mavlink_module
 from ecu_monitor.bus.mavlink_settings import MavlinkSettings
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.pipeline.events import Event
 from ecu_monitor.pipeline.output_table import STATES, as_number, engine_values
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.units import UNITS, standard_pressure_kpa
@@ -79,7 +82,7 @@ SEVERITY: Mapping[str, int] = {
     "DEGRADED": 2,  # CRITICAL
     "SENSOR_FAULT": 2,  # CRITICAL
 }
-_SEVERITY_ALERT, _SEVERITY_WARNING, _SEVERITY_INFO = 1, 4, 6
+_SEVERITY_ALERT, _SEVERITY_WARNING, _SEVERITY_NOTICE, _SEVERITY_INFO = 1, 4, 5, 6
 #: MAV_STATE values (common.xml)
 _STANDBY, _ACTIVE, _CRITICAL, _EMERGENCY = 3, 4, 5, 6
 _STATE_STATUS = {
@@ -300,6 +303,12 @@ class MavlinkPublisher:
     def tell(self, text: str) -> None:
         """A maintenance alert's text: one STATUSTEXT, severity WARNING, as the rate allows."""
         self._queue(_Text("maintenance", _SEVERITY_WARNING, text))
+
+    def announce(self, event: Event) -> None:
+        """An engine event that started: one STATUSTEXT of its start record, as the rate allows (a text of the
+        same kind and cylinder still waiting is merged with it)."""
+        severity = _SEVERITY_NOTICE if event.advisory else _SEVERITY_WARNING
+        self._queue(_Text(f"event {event.kind} {event.cylinder}", severity, event.start_text()))
 
     def _events(self, snap: HealthSnapshot, over: int) -> None:
         """Queue the texts of what changed since the last snapshot."""

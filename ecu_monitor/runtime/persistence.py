@@ -12,8 +12,12 @@ alarm and how long each cylinder was the hottest. Across flights (schema 3): eac
 hotter than the nominal model the head ran, with its spread within the flight and the samples it rests on;
 :mod:`ecu_monitor.estimation.wear`) and its time at high power; the ``maintenance_alerts`` table keeps each
 alert the across-flight detector raised (engine, flight, when, the index, the CUSUM and its threshold, the
-reference) until maintenance clears it. An older database gains the new columns and table when opened for
-writing; nothing in it is lost.
+reference) until maintenance clears it. Engine events (schema 4): each flight's count of the engine events
+that started in it (pipeline/events.py), by kind and cylinder (``events_json``); each engine's hours since
+overhaul and time between overhauls as the config last gave them (``engine.overhaul_hours``,
+``engine.tbo_hours``), with the engine's running hours when the overhaul hours were given
+(:class:`EngineHours`). An older database gains the new columns and table when opened for writing; nothing
+in it is lost.
 
 Flights are found from the engine speed: a flight starts when rpm reaches ``FlightRules.running_rpm``
 and ends when it has stayed below (or been stale) for ``end_after_s``; a run shorter than
@@ -67,6 +71,7 @@ __all__ = [
     "CYCLE_BIN_EDGES_C",
     "DATABASE_NAME",
     "TREND_STATS",
+    "EngineHours",
     "FlightRecord",
     "FlightRules",
     "FlightSample",
@@ -84,8 +89,9 @@ _log = logging.getLogger(__name__)
 #: File name of the database inside the state directory.
 DATABASE_NAME = "ecu-monitor.sqlite3"
 #: 2: flights.cylinders_json (engines monitored per cylinder); 3: the wear index, time at high power and the
-#: maintenance_alerts table. An older file gains what it lacks (:data:`_ADDED_COLUMNS`).
-_SCHEMA_VERSION = 3
+#: maintenance_alerts table; 4: flights.events_json, the engines' overhaul hours. An older file gains what it
+#: lacks (:data:`_ADDED_COLUMNS`, :data:`_ADDED_ENGINE_COLUMNS`).
+_SCHEMA_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -172,6 +178,8 @@ class FlightRecord:
     #: each trend column (:func:`trend_columns`: ``gamma_q_start``, ``gamma_q_mean``, ...) by name (None:
     #: no value), also read as an attribute: ``record.gamma_q_mean``
     trends: dict[str, float | None] = field(default_factory=dict)
+    #: the engine events that started in the flight: kind -> cylinder number (as text; "0": the engine) -> count
+    events: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def __getattr__(self, name: str) -> float | None:
         trends = self.__dict__.get("trends", {})
@@ -202,7 +210,7 @@ def trend_columns() -> tuple[str, ...]:
 _FIXED_COLUMNS = (
     "id, engine_serial, status, end_reason, start_utc, end_utc, duration_s, max_cht_c, cht_limit_c, "
     "time_above_limit_s, worst_state, time_degraded_s, cycles_total, wear_index, wear_spread, wear_samples, "
-    "high_power_s, cycles_json, cylinders_json, phases_json"
+    "high_power_s, cycles_json, cylinders_json, phases_json, events_json"
 )
 _FLIGHT_COLUMNS = ", ".join((_FIXED_COLUMNS, *trend_columns()))
 
@@ -214,7 +222,40 @@ _ADDED_COLUMNS = (
     ("wear_samples", "INTEGER NOT NULL DEFAULT 0"),
     ("high_power_s", "REAL"),
     ("phases_json", "TEXT"),
+    ("events_json", "TEXT"),
 )
+#: Columns added to ``engines`` (schema 4): the overhaul hours as last given, the engine's running seconds
+#: then, the time between overhauls.
+_ADDED_ENGINE_COLUMNS = (("overhaul_hours", "REAL"), ("overhaul_running_s", "REAL"), ("tbo_hours", "REAL"))
+
+
+@dataclass(frozen=True)
+class EngineHours:
+    """An engine's hours: ``running_h`` its running hours in the history (the flights' durations: rpm at
+    or above ``running_rpm``; a ground run shorter than a flight is not counted), ``since_overhaul_h`` its
+    time since overhaul (the ``engine.overhaul_hours`` last given, plus the running hours since; None:
+    never given), ``tbo_h`` its time between overhauls (None: not given)."""
+
+    running_h: float
+    since_overhaul_h: float | None
+    tbo_h: float | None
+
+    @property
+    def due(self) -> bool:
+        """The overhaul is due: the time since overhaul has reached the TBO."""
+        return self.since_overhaul_h is not None and self.tbo_h is not None and self.since_overhaul_h >= self.tbo_h
+
+    def text(self) -> str:
+        """The maintainer's line: running hours, time since overhaul, what is left to the TBO."""
+        line = f"{self.running_h:.1f} h running recorded"
+        if self.since_overhaul_h is not None:
+            line += f", {self.since_overhaul_h:.1f} h since overhaul"
+        if self.tbo_h is not None:
+            line += f", TBO {self.tbo_h:g} h"
+            if self.since_overhaul_h is not None:
+                left = self.tbo_h - self.since_overhaul_h
+                line += ": OVERHAUL DUE" if self.due else f" ({left:.1f} h left)"
+        return line
 
 
 @dataclass(frozen=True)
@@ -278,6 +319,7 @@ CREATE TABLE IF NOT EXISTS flights (
     wear_samples INTEGER NOT NULL DEFAULT 0,
     high_power_s REAL,
     phases_json TEXT,
+    events_json TEXT,
     reversals BLOB,
     updated_utc REAL NOT NULL
 );
@@ -354,6 +396,10 @@ class StateStore:
         for name in trend_columns():  # a database older than a trend value: its columns, empty
             if name not in columns:
                 self._conn.execute(f"ALTER TABLE flights ADD COLUMN {name} REAL")
+        engine_columns = {row[1] for row in self._conn.execute("PRAGMA table_info(engines)")}
+        for name, sql_type in _ADDED_ENGINE_COLUMNS:
+            if name not in engine_columns:
+                self._conn.execute(f"ALTER TABLE engines ADD COLUMN {name} {sql_type}")
         self._conn.execute(
             "INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)", (str(_SCHEMA_VERSION),)
         )
@@ -395,6 +441,37 @@ class StateStore:
         """Register an engine serial (idempotent)."""
         with self._transaction() as conn:
             conn.execute("INSERT OR IGNORE INTO engines (serial, first_seen_utc) VALUES (?, ?)", (serial, time.time()))
+
+    def set_engine_hours(self, serial: str, overhaul_hours: float | None, tbo_hours: float | None) -> None:
+        """Keep an engine's ``engine.overhaul_hours`` and ``engine.tbo_hours`` (registered first): overhaul
+        hours that differ from the stored ones (an overhaul, a logbook entry) are stored with the engine's
+        running seconds now, from which its time since overhaul counts on; None keeps the stored ones."""
+        with self._transaction() as conn:
+            conn.execute("INSERT OR IGNORE INTO engines (serial, first_seen_utc) VALUES (?, ?)", (serial, time.time()))
+            stored = conn.execute("SELECT overhaul_hours FROM engines WHERE serial = ?", (serial,)).fetchone()[0]
+            if overhaul_hours is not None and stored != overhaul_hours:
+                conn.execute(
+                    "UPDATE engines SET overhaul_hours = ?, overhaul_running_s = ? WHERE serial = ?",
+                    (overhaul_hours, self._running_s(serial), serial),
+                )
+            conn.execute("UPDATE engines SET tbo_hours = ? WHERE serial = ?", (tbo_hours, serial))
+
+    def _running_s(self, serial: str) -> float:
+        """The engine's running seconds in the history: the sum of its flights' durations (running ones too)."""
+        query = "SELECT coalesce(sum(duration_s), 0) FROM flights WHERE engine_serial = ?"
+        return float(self._conn.execute(query, (serial,)).fetchone()[0])
+
+    def engine_hours(self, serial: str) -> EngineHours:
+        """The engine's hours (:class:`EngineHours`)."""
+        running_s = self._running_s(serial)
+        row = None
+        present = {r[1] for r in self._conn.execute("PRAGMA table_info(engines)")}
+        if "overhaul_hours" in present:  # else a read-only older database
+            query = "SELECT overhaul_hours, overhaul_running_s, tbo_hours FROM engines WHERE serial = ?"
+            row = self._conn.execute(query, (serial,)).fetchone()
+        overhaul, at_s, tbo = row if row is not None else (None, None, None)
+        since = None if overhaul is None else overhaul + (running_s - (at_s or 0.0)) / 3600.0
+        return EngineHours(running_s / 3600.0, since, tbo)
 
     def begin_flight(self, serial: str, start_utc: float, cht_limit_c: float) -> int:
         """Insert a running flight; returns its id."""
@@ -548,12 +625,11 @@ class StateStore:
 
 def _record(row: tuple[object, ...]) -> FlightRecord:
     """A FlightRecord from a row of :data:`_FLIGHT_COLUMNS`."""
-    names = [item.name for item in fields(FlightRecord)][:-4]  # then cycles_histogram, phases, cylinders, trends
-    fixed, trends = row[: len(names) + 3], row[len(names) + 3 :]
-    values: dict[str, object] = dict(zip(names, fixed[:-3], strict=True))
-    values["cycles_histogram"] = json.loads(str(fixed[-3])) if fixed[-3] else {}
-    values["cylinders"] = json.loads(str(fixed[-2])) if fixed[-2] else {}
-    values["phases"] = json.loads(str(fixed[-1])) if fixed[-1] else {}
+    names = [item.name for item in fields(FlightRecord)][:-5]  # then cycles_histogram, phases, cylinders, trends,
+    fixed, trends = row[: len(names) + 4], row[len(names) + 4 :]  # events
+    values: dict[str, object] = dict(zip(names, fixed[:-4], strict=True))
+    for name, text in zip(("cycles_histogram", "cylinders", "phases", "events"), fixed[-4:], strict=True):
+        values[name] = json.loads(str(text)) if text else {}
     values["trends"] = dict(zip(trend_columns(), trends, strict=True))
     return FlightRecord(**values)  # type: ignore[arg-type]
 

@@ -5,9 +5,14 @@ daemon and the demo run).
 
 * :class:`DbcHealthFrames`: the health.dbc messages (Health_Status, Health_Isolation, Health_Diag,
   Health_Spread, Health_Cylinder) at their configured rates, each signal from its row of the output table
-  (pipeline/output_table.py; a nan sent as the row's idle value) or a service diagnostic.
+  (pipeline/output_table.py; a nan sent as the row's idle value) or a service diagnostic; a Health_Event
+  frame when an engine event starts.
 * :class:`DroneCanPublisher`: the service as a DroneCAN node (runtime/dronecan_node.py).
 * :class:`MavlinkHealth`: the service as a MAVLink component (runtime/mavlink_publisher.py).
+
+Engine events (pipeline/events.py) are published when they start, each from its start record
+(:meth:`Publisher.announce`): the Health_Event frame at once, a DroneCAN LogMessage and a MAVLink
+STATUSTEXT (:meth:`~ecu_monitor.pipeline.events.Event.start_text`) with the next health-status period.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.inputs import stale_bit
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.pipeline.engine import Pipeline, StepRow
+from ecu_monitor.pipeline.events import EVENT_KINDS, Event
 from ecu_monitor.pipeline.output_table import HEALTH_VALUES, HealthValue, bus_number
 from ecu_monitor.pipeline.outputs import HealthSnapshot
 from ecu_monitor.runtime.dronecan_node import DroneCanNode
@@ -127,6 +133,20 @@ class Publisher(Protocol):
         """An open maintenance alert (its one-line text), told from the next row on (module docstring)."""
         ...
 
+    def announce(self, event: Event) -> list[can.Message]:
+        """An engine event that started (its start record): the frames it makes now (texts go out with the
+        next health-status period)."""
+        ...
+
+
+#: The health.dbc frame of an engine event that started, and its data signals (DBC order).
+_EVENT_FRAME = "Health_Event"
+_EVENT_SIGNALS = ("EventKind", "EventCylinder", "EventValue", "EventLimit")
+
+
+def _finite_or_zero(value: float) -> float:
+    return value if math.isfinite(value) else 0.0
+
 
 class DbcHealthFrames:
     """The health.dbc frames of each row: every message whose period (steps) divides the row's step; a
@@ -160,9 +180,25 @@ class DbcHealthFrames:
         self.limits = [m.cht_limit_c for m in pipeline.cylinder_params]
         self.maintenance_alert = False  # Health_Diag.MaintenanceAlert: an open alert told (set, never cleared)
         pipeline.counters.setdefault("health_frames", 0)
+        try:
+            event = self.encoder.message(_EVENT_FRAME)
+        except KeyError:  # a health.dbc of the user's without the event frame: events go out on no frame
+            event = None
+        self._events_framed = event is not None
+        if event is not None:
+            self._packers[_EVENT_FRAME] = self.encoder.packer(_EVENT_FRAME, _EVENT_SIGNALS)
+            self._ids[_EVENT_FRAME] = (int(event.frame_id), bool(event.is_extended_frame))
+            self._counters[_EVENT_FRAME] = 0
 
     def tell(self, text: str) -> None:
         self.maintenance_alert = True
+
+    def announce(self, event: Event) -> list[can.Message]:
+        """The Health_Event frame of the event (none when the health.dbc has no such message)."""
+        if not self._events_framed:
+            return []
+        values = (EVENT_KINDS.index(event.kind), event.cylinder, _finite_or_zero(event.value), event.limit)
+        return [self._frame(_EVENT_FRAME, self.pipeline.now_s, values)]
 
     def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
         out: list[can.Message] = []
@@ -220,6 +256,10 @@ class DroneCanPublisher:
     def tell(self, text: str) -> None:
         self.node.tell(text)
 
+    def announce(self, event: Event) -> list[can.Message]:
+        self.node.tell(event.start_text(), advisory=event.advisory)
+        return []
+
     def take_request(self, msg: can.Message, time_s: float) -> bool:
         """A service request to the node (GetNodeInfo), taken here: not an input."""
         taken = bool(msg.arbitration_id & 0x80) and self.node.take_request(msg, time_s)
@@ -244,6 +284,10 @@ class MavlinkHealth:
 
     def tell(self, text: str) -> None:
         self.publisher.tell(text)
+
+    def announce(self, event: Event) -> list[Any]:
+        self.publisher.announce(event)
+        return []
 
     def publish(self, rows: Sequence[StepRow]) -> list[Any]:
         out: list[Any] = []
@@ -273,6 +317,10 @@ def make_publishers(config: ServiceConfig, pipeline: Pipeline) -> list[Publisher
     return publishers
 
 
+#: Event records LiveMonitor keeps for :meth:`LiveMonitor.drain_events` (older ones dropped).
+_KEPT_EVENTS = 1000
+
+
 class LiveMonitor:
     """The pipeline and its publishers: :meth:`feed` a received frame, :meth:`advance_to` the clock and get
     the frames to send (what the daemon's receive and tick threads call)."""
@@ -287,6 +335,7 @@ class LiveMonitor:
         self.counters.setdefault("send_errors", 0)
         self.counters.setdefault("history_down", 0)  # 1 while the flight history cannot be written (the daemon)
         self._node = next((p for p in self.publishers if isinstance(p, DroneCanPublisher)), None)
+        self._events: list[Event] = []  # event records not yet drained (drain_events)
 
     @property
     def params(self) -> ThermalParams:
@@ -319,12 +368,27 @@ class LiveMonitor:
         self.pipeline.feed(msg)
 
     def advance_to(self, t_s: float) -> list[can.Message]:
-        """Run the steps up to ``t_s`` (s); the frames the publishers make of their rows."""
+        """Run the steps up to ``t_s`` (s); the frames the publishers make of their rows, then of the engine
+        events that started (:meth:`Publisher.announce`)."""
         frames: list[can.Message] = []
         for row in self.pipeline.advance_to(t_s):
             for publisher in self.publishers:
                 frames += publisher.publish((row,))
+        events = self.pipeline.take_events()
+        if events:
+            for event in events:
+                if event.ongoing:
+                    for publisher in self.publishers:
+                        frames += publisher.announce(event)
+            self._events += events
+            del self._events[:-_KEPT_EVENTS]
         return frames
+
+    def drain_events(self) -> list[Event]:
+        """The event records (starts and ends, pipeline/events.py) since the last call (the flight recorder's;
+        the last _KEPT_EVENTS when nobody drains them)."""
+        out, self._events = self._events, []
+        return out
 
     def snapshot(self) -> HealthSnapshot:
         return self.pipeline.snapshot()

@@ -99,6 +99,12 @@ CONTRACT: dict[str, dict[str, tuple[int, int, str, tuple[str, ...]]]] = {
                 "CylChecksum",
             ),
         ),
+        "Health_Event": (
+            0x305,
+            None,  # sent when an engine event starts
+            "EcuMonitor",
+            ("EventKind", "EventCylinder", "EventValue", "EventLimit", "EventCounter", "EventChecksum"),
+        ),
     },
     "cylinders.dbc": {
         "ECU_Cht1to4": (0x102, 100, "ECU", ("CHT1", "CHT2", "CHT3", "CHT4", "Cht1to4Counter", "Cht1to4Checksum")),
@@ -137,6 +143,8 @@ RANGES: dict[str, tuple[str, float, float, float]] = {
     "Health_Cylinder.CylChtEstimate": ("degC", -40, 400, 0.1),
     "Health_Cylinder.CylGammaQ": ("", 0.5, 2.5, 0.001),
     "Health_Cylinder.CylGammaD": ("", 0.5, 2.5, 0.001),
+    "Health_Event.EventValue": ("", -3276.8, 3276.7, 0.1),
+    "Health_Event.EventLimit": ("", -3276.8, 3276.7, 0.1),
 }
 
 CHOICES: dict[str, dict[int, str]] = {

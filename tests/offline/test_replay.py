@@ -305,3 +305,23 @@ def test_replay_of_a_log_without_throttle_on_a_throttle_model_says_which_model_i
     assert main(["replay", str(path), "--out", str(tmp_path / "h.csv")]) == 2
     [line] = capsys.readouterr().err.strip().splitlines()
     assert "missing column(s) throttle_pct" in line and "--heat-axes fuel_flow_lph,rpm" in line
+
+
+def test_values_by_frame_is_a_stable_sort_by_frame() -> None:
+    # the compiled counting sort against numpy's stable argsort: frames with no value, several names and a
+    # name with two values in one frame; within a frame the values keep the names' order
+    from ecu_monitor.offline.replay import _values_by_frame
+
+    rng = np.random.default_rng(5)
+    n = 500
+    names = ("a", "b", "c")
+    decoded = {}
+    for name in names:
+        rows = np.sort(rng.choice(n, size=200, replace=True)).astype(np.int64)
+        decoded[name] = (rows, rng.normal(size=rows.size))
+    first, slots, values = _values_by_frame(names, decoded, n)
+    frame = np.concatenate([decoded[name][0] for name in names])
+    order = np.argsort(frame, kind="stable")
+    assert np.array_equal(first, np.searchsorted(frame[order], np.arange(n + 1)))
+    assert np.array_equal(slots, np.repeat(np.arange(3), 200)[order])
+    assert np.array_equal(values, np.concatenate([decoded[name][1] for name in names])[order])

@@ -80,7 +80,8 @@ def test_replay_writes_health_csv(flight_csv, tmp_path, capsys, estimator):
 
 
 def test_replay_warns_when_the_limit_or_the_threshold_does_not_fit(flight_csv, tmp_path, capsys):
-    """A CHT limit below what the engine read and a threshold not calibrated for the model: one line each."""
+    """A CHT limit below what the engine read, a threshold not calibrated for the model and the shipped engine
+    reference (the virtual ECU's) left out for it: one line each."""
     import dataclasses
 
     from ecu_monitor.commands.replay import fit_warnings
@@ -97,9 +98,10 @@ def test_replay_warns_when_the_limit_or_the_threshold_does_not_fit(flight_csv, t
     assert main(["replay", str(path), "--model", str(model), "--out", str(tmp_path / "health.csv")]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     warnings = [line for line in lines if line.startswith("warning: ")]
-    assert len(warnings) == 2 and len(lines) == 3
+    assert len(warnings) == 3 and len(lines) == 4
     assert f"CHT limit {low.cht_limit_c:g} degC is below what the engine read (up to {flown.max():.1f}" in warnings[0]
     assert "not calibrated for this model" in warnings[1] and "this model is" in warnings[1]
+    assert "engine reference" in warnings[2] and "another model's: its test was off" in warnings[2]
 
     config = load_config(DEFAULT_CONFIG)
     fits = dataclasses.replace(paper_table_a1(), cht_limit_c=float(flown.max()) + 10.0)

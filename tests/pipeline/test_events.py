@@ -16,6 +16,7 @@ from ecu_monitor.errors import ConfigError
 from ecu_monitor.flightlog import read_csv
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live
+from ecu_monitor.pipeline.engine import Pipeline
 from ecu_monitor.pipeline.events import EVENT_COLUMNS, EVENT_KINDS, Event, events_csv
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -107,15 +108,16 @@ def test_live_calls_find_the_same_events_as_the_batch_replay(dive: tuple[Any, An
 
 
 def test_egt_divergence_and_egt_and_oil_exceedances(dive: tuple[Any, Any, Any]) -> None:
-    """The flight with EGTs and an oil temperature laid on it: cylinder 2's EGT 120 degC above the others'
-    from 150 s to 200 s, cylinder 4's above 900 degC from 250 s to 260 s, the oil above 118 degC from 300 s."""
+    """The flight with EGTs and an oil temperature laid on it: cylinder 2's EGT 120 degC further above the
+    others' than its normal 10 degC from 210 s to 260 s (in the steady climb, once the normal offsets are
+    learned), cylinder 4's above 900 degC from 330 s to 340 s, the oil above 118 degC from 360 s."""
     log, _, models = dive
     t = np.asarray(log.time_s)
     rng = np.random.default_rng(1)
     egts = {f"egt{n}_c": 650.0 + 10.0 * n + rng.normal(0.0, 3.0, t.size) for n in range(1, 5)}
-    egts["egt2_c"] = np.where((t >= 150.0) & (t < 200.0), egts["egt2_c"] + 120.0, egts["egt2_c"])
-    egts["egt4_c"] = np.where((t >= 250.0) & (t < 260.0), 905.0, egts["egt4_c"])
-    oil = np.where(t >= 300.0, 122.0, 95.0)
+    egts["egt2_c"] = np.where((t >= 210.0) & (t < 260.0), egts["egt2_c"] + 120.0, egts["egt2_c"])
+    egts["egt4_c"] = np.where((t >= 330.0) & (t < 340.0), 905.0, egts["egt4_c"])
+    oil = np.where(t >= 360.0, 122.0, 95.0)
     flight = log.with_columns(oil_temp_c=oil, **egts)
     data = copy.deepcopy(FOUR)
     for n in range(1, 5):
@@ -126,12 +128,12 @@ def test_egt_divergence_and_egt_and_oil_exceedances(dive: tuple[Any, Any, Any]) 
     egt = [e for e in events if e.kind == "egt_divergence"]
     assert {e.cylinder for e in egt} <= {2, 4}  # cylinder 4 at 905 degC diverges too, for its 10 s
     two = [e for e in egt if e.cylinder == 2]
-    assert len(two) == 1 and abs(two[0].time_s - 150.0) < 1.0 and abs(two[0].duration_s - 50.0) < 1.5
-    assert two[0].value > 80.0
+    assert len(two) == 1 and abs(two[0].time_s - 210.0) < 1.0 and abs(two[0].duration_s - 50.0) < 1.5
+    assert 100.0 < two[0].value < 140.0  # beyond its normal offset
     high = [e for e in events if e.kind == "egt_exceedance"]
-    assert [e.cylinder for e in high] == [4] and abs(high[0].time_s - 250.0) < 1.0 and high[0].value > 900.0
+    assert [e.cylinder for e in high] == [4] and abs(high[0].time_s - 330.0) < 1.0 and high[0].value > 900.0
     oil_events = [e for e in events if e.kind == "oil_exceedance"]
-    assert len(oil_events) == 1 and oil_events[0].cylinder == 0 and abs(oil_events[0].time_s - 300.0) < 1.5
+    assert len(oil_events) == 1 and oil_events[0].cylinder == 0 and abs(oil_events[0].time_s - 360.0) < 1.5
     assert oil_events[0].time_s + oil_events[0].duration_s == pytest.approx(t[-1], abs=1.5)  # held to the end
     data["inputs"]["egt5_c"] = data["inputs"]["egt1_c"]
     with pytest.raises(ConfigError, match=r"inputs\.egt5_c: an EGT of a cylinder"):
@@ -227,3 +229,61 @@ def test_no_valve_advisory_without_one_cylinder_oscillating_in_the_band(
     flight = _with_egts(log, oscillating, amplitude_c, period_s)
     events = replay_frames(config, models, frames_from_flight(flight, config)).events
     assert not [e for e in events if e.kind == "valve_advisory"]
+
+
+def test_each_event_starts_once_it_has_held_its_minimum_time_then_ends(dive: tuple[Any, Any, Any]) -> None:
+    """The live calls: the start record of every event comes at its start + its minimum time (what the health
+    outputs publish), its end record later, with the same start, kind and cylinder."""
+    _, frames, models = dive
+    config = _config(cht_divergence_c=20.0)
+    pipeline = Pipeline(config, models)
+    seen: list[tuple[float, Event]] = []  # (the clock's time when taken, the record)
+    for msg in frames.messages():
+        pipeline.advance_to(msg.timestamp)
+        pipeline.feed(msg)
+        seen += [(pipeline.now_s, e) for e in pipeline.take_events()]
+    seen += [(pipeline.now_s, e) for e in pipeline.close_events()]
+    starts = [(t, e) for t, e in seen if e.ongoing]
+    ends = [(t, e) for t, e in seen if not e.ongoing]
+    assert starts and len(starts) == len(ends)
+    min_s = {"shock_cooling": config.events.shock_cooling_min_s, "cht_divergence": config.events.divergence_min_s,
+             "cht_exceedance": config.events.exceedance_min_s}  # fmt: skip
+    for taken, start in starts:
+        end_taken, end = next((t, e) for t, e in ends if e[:3] == start[:3])
+        assert start.duration_s == pytest.approx(min_s[start.kind], abs=0.11)  # one filter period
+        assert taken <= start.time_s + min_s[start.kind] + 0.2 <= end_taken + 0.2
+        assert end.duration_s >= start.duration_s
+        assert start.start_text().startswith(f"ENGINE cyl {start.cylinder}: {start.kind.replace('_', ' ')}")
+        assert len(start.start_text()) <= 50
+
+
+def test_a_cylinder_whose_egt_always_runs_apart_does_not_diverge(dive: tuple[Any, Any, Any]) -> None:
+    """Cylinder 2's EGT 150 degC below the others all flight long (its normal spread): no EGT divergence."""
+    log, _, models = dive
+    t = np.asarray(log.time_s)
+    rng = np.random.default_rng(2)
+    egts = {f"egt{n}_c": 680.0 + 10.0 * n + rng.normal(0.0, 3.0, t.size) - (150.0 if n == 2 else 0.0)
+            for n in range(1, 5)}  # fmt: skip
+    data = copy.deepcopy(FOUR)
+    for n in range(1, 5):
+        data["inputs"][f"egt{n}_c"] = {"signal": f"ECU_Egt1to4.EGT{n}", "unit": "degC", "stale_after_s": 1.0}
+    config = parse_config(data, CONFIGS / "four_cylinders.yaml")
+    events = replay_frames(config, models, frames_from_flight(log.with_columns(**egts), config)).events
+    assert not [e for e in events if e.kind == "egt_divergence"]
+
+
+def test_the_live_monitor_sends_an_event_frame_as_each_event_starts(dive: tuple[Any, Any, Any]) -> None:
+    """The daemon's monitor over the dive: one Health_Event frame per start record, in order, from it."""
+    from ecu_monitor.runtime.publishers import LiveMonitor
+
+    _, frames, models = dive
+    monitor = LiveMonitor(_config(cht_divergence_c=20.0), models)
+    sent = []
+    for msg in frames.messages():
+        sent += monitor.advance_to(msg.timestamp)
+        monitor.feed(msg)
+    starts = [e for e in monitor.drain_events() if e.ongoing]
+    message = monitor.publishers[0].encoder.message("Health_Event")
+    decoded = [message.decode(bytes(f.data)) for f in sent if f.arbitration_id == message.frame_id]
+    assert starts and [(d["EventKind"], d["EventCylinder"]) for d in decoded] == [(e.kind, e.cylinder) for e in starts]
+    assert monitor.drain_events() == []

@@ -1,4 +1,4 @@
-"""The bulk health writers: numbers byte-equal to ``%.10g``, the CSV equal to a row-by-row reference,
+"""The bulk health writers: the CSV equal to a row-by-row reference (numbers at ``%.10g``),
 Parquet / Arrow with the same columns, and one line (exit 2) when pyarrow is missing."""
 
 from __future__ import annotations
@@ -10,8 +10,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from ecu_monitor.bus.codec import INPUT_NAMES
 from ecu_monitor.cli import main
@@ -25,34 +23,7 @@ from ecu_monitor.pipeline.outputs import (
     health_table_columns,
     write_health_csv,
 )
-from ecu_monitor.pipeline.table import check_table_path, csv_bytes, format_g10
-
-
-def _boundary_values() -> np.ndarray:
-    """Values whose 10th significant digit is followed by exactly 5 (the rounding ties of the scaled
-    float), their neighbours, powers of ten, carries (9.9999999995) and the extremes."""
-    rng = np.random.default_rng(12)
-    ties = (rng.integers(10**9, 10**10, 4000) + 0.5) * 10.0 ** rng.integers(-14, 14, 4000)
-    spread = rng.normal(0.0, 1.0, 4000) * 10.0 ** rng.integers(-40, 40, 4000)
-    special = [0.0, -0.0, 5e-324, 2.2250738585072014e-308, 1.7976931348623157e308, 1e22, 1e23, 1e-4, 9.9999e-5,
-               1e10, 9999999999.5, 999999999.95, 9.9999999995, 0.1, 3600.0, 150.0, 1234.5]  # fmt: skip
-    powers = 10.0 ** np.arange(-30, 31)
-    base = np.concatenate([ties, spread, special, powers])
-    with np.errstate(over="ignore"):
-        near = np.concatenate([np.nextafter(base, np.inf), np.nextafter(base, -np.inf)])
-    values = np.concatenate([base, -base, near])
-    return values[np.isfinite(values)]
-
-
-def test_numbers_are_byte_equal_to_percent_10g_on_boundaries() -> None:
-    values = _boundary_values()
-    assert format_g10(values) == [f"{v:.10g}" for v in values.tolist()]
-
-
-@settings(max_examples=300, deadline=None)
-@given(st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=1, max_size=40))
-def test_numbers_are_byte_equal_to_percent_10g(values: list[float]) -> None:
-    assert format_g10(values) == [f"{v:.10g}" for v in values]
+from ecu_monitor.pipeline.table import check_table_path, csv_bytes
 
 
 def _columns(n: int, seed: int, cylinders: int = 1) -> dict[str, Any]:

@@ -30,13 +30,16 @@ def _flight(gamma_q: float, seed: int) -> Any:
     return fly(load_mission("short_hop"), None, degradation=degradation, seed=seed, record_dt_s=1.0)
 
 
-def _replay(log: Any, reference: bool) -> Any:
+def _replay(log: Any, reference: bool | None) -> Any:
+    """The flight replayed with the shipped config: its own reference (None), a synthetic one (True) or none."""
     config = load_config(DEFAULT_CONFIG)
     detector = config.detector
     if reference:  # the truth is the model here: the symptom's nominal level is about 0 everywhere
         detector = dataclasses.replace(
             detector, nominal_mean=(0.0,) * REGION_COUNT, nominal_spread=(0.01,) * REGION_COUNT, nominal_threshold=5.0
         )
+    elif reference is False:
+        detector = dataclasses.replace(detector, nominal_mean=(), nominal_spread=(), nominal_threshold=0.0)
     config = config.replace(detector=detector)
     params = config.load_params()
     frames = frames_from_flight(log, config, (*model_input_names(params, config.input_names), "cht_c"))
@@ -75,6 +78,17 @@ def test_isolation_after_detection_names_the_heat_input() -> None:
     assert np.all(np.isfinite(c["gamma_q"][shown]))
     assert np.mean(c["gamma_q"][shown]) - 1.0 > np.mean(c["gamma_d"][shown]) - 1.0
     assert np.all(c["gamma_q_sd"][shown] <= 0.05)
+
+
+def test_the_shipped_reference_sees_the_users_repro_and_not_its_nominal_twin() -> None:
+    """The shipped config carries the virtual ECU's reference (learned by calibrate on a campaign whose
+    seeds differ from these): gamma_Q 1.2 from 120 s on short_hop is DEGRADED; the same flight healthy is not."""
+    assert load_config(DEFAULT_CONFIG).detector.reference_on
+    seed = 3
+    log = fly(load_mission("short_hop"), None, degradation=[Degradation("gamma_q", 1.2, 120.0)], seed=seed,
+              record_dt_s=1.0)  # fmt: skip
+    assert _first_degraded_s(_replay(log, reference=None)) < 600.0
+    assert _first_degraded_s(_replay(_flight(1.0, seed), reference=None)) == math.inf
 
 
 @pytest.mark.parametrize("reference", [False, True])

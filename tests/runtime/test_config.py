@@ -202,7 +202,11 @@ def test_shipped_example_threshold_is_marked_for_the_model_it_names():
 # --- the schema (msgspec): its errors, in our one-line form, and what it gives back ----------------------
 
 SCHEMA_ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
-    ("unknown key", _set("engine.colour", "red"), "engine.colour: unknown key 'colour' (known: serial)"),
+    (
+        "unknown key",
+        _set("engine.colour", "red"),
+        "engine.colour: unknown key 'colour' (known: serial, overhaul_hours, tbo_hours)",
+    ),
     (
         "unknown key of a detector entry",
         _set("cylinders", {"cross_detector": {"treshold": 1.0}}),

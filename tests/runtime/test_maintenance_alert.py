@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import can
-import dronecan
 import pytest
 
 from ecu_monitor.bus.canlog import load_flight
@@ -20,6 +19,7 @@ from ecu_monitor.runtime.dronecan_node import DroneCanNode
 from ecu_monitor.runtime.flight_recorder import FlightRecorder, engine_wear
 from ecu_monitor.runtime.persistence import DATABASE_NAME, FlightRules, FlightSample, StateStore
 from ecu_monitor.runtime.publishers import LiveMonitor
+from tests.helpers.dronecan_logs import log_messages
 from tests.helpers.history import write_old_flight_database
 
 SERIAL = "UAV-ENG-WEAR"
@@ -97,7 +97,7 @@ def test_an_older_database_gains_the_wear_columns_and_the_alert_table_and_loses_
         assert (kept.gamma_q_mean, kept.max_cht_c, kept.cycles_total) == (1.02, 150.0, 3.0)
         assert kept.wear_index is None and kept.high_power_s is None
         version = store._conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
-    assert version == "3"
+    assert version == "4"
 
 
 def _snap(t: float = 0.0) -> HealthSnapshot:
@@ -133,17 +133,7 @@ def test_an_open_alert_is_told_on_every_output() -> None:
     # DroneCAN: one LogMessage, level WARNING
     node = DroneCanNode(DroneCanSettings(), 200.0, 0.1, 5)
     node.tell(text)
-    manager = dronecan.transport.TransferManager()
-    logs = []
-    for t in (0.1, 0.2):
-        for msg in node.frames(t, _snap(t)):
-            done = manager.receive_frame(dronecan.transport.Frame(msg.arbitration_id, msg.data))
-            if done:
-                transfer = dronecan.transport.Transfer()
-                transfer.from_frames(done)
-                payload = transfer.payload
-                if dronecan.get_dronecan_data_type(payload).full_name.endswith("LogMessage"):
-                    logs.append((payload.level.value, payload.text.decode()))
+    logs = log_messages(msg for t in (0.1, 0.2) for msg in node.frames(t, _snap(t)))
     assert (2, text) in logs and sum(1 for _, t in logs if t == text) == 1
     # MAVLink: one STATUSTEXT, severity WARNING
     from ecu_monitor.bus.mavlink_settings import MavlinkSettings

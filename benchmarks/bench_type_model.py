@@ -1,0 +1,154 @@
+"""A type model over the given Cessna 172 flights, leave one airframe out: how well does it carry to an
+airframe it never saw, with zero, 20 minutes and one whole flight of that airframe's own?
+
+    nice -n 10 .venv/bin/python benchmarks/bench_type_model.py --data DIR [--g1000 DIR2] [--quick]
+
+DIR holds the G1000 exports ngafid_c172s_n550nd_*.csv and cafuc_*.csv, DIR2 (default DIR/../g1000) the
+2011 172S log_*.csv. The airframe of each flight is its G1000 system_id. For each airframe X, the type
+model (``identify --type``: the shared fit, then each airframe's own heat scale, cooling scale and probe
+lag where its data need them) is fitted on the other airframes' flights only, then:
+
+- zero flights: the type model as is, scored on every flight of X;
+- 20 minutes: ``--base TYPE --first-minutes 20`` on one flight of X, scored on X's other flights, or,
+  where X has one flight only, on the rest of that flight (from minute 20);
+- one whole flight: ``--base TYPE`` on one flight of X, scored on X's other flights, or, where X has one
+  flight only, adapted on its first half and scored on its second half.
+
+With several flights of X each of them takes its turn as the adapting flight; the figures are the mean
+RMS over the scored flights of every turn. Scores are open loop from the first CHT sample of the scored
+part; error is model - mean CHT of the cylinders, degC. Prints a markdown table and the timings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from ecu_monitor.bus.canlog import load_flight
+from ecu_monitor.flightlog import FlightLog, log_airframe
+from ecu_monitor.identify import PsoSettings, flight_errors
+from ecu_monitor.identify.select import parse_terms
+from ecu_monitor.identify.type_model import adapt, describe_terms, first_minutes, fit_type
+from ecu_monitor.model import ThermalParams, paper_table_a1, save_model
+
+REPO = Path(__file__).resolve().parents[1]
+AXES = ("fuel_flow_lph", "rpm")
+GRID = (4, 4)
+#: The form of docs/results/real.md's row 4 (the N550ND leave-one-flight-out best).
+FORM = "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index"
+#: Labels of the airframes in the given data (G1000 system_id -> aircraft).
+LABELS = {
+    "2E90B4BED": "C172S N550ND (2017)",
+    "25BA2E6F4": "C172S 25BA (CAFUC, 2023)",
+    "2D87A31FD": "C172R 2D87 (CAFUC, 2023)",
+    "24B6FD7AC": "C172S (KGFK, 2011)",
+}
+TARGETS = (6.0, 4.0, 3.5)
+
+
+def _load(paths: list[Path]) -> tuple[list[FlightLog], list[str]]:
+    flights, airframes = [], []
+    for path in paths:
+        airframe = log_airframe(path)
+        if airframe is None:
+            raise SystemExit(f"{path}: names no airframe (system_id)")
+        flights.append(load_flight(path, mapping="g1000"))
+        airframes.append(airframe)
+    return flights, airframes
+
+
+def _rms(params: ThermalParams, logs: list[FlightLog]) -> float:
+    return float(np.mean([flight_errors(params, log).rms_c for log in logs]))
+
+
+def _rest(log: FlightLog, start_s: float) -> FlightLog:
+    t0 = float(log.time_s[0])
+    return log.select(t0 + start_s, float(log.time_s[-1]))
+
+
+def _halves(log: FlightLog) -> tuple[FlightLog, FlightLog]:
+    t = np.asarray(log.time_s, dtype=float)
+    middle = t[0] + 0.5 * (t[-1] - t[0])
+    return log.select(t[0], middle), log.select(float(t[t > middle][0]), t[-1])
+
+
+def _plain(params: ThermalParams) -> ThermalParams:
+    return params.replace(engine_type="", airframes=())
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "real")
+    parser.add_argument("--g1000", type=Path, help="directory of the 2011 log (default DATA/../g1000)")
+    parser.add_argument("--quick", action="store_true", help="fewer PSO iterations (a smoke run)")
+    parser.add_argument("--only", help="comma-separated system_ids to hold out (default every airframe)")
+    parser.add_argument("--save", type=Path, help="write each fold's type model into this directory")
+    args = parser.parse_args()
+    g1000 = args.g1000 or args.data.parent / "g1000"
+    paths = sorted(args.data.glob("ngafid_c172s_*.csv")) + sorted(args.data.glob("cafuc_c172*.csv"))
+    paths += sorted(g1000.glob("log_*.csv"))
+    flights, airframes = _load(paths)
+    settings = PsoSettings(particles=24, iterations=10 if args.quick else 30, polish_evaluations=100, dt_s=1.0)
+    terms = parse_terms(FORM)
+    names = list(dict.fromkeys(airframes))
+    held = args.only.split(",") if args.only else names
+    rows = []
+    timings: dict[str, list[float]] = defaultdict(list)
+    for name in held:
+        train = [(f, a) for f, a in zip(flights, airframes, strict=True) if a != name]
+        own = [f for f, a in zip(flights, airframes, strict=True) if a == name]
+        started = time.process_time()
+        fit = fit_type(
+            [f for f, _ in train], [a for _, a in train], engine_type="c172", base=paper_table_a1(), heat_axes=AXES,
+            grid=GRID, settings=settings, terms=terms, progress=lambda line: print(line, file=sys.stderr),
+        )  # fmt: skip
+        timings["type fit (CPU s)"].append(time.process_time() - started)
+        if args.save:
+            args.save.mkdir(parents=True, exist_ok=True)
+            save_model(fit.params, args.save / f"type_without_{name}.yaml")
+        kept = "; ".join(f"{LABELS.get(a, a)}: {describe_terms(f.terms)}" for a, f in fit.airframes.items())
+        zero = _rms(_plain(fit.params), own)
+        short, whole, short_terms, whole_terms = [], [], [], []
+        for k, log in enumerate(own):
+            others = own[:k] + own[k + 1 :]
+            started = time.process_time()
+            twenty = adapt(fit.params, [first_minutes(log, 20.0)], name, settings)
+            timings["adapt, 20 min (CPU s)"].append(time.process_time() - started)
+            short.append(_rms(twenty.params, others or [_rest(log, 20.0 * 60.0)]))
+            short_terms.append(describe_terms(twenty.fit.terms))
+            first, second = _halves(log)
+            started = time.process_time()
+            full = adapt(fit.params, [log] if others else [first], name, settings)
+            timings["adapt, one flight (CPU s)"].append(time.process_time() - started)
+            whole.append(_rms(full.params, others or [second]))
+            whole_terms.append(describe_terms(full.fit.terms))
+        rows.append(
+            (name, len(own), zero, float(np.mean(short)), float(np.mean(whole)), kept, short_terms, whole_terms)
+        )
+        print(f"{name}: zero {zero:.2f}, 20 min {np.mean(short):.2f}, whole {np.mean(whole):.2f} degC", file=sys.stderr)
+    print("| held-out airframe | its flights | zero flights (type as is) | 20 min of one flight | one whole flight |")
+    print("|---|---:|---:|---:|---:|")
+    for name, n, zero, short, whole, *_ in rows:
+        marks = ["" if v < t else " (miss)" for v, t in zip((zero, short, whole), TARGETS, strict=True)]
+        print(
+            f"| {LABELS.get(name, name)} | {n} | {zero:.2f}{marks[0]} | {short:.2f}{marks[1]} | {whole:.2f}{marks[2]} |"
+        )
+    means = np.mean([[r[2], r[3], r[4]] for r in rows], axis=0)
+    print(f"| mean | | {means[0]:.2f} | {means[1]:.2f} | {means[2]:.2f} |")
+    print()
+    for name, _n, _z, _s, _w, kept, short_terms, whole_terms in rows:
+        print(f"- held out {LABELS.get(name, name)}: the type's airframes' own terms: {kept}")
+        print(f"  its own terms from 20 min: {' / '.join(short_terms)}; from one flight: {' / '.join(whole_terms)}")
+    print()
+    for label, values in timings.items():
+        print(f"- {label}: mean {np.mean(values):.1f}, max {np.max(values):.1f} over {len(values)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
