@@ -39,6 +39,8 @@ if TYPE_CHECKING:
     from ecu_monitor.config import ServiceConfig
 
 __all__ = [
+    "EVENT_FRAME",
+    "EVENT_SIGNALS",
     "DbcHealthFrames",
     "DroneCanPublisher",
     "LiveMonitor",
@@ -140,8 +142,8 @@ class Publisher(Protocol):
 
 
 #: The health.dbc frame of an engine event that started, and its data signals (DBC order).
-_EVENT_FRAME = "Health_Event"
-_EVENT_SIGNALS = ("EventKind", "EventCylinder", "EventValue", "EventLimit")
+EVENT_FRAME = "Health_Event"
+EVENT_SIGNALS = ("EventKind", "EventCylinder", "EventValue", "EventLimit")
 
 
 def _finite_or_zero(value: float) -> float:
@@ -181,14 +183,14 @@ class DbcHealthFrames:
         self.maintenance_alert = False  # Health_Diag.MaintenanceAlert: an open alert told (set, never cleared)
         pipeline.counters.setdefault("health_frames", 0)
         try:
-            event = self.encoder.message(_EVENT_FRAME)
+            event = self.encoder.message(EVENT_FRAME)
         except KeyError:  # a health.dbc of the user's without the event frame: events go out on no frame
             event = None
         self._events_framed = event is not None
         if event is not None:
-            self._packers[_EVENT_FRAME] = self.encoder.packer(_EVENT_FRAME, _EVENT_SIGNALS)
-            self._ids[_EVENT_FRAME] = (int(event.frame_id), bool(event.is_extended_frame))
-            self._counters[_EVENT_FRAME] = 0
+            self._packers[EVENT_FRAME] = self.encoder.packer(EVENT_FRAME, EVENT_SIGNALS)
+            self._ids[EVENT_FRAME] = (int(event.frame_id), bool(event.is_extended_frame))
+            self._counters[EVENT_FRAME] = 0
 
     def tell(self, text: str) -> None:
         self.maintenance_alert = True
@@ -198,7 +200,7 @@ class DbcHealthFrames:
         if not self._events_framed:
             return []
         values = (EVENT_KINDS.index(event.kind), event.cylinder, _finite_or_zero(event.value), event.limit)
-        return [self._frame(_EVENT_FRAME, self.pipeline.now_s, values)]
+        return [self._frame(EVENT_FRAME, self.pipeline.now_s, values)]
 
     def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
         out: list[can.Message] = []
