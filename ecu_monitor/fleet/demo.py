@@ -130,9 +130,9 @@ def make_virtual_fleet(
               " the across-flight detector's reference, as ecu-monitor calibrate stores it\n")  # fmt: skip
     (root / "detector.yaml").write_text(header + yaml.safe_dump(wear_fragment(wear), sort_keys=False))
     fleet = {
-        "defaults": {"config": "example.yaml", "detector": "detector.yaml", "overhaul_hours": 2000},
+        "defaults": {"config": "example.yaml", "detector": "detector.yaml", "tbo_hours": 2000},
         "engines": [{"serial": _SERIAL.format(i + 1), "logs": [f"logs/{_SERIAL.format(i + 1)}/*.{log_format}"],
-                     "hours_since_overhaul": float(round(rng.uniform(0.0, 1500.0)))} for i in range(engines)],
+                     "overhaul_hours": float(round(rng.uniform(0.0, 1500.0)))} for i in range(engines)],
     }  # fmt: skip
     fleet_file = root / "FLEET.yaml"
     fleet_file.write_text(

@@ -42,7 +42,7 @@ ENGINE_FIELDS: dict[str, str] = {
     "degraded_flights": "flights whose worst state was DEGRADED",
     "events": "engine events in all flights",
     "failures": "logs that could not be read",
-    "hours_to_overhaul": "overhaul_hours - hours since overhaul (null: no overhaul_hours given)",
+    "hours_to_overhaul": "tbo_hours - hours since overhaul (null: no tbo_hours given)",
     "last_flight_utc": "UNIX time of the last flight's start (null: unknown)",
 }
 #: How many of the last flights the wear trend is fitted over.
@@ -90,7 +90,7 @@ def engine_rows(
     baseline_flights: Mapping[str, int],
 ) -> list[dict[str, Any]]:
     """engines.parquet's rows (ENGINE_FIELDS), ranked. ``events``: each engine's event rows; ``failures``:
-    its failed logs; ``overhaul``: (overhaul_hours or None, hours run before the first log);
+    its failed logs; ``overhaul``: (tbo_hours or None, hours run before the first log);
     ``baseline_flights``: flights its detector learns from without a stored reference."""
     rows = []
     for trend in trends:
@@ -124,8 +124,8 @@ def _row(
     wear = [(i, f["wear_index"]) for i, f in enumerate(flights) if f["wear_index"] is not None]
     trend_per_10 = _slope(wear[-_TREND_FLIGHTS:])
     degraded = sum(1 for f in flights if f["worst_state"] == "DEGRADED")
-    overhaul_hours, before = overhaul
-    to_overhaul = None if overhaul_hours is None else overhaul_hours - before - hours
+    tbo_hours, before = overhaul
+    to_overhaul = None if tbo_hours is None else tbo_hours - before - hours
     starts = [f["start_utc"] for f in flights if f["start_utc"] is not None]
     row: dict[str, Any] = {
         "serial": trend.serial,

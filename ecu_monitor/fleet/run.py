@@ -187,7 +187,7 @@ def reduce_fleet(fleet: Fleet, store: FleetStore) -> tuple[list[EngineTrend], li
         config, _ = engine_setup(engine)
         trends.append(engine_trend(engine.serial, flights[engine.serial], config.wear, config.wear_reference))
         baseline[engine.serial] = config.wear.baseline_flights
-    overhaul = {e.serial: (e.overhaul_hours, e.hours_since_overhaul) for e in fleet.engines}
+    overhaul = {e.serial: (e.tbo_hours, e.overhaul_hours) for e in fleet.engines}
     rows = engine_rows(trends, events, failures, overhaul, baseline)
     store.write_engines(rows)
     return trends, rows

@@ -9,8 +9,8 @@
     engines:
       - serial: UAV-ENG-0007
         logs: ["logs/0007/*.blf", "logs/0007/*.csv", "state/0007/ecu-monitor.sqlite3"]
-        overhaul_hours: 2000       # optional: hours between overhauls (TBO)
-        hours_since_overhaul: 412  # optional: hours run before the first log
+        tbo_hours: 2000            # optional: hours between overhauls (TBO)
+        overhaul_hours: 412        # optional: hours since overhaul before the first log (as the config's engine.overhaul_hours)
         mapping: g1000             # optional: the layout of foreign CSVs (default: recognised from the header)
 
 Paths (config, model, detector, mapping files, the logs' globs) are relative to FLEET.yaml's folder.
@@ -53,13 +53,13 @@ class _Settings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     detector: str | None = None
     mapping: str | None = None
     engine: Annotated[int, msgspec.Meta(ge=1, le=8)] | None = None  # the engine of a twin's export
-    overhaul_hours: Annotated[float, msgspec.Meta(gt=0.0, le=1e6)] | None = None
+    tbo_hours: Annotated[float, msgspec.Meta(gt=0.0, le=1e6)] | None = None
 
 
 class _Engine(_Settings, frozen=True, forbid_unknown_fields=True):
     serial: _SERIAL = ""
     logs: Annotated[list[str], msgspec.Meta(min_length=1)] = msgspec.field(default_factory=list)
-    hours_since_overhaul: _HOURS = 0.0
+    overhaul_hours: _HOURS = 0.0
 
 
 class FleetFile(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -79,8 +79,8 @@ class EngineSettings:
     detector: Path | None
     mapping: str | None
     engine: int | None
-    overhaul_hours: float | None
-    hours_since_overhaul: float
+    tbo_hours: float | None
+    overhaul_hours: float
 
     @property
     def digest(self) -> str:
@@ -182,8 +182,8 @@ def load_fleet(path: str | os.PathLike[str]) -> Fleet:
                 detector=_file(base, merged["detector"], None, f"{where}.detector") if merged["detector"] else None,
                 mapping=_mapping(base, merged["mapping"]),
                 engine=merged["engine"],
-                overhaul_hours=merged["overhaul_hours"],
-                hours_since_overhaul=entry.hours_since_overhaul,
+                tbo_hours=merged["tbo_hours"],
+                overhaul_hours=entry.overhaul_hours,
             )
         )
         globs[entry.serial] = tuple(entry.logs)

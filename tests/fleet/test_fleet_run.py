@@ -69,7 +69,7 @@ def fleet_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "FLEET.yaml").write_text(
         "defaults: {detector: detector.yaml}\n"
         "engines:\n"
-        "  - {serial: NOM-1, logs: ['nom/*.csv'], overhaul_hours: 2000, hours_since_overhaul: 100}\n"
+        "  - {serial: NOM-1, logs: ['nom/*.csv'], tbo_hours: 2000, overhaul_hours: 100}\n"
         "  - {serial: DEG-2, logs: ['deg/*.blf']}\n"
     )
     return root / "FLEET.yaml"

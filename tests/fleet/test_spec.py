@@ -24,15 +24,15 @@ def test_engines_logs_and_defaults_resolve_relative_to_the_fleet_file(tmp_path: 
         (tmp_path / "logs" / name).write_text("time_s\n0\n")
     (tmp_path / "detector.yaml").write_text("wear: {reference: {mean: 0.0, sd: 0.01, flights: 12}}\n")
     fleet = load_fleet(_write(tmp_path, (
-        "defaults: {detector: detector.yaml, overhaul_hours: 1800}\n"
+        "defaults: {detector: detector.yaml, tbo_hours: 1800}\n"
         "engines:\n"
-        "  - {serial: E-1, logs: ['logs/*.csv', logs/a.csv], hours_since_overhaul: 100}\n"
-        "  - {serial: E-2, logs: ['nothing/*.blf'], overhaul_hours: 2000, model: paper_table_a1}\n"
+        "  - {serial: E-1, logs: ['logs/*.csv', logs/a.csv], overhaul_hours: 100}\n"
+        "  - {serial: E-2, logs: ['nothing/*.blf'], tbo_hours: 2000, model: paper_table_a1}\n"
     )))  # fmt: skip
     first, second = fleet.engines
     assert first.config == DEFAULT_CONFIG and first.detector == tmp_path / "detector.yaml"
-    assert (first.overhaul_hours, first.hours_since_overhaul) == (1800, 100)
-    assert (second.overhaul_hours, second.model) == (2000, "paper_table_a1")
+    assert (first.tbo_hours, first.overhaul_hours) == (1800, 100)
+    assert (second.tbo_hours, second.model) == (2000, "paper_table_a1")
     jobs, empty = fleet.jobs()
     assert [(j.serial, j.name, j.position) for j in jobs] == [("E-1", "logs/a.csv", 0), ("E-1", "logs/b.csv", 1)]
     assert len({j.key for j in jobs}) == 1  # same content, same engine: one key (processed once)
@@ -48,7 +48,7 @@ def test_engines_logs_and_defaults_resolve_relative_to_the_fleet_file(tmp_path: 
         ("engines:\n  - {serial: A}\n", "engines[0].logs: missing"),
         ("engines:\n  - {serial: A, logs: [x]}\n  - {serial: A, logs: [y]}\n", "engines[1].serial: 'A' is"),
         ("engines:\n  - {serial: A, logs: [x], model: none.yaml}\n", "engines[0].model: no such file 'none.yaml'"),
-        ("engines:\n  - {serial: A, logs: [x], overhaul_hours: -5}\n", "overhaul_hours: expected a number > 0"),
+        ("engines:\n  - {serial: A, logs: [x], tbo_hours: -5}\n", "tbo_hours: expected a number > 0"),
     ],
 )
 def test_a_bad_fleet_file_is_one_line_naming_the_key(tmp_path: Path, text: str, message: str) -> None:
