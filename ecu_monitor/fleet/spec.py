@@ -10,7 +10,7 @@
       - serial: UAV-ENG-0007
         logs: ["logs/0007/*.blf", "logs/0007/*.csv", "state/0007/ecu-monitor.sqlite3"]
         tbo_hours: 2000            # optional: hours between overhauls (TBO)
-        overhaul_hours: 412        # optional: hours since overhaul before the first log (as the config's engine.overhaul_hours)
+        overhaul_hours: 412        # optional: hours since overhaul before the first log (engine.overhaul_hours)
         mapping: g1000             # optional: the layout of foreign CSVs (default: recognised from the header)
 
 Paths (config, model, detector, mapping files, the logs' globs) are relative to FLEET.yaml's folder.
