@@ -18,20 +18,13 @@ from ecu_monitor.cli import main
 from ecu_monitor.config import load_config
 from ecu_monitor.model import paper_table_a1
 from ecu_monitor.offline.replay import replay_file, replay_frames, replay_live
-from tests.helpers import REPO
+from tests.helpers import REPO, climb_and_cruise
 
 NUMERIC = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
 
-SHORT_MISSION = {
-    "name": "short",
-    "segments": [
-        {"kind": "ground_run", "duration_s": 40, "throttle_pct": 35},
-        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
-         "climb_rate_mps": 3},
-        {"kind": "climb", "target_altitude_m": 450, "climb_rate_mps": 3, "throttle_pct": 90, "airspeed_mps": 21},
-        {"kind": "cruise", "duration_s": 120, "airspeed_mps": 23, "throttle_pct": 55},
-    ],
-}  # fmt: skip
+SHORT_MISSION = climb_and_cruise(
+    "short", ground_s=40, climb_to_m=450, climb_throttle_pct=90, cruise_s=120, cruise_mps=23, cruise_throttle_pct=55
+)
 
 
 @pytest.fixture(scope="module")

@@ -24,23 +24,16 @@ from ecu_monitor.offline.replay import frames_from_flight, replay_frames
 from ecu_monitor.pipeline.cylinders import engine_view
 from ecu_monitor.pipeline.outputs import CylinderSnapshot, ReplayResult, health_columns, rows_to_columns
 from ecu_monitor.runtime.publishers import LiveMonitor as Pipeline
-from tests.helpers import REPO
+from tests.helpers import REPO, climb_and_cruise
 
 CONFIGS = REPO / "ecu_monitor" / "data" / "configs"
 FOUR = yaml.safe_load((CONFIGS / "four_cylinders.yaml").read_text(encoding="utf-8"))
 HEALTH_DB: Any = cantools.database.load_file(str(REPO / "ecu_monitor" / "data" / "dbc" / "health.dbc"))
 NUMERIC = ("cht_meas_c", "cht_est_c", "deviation", "gamma_q", "gamma_d", "headroom_s")
 
-SHORT_MISSION = {
-    "name": "short",
-    "segments": [
-        {"kind": "ground_run", "duration_s": 40, "throttle_pct": 35},
-        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
-         "climb_rate_mps": 3},
-        {"kind": "climb", "target_altitude_m": 450, "climb_rate_mps": 3, "throttle_pct": 90, "airspeed_mps": 21},
-        {"kind": "cruise", "duration_s": 60, "airspeed_mps": 23, "throttle_pct": 55},
-    ],
-}  # fmt: skip
+SHORT_MISSION = climb_and_cruise(
+    "short", ground_s=40, climb_to_m=450, climb_throttle_pct=90, cruise_s=60, cruise_mps=23, cruise_throttle_pct=55
+)
 
 
 def _config(**changes: Any) -> Any:

@@ -18,6 +18,7 @@ from ecu_monitor.model import paper_table_a1
 from ecu_monitor.offline.replay import frames_from_flight, replay_frames, replay_live
 from ecu_monitor.pipeline.engine import Pipeline
 from ecu_monitor.pipeline.events import EVENT_COLUMNS, EVENT_KINDS, Event, events_csv
+from tests.helpers import climb_and_cruise
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "ecu_monitor" / "data" / "configs"
@@ -25,18 +26,19 @@ FOUR = yaml.safe_load((CONFIGS / "four_cylinders.yaml").read_text(encoding="utf-
 HOT_CYLINDER = 3
 HOT_FROM_S = 60.0
 #: Climb to 700 m, cruise, then a power-off dive at high speed (where shock cooling happens).
-DIVE_MISSION = {
-    "name": "dive",
-    "segments": [
-        {"kind": "ground_run", "duration_s": 30, "throttle_pct": 35},
-        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
-         "climb_rate_mps": 3},
-        {"kind": "climb", "target_altitude_m": 700, "climb_rate_mps": 3, "throttle_pct": 95, "airspeed_mps": 21},
-        {"kind": "cruise", "duration_s": 60, "airspeed_mps": 25, "throttle_pct": 70},
+DIVE_MISSION = climb_and_cruise(
+    "dive",
+    ground_s=30,
+    climb_to_m=700,
+    climb_throttle_pct=95,
+    cruise_s=60,
+    cruise_mps=25,
+    cruise_throttle_pct=70,
+    then=(
         {"kind": "descent", "target_altitude_m": 150, "rate_mps": 8, "throttle_pct": 0, "airspeed_mps": 45},
         {"kind": "cruise", "duration_s": 20, "airspeed_mps": 23, "throttle_pct": 55},
-    ],
-}  # fmt: skip
+    ),
+)
 
 
 def _config(**events: Any) -> Any:
@@ -163,16 +165,9 @@ def test_the_events_table() -> None:
 
 
 #: A climb and a quarter of an hour's cruise at steady power (the valve advisory's ground).
-CRUISE_MISSION = {
-    "name": "cruise",
-    "segments": [
-        {"kind": "ground_run", "duration_s": 30, "throttle_pct": 35},
-        {"kind": "takeoff", "duration_s": 20, "ground_roll_s": 8, "throttle_pct": 100, "airspeed_mps": 20,
-         "climb_rate_mps": 3},
-        {"kind": "climb", "target_altitude_m": 400, "climb_rate_mps": 3, "throttle_pct": 90, "airspeed_mps": 21},
-        {"kind": "cruise", "duration_s": 900, "airspeed_mps": 25, "throttle_pct": 65},
-    ],
-}  # fmt: skip
+CRUISE_MISSION = climb_and_cruise(
+    "cruise", ground_s=30, climb_to_m=400, climb_throttle_pct=90, cruise_s=900, cruise_mps=25, cruise_throttle_pct=65
+)
 VALVE_ONSET_S = 300.0
 
 

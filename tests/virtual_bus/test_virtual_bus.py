@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,21 +51,6 @@ SHORT = mission_from_dict(
         ],
     }
 )
-
-
-@pytest.fixture
-def make_bus() -> Iterator[Any]:
-    """Opens virtual buses on demand and always shuts every one down after the test."""
-    opened: list[can.BusABC] = []
-
-    def factory(channel: str, **kwargs: Any) -> can.BusABC:
-        bus = can.Bus(interface="virtual", channel=channel, **kwargs)
-        opened.append(bus)
-        return bus
-
-    yield factory
-    for bus in opened:
-        bus.shutdown()
 
 
 def _channel() -> str:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -28,21 +27,6 @@ def tiny_mission(tmp_path: Path) -> Path:
     path = tmp_path / "tiny.yaml"
     path.write_text(SHORT_MISSION, encoding="utf-8")
     return path
-
-
-@pytest.fixture
-def make_bus() -> Iterator[Any]:
-    """Opens virtual buses on demand and always shuts every one down after the test."""
-    opened: list[can.BusABC] = []
-
-    def factory(channel: str, **kwargs: Any) -> can.BusABC:
-        bus = can.Bus(interface="virtual", channel=channel, **kwargs)
-        opened.append(bus)
-        return bus
-
-    yield factory
-    for bus in opened:
-        bus.shutdown()
 
 
 @pytest.mark.parametrize(
