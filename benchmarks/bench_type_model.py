@@ -6,13 +6,18 @@ airframe it never saw, with zero, 20 minutes and one whole flight of that airfra
 DIR holds the G1000 exports ngafid_c172s_n550nd_*.csv and cafuc_*.csv, DIR2 (default DIR/../g1000) the
 2011 172S log_*.csv. The airframe of each flight is its G1000 system_id. For each airframe X, the type
 model (``identify --type``: the shared fit, then each airframe's own heat scale, cooling scale and probe
-lag where its data need them) is fitted on the other airframes' flights only, then:
+lag where its data need them) is fitted on the other airframes' flights only, in each of two forms
+(:data:`FORMS`: the heat map on fuel flow x rpm with the EGT as a mixture index, and on rpm x EGT with the
+altitude factor), then:
 
-- zero flights: the type model as is, scored on every flight of X;
-- 20 minutes: ``--base TYPE --first-minutes 20`` on one flight of X, scored on X's other flights, or,
-  where X has one flight only, on the rest of that flight (from minute 20);
-- one whole flight: ``--base TYPE`` on one flight of X, scored on X's other flights, or, where X has one
-  flight only, adapted on its first half and scored on its second half.
+- zero flights: the type model as is (the first form), scored on every flight of X;
+- 20 minutes: ``--base TYPE --or-base TYPE2 --first-minutes 20`` on one flight of X (the form X's own
+  halves predict best), scored on X's other flights, or, where X has one flight only, on the rest of that
+  flight (from minute 20);
+- one whole flight: ``--base TYPE --or-base TYPE2`` on one flight of X, scored on X's other flights, or,
+  where X has one flight only, adapted on its first half and scored on its second half.
+
+``--one-form`` fits and adapts the first form only (the table before the second form).
 
 With several flights of X each of them takes its turn as the adapting flight; the figures are the mean
 RMS over the scored flights of every turn. Scores are open loop from the first CHT sample of the scored
@@ -33,14 +38,18 @@ from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings, flight_errors
 from ecu_monitor.identify.select import parse_terms
-from ecu_monitor.identify.type_model import adapt, describe_terms, first_minutes, fit_type
+from ecu_monitor.identify.type_model import Adaptation, adapt_choosing, describe_terms, first_minutes, fit_type
 from ecu_monitor.model import ThermalParams, paper_table_a1, save_model
 
 REPO = Path(__file__).resolve().parents[1]
-AXES = ("fuel_flow_lph", "rpm")
 GRID = (4, 4)
-#: The form of docs/results/real.md's row 4 (the N550ND leave-one-flight-out best).
-FORM = "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index"
+#: The type's forms, (heat-map axes, --effects): docs/results/real.md's row 4 (the N550ND
+#: leave-one-flight-out best), and the heat on rpm x EGT (a fixed-pitch propeller's rpm sets the power, the
+#: EGT where the mixture sits; the paper's altitude factor scales the heat with the air's pressure and temperature).
+FORMS = (
+    (("fuel_flow_lph", "rpm"), "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index"),
+    (("rpm", "egt_c"), "altitude_factor,airspeed_cooling,sensor_lag,density_cooling,-mixture_index"),
+)
 #: Labels of the airframes in the given data (G1000 system_id -> aircraft).
 LABELS = {
     "2E90B4BED": "C172S N550ND (2017)",
@@ -81,6 +90,13 @@ def _plain(params: ThermalParams) -> ThermalParams:
     return params.replace(engine_type="", airframes=())
 
 
+def _described(result: Adaptation) -> str:
+    """The form an adaptation chose (its heat-map axes), the held-out RMS of each form, and its terms."""
+    axes = ",".join(result.params.heat_axes)
+    scores = "/".join(f"{v:.2f}" for v in result.held_out_by_type)
+    return f"[{axes}; halves {scores}] {describe_terms(result.fit.terms)}"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "real")
@@ -88,13 +104,14 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="fewer PSO iterations (a smoke run)")
     parser.add_argument("--only", help="comma-separated system_ids to hold out (default every airframe)")
     parser.add_argument("--save", type=Path, help="write each fold's type model into this directory")
+    parser.add_argument("--one-form", action="store_true", help="the first form only (no choice of form)")
     args = parser.parse_args()
     g1000 = args.g1000 or args.data.parent / "g1000"
     paths = sorted(args.data.glob("ngafid_c172s_*.csv")) + sorted(args.data.glob("cafuc_c172*.csv"))
     paths += sorted(g1000.glob("log_*.csv"))
     flights, airframes = _load(paths)
     settings = PsoSettings(particles=24, iterations=10 if args.quick else 30, polish_evaluations=100, dt_s=1.0)
-    terms = parse_terms(FORM)
+    forms = FORMS[:1] if args.one_form else FORMS
     names = list(dict.fromkeys(airframes))
     held = args.only.split(",") if args.only else names
     rows = []
@@ -102,35 +119,43 @@ def main() -> int:
     for name in held:
         train = [(f, a) for f, a in zip(flights, airframes, strict=True) if a != name]
         own = [f for f, a in zip(flights, airframes, strict=True) if a == name]
-        started = time.process_time()
-        fit = fit_type(
-            [f for f, _ in train], [a for _, a in train], engine_type="c172", base=paper_table_a1(), heat_axes=AXES,
-            grid=GRID, settings=settings, terms=terms, progress=lambda line: print(line, file=sys.stderr),
-        )  # fmt: skip
-        timings["type fit (CPU s)"].append(time.process_time() - started)
-        if args.save:
-            args.save.mkdir(parents=True, exist_ok=True)
-            save_model(fit.params, args.save / f"type_without_{name}.yaml")
-        kept = "; ".join(f"{LABELS.get(a, a)}: {describe_terms(f.terms)}" for a, f in fit.airframes.items())
-        zero = _rms(_plain(fit.params), own)
+        types, kept = [], ""
+        for k, (axes, form) in enumerate(forms):
+            started = time.process_time()
+            fit = fit_type(
+                [f for f, _ in train], [a for _, a in train], engine_type="c172", base=paper_table_a1(),
+                heat_axes=axes, grid=GRID, settings=settings, terms=parse_terms(form),
+                progress=lambda line: print(line, file=sys.stderr),
+            )  # fmt: skip
+            timings["type fit, one form (CPU s)"].append(time.process_time() - started)
+            types.append(fit.params)
+            if args.save:
+                args.save.mkdir(parents=True, exist_ok=True)
+                save_model(fit.params, args.save / f"type{k}_without_{name}.yaml")
+            kept += f" [{','.join(axes)}] " + "; ".join(
+                f"{LABELS.get(a, a)}: {describe_terms(f.terms)}" for a, f in fit.airframes.items()
+            )
+        zero = _rms(_plain(types[0]), own)
+        zero_forms = [_rms(_plain(t), own) for t in types]
         short, whole, short_terms, whole_terms = [], [], [], []
         for k, log in enumerate(own):
             others = own[:k] + own[k + 1 :]
             started = time.process_time()
-            twenty = adapt(fit.params, [first_minutes(log, 20.0)], name, settings)
+            twenty = adapt_choosing(types, [first_minutes(log, 20.0)], name, settings)
             timings["adapt, 20 min (CPU s)"].append(time.process_time() - started)
             short.append(_rms(twenty.params, others or [_rest(log, 20.0 * 60.0)]))
-            short_terms.append(describe_terms(twenty.fit.terms))
+            short_terms.append(_described(twenty))
             first, second = _halves(log)
             started = time.process_time()
-            full = adapt(fit.params, [log] if others else [first], name, settings)
+            full = adapt_choosing(types, [log] if others else [first], name, settings)
             timings["adapt, one flight (CPU s)"].append(time.process_time() - started)
             whole.append(_rms(full.params, others or [second]))
-            whole_terms.append(describe_terms(full.fit.terms))
+            whole_terms.append(_described(full))
         rows.append(
             (name, len(own), zero, float(np.mean(short)), float(np.mean(whole)), kept, short_terms, whole_terms)
         )
-        print(f"{name}: zero {zero:.2f}, 20 min {np.mean(short):.2f}, whole {np.mean(whole):.2f} degC", file=sys.stderr)
+        zeros = " / ".join(f"{z:.2f}" for z in zero_forms)
+        print(f"{name}: zero {zeros} (by form), 20 min {np.mean(short):.2f}, whole {np.mean(whole):.2f} degC")
     print("| held-out airframe | its flights | zero flights (type as is) | 20 min of one flight | one whole flight |")
     print("|---|---:|---:|---:|---:|")
     for name, n, zero, short, whole, *_ in rows:

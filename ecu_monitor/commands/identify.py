@@ -240,6 +240,8 @@ def _run_one(args: argparse.Namespace, cylinder: int | None, out: Path) -> int:
         raise UserInputError("--validate, --plots and --cylinder all: not with --type or --base TYPE.yaml")
     if args.first_minutes is not None and not base.engine_type:
         raise UserInputError("--first-minutes: applies to --base TYPE.yaml (adapting a type model to an airframe)")
+    if args.or_base and not base.engine_type:
+        raise UserInputError("--or-base: applies to --base TYPE.yaml (adapting a type model to an airframe)")
     fleet = identify_type.flight_airframes(args.flights, args.airframe) if args.type or base.engine_type else []
     plots = None if not args.plots else Path(args.plots) / (f"cyl{cylinder}" if cylinder is not None else "")
     if plots is not None:

@@ -40,6 +40,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="flights matching GLOB are of airframe NAME (default: the log's G1000 system_id or engine serial)",
     )
     parser.add_argument(
+        "--or-base",
+        action="append",
+        default=[],
+        metavar="TYPE2.yaml",
+        help="with --base TYPE.yaml: another type model of the type in another form (heat-map axes, effects);"
+        " the adaptation keeps the one whose model predicts the second halves of the flights best",
+    )
+    parser.add_argument(
         "--first-minutes",
         type=float,
         metavar="M",
@@ -152,9 +160,15 @@ def run_adapt(
 ) -> int:
     """``identify --base TYPE.yaml FLIGHT... --out AIRFRAME.yaml [--first-minutes M]`` on the loaded ``flights``
     of ``airframes`` (:func:`flight_airframes`: one airframe)."""
-    from ecu_monitor.identify.type_model import adapt, first_minutes
+    from ecu_monitor.identify.type_model import adapt_choosing, first_minutes
+    from ecu_monitor.model import load_model
 
     out = Path(args.out)
+    bases = [args.base, *args.or_base]
+    types = [type_params, *(load_model(path) for path in args.or_base)]
+    for path, params in zip(bases[1:], types[1:], strict=True):
+        if not params.engine_type:
+            raise UserInputError(f"--or-base {path}: not a type model (made by identify --type): it has no engine type")
     airframes = sorted(set(airframes))
     if len(airframes) != 1:
         raise UserInputError(
@@ -163,14 +177,18 @@ def run_adapt(
         )
     if args.first_minutes is not None:
         flights = [first_minutes(log, args.first_minutes) for log in flights]
-    result = adapt(type_params, flights, airframes[0], settings)
+    result = adapt_choosing(types, flights, airframes[0], settings)
     part = f"the first {args.first_minutes:g} min of " if args.first_minutes is not None else ""
+    chosen = types[result.chosen]
     lines = [
         "Identified by: ecu-monitor identify " + " ".join(sys.argv[2:] if len(sys.argv) > 2 else args.flights),
-        f"airframe {airframes[0]} adapted from the {type_params.engine_type} type model {args.base} on {part}"
+        f"airframe {airframes[0]} adapted from the {chosen.engine_type} type model {bases[result.chosen]} on {part}"
         f"{len(flights)} flight(s), {result.elapsed_s:.1f} s",
-        *_fit_lines(airframes[0], result.fit, [log.source for log in flights]),
     ]
+    if len(types) > 1:
+        scores = ", ".join(f"{path} {v:.2f}" for path, v in zip(bases, result.held_out_by_type, strict=True))
+        lines.append(f"  held-out RMS on the second halves, degC, by type model: {scores}")
+    lines += _fit_lines(airframes[0], result.fit, [log.source for log in flights])
     _write(result.params, out, lines)
     for line in lines[1:]:
         print(line)

@@ -19,7 +19,10 @@ Each term carries a prior centred on "no difference from the type" (:data:`SCALE
 :data:`PROBE_LAG_SIGMA_S`), which also keeps the common level of all airframes in the shared heat map.
 
 ``identify --base TYPE.yaml FLIGHT`` (:func:`adapt`) fits only one new airframe's terms on its flight
-(or its first minutes), the type's shared parameters fixed: a few small least-squares fits.
+(or its first minutes), the type's shared parameters fixed: a few small least-squares fits. Given several
+type models of one type in other forms (another heat map's axes, other effects: ``--or-base``),
+:func:`adapt_choosing` adapts each and keeps the one whose held-out halves of the new airframe's flights
+are predicted best: the airframe's own data choose the form by the rule that chooses its terms.
 
 A CHT offset (the same degrees at every operating point) is not among the terms: the model, and so the
 estimator, replay and run, has no output offset; the heat and cooling scales are the terms that move an
@@ -62,6 +65,7 @@ __all__ = [
     "AirframeTerm",
     "TypeFit",
     "adapt",
+    "adapt_choosing",
     "airframe_model",
     "choose_terms",
     "describe_terms",
@@ -431,11 +435,16 @@ def fit_type(
 
 @dataclass(frozen=True)
 class Adaptation:
-    """Outcome of :func:`adapt`: the airframe's model, its fit and the wall time, s."""
+    """Outcome of :func:`adapt`: the airframe's model, its fit and the wall time, s; from
+    :func:`adapt_choosing` also ``held_out_by_type``: the held-out RMS (degC, second halves, NaN where
+    the flights were too short to halve) of the adaptation from each type model offered, and ``chosen``,
+    the index of the one kept."""
 
     params: ThermalParams
     fit: AirframeFit
     elapsed_s: float
+    held_out_by_type: tuple[float, ...] = ()
+    chosen: int = 0
 
 
 def adapt(
@@ -462,6 +471,32 @@ def adapt(
         tuple(flight_errors(shared, log) for log in flights),
     )
     return Adaptation(params, fit, time.perf_counter() - started)
+
+
+def adapt_choosing(
+    type_models: Sequence[ThermalParams],
+    flights: Sequence[FlightLog],
+    airframe: str,
+    settings: PsoSettings,
+    candidates: Sequence[str] = AIRFRAME_TERMS,
+) -> Adaptation:
+    """:func:`adapt` from each of ``type_models`` (one type in several forms), keeping the adaptation whose
+    chosen terms predict the second halves of the flights best (the held-out RMS :func:`choose_terms`
+    gives); where the flights are too short to halve, the first type model's. One type model: :func:`adapt`."""
+    if not type_models:
+        raise ParameterError("adapt_choosing: no type model given")
+    started = time.perf_counter()
+    results = [adapt(t, flights, airframe, settings, candidates) for t in type_models]
+    scores = tuple(_held_out_of_kept(r.fit) for r in results)
+    chosen = 0 if not all(math.isfinite(v) for v in scores) else int(np.argmin(scores))
+    best = results[chosen]
+    return Adaptation(best.params, best.fit, time.perf_counter() - started, scores, chosen)
+
+
+def _held_out_of_kept(fit: AirframeFit) -> float:
+    """The held-out RMS (degC) of the terms the airframe kept, NaN where its flights were not halved."""
+    kept = {name for name, spec in TERMS.items() if getattr(fit.terms, spec.field) is not None}
+    return next((v for subset, v in fit.held_out.items() if set(subset) == kept), math.nan)
 
 
 def describe_terms(terms: AirframeTerms) -> str:

@@ -14,7 +14,7 @@ import pytest
 from ecu_monitor.errors import ConfigError, UserInputError
 from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings
-from ecu_monitor.identify.type_model import adapt, airframe_model, first_minutes, fit_type
+from ecu_monitor.identify.type_model import adapt, adapt_choosing, airframe_model, first_minutes, fit_type
 from ecu_monitor.model import (
     AirframeTerms,
     InputSeries,
@@ -90,6 +90,27 @@ def test_base_adapts_a_new_airframe_from_its_first_20_minutes(type_fit):
     assert result.params.airframes == (result.fit.terms,) and not result.params.engine_type
 
 
+def _misshapen(type_params):
+    """The type model with its heat map reversed along throttle (the heat falling as the throttle opens):
+    a form no heat scale, cooling scale or probe lag can bring back."""
+    values = type_params.heat_map.values_array()
+    return type_params.replace(heat_map=type_params.heat_map.with_values(values[::-1, :].copy()))
+
+
+def test_the_new_airframes_halves_choose_between_type_models(type_fit):
+    new = first_minutes(_flight(4, 0.9, duration_s=3600), 40)  # airframe C: halves of 20 min each
+    wrong = _misshapen(type_fit.params)
+    for offered, right in (([type_fit.params, wrong], 0), ([wrong, type_fit.params], 1)):
+        result = adapt_choosing(offered, [new], "C", SETTINGS, candidates=("heat_scale",))
+        assert result.chosen == right
+        assert result.held_out_by_type[right] < 0.5 * result.held_out_by_type[1 - right]
+        alone = adapt(type_fit.params, [new], "C", SETTINGS, candidates=("heat_scale",))
+        assert result.params == alone.params and result.fit.terms == alone.fit.terms
+    short = first_minutes(new, 8)  # too short to halve: no choice, the first model offered
+    result = adapt_choosing([wrong, type_fit.params], [short], "C", SETTINGS, candidates=("heat_scale",))
+    assert result.chosen == 0 and all(np.isnan(result.held_out_by_type))
+
+
 def test_airframe_model_applies_the_terms_and_round_trips(tmp_path: Path):
     terms = AirframeTerms("X", heat_scale=1.1, cooling_scale=0.8, probe_lag_s=20.0)
     type_params = paper_table_a1().replace(engine_type="c172", airframes=(terms,))
@@ -151,6 +172,10 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
     assert main([*args, "--out", str(adapted), *quick]) == 0
     model = load_model(adapted)
     assert [a.id for a in model.airframes] == ["C"] and not model.engine_type
+    assert main([*args, "--or-base", str(out), "--out", str(adapted), *quick]) == 0  # the same form twice
+    assert "by type model:" in capsys.readouterr().out
+    assert main([*args, "--or-base", str(adapted), "--out", str(tmp_path / "y.yaml"), *quick]) == 2
+    assert "not a type model" in capsys.readouterr().err
     assert main(["identify", paths[2], "--first-minutes", "20", "--out", str(tmp_path / "x.yaml"), *quick]) == 2
     assert "--first-minutes" in capsys.readouterr().err
 
