@@ -17,7 +17,9 @@ altitude factor), then:
 - one whole flight: ``--base TYPE --or-base TYPE2`` on one flight of X, scored on X's other flights, or,
   where X has one flight only, adapted on its first half and scored on its second half.
 
-``--one-form`` fits and adapts the first form only (the table before the second form).
+``--one-form`` fits and adapts the first form only (the table before the second form). ``--plot DIR``
+draws, for each held-out airframe, its first flight: the measured CHT and each form's type model as is,
+with the inputs that tell the forms apart (fuel flow, rpm, EGT, airspeed).
 
 With several flights of X each of them takes its turn as the adapting flight; the figures are the mean
 RMS over the scored flights of every turn. Scores are open loop from the first CHT sample of the scored
@@ -97,6 +99,44 @@ def _described(result: Adaptation) -> str:
     return f"[{axes}; halves {scores}] {describe_terms(result.fit.terms)}"
 
 
+def plot_airframe(types: list[ThermalParams], log: FlightLog, path: Path, label: str) -> None:
+    """One flight of an airframe the type models never saw: measured CHT and each type model as is (open
+    loop), and below it fuel flow, rpm, EGT and airspeed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ecu_monitor.identify import simulate_flight
+
+    minutes = (np.asarray(log.time_s, dtype=float) - float(log.time_s[0])) / 60.0
+    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=True, height_ratios=(3, 1.2, 1.2, 1.2))
+    axes[0].plot(minutes, log["cht_c"], color="black", label="measured CHT (mean of the cylinders)")
+    for params in types:
+        simulated = simulate_flight(_plain(params), log, 1.0)
+        rms = float(np.sqrt(np.mean((simulated - np.asarray(log["cht_c"], dtype=float)) ** 2)))
+        axes[0].plot(
+            minutes, simulated, label=f"type model as is, heat on {' x '.join(params.heat_axes)}: {rms:.1f} degC RMS"
+        )
+    axes[0].set_ylabel("CHT, degC")
+    axes[0].set_title(f"{label}: a type model fitted without this airframe")
+    axes[0].legend(loc="lower right")
+    axes[1].plot(minutes, log["fuel_flow_lph"], color="tab:blue")
+    axes[1].set_ylabel("fuel flow, L/h")
+    twin = axes[1].twinx()
+    twin.plot(minutes, log["rpm"], color="tab:red", linewidth=0.8)
+    twin.set_ylabel("rpm", color="tab:red")
+    axes[2].plot(minutes, log["egt_c"], color="tab:orange")
+    axes[2].set_ylabel("EGT, degC")
+    axes[3].plot(minutes, log["airspeed_mps"], color="tab:green")
+    axes[3].set_ylabel("airspeed, m/s")
+    axes[3].set_xlabel("minutes from the log's start")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "real")
@@ -105,6 +145,7 @@ def main() -> int:
     parser.add_argument("--only", help="comma-separated system_ids to hold out (default every airframe)")
     parser.add_argument("--save", type=Path, help="write each fold's type model into this directory")
     parser.add_argument("--one-form", action="store_true", help="the first form only (no choice of form)")
+    parser.add_argument("--plot", type=Path, help="draw each held-out airframe's first flight into this directory")
     args = parser.parse_args()
     g1000 = args.g1000 or args.data.parent / "g1000"
     paths = sorted(args.data.glob("ngafid_c172s_*.csv")) + sorted(args.data.glob("cafuc_c172*.csv"))
@@ -135,6 +176,8 @@ def main() -> int:
             kept += f" [{','.join(axes)}] " + "; ".join(
                 f"{LABELS.get(a, a)}: {describe_terms(f.terms)}" for a, f in fit.airframes.items()
             )
+        if args.plot:
+            plot_airframe(types, own[0], args.plot / f"type_model_{name}.png", LABELS.get(name, name))
         zero = _rms(_plain(types[0]), own)
         zero_forms = [_rms(_plain(t), own) for t in types]
         short, whole, short_terms, whole_terms = [], [], [], []
