@@ -41,7 +41,7 @@ from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings, flight_errors
 from ecu_monitor.identify.select import parse_terms
 from ecu_monitor.identify.type_model import Adaptation, adapt_choosing, describe_terms, first_minutes, fit_type
-from ecu_monitor.model import ThermalParams, paper_table_a1, save_model
+from ecu_monitor.model import ThermalParams, load_model, paper_table_a1, save_model
 
 REPO = Path(__file__).resolve().parents[1]
 GRID = (4, 4)
@@ -145,6 +145,11 @@ def main() -> int:
     parser.add_argument("--only", help="comma-separated system_ids to hold out (default every airframe)")
     parser.add_argument("--save", type=Path, help="write each fold's type model into this directory")
     parser.add_argument("--one-form", action="store_true", help="the first form only (no choice of form)")
+    parser.add_argument(
+        "--types",
+        type=Path,
+        help="read each fold's type models from this directory (written by --save) instead of fitting",
+    )
     parser.add_argument("--plot", type=Path, help="draw each held-out airframe's first flight into this directory")
     args = parser.parse_args()
     g1000 = args.g1000 or args.data.parent / "g1000"
@@ -160,8 +165,11 @@ def main() -> int:
     for name in held:
         train = [(f, a) for f, a in zip(flights, airframes, strict=True) if a != name]
         own = [f for f, a in zip(flights, airframes, strict=True) if a == name]
-        types, kept = [], ""
+        types = []
         for k, (axes, form) in enumerate(forms):
+            if args.types:
+                types.append(load_model(args.types / f"type{k}_without_{name}.yaml"))
+                continue
             started = time.process_time()
             fit = fit_type(
                 [f for f, _ in train], [a for _, a in train], engine_type="c172", base=paper_table_a1(),
@@ -173,9 +181,11 @@ def main() -> int:
             if args.save:
                 args.save.mkdir(parents=True, exist_ok=True)
                 save_model(fit.params, args.save / f"type{k}_without_{name}.yaml")
-            kept += f" [{','.join(axes)}] " + "; ".join(
-                f"{LABELS.get(a, a)}: {describe_terms(f.terms)}" for a, f in fit.airframes.items()
-            )
+        kept = " ".join(
+            f"[{','.join(t.heat_axes)}] "
+            + "; ".join(f"{LABELS.get(a.id, a.id)}: {describe_terms(a)}" for a in t.airframes)
+            for t in types
+        )
         if args.plot:
             plot_airframe(types, own[0], args.plot / f"type_model_{name}.png", LABELS.get(name, name))
         zero = _rms(_plain(types[0]), own)
@@ -194,22 +204,25 @@ def main() -> int:
             timings["adapt, one flight (CPU s)"].append(time.process_time() - started)
             whole.append(_rms(full.params, others or [second]))
             whole_terms.append(_described(full))
-        rows.append(
-            (name, len(own), zero, float(np.mean(short)), float(np.mean(whole)), kept, short_terms, whole_terms)
-        )
         zeros = " / ".join(f"{z:.2f}" for z in zero_forms)
+        rows.append((name, len(own), zero, float(np.mean(short)), float(np.mean(whole)), kept, short_terms,
+                     whole_terms, zeros))  # fmt: skip
         print(f"{name}: zero {zeros} (by form), 20 min {np.mean(short):.2f}, whole {np.mean(whole):.2f} degC")
-    print("| held-out airframe | its flights | zero flights (type as is) | 20 min of one flight | one whole flight |")
-    print("|---|---:|---:|---:|---:|")
-    for name, n, zero, short, whole, *_ in rows:
+    print(
+        "| held-out airframe | its flights | zero flights (type as is) | each form as is | 20 min of one flight"
+        " | one whole flight |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
+    for name, n, zero, short, whole, *_, zeros in rows:
         marks = ["" if v < t else " (miss)" for v, t in zip((zero, short, whole), TARGETS, strict=True)]
         print(
-            f"| {LABELS.get(name, name)} | {n} | {zero:.2f}{marks[0]} | {short:.2f}{marks[1]} | {whole:.2f}{marks[2]} |"
+            f"| {LABELS.get(name, name)} | {n} | {zero:.2f}{marks[0]} | {zeros} | {short:.2f}{marks[1]}"
+            f" | {whole:.2f}{marks[2]} |"
         )
     means = np.mean([[r[2], r[3], r[4]] for r in rows], axis=0)
-    print(f"| mean | | {means[0]:.2f} | {means[1]:.2f} | {means[2]:.2f} |")
+    print(f"| mean | | {means[0]:.2f} | | {means[1]:.2f} | {means[2]:.2f} |")
     print()
-    for name, _n, _z, _s, _w, kept, short_terms, whole_terms in rows:
+    for name, _n, _z, _s, _w, kept, short_terms, whole_terms, _zeros in rows:
         print(f"- held out {LABELS.get(name, name)}: the type's airframes' own terms: {kept}")
         print(f"  its own terms from 20 min: {' / '.join(short_terms)}; from one flight: {' / '.join(whole_terms)}")
     print()

@@ -56,6 +56,7 @@ from ecu_monitor.model.params import SCALE_RANGE
 
 __all__ = [
     "AIRFRAME_TERMS",
+    "FORM_MIN_GAIN",
     "MIN_PART_S",
     "PROBE_LAG_SIGMA_S",
     "SCALE_SIGMA",
@@ -79,6 +80,10 @@ SCALE_SIGMA = math.log(1.10)
 PROBE_LAG_SIGMA_S = 15.0
 #: Shortest half of a flight that chooses an airframe's terms (fit on one half, score the other), s.
 MIN_PART_S = 300.0
+#: The first type model offered (the default form) is left only for one whose held-out halves are lower by at
+#: least this fraction (the gap diagnosis's material gain): the halves of 20 minutes are ten minutes each,
+#: and smaller differences between forms there need not hold on the airframe's other flights.
+FORM_MIN_GAIN = 0.20
 #: The type model's probe lag where it has none of its own (the prior's centre), s.
 _NO_LAG_S = 0.0
 
@@ -482,13 +487,15 @@ def adapt_choosing(
 ) -> Adaptation:
     """:func:`adapt` from each of ``type_models`` (one type in several forms), keeping the adaptation whose
     chosen terms predict the second halves of the flights best (the held-out RMS :func:`choose_terms`
-    gives); where the flights are too short to halve, the first type model's. One type model: :func:`adapt`."""
+    gives), the first type model's unless another's is lower by :data:`FORM_MIN_GAIN` or more, and where
+    the flights are too short to halve."""
     if not type_models:
         raise ParameterError("adapt_choosing: no type model given")
     started = time.perf_counter()
     results = [adapt(t, flights, airframe, settings, candidates) for t in type_models]
     scores = tuple(_held_out_of_kept(r.fit) for r in results)
-    chosen = 0 if not all(math.isfinite(v) for v in scores) else int(np.argmin(scores))
+    best_other = int(np.argmin(scores)) if all(math.isfinite(v) for v in scores) else 0
+    chosen = best_other if scores[best_other] <= scores[0] * (1.0 - FORM_MIN_GAIN) else 0
     best = results[chosen]
     return Adaptation(best.params, best.fit, time.perf_counter() - started, scores, chosen)
 
