@@ -106,6 +106,9 @@ def test_the_new_airframes_halves_choose_between_type_models(type_fit):
         assert result.held_out_by_type[right] < 0.5 * result.held_out_by_type[1 - right]
         alone = adapt(type_fit.params, [new], "C", SETTINGS, candidates=("heat_scale",))
         assert result.params == alone.params and result.fit.terms == alone.fit.terms
+    nearly_the_same = type_fit.params.replace(c_w=type_fit.params.c_w * 0.999)  # within FORM_MIN_GAIN: no switch
+    result = adapt_choosing([type_fit.params, nearly_the_same], [new], "C", SETTINGS, candidates=("heat_scale",))
+    assert result.chosen == 0
     short = first_minutes(new, 8)  # too short to halve: no choice, the first model offered
     result = adapt_choosing([wrong, type_fit.params], [short], "C", SETTINGS, candidates=("heat_scale",))
     assert result.chosen == 0 and all(np.isnan(result.held_out_by_type))
