@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="TYPE2.yaml",
         help="with --base TYPE.yaml: another type model of the type in another form (heat-map axes, effects);"
-        " the adaptation keeps the one whose model predicts the second halves of the flights best",
+        " the adaptation keeps TYPE.yaml's form unless another predicts the flights' second halves clearly better",
     )
     parser.add_argument(
         "--first-minutes",

@@ -21,8 +21,9 @@ Each term carries a prior centred on "no difference from the type" (:data:`SCALE
 ``identify --base TYPE.yaml FLIGHT`` (:func:`adapt`) fits only one new airframe's terms on its flight
 (or its first minutes), the type's shared parameters fixed: a few small least-squares fits. Given several
 type models of one type in other forms (another heat map's axes, other effects: ``--or-base``),
-:func:`adapt_choosing` adapts each and keeps the one whose held-out halves of the new airframe's flights
-are predicted best: the airframe's own data choose the form by the rule that chooses its terms.
+:func:`adapt_choosing` adapts each and keeps the first unless another predicts the held-out halves of the
+new airframe's flights clearly better (:data:`FORM_MIN_GAIN`): the airframe's own data choose the form, on
+the halves that choose its terms.
 
 A CHT offset (the same degrees at every operating point) is not among the terms: the model, and so the
 estimator, replay and run, has no output offset; the heat and cooling scales are the terms that move an
@@ -485,10 +486,10 @@ def adapt_choosing(
     settings: PsoSettings,
     candidates: Sequence[str] = AIRFRAME_TERMS,
 ) -> Adaptation:
-    """:func:`adapt` from each of ``type_models`` (one type in several forms), keeping the adaptation whose
-    chosen terms predict the second halves of the flights best (the held-out RMS :func:`choose_terms`
-    gives), the first type model's unless another's is lower by :data:`FORM_MIN_GAIN` or more, and where
-    the flights are too short to halve."""
+    """:func:`adapt` from each of ``type_models`` (one type in several forms), keeping the first one's
+    adaptation unless another's chosen terms predict the second halves of the flights (the held-out RMS
+    :func:`choose_terms` gives) better by :data:`FORM_MIN_GAIN` or more: then the best one's. Flights too
+    short to halve keep the first."""
     if not type_models:
         raise ParameterError("adapt_choosing: no type model given")
     started = time.perf_counter()
