@@ -1,13 +1,13 @@
 """The one step: every fixed step of the schedule, for every cylinder, the supervision, the estimator and
 the isolation filter (every filter period), the detector and the headroom; then the cross-cylinder
-detectors. Compiled with numba; the live pipeline calls it frame by frame (:func:`advance_to`,
-:func:`feed_values`), replay runs :func:`replay_loop` over a whole log's decoded frames, which calls the
-very same two functions. Nothing here is written twice.
+detectors. Compiled with numba into one entry point, :func:`replay_loop` (for each frame: :func:`advance_to`
+its time, then :func:`feed_values` its decoded values): replay runs it over a whole log's frames, the live
+pipeline over each frame as it comes. Nothing here is written twice, or compiled twice.
 
 Compiled, numba counts a reference to an array atomically every time it is passed or read from a tuple;
-the per-frame path avoids that: the entry points (:func:`replay_loop`, :func:`advance_to`,
-:func:`feed_values`) take :func:`borrowed` views of the records' arrays (the caller keeps them alive for
-the call), and the per-frame and per-step functions are inlined into them (no argument copies or calls);
+the per-frame path avoids that: the entry point (:func:`replay_loop`) takes :func:`borrowed` views of the
+records' arrays (the caller keeps them alive for the call), and the per-frame and per-step functions are
+inlined into it (no argument copies or calls);
 each function binds the arrays it uses to locals once (``eng_values = eng.values``).
 
 Everything lives in named records (numpy structured dtypes, read by field name in the compiled code):
@@ -1269,9 +1269,10 @@ def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
 def replay_loop(
     eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
 ) -> int:
-    """The live loop over a whole log: for each frame from ``start``, :func:`advance_to` its time then
-    :func:`feed_values` its decoded values (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame
-    to resume from when ``rows`` filled up, or the frame count when done."""
+    """The loop over frames, live (a frame at a time) and replay (a whole log): for each frame from
+    ``start``, :func:`advance_to` its time then :func:`feed_values` its decoded values
+    (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame to resume from when ``rows`` filled
+    up, or the frame count when done."""
     eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     n = frame_time_s.shape[0]
     for f in range(start, n):
@@ -1287,13 +1288,11 @@ def replay_loop(
 
 def compiled() -> Any:
     """The step's compiled entry points (each function here carries ``@njit``; numba compiles it on first
-    call or loads it from the disk cache): a namespace with ``advance_to``, ``feed_values``,
-    ``replay_loop``, ``headroom_s``, ``detector_step``, ``stop_cylinder``, ``close_events``."""
+    call or loads it from the disk cache): a namespace with ``replay_loop``, ``headroom_s``,
+    ``detector_step``, ``stop_cylinder``, ``close_events``."""
     from types import SimpleNamespace
 
     return SimpleNamespace(
-        advance_to=advance_to,
-        feed_values=feed_values,
         replay_loop=replay_loop,
         headroom_s=headroom_s,
         detector_step=detector_step,
