@@ -57,7 +57,14 @@ from ecu_monitor.estimation.detection import _cusum_step as cusum_step
 from ecu_monitor.estimation.ekf import live_steps as live_ekf
 from ecu_monitor.estimation.isolation import live_steps as live_isolation
 from ecu_monitor.estimation.quantiser import level_of
-from ecu_monitor.estimation.regions import REGION_COUNT, REGION_START, isolable_region, power_fraction, region_of
+from ecu_monitor.estimation.regions import (
+    REGION_COUNT,
+    REGION_START,
+    START_S,
+    isolable_region,
+    power_fraction,
+    region_of,
+)
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
@@ -266,8 +273,10 @@ CYLINDER_STATE = np.dtype(
         ("on_s", "f8"),  # when: the engine's start for the regions, s
         ("heat_rate", "f8"),  # the isolation filter's heat in / C_w and heat out / C_w, degC/s, low-passed as the
         ("loss_rate", "f8"),  # estimator's deviation is (deviation_time_s): a fault from start's two patterns
-        ("start_sums", "f8", (4,)),  # start region, fed samples: count, sum of excess over the reference, of
-        ("air_sums", "f8", (4,)),  # heat_rate, of loss_rate; the same at cruise and high power (air_sums)
+        ("start_sums", "f8", (5,)),  # start region, fed samples: count, sum of excess over the reference, of
+        ("air_sums", "f8", (5,)),  # heat_rate, of loss_rate, of the reference's margin (level - mean); the same
+        # at cruise and high power in the START_S after the start region (air_sums)
+        ("early_sums", "f8", (5,)),  # the start_sums of the start region's first half
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
         ("nominal", DETECTOR_STATE),
@@ -593,6 +602,7 @@ def _stop_cylinder(st: Any) -> None:
     st["loss_rate"] = 0.0
     st["start_sums"][:] = 0.0
     st["air_sums"][:] = 0.0
+    st["early_sums"][:] = 0.0
     _reset_detector(st["detector"])
     _reset_detector(st["cross"])
     _reset_detector(st["nominal"])
@@ -759,7 +769,8 @@ def cylinder_step(
             if not math.isnan(level):
                 armed |= ARMED_REFERENCE
             verdict = max(verdict, detector_step(st["nominal"], cfg["nominal"], eng_rings[i, 2], time_s, fed - level))
-            _add_fault_sample(st, region, fed - cfg["nominal_mean"][region])
+            mean = cfg["nominal_mean"][region]
+            _add_fault_sample(st, region, fed - mean, level - mean, time_s - st["on_s"])
         if code == CODE_NOMINAL:
             state = verdict
     if action == ACTION_NONE or not (
@@ -838,38 +849,52 @@ def _fault_rates(st: Any, model: Any, dt_s: float, time_s: float) -> None:
 
 
 @njit(nogil=False)
-def _add_fault_sample(st: Any, region: int, excess: float) -> None:
-    """One fed sample's excess of the symptom over the reference's mean in its region (nan: none), into the
-    start region's sums or the airborne cruise/high-power ones, with the low-passed heat and loss rates."""
+def _add_fault_sample(st: Any, region: int, excess: float, margin: float, elapsed_s: float) -> None:
+    """One fed sample's excess of the symptom over the reference's mean in its region (nan: none) and the
+    reference test's margin there (its level minus that mean; nan in the start region, not tested), ``elapsed_s``
+    after engine start, into the start region's sums or the airborne cruise/high-power ones (only the START_S
+    after the start region: a fault there from start is there then, a later onset is not), with the low-passed
+    heat and loss rates."""
     if math.isnan(excess):
         return
+    if region == REGION_START and elapsed_s < 0.5 * START_S:
+        _add_to(st["early_sums"], excess, margin, st)
     if region == REGION_START:
         sums = st["start_sums"]
-    elif isolable_region(region):
+    elif isolable_region(region) and elapsed_s < 2.0 * START_S:
         sums = st["air_sums"]
     else:
         return
+    _add_to(sums, excess, margin, st)
+
+
+@njit(nogil=False)
+def _add_to(sums: Any, excess: float, margin: float, st: Any) -> None:
     sums[0] += 1.0
     sums[1] += excess
     sums[2] += st["heat_rate"]
     sums[3] += st["loss_rate"]
+    sums[4] += margin
 
 
 @njit(nogil=False)
 def start_fault_call(st: Any, start_margin: float) -> int:
     """The cause of a fault present from engine start, from the regions' excess symptoms: START_CALL_NOT_FROM_START
     when the start region's mean excess over the reference is not above ``start_margin`` (NOMINAL_SPREAD_Z
-    spreads of the nominal flights' start means; nan: no reference there), nothing airborne was seen yet, or
-    the start's excess is less than half what even the loss's pattern predicts from the airborne one (a start
-    that ran a little warm, then a later onset); else START_CALL_HEAT (gamma_Q), START_CALL_LOSS (gamma_D) or
-    START_CALL_UNTOLD.
+    spreads of the nominal flights' start means; nan: no reference there), nothing airborne was seen in the
+    START_S after the start region, the airborne excess there is not above the reference test's margin
+    (NOMINAL_SPREAD_Z spreads of the nominal flights there: the fault is not there airborne), or the ratio
+    below fits neither pattern within a factor of 2 (a start that ran a little warm, and a later onset), or
+    the start region's first half holds less than half the excess the heat's pattern predicts from its second
+    half (an onset within the start region and a gamma_D fault look alike there: the filter decides, which
+    follows an onset's transient and is not biased against gamma_D); else START_CALL_HEAT (gamma_Q),
+    START_CALL_LOSS (gamma_D) or START_CALL_UNTOLD.
 
     A gamma_Q fault's symptom follows the heat into the head, a gamma_D fault's the heat out of it. At the
     start the head is cold: the heat out is a smaller part of the heat in than airborne. So the ratio of the
     start's mean excess to the airborne one is near the heat's ratio (start / airborne) for gamma_Q and near
     the loss's ratio for gamma_D; the call is the nearer one (the observed ratio above or below their geometric
-    mean). Untold when the two ratios do not differ (the heat's not above the loss's) or the airborne excess
-    is not positive."""
+    mean). Untold when the two ratios do not differ (the heat's not above the loss's)."""
     start = st["start_sums"]
     air = st["air_sums"]
     if math.isnan(start_margin) or start[0] < 1.0 or air[0] < 1.0 or not start[1] / start[0] > start_margin:
@@ -877,15 +902,23 @@ def start_fault_call(st: Any, start_margin: float) -> int:
     excess_air = air[1] / air[0]
     heat_air = air[2] / air[0]
     loss_air = air[3] / air[0]
-    if not (excess_air > 0.0 and heat_air > 0.0 and loss_air > 0.0):
+    if not (excess_air > 0.0 and excess_air > air[4] / air[0]):
+        return START_CALL_NOT_FROM_START
+    if not (heat_air > 0.0 and loss_air > 0.0):
         return START_CALL_UNTOLD
     heat_ratio = (start[2] / start[0]) / heat_air
     loss_ratio = (start[3] / start[0]) / loss_air
     if not heat_ratio > loss_ratio or not loss_ratio > 0.0:
         return START_CALL_UNTOLD
     observed = (start[1] / start[0]) / excess_air
-    if observed < 0.5 * loss_ratio:  # fits neither: a start that ran a little warm, and a later onset
+    if not 0.5 * loss_ratio <= observed <= 2.0 * heat_ratio:  # fits neither: a warm start, and a later onset
         return START_CALL_NOT_FROM_START
+    early = st["early_sums"]
+    late = start - early
+    if early[0] < 1.0 or late[0] < 1.0 or not late[1] > 0.0 or not late[3] > 0.0:
+        return START_CALL_NOT_FROM_START
+    if not (early[1] / early[0]) / (late[1] / late[0]) >= 0.5 * (early[2] / early[0]) / (late[2] / late[0]):
+        return START_CALL_NOT_FROM_START  # a fault that grew within the start region
     return START_CALL_HEAT if observed > math.sqrt(heat_ratio * loss_ratio) else START_CALL_LOSS
 
 

@@ -24,10 +24,12 @@ AIR_HEAT, AIR_LOSS = 1.5, 1.5
 MARGIN = 0.05  # 2 spreads of the nominal start means, degC/s
 
 
-def _state(start_excess: float, air_excess: float, n: float = 300.0) -> np.void:
+def _state(start_excess: float, air_excess: float, n: float = 300.0, air_margin: float = 0.04) -> np.void:
     st = np.zeros(1, dtype=CYLINDER_STATE)[0]
-    st["start_sums"][:] = (n, n * start_excess, n * START_HEAT, n * START_LOSS)
-    st["air_sums"][:] = (n, n * air_excess, n * AIR_HEAT, n * AIR_LOSS)
+    st["start_sums"][:] = (n, n * start_excess, n * START_HEAT, n * START_LOSS, np.nan)
+    st["air_sums"][:] = (n, n * air_excess, n * AIR_HEAT, n * AIR_LOSS, n * air_margin)
+    # the start's first half: the same excess per heat or loss as the whole start (a fault there throughout)
+    st["early_sums"][:] = 0.5 * st["start_sums"]
     return st
 
 
@@ -36,6 +38,10 @@ def test_the_heat_pattern_names_gamma_q_and_the_loss_pattern_gamma_d(call) -> No
     a, b = 0.15, 0.12  # gamma_Q - 1; 1 - 1/gamma_D
     assert call(_state(a * START_HEAT, a * AIR_HEAT), MARGIN) == START_CALL_HEAT
     assert call(_state(b * START_LOSS, b * AIR_LOSS), MARGIN) == START_CALL_LOSS
+    faint_early = _state(a * START_HEAT, a * AIR_HEAT)  # the first half's excess less than half the heat's pattern
+    faint_early["early_sums"][1] *= 0.4
+    faint_early["start_sums"][1] -= 0.6 * 0.5 * faint_early["start_sums"][1]
+    assert call(faint_early, MARGIN) == START_CALL_NOT_FROM_START  # the filter decides
     noise = 0.01  # a nominal excess on top of either still names it
     assert call(_state(a * START_HEAT - noise, a * AIR_HEAT + noise), MARGIN) == START_CALL_HEAT
     assert call(_state(b * START_LOSS + noise, b * AIR_LOSS - noise), MARGIN) == START_CALL_LOSS
@@ -48,7 +54,14 @@ def test_not_from_start_untold_and_unknown(call) -> None:
     assert call(_state(0.06, 0.4), MARGIN) == START_CALL_NOT_FROM_START
     assert call(_state(0.2, 0.2), math.nan) == START_CALL_NOT_FROM_START  # no reference at the start
     assert call(_state(0.2, 0.2, n=0.0), MARGIN) == START_CALL_NOT_FROM_START  # nothing seen yet
-    assert call(_state(0.2, -0.01), MARGIN) == START_CALL_UNTOLD  # no airborne excess to compare with
+    late_onset = _state(0.15, 0.2)  # an onset within the start region: its first half holds no excess
+    late_onset["early_sums"][1] = 0.0
+    late_onset["start_sums"][1] *= 0.5
+    assert call(late_onset, MARGIN) == START_CALL_NOT_FROM_START
+    assert call(_state(0.2, -0.01), MARGIN) == START_CALL_NOT_FROM_START  # no airborne excess after the start
+    assert call(_state(0.2, 0.05), MARGIN) == START_CALL_NOT_FROM_START  # 4x the airborne: neither pattern
+    # both excesses within the nominal spreads (a reference with tiny spreads, noise in either pattern)
+    assert call(_state(0.03, 0.045, air_margin=0.05), MARGIN) == START_CALL_NOT_FROM_START
     same = _state(0.2, 0.2)
     same["start_sums"][3] = same["start_sums"][2]  # heat out as large as heat in at the start too
     same["air_sums"][3] = same["air_sums"][2]
