@@ -6,6 +6,10 @@ sources, where the suite's kernels were cached before the command line chose
 mains that tests run (in this process or as children) find the variable set and leave it alone, so the
 suite writes nothing into the developer's home. tests/cli/test_compile_cache.py removes it for the
 processes that check the default.
+
+Before the workers start (pytest-xdist's controller, or the one process of ``-n 0``), the step's compiled
+code is loaded once, which on a fresh clone compiles it into that cache: otherwise every worker, and every
+process a test starts meanwhile, would compile the same code at the same time (numba has no lock for it).
 """
 
 from __future__ import annotations
@@ -22,6 +26,17 @@ os.environ.setdefault("NUMBA_CACHE_DIR", "")
 # threads spinning against the other worker made a small SVD (the identification's polish) take minutes.
 for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_blas_threads, "1")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    if hasattr(session.config, "workerinput"):  # a pytest-xdist worker: its controller did it
+        return
+    from ecu_monitor.config import load_config
+    from ecu_monitor.pipeline.engine import Pipeline
+    from ecu_monitor.shipped import resolve_file
+
+    config = load_config(resolve_file("example", "config"))
+    Pipeline(config, config.load_cylinder_params()).warm_up()
 
 
 @pytest.fixture
