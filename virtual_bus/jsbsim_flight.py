@@ -15,6 +15,7 @@ way. The log is decimated to ``record_dt_s`` (1 s) in canonical units (docs/cont
 from __future__ import annotations
 
 import math
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -157,15 +158,17 @@ _DROP_FT = 5.0
 _SETTLE_S = 400.0
 
 
-def _load(aircraft: Aircraft) -> Any:
+def _load(aircraft: Aircraft, scratch: str) -> Any:
     try:
         import jsbsim
     except ImportError:
         raise ConfigError("virtual-ecu jsbsim needs the jsbsim package: pip install 'ecu-monitor[jsbsim]'") from None
     jsbsim.FGJSBBase().debug_lvl = 0  # no start-up banner on stdout
     fdm = jsbsim.FGFDMExec(None)
+    fdm.set_output_path(scratch)
     if not fdm.load_model(aircraft.name):
         raise ConfigError(f"--aircraft {aircraft.name}: the jsbsim package could not load it")
+    fdm.disable_output()
     return fdm
 
 
@@ -185,7 +188,24 @@ def fly(
     if aircraft is None:
         raise ConfigError(f"--aircraft: expected one of {', '.join(AIRCRAFT)}, got {aircraft_name!r}")
     legs, field_m, delta_t_k = make_mission(mission, aircraft, seed)
-    fdm = _load(aircraft)
+    # the aircraft's own output files (JSBout172B.csv ...) go to a scratch folder, then away
+    with tempfile.TemporaryDirectory(prefix="jsbsim-") as scratch:
+        fdm = _load(aircraft, scratch)
+        rows, t0 = _fly_legs(fdm, aircraft, legs, field_m, delta_t_k, record_dt_s, progress)
+    return _log(rows, t0, f"jsbsim {aircraft.name} {mission} seed {seed}")
+
+
+def _fly_legs(
+    fdm: Any,
+    aircraft: Aircraft,
+    legs: tuple[Leg, ...],
+    field_m: float,
+    delta_t_k: float,
+    record_dt_s: float,
+    progress: Callable[[float], None] | None,
+) -> tuple[list[list[float]], float]:
+    """Fly ``legs`` from a cold start on a field at ``field_m`` on a day ``delta_t_k`` off ISA: the logged
+    rows every ``record_dt_s`` and the simulation time of the log's start (s)."""
     catalog = {p.split()[0] for p in fdm.get_property_catalog()}
     engines = sum(1 for p in catalog if p.endswith("/cht-degF"))
     fdm["atmosphere/delta-T"] = delta_t_k * 1.8  # Rankine
@@ -283,7 +303,7 @@ def fly(
                     progress(fdm.get_sim_time())
             fdm.run()
             step += 1
-    return _log(rows, t0, f"jsbsim {aircraft.name} {mission} seed {seed}")
+    return rows, t0
 
 
 #: Canonical column -> the JSBSim property logged and its unit (:data:`ecu_monitor.units.UNITS`); time_s is the

@@ -15,8 +15,12 @@ pytest.importorskip("jsbsim", reason="the jsbsim package is not installed (pip i
 
 @pytest.fixture(scope="module")
 def flown(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("jsbsim") / "c172x.csv"
-    assert main(["jsbsim", "--aircraft", "c172x", "--mission", "pattern", "--seed", "1", "--out", str(out)]) == 0
+    folder = tmp_path_factory.mktemp("jsbsim")
+    out = folder / "c172x.csv"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        assert main(["jsbsim", "--aircraft", "c172x", "--mission", "pattern", "--seed", "1", "--out", "c172x.csv"]) == 0
+    assert [p.name for p in folder.iterdir()] == ["c172x.csv"]  # nothing else (JSBSim's own output files)
     return out
 
 
