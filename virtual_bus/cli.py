@@ -225,8 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
         "jsbsim", help="fly one of JSBSim's piston aircraft (its own engine model) to a canonical CSV (docs/jsbsim.md)"
     )
     jsb.add_argument(
-        "--aircraft", default="c172x", help="a piston aircraft of the jsbsim package: c172x, c172p, c172r or c182"
-        " (default c172x)"
+        "--aircraft", default="c172x", help="a piston aircraft of the jsbsim package: c172x, c172p, c172r, pa28, c182"
+        " or c310 (default c172x)"
     )  # fmt: skip
     jsb.add_argument(
         "--mission", default="pattern", help="pattern, cross_country or step_climb, drawn from --seed (default pattern)"

@@ -43,9 +43,9 @@ class Aircraft:
     ceiling_m: float
 
 
-#: The piston aircraft of the jsbsim package this flies (name as the package's ``aircraft/`` folder): three
-#: engines (the c172x and c172p's O-320, the c172r's IO-360, the c182's IO-540 with a constant-speed propeller).
-#: Not yet: the pa28 and the J3Cub (tail wheel) leave the runway sideways, the c310 twin stalls after lift-off.
+#: The piston aircraft of the jsbsim package this flies (name as the package's ``aircraft/`` folder): the c172x
+#: and c172p (O-320), the c172r and pa28 (IO-360), the c182 (IO-540, constant-speed propeller) and the c310 twin
+#: (IO-470, both engines flown alike, engine 1 logged). Not the J3Cub: its tail wheel ground-loops on take-off.
 AIRCRAFT: dict[str, Aircraft] = {
     a.name: a
     for a in (
@@ -53,6 +53,8 @@ AIRCRAFT: dict[str, Aircraft] = {
         Aircraft("c172p", 55.0, 75.0, 95.0, 68.0, 3500.0),
         Aircraft("c172r", 55.0, 75.0, 95.0, 68.0, 3500.0),
         Aircraft("c182", 60.0, 85.0, 105.0, 75.0, 4500.0),
+        Aircraft("pa28", 60.0, 80.0, 100.0, 75.0, 3500.0),
+        Aircraft("c310", 90.0, 110.0, 140.0, 100.0, 5000.0),
     )
 }
 
@@ -260,6 +262,8 @@ def _fly_legs(
                 fdm["fcs/right-brake-cmd-norm"] = brakes
                 fdm["fcs/center-brake-cmd-norm"] = brakes
                 throttle = leg.throttle
+                if leg.kind == "cruise":  # sinking below the level at this power: the pilot adds some
+                    throttle = min(1.0, max(throttle, throttle + 0.01 * (leg.altitude_m - 30.0 - agl)))
                 for i in range(engines):
                     fdm[f"fcs/throttle-cmd-norm[{i}]"] = throttle
                 # the pilot leans towards the leg's air-fuel ratio (EGT-style), never leaner than 16:1
@@ -276,6 +280,8 @@ def _fly_legs(
                     yaw = 1.5 * math.atan2(math.sin(psi), math.cos(psi)) + 1.0 * fdm["velocities/r-rad_sec"]
                     fdm["fcs/rudder-cmd-norm"] = fdm["fcs/steer-cmd-norm"] = max(-1.0, min(1.0, -yaw))
                     airborne = agl > 15.0
+                    if airborne and "gear/gear-cmd-norm" in catalog:
+                        fdm["gear/gear-cmd-norm"] = 0.0  # a retractable gear up after lift-off
                 else:  # the ball centred
                     fdm["fcs/rudder-cmd-norm"] = max(-1.0, min(1.0, 2.0 * fdm["aero/beta-rad"]))
                 if rolling:  # controls neutral until the rotation speed
@@ -294,6 +300,8 @@ def _fly_legs(
                     else:
                         speed = leg.speed_kts if leg.kind != "cruise" else aircraft.glide_kts + 2.0
                         theta_cmd = target(0.02 * (kts - speed), 0.0, 0.0, control_dt)
+                        if leg.kind == "climb" and agl < 150.0:  # never nose down to gain speed near the ground
+                            theta_cmd = max(theta_cmd, math.radians(5.0))
                     theta = fdm["attitude/theta-rad"]
                     q = fdm["velocities/q-rad_sec"]
                     fdm["fcs/elevator-cmd-norm"] = -pitch(theta_cmd - theta, q, 0.8, control_dt)
