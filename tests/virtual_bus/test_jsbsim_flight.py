@@ -34,7 +34,7 @@ def test_flown_csv_loads_with_sane_columns(flown: Path) -> None:
     assert 600.0 < log.duration_s < 2400.0
     cht, oat = log["cht_c"], log["oat_c"]
     assert abs(cht[0] - oat[0]) < 5.0  # a cold engine at the start
-    assert 150.0 < cht.max() < 300.0
+    assert 150.0 < cht.max() < 400.0  # JSBSim's O-320 climbs at about 300 degC
     assert np.array_equal(cht, np.round(cht))  # the sensor's 1 degC steps
     assert log["airspeed_mps"][0] == 0.0 and log["airspeed_mps"].max() > 35.0  # took off
     assert log["altitude_m"].max() - log["altitude_m"][0] > 250.0  # climbed
