@@ -115,7 +115,7 @@ def make_mission(kind: str, aircraft: Aircraft, seed: int) -> tuple[tuple[Leg, .
                     "cruise",
                     float(rng.uniform(360.0, 720.0)),
                     float(rng.uniform(0.55, 0.9)),
-                    afr=float(rng.uniform(11.5, 14.5)),
+                    afr=float(rng.uniform(11.0, 13.5)),
                     altitude_m=level,
                 )
             )
@@ -129,7 +129,7 @@ def make_mission(kind: str, aircraft: Aircraft, seed: int) -> tuple[tuple[Leg, .
                 speed = float(rng.uniform(climb, cruise_speed))
                 legs.append(Leg("descent", 900.0, float(rng.uniform(0.3, 0.6)), altitude_m=new, speed_kts=speed))
             level = new
-            afr = None if rng.random() < 0.3 else float(rng.uniform(11.5, 14.5))
+            afr = None if rng.random() < 0.3 else float(rng.uniform(11.0, 13.5))
             legs.append(
                 Leg("cruise", float(rng.uniform(240.0, 540.0)), float(rng.uniform(0.5, 0.9)), afr=afr, altitude_m=level)
             )
@@ -266,12 +266,13 @@ def _fly_legs(
                     throttle = min(1.0, max(throttle, throttle + 0.01 * (leg.altitude_m - 30.0 - agl)))
                 for i in range(engines):
                     fdm[f"fcs/throttle-cmd-norm[{i}]"] = throttle
-                # the pilot leans towards the leg's air-fuel ratio (EGT-style), never leaner than 16:1
+                # the pilot leans towards the leg's air-fuel ratio (as by EGT), the lever never below half
+                # (an aircraft with automatic mixture control, the c172x, overrides the lever)
                 if leg.afr is None:
                     mixture = 1.0
                 else:
                     afr = fdm[f"{_ENGINE}/AFR"]
-                    mixture = min(1.0, max(0.3, mixture + 0.02 * control_dt * (leg.afr - afr)))
+                    mixture = min(1.0, max(0.5, mixture + 0.005 * control_dt * (afr - leg.afr)))
                 for i in range(engines):
                     fdm[f"fcs/mixture-cmd-norm[{i}]"] = mixture
                 rolling = leg.kind == "ground" or (not airborne and kts < aircraft.rotate_kts)
