@@ -222,7 +222,7 @@ def _fly_legs(
         fdm[name] = 1.0
     while fdm.get_sim_time() < _SETTLE_S:
         fdm.run()
-    t0 = fdm.get_sim_time()
+    t0 = float(fdm.get_sim_time())
     fdm["propulsion/magneto_cmd"] = 3  # both magnetos, then the starter until the engine runs: a cold start
     fdm["propulsion/starter_cmd"] = 1
     for i in range(engines):
@@ -238,7 +238,7 @@ def _fly_legs(
     pitch = _Pid(3.0, 1.5, -1.0, 1.0)
     target = _Pid(0.6, 0.08, math.radians(-12.0), math.radians(15.0))  # outer loop -> pitch (rad)
     mixture = 1.0
-    rows: list[tuple[float, ...]] = []
+    rows: list[list[float]] = []
     step = 0
     airborne = False
     for leg in legs:
