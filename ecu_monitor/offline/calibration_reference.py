@@ -1,7 +1,8 @@
 """The engine's own reference, learned by ``ecu-monitor calibrate`` from nominal flights: what the detector's
 symptom looks like in each operating region (:mod:`ecu_monitor.estimation.regions`) on a healthy engine, and
 the threshold of the test that measures each flight against it from engine start (from the end of the start
-region: :data:`UNLEARNED_REGIONS`).
+region: the test leaves the :data:`~ecu_monitor.estimation.detection.UNTESTED_REGIONS` out, though their mean
+and spread are learned: the isolation of a fault present from engine start reads the start's).
 
 Per flight and region, the mean of the symptom the service fed its detector (degC/s for the CBEKF's
 deviation); per region, the mean of these flight means (``nominal_mean``) and their standard deviation
@@ -32,13 +33,12 @@ from ecu_monitor.estimation.detection import (
     calibrate_threshold,
     cusum_path,
 )
-from ecu_monitor.estimation.regions import REGION_COUNT, REGION_START
+from ecu_monitor.estimation.regions import REGION_COUNT
 from ecu_monitor.offline.calibration_replays import UNBOUNDED_THRESHOLD, FlightFeeds
 
 __all__ = [
     "MIN_REFERENCE_FLIGHTS",
     "MIN_REGION_S",
-    "UNLEARNED_REGIONS",
     "ReferenceCalibration",
     "calibrate_reference",
     "flight_region_means",
@@ -50,17 +50,10 @@ __all__ = [
 MIN_REFERENCE_FLIGHTS = 3
 #: A flight's mean in a region counts when the symptom was fed there at least this long, s.
 MIN_REGION_S = 60.0
-#: Regions the reference does not learn, so its test does not run there: the start (the head's warm-up from
-#: cold), whose symptom follows the start's initial conditions (head and outside temperature, the filters'
-#: first state) more than the engine: on nominal virtual flights its flight means were the most spread and
-#: heavy-tailed, and it raised every false DEGRADED while learned (docs/results/detection.md, "The reference
-#: without the start region").
-UNLEARNED_REGIONS: tuple[int, ...] = (REGION_START,)
 
 
 def flight_region_means(flight: FlightFeeds) -> NDArray[np.float64]:
-    """The mean of the flight's fed symptom in each region (nan: fed there less than MIN_REGION_S, and always
-    in the start region, which the reference does not learn: see :data:`UNLEARNED_REGIONS`)."""
+    """The mean of the flight's fed symptom in each region (nan: fed there less than MIN_REGION_S)."""
     sums = np.zeros(REGION_COUNT)
     counts = np.zeros(REGION_COUNT)
     seconds = np.zeros(REGION_COUNT)
@@ -76,7 +69,6 @@ def flight_region_means(flight: FlightFeeds) -> NDArray[np.float64]:
     with np.errstate(invalid="ignore", divide="ignore"):
         means = sums / counts
     means[seconds < MIN_REGION_S] = math.nan
-    means[list(UNLEARNED_REGIONS)] = math.nan
     return means
 
 

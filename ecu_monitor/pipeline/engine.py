@@ -24,8 +24,10 @@ from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, SignalSpec
 from ecu_monitor.errors import ConfigError
+from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
 from ecu_monitor.estimation.ekf import _RESET_CODES, ThermalEKF
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings, model_vector
+from ecu_monitor.estimation.regions import REGION_START
 from ecu_monitor.estimation.registry import ESTIMATORS, make_estimator
 from ecu_monitor.model import ThermalParams, coefficients, pack_coefficients
 from ecu_monitor.model.effects import MixtureIndex
@@ -229,8 +231,15 @@ class Pipeline:
         self._pending: list[StepRow] = []  # the health-status rows since drain_rows()
         self._latest: StepRow | None = None
         self._snapshot: HealthSnapshot | None = None
+        # values decoded since the last compiled call (feed_values), held by the next advance_to
         self._slots_buffer = np.zeros(64, dtype=np.int64)
         self._values_buffer = np.zeros(64)
+        self._fed = 0
+        self._frame_times = np.zeros(2)  # advance_to's two frames: the fed values, then the clock reading
+        self._frame_bounds = np.zeros(3, dtype=np.int64)
+        clock = self._engine.clock
+        self._clock_now, self._clock_started = clock["now_s"], clock["started"]
+        self._clock_steps, self._clock_restarts = clock["steps"], clock["restarts"]
 
     # ------------------------------------------------------------------ building the records
 
@@ -312,6 +321,8 @@ class Pipeline:
             e["oil_slot"], e["oil_stale_s"] = self._event_input(config, "oil_temp_c")
             _detector_record(s["nominal"], own.nominal_settings() if own.reference_on else None)
             s["nominal_level"][:] = own.nominal_levels() if own.reference_on else np.nan
+            s["nominal_mean"][:] = own.nominal_mean if own.reference_on else np.nan
+            s["start_margin"] = NOMINAL_SPREAD_Z * own.nominal_spread[REGION_START] if own.reference_on else np.nan
             for d in (own, cross):
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)
@@ -370,12 +381,12 @@ class Pipeline:
     @property
     def steps_done(self) -> int:
         """Fixed steps run since start (grows while the pipeline makes progress)."""
-        return int(self._engine.clock[0]["steps"])
+        return int(self._clock_steps[0])
 
     @property
     def now_s(self) -> float:
         """The clock's time, s (nan before it starts)."""
-        return float(self._engine.clock[0]["now_s"])
+        return float(self._clock_now[0])
 
     @property
     def cylinder_count(self) -> int:
@@ -399,41 +410,49 @@ class Pipeline:
             self.counters["frames"] += 1
             self.counters["ignored"] += 1
             return
-        clock = self._engine.clock[0]
-        stamp = float(clock["now_s"]) if clock["started"] else math.nan
+        stamp = float(self._clock_now[0]) if self._clock_started[0] else math.nan
         data = msg.data if msg.data is not None else b""
         decoded = self.decoder.decode(int(msg.arbitration_id), bool(msg.is_extended_id), data, stamp)
         if decoded:
             self.feed_values(decoded)
 
     def feed_values(self, decoded: Sequence[tuple[int, float]]) -> None:
-        """Hold decoded values, (slot of :attr:`names`, value in its canonical unit), as of the clock's time."""
-        n = len(decoded)
+        """Hold decoded values, (slot of :attr:`names`, value in its canonical unit), as of the clock's time
+        (they reach the step's records with the next :meth:`advance_to`, before it moves the clock: one
+        compiled call a frame)."""
+        n = self._fed + len(decoded)
         if n > self._slots_buffer.size:
-            self._slots_buffer = np.zeros(n, dtype=np.int64)
-            self._values_buffer = np.zeros(n)
-        for j, (slot, value) in enumerate(decoded):
+            self._slots_buffer = np.resize(self._slots_buffer, 2 * n)
+            self._values_buffer = np.resize(self._values_buffer, 2 * n)
+        j = self._fed
+        for slot, value in decoded:
             self._slots_buffer[j] = slot
             self._values_buffer[j] = value
-        self._compiled().feed_values(self._engine, self._slots_buffer, self._values_buffer, n)
+            j += 1
+        self._fed = n
 
     def advance_to(self, t_s: float) -> list[StepRow]:
-        """Run every fixed step at or before ``t_s`` (s); returns the rows of the output table they wrote."""
-        advance = self._compiled().advance_to
-        rows = self._rows
+        """Hold the values fed since the last call (as of the clock's time then), then run every fixed step at
+        or before ``t_s`` (s); returns the rows of the output table they wrote. One call of the compiled loop
+        over two frames: the fed values at the clock's time (which runs no step), then ``t_s``."""
+        loop = self._compiled().replay_loop
+        times, bounds = self._frame_times, self._frame_bounds
+        times[0] = self._clock_now[0] if self._clock_started[0] else math.nan  # nan: holds, starts nothing
+        times[1] = t_s
+        bounds[1] = bounds[2] = self._fed
         out: list[StepRow] = []
-        while True:
-            done = advance(self._engine, rows, self._no_traces, float(t_s))
+        start = 0
+        while start < 2:  # the rows filled up: drain them and go on from the frame reached
+            start = loop(self._engine, self._rows, self._no_traces, times, bounds, self._slots_buffer,
+                         self._values_buffer, start)  # fmt: skip
             out += self._take_rows()
-            if done:
-                break
+        self._fed = 0
         self._sync_counters()
         return out
 
     def _sync_counters(self) -> None:
-        clock = self._engine.clock[0]
-        self.counters["steps"] = int(clock["steps"])
-        self.counters["clock_restarts"] = int(clock["restarts"])
+        self.counters["steps"] = int(self._clock_steps[0])
+        self.counters["clock_restarts"] = int(self._clock_restarts[0])
         self.counters["events_dropped"] = int(self._engine.event_count[1])
 
     def take_events(self) -> list[Event]:
@@ -518,6 +537,8 @@ class Pipeline:
     def held_input(self, name: str) -> float | None:
         """The held (sample-and-hold) value of a mapped input, or None if never seen, stale or unmapped."""
         slot = self._slot.get(name)
+        if self._fed:
+            self.advance_to(math.nan)  # hold what was fed (a clock reading of nan moves nothing)
         if slot is None or name in self.snapshot().stale_inputs:
             return None
         value = float(self._engine.values[slot])
@@ -540,14 +561,10 @@ class Pipeline:
         this pipeline; returns the seconds taken. The daemon calls it before it opens the bus: otherwise the
         first frame would wait for the load. This pipeline's own state is untouched."""
         started = time.perf_counter()
-        functions = self._compiled()
         probe = Pipeline(self.config, self.cylinder_params)
-        engine = probe._engine
-        slots = np.arange(len(probe.names), dtype=np.int64)
-        values = np.full(slots.size, 100.0)
-        functions.feed_values(engine, slots, values, slots.size)
+        probe.feed_values([(slot, 100.0) for slot in range(len(probe.names))])
         for t_s in (0.0, 1.0):
-            functions.advance_to(engine, probe._rows, probe._no_traces, t_s)
+            probe.advance_to(t_s)
         return time.perf_counter() - started
 
     @property

@@ -1,13 +1,13 @@
 """The one step: every fixed step of the schedule, for every cylinder, the supervision, the estimator and
 the isolation filter (every filter period), the detector and the headroom; then the cross-cylinder
-detectors. Compiled with numba; the live pipeline calls it frame by frame (:func:`advance_to`,
-:func:`feed_values`), replay runs :func:`replay_loop` over a whole log's decoded frames, which calls the
-very same two functions. Nothing here is written twice.
+detectors. Compiled with numba into one entry point, :func:`replay_loop` (for each frame: :func:`advance_to`
+its time, then :func:`feed_values` its decoded values): replay runs it over a whole log's frames, the live
+pipeline over each frame as it comes. Nothing here is written twice, or compiled twice.
 
 Compiled, numba counts a reference to an array atomically every time it is passed or read from a tuple;
-the per-frame path avoids that: the entry points (:func:`replay_loop`, :func:`advance_to`,
-:func:`feed_values`) take :func:`borrowed` views of the records' arrays (the caller keeps them alive for
-the call), and the per-frame and per-step functions are inlined into them (no argument copies or calls);
+the per-frame path avoids that: the entry point (:func:`replay_loop`) takes :func:`borrowed` views of the
+records' arrays (the caller keeps them alive for the call), and the per-frame and per-step functions are
+inlined into it (no argument copies or calls);
 each function binds the arrays it uses to locals once (``eng_values = eng.values``).
 
 Everything lives in named records (numpy structured dtypes, read by field name in the compiled code):
@@ -32,7 +32,10 @@ The rules, in the order a step applies them:
 * isolation: the gammas are published only where they can be told apart (``not_isolable`` False): a
   degradation is declared (DEGRADED: something to isolate), cruise or high power airborne, both standard
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
-  ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable");
+  ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable"). A fault
+  present from engine start (the start region's symptom above its nominal level) is named instead by how
+  its excess over the reference splits between the start and the airborne regions (:func:`start_fault_call`);
+  the filter's product gamma_Q gamma_D is then published on the factor it names, 1 on the other;
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins;
@@ -54,7 +57,14 @@ from ecu_monitor.estimation.detection import _cusum_step as cusum_step
 from ecu_monitor.estimation.ekf import live_steps as live_ekf
 from ecu_monitor.estimation.isolation import live_steps as live_isolation
 from ecu_monitor.estimation.quantiser import level_of
-from ecu_monitor.estimation.regions import REGION_COUNT, isolable_region, power_fraction, region_of
+from ecu_monitor.estimation.regions import (
+    REGION_COUNT,
+    REGION_START,
+    START_S,
+    isolable_region,
+    power_fraction,
+    region_of,
+)
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
@@ -85,10 +95,15 @@ __all__ = [
     "EVENT_TRACKER",
     "ISOLATION_CORRELATION_MIN",
     "ISOLATION_SD_MAX",
+    "START_CALL_HEAT",
+    "START_CALL_LOSS",
+    "START_CALL_NOT_FROM_START",
+    "START_CALL_UNTOLD",
     "Engine",
     "Rows",
     "Traces",
     "compiled",
+    "start_fault_call",
 ]
 
 #: ``armed`` bits: the test against the engine's reference (calibrated nominal levels) is running
@@ -223,6 +238,8 @@ CYLINDER_SETTINGS = np.dtype(
         ("cross", DETECTOR_SETTINGS),
         ("nominal", DETECTOR_SETTINGS),  # the test against the engine's reference (on: calibrated)
         ("nominal_level", "f8", (REGION_COUNT,)),  # its level per region, symptom unit (nan: none there)
+        ("nominal_mean", "f8", (REGION_COUNT,)),  # the reference's mean per region, symptom unit (nan: none)
+        ("start_margin", "f8"),  # NOMINAL_SPREAD_Z x the start region's spread, symptom unit (nan: none)
         ("events", EVENT_SETTINGS),
     ]
 )
@@ -254,6 +271,12 @@ CYLINDER_STATE = np.dtype(
         ("cht_rate_c_per_min", "f8"),
         ("detector_on", "?"),  # since the first initialisation
         ("on_s", "f8"),  # when: the engine's start for the regions, s
+        ("heat_rate", "f8"),  # the isolation filter's heat in / C_w and heat out / C_w, degC/s, low-passed as the
+        ("loss_rate", "f8"),  # estimator's deviation is (deviation_time_s): a fault from start's two patterns
+        ("start_sums", "f8", (5,)),  # start region, fed samples: count, sum of excess over the reference, of
+        ("air_sums", "f8", (5,)),  # heat_rate, of loss_rate, of the reference's margin (level - mean); the same
+        # at cruise and high power in the START_S after the start region (air_sums)
+        ("early_sums", "f8", (5,)),  # the start_sums of the start region's first half
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
         ("nominal", DETECTOR_STATE),
@@ -575,6 +598,11 @@ def _stop_cylinder(st: Any) -> None:
     st["headroom_s"] = np.nan
     st["cht_rate_c_per_min"] = np.nan
     st["detector_on"] = False
+    st["heat_rate"] = 0.0
+    st["loss_rate"] = 0.0
+    st["start_sums"][:] = 0.0
+    st["air_sums"][:] = 0.0
+    st["early_sums"][:] = 0.0
     _reset_detector(st["detector"])
     _reset_detector(st["cross"])
     _reset_detector(st["nominal"])
@@ -685,6 +713,7 @@ def cylinder_step(
             gamma_q = st["iso"][1]
             gamma_d = st["iso"][2]
             iso_deviation = result[2]
+            _fault_rates(st, eng_iso_model[i], steps * cfg["dt_s"], cfg["deviation_time_s"])
         st["last_call_s"] = time_s
     st["running"] = sv.running
     st["stale_since_s"] = sv.stale_since_s
@@ -740,6 +769,8 @@ def cylinder_step(
             if not math.isnan(level):
                 armed |= ARMED_REFERENCE
             verdict = max(verdict, detector_step(st["nominal"], cfg["nominal"], eng_rings[i, 2], time_s, fed - level))
+            mean = cfg["nominal_mean"][region]
+            _add_fault_sample(st, region, fed - mean, level - mean, time_s - st["on_s"])
         if code == CODE_NOMINAL:
             state = verdict
     if action == ACTION_NONE or not (
@@ -769,22 +800,126 @@ def cylinder_step(
         iso = st["iso"]
         gamma_q_sd = math.sqrt(max(iso[8], 0.0))
         gamma_d_sd = math.sqrt(max(iso[12], 0.0))
-        product = gamma_q_sd * gamma_d_sd
-        correlation = iso[9] / product if product > 0.0 else -1.0
-        isolable = (
-            state == CODE_DEGRADED  # a degradation declared: something to isolate
-            and region >= 0
-            and isolable_region(region)
-            and gamma_q_sd <= ISOLATION_SD_MAX
-            and gamma_d_sd <= ISOLATION_SD_MAX
-            and correlation > ISOLATION_CORRELATION_MIN
-        )
+        declared = state == CODE_DEGRADED and region >= 0 and isolable_region(region)  # something to isolate, here
+        call = start_fault_call(st, cfg["start_margin"])
+        if call == START_CALL_NOT_FROM_START:  # the filter's split, where it can be told
+            product = gamma_q_sd * gamma_d_sd
+            correlation = iso[9] / product if product > 0.0 else -1.0
+            isolable = (
+                declared
+                and gamma_q_sd <= ISOLATION_SD_MAX
+                and gamma_d_sd <= ISOLATION_SD_MAX
+                and correlation > ISOLATION_CORRELATION_MIN
+            )
+        elif call != START_CALL_UNTOLD:  # present from engine start: the product on the factor the regions name
+            isolable = declared
+            product = st["gamma_q"] * st["gamma_d"]
+            out["gamma_q"] = product if call == START_CALL_HEAT else 1.0
+            out["gamma_d"] = 1.0 if call == START_CALL_HEAT else product
     out["gamma_q_sd"] = gamma_q_sd
     out["gamma_d_sd"] = gamma_d_sd
     out["not_isolable"] = not isolable
     if not isolable:
         out["gamma_q"] = np.nan
         out["gamma_d"] = np.nan
+
+
+#: :func:`start_fault_call`'s answers: not a fault from engine start (the isolation filter's split holds),
+#: present from start but not told apart, gamma_Q (the heat in), gamma_D (the heat out).
+START_CALL_NOT_FROM_START = 0
+START_CALL_UNTOLD = 1
+START_CALL_HEAT = 2
+START_CALL_LOSS = 3
+
+
+@njit(nogil=False)
+def _fault_rates(st: Any, model: Any, dt_s: float, time_s: float) -> None:
+    """After an isolation-filter call of ``dt_s`` (s): low-pass (time constant ``time_s``, the estimator's
+    deviation filter) the heat into the head and the heat out of it over C_w (degC/s) at the filter's state and
+    held drive. A gamma_Q fault adds (gamma_Q - 1) x the first to the symptom, a gamma_D fault (1 - 1/gamma_D)
+    x the second (docs/detection_isolation.md section 1)."""
+    iso = st["iso"]
+    drive = st["iso_drive"]
+    c_w = model[0]
+    heat = drive[4] * drive[1] * (iso[3] - drive[0]) / c_w
+    loss = dissipation(iso[0], drive[2], drive[3], model[2], model[3]) / c_w
+    a = 1.0 - math.exp(-dt_s / time_s) if time_s > 0.0 else 1.0
+    st["heat_rate"] += a * (heat - st["heat_rate"])
+    st["loss_rate"] += a * (loss - st["loss_rate"])
+
+
+@njit(nogil=False)
+def _add_fault_sample(st: Any, region: int, excess: float, margin: float, elapsed_s: float) -> None:
+    """One fed sample's excess of the symptom over the reference's mean in its region (nan: none) and the
+    reference test's margin there (its level minus that mean; nan in the start region, not tested), ``elapsed_s``
+    after engine start, into the start region's sums or the airborne cruise/high-power ones (only the START_S
+    after the start region: a fault there from start is there then, a later onset is not), with the low-passed
+    heat and loss rates."""
+    if math.isnan(excess):
+        return
+    if region == REGION_START and elapsed_s < 0.5 * START_S:
+        _add_to(st["early_sums"], excess, margin, st)
+    if region == REGION_START:
+        sums = st["start_sums"]
+    elif isolable_region(region) and elapsed_s < 2.0 * START_S:
+        sums = st["air_sums"]
+    else:
+        return
+    _add_to(sums, excess, margin, st)
+
+
+@njit(nogil=False)
+def _add_to(sums: Any, excess: float, margin: float, st: Any) -> None:
+    sums[0] += 1.0
+    sums[1] += excess
+    sums[2] += st["heat_rate"]
+    sums[3] += st["loss_rate"]
+    sums[4] += margin
+
+
+@njit(nogil=False)
+def start_fault_call(st: Any, start_margin: float) -> int:
+    """The cause of a fault present from engine start, from the regions' excess symptoms: START_CALL_NOT_FROM_START
+    when the start region's mean excess over the reference is not above ``start_margin`` (NOMINAL_SPREAD_Z
+    spreads of the nominal flights' start means; nan: no reference there), nothing airborne was seen in the
+    START_S after the start region, the airborne excess there is not above the reference test's margin
+    (NOMINAL_SPREAD_Z spreads of the nominal flights there: the fault is not there airborne), or the ratio
+    below fits neither pattern within a factor of 2 (a start that ran a little warm, and a later onset), or
+    the start region's first half holds less than half the excess the heat's pattern predicts from its second
+    half (an onset within the start region and a gamma_D fault look alike there: the filter decides, which
+    follows an onset's transient and is not biased against gamma_D); else START_CALL_HEAT (gamma_Q),
+    START_CALL_LOSS (gamma_D) or START_CALL_UNTOLD.
+
+    A gamma_Q fault's symptom follows the heat into the head, a gamma_D fault's the heat out of it. At the
+    start the head is cold: the heat out is a smaller part of the heat in than airborne. So the ratio of the
+    start's mean excess to the airborne one is near the heat's ratio (start / airborne) for gamma_Q and near
+    the loss's ratio for gamma_D; the call is the nearer one (the observed ratio above or below their geometric
+    mean). Untold when the two ratios do not differ (the heat's not above the loss's)."""
+    start = st["start_sums"]
+    air = st["air_sums"]
+    if math.isnan(start_margin) or start[0] < 1.0 or air[0] < 1.0 or not start[1] / start[0] > start_margin:
+        return START_CALL_NOT_FROM_START
+    excess_air = air[1] / air[0]
+    heat_air = air[2] / air[0]
+    loss_air = air[3] / air[0]
+    if not (excess_air > 0.0 and excess_air > air[4] / air[0]):
+        return START_CALL_NOT_FROM_START
+    if not (heat_air > 0.0 and loss_air > 0.0):
+        return START_CALL_UNTOLD
+    heat_ratio = (start[2] / start[0]) / heat_air
+    loss_ratio = (start[3] / start[0]) / loss_air
+    if not heat_ratio > loss_ratio or not loss_ratio > 0.0:
+        return START_CALL_UNTOLD
+    observed = (start[1] / start[0]) / excess_air
+    if not 0.5 * loss_ratio <= observed <= 2.0 * heat_ratio:  # fits neither: a warm start, and a later onset
+        return START_CALL_NOT_FROM_START
+    early = st["early_sums"]
+    late = start - early
+    if early[0] < 1.0 or late[0] < 1.0 or not late[1] > 0.0 or not late[3] > 0.0:
+        return START_CALL_NOT_FROM_START
+    if not (early[1] / early[0]) / (late[1] / late[0]) >= 0.5 * (early[2] / early[0]) / (late[2] / late[0]):
+        return START_CALL_NOT_FROM_START  # a fault that grew within the start region
+    return START_CALL_HEAT if observed > math.sqrt(heat_ratio * loss_ratio) else START_CALL_LOSS
 
 
 @njit(nogil=False)
@@ -1269,9 +1404,10 @@ def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
 def replay_loop(
     eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
 ) -> int:
-    """The live loop over a whole log: for each frame from ``start``, :func:`advance_to` its time then
-    :func:`feed_values` its decoded values (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame
-    to resume from when ``rows`` filled up, or the frame count when done."""
+    """The loop over frames, live (a frame at a time) and replay (a whole log): for each frame from
+    ``start``, :func:`advance_to` its time then :func:`feed_values` its decoded values
+    (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame to resume from when ``rows`` filled
+    up, or the frame count when done."""
     eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     n = frame_time_s.shape[0]
     for f in range(start, n):
@@ -1287,13 +1423,11 @@ def replay_loop(
 
 def compiled() -> Any:
     """The step's compiled entry points (each function here carries ``@njit``; numba compiles it on first
-    call or loads it from the disk cache): a namespace with ``advance_to``, ``feed_values``,
-    ``replay_loop``, ``headroom_s``, ``detector_step``, ``stop_cylinder``, ``close_events``."""
+    call or loads it from the disk cache): a namespace with ``replay_loop``, ``headroom_s``,
+    ``detector_step``, ``stop_cylinder``, ``close_events``."""
     from types import SimpleNamespace
 
     return SimpleNamespace(
-        advance_to=advance_to,
-        feed_values=feed_values,
         replay_loop=replay_loop,
         headroom_s=headroom_s,
         detector_step=detector_step,

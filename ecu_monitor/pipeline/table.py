@@ -1,8 +1,8 @@
 """Health tables (health.csv, Parquet, Arrow) written from whole columns: the bulk writer of the health rows.
 
-The CSV's numbers are Python's ``format(v, ".10g")`` (C's ``%.10g``), written by the standard library's
-csv writer a block of rows at a time (the text held at once is one block's); a nan or an infinity is an
-empty cell, as in every health.csv (the first column spells them); text columns from their labels.
+The CSV's numbers are Python's ``%.10g`` (C's), a block of rows formatted by one ``%`` operation (the
+text held at once is one block's; no cell needs quoting: numbers and labels only); a nan or an infinity is
+an empty cell, as in every health.csv (the first column spells them); text columns from their labels.
 Which columns, in which order: :mod:`ecu_monitor.pipeline.outputs`. Parquet and Arrow IPC (``.parquet``,
 ``.arrow``, ``.feather``) need pyarrow, an optional extra (``pip install 'ecu-monitor[arrow]'``): never
 part of the daemon's install.
@@ -10,10 +10,8 @@ part of the daemon's install.
 
 from __future__ import annotations
 
-import csv
 import importlib.util
 import io
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -58,24 +56,32 @@ _BLOCK_ROWS = 8192
 
 
 def _write_csv(table: Sequence[TableColumn], handle: TextIO) -> None:
-    writer = csv.writer(handle, lineterminator="\n")
-    writer.writerow([c.name for c in table])
+    """Header, then a block of rows at a time: one ``%`` format of the block (``%.10g`` a number, ``%s`` a
+    label), then every non-finite number after the first column blanked. A cell is "nan", "inf" or "-inf"
+    only when it is such a number (no label starts with them: checked)."""
+    handle.write(",".join(c.name for c in table) + "\n")
+    line = ",".join("%.10g" if c.labels is None else "%s" for c in table) + "\n"
+    labels = [None if c.labels is None else np.asarray(c.labels, dtype=object) for c in table]
+    for texts in labels:
+        if texts is not None and any(str(t).startswith(_NOT_FINITE) for t in texts):
+            raise FlightLogError(f"health.csv: a label starting with one of {_NOT_FINITE} reads as a number")
     rows = int(np.size(table[0].values))
     for start in range(0, rows, _BLOCK_ROWS):
         stop = min(start + _BLOCK_ROWS, rows)
-        writer.writerows(zip(*(_cells(c, i == 0, start, stop) for i, c in enumerate(table)), strict=True))
+        cells = np.empty((stop - start, len(table)), dtype=object)
+        for j, (column, texts) in enumerate(zip(table, labels, strict=True)):
+            if texts is None:
+                cells[:, j] = np.asarray(column.values[start:stop], dtype=np.float64)
+            else:
+                cells[:, j] = texts[np.asarray(column.values[start:stop], dtype=np.int64)]
+        text = (line * (stop - start)) % tuple(cells.ravel().tolist())
+        for word in _NOT_FINITE:
+            text = text.replace("," + word, ",")
+        handle.write(text)
 
 
-def _cells(column: TableColumn, spelled: bool, start: int, stop: int) -> list[str]:
-    """Rows start..stop of ``column`` as cell text: a label, or the number at %.10g (nan and inf empty
-    unless ``spelled``)."""
-    if column.labels is not None:
-        labels = column.labels
-        return [labels[code] for code in np.asarray(column.values[start:stop], dtype=np.int64).tolist()]
-    values = np.asarray(column.values[start:stop], dtype=np.float64).tolist()
-    if spelled:
-        return [format(x, ".10g") for x in values]
-    return [format(x, ".10g") if math.isfinite(x) else "" for x in values]
+#: How %.10g spells the non-finite numbers (blank cells in health.csv, except in the first column).
+_NOT_FINITE = ("nan", "inf", "-inf")
 
 
 def check_table_path(path: str | os.PathLike[str]) -> str:

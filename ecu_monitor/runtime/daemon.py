@@ -36,7 +36,8 @@ collects once before READY and moves the start-up heap into the permanent genera
 and freezes again when the estimator has run its first steps (its compiled code is loaded then), so
 the collector only ever scans what the service allocates while it runs (docs/service.md, "Daemon").
 Then automatic collection is switched off and the supervisor collects every period instead (the young
-generation every 0.1 s, generation 1 every second, a full collection every minute): a collection is
+generation every period, generation 1 every 10th, a full collection every 120th: every 0.5 s, 5 s and
+minute with the default period): a collection is
 work that can wait, so it never starts inside the callback of a frame on the bus thread.
 
 GIL: a thread that wants the interpreter while another runs Python waits until that one blocks, or
@@ -114,7 +115,7 @@ class DaemonSettings:
     declared once in :class:`~ecu_monitor.config.ConfigFile`."""
 
     tick_s: float = 0.02  # the tick thread's period (module docstring); run: the pipeline's row period
-    supervise_s: float = 0.1  # supervisor period: reopen, persistence, watchdog
+    supervise_s: float = 0.5  # supervisor period: reopen, persistence, watchdog (each wake-up costs CPU)
     status_every_s: float = 10.0  # STATUS= and the INFO log line
     backoff_initial_s: float = config_default("reopen_backoff_s").initial
     backoff_max_s: float = config_default("reopen_backoff_s").max
@@ -481,7 +482,7 @@ class Daemon:
         """The cyclic collector's work of one supervisor period (module docstring, "Garbage collection")."""
         self._collections += 1
         every = self._collections
-        gc.collect(2 if every % 600 == 0 else 1 if every % 10 == 0 else 0)
+        gc.collect(2 if every % 120 == 0 else 1 if every % 10 == 0 else 0)
 
     def _check_silence(self, now: float) -> None:
         with self._lock:
