@@ -143,14 +143,11 @@ DEFAULT_CANDIDATE_IDS: tuple[str, ...] = (
 
 
 def candidates_for(heat_axes: Sequence[str], flights: Sequence[FlightLog]) -> tuple[str, ...]:
-    """The candidates tried when the user names none: :data:`DEFAULT_CANDIDATE_IDS`, plus
-    ``engine_speed_cooling`` when the heat map's second axis is the engine speed, plus the removal
+    """The candidates tried when the user names none: :data:`DEFAULT_CANDIDATE_IDS`, plus the removal
     ``no_altitude_factor`` when the heat map is on fuel flow (the fuel flow already carries the charge
     density that the altitude factor models: the paper's form may double-count it), plus
     ``mixture_index`` when every flight logs its EGT (``egt_c``)."""
     ids = list(DEFAULT_CANDIDATE_IDS)
-    if heat_axes[1] == "rpm":
-        ids.append("engine_speed_cooling")
     if "fuel_flow_lph" in heat_axes:
         ids.append("no_altitude_factor")
     if flights and all(log.has("egt_c") for log in flights):
