@@ -72,6 +72,7 @@ UNITS: Mapping[str, Unit] = MappingProxyType(
         "K": Unit("temperature", 1.0, -273.15),
         "cdegC": Unit("temperature", 0.01, 0.0),  # centi-degrees Celsius (MAVLink SCALED_PRESSURE.temperature)
         "degF": Unit("temperature", 5.0 / 9.0, -32.0 * 5.0 / 9.0),
+        "degR": Unit("temperature", 5.0 / 9.0, -273.15),  # Rankine (JSBSim's air temperature)
         # length (altitude), canonical m
         "m": Unit("length", 1.0, 0.0),
         "ft": Unit("length", 0.3048, 0.0),

@@ -8,11 +8,15 @@
                     --mission FILE|NAME [--degrade ...] [--effect ...] [--realtime] [--speed X]
     virtual-ecu campaign --flights N --out-dir DIR [--wear gamma_q+0.005] [--format blf] [--duration S]
                          [--seed N] [--effect ...] [--model model.yaml] [--protocol ...]
+    virtual-ecu jsbsim --aircraft c172x --mission pattern|cross_country|step_climb --out flight.csv [--seed N]
 
 ``campaign``: N flights of one engine, each a random mission of its own seed, with a per-flight degradation
 schedule (``--wear gamma_q+0.005``: gamma_Q 1.0 on the first flight, 1.005 on the second, ..., from engine
 start), one log per flight (``DIR/flight_001.blf`` ...), a day apart on the UNIX clock (virtual_bus/campaign.py):
 ``ecu-monitor replay LOG --history STATE_DIR`` each in turn gives the engine's history of slow wear.
+
+``jsbsim``: one of JSBSim's piston aircraft flown through a seeded mission, its engine model's CHT, EGT, oil,
+fuel flow and manifold pressure logged to a canonical CSV (virtual_bus/jsbsim_flight.py; the ``jsbsim`` extra).
 
 ``--protocol``: engine.dbc frames (dbc, the default), DroneCAN messages (virtual_bus/dronecan_emitter.py) or
 an autopilot's MAVLink stream (virtual_bus/mavlink_emitter.py: recorded to a .tlog, sent over ``--connection``,
@@ -216,7 +220,39 @@ def build_parser() -> argparse.ArgumentParser:
     camp.add_argument("--model", metavar="model.yaml", help="truth model (default: the paper's Table A1)")
     camp.add_argument("--protocol", choices=("dbc", "dronecan"), default="dbc", help="frames (default dbc)")
     camp.set_defaults(func=_campaign)
+
+    jsb = sub.add_parser(
+        "jsbsim", help="fly one of JSBSim's piston aircraft (its own engine model) to a canonical CSV (docs/jsbsim.md)"
+    )
+    jsb.add_argument(
+        "--aircraft", default="c172x", help="a piston aircraft of the jsbsim package: c172x, c172p, c172r, pa28, c182"
+        " or c310 (default c172x)"
+    )  # fmt: skip
+    jsb.add_argument(
+        "--mission", default="pattern", help="pattern, cross_country or step_climb, drawn from --seed (default pattern)"
+    )
+    jsb.add_argument("--seed", type=int, default=0, help="seed of the mission: field, day, levels, power, mixture")
+    jsb.add_argument("--out", required=True, metavar="FILE.csv", help="the canonical flight CSV")
+    jsb.add_argument("--record-dt", type=float, default=1.0, help="CSV sample step, s (default 1)")
+    jsb.set_defaults(func=_jsbsim)
     return parser
+
+
+def _jsbsim(args: argparse.Namespace) -> int:
+    from ecu_monitor.flightlog import write_csv
+    from ecu_monitor.userfiles import check_output_file
+    from virtual_bus.jsbsim_flight import fly
+
+    out = check_output_file(args.out, "--out", ConfigError)
+    progress = _Progress(f"virtual-ecu jsbsim {args.aircraft} {args.mission}")
+    log = fly(args.aircraft, args.mission, args.seed, record_dt_s=args.record_dt,
+              progress=lambda t: progress(f"t = {t:.0f} s"))  # fmt: skip
+    progress.done()
+    write_csv(log, out)
+    cht = log["cht_c"]
+    print(f"{log.source}: flew {log.duration_s / 60.0:.1f} min, CHT {cht.min():.0f}-{cht.max():.0f} degC")
+    print(f"wrote {out}: {len(log)} rows")
+    return 0
 
 
 def _campaign(args: argparse.Namespace) -> int:

@@ -203,7 +203,7 @@ def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...]]) -> FitResult:
 
 
 def _references(logs: Sequence[FlightLog], settings: GapSettings) -> dict[str, float]:
-    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c", "egt_c"))
+    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c", "rpm", "egt_c"))
     return flight_references(pooled, settings.segments.ground_airspeed_mps)
 
 

@@ -45,7 +45,7 @@ import numpy as np
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import EFFECT_TYPES, Effects, air_density_kg_m3, isa_pressure_pa
-from ecu_monitor.model.effects import Effect
+from ecu_monitor.model.effects import Effect, running_rpm
 
 __all__ = [
     "CANDIDATES",
@@ -165,7 +165,7 @@ def candidate(candidate_id: str) -> Candidate:
 
 def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> dict[str, float]:
     """Reference conditions of the train flight: median airborne airspeed (m/s), median density (kg/m^3),
-    and the median EGT (degC) when it is logged."""
+    median running engine speed (rev/min), and the median EGT (degC) when it is logged."""
     airspeed = np.asarray(train["airspeed_mps"], dtype=float)
     airborne = airspeed[airspeed >= ground_airspeed_mps]
     reference_mps = float(np.median(airborne)) if airborne.size else 23.0
@@ -174,6 +174,7 @@ def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> di
     references = {
         "reference_mps": float(np.clip(reference_mps, 1.0, 200.0)),
         "reference_kg_m3": float(np.clip(np.median(density), 0.3, 1.6)),
+        "reference_rpm": running_rpm([train]),
     }
     if train.has("egt_c"):
         references["reference_egt_c"] = float(np.clip(np.median(np.asarray(train["egt_c"], dtype=float)), 0.0, 1200.0))
@@ -185,6 +186,7 @@ def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> di
 REFERENCE_KEYS: dict[str, dict[str, str]] = {
     "airspeed_cooling": {"reference_mps": "reference_mps"},
     "density_cooling": {"reference_kg_m3": "reference_kg_m3"},
+    "engine_speed_cooling": {"reference_rpm": "reference_rpm"},
     "mixture_index": {"reference": "reference_egt_c"},
 }
 

@@ -85,7 +85,7 @@ def swarm_kernel(
             # the heat-map cell shared by every particle at this step
             i, j, fx, fy = heat_cell(heat_x[k], heat_y[k], xb, yb)
             particles_drive(q0, gain, cond, pade, k == 0, heat, i, j, fx, fy, log_pressure_ratio[k],
-                            log_temperature_ratio[k], log_density[k], airspeed[k], load[k], mixture[k],
+                            log_temperature_ratio[k], log_density[k], airspeed[k], load[k], heat_y[k], mixture[k],
                             theta)  # fmt: skip
         if k % record_every == 0:
             row = k // record_every
@@ -135,6 +135,7 @@ def particles_drive(
     log_density: float,
     airspeed: float,
     load: float,
+    engine_speed: float,
     mixture: float,
     theta: NDArray[np.float64],
 ) -> None:
@@ -143,7 +144,7 @@ def particles_drive(
     for p in range(theta.shape[0]):
         q0[p] = blend(heat[p, i, j], heat[p, i, j + 1], heat[p, i + 1, j], heat[p, i + 1, j + 1], fx, fy)
         altitude_gain, heat_factor, conductance = drive(
-            log_pressure_ratio, log_temperature_ratio, log_density, airspeed, load, mixture, theta[p]
+            log_pressure_ratio, log_temperature_ratio, log_density, airspeed, load, engine_speed, mixture, theta[p]
         )
         gain[p] = altitude_gain * heat_factor
         cond[p] = conductance

@@ -13,6 +13,10 @@ identified model. An effect that is ``None`` in :class:`Effects` is off and the 
 - ``density_cooling``: forced convection scales with air density,
   ``G *= (rho / reference_kg_m3) ** exponent`` with rho from ISA pressure and the measured OAT
   (h ~ (rho v)^0.8 for a turbulent flow over fins, so exponent ~0.5-0.8).
+- ``engine_speed_cooling``: the propeller's slipstream and the engine's own air flow push cooling air
+  through the cowling in proportion to engine speed, on the ground as in the air:
+  ``G *= max(0.05, 1 + gain * (rpm / reference_rpm - 1))``, rpm read from the heat map's second axis
+  (which must then be ``rpm``).
 - ``sensor_lag``: the CHT probe (a thermocouple under the spark plug) lags the head with a first
   order time constant: ``dT_probe/dt = (T - T_probe) / time_constant_s``.
 - ``mixture_cooling``: power enrichment at high load puts less heat into the head. With
@@ -61,11 +65,13 @@ __all__ = [
     "Effect",
     "EffectParameter",
     "Effects",
+    "EngineSpeedCooling",
     "GapRefit",
     "MixtureCooling",
     "MixtureIndex",
     "SensorLag",
     "mixture_index",
+    "running_rpm",
 ]
 
 
@@ -220,6 +226,43 @@ class DensityCooling(Effect):
 
 
 @dataclass(frozen=True)
+class EngineSpeedCooling(Effect):
+    """Convective conductance grows with engine speed: G *= max(0.05, 1 + gain * (rpm / reference_rpm - 1)).
+
+    The propeller's slipstream (and a fan or the engine's baffled flow) drives cooling air through the cowling
+    in proportion to engine speed, whatever the airspeed: it is what cools a head on the ground, and in the
+    air it adds to the ram air of ``airspeed_cooling``. The engine speed is the heat map's second axis (the
+    model's ``heat_axes`` end in ``rpm``, as both defaults do).
+
+    gain: relative conductance change per unit of rpm / reference_rpm (dimensionless), typically 0.2-1.
+    reference_rpm: engine speed at which the nominal R_Ce holds (rev/min), the flights' median running speed.
+    """
+
+    gain: float = 0.4
+    reference_rpm: float = 2400.0
+
+    PARAMETERS: ClassVar[dict[str, EffectParameter]] = {
+        "gain": EffectParameter("speed_gain", 0.0, (-1.0, 3.0), (-0.5, 2.0), gap=GapRefit(0.0, -0.5, 2.0, (0.5,))),
+        "reference_rpm": EffectParameter("speed_reference_rpm", 2400.0, (100.0, 30000.0), (100.0, 30000.0)),
+    }
+    FREE: ClassVar[tuple[str, ...]] = ("gain",)
+    GAP_TEXT: ClassVar[str] = "convective conductance grows with engine speed (the propeller slipstream)"
+
+    @classmethod
+    def start(cls, flights: Sequence[Columns]) -> EngineSpeedCooling:
+        """Gain 0.4 about the flights' median running engine speed."""
+        return cls(gain=0.4, reference_rpm=running_rpm(flights))
+
+
+def running_rpm(flights: Sequence[Columns]) -> float:
+    """Median engine speed of ``flights`` while the engine runs (rpm above :data:`_MIN_RPM`), rev/min;
+    the reference of ``engine_speed_cooling``."""
+    rpm = np.concatenate([np.asarray(log["rpm"], dtype=float) for log in flights])
+    running = rpm[rpm > _MIN_RPM]
+    return float(np.clip(np.median(running), 100.0, 30000.0)) if running.size else 2400.0
+
+
+@dataclass(frozen=True)
 class SensorLag(Effect):
     """First-order lag of the CHT probe. time_constant_s: probe time constant (s), 0-300."""
 
@@ -333,6 +376,7 @@ class MixtureIndex(Effect):
 EFFECT_TYPES: dict[str, type[Effect]] = {
     "airspeed_cooling": AirspeedCooling,
     "density_cooling": DensityCooling,
+    "engine_speed_cooling": EngineSpeedCooling,
     "sensor_lag": SensorLag,
     "mixture_cooling": MixtureCooling,
     "mixture_index": MixtureIndex,
@@ -354,6 +398,7 @@ class Effects:
 
     airspeed_cooling: AirspeedCooling | None = None
     density_cooling: DensityCooling | None = None
+    engine_speed_cooling: EngineSpeedCooling | None = None
     sensor_lag: SensorLag | None = None
     mixture_cooling: MixtureCooling | None = None
     mixture_index: MixtureIndex | None = None

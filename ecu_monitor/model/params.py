@@ -195,6 +195,11 @@ class ThermalParams:
             )
         if not isinstance(self.effects, Effects):
             raise ParameterError("effects: expected an Effects")
+        if self.effects.engine_speed_cooling is not None and self.heat_map.y_axis != "rpm":
+            raise ParameterError(
+                "effects.engine_speed_cooling: reads the engine speed from the heat map's second axis, which is"
+                f" {self.heat_map.y_axis!r}, not rpm"
+            )
         if isinstance(self.terms_off, str) or not isinstance(self.terms_off, tuple | list):
             raise ParameterError(f"terms_off: expected a list of term names, got {self.terms_off!r}")
         for term in self.terms_off:

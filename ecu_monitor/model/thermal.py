@@ -172,7 +172,7 @@ def unpack_coefficients(
     s = scalars
     return Coefficients(
         s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11], s[12], s[13], s[14], s[15],
-        s[16], s[17], heat_values_w, x_breakpoints, y_breakpoints,
+        s[16], s[17], s[18], s[19], heat_values_w, x_breakpoints, y_breakpoints,
     )  # fmt: skip
 
 
@@ -217,7 +217,7 @@ def compute_drive(inputs: InputSeries, coeffs: Coefficients) -> Drive:
         float(xb[-1]),
     )
     altitude_gain, heat_gain, conductance = _eq.drive(
-        *conditions, np.asarray(inputs.mixture_index, dtype=float), coeffs
+        *conditions, np.asarray(inputs.heat_y, dtype=float), np.asarray(inputs.mixture_index, dtype=float), coeffs
     )
     return Drive(q_sl0, altitude_gain, oat_c, conductance, heat_gain)
 
@@ -245,7 +245,7 @@ def drive_at(u: Any, coeffs: Any) -> tuple[float, float, float, float, float]:
     i, j, fx, fy = heat_cell(u[0], u[1], xb, coeffs.y_breakpoints)
     q_sl0 = _eq.blend(v[i, j], v[i, j + 1], v[i + 1, j], v[i + 1, j + 1], fx, fy)
     log_p, log_t, log_rho, airspeed, load = _eq.conditions(u[0], u[2], u[3], u[4], xb[0], xb[xb.shape[0] - 1])
-    altitude_gain, heat_gain, conductance = _eq.drive(log_p, log_t, log_rho, airspeed, load, u[5], coeffs)
+    altitude_gain, heat_gain, conductance = _eq.drive(log_p, log_t, log_rho, airspeed, load, u[1], u[5], coeffs)
     return q_sl0, altitude_gain, u[4], conductance, heat_gain
 
 

@@ -186,7 +186,7 @@ def test_effect_candidates_come_from_the_effects_and_search_only_values_they_acc
 
     effect_entries = [entry for entry in CANDIDATES if entry.effect != "nominal"]
     assert [entry.id for entry in effect_entries] == list(EFFECT_TYPES)
-    references = {"reference_mps": 30.0, "reference_kg_m3": 1.1, "reference_egt_c": 650.0}
+    references = {"reference_mps": 30.0, "reference_kg_m3": 1.1, "reference_rpm": 2400.0, "reference_egt_c": 650.0}
     for entry in effect_entries:
         assert entry.description == EFFECT_TYPES[entry.effect].GAP_TEXT and entry.free
         for bound in ("low", "high"):

@@ -22,6 +22,7 @@ from ecu_monitor.model import (
     AirspeedCooling,
     DensityCooling,
     Effects,
+    EngineSpeedCooling,
     InputSeries,
     MixtureCooling,
     MixtureIndex,
@@ -55,6 +56,9 @@ def _random_params(rng: np.random.Generator, kelvin: bool) -> ThermalParams:
         ),
         density_cooling=DensityCooling(
             exponent=float(rng.uniform(0.2, 0.9)), reference_kg_m3=float(rng.uniform(1, 1.3))
+        ),
+        engine_speed_cooling=EngineSpeedCooling(
+            gain=float(rng.uniform(-0.3, 1.0)), reference_rpm=float(rng.uniform(1500, 6000))
         ),
         sensor_lag=SensorLag(time_constant_s=float(rng.uniform(1, 30))),
         mixture_cooling=MixtureCooling(fraction=float(rng.uniform(0, 0.3)), onset=float(rng.uniform(0.3, 0.9))),

@@ -1,0 +1,158 @@
+"""JSBSim's piston engine, an engine model nobody here wrote: identified on one flight, predicting other
+missions of the same aircraft open loop, for several of the jsbsim package's piston aircraft.
+
+    nice -n 10 .venv/bin/python benchmarks/bench_jsbsim.py [--aircraft c172p,c182] [--quick] [--out DIR]
+
+For each aircraft, three missions are flown (``virtual-ecu jsbsim``: cross_country seed 1, step_climb
+seed 2, cross_country seed 3: other fields, days, levels, power and mixture). Each flight in turn is the
+training flight: ``identify`` on it alone with the form of each row below (heat map on fuel flow x rpm,
+4x4, the way a light aircraft's engine monitor is identified), then every other flight is predicted open
+loop from its first CHT sample; the figure is that held-out RMS (model - measured CHT, degC), per
+ordered pair. Rows: the paper's form; ``--effects auto`` (the terms chosen on the training flight's two
+halves); the named form the library's real-data best used (docs/results/real.md); the fuel-flow form (no
+altitude factor: the fuel flow carries the charge density; airspeed cooling; the mixture index on EGT);
+the same with engine_speed_cooling. Then the gap diagnosis
+(``ecu-monitor gap --model`` the paper's form identified on flight 1 ``--train`` flight 1 ``--test`` flights
+2 and 3: local refits) and its verdict. Prints markdown tables and the wall time of each identification and
+of the gap (the term search runs on every core); ``--forms 3,4`` picks rows; ``--quick`` uses a smaller
+swarm. The flights and gap reports stay in ``--out`` (default a temporary folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ecu_monitor.flightlog import FlightLog, load_csv
+from ecu_monitor.identify import PsoSettings, flight_errors
+from ecu_monitor.identify.select import identify_flights, parse_terms
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+AXES = ("fuel_flow_lph", "rpm")
+GRID = (4, 4)
+MISSIONS = (("cross_country", 1), ("step_climb", 2), ("cross_country", 3))
+#: Rows: (label, --effects value; "" = the paper's form).
+FORMS = (
+    ("paper form", ""),
+    ("--effects auto", "auto"),
+    (
+        "real-data best (docs/results/real.md)",
+        "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index",
+    ),
+    ("fuel-flow form", "-altitude_factor,airspeed_cooling,mixture_index"),
+    ("fuel-flow form + engine_speed_cooling", "-altitude_factor,airspeed_cooling,mixture_index,engine_speed_cooling"),
+)
+TARGET_C = 3.0
+
+
+def fly(aircraft: str, out: Path) -> list[Path]:
+    """The missions of ``aircraft`` flown to CSVs in ``out`` (the user's command)."""
+    paths = []
+    for mission, seed in MISSIONS:
+        path = out / f"{aircraft}_{mission}_{seed}.csv"
+        cmd = [str(BIN / "virtual-ecu"), "jsbsim", "--aircraft", aircraft, "--mission", mission,
+               "--seed", str(seed), "--out", str(path)]  # fmt: skip
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        paths.append(path)
+    return paths
+
+
+def held_out(flights: list[FlightLog], effects: str, settings: PsoSettings) -> tuple[np.ndarray, float]:
+    """RMS (degC) of the model identified on flight i predicting flight j (NaN on the diagonal), and the
+    identifications' wall time (s; the term search runs on every core)."""
+    n = len(flights)
+    rms = np.full((n, n), np.nan)
+    start = time.perf_counter()
+    for i in range(n):
+        terms = "auto" if effects == "auto" else (parse_terms(effects) if effects else {})
+        result, _cv, _sel = identify_flights(
+            [flights[i]], base=_base(), heat_axes=AXES, grid=GRID, settings=settings, terms=terms, lofo=False
+        )
+        for j in range(n):
+            if j != i:
+                rms[i, j] = flight_errors(result.params, flights[j]).rms_c
+    return rms, time.perf_counter() - start
+
+
+def _base():  # the paper's Table A1, as identify starts from
+    from ecu_monitor.model import paper_table_a1
+
+    return paper_table_a1()
+
+
+def gap_verdict(paths: list[Path], out: Path) -> tuple[str, float]:
+    """``ecu-monitor gap --train`` the first flight ``--test`` the others, from the paper's form identified on
+    the train flight (``identify``, then the gap's local refits): its verdict and wall time (s)."""
+    folder = out / f"gap_{paths[0].stem}"
+    nominal = out / f"nominal_{paths[0].stem}.yaml"
+    start = time.perf_counter()
+    grid = "x".join(map(str, GRID))
+    subprocess.run([str(BIN / "ecu-monitor"), "identify", str(paths[0]), "--heat-axes", ",".join(AXES), "--grid", grid,
+                    "--out", str(nominal), "--quiet"], check=True, capture_output=True)  # fmt: skip
+    cmd = [str(BIN / "ecu-monitor"), "gap", "--model", str(nominal), "--train", str(paths[0]), "--test",
+           *map(str, paths[1:]), "--out", str(folder)]  # fmt: skip
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    report = json.loads((folder / "gap.json").read_text(encoding="utf-8"))
+    verdict = report["verdict"]
+    base = report["baseline"]["test_rms_c"]
+    best = min(report["effects"], key=lambda e: e["test_rms_c"]) if report["effects"] else None
+    lines = [line for line in done.stdout.splitlines() if line.strip()]
+    text = (
+        f"verdict {verdict['effect'] or 'unexplained'}; baseline held-out {base:.2f} degC"
+        + (f", best candidate {best['id']} {best['test_rms_c']:.2f} degC" if best else "")
+        + (f" ({lines[-4].strip()})" if len(lines) >= 4 and not verdict["effect"] else "")
+    )
+    return text, wall
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--aircraft", default="c172p,c182", help="comma-separated aircraft (default c172p,c182)")
+    parser.add_argument("--quick", action="store_true", help="a smaller swarm (24 particles, 30 iterations)")
+    parser.add_argument("--out", type=Path, help="folder kept for the flights and gap reports (default: temporary)")
+    parser.add_argument("--forms", default=",".join(str(k) for k in range(len(FORMS))), help="rows to run (indices)")
+    args = parser.parse_args()
+    settings = PsoSettings(particles=24, iterations=30) if args.quick else PsoSettings()
+    forms = [FORMS[int(k)] for k in args.forms.split(",")]
+    with tempfile.TemporaryDirectory(prefix="bench-jsbsim-") as scratch:
+        out = args.out or Path(scratch)
+        out.mkdir(parents=True, exist_ok=True)
+        for aircraft in args.aircraft.split(","):
+            start = time.perf_counter()
+            paths = fly(aircraft, out)
+            flights = [load_csv(p) for p in paths]
+            names = [p.stem.removeprefix(f"{aircraft}_") for p in paths]
+            minutes = ", ".join(f"{f.duration_s / 60:.0f}" for f in flights)
+            print(
+                f"\n## {aircraft}: {len(flights)} flights ({minutes} min), flown in {time.perf_counter() - start:.0f} s"
+            )
+            print("\nheld-out RMS, degC (identified on the row's flight, predicting the column's), mean and worst:\n")
+            print("| form | train -> test | " + " | ".join(names) + " | mean | worst |")
+            print("|---|---|" + "---|" * (len(names) + 2))
+            for label, effects in forms:
+                rms, wall = held_out(flights, effects, settings)
+                off = rms[~np.isnan(rms)]
+                for i, name in enumerate(names):
+                    cells = " | ".join("-" if np.isnan(v) else f"{v:.2f}" for v in rms[i])
+                    head = f"{label} ({wall / len(names):.0f} s each)" if i == 0 else ""
+                    tail = f"{off.mean():.2f} | {off.max():.2f}" if i == 0 else " | "
+                    print(f"| {head} | {name} -> | {cells} | {tail} |")
+                print(f"<!-- {label}: mean {off.mean():.2f}, worst {off.max():.2f}, target {TARGET_C} -->")
+                sys.stdout.flush()
+            text, wall = gap_verdict(paths, out)
+            print(f"\ngap (train {names[0]}, test the others): {text} ({wall:.0f} s)")
+            sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
