@@ -73,6 +73,8 @@ __all__ = [
 
 #: Terms that identification can switch on or off (module doc): every effect, and two parts of the paper's form.
 TERM_NAMES: tuple[str, ...] = (*EFFECT_NAMES, "altitude_factor", "radiation_kelvin")
+#: The terms ``--effects auto`` searches (an effect declares whether: ``Effect.AUTO_SEARCH``).
+AUTO_TERMS: tuple[str, ...] = tuple(n for n in TERM_NAMES if n not in EFFECT_TYPES or EFFECT_TYPES[n].AUTO_SEARCH)
 #: A toggle is kept when it lowers the mean held-out RMS error by at least this fraction.
 MIN_GAIN = 0.02
 #: The paper's altitude exponents, used when the altitude factor is switched back on.
@@ -339,7 +341,7 @@ def select_terms(
     heat_axes: tuple[str, str],
     grid: tuple[int, int] | None,
     settings: PsoSettings,
-    candidates: Sequence[str] = TERM_NAMES,
+    candidates: Sequence[str] = AUTO_TERMS,
     free: Sequence[str] = DEFAULT_FREE,
     min_gain: float = MIN_GAIN,
     error_dt_s: float | None = None,
@@ -405,7 +407,7 @@ def identify_flights(
     grid: tuple[int, int] | None,
     settings: PsoSettings,
     terms: dict[str, bool] | str | None = None,
-    candidates: Sequence[str] = TERM_NAMES,
+    candidates: Sequence[str] = AUTO_TERMS,
     free: Sequence[str] = DEFAULT_FREE,
     lofo: bool = True,
     error_dt_s: float | None = None,
