@@ -249,15 +249,14 @@ def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> Th
     return params
 
 
-def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> list[ThermalParams]:
-    """For each flight, the nominal model identified on the others (PSO; the folds on every core)."""
-    from ecu_monitor.identify import DEFAULT_FREE, PsoSettings
-    from ecu_monitor.identify.select import leave_one_flight_out
-    from ecu_monitor.model import paper_table_a1
+def _fold_nominals(trains: list[FlightLog], identified: ThermalParams) -> list[ThermalParams]:
+    """For each flight, the nominal model identified on every flight re-identified on the others (the
+    joint least squares, warm-started: :mod:`ecu_monitor.gap.folds`; the folds on every core)."""
+    from ecu_monitor.gap.diagnosis import JOINT_REFIT
+    from ecu_monitor.gap.folds import fold_nominals
 
-    _say(f"no --model: identifying one nominal model per held-out flight (PSO, heat axes {','.join(axes)})")
-    cv = leave_one_flight_out(trains, paper_table_a1(), DEFAULT_FREE, axes, None, PsoSettings(), progress=_say)
-    return [fold.params for fold in cv.folds]
+    _say("no --model: one nominal model per held-out flight, warm-started from the fit on every flight")
+    return fold_nominals(trains, identified, JOINT_REFIT, progress=_say)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -280,8 +279,8 @@ def _run(args: argparse.Namespace) -> int:
     settings = _settings(args, candidates_for(axes, [*trains, *tests]))
     started = time.perf_counter()
     if args.leave_one_out:
-        nominals = [nominal] * len(trains) if nominal is not None else _fold_nominals(trains, axes)
         final = nominal or _identify(trains, axes, "all flights: ")
+        nominals = [nominal] * len(trains) if nominal is not None else _fold_nominals(trains, final)
         diag = cross_validate(nominals, trains, final, settings, progress=_say)
     else:
         nominal = nominal or _identify(trains, axes, "")

@@ -31,6 +31,7 @@ import numpy as np
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnosis import JOINT_REFIT, EffectScore, GapDiagnosis, GapSettings, HeldOutFlight, rms_of
+from ecu_monitor.gap.folds import fold_nominals
 from ecu_monitor.gap.localise import (
     correlations,
     heat_map_coverage,
@@ -118,9 +119,18 @@ def diagnose(
     settings = settings or GapSettings()
     train_logs = _as_logs(train_logs, "train")
     test_logs = _as_logs(test_logs, "test")
+    chosen_by = None
+    if 0 < settings.choose_on_train_from <= len(train_logs):
+        say = progress or (lambda message: None)
+        say(f"choosing the verdict by leave-one-flight-out over the {len(train_logs)} train flights (not the test)")
+        if settings.refit_mode == "reidentify":  # the nominal model was identified on these flights
+            nominals = fold_nominals(train_logs, nominal, settings.pso, progress)
+        else:
+            nominals = [nominal] * len(train_logs)
+        chosen_by = cross_validate(nominals, train_logs, nominal, settings, progress)
     trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s) for log in train_logs)
     fold = RefitFold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
-    return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress)
+    return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress, chosen_by)
 
 
 def cross_validate(
@@ -145,7 +155,7 @@ def cross_validate(
         others = tuple(f for i, f in enumerate(prepared) if i != k)
         references = _references([log for i, log in enumerate(logs) if i != k], settings)
         folds.append(RefitFold(nominal, others, references, (k,)))
-    return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress)
+    return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress, None)
 
 
 def _train_cost(fits: Sequence[FitResult]) -> float:
@@ -215,6 +225,7 @@ def _diagnose(
     final_nominal: ThermalParams,
     settings: GapSettings,
     progress: Progress | None,
+    chosen_by: GapDiagnosis | None,
 ) -> GapDiagnosis:
     say = progress or (lambda message: None)
     engine = settings.refit.engine
@@ -259,6 +270,60 @@ def _diagnose(
     def score(fits: list[FitResult], role: str, reference: EffectScore | None, n: float, test: Any) -> EffectScore:
         return score_fits(fits, folds, tests, baseline_rms, engine, role, reference, n, test)
 
+    if chosen_by is not None:
+        control, effects, winner = _score_chosen(chosen_by, fit_batch, score, settings)
+    else:
+        control, effects, winner = _search(folds, tests, fit_batch, score, settings, say)
+    if winner is not None:
+        gain = segment_gain_shares(control.test_residual, winner.test_residual, labels)
+        winner_segment = max(gain, key=lambda k: gain[k])
+        model = winner.fit.params
+        if len(folds) > 1:
+            say(f"refit: {winner.label} on all {len(trains)} flights (model.yaml)")
+            final = _FitWork((RefitFold(final_nominal, trains, references, ()),), settings)
+            model = _fit_task(final, (0, winner.fit.ids)).params
+    else:
+        gain = {}
+        winner_segment = where[0].segment
+        model = nominal
+    say("verdict: " + (winner.label if winner is not None else "unexplained"))
+    return GapDiagnosis(
+        nominal=nominal,
+        trains=trains,
+        tests=tests,
+        baseline_train_residual=base_train,
+        baseline_test_residual=base_test,
+        where=where,
+        regions=regions,
+        correlation=corr,
+        lag=lag,
+        spectrum=spectrum,
+        whiteness=whiteness,
+        coverage=coverage,
+        control=control,
+        effects=effects,
+        winner=winner,
+        winner_segment=winner_segment,
+        segment_gain=gain,
+        model=model,
+        settings=settings,
+        references=references,
+        folds=len(folds),
+        chosen_by=chosen_by,
+    )
+
+
+def _search(
+    folds: Sequence[RefitFold],
+    tests: tuple[HeldOutFlight, ...],
+    fit_batch: Callable[[str, Sequence[tuple[str, ...]]], list[list[FitResult]]],
+    score: Callable[..., EffectScore],
+    settings: GapSettings,
+    say: Progress,
+) -> tuple[EffectScore, list[EffectScore], EffectScore | None]:
+    """The control, every single candidate and the pairs (module doc, step 3): (control, effects sorted
+    by test RMS, winner or None)."""
+    engine = settings.refit.engine
     fold_note = f", {len(folds)} folds" if len(folds) > 1 else ""
     say(
         f"refit: the control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note}) and"
@@ -298,40 +363,24 @@ def _diagnose(
         ]
         if better:
             winner = min(better, key=lambda s: s.test_rms_c)
-    effects = sorted(singles + pairs, key=lambda s: s.test_rms_c)
-    if winner is not None:
-        gain = segment_gain_shares(control.test_residual, winner.test_residual, labels)
-        winner_segment = max(gain, key=lambda k: gain[k])
-        model = winner.fit.params
-        if len(folds) > 1:
-            say(f"refit: {winner.label} on all {len(trains)} flights (model.yaml)")
-            final = _FitWork((RefitFold(final_nominal, trains, references, ()),), settings)
-            model = _fit_task(final, (0, winner.fit.ids)).params
-    else:
-        gain = {}
-        winner_segment = where[0].segment
-        model = nominal
-    say("verdict: " + (winner.label if winner is not None else "unexplained"))
-    return GapDiagnosis(
-        nominal=nominal,
-        trains=trains,
-        tests=tests,
-        baseline_train_residual=base_train,
-        baseline_test_residual=base_test,
-        where=where,
-        regions=regions,
-        correlation=corr,
-        lag=lag,
-        spectrum=spectrum,
-        whiteness=whiteness,
-        coverage=coverage,
-        control=control,
-        effects=effects,
-        winner=winner,
-        winner_segment=winner_segment,
-        segment_gain=gain,
-        model=model,
-        settings=settings,
-        references=references,
-        folds=len(folds),
-    )
+    return control, sorted(singles + pairs, key=lambda s: s.test_rms_c), winner
+
+
+def _score_chosen(
+    chosen_by: GapDiagnosis,
+    fit_batch: Callable[[str, Sequence[tuple[str, ...]]], list[list[FitResult]]],
+    score: Callable[..., EffectScore],
+    settings: GapSettings,
+) -> tuple[EffectScore, list[EffectScore], EffectScore | None]:
+    """The verdict chosen by the leave-one-flight-out over the train flights (or, unexplained there, its
+    lead), refitted on every train flight and scored on the test flights against the control: (control,
+    [it], it when chosen_by named it)."""
+    chosen = chosen_by.winner or chosen_by.lead
+    batch = [(), chosen.fit.ids] if chosen is not None else [()]
+    fits = fit_batch("refits of the control and the chosen effect(s)", batch)
+    control = score(fits[0], "control", None, 1, settings.significance)
+    if chosen is None:
+        return control, [], None
+    role = "single" if len(chosen.fit.ids) == 1 else "pair_vs_control"
+    mine = score(fits[1], role, control, 1, settings.significance)
+    return control, [mine], mine if chosen_by.winner is not None else None

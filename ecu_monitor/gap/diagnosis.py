@@ -50,7 +50,11 @@ class GapSettings:
     against the control: the second effect of a pair is fitted to what the first one leaves, small
     structured remainders such as a slightly wrong nominal altitude exponent included), and must also
     shrink its reference's TRAIN RMS by ``significance.min_shrink_pct``: a second effect has to explain
-    the flights it was fitted on, not only an accident of the held-out ones."""
+    the flights it was fitted on, not only an accident of the held-out ones.
+
+    With at least ``choose_on_train_from`` train flights (0: never) the verdict is chosen by a
+    leave-one-flight-out diagnosis over the train flights alone, then refitted on all of them and scored
+    on the test flights: the choice never depends on the test flights, which only measure it."""
 
     candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
     refit: RefitSettings = field(default_factory=RefitSettings)
@@ -62,12 +66,17 @@ class GapSettings:
     whiteness_estimator: str | None = "cbekf-au"
     refit_mode: str = "local"
     pso: PsoSettings = field(default_factory=lambda: JOINT_REFIT)
+    choose_on_train_from: int = 3
 
     def __post_init__(self) -> None:
         for cid in self.candidates:
             candidate(cid)  # raises ParameterError if unknown
         if not self.candidates:
             raise ParameterError("gap: at least one candidate effect is needed")
+        if not (isinstance(self.choose_on_train_from, int) and self.choose_on_train_from >= 0):
+            raise ParameterError(
+                f"gap choose_on_train_from: expected a number of flights >= 0, got {self.choose_on_train_from!r}"
+            )
         if self.refit_mode not in ("local", "reidentify"):
             raise ParameterError(f"gap refit mode: expected 'local' or 'reidentify', got {self.refit_mode!r}")
 
@@ -155,6 +164,7 @@ class GapDiagnosis:
     settings: GapSettings
     references: dict[str, float]
     folds: int = 1  # > 1: leave-one-flight-out (each test flight scored by refits on the others)
+    chosen_by: GapDiagnosis | None = None  # the leave-one-flight-out over the train flights that chose the verdict
 
     @property
     def train(self) -> PreparedFlight:
@@ -183,6 +193,13 @@ class GapDiagnosis:
         if lead is None:
             return None
         flights = "the test flight" if len(self.tests) == 1 else f"the {len(self.tests)} test flights"
+        if self.chosen_by is not None:
+            inner = self.chosen_by.lead_sentence() or "nothing shrinks the held-out error"
+            return (
+                f"{lead.label}: held-out {-lead.shrink_pct:+.0f} % on {flights} ({lead.test_rms_c:.2f} degC,"
+                f" control {self.control.test_rms_c:.2f}), not chosen by the leave-one-out over the"
+                f" {len(self.trains)} train flights ({inner})"
+            )
         versus = lead.versus
         reasons = []
         if versus is not None and not versus.significant:

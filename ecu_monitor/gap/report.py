@@ -117,8 +117,13 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
             for row in detail
         ],
     }
+    effects = [_effect_entry(s) for s in diag.effects]
+    if diag.chosen_by is not None:  # the decision was the train flights' leave-one-out, not this test
+        for entry in effects:
+            entry["significant"] = winner is not None and entry["id"] == winner.label
     return _clean(
         {
+            "chosen_by": _chosen_by_entry(diag),
             "baseline": {
                 "train_rms_c": float(np.sqrt(np.mean(base_train**2))),
                 "test_rms_c": float(np.sqrt(np.mean(base_test**2))),
@@ -127,7 +132,7 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
                 "test_mean_c": float(np.mean(base_test)),
             },
             "where": [s.to_dict() for s in diag.where],
-            "effects": [_effect_entry(s) for s in diag.effects],
+            "effects": effects,
             "verdict": verdict,
             "control": _effect_entry(diag.control),
             "segments": [
@@ -170,6 +175,25 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
             ],
         }
     )
+
+
+def _chosen_by_entry(diag: GapDiagnosis) -> dict[str, Any] | None:
+    """With enough train flights: the leave-one-flight-out over them that chose the verdict (what it
+    named, its pooled held-out shrink over the train flights, each candidate's pooled held-out RMS)."""
+    inner = diag.chosen_by
+    if inner is None:
+        return None
+    return {
+        "rule": f"leave-one-flight-out over the {len(inner.tests)} train flights",
+        "label": inner.winner.label if inner.winner is not None else "unexplained",
+        "lead": inner.lead.label if inner.lead is not None else None,
+        "baseline_rms_c": float(np.sqrt(np.mean(inner.baseline_test_residual**2))),
+        "control_rms_c": inner.control.test_rms_c,
+        "effects": [
+            {"id": s.label, "held_out_rms_c": s.test_rms_c, "shrink_pct": s.shrink_pct, "significant": s.counts}
+            for s in inner.effects
+        ],
+    }
 
 
 def _shrink(row: dict[str, Any], rms_c: float) -> float:
@@ -378,6 +402,16 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
         )
     else:
         lines.append(f"Train flight(s) (refits): {trains}; test flight(s) (held out): {tests}.")
+    chosen = doc["chosen_by"]
+    if chosen is not None:
+        lines += [
+            "",
+            f"The verdict was chosen by a {chosen['rule']} (each held out in turn, pooled: "
+            f"{chosen['label']}; baseline {chosen['baseline_rms_c']:.2f} degC, control {chosen['control_rms_c']:.2f}, "
+            + ", ".join(f"{e['id']} {e['held_out_rms_c']:.2f}" for e in chosen["effects"][:6])
+            + "), then refitted on every train flight and scored on the test flight(s): the test flights measure "
+            "the choice and take no part in it.",
+        ]
     if command:
         lines += ["", f"Command: `{command}`"]
     lines += ["", "## Verdict", ""]

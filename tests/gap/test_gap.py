@@ -311,3 +311,22 @@ def test_an_effect_the_test_cannot_confirm_is_named_with_its_shrink_not_a_bare_u
     assert verdict["effect"] is None and lead["id"] == "sensor_lag" and lead["shrink_pct"] > 50.0
     assert lead["text"].startswith("sensor_lag: held-out -") and "not confirmed" in lead["text"]
     assert "--leave-one-out" in lead["text"] and not lead["confirmed"]
+
+
+def test_fold_nominal_forgets_the_heat_map_breakpoints_its_flights_do_not_visit() -> None:
+    """A breakpoint only the held-out flight visits must not carry its fitted value into the fold."""
+    from ecu_monitor.gap.folds import forget_unvisited
+    from ecu_monitor.identify.heat_grid import visited_weight_s
+
+    log = _profile_log()  # throttle 50 %, rpm 6000 throughout: a corner of the paper's map
+    params = paper_table_a1()
+    values = params.heat_map.values_array()
+    marked = params.replace(
+        heat_map=params.heat_map.with_values(values * np.linspace(1, 2, values.size).reshape(values.shape))
+    )
+    visited = visited_weight_s([log], marked.heat_map) >= 20.0
+    assert visited.any() and not visited.all()
+    forgot = forget_unvisited(marked, [log]).heat_map.values_array()
+    kept = marked.heat_map.values_array()
+    assert np.array_equal(forgot[visited], kept[visited])
+    assert set(np.unique(forgot[~visited])) <= set(np.unique(kept[visited]))

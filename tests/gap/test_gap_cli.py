@@ -198,3 +198,19 @@ def test_gap_cli_without_model_takes_fuel_flow_axes_when_no_throttle_is_logged(
     assert main(args) == 2
     assert seen == [("fuel_flow_lph", "rpm")]
     assert "heat map on fuel_flow_lph,rpm" in capsys.readouterr().err
+
+
+def test_gap_cli_chooses_the_verdict_on_three_train_flights_not_on_the_test(flights: dict[str, Path]) -> None:
+    """Issue 28: with three train flights the verdict is chosen by a leave-one-flight-out over them; the
+    test flight only measures it (one refit of the control and of the chosen effect are scored on it)."""
+    out = flights["root"] / "chosen"
+    trains = [str(flights[name]) for name in ("train", "train2", "test2")]
+    args = ["gap", "--model", str(flights["model"]), "--train", *trains, "--test", str(flights["test"])]
+    assert main([*args, "--candidates", "sensor_lag,density_cooling", "--out", str(out)]) == 0
+    doc = json.loads((out / "gap.json").read_text())
+    chosen = doc["chosen_by"]
+    assert chosen["rule"] == "leave-one-flight-out over the 3 train flights" and chosen["label"] == "sensor_lag"
+    assert {e["id"] for e in chosen["effects"]} >= {"sensor_lag", "density_cooling"}
+    assert doc["verdict"]["effect"] == "sensor_lag" and [e["id"] for e in doc["effects"]] == ["sensor_lag"]
+    assert doc["per_flight"][0]["test_rms_c"] < doc["per_flight"][0]["control_rms_c"]
+    assert "take no part in it" in (out / "report.md").read_text()

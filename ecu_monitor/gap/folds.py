@@ -1,0 +1,74 @@
+"""One nominal model per held-out flight, warm-started from the identification on every flight.
+
+``gap --leave-one-out`` without ``--model`` needs, for each flight k, a nominal model that has not seen
+flight k. A swarm identification per fold costs as much as the plain run's whole identification;
+instead the swarm runs once, on every flight, and each fold's nominal model is that fit re-identified
+on the fold's own flights by the joint least squares the candidate refits use
+(:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start polished over the whole search space).
+
+What the warm start knows of flight k is taken out first: the heat-map breakpoints the fold's flights
+do not visit (under ``MIN_VISIT_S`` of bilinear weight) would keep values fitted to flight k alone, so
+they copy their nearest visited breakpoint before the polish. The polish is local: what it keeps of
+the start beyond that is the basin it converges in, the same basin the candidates' joint refits start
+from in every fold.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.identify import identify
+from ecu_monitor.identify.heat_grid import visited_weight_s
+from ecu_monitor.identify.parallel import run_tasks
+from ecu_monitor.identify.pso import PsoSettings
+from ecu_monitor.identify.search_settings import MIN_VISIT_S
+from ecu_monitor.model import ThermalParams
+
+__all__ = ["fold_nominals", "forget_unvisited"]
+
+
+def forget_unvisited(params: ThermalParams, logs: Sequence[FlightLog]) -> ThermalParams:
+    """``params`` with every heat-map breakpoint ``logs`` do not visit (< ``MIN_VISIT_S`` s of bilinear
+    weight) set to the value of the nearest visited one (grid distance): nothing is left that only
+    another flight could have fitted."""
+    heat_map = params.heat_map
+    visited = visited_weight_s(logs, heat_map) >= MIN_VISIT_S
+    if visited.all() or not visited.any():
+        return params
+    values = heat_map.values_array().copy()
+    kept = np.argwhere(visited)
+    for i, j in np.argwhere(~visited):
+        nearest = kept[int(np.argmin((kept[:, 0] - i) ** 2 + (kept[:, 1] - j) ** 2))]
+        values[i, j] = values[nearest[0], nearest[1]]
+    return params.replace(heat_map=heat_map.with_values(values))
+
+
+@dataclass(frozen=True)
+class _FoldWork:
+    """What every fold task reads (a forked worker inherits it)."""
+
+    logs: tuple[FlightLog, ...]
+    start: ThermalParams
+    pso: PsoSettings
+
+
+def _fold_task(work: _FoldWork, k: int) -> ThermalParams:
+    others = [log for i, log in enumerate(work.logs) if i != k]
+    start = forget_unvisited(work.start, others)
+    return identify(others, base=start, heat_axes=start.heat_axes, settings=work.pso).params
+
+
+def fold_nominals(
+    logs: Sequence[FlightLog],
+    identified: ThermalParams,
+    pso: PsoSettings,
+    progress: Callable[[str], None] | None = None,
+) -> list[ThermalParams]:
+    """For each flight k, ``identified`` (the fit on every flight) re-identified on the others with
+    ``pso`` (the module doc; the folds on every core)."""
+    work = _FoldWork(tuple(logs), identified, pso)
+    return run_tasks(_fold_task, work, range(len(logs)), "fold nominal models (warm-started)", progress)
