@@ -14,8 +14,11 @@ identify) and each candidate is then re-identified jointly with the whole model 
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--leave-one-out``
 with ``--train A B ...`` alone holds out each flight in turn (every candidate refitted on the others,
-from a nominal model identified on the others when ``--model`` is not given) and pools the scores
-over all the held-out flights; model.yaml is then the winner refitted on all of them. ``--split-at S``
+from a nominal model that has not seen it: without ``--model``, the identification on every flight
+re-identified on the others, warm-started) and pools the scores over all the held-out flights;
+model.yaml is then the winner refitted on all of them. With three ``--train`` flights or more and
+``--test``, the verdict is chosen by such a leave-one-out over the train flights and then scored on
+the test flights (which take no part in the choice). ``--split-at S``
 with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
 the other way round). ``--blind N`` runs N generated blind cases on the virtual ECU instead and
 writes DIR/blind.json and DIR/blind.md (scores and confusion matrix); ``--blind N --forms`` the
