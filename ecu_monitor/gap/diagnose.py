@@ -132,7 +132,8 @@ def diagnose(
             nominals = fold_nominals(train_logs, nominal, settings.pso, progress)
         else:
             nominals = [nominal] * len(train_logs)
-        chosen_by = cross_validate(nominals, train_logs, nominal, settings, progress)
+        inner = dataclasses.replace(settings, whiteness_estimator=None)  # only its verdict is used
+        chosen_by = cross_validate(nominals, train_logs, nominal, inner, progress)
     trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s) for log in train_logs)
     fold = RefitFold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
     return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress, chosen_by)
