@@ -67,9 +67,7 @@ def main() -> None:
     effects = Effects(sensor_lag=SensorLag(8.0), airspeed_cooling=AirspeedCooling(0.02, floor=0.45))
     nominal = perturbed_nominal(truth, np.random.default_rng(args.seed))
     ids = candidates_for(nominal.heat_axes, [])
-    # the plain runs search on the test flights (choose_on_train_from=0): the stricter reference for the
-    # leave-one-out's ratio (from three train flights the default chooses by a leave-one-out itself)
-    local = GapSettings(candidates=ids, choose_on_train_from=0)
+    local = GapSettings(candidates=ids)
 
     warm = [fly(random_mission(s, 900.0), truth, effects=effects, seed=s, record_dt_s=1.0) for s in (1, 2, 3)]
     diagnose(nominal, warm[:2], warm[2:], local)
@@ -109,7 +107,7 @@ def main() -> None:
     started, cpu = time.perf_counter(), _cpu_s()
     identified = identify(trains, heat_axes=nominal.heat_axes).params
     identify_s, identify_cpu = time.perf_counter() - started, _cpu_s() - cpu
-    joint = GapSettings(candidates=ids, refit_mode="reidentify", choose_on_train_from=0)
+    joint = GapSettings(candidates=ids, refit_mode="reidentify")
     diag_joint = diagnose(identified, trains, tests, joint)
     with tempfile.TemporaryDirectory() as out:
         write_report(diag_joint, out)

@@ -1,6 +1,6 @@
 """The blind cases with three train flights: is the verdict right when it is chosen by a leave-one-flight-out
-over the train flights (``GapSettings.choose_on_train_from``, the default from three train flights) and when
-it is chosen on the test flight (the search of one train/test split, ``choose_on_train_from=0``)?
+over the train flights (``GapSettings.choose_on_train_from=3``, ``gap --choose-on-train``) and when it is
+chosen on the test flight (the default)?
 
     nice -n 10 .venv/bin/python benchmarks/bench_gap_choice.py [--cases 10] [--seed 1] [--duration 1800]
 
@@ -34,8 +34,8 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=1800.0)
     args = parser.parse_args()
     rules = {
-        "train leave-one-out": GapSettings(whiteness_estimator=None),
-        "on the test flight": GapSettings(whiteness_estimator=None, choose_on_train_from=0),
+        "train leave-one-out": GapSettings(whiteness_estimator=None, choose_on_train_from=3),
+        "on the test flight": GapSettings(whiteness_estimator=None),
     }
     right = dict.fromkeys(rules, 0)
     for index in range(args.cases):

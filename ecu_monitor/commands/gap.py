@@ -16,9 +16,9 @@ with ``--model`` the candidates are refitted locally from it (``--refit local``)
 with ``--train A B ...`` alone holds out each flight in turn (every candidate refitted on the others,
 from a nominal model that has not seen it: without ``--model``, the identification on every flight
 re-identified on the others, warm-started) and pools the scores over all the held-out flights;
-model.yaml is then the winner refitted on all of them. With three ``--train`` flights or more and
-``--test``, the verdict is chosen by such a leave-one-out over the train flights and then scored on
-the test flights (which take no part in the choice). ``--split-at S``
+model.yaml is then the winner refitted on all of them. ``--choose-on-train`` (three ``--train``
+flights or more, and ``--test``) chooses the verdict by such a leave-one-out over the train flights
+and then scores it on the test flights (which take no part in the choice). ``--split-at S``
 with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
 the other way round). ``--blind N`` runs N generated blind cases on the virtual ECU instead and
 writes DIR/blind.json and DIR/blind.md (scores and confusion matrix); ``--blind N --forms`` the
@@ -63,6 +63,12 @@ def add_subparser(subparsers: Any) -> None:
         "--leave-one-out",
         action="store_true",
         help="with --train A B ... only: hold out each flight in turn (refits on the others), pool the scores",
+    )
+    parser.add_argument(
+        "--choose-on-train",
+        action="store_true",
+        help="with 3+ --train flights and --test: choose the verdict by a leave-one-out over the train flights,"
+        " the test flights only score it",
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
@@ -112,6 +118,8 @@ def _flights(args: argparse.Namespace) -> tuple[list[FlightLog], list[FlightLog]
     repeated = sorted({path for path in named if named.count(path) > 1})
     if repeated:
         raise UserInputError(f"gap: {repeated[0]}: given twice (a flight is either train or test, once)")
+    if args.choose_on_train and (len(args.train) < 3 or not args.test):
+        raise UserInputError("gap: --choose-on-train needs at least three --train flights and --test")
     if args.leave_one_out:
         if args.test or args.split_at is not None:
             raise UserInputError("gap: --leave-one-out takes its flights from --train alone (no --test, --split-at)")
@@ -162,7 +170,10 @@ def _settings(args: argparse.Namespace, candidates: tuple[str, ...] | None = Non
 
     mode = args.refit or ("local" if args.model or args.blind is not None else "reidentify")
     ids = _candidate_ids(args) or candidates
-    return GapSettings(refit_mode=mode) if ids is None else GapSettings(candidates=ids, refit_mode=mode)
+    chosen = {"choose_on_train_from": 3} if getattr(args, "choose_on_train", False) else {}
+    if ids is None:
+        return GapSettings(refit_mode=mode, **chosen)
+    return GapSettings(candidates=ids, refit_mode=mode, **chosen)
 
 
 def _check_blind(args: argparse.Namespace) -> Path:

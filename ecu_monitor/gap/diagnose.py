@@ -17,7 +17,7 @@
 4. Verdict: the winning effect(s) and the held-out shrink vs the baseline, or ``None``
    ("unexplained") when no candidate counts; then no candidate is named.
 
-With three train flights or more (``GapSettings.choose_on_train_from``) step 3 is a leave-one-flight-out
+When asked (``GapSettings.choose_on_train_from``, ``gap --choose-on-train``) step 3 is a leave-one-flight-out
 over the train flights alone (:func:`cross_validate`); its verdict (or its lead) is refitted on every
 train flight and scored on the test flights with the control: the choice never depends on the test
 flights, which only measure it.

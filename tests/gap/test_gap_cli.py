@@ -139,6 +139,7 @@ def test_gap_cli_split_at_runs_on_one_flight(flights: dict[str, Path]) -> None:
         (["--test", "{test}", "--split-at", "700"], "--split-at"),
         (["--leave-one-out"], "at least two"),
         (["--test", "{test}", "--leave-one-out"], "--leave-one-out"),
+        (["--test", "{test}", "--choose-on-train"], "at least three --train"),
     ],
 )
 def test_gap_cli_bad_input_exits_2(
@@ -200,13 +201,13 @@ def test_gap_cli_without_model_takes_fuel_flow_axes_when_no_throttle_is_logged(
     assert "heat map on fuel_flow_lph,rpm" in capsys.readouterr().err
 
 
-def test_gap_cli_chooses_the_verdict_on_three_train_flights_not_on_the_test(flights: dict[str, Path]) -> None:
-    """Issue 28: with three train flights the verdict is chosen by a leave-one-flight-out over them; the
+def test_gap_cli_choose_on_train_uses_three_train_flights_not_the_test(flights: dict[str, Path]) -> None:
+    """Issue 28: --choose-on-train with three train flights chooses the verdict by a leave-one-flight-out over them; the
     test flight only measures it (one refit of the control and of the chosen effect are scored on it)."""
     out = flights["root"] / "chosen"
     trains = [str(flights[name]) for name in ("train", "train2", "test2")]
     args = ["gap", "--model", str(flights["model"]), "--train", *trains, "--test", str(flights["test"])]
-    assert main([*args, "--candidates", "sensor_lag,density_cooling", "--out", str(out)]) == 0
+    assert main([*args, "--choose-on-train", "--candidates", "sensor_lag,density_cooling", "--out", str(out)]) == 0
     doc = json.loads((out / "gap.json").read_text())
     chosen = doc["chosen_by"]
     assert chosen["rule"] == "leave-one-flight-out over the 3 train flights" and chosen["label"] == "sensor_lag"
