@@ -195,14 +195,20 @@ class GapDiagnosis:
         if lead is None:
             return None
         flights = "the test flight" if len(self.tests) == 1 else f"the {len(self.tests)} test flights"
+        found = (
+            f"{lead.label}: held-out {-lead.shrink_pct:+.0f} % on {flights} ({lead.test_rms_c:.2f} degC,"
+            f" control {self.control.test_rms_c:.2f})"
+        )
+        inner = self.chosen_by.lead if self.chosen_by is not None else None
         if self.chosen_by is not None:
-            inner = self.chosen_by.lead_sentence() or "nothing shrinks the held-out error"
-            return (
-                f"{lead.label}: held-out {-lead.shrink_pct:+.0f} % on {flights} ({lead.test_rms_c:.2f} degC,"
-                f" control {self.control.test_rms_c:.2f}), not chosen by the leave-one-out over the"
-                f" {len(self.trains)} train flights ({inner})"
-            )
-        versus = lead.versus
+            over = f"{inner.label} {-inner.shrink_pct:+.0f} % over them, {self._why(inner)}" if inner else "no lead"
+            return f"{found}, not chosen by the leave-one-out over the {len(self.trains)} train flights ({over})"
+        advice = "add flights" if self.folds > 1 else "add flights or run --leave-one-out"
+        return f"{found}, not confirmed across flights ({self._why(lead)}): {advice}"
+
+    def _why(self, score: EffectScore) -> str:
+        """Why ``score`` does not count: its p-value and materiality against the control."""
+        versus = score.versus
         reasons = []
         if versus is not None and not versus.significant:
             reasons.append(f"p = {versus.p_value:.2f} against the control, needs <= {versus.level:.3f}")
@@ -212,12 +218,7 @@ class GapDiagnosis:
                 f"{versus.shrink_pct:.0f} % below the control, material from {bar.min_shrink_pct:.0f} %"
                 f" and {bar.min_rms_drop_c:g} degC"
             )
-        why = "; ".join(reasons) or "not tested"
-        advice = "add flights" if self.folds > 1 else "add flights or run --leave-one-out"
-        return (
-            f"{lead.label}: held-out {-lead.shrink_pct:+.0f} % on {flights} ({lead.test_rms_c:.2f} degC,"
-            f" control {self.control.test_rms_c:.2f}), not confirmed across flights ({why}): {advice}"
-        )
+        return "; ".join(reasons) or "not tested"
 
     @property
     def verdict_ids(self) -> tuple[str, ...]:
