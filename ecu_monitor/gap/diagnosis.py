@@ -55,7 +55,7 @@ class GapSettings:
     With ``choose_on_train_from`` > 0 (``gap --choose-on-train``: 3) and at least that many train flights,
     the verdict is chosen by a leave-one-flight-out diagnosis over the train flights alone, then refitted
     on all of them and scored on the test flights: the choice never depends on the test flights, which
-    only measure it. Off by default: on the N550ND folds it did not carry better than the choice on the
+    only measure it. Off by default: on the four N550ND folds it did not carry better than the choice on the
     test flights (docs/results/gap_real.md) and costs a leave-one-out."""
 
     candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
