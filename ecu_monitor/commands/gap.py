@@ -14,11 +14,11 @@ identify) and each candidate is then re-identified jointly with the whole model 
 reidentify``: the nominal heat map has absorbed what it could of any effect on that same flight);
 with ``--model`` the candidates are refitted locally from it (``--refit local``). ``--leave-one-out``
 with ``--train A B ...`` alone holds out each flight in turn (every candidate refitted on the others,
-from a nominal model that has not seen it: without ``--model``, the identification on every flight
-re-identified on the others, warm-started) and pools the scores over all the held-out flights;
-model.yaml is then the winner refitted on all of them. ``--choose-on-train`` (three ``--train``
-flights or more, and ``--test``) chooses the verdict by such a leave-one-out over the train flights
-and then scores it on the test flights (which take no part in the choice). ``--split-at S``
+from a nominal model identified on the others when ``--model`` is not given) and pools the scores
+over all the held-out flights; model.yaml is then the winner refitted on all of them.
+``--choose-on-train`` (three ``--train`` flights or more, and ``--test``) chooses the verdict by
+such a leave-one-out over the train flights and then scores it on the test flights (which take no
+part in the choice). ``--split-at S``
 with ``--train`` alone splits one flight at S seconds: before = train, after = test (``--test-first``:
 the other way round). ``--blind N`` runs N generated blind cases on the virtual ECU instead and
 writes DIR/blind.json and DIR/blind.md (scores and confusion matrix); ``--blind N --forms`` the
@@ -263,14 +263,19 @@ def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> Th
     return params
 
 
-def _fold_nominals(trains: list[FlightLog], identified: ThermalParams) -> list[ThermalParams]:
-    """For each flight, the nominal model identified on every flight re-identified on the others (the
-    joint least squares, warm-started: :mod:`ecu_monitor.gap.folds`; the folds on every core)."""
-    from ecu_monitor.gap.diagnosis import JOINT_REFIT
-    from ecu_monitor.gap.folds import fold_nominals
+def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> list[ThermalParams]:
+    """For each flight, the nominal model identified on the others (PSO; the folds on every core).
 
-    _say("no --model: one nominal model per held-out flight, warm-started from the fit on every flight")
-    return fold_nominals(trains, identified, JOINT_REFIT, progress=_say)
+    Not warm-started from the fit on every flight (:mod:`ecu_monitor.gap.folds`): on the real N550ND
+    flights that saved no CPU (the joint refits dominate) and moved the held-out baselines towards the
+    held-out flights (docs/results/gap_real.md)."""
+    from ecu_monitor.identify import DEFAULT_FREE, PsoSettings
+    from ecu_monitor.identify.select import leave_one_flight_out
+    from ecu_monitor.model import paper_table_a1
+
+    _say(f"no --model: identifying one nominal model per held-out flight (PSO, heat axes {','.join(axes)})")
+    cv = leave_one_flight_out(trains, paper_table_a1(), DEFAULT_FREE, axes, None, PsoSettings(), progress=_say)
+    return [fold.params for fold in cv.folds]
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -293,8 +298,8 @@ def _run(args: argparse.Namespace) -> int:
     settings = _settings(args, candidates_for(axes, [*trains, *tests]))
     started = time.perf_counter()
     if args.leave_one_out:
+        nominals = [nominal] * len(trains) if nominal is not None else _fold_nominals(trains, axes)
         final = nominal or _identify(trains, axes, "all flights: ")
-        nominals = [nominal] * len(trains) if nominal is not None else _fold_nominals(trains, final)
         diag = cross_validate(nominals, trains, final, settings, progress=_say)
     else:
         nominal = nominal or _identify(trains, axes, "")

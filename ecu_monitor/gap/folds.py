@@ -1,7 +1,8 @@
 """One nominal model per held-out flight, warm-started from the identification on every flight.
 
-``gap --leave-one-out`` without ``--model`` needs, for each flight k, a nominal model that has not seen
-flight k. A swarm identification per fold costs as much as the plain run's whole identification;
+A leave-one-out without ``--model`` needs, for each flight k, a nominal model that has not seen
+flight k (here: the inner leave-one-out of ``gap --choose-on-train``; ``gap --leave-one-out`` keeps a
+swarm per fold, docs/performance.md says why). A swarm identification per fold costs as much as the plain run's whole identification;
 instead the swarm runs once, on every flight, and each fold's nominal model is that fit re-identified
 on the fold's own flights by the joint least squares the candidate refits use
 (:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start polished over the whole search space).
