@@ -1,17 +1,18 @@
 """One nominal model per held-out flight, warm-started from the identification on every flight.
 
-A leave-one-out without ``--model`` needs, for each flight k, a nominal model that has not seen
-flight k (here: the inner leave-one-out of ``gap --choose-on-train``; ``gap --leave-one-out`` keeps a
-swarm per fold, docs/performance.md says why). A swarm identification per fold costs as much as the plain run's whole identification;
-instead the swarm runs once, on every flight, and each fold's nominal model is that fit re-identified
-on the fold's own flights by the joint least squares the candidate refits use
-(:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start polished over the whole search space).
+A leave-one-out without ``--model`` needs, for each flight k, a nominal model that has not seen flight
+k (here: the inner leave-one-out of ``gap --choose-on-train``; ``gap --leave-one-out`` keeps a swarm
+per fold, docs/performance.md says why). Instead of a swarm per fold, the swarm runs once, on every
+flight, and each fold's nominal model is that fit re-identified on the fold's own flights by the joint
+least squares the candidate refits use (:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start
+polished over the whole search space).
 
 What the warm start knows of flight k is taken out first: the heat-map breakpoints the fold's flights
 do not visit (under ``MIN_VISIT_S`` of bilinear weight) would keep values fitted to flight k alone, so
 they copy their nearest visited breakpoint before the polish. The polish is local: what it keeps of
-the start beyond that is the basin it converges in, the same basin the candidates' joint refits start
-from in every fold.
+the start beyond that is the basin it converges in: on the real N550ND flights that kept part of
+flight k (its held-out baseline moved towards it, docs/results/gap_real.md), so this serves a choice
+among candidates, not a held-out figure to report.
 """
 
 from __future__ import annotations
