@@ -324,7 +324,7 @@ CLOCK = np.dtype(
         ("status_slot", "i8"),  # the ECU's CHT sensor status (-1: none)
         ("min_c", "f8"),  # a plausible CHT reading
         ("max_c", "f8"),
-        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution
+        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution, 3 EGT - OAT
         ("cross", "?"),  # cross-cylinder detectors on
     ]
 )
@@ -341,7 +341,7 @@ class Engine(NamedTuple):
     check_limit_s: Any  # float64[checks]
     check_model: Any  # bool[checks]: a model input (stale: every cylinder's inputs are)
     model_slots: Any  # int64[5]: heat-map x, y, altitude, airspeed, OAT
-    mixture_slots: Any  # int64[2]: EGT, or fuel flow and rpm
+    mixture_slots: Any  # int64[2]: EGT, fuel flow and rpm, or EGT and OAT
     open_values: Any  # float64[]: the CHT sensor status values meaning "open"
     settings: Any  # CYLINDER_SETTINGS[cylinders]
     state: Any  # CYLINDER_STATE[cylinders]
@@ -1024,6 +1024,8 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
         u[5] = eng_values[eng_mixture_slots[0]]
     elif clock["mixture"] == 2:  # fuel per revolution, mL/rev
         u[5] = eng_values[eng_mixture_slots[0]] * (1000.0 / 60.0) / max(eng_values[eng_mixture_slots[1]], 100.0)
+    elif clock["mixture"] == 3:  # the EGT's rise over the intake air, degC
+        u[5] = eng_values[eng_mixture_slots[0]] - eng_values[eng_mixture_slots[1]]
     else:
         u[5] = np.nan
     call = k % clock["filter_period"] == 0

@@ -182,7 +182,7 @@ def test_nominal_candidates_search_only_values_the_model_accepts() -> None:
 def test_effect_candidates_come_from_the_effects_and_search_only_values_they_accept() -> None:
     # each model effect's candidate is made from its declarations; a refit at a bound builds a valid effect
     from ecu_monitor.identify.library import CANDIDATES, effects_for
-    from ecu_monitor.model import EFFECT_TYPES, Effects
+    from ecu_monitor.model import EFFECT_TYPES, AirspeedCooling, Effects
 
     effect_entries = [entry for entry in CANDIDATES if entry.effect != "nominal"]
     assert [entry.id for entry in effect_entries] == list(EFFECT_TYPES)
@@ -191,7 +191,9 @@ def test_effect_candidates_come_from_the_effects_and_search_only_values_they_acc
         assert entry.description == EFFECT_TYPES[entry.effect].GAP_TEXT and entry.free
         for bound in ("low", "high"):
             values = {entry.id: {free.name: getattr(free, bound) for free in entry.free}}
-            effects_for(Effects(), [entry], values, references)  # raises ParameterError outside the valid range
+            # mass_flow_cooling weights airspeed_cooling's air speed: tried on a model that has it
+            base = Effects(airspeed_cooling=AirspeedCooling()) if entry.effect == "mass_flow_cooling" else Effects()
+            effects_for(base, [entry], values, references)  # raises ParameterError outside the valid range
     with pytest.raises(ParameterError, match="reference_egt_c"):
         effects_for(Effects(), [candidate("mixture_index")], {"mixture_index": {"gain": 0.0}}, {})
 

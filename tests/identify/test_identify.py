@@ -382,8 +382,8 @@ def test_terms_switch_on_and_off_and_parse():
     fuel = fuel.with_columns(throttle_pct=np.full(len(log), np.nan))
     mixed, names = model_form(paper_table_a1(), [fuel], {"mixture_index": True})
     mixture = mixed.effects.mixture_index
-    assert mixture is not None and mixture.source == "egt_c" and "effects.mixture_index.gain" in names
-    assert mixture.reference == pytest.approx(float(np.median(fuel["egt_c"])))
+    assert mixture is not None and mixture.source == "egt_rise" and "effects.mixture_index.gain" in names
+    assert mixture.reference == pytest.approx(float(np.median(fuel["egt_c"] - np.asarray(fuel["oat_c"]))))
     with pytest.raises(ParameterError, match="needs"):
         split_halves(_synthetic_flight(13, 600))
 

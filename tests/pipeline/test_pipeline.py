@@ -461,3 +461,16 @@ def test_demo_says_so_when_the_injection_falls_after_the_flight(
     printed = capsys.readouterr().out
     assert "gamma_Q = 1.2 NOT injected: --inject-at 500 s is after the end of the flight (20 s" in printed
     assert "NOT detected" not in printed
+
+
+def test_the_live_step_computes_every_mixture_index_the_model_reads() -> None:
+    """Each mixture-index source has its code in the live step (pipeline/step.py), and a model on the EGT's rise
+    over the OAT reads both columns."""
+    from ecu_monitor.model import MIXTURE_SOURCES
+    from ecu_monitor.model.effects import Effects, MixtureIndex
+    from ecu_monitor.pipeline.engine import MIXTURE_CODES, model_input_names
+
+    assert set(MIXTURE_CODES) == set(MIXTURE_SOURCES)
+    on_rise = paper_table_a1().replace(effects=Effects(mixture_index=MixtureIndex("egt_rise", 0.003, 700.0)))
+    names = model_input_names(on_rise, ("egt_c", "oat_c"))
+    assert names[-1] == "egt_c" and "oat_c" in names
