@@ -313,3 +313,19 @@ def test_an_effect_the_test_cannot_confirm_is_named_with_its_shrink_not_a_bare_u
     assert verdict["effect"] is None and lead["id"] == "sensor_lag" and lead["shrink_pct"] > 50.0
     assert lead["text"].startswith("sensor_lag: held-out -") and "not confirmed" in lead["text"]
     assert "--leave-one-out" in lead["text"] and not lead["confirmed"]
+
+
+def test_the_gap_reads_the_mixture_index_the_model_carries(tmp_path: Path) -> None:
+    """A nominal model whose mixture index is the EGT's rise over the OAT, on a flight it generated: the gap
+    feeds it that rise (not the raw EGT), so its baseline error on that flight is the probe's round-off."""
+    base = fly(random_mission(6, 600.0), paper_table_a1(), seed=6, record_dt_s=1.0)
+    columns = {name: np.asarray(base[name]) for name in base.names}
+    columns["egt_c"] = 650.0 + 60.0 * np.sin(2.0 * np.pi * base.time_s / 400.0)
+    nominal = paper_table_a1().replace(
+        effects=paper_table_a1().effects.replace("mixture_index", MixtureIndex("egt_rise", 0.004, 640.0))
+    )
+    grid = prepare_flight(FlightLog(columns, source="rise"), nominal.heat_axes, 0.5, nominal.effects.mixture_index)
+    columns["cht_c"] = simulate_probe([nominal], grid)[:, 0]
+    log = FlightLog(columns, source="rise")
+    diag = diagnose(nominal, log, log, GapSettings(candidates=("sensor_lag",), whiteness_estimator=None))
+    assert write_report(diag, tmp_path / "out")["baseline"]["test_rms_c"] < 0.05
