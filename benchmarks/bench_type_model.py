@@ -42,7 +42,6 @@ from ecu_monitor.identify import PsoSettings, flight_errors
 from ecu_monitor.identify.select import parse_terms
 from ecu_monitor.identify.type_model import Adaptation, adapt_choosing, describe_terms, first_minutes, fit_type
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1, save_model
-from ecu_monitor.model.effects import MIXTURE_COLUMNS, MixtureIndex, mixture_index
 
 REPO = Path(__file__).resolve().parents[1]
 GRID = (4, 4)
@@ -50,11 +49,8 @@ GRID = (4, 4)
 #: leave-one-flight-out best), and the heat on rpm x EGT (a fixed-pitch propeller's rpm sets the power, the
 #: EGT where the mixture sits; the paper's altitude factor scales the heat with the air's pressure and temperature).
 FORMS = (
-    (("fuel_flow_lph", "rpm"), "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index", "fuel_per_air"),
-    (("fuel_flow_lph", "rpm"), "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index", "egt_c"),
-    (("fuel_flow_lph", "rpm"), "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index", "fuel_per_prop_load"),
-    (("rpm", "egt_c"), "altitude_factor,airspeed_cooling,sensor_lag,density_cooling,-mixture_index", None),
-    (("rpm", "fuel_per_air"), "altitude_factor,airspeed_cooling,sensor_lag,density_cooling,-mixture_index", None),
+    (("fuel_flow_lph", "rpm"), "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index"),
+    (("rpm", "egt_c"), "altitude_factor,airspeed_cooling,sensor_lag,density_cooling,-mixture_index"),
 )
 #: Labels of the airframes in the given data (G1000 system_id -> aircraft).
 LABELS = {
@@ -90,16 +86,6 @@ def _halves(log: FlightLog) -> tuple[FlightLog, FlightLog]:
     t = np.asarray(log.time_s, dtype=float)
     middle = t[0] + 0.5 * (t[-1] - t[0])
     return log.select(t[0], middle), log.select(float(t[t > middle][0]), t[-1])
-
-
-def _base(source: str | None, flights: list[FlightLog]) -> ThermalParams:
-    """The paper's model with the mixture index read from ``source`` (None: the term's own start rule)."""
-    base = paper_table_a1()
-    if source is None:
-        return base
-    index = np.concatenate([mixture_index(source, {n: log[n] for n in MIXTURE_COLUMNS[source]}) for log in flights])
-    effect = MixtureIndex(source=source, gain=0.0, reference=float(np.nanmedian(index)))
-    return base.replace(effects=base.effects.replace("mixture_index", effect))
 
 
 def _plain(params: ThermalParams) -> ThermalParams:
@@ -158,7 +144,6 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="fewer PSO iterations (a smoke run)")
     parser.add_argument("--only", help="comma-separated system_ids to hold out (default every airframe)")
     parser.add_argument("--save", type=Path, help="write each fold's type model into this directory")
-    parser.add_argument("--forms", help="comma-separated indices into FORMS (default all)")
     parser.add_argument("--one-form", action="store_true", help="the first form only (no choice of form)")
     parser.add_argument(
         "--types",
@@ -173,8 +158,6 @@ def main() -> int:
     flights, airframes = _load(paths)
     settings = PsoSettings(particles=24, iterations=10 if args.quick else 30, polish_evaluations=100, dt_s=1.0)
     forms = FORMS[:1] if args.one_form else FORMS
-    if args.forms:
-        forms = tuple(FORMS[int(k)] for k in args.forms.split(","))
     names = list(dict.fromkeys(airframes))
     held = args.only.split(",") if args.only else names
     rows = []
@@ -183,13 +166,13 @@ def main() -> int:
         train = [(f, a) for f, a in zip(flights, airframes, strict=True) if a != name]
         own = [f for f, a in zip(flights, airframes, strict=True) if a == name]
         types = []
-        for k, (axes, form, source) in enumerate(forms):
+        for k, (axes, form) in enumerate(forms):
             if args.types:
                 types.append(load_model(args.types / f"type{k}_without_{name}.yaml"))
                 continue
             started = time.process_time()
             fit = fit_type(
-                [f for f, _ in train], [a for _, a in train], engine_type="c172", base=_base(source, [f for f, _ in train]),
+                [f for f, _ in train], [a for _, a in train], engine_type="c172", base=paper_table_a1(),
                 heat_axes=axes, grid=GRID, settings=settings, terms=parse_terms(form),
                 progress=lambda line: print(line, file=sys.stderr),
             )  # fmt: skip

@@ -314,38 +314,24 @@ class MixtureCooling(Effect):
 MIXTURE_SOURCES: dict[str, tuple[str, float, float, float]] = {
     "egt_c": ("degC", 0.0, 1200.0, 300.0),  # exhaust gas temperature
     "fuel_per_rev": ("mL/rev", 0.0, 5.0, 0.3),  # fuel_flow_lph / rpm, in mL per revolution
-    "fuel_per_air": ("mL/rev", 0.0, 10.0, 0.3),  # fuel per revolution at sea-level air density
-    "fuel_per_prop_load": ("L/h/krpm^3", 0.0, 1000.0, 1.5),  # fuel flow / (density ratio x (rpm/1000)^3)
 }
 #: Columns each mixture-index source is computed from.
 MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
     "egt_c": ("egt_c",),
     "fuel_per_rev": ("fuel_flow_lph", "rpm"),
-    "fuel_per_air": ("fuel_flow_lph", "rpm", "altitude_m", "oat_c"),
-    "fuel_per_prop_load": ("fuel_flow_lph", "rpm", "altitude_m", "oat_c"),
 }
 #: Below this engine speed (rpm) the fuel per revolution is taken at this speed (engine stopped).
 _MIN_RPM = 100.0
 
 
 def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64]:
-    """The lean/rich index of ``source`` from its columns: EGT (degC) as logged; the fuel per
-    revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h); or the fuel per air charge, that
-    fuel per revolution times sea-level air density / the ambient density (ISA pressure at altitude_m,
-    the OAT), in mL/rev: the fuel/air ratio up to the engine's displacement and volumetric efficiency,
-    read from no probe."""
+    """The lean/rich index of ``source`` from its columns: EGT (degC) as logged, or the fuel per
+    revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h)."""
     if source == "egt_c":
         return np.asarray(columns["egt_c"], dtype=float)
-    if source in ("fuel_per_rev", "fuel_per_air", "fuel_per_prop_load"):
+    if source == "fuel_per_rev":
         rpm = np.maximum(np.asarray(columns["rpm"], dtype=float), _MIN_RPM)
-        fuel = np.asarray(columns["fuel_flow_lph"], dtype=float)
-        if source == "fuel_per_rev":
-            return fuel * (1000.0 / 60.0) / rpm
-        density = air_density_kg_m3(isa_pressure_pa(columns["altitude_m"]), columns["oat_c"])
-        ratio = np.asarray(density, dtype=float) / SEA_LEVEL_DENSITY_KG_M3
-        if source == "fuel_per_air":
-            return fuel * (1000.0 / 60.0) / rpm / ratio
-        return fuel / (ratio * (rpm / 1000.0) ** 3)
+        return np.asarray(columns["fuel_flow_lph"], dtype=float) * (1000.0 / 60.0) / rpm
     raise FlightLogError(f"mixture_index: unknown source {source!r}")
 
 

@@ -60,14 +60,8 @@ def input_columns(params: ThermalParams) -> tuple[str, ...]:
     return _columns(params.heat_axes, params.effects.mixture_index)
 
 
-def _computed(name: str) -> bool:
-    """Whether a heat-map axis is a lean/rich index computed from other columns (fuel_per_air, ...)."""
-    return name in MIXTURE_COLUMNS and MIXTURE_COLUMNS[name] != (name,)
-
-
 def _columns(heat_axes: tuple[str, str], mixture: MixtureIndex | None) -> tuple[str, ...]:
-    names = [c for axis in heat_axes for c in (MIXTURE_COLUMNS[axis] if _computed(axis) else (axis,))]
-    names.extend(AMBIENT_COLUMNS)
+    names = [*heat_axes, *AMBIENT_COLUMNS]
     if mixture is not None:
         names.extend(MIXTURE_COLUMNS[mixture.source])
     return tuple(dict.fromkeys(names))
@@ -94,7 +88,7 @@ def read_inputs(log: ColumnSource, heat_axes: tuple[str, str], mixture: MixtureI
             raise FlightLogError(f"{log.source}: model input '{name}' holds blank or non-finite values")
         columns[name] = values
     if mixture is None:
-        columns["mixture_index"] = np.full(columns["altitude_m"].size, np.nan)
+        columns["mixture_index"] = np.full(columns[heat_axes[0]].size, np.nan)
     return series_of(columns, heat_axes, mixture)
 
 
@@ -102,11 +96,13 @@ def series_of(columns: Mapping[str, Any], heat_axes: tuple[str, str], mixture: M
     """The model's inputs from columns already read and checked (arrays, or floats for one step): the
     heat-map axes, altitude_m, airspeed_mps, oat_c and the mixture index computed from its columns
     (without the mixture_index effect: ``columns["mixture_index"]`` if given, else NaN)."""
+    x_axis, y_axis = heat_axes
     if mixture is not None:
         index: Any = mixture_index(mixture.source, {name: columns[name] for name in MIXTURE_COLUMNS[mixture.source]})
         if np.ndim(index) == 0:
             index = float(index)  # one step: a float, as the live filters take it
     else:
         index = columns.get("mixture_index", math.nan)
-    x, y = (mixture_index(axis, columns) if _computed(axis) else columns[axis] for axis in heat_axes)
-    return InputSeries(x, y, columns["altitude_m"], columns["airspeed_mps"], columns["oat_c"], index)
+    return InputSeries(
+        columns[x_axis], columns[y_axis], columns["altitude_m"], columns["airspeed_mps"], columns["oat_c"], index
+    )
