@@ -120,10 +120,16 @@ def _matched(flights: list[FlightLog], airframes: list[str]) -> dict[str, list[s
         egt = f", EGT {m.egt_offset_c:+.0f} degC" if math.isfinite(m.egt_offset_c) else ""
         out[airframe] = [
             f"  at the steady operating points it shares with the others ({m.matched_s:.0f} s): its head"
-            f" {m.offset_c:+.1f} degC against theirs (spread {m.spread_c:.1f}){egt}; with no flight of its own,"
-            " an airframe can differ from the type this much"
+            f" {m.offset_c:+.1f} degC against theirs (spread {m.spread_c:.1f}){egt}"
         ]
     return out
+
+
+#: After the airframes' matched lines: what they mean.
+_MATCHED_NOTE = (
+    "(at the same inputs no model tells the airframes apart: a new airframe with no flight of its own can be"
+    " as far from the type as these heads are from each other)"
+)
 
 
 def _write(params: ThermalParams, out: Path, lines: list[str]) -> None:
@@ -169,6 +175,8 @@ def run_type(
     for airframe, airframe_fit in fit.airframes.items():
         sources = [log.source for log, a in zip(flights, airframes, strict=True) if a == airframe]
         lines += _fit_lines(airframe, airframe_fit, sources) + matched.get(airframe, [])
+    if matched:
+        lines.append(_MATCHED_NOTE)
     _write(fit.params, out, lines)
     for line in lines[1:]:
         print(line)
