@@ -112,7 +112,7 @@ def _matched(flights: list[FlightLog], airframes: list[str]) -> dict[str, list[s
 
     if not all(log.has(name) for log in flights for name in MATCH_COLUMNS):
         return {}
-    out = {}
+    out: dict[str, list[str]] = {}
     for airframe, m in matched_rise(flights, airframes).items():
         if m.bins == 0:
             out[airframe] = ["  shares no steady operating point (rpm x fuel flow x airspeed) with the other airframes"]
@@ -127,8 +127,8 @@ def _matched(flights: list[FlightLog], airframes: list[str]) -> dict[str, list[s
 
 #: After the airframes' matched lines: what they mean.
 _MATCHED_NOTE = (
-    "(at the same inputs no model tells the airframes apart: a new airframe with no flight of its own can be"
-    " as far from the type as these heads are from each other)"
+    "(a model reads the inputs, not the airframe: a new airframe with no flight of its own can be as far from the"
+    " type as these heads are from each other at the same inputs)"
 )
 
 

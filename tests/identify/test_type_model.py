@@ -173,7 +173,7 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
     assert "airframe B:" in printed
     b_line = printed.split("airframe B:")[1]  # B (heat scale 1.15) against A at the same inputs: hotter
     assert "at the steady operating points it shares with the others" in b_line and "its head +" in b_line
-    assert "a new airframe with no flight of its own can be as far from the type" in b_line
+    assert "a new airframe with no flight of its own can be as far from the type as" in b_line
     adapted = tmp_path / "c.yaml"
     args = ["identify", "--base", str(out), paths[2], "--airframe", "C=*", "--first-minutes", "20"]
     assert main([*args, "--out", str(adapted), *quick]) == 0
