@@ -907,9 +907,10 @@ def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
     mean excess is above ``start_margin`` (NOMINAL_SPREAD_Z spreads of the nominal flights' start means; nan:
     no reference there, never from start), else not from start. Then: not from start when nothing airborne was
     seen in that window or its excess is not above the reference test's margin there (the fault is not there
-    airborne), or when neither pattern fits (a later onset, or a start that ran warm and a later onset); untold
-    when one fits but the start region's excess is not above ``start_margin`` (a small fault from start and a
-    later onset look alike; the filter's split leans to gamma_D on a fault from start).
+    airborne). With the start region's excess not above ``start_margin``: not from start when neither pattern
+    fits (a later onset), else untold (a small fault from start and a later onset look alike; the filter's
+    split leans to gamma_D on a fault from start). Above it, the fault was there at the start: untold when
+    neither pattern fits.
 
     A gamma_Q fault's excess symptom follows the heat into the head, a gamma_D fault's the heat out of it
     (docs/detection_isolation.md section 1). At the start the head is cold: the heat out is a smaller part of
@@ -938,9 +939,10 @@ def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
     loss = _pattern_misfit(e0, e1, e2, early[3] / early[0], late[3] / late[0], air[3] / air[0], half_spread,
                            half_spread, air_spread)  # fmt: skip
     evidence = NOMINAL_SPREAD_Z * NOMINAL_SPREAD_Z
-    if not min(heat, loss) <= 2.0 * evidence:
-        return START_CALL_NOT_FROM_START
-    if not start[1] / start[0] > start_margin:  # a fault from start fits, but the start is not above its spread
+    fits = min(heat, loss) <= 2.0 * evidence
+    if not start[1] / start[0] > start_margin:  # the start within its spread: a later onset, or a small fault
+        return START_CALL_UNTOLD if fits else START_CALL_NOT_FROM_START
+    if not fits:  # there at the start, and airborne, in neither pattern: nothing to name it by
         return START_CALL_UNTOLD
     if loss - heat >= evidence:
         return START_CALL_HEAT

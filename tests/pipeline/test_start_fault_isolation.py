@@ -83,5 +83,7 @@ def test_not_from_start(call) -> None:
     nothing_airborne = _state(0.2, 0.2, 0.2)
     nothing_airborne["air_sums"][:] = 0.0
     assert call(nothing_airborne, MARGIN, DONE_S) == START_CALL_NOT_FROM_START
-    # a start that ran warm (above the margin), then an onset: far less at the start than either pattern says
-    assert call(_state(0.06, 0.06, 0.6), MARGIN, DONE_S) == START_CALL_NOT_FROM_START
+    # a start above its margin in neither pattern (a start that ran warm then an onset, or a fault from start
+    # that fits neither): not the filter's (a fault was there at the start), untold
+    assert call(_state(0.06, 0.06, 0.6), MARGIN, DONE_S) == START_CALL_UNTOLD
+    assert call(_state(0.4, 0.4, 0.3), MARGIN, DONE_S) == START_CALL_UNTOLD
