@@ -60,7 +60,6 @@ from ecu_monitor.model import (
     unpack_coefficients,
 )
 from ecu_monitor.model.kernels import njit
-from ecu_monitor.model.thermal import drive_at
 
 __all__ = [
     "COMPLEX_STEP",
@@ -319,13 +318,8 @@ def filter_steps(
 def live_steps(
     state: Any,
     drive: Any,
+    next_drive: Any,
     out: Any,
-    heat_x: float,
-    heat_y: float,
-    altitude_m: float,
-    airspeed_mps: float,
-    oat_c: float,
-    mixture_index: float,
     z: float,
     measured: bool,
     coeff_scalars: Any,
@@ -345,10 +339,10 @@ def live_steps(
 ) -> None:
     """One live filter call in one compiled call: :func:`filter_steps` on the state held in ``state``
     (the FilterState fields, float64[7], updated in place) with the drive held in ``drive`` (the Drive
-    fields, float64[5]); then the drive of this call's inputs (the model's ``drive_at``, equal bit for
-    bit to :func:`scalar_drive`) replaces it for the next call. ``out`` gets (innovation, nis, reset as
-    0/1). The model's coefficients come packed (``ecu_monitor.model.pack_coefficients``: four arrays,
-    cheap for numba's dispatcher to type)."""
+    fields, float64[5]); then ``next_drive`` (the drive of this call's inputs, the model's ``drive_at``,
+    computed once by the caller for every filter it steps) replaces it for the next call. ``out`` gets
+    (innovation, nis, reset as 0/1). The model's coefficients come packed
+    (``ecu_monitor.model.pack_coefficients``: four arrays, cheap for numba's dispatcher to type)."""
     coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
     held = FilterState(state[0], state[1], state[2], state[3], state[4], state[5], state[6])
     new, innovation, nis, did_reset = filter_steps(
@@ -362,8 +356,7 @@ def live_steps(
     state[4] = new.reference
     state[5] = new.steps_since
     state[6] = new.level
-    u = (heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index)
-    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
+    drive[:] = next_drive
     out[0] = innovation
     out[1] = nis
     out[2] = 1.0 if did_reset else 0.0
@@ -405,6 +398,7 @@ class ThermalEKF:
         # compiled live path: state and drive held in preallocated arrays between calls (no allocation)
         self._state_vec = np.zeros(len(FilterState._fields))
         self._drive_vec = np.zeros(len(Drive._fields))
+        self._next_drive = np.zeros(len(Drive._fields))
         self._out = np.zeros(3)
 
     @property
@@ -501,9 +495,9 @@ class ThermalEKF:
         s = self.settings
         state = self._state_vec
         out = self._out
+        self._next_drive[:] = scalar_drive(u, self._coeffs)
         live_steps(
-            state, self._drive_vec, out, float(u[0]), float(u[1]), float(u[2]),
-            float(u[3]), float(u[4]), float(u[5]), z, measured, *self._packed_coeffs, s.dt_s, s.process_var,
+            state, self._drive_vec, self._next_drive, out, z, measured, *self._packed_coeffs, s.dt_s, s.process_var,
             s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, self.use_deviation,
             _RESET_CODES[self.reset_mode], steps,
         )  # fmt: skip

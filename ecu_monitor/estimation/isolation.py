@@ -56,15 +56,12 @@ from ecu_monitor.model import (
     InputSeries,
     ThermalParams,
     coefficients,
-    pack_coefficients,
     scalar_coefficients,
-    unpack_coefficients,
 )
 from ecu_monitor.model.compiled import compute_drive_compiled
 from ecu_monitor.model.equations import derivatives, rk4
 from ecu_monitor.model.inputs import flight_inputs
 from ecu_monitor.model.kernels import njit
-from ecu_monitor.model.thermal import drive_at
 
 __all__ = [
     "ESTIMATOR_NAME",
@@ -277,28 +274,18 @@ def _run(
 def live_steps(
     s: NDArray[np.float64],
     drive: NDArray[np.float64],
+    next_drive: NDArray[np.float64],
     out: NDArray[np.float64],
-    heat_x: float,
-    heat_y: float,
-    altitude_m: float,
-    airspeed_mps: float,
-    oat_c: float,
-    mixture_index: float,
     z: float,
     measured: bool,
     steps: int,
     model: NDArray[np.float64],
     cfg: NDArray[np.float64],
-    coeff_scalars: NDArray[np.float64],
-    heat_values_w: NDArray[np.float64],
-    x_breakpoints: NDArray[np.float64],
-    y_breakpoints: NDArray[np.float64],
 ) -> None:
     """One live call in one compiled call: ``steps`` predictions with the held drive (``drive``, the
-    Drive fields), the update with z when measured, the deviation; then the drive of this call's inputs
-    (the model's ``drive_at``) is held for the next call. out = (innovation, NIS, deviation). The
-    model's coefficients come packed (``ecu_monitor.model.pack_coefficients``)."""
-    coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
+    Drive fields), the update with z when measured, the deviation; then ``next_drive`` (the drive of this
+    call's inputs, the model's ``drive_at``, computed once by the caller) is held for the next call.
+    out = (innovation, NIS, deviation)."""
     q0 = drive[0]
     hg = drive[4] * drive[1]
     g = drive[3]
@@ -312,8 +299,7 @@ def live_steps(
     out[0] = innovation
     out[1] = nis
     out[2] = _deviation(s, q0, hg, g, te, model)
-    u = (heat_x, heat_y, altitude_m, airspeed_mps, oat_c, mixture_index)
-    drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
+    drive[:] = next_drive
 
 
 def _initial_state(cht_c: float, pade_w: float, settings: IsolationSettings) -> NDArray[np.float64]:
@@ -354,7 +340,6 @@ class IsolationFilter:
         self.params = params
         self.settings = settings or IsolationSettings()
         self._coeffs = coefficients(params)
-        self._packed_coeffs = pack_coefficients(self._coeffs)
         self._model = model_vector(self._coeffs)
         self._cfg = self.settings.vector()
         self._state: NDArray[np.float64] | None = None
@@ -362,6 +347,7 @@ class IsolationFilter:
         self._time_s = 0.0
         # the live call's drive, scratch and outputs, preallocated (estimate() allocates no array)
         self._drive_vec = np.zeros(len(Drive._fields))
+        self._next_drive = np.zeros(len(Drive._fields))
         self._out = np.zeros(3)
 
     def _require(self) -> tuple[NDArray[np.float64], Drive]:
@@ -417,10 +403,8 @@ class IsolationFilter:
         measured = z_cht_c is not None and math.isfinite(z_cht_c)
         z = float(z_cht_c) if measured and z_cht_c is not None else math.nan
         out = self._out
-        live_steps(
-            s, self._drive_vec, out, float(u[0]), float(u[1]), float(u[2]),
-            float(u[3]), float(u[4]), float(u[5]), z, measured, steps, self._model, self._cfg, *self._packed_coeffs,
-        )  # fmt: skip
+        self._next_drive[:] = scalar_drive(u, self._coeffs)
+        live_steps(s, self._drive_vec, self._next_drive, out, z, measured, steps, self._model, self._cfg)
         innovation, nis, deviation = float(out[0]), float(out[1]), float(out[2])
         self._time_s = float(t_s)
         return Estimate(

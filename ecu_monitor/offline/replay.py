@@ -197,31 +197,38 @@ def _values_by_frame(
     names: tuple[str, ...], decoded: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]], n: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """The decoded values in frame order: (index of each frame's first value, n + 1; slot; value). Within
-    a frame, the values keep the order of ``names`` (a stable counting sort by frame, compiled)."""
-    rows = [decoded[name][0] for name in names]
-    frame = np.concatenate(rows).astype(np.int64, copy=False) if rows else np.zeros(0, dtype=np.int64)
-    slots = np.concatenate([np.full(r.size, i, dtype=np.int64) for i, r in enumerate(rows)]) if rows else frame
-    values = np.concatenate([decoded[name][1] for name in names]).astype(np.float64) if rows else np.zeros(0)
-    return _by_frame(frame, slots, values, n)
+    a frame, the values keep the order of ``names`` (a compiled merge of the per-name runs, each in frame
+    order)."""
+    if not names:
+        return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+    frame = np.concatenate([decoded[name][0] for name in names]).astype(np.int64, copy=False)
+    values = np.concatenate([decoded[name][1] for name in names]).astype(np.float64, copy=False)
+    offsets = np.cumsum([0, *(decoded[name][0].size for name in names)]).astype(np.int64)
+    return _by_frame(frame, values, offsets, n)
 
 
 @numba.njit(cache=True, nogil=True)
 def _by_frame(
-    frame: NDArray[np.int64], slots: NDArray[np.int64], values: NDArray[np.float64], n: int
+    frame: NDArray[np.int64], values: NDArray[np.float64], offsets: NDArray[np.int64], n: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:  # pragma: no cover - compiled
+    """Merge the runs ``frame[offsets[j]:offsets[j + 1]]`` (slot j's frames, ascending) into frame order."""
     first = np.zeros(n + 1, dtype=np.int64)
-    for f in frame:
-        first[f + 1] += 1
+    out_slots = np.empty(frame.size, dtype=np.int64)
+    out_values = np.empty(frame.size)
+    cursor = offsets[:-1].copy()
+    end = offsets[1:]
+    at = 0
     for f in range(n):
-        first[f + 1] += first[f]
-    fill = first[:n].copy()
-    out_slots = np.empty_like(slots)
-    out_values = np.empty_like(values)
-    for k in range(frame.size):
-        at = fill[frame[k]]
-        out_slots[at] = slots[k]
-        out_values[at] = values[k]
-        fill[frame[k]] = at + 1
+        first[f] = at
+        for j in range(cursor.size):
+            c = cursor[j]
+            while c < end[j] and frame[c] == f:
+                out_slots[at] = j
+                out_values[at] = values[c]
+                at += 1
+                c += 1
+            cursor[j] = c
+    first[n] = at
     return first, out_slots, out_values
 
 

@@ -256,7 +256,7 @@ CYLINDER_STATE = np.dtype(
         ("readings_used", "i8"),
         ("pending", "?"),  # a reading arrived since the last filter call
         ("last_call_s", "f8"),
-        ("ref", "f8", (7,)),  # the open-loop reference EKF's FilterState, then its held Drive
+        ("ref", "f8", (7,)),  # the open-loop reference: its CHT [0] and heat path [2] (FilterState places)
         ("ref_drive", "f8", (5,)),
         ("est", "f8", (7,)),
         ("est_drive", "f8", (5,)),
@@ -574,8 +574,8 @@ def _cht_rate(st: Any, cfg: Any, coeffs: Any) -> float:
 
 
 @njit(nogil=False)
-def _drive_at(eng: Engine, i: int, u: Any, coeffs: Any, drive: Any) -> None:
-    """The model's drive of cylinder i at the inputs u (6) into drive (5, Drive order)."""
+def _drive_at(u: Any, coeffs: Any, drive: Any) -> None:
+    """The model's drive at the inputs u (6) into drive (5, Drive order)."""
     drive[0], drive[1], drive[2], drive[3], drive[4] = drive_at(u, coeffs)
 
 
@@ -617,7 +617,7 @@ def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: flo
     eng_state = eng.state
     st = eng_state[i]
     cfg = eng_settings[i]
-    _drive_at(eng, i, u, coeffs, st["ref_drive"])
+    _drive_at(u, coeffs, st["ref_drive"])
     pade = 2.0 * st["ref_drive"][0]
     level = level_of(reading, cfg["quantum_c"])
     for filt, drive in ((st["ref"], st["ref_drive"]), (st["est"], st["est_drive"])):
@@ -642,13 +642,26 @@ def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: flo
 
 
 @njit(nogil=False)
-def _ekf_call(state: Any, drive: Any, cfg: Any, scratch: Any, u: Any, z: float, measured: bool, cs: Any, hv: Any,
-              xb: Any, yb: Any, use_deviation: bool, reset_code: int, steps: int) -> None:  # fmt: skip
+def _ekf_call(state: Any, drive: Any, next_drive: Any, cfg: Any, cs: Any, hv: Any, xb: Any, yb: Any, z: float,
+              measured: bool, result: Any, use_deviation: bool, reset_code: int, steps: int) -> None:  # fmt: skip
     """One filter period of an EKF-family filter (the reference or the estimator) on its record fields."""
-    result = scratch[10:13]
-    live_ekf(state, drive, result, u[0], u[1], u[2], u[3], u[4], u[5], z, measured, cs, hv, xb, yb,
-             cfg["dt_s"], cfg["process_var"], cfg["measurement_var"], cfg["sigmoid_a"], cfg["sigmoid_b"],
-             cfg["quantum_c"], cfg["deviation_time_s"], use_deviation, reset_code, steps)  # fmt: skip
+    live_ekf(state, drive, next_drive, result, z, measured, cs, hv, xb, yb, cfg["dt_s"], cfg["process_var"],
+             cfg["measurement_var"], cfg["sigmoid_a"], cfg["sigmoid_b"], cfg["quantum_c"], cfg["deviation_time_s"],
+             use_deviation, reset_code, steps)  # fmt: skip
+
+
+@njit(nogil=False)
+def _reference_steps(ref: Any, drive: Any, next_drive: Any, coeffs: Any, dt_s: float, steps: int) -> None:
+    """The open-loop reference (the model alone, no reading): ``steps`` RK4 steps of dt_s (s) of its CHT
+    (``ref[0]``, degC) and heat path (``ref[2]``, W) with the held ``drive``; then ``next_drive`` is held."""
+    x = ref[0]
+    w = ref[2]
+    for _ in range(steps):
+        x, w = rk4(x, w, drive[0], drive[4] * drive[1], drive[2], drive[3], coeffs.c_w, coeffs.tau_w,
+                   coeffs.radiative_conductance, coeffs.radiation_offset_c, 1.0, 1.0, dt_s)  # fmt: skip
+    ref[0] = x
+    ref[2] = w
+    drive[:] = next_drive
 
 
 @njit(nogil=False, inline=True)
@@ -687,10 +700,13 @@ def cylinder_step(
         st["running"], st["stale_since_s"], st["changed_s"], st["last_reading_c"], st["model_low_c"], st["model_high_c"]
     )
     est_c = deviation = gamma_q = gamma_d = iso_deviation = np.nan
+    drive = eng_scratch[13:18]  # the model's drive at this step's inputs, once for every filter and headroom
+    drive_fresh = False
     if call:  # the filter period: the open-loop reference first (its CHT is the stuck-probe test's model)
         steps = round((time_s - st["last_call_s"]) / cfg["dt_s"])
-        # the reference: an EKF without deviation, reset or reading (its settings are the estimator's)
-        _ekf_call(st["ref"], st["ref_drive"], cfg, eng_scratch, u, np.nan, False, cs, hv, xb, yb, False, 0, steps)
+        _drive_at(u, coeffs, drive)
+        drive_fresh = True
+        _reference_steps(st["ref"], st["ref_drive"], drive, coeffs, cfg["dt_s"], steps)
         model_c = st["ref"][0]
     else:
         model_c = st["model_c"] if st["running"] else reading
@@ -702,12 +718,12 @@ def cylinder_step(
             measured = st["pending"] and code == CODE_NOMINAL and math.isfinite(reading)
             z = reading if measured else np.nan
             if not cfg["iso_estimator"]:
-                _ekf_call(st["est"], st["est_drive"], cfg, eng_scratch, u, z, measured, cs, hv, xb, yb,
+                _ekf_call(st["est"], st["est_drive"], drive, cfg, cs, hv, xb, yb, z, measured, result,
                           cfg["use_deviation"], cfg["reset_code"], steps)  # fmt: skip
                 est_c = st["est"][0]
                 deviation = st["est"][3] / cfg["dt_s"] if cfg["use_deviation"] else 0.0
-            live_isolation(st["iso"], st["iso_drive"], result, u[0], u[1], u[2], u[3], u[4], u[5], z,
-                           measured, steps, eng_iso_model[i], eng_iso_config[i], cs, hv, xb, yb)  # fmt: skip
+            live_isolation(st["iso"], st["iso_drive"], drive, result, z, measured, steps, eng_iso_model[i],
+                           eng_iso_config[i])  # fmt: skip
             if cfg["iso_estimator"]:  # its estimate is the isolation filter's own
                 est_c = st["iso"][0]
                 deviation = result[2]
@@ -779,8 +795,8 @@ def cylinder_step(
     ):
         st["headroom_s"] = np.nan
     elif headroom_due:
-        drive = eng_scratch[13:18]
-        _drive_at(eng, i, u, coeffs, drive)
+        if not drive_fresh:
+            _drive_at(u, coeffs, drive)
         st["headroom_s"] = headroom_s(st["cht_est_c"], drive, coeffs, st["gamma_q"], st["gamma_d"], cfg["cht_limit_c"])
     out["cht_meas_c"] = reading
     out["cht_est_c"] = st["cht_est_c"]
@@ -1080,31 +1096,33 @@ def _events_period_s(eng: Engine) -> float:
 
 
 @njit(nogil=False)
-def _held_s(eng: Engine, tr: Any) -> float:
-    """How long the tracker's condition has held, s: from its start to the end of the last step it held in."""
-    return tr["last_s"] - tr["start_s"] + _events_period_s(eng)
+def _held_s(tr: Any, period_s: float) -> float:
+    """How long the tracker's condition has held, s: from its start to the end of the last step it held in
+    (``period_s``: how often the events are checked, s)."""
+    return tr["last_s"] - tr["start_s"] + period_s
 
 
 @njit(nogil=False)
-def _write_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, min_s: float) -> None:
-    """The tracker's condition ended: its end record if it lasted ``min_s`` (s) or more (then its start was
-    written: :func:`_track`); the tracker is free again."""
+def _write_event(log: Any, count: Any, tr: Any, kind: int, cylinder: int, limit: float, period_s: float) -> None:
+    """The tracker's condition ended: its end record if its start was written (it lasted long enough:
+    :func:`_track`); the tracker is free again."""
     tr["active"] = False
     if tr["announced"]:
-        _record_event(eng, tr, kind, cylinder, limit, False)
+        _record_event(log, count, tr, kind, cylinder, limit, False, period_s)
 
 
 @njit(nogil=False)
-def _record_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, ongoing: bool) -> None:
-    """One event record of the tracker into ``Engine.events`` (counted as dropped when it is full)."""
-    eng_events = eng.events
-    eng_event_count = eng.event_count
-    duration = _held_s(eng, tr)
-    n = eng_event_count[0]
-    if n >= eng_events.shape[0]:
-        eng_event_count[1] += 1
+def _record_event(
+    log: Any, count: Any, tr: Any, kind: int, cylinder: int, limit: float, ongoing: bool, period_s: float
+) -> None:
+    """One event record of the tracker into ``log`` (``Engine.events``; ``count``: ``Engine.event_count``,
+    written and dropped when the log is full)."""
+    duration = _held_s(tr, period_s)
+    n = count[0]
+    if n >= log.shape[0]:
+        count[1] += 1
         return
-    e = eng_events[n]
+    e = log[n]
     e["time_s"] = tr["start_s"]
     e["kind"] = kind
     e["cylinder"] = cylinder
@@ -1112,14 +1130,14 @@ def _record_event(eng: Engine, tr: Any, kind: int, cylinder: int, limit: float, 
     e["limit"] = limit
     e["duration_s"] = duration
     e["ongoing"] = ongoing
-    eng_event_count[0] = n + 1
+    count[0] = n + 1
 
 
 @njit(nogil=False)
-def _track(eng: Engine, tr: Any, holds: bool, value: float, time_s: float, kind: int, cylinder: int, limit: float,
-           min_s: float) -> None:  # fmt: skip
+def _track(log: Any, count: Any, tr: Any, holds: bool, value: float, time_s: float, kind: int, cylinder: int,
+           limit: float, min_s: float, period_s: float) -> None:  # fmt: skip
     """One step of a condition's tracker: it holds (its worst value is the one furthest from zero; its start
-    record written when it has held for ``min_s``, s) or it ended (:func:`_write_event`)."""
+    record written into ``log`` when it has held for ``min_s``, s) or it ended (:func:`_write_event`)."""
     if holds:
         if not tr["active"]:
             tr["active"] = True
@@ -1129,21 +1147,21 @@ def _track(eng: Engine, tr: Any, holds: bool, value: float, time_s: float, kind:
         elif abs(value) > abs(tr["peak"]):
             tr["peak"] = value
         tr["last_s"] = time_s
-        if not tr["announced"] and _held_s(eng, tr) >= min_s:
+        if not tr["announced"] and _held_s(tr, period_s) >= min_s:
             tr["announced"] = True
-            _record_event(eng, tr, kind, cylinder, limit, True)
+            _record_event(log, count, tr, kind, cylinder, limit, True, period_s)
     elif tr["active"]:
-        _write_event(eng, tr, kind, cylinder, limit, min_s)
+        _write_event(log, count, tr, kind, cylinder, limit, period_s)
 
 
 @njit(nogil=False)
-def _fresh(eng: Engine, slot: int, limit_s: float, time_s: float) -> float:
-    """The held value of input ``slot`` if it is mapped (slot >= 0), finite and fed within ``limit_s`` (s) of
-    time_s; else nan."""
+def _fresh(values: Any, stamps: Any, slot: int, limit_s: float, time_s: float) -> float:
+    """The held value of input ``slot`` (``Engine.values``, fed at ``Engine.stamps``, s) if it is mapped
+    (slot >= 0), finite and fed within ``limit_s`` (s) of time_s; else nan."""
     if slot < 0:
         return np.nan
-    value = eng.values[slot]
-    return value if math.isfinite(value) and time_s - eng.stamps[slot] <= limit_s else np.nan
+    value = values[slot]
+    return value if math.isfinite(value) and time_s - stamps[slot] <= limit_s else np.nan
 
 
 @njit(nogil=False)
@@ -1156,6 +1174,11 @@ def events_step(eng: Engine, time_s: float) -> None:
     eng_output = eng.output
     eng_settings = eng.settings
     eng_state = eng.state
+    log = eng.events
+    count = eng.event_count
+    values = eng.values
+    stamps = eng.stamps
+    period_s = _events_period_s(eng)
     own = eng.symptoms[0]
     others = eng.symptoms[1]
     n = eng_state.shape[0]
@@ -1171,33 +1194,33 @@ def events_step(eng: Engine, time_s: float) -> None:
         usable = not math.isnan(cht)
         rate = st["cht_rate_c_per_min"]
         limit = -es["shock_cooling_c_per_min"]
-        _track(eng, st["shock"], usable and rate < limit, rate, time_s, _SHOCK_COOLING, i + 1, limit,
-               es["shock_cooling_min_s"])  # fmt: skip
-        _track(eng, st["cht_high"], usable and cht > es["cht_limit_c"], cht, time_s, _CHT_EXCEEDANCE, i + 1,
-               es["cht_limit_c"], es["exceedance_min_s"])  # fmt: skip
+        _track(log, count, st["shock"], usable and rate < limit, rate, time_s, _SHOCK_COOLING, i + 1, limit,
+               es["shock_cooling_min_s"], period_s)  # fmt: skip
+        _track(log, count, st["cht_high"], usable and cht > es["cht_limit_c"], cht, time_s, _CHT_EXCEEDANCE, i + 1,
+               es["cht_limit_c"], es["exceedance_min_s"], period_s)  # fmt: skip
         apart = cht - median_of_others(own, i, others)
-        _track(eng, st["divergence"], abs(apart) > es["cht_divergence_c"], apart, time_s, _CHT_DIVERGENCE, i + 1,
-               es["cht_divergence_c"], es["divergence_min_s"])  # fmt: skip
+        _track(log, count, st["divergence"], abs(apart) > es["cht_divergence_c"], apart, time_s, _CHT_DIVERGENCE, i + 1,
+               es["cht_divergence_c"], es["divergence_min_s"], period_s)  # fmt: skip
     for i in range(n):
         es = eng_settings[i]["events"]
-        own[i] = _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s)
-    band, steady = _power_band(eng, _events_period_s(eng))
+        own[i] = _fresh(values, stamps, es["egt_slot"], es["egt_stale_s"], time_s)
+    band, steady = _power_band(eng, period_s)
     at_power = steady and median_of_others(own, -1, others) > eng_settings[0]["events"]["egt_divergence_from_c"]
     for i in range(n):
         es = eng_settings[i]["events"]
         st = eng_state[i]
         egt = own[i]
-        _track(eng, st["egt_high"], egt > es["egt_limit_c"], egt, time_s, _EGT_EXCEEDANCE, i + 1,
-               es["egt_limit_c"], es["exceedance_min_s"])  # fmt: skip
+        _track(log, count, st["egt_high"], egt > es["egt_limit_c"], egt, time_s, _EGT_EXCEEDANCE, i + 1,
+               es["egt_limit_c"], es["exceedance_min_s"], period_s)  # fmt: skip
         beyond = egt_beyond_normal(st, egt - median_of_others(own, i, others), at_power, band, es["egt_normal_s"],
-                                   _events_period_s(eng))  # fmt: skip
-        _track(eng, st["egt_divergence"], abs(beyond) > es["egt_divergence_c"], beyond, time_s,
-               _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"])  # fmt: skip
-    valve_advisory(eng, time_s)
+                                   period_s)  # fmt: skip
+        _track(log, count, st["egt_divergence"], abs(beyond) > es["egt_divergence_c"], beyond, time_s,
+               _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"], period_s)  # fmt: skip
+    valve_advisory(eng, time_s, period_s)
     es = eng_settings[0]["events"]
-    oil = _fresh(eng, es["oil_slot"], es["oil_stale_s"], time_s)
-    _track(eng, eng_state[0]["oil_high"], oil > es["oil_limit_c"], oil, time_s, _OIL_EXCEEDANCE, 0,
-           es["oil_limit_c"], es["exceedance_min_s"])  # fmt: skip
+    oil = _fresh(values, stamps, es["oil_slot"], es["oil_stale_s"], time_s)
+    _track(log, count, eng_state[0]["oil_high"], oil > es["oil_limit_c"], oil, time_s, _OIL_EXCEEDANCE, 0,
+           es["oil_limit_c"], es["exceedance_min_s"], period_s)  # fmt: skip
 
 
 @njit(nogil=False)
@@ -1263,7 +1286,7 @@ def valve_band(st: Any, egt: float, dt_s: float) -> float:
 
 
 @njit(nogil=False)
-def valve_advisory(eng: Engine, time_s: float) -> None:
+def valve_advisory(eng: Engine, time_s: float, dt_s: float) -> None:
     """The exhaust-valve advisory: one cylinder's EGT oscillating in the band (:func:`valve_band`) by at least
     ``valve_amplitude_c`` peak to peak while every other cylinder's with a fresh EGT oscillates by less than
     half of it (steady power: a power change moves every EGT), for ``valve_min_s``; value: the largest
@@ -1271,11 +1294,14 @@ def valve_advisory(eng: Engine, time_s: float) -> None:
     eng_settings = eng.settings
     eng_state = eng.state
     amplitude = eng.symptoms[0]
+    log = eng.events
+    count = eng.event_count
+    values = eng.values
+    stamps = eng.stamps
     n = eng_state.shape[0]
-    dt_s = _events_period_s(eng)
     for i in range(n):
         es = eng_settings[i]["events"]
-        amplitude[i] = valve_band(eng_state[i], _fresh(eng, es["egt_slot"], es["egt_stale_s"], time_s), dt_s)
+        amplitude[i] = valve_band(eng_state[i], _fresh(values, stamps, es["egt_slot"], es["egt_stale_s"], time_s), dt_s)
     for i in range(n):
         es = eng_settings[i]["events"]
         limit = es["valve_amplitude_c"]
@@ -1283,8 +1309,8 @@ def valve_advisory(eng: Engine, time_s: float) -> None:
         for j in range(n):
             if j != i and not amplitude[j] < 0.5 * limit:  # another oscillates too, or is not known
                 holds = False
-        _track(eng, eng_state[i]["valve"], holds, amplitude[i], time_s, _VALVE_ADVISORY, i + 1, limit,
-               es["valve_min_s"])  # fmt: skip
+        _track(log, count, eng_state[i]["valve"], holds, amplitude[i], time_s, _VALVE_ADVISORY, i + 1, limit,
+               es["valve_min_s"], dt_s)  # fmt: skip
 
 
 @njit(nogil=False)
@@ -1295,17 +1321,17 @@ def close_events(eng: Engine) -> None:
     for i in range(eng_state.shape[0]):
         es = eng_settings[i]["events"]
         st = eng_state[i]
-        for tr, kind, number, limit, min_s in (
-            (st["shock"], _SHOCK_COOLING, i + 1, -es["shock_cooling_c_per_min"], es["shock_cooling_min_s"]),
-            (st["cht_high"], _CHT_EXCEEDANCE, i + 1, es["cht_limit_c"], es["exceedance_min_s"]),
-            (st["divergence"], _CHT_DIVERGENCE, i + 1, es["cht_divergence_c"], es["divergence_min_s"]),
-            (st["egt_high"], _EGT_EXCEEDANCE, i + 1, es["egt_limit_c"], es["exceedance_min_s"]),
-            (st["egt_divergence"], _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"], es["divergence_min_s"]),
-            (st["oil_high"], _OIL_EXCEEDANCE, 0, es["oil_limit_c"], es["exceedance_min_s"]),
-            (st["valve"], _VALVE_ADVISORY, i + 1, es["valve_amplitude_c"], es["valve_min_s"]),
+        for tr, kind, number, limit in (
+            (st["shock"], _SHOCK_COOLING, i + 1, -es["shock_cooling_c_per_min"]),
+            (st["cht_high"], _CHT_EXCEEDANCE, i + 1, es["cht_limit_c"]),
+            (st["divergence"], _CHT_DIVERGENCE, i + 1, es["cht_divergence_c"]),
+            (st["egt_high"], _EGT_EXCEEDANCE, i + 1, es["egt_limit_c"]),
+            (st["egt_divergence"], _EGT_DIVERGENCE, i + 1, es["egt_divergence_c"]),
+            (st["oil_high"], _OIL_EXCEEDANCE, 0, es["oil_limit_c"]),
+            (st["valve"], _VALVE_ADVISORY, i + 1, es["valve_amplitude_c"]),
         ):
             if tr["active"]:
-                _write_event(eng, tr, kind, number, limit, min_s)
+                _write_event(eng.events, eng.event_count, tr, kind, number, limit, _events_period_s(eng))
 
 
 @njit(nogil=False)
