@@ -919,11 +919,11 @@ def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
     (present from start, or maybe, but the two causes fit within NOMINAL_SPREAD_Z spreads of each other), or
     START_CALL_NOT_FROM_START (the isolation filter's split holds: a fault that began after the start region).
 
-    Until the airborne window (the START_S after the start region) has ended: untold when the start region's
-    mean excess is above ``start_margin`` (NOMINAL_SPREAD_Z spreads of the nominal flights' start means; nan:
-    no reference there, never from start), else not from start. Then: not from start when nothing airborne was
-    seen in that window or its excess is not above the reference test's margin there (the fault is not there
-    airborne). With the start region's excess not above ``start_margin``: not from start when neither pattern
+    Not from start without a reference at the start (``start_margin`` nan; else NOMINAL_SPREAD_Z spreads of the
+    nominal flights' start means). Untold until the airborne window (the START_S after the start region) has
+    ended. Then: not from start when nothing airborne was seen in that window or its excess is not above the
+    reference test's margin there (the fault is not there airborne). With the start region's mean excess not
+    above ``start_margin``: not from start when neither pattern
     fits (a later onset), else untold (a small fault from start and a later onset look alike; the filter's
     split leans to gamma_D on a fault from start). Above it, the fault was there at the start: untold when
     neither pattern fits.
@@ -941,8 +941,8 @@ def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
     air = st["air_sums"]
     if math.isnan(start_margin) or start[0] < 1.0:
         return START_CALL_NOT_FROM_START
-    if elapsed_s < 2.0 * START_S:  # the airborne window is still filling
-        return START_CALL_UNTOLD if start[1] / start[0] > start_margin else START_CALL_NOT_FROM_START
+    if elapsed_s < 2.0 * START_S:  # the airborne window is still filling: from start or not is not known yet
+        return START_CALL_UNTOLD
     early = st["early_sums"]
     late = start - early
     if air[0] < 1.0 or not (air[1] > 0.0 and air[1] > air[4]) or early[0] < 1.0 or late[0] < 1.0:

@@ -60,11 +60,10 @@ def test_within_the_spread_it_is_untold_never_a_guess(call) -> None:
     # a loss fault whose first half is as faint as a later onset of a heat fault would leave it
     assert call(_state(*_fault(LOSS, 0.12)), MARGIN, DONE_S) == START_CALL_UNTOLD
     # a start excess below the start's margin, yet what a small fault there from start gives: not the filter's
-    # (which leans to gamma_D on a fault from start), untold; before the airborne window ended, the filter's
+    # (which leans to gamma_D on a fault from start), untold
     assert call(_state(0.02, 0.02, 0.2), MARGIN, DONE_S) == START_CALL_UNTOLD  # the loss's pattern fits that too
     small = _state(*_fault(HEAT, 0.04))
     assert call(small, MARGIN, DONE_S) == START_CALL_UNTOLD
-    assert call(small, MARGIN, 450.0) == START_CALL_NOT_FROM_START
     same = _state(0.2, 0.2, 0.2, heat=HEAT, loss=HEAT)  # the two patterns alike
     assert call(same, MARGIN, DONE_S) == START_CALL_UNTOLD
     # the same excesses with spreads ten times smaller (a reference on an exact model): told apart
@@ -76,7 +75,7 @@ def test_within_the_spread_it_is_untold_never_a_guess(call) -> None:
 @pytest.mark.parametrize("call", [start_fault_call, start_fault_call.py_func])
 def test_not_from_start(call) -> None:
     assert call(_state(0.0, -0.02, 0.4), MARGIN, DONE_S) == START_CALL_NOT_FROM_START  # a later onset
-    assert call(_state(0.02, 0.02, 0.2), MARGIN, 450.0) == START_CALL_NOT_FROM_START  # start within the spread
+    assert call(_state(0.0, -0.02, 0.4), MARGIN, 450.0) == START_CALL_UNTOLD  # not known before the window ended
     assert call(_state(0.2, 0.2, 0.2), math.nan, DONE_S) == START_CALL_NOT_FROM_START  # no reference at the start
     assert call(_state(0.2, 0.2, 0.2, n=0.0), MARGIN, DONE_S) == START_CALL_NOT_FROM_START  # nothing seen yet
     assert call(_state(0.2, 0.2, 0.01), MARGIN, DONE_S) == START_CALL_NOT_FROM_START  # not there airborne
