@@ -20,7 +20,8 @@ The rules, in the order a step applies them:
 * staleness: an input is stale when never seen or silent longer than its ``stale_after_s``;
 * supervision (:func:`~ecu_monitor.pipeline.supervision.supervise`): UNAVAILABLE, INPUT_STALE,
   SENSOR_FAULT or "the detector decides";
-* every filter period: the open-loop reference EKF (the stuck-probe test's model), then the estimator and
+* every filter period: the model's drive at the held inputs (once, for every filter), the open-loop
+  reference (the model alone: the stuck-probe test's model), then the estimator and
   the isolation filter with the reading the supervisor lets through;
 * the detector (a CUSUM over block means of the symptom, :func:`detector_step`), fed the symptom on
   NOMINAL steps and NaN otherwise, from the cylinder's first initialisation on; DEGRADED latches. Two
