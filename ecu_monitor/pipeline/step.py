@@ -35,8 +35,9 @@ The rules, in the order a step applies them:
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
   ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable"). A fault
   present from engine start (the start region's symptom above its nominal level) is named instead by how
-  its excess over the reference splits between the start and the airborne regions (:func:`start_fault_call`);
-  the filter's product gamma_Q gamma_D is then published on the factor it names, 1 on the other;
+  its excess over the reference splits between the start and the airborne regions, only where one cause's
+  pattern fits better than the other's by the nominal spreads (:func:`start_fault_call`; nothing in the first
+  10 min); the filter's product gamma_Q gamma_D is then published on the factor it names, 1 on the other;
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins;
