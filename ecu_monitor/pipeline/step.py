@@ -925,10 +925,9 @@ def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
     nominal flights' start means). Untold until the airborne window (the START_S after the start region) has
     ended. Then: not from start when nothing airborne was seen in that window or its excess is not above the
     reference test's margin there (the fault is not there airborne). With the start region's mean excess not
-    above ``start_margin``: not from start when neither pattern
-    fits (a later onset), else untold (a small fault from start and a later onset look alike; the filter's
-    split leans to gamma_D on a fault from start). Above it, the fault was there at the start: untold when
-    neither pattern fits.
+    above ``start_margin``: not from start when neither pattern fits (a later onset), else untold (a small
+    fault from start and a later onset look alike; the filter's split leans to gamma_D on a fault from
+    start). Above it, the fault was there at the start: untold when neither pattern fits.
 
     A gamma_Q fault's excess symptom follows the heat into the head, a gamma_D fault's the heat out of it
     (docs/detection_isolation.md section 1). At the start the head is cold: the heat out is a smaller part of
