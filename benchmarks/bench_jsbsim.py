@@ -11,9 +11,11 @@ loop from its first CHT sample; the figure is that held-out RMS (model - measure
 ordered pair. Rows: the paper's form; ``--effects auto`` (the terms chosen on the training flight's two
 halves); the named form the library's real-data best used (docs/results/real.md); the fuel-flow form (no
 altitude factor: the fuel flow carries the charge density; airspeed cooling; the mixture index on EGT);
-the same with engine_speed_cooling. Then the gap diagnosis
-(``ecu-monitor gap --model`` the paper's form identified on flight 1 ``--train`` flight 1 ``--test`` flights
-2 and 3: local refits) and its verdict. Prints markdown tables and the wall time of each identification and
+the same with engine_speed_cooling; the cooling-air form (:data:`COOLING_AIR`, 2 x 2: the ram air's mass
+flow and the engine-speed conductance, no T^4 term). Then the gap diagnosis (``ecu-monitor gap --model`` the
+paper's form identified on flight 1 ``--train`` flight 1 ``--test`` flights 2 and 3: local refits) and its
+verdict, and the same from the cooling-air form without its two new terms (:data:`GAP_BASE`), trying them.
+Prints markdown tables and the wall time of each identification and
 of the gap (the term search runs on every core); ``--forms 3,4`` picks rows; ``--quick`` uses a smaller
 swarm. The flights and gap reports stay in ``--out`` (default a temporary folder).
 """
@@ -39,17 +41,30 @@ BIN = Path(sys.executable).parent
 AXES = ("fuel_flow_lph", "rpm")
 GRID = (4, 4)
 MISSIONS = (("cross_country", 1), ("step_climb", 2), ("cross_country", 3))
-#: Rows: (label, --effects value; "" = the paper's form).
+#: The cooling-air form (docs/jsbsim.md): the ram air's mass flow and the engine-speed conductance added to the
+#: fuel-flow form, no T^4 term, on a 2 x 2 map (heat linear in fuel flow and rpm: what one flight can pin).
+COOLING_AIR = "-altitude_factor,-radiation,airspeed_cooling,mass_flow_cooling,engine_speed_cooling,mixture_index"
+#: Rows: (label, --effects value; "" = the paper's form; the heat-map grid).
 FORMS = (
-    ("paper form", ""),
-    ("--effects auto", "auto"),
+    ("paper form", "", GRID),
+    ("--effects auto", "auto", GRID),
     (
         "real-data best (docs/results/real.md)",
         "-altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index",
+        GRID,
     ),
-    ("fuel-flow form", "-altitude_factor,airspeed_cooling,mixture_index"),
-    ("fuel-flow form + engine_speed_cooling", "-altitude_factor,airspeed_cooling,mixture_index,engine_speed_cooling"),
+    ("fuel-flow form", "-altitude_factor,airspeed_cooling,mixture_index", GRID),
+    (
+        "fuel-flow form + engine_speed_cooling",
+        "-altitude_factor,airspeed_cooling,mixture_index,engine_speed_cooling",
+        GRID,
+    ),
+    ("cooling-air form, 2x2", COOLING_AIR, (2, 2)),
 )
+#: The gap diagnosis's start (``gap --model``): the cooling-air form without its two new terms, and the
+#: candidates it tries (the library's defaults and the two cooling-air terms).
+GAP_BASE = ("-altitude_factor,-radiation,airspeed_cooling,mixture_index", (2, 2))
+GAP_CANDIDATES = "airspeed_cooling,density_cooling,sensor_lag,mixture_cooling,mass_flow_cooling,engine_speed_cooling"
 TARGET_C = 3.0
 
 
@@ -65,7 +80,9 @@ def fly(aircraft: str, out: Path) -> list[Path]:
     return paths
 
 
-def held_out(flights: list[FlightLog], effects: str, settings: PsoSettings) -> tuple[np.ndarray, float]:
+def held_out(
+    flights: list[FlightLog], effects: str, settings: PsoSettings, grid: tuple[int, int] = GRID
+) -> tuple[np.ndarray, float]:
     """RMS (degC) of the model identified on flight i predicting flight j (NaN on the diagonal), and the
     identifications' wall time (s; the term search runs on every core)."""
     n = len(flights)
@@ -74,7 +91,7 @@ def held_out(flights: list[FlightLog], effects: str, settings: PsoSettings) -> t
     for i in range(n):
         terms = "auto" if effects == "auto" else (parse_terms(effects) if effects else {})
         result, _cv, _sel = identify_flights(
-            [flights[i]], base=_base(), heat_axes=AXES, grid=GRID, settings=settings, terms=terms, lofo=False
+            [flights[i]], base=_base(), heat_axes=AXES, grid=grid, settings=settings, terms=terms, lofo=False
         )
         for j in range(n):
             if j != i:
@@ -88,17 +105,22 @@ def _base():  # the paper's Table A1, as identify starts from
     return paper_table_a1()
 
 
-def gap_verdict(paths: list[Path], out: Path) -> tuple[str, float]:
-    """``ecu-monitor gap --train`` the first flight ``--test`` the others, from the paper's form identified on
-    the train flight (``identify``, then the gap's local refits): its verdict and wall time (s)."""
-    folder = out / f"gap_{paths[0].stem}"
-    nominal = out / f"nominal_{paths[0].stem}.yaml"
+def gap_verdict(paths: list[Path], out: Path, effects: str = "", grid: tuple[int, int] = GRID,
+                candidates: str = "") -> tuple[str, float]:  # fmt: skip
+    """``ecu-monitor gap --train`` the first flight ``--test`` the others, from the form ``effects`` (default the
+    paper's) identified on the train flight (``identify``, then the gap's local refits of ``candidates``, default
+    the library's): its verdict and wall time (s)."""
+    tag = "cooling" if effects else "paper"
+    folder = out / f"gap_{tag}_{paths[0].stem}"
+    nominal = out / f"nominal_{tag}_{paths[0].stem}.yaml"
     start = time.perf_counter()
-    grid = "x".join(map(str, GRID))
-    subprocess.run([str(BIN / "ecu-monitor"), "identify", str(paths[0]), "--heat-axes", ",".join(AXES), "--grid", grid,
-                    "--out", str(nominal), "--quiet"], check=True, capture_output=True)  # fmt: skip
+    form = [f"--effects={effects}"] if effects else []
+    subprocess.run([str(BIN / "ecu-monitor"), "identify", str(paths[0]), "--heat-axes", ",".join(AXES), "--grid",
+                    "x".join(map(str, grid)), *form, "--out", str(nominal), "--quiet"], check=True,
+                   capture_output=True)  # fmt: skip
+    pick = ["--candidates", candidates] if candidates else []
     cmd = [str(BIN / "ecu-monitor"), "gap", "--model", str(nominal), "--train", str(paths[0]), "--test",
-           *map(str, paths[1:]), "--out", str(folder)]  # fmt: skip
+           *map(str, paths[1:]), *pick, "--out", str(folder)]  # fmt: skip
     done = subprocess.run(cmd, check=True, capture_output=True, text=True)
     wall = time.perf_counter() - start
     report = json.loads((folder / "gap.json").read_text(encoding="utf-8"))
@@ -138,8 +160,8 @@ def main() -> int:
             print("\nheld-out RMS, degC (identified on the row's flight, predicting the column's), mean and worst:\n")
             print("| form | train -> test | " + " | ".join(names) + " | mean | worst |")
             print("|---|---|" + "---|" * (len(names) + 2))
-            for label, effects in forms:
-                rms, wall = held_out(flights, effects, settings)
+            for label, effects, grid in forms:
+                rms, wall = held_out(flights, effects, settings, grid)
                 off = rms[~np.isnan(rms)]
                 for i, name in enumerate(names):
                     cells = " | ".join("-" if np.isnan(v) else f"{v:.2f}" for v in rms[i])
@@ -149,7 +171,9 @@ def main() -> int:
                 print(f"<!-- {label}: mean {off.mean():.2f}, worst {off.max():.2f}, target {TARGET_C} -->")
                 sys.stdout.flush()
             text, wall = gap_verdict(paths, out)
-            print(f"\ngap (train {names[0]}, test the others): {text} ({wall:.0f} s)")
+            print(f"\ngap from the paper's form (train {names[0]}, test the others): {text} ({wall:.0f} s)")
+            text, wall = gap_verdict(paths, out, GAP_BASE[0], GAP_BASE[1], GAP_CANDIDATES)
+            print(f"\ngap from {GAP_BASE[0]} (train {names[0]}, test the others): {text} ({wall:.0f} s)")
             sys.stdout.flush()
     return 0
 

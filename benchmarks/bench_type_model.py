@@ -23,7 +23,9 @@ with the inputs that tell the forms apart (fuel flow, rpm, EGT, airspeed).
 
 With several flights of X each of them takes its turn as the adapting flight; the figures are the mean
 RMS over the scored flights of every turn. Scores are open loop from the first CHT sample of the scored
-part; error is model - mean CHT of the cylinders, degC. Prints a markdown table and the timings.
+part; error is model - mean CHT of the cylinders, degC. Prints a markdown table, each airframe's head
+against the others' at the same steady inputs (:func:`ecu_monitor.identify.matched.matched_rise`: what no
+form of the model can carry to an airframe with zero flights) and the timings.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import numpy as np
 from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings, flight_errors
+from ecu_monitor.identify.matched import matched_rise
 from ecu_monitor.identify.select import parse_terms
 from ecu_monitor.identify.type_model import Adaptation, adapt_choosing, describe_terms, first_minutes, fit_type
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1, save_model
@@ -225,6 +228,19 @@ def main() -> int:
     for name, _n, _z, _s, _w, kept, short_terms, whole_terms, _zeros in rows:
         print(f"- held out {LABELS.get(name, name)}: the type's airframes' own terms: {kept}")
         print(f"  its own terms from 20 min: {' / '.join(short_terms)}; from one flight: {' / '.join(whole_terms)}")
+    print()
+    print("Each airframe against the others at the steady operating points they share (rpm x fuel flow x airspeed):")
+    print()
+    print(
+        "| airframe | CHT rise vs the others, degC (spread over the points) | EGT vs the others, degC"
+        " | matched / steady time, s |"
+    )
+    print("|---|---:|---:|---:|")
+    for name, m in matched_rise(flights, airframes).items():
+        print(
+            f"| {LABELS.get(name, name)} | {m.offset_c:+.1f} ({m.spread_c:.1f}) | {m.egt_offset_c:+.1f} |"
+            f" {m.matched_s:.0f} / {m.steady_s:.0f} in {m.bins} points |"
+        )
     print()
     for label, values in timings.items():
         print(f"- {label}: mean {np.mean(values):.1f}, max {np.max(values):.1f} over {len(values)}")

@@ -73,6 +73,7 @@ __all__ = [
     "SensorFaultSettings",
     "ServiceConfig",
     "config_default",
+    "detector_section",
     "load_config",
     "parse_config",
     "validation_error",
@@ -280,6 +281,9 @@ class _DetectorMark(_Section, frozen=True):
 
 
 class _DetectorHead(_DetectorMark, frozen=True):
+    #: a detector file (relative to the config, or a shipped one's name): its ``detector:`` keys are this
+    #: section's too (:func:`detector_section`)
+    file: _FilePath | UnsetType = UNSET
     symptom: Symptom = "estimator"
     #: a detector not calibrated for the model: ``run`` refuses to start (exit 2), or (accept, a test bench)
     #: runs with a warning in every status line
@@ -337,6 +341,12 @@ else:
     _DetectorSection = _settings_keys("DetectorSection", DetectorSettings, _DetectorHead)
     _DetectorKeys = _settings_keys("DetectorKeys", DetectorSettings, _DetectorMark)
     _WearSection = _settings_keys("WearSection", WearSettings, _WearHead)
+
+
+class _DetectorFile(_Section, frozen=True):
+    """A detector file (``detector.file``): one ``detector:`` section, as ``ecu-monitor calibrate`` writes it."""
+
+    detector: _DetectorSection
 
 
 class _Cylinders(_Section, frozen=True):
@@ -631,9 +641,38 @@ def parse_config(data: Any, src: str | os.PathLike[str]) -> ServiceConfig:
         raise ConfigError(f"{source}: this is a model file (model.yaml), not a service config: give it as --model")
     try:
         file = msgspec.convert(data, ConfigFile)
+        if file.detector.file is not UNSET:
+            data = {**data, "detector": detector_section(data, source)}
+            file = msgspec.convert(data, ConfigFile)
     except msgspec.ValidationError as exc:
         raise validation_error(source, exc, data) from None
     return _Resolver(source).config(file, order=list(data["inputs"]))  # the inputs in the file's order
+
+
+def detector_section(data: dict[str, Any], src: Path) -> Any:
+    """The ``detector`` section of the config ``data`` (read from ``src``) with the keys of its ``detector.file``
+    in place of that key: a detector file (relative to the config, else a shipped one: ``ecu-monitor files``)
+    holding one ``detector:`` section, as calibrate writes it, so that configs of one engine share one reference.
+    A key given in both places is an error (one place for each)."""
+    section = data.get("detector")
+    if not isinstance(section, dict) or "file" not in section:
+        return section
+    try:
+        path = resolve_file(section["file"], "detector", base=src.parent)
+    except ConfigError as exc:
+        raise ConfigError(f"{src}: detector.file: {exc}") from None
+    loaded = load_yaml_file(path, "detector file", ConfigError)
+    try:
+        msgspec.convert(loaded, _DetectorFile)
+    except msgspec.ValidationError as exc:
+        raise validation_error(path, exc, loaded, _DetectorFile) from None
+    keys = loaded["detector"]
+    if "file" in keys:
+        raise ConfigError(f"{path}: detector.file: a detector file names no other")
+    both = sorted(set(keys) & set(section))
+    if both:
+        raise ConfigError(f"{src}: detector.{both[0]}: given here and in the detector file {path}; give it once")
+    return {**keys, **{key: value for key, value in section.items() if key != "file"}}
 
 
 # --- from the file to the configuration: what a schema cannot check -------------------------------------

@@ -1,6 +1,7 @@
 """Files shipped inside the package, and the one rule by which a user names a file.
 
-The DBCs, service configs, virtual-ECU missions, foreign-CSV mappings and the systemd unit are
+The DBCs, service configs, virtual-ECU missions, foreign-CSV mappings, the systemd unit and detector files
+(a calibrated ``detector:`` section that configs share through ``detector.file``) are
 package data under ``ecu_monitor/data/<kind>/`` (found through :mod:`importlib.resources`, so an
 installed wheel finds them from any directory). Wherever a command line or a config names one of
 these files, :func:`resolve_file` applies the same rule: a path that exists wins (relative paths
@@ -36,6 +37,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "mission": ("missions", ".yaml", "mission file"),
     "mapping": ("mappings", ".yaml", "mapping file"),
     "unit": ("systemd", ".service", "systemd unit file"),
+    "detector": ("detectors", ".yaml", "detector file"),
 }
 
 

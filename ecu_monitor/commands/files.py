@@ -1,5 +1,5 @@
 """``ecu-monitor files [NAME]``: the files shipped with the package (DBCs, configs, missions, mappings,
-systemd unit).
+systemd unit, detector files).
 
 Without NAME, lists every shipped file by kind with its path. With NAME, prints the path of that
 shipped file (suffix optional), e.g. ``cp "$(ecu-monitor files example.yaml)" /etc/ecu-monitor/config.yaml``.

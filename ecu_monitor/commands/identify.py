@@ -6,7 +6,7 @@ from temperatures: R_Ce keeps the base model's value and the search runs in coor
 (time constant C_w R_Ce, temperature rise Q R_Ce per heat-map breakpoint, radiated share of the heat),
 with a smooth, power-monotone prior on the heat map. ``--effects`` fits the model jointly with terms
 (airspeed cooling with a propeller-wash floor, density cooling, probe lag, mixture cooling) or without
-parts of the paper's form (``-altitude_factor``; ``radiation_kelvin`` for T^4 in kelvin); ``auto``
+parts of the paper's form (``-altitude_factor``, ``-radiation``; ``radiation_kelvin`` for T^4 in kelvin); ``auto``
 keeps what lowers the error on held-out flights. With 2+ flights each flight is also predicted by a
 model fitted on the others (leave-one-flight-out). Prints a table of mean / peak / RMS error in degC
 and % per flight, any parameter that ended at a bound, writes model.yaml (header: how it was made,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -103,6 +104,34 @@ def _fit_lines(name: str, fit: AirframeFit, sources: list[str]) -> list[str]:
     return lines
 
 
+def _matched(flights: list[FlightLog], airframes: list[str]) -> dict[str, list[str]]:
+    """Per airframe, its head against the other airframes' at the steady operating points they share (the
+    difference no form of the model carries to an airframe with no flight of its own); nothing where the
+    flights lack a column it reads."""
+    from ecu_monitor.identify.matched import MATCH_COLUMNS, matched_rise
+
+    if not all(log.has(name) for log in flights for name in MATCH_COLUMNS):
+        return {}
+    out: dict[str, list[str]] = {}
+    for airframe, m in matched_rise(flights, airframes).items():
+        if m.bins == 0:
+            out[airframe] = ["  shares no steady operating point (rpm x fuel flow x airspeed) with the other airframes"]
+            continue
+        egt = f", EGT {m.egt_offset_c:+.0f} degC" if math.isfinite(m.egt_offset_c) else ""
+        out[airframe] = [
+            f"  at the steady operating points it shares with the others ({m.matched_s:.0f} s): its head"
+            f" {m.offset_c:+.1f} degC against theirs (spread {m.spread_c:.1f}){egt}"
+        ]
+    return out
+
+
+#: After the airframes' matched lines: what they mean.
+_MATCHED_NOTE = (
+    "(a model reads the inputs, not the airframe: a new airframe with no flight of its own can be as far from the"
+    " type as these heads are from each other at the same inputs)"
+)
+
+
 def _write(params: ThermalParams, out: Path, lines: list[str]) -> None:
     from ecu_monitor.model import save_model
 
@@ -142,9 +171,12 @@ def run_type(
         f"type model {name}: {len(flights)} flights of {len(fit.airframes)} airframes, {fit.elapsed_s:.0f} s"
         + (f"; joint polish cost {fit.joint_cost:.3f} degC" if fit.joint_cost is not None else ""),
     ]
+    matched = _matched(flights, airframes)
     for airframe, airframe_fit in fit.airframes.items():
         sources = [log.source for log, a in zip(flights, airframes, strict=True) if a == airframe]
-        lines += _fit_lines(airframe, airframe_fit, sources)
+        lines += _fit_lines(airframe, airframe_fit, sources) + matched.get(airframe, [])
+    if matched:
+        lines.append(_MATCHED_NOTE)
     _write(fit.params, out, lines)
     for line in lines[1:]:
         print(line)

@@ -98,7 +98,7 @@ def _as_logs(flights: FlightLog | Sequence[FlightLog], side: str) -> tuple[Fligh
 
 
 def _held_out(nominal: ThermalParams, log: FlightLog, settings: GapSettings) -> HeldOutFlight:
-    flight = prepare_flight(log, nominal.heat_axes, settings.refit.dt_s)
+    flight = prepare_flight(log, nominal.heat_axes, settings.refit.dt_s, nominal.effects.mixture_index)
     model = simulate_probe([nominal], flight, settings.refit.engine)[:, 0]
     residual = flight.cht_c - model
     segmentation = segment_flight(log, settings.segments)
@@ -134,7 +134,8 @@ def diagnose(
             nominals = [nominal] * len(train_logs)
         inner = dataclasses.replace(settings, whiteness_estimator=None)  # only its verdict is used
         chosen_by = cross_validate(nominals, train_logs, nominal, inner, progress)
-    trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s) for log in train_logs)
+    mixture = nominal.effects.mixture_index  # the index the model reads (None: the EGT, for the candidate)
+    trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s, mixture) for log in train_logs)
     fold = RefitFold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
     return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress, chosen_by)
 
@@ -155,7 +156,8 @@ def cross_validate(
     if len(logs) < 2 or len(nominals) != len(logs):
         raise ParameterError("gap leave-one-out: at least two flights, and one nominal model per flight")
     dt = settings.refit.dt_s
-    prepared = tuple(prepare_flight(log, final_nominal.heat_axes, dt) for log in logs)
+    mixture = final_nominal.effects.mixture_index
+    prepared = tuple(prepare_flight(log, final_nominal.heat_axes, dt, mixture) for log in logs)
     folds = []
     for k, nominal in enumerate(nominals):
         others = tuple(f for i, f in enumerate(prepared) if i != k)

@@ -20,6 +20,12 @@ __all__ = ["heat_map_breakpoints", "observed_rise_map", "reference_point", "visi
 # --------------------------------------------------------------------------------------------------
 
 
+#: Heat-map axes that are a flow of fuel: the heat they drive grows in proportion (heat_map_breakpoints).
+FUEL_AXES: tuple[str, ...] = ("fuel_flow_lph",)
+#: The top breakpoint of a fuel axis, as a multiple of the largest flow the training flights logged.
+FUEL_HEADROOM = 1.25
+
+
 def heat_map_breakpoints(
     flights: Sequence[FlightLog], heat_axes: tuple[str, str], grid: tuple[int, int]
 ) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -28,7 +34,12 @@ def heat_map_breakpoints(
     Each axis gets n (or m) breakpoints at the quantiles linspace(1 %, 99 %) of its pooled samples, so
     every breakpoint sits where the engine actually ran (the 1 % tails are clamped, not extrapolated).
     Where the quantiles collide (a mostly constant input) the breakpoints fall back to even spacing
-    between the 1 % and 99 % quantiles.
+    between the 1 % and 99 % quantiles. An axis of :data:`FUEL_AXES` with two breakpoints (a map linear in
+    the fuel) spans instead from no fuel (0: no heat) to :data:`FUEL_HEADROOM` times the largest flow logged:
+    the heat of burnt fuel grows in proportion to the fuel, so the line carries on past the training
+    flights' largest flow (another mission's full-power climb) instead of clamping there. A finer fuel axis
+    keeps its breakpoints where the engine ran (its shape is resolved there; stretching its ends cost the
+    real N550ND flights 0.1 degC held out, docs/results/jsbsim.md).
     """
     out = []
     for axis, count in zip(heat_axes, grid, strict=True):
@@ -36,6 +47,8 @@ def heat_map_breakpoints(
             raise ParameterError(f"heat-map grid: expected at least 2 breakpoints per axis, got {count}")
         values = np.concatenate([np.asarray(model_inputs(f, heat_axes)[heat_axes.index(axis)]) for f in flights])
         points = np.quantile(values, np.linspace(0.01, 0.99, count))
+        if axis in FUEL_AXES and count == 2:
+            points[0], points[-1] = 0.0, FUEL_HEADROOM * float(np.max(values))
         low, high = float(points[0]), float(points[-1])
         if high - low <= 1e-9 * max(1.0, abs(high)):
             raise ParameterError(f"heat-map axis '{axis}': the data hold one value only ({low:g}); choose another axis")

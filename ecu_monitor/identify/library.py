@@ -186,6 +186,7 @@ def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> di
 REFERENCE_KEYS: dict[str, dict[str, str]] = {
     "airspeed_cooling": {"reference_mps": "reference_mps"},
     "density_cooling": {"reference_kg_m3": "reference_kg_m3"},
+    "mass_flow_cooling": {"reference_kg_m3": "reference_kg_m3"},
     "engine_speed_cooling": {"reference_rpm": "reference_rpm"},
     "mixture_index": {"reference": "reference_egt_c"},
 }

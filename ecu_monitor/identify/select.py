@@ -4,7 +4,8 @@ A *term* is a part of the model that one engine needs and another does not: an u
 extension (airspeed cooling with its propeller-wash floor, density cooling, probe lag, mixture
 cooling, mixture index: the heat follows a logged lean/rich index, the mean EGT or else the fuel
 per revolution), or a part of the paper's own form that can be removed (``altitude_factor``, the heat scaling
-g(z), which a heat map driven by measured fuel flow already carries) or changed (``radiation_kelvin``:
+g(z), which a heat map driven by measured fuel flow already carries; ``radiation``, the T^4 term, for a
+head that radiates nothing worth a parameter, used only when named) or changed (``radiation_kelvin``:
 T^4 in kelvin instead of the paper's degC). :func:`model_form` switches terms on or off and names the
 parameters to fit with them.
 
@@ -72,9 +73,14 @@ __all__ = [
 ]
 
 #: Terms that identification can switch on or off (module doc): every effect, and two parts of the paper's form.
-TERM_NAMES: tuple[str, ...] = (*EFFECT_NAMES, "altitude_factor", "radiation_kelvin")
+TERM_NAMES: tuple[str, ...] = (*EFFECT_NAMES, "altitude_factor", "radiation", "radiation_kelvin")
+#: Parts of the paper's form ``--effects auto`` does not toggle: the radiation, used only when named (its
+#: removal was measured on JSBSim's engine, which radiates nothing, not on the real engines' term search).
+_NOT_SEARCHED: tuple[str, ...] = ("radiation",)
 #: The terms ``--effects auto`` searches (an effect declares whether: ``Effect.AUTO_SEARCH``).
-AUTO_TERMS: tuple[str, ...] = tuple(n for n in TERM_NAMES if n not in EFFECT_TYPES or EFFECT_TYPES[n].AUTO_SEARCH)
+AUTO_TERMS: tuple[str, ...] = tuple(
+    n for n in TERM_NAMES if n not in _NOT_SEARCHED and (n not in EFFECT_TYPES or EFFECT_TYPES[n].AUTO_SEARCH)
+)
 #: A toggle is kept when it lowers the mean held-out RMS error by at least this fraction.
 MIN_GAIN = 0.02
 #: The paper's altitude exponents, used when the altitude factor is switched back on.
@@ -83,6 +89,7 @@ _PAPER_A, _PAPER_B = 1.55, 2.0
 _TERM_FREE: dict[str, tuple[str, ...]] = {
     **{name: tuple(f"effects.{name}.{p}" for p in kind.FREE) for name, kind in EFFECT_TYPES.items()},
     "altitude_factor": (),
+    "radiation": (),
     "radiation_kelvin": (),
 }
 
@@ -91,6 +98,8 @@ def term_is_on(params: ThermalParams, name: str) -> bool:
     """Whether a term (TERM_NAMES) is part of the model."""
     if name == "altitude_factor":
         return params.a != 0.0 or params.b != 0.0
+    if name == "radiation":
+        return params.term_on("radiation")
     if name == "radiation_kelvin":
         return params.radiation_in_kelvin
     if name not in _TERM_FREE:
@@ -120,6 +129,9 @@ def _set_term(params: ThermalParams, name: str, on: bool, flights: Sequence[Flig
         return params
     if name == "altitude_factor":
         return params.replace(a=_PAPER_A if on else 0.0, b=_PAPER_B if on else 0.0)
+    if name == "radiation":
+        off = tuple(t for t in params.terms_off if t != "radiation") + (() if on else ("radiation",))
+        return params.replace(terms_off=off)
     if name == "radiation_kelvin":
         return _switch_radiation_units(params, on, flights)
     if not on:
@@ -148,6 +160,8 @@ def model_form(
     for name, on in terms.items():
         params = _set_term(params, name, on, flights)
     names = [n for n in free if not n.startswith("effects.")]
+    if not term_is_on(params, "radiation"):  # nothing radiates: alpha_r_e is not read
+        names = [n for n in names if n != "alpha_r_e"]
     for name in TERM_NAMES:
         if term_is_on(params, name):
             names += [n for n in _TERM_FREE[name] if n not in names]

@@ -3,7 +3,7 @@
     C_w dT/dt = gamma_Q * H * (w - Q_SL0)  -  (1/gamma_D) * [ G (T - T_e) + (T^4 - T_e^4)/(alpha R_e) ]
     w' = (2/tau_w) (2 Q_SL0 - w)                     (first-order Pade delay of the heat path)
     H = g(z) * effects' heat factors,   g(z) = (p/p_SL)^a (T_SL/T_e)^b
-    G = (1/R_Ce) * effects' conductance factors (airspeed, density, engine speed)
+    G = (1/R_Ce) * max(0.05, airspeed factor (mass flow) + engine-speed term) * density factor
 
 Every function here is plain arithmetic on its arguments plus the primitives ``exp``, ``log``,
 ``expm1``, ``maximum``, ``minimum`` and ``finite_or``. So the same code runs on numpy arrays (a whole
@@ -143,6 +143,8 @@ class Coefficients(NamedTuple):
     airspeed_prop_wash_mps: Any  # m/s, the cooling flow on the ground
     density_exponent: Any
     density_reference_kg_m3: Any
+    mass_flow_exponent: Any  # mass_flow_cooling, dimensionless
+    mass_flow_reference_kg_m3: Any
     speed_gain: Any  # engine_speed_cooling, dimensionless
     speed_reference_rpm: Any  # rev/min
     sensor_lag_s: Any  # s, 0 = no lag
@@ -170,6 +172,8 @@ AIR_FLOOR = PARAMETER_FIELDS.index("airspeed_floor")
 AIR_WASH = PARAMETER_FIELDS.index("airspeed_prop_wash_mps")
 DENSITY_EXPONENT = PARAMETER_FIELDS.index("density_exponent")
 DENSITY_REFERENCE = PARAMETER_FIELDS.index("density_reference_kg_m3")
+MASS_FLOW_EXPONENT = PARAMETER_FIELDS.index("mass_flow_exponent")
+MASS_FLOW_REFERENCE = PARAMETER_FIELDS.index("mass_flow_reference_kg_m3")
 SPEED_GAIN = PARAMETER_FIELDS.index("speed_gain")
 SPEED_REFERENCE = PARAMETER_FIELDS.index("speed_reference_rpm")
 SENSOR_LAG = PARAMETER_FIELDS.index("sensor_lag_s")
@@ -221,25 +225,26 @@ def drive(
     """(altitude gain g(z), heat factor of the effects, conductance G in W/degC) of one parameter set.
 
     engine_speed: the heat map's second input (rev/min when the model has engine_speed_cooling).
-    The effects (docs/model.md): airspeed_cooling, density_cooling and engine_speed_cooling scale G;
-    mixture_cooling and mixture_index scale the heat in. Neutral coefficients (an effect off) give factors
-    of exactly 1.
+    The effects (docs/model.md): airspeed_cooling (its air speed weighted by mass_flow_cooling) and
+    engine_speed_cooling add their conductances, density_cooling scales G; mixture_cooling and
+    mixture_index scale the heat in. Neutral coefficients (an effect off) give factors of exactly 1.
     """
     altitude_gain = exp(coef[A] * log_pressure_ratio + coef[B] * log_temperature_ratio)
-    # airspeed_cooling: the cooling flow is at least the propeller wash
-    cooling_speed = maximum(airspeed_mps, coef[AIR_WASH])
+    # airspeed_cooling: the cooling flow is at least the propeller wash; mass_flow_cooling weights it by density
+    mass_flow_weight = exp(coef[MASS_FLOW_EXPONENT] * (log_density - log(coef[MASS_FLOW_REFERENCE])))
+    cooling_speed = maximum(airspeed_mps, coef[AIR_WASH]) * mass_flow_weight
     airspeed_factor = maximum(coef[AIR_FLOOR], 1.0 + coef[AIR_GAIN] * (cooling_speed - coef[AIR_REFERENCE]))
     # density_cooling
     density_factor = exp(coef[DENSITY_EXPONENT] * (log_density - log(coef[DENSITY_REFERENCE])))
-    # engine_speed_cooling: the propeller's slipstream
-    speed_factor = maximum(0.05, 1.0 + coef[SPEED_GAIN] * (engine_speed / coef[SPEED_REFERENCE] - 1.0))
+    # engine_speed_cooling: the propeller's slipstream, a conductance beside the ram air's
+    flow_factor = maximum(0.05, airspeed_factor + coef[SPEED_GAIN] * (engine_speed / coef[SPEED_REFERENCE] - 1.0))
     # mixture_cooling: power enrichment at high load
     onset = coef[MIX_ONSET]
     enrichment = minimum(maximum((load - onset) / (1.0 - onset), 0.0), 1.0)
     # mixture_index: a logged lean/rich index (not logged: NaN, factor 1)
     mixture = exp(coef[MIX_GAIN] * (finite_or(mixture_index, coef[MIX_REFERENCE]) - coef[MIX_REFERENCE]))
     heat_factor = (1.0 - coef[MIX_FRACTION] * enrichment) * mixture
-    return altitude_gain, heat_factor, airspeed_factor * density_factor * speed_factor / coef[R_CE]
+    return altitude_gain, heat_factor, flow_factor * density_factor / coef[R_CE]
 
 
 # --------------------------------------------------------------------------------------------------

@@ -44,6 +44,7 @@ from ecu_monitor.config import (
     CYLINDER_HEALTH_MESSAGES,
     CYLINDER_INPUT,
     ServiceConfig,
+    detector_section,
 )
 from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.estimation.detection import (
@@ -560,7 +561,7 @@ def config_copy_yaml(
             " (comments of the original not kept)"
         )
         return _config_text(header, data)
-    detector = data.get("detector")
+    detector = detector_section(data, src)  # a detector file's keys in place of its name: the copy stands alone
     detector = dict(detector) if isinstance(detector, dict) else {}
     detector["threshold"] = _rounded(result.calibration.threshold)
     detector["baseline_s"] = result.current.baseline_s

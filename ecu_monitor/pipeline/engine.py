@@ -57,7 +57,16 @@ if TYPE_CHECKING:
     from ecu_monitor.config import ServiceConfig
     from ecu_monitor.estimation.detection import DetectorSettings
 
-__all__ = ["MODEL_INPUTS", "STATUS_INPUT", "Pipeline", "StepRow", "fed_mixture", "make_decoder", "model_input_names"]
+__all__ = [
+    "MIXTURE_CODES",
+    "MODEL_INPUTS",
+    "STATUS_INPUT",
+    "Pipeline",
+    "StepRow",
+    "fed_mixture",
+    "make_decoder",
+    "model_input_names",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -102,9 +111,13 @@ def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | Dr
     return Decoder(config.dbc_paths, specs)
 
 
+#: The step's code of each mixture-index source (pipeline/step.py, engine_step: how it computes the index).
+MIXTURE_CODES: dict[str, int] = {"egt_c": 1, "fuel_per_rev": 2, "egt_rise": 3}
+
+
 def model_input_names(params: ThermalParams, mapped: Collection[str] = ()) -> tuple[str, ...]:
     """Inputs the service feeds the model: the two heat-map axes, altitude, airspeed, OAT, then the
-    columns of its mixture index (egt_c, or fuel_flow_lph and rpm) when the model has the mixture_index
+    columns of its mixture index (egt_c, fuel_flow_lph and rpm, or egt_c and oat_c) when the model has the mixture_index
     effect and ``mapped`` (the config's input names) holds them all; otherwise the index is not fed and
     the effect's factor is 1."""
     names = (*params.heat_axes, *MODEL_INPUTS)
@@ -263,7 +276,7 @@ class Pipeline:
         mixture_slots = np.zeros(2, dtype=np.int64)
         if self._mixture is not None:
             columns = MIXTURE_COLUMNS[self._mixture.source]
-            c["mixture"] = 1 if self._mixture.source == "egt_c" else 2
+            c["mixture"] = MIXTURE_CODES[self._mixture.source]
             mixture_slots[: len(columns)] = [self._slot[n] for n in columns]
         model_slots = np.array([self._slot[n] for n in (*self.params.heat_axes, *MODEL_INPUTS)], dtype=np.int64)
         packed = [pack_coefficients(coefficients(m)) for m in models]

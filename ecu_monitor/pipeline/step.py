@@ -35,8 +35,9 @@ The rules, in the order a step applies them:
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
   ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable"). A fault
   present from engine start (the start region's symptom above its nominal level) is named instead by how
-  its excess over the reference splits between the start and the airborne regions (:func:`start_fault_call`);
-  the filter's product gamma_Q gamma_D is then published on the factor it names, 1 on the other;
+  its excess over the reference splits between the start and the airborne regions, only where one cause's
+  pattern fits better than the other's by the nominal spreads (:func:`start_fault_call`; nothing in the first
+  10 min); the filter's product gamma_Q gamma_D is then published on the factor it names, 1 on the other;
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
   detector; the more severe verdict wins;
@@ -54,6 +55,7 @@ import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic, overload
 
+from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
 from ecu_monitor.estimation.detection import _cusum_step as cusum_step
 from ecu_monitor.estimation.ekf import live_steps as live_ekf
 from ecu_monitor.estimation.isolation import live_steps as live_isolation
@@ -325,7 +327,7 @@ CLOCK = np.dtype(
         ("status_slot", "i8"),  # the ECU's CHT sensor status (-1: none)
         ("min_c", "f8"),  # a plausible CHT reading
         ("max_c", "f8"),
-        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution
+        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution, 3 EGT - OAT
         ("cross", "?"),  # cross-cylinder detectors on
     ]
 )
@@ -342,7 +344,7 @@ class Engine(NamedTuple):
     check_limit_s: Any  # float64[checks]
     check_model: Any  # bool[checks]: a model input (stale: every cylinder's inputs are)
     model_slots: Any  # int64[5]: heat-map x, y, altitude, airspeed, OAT
-    mixture_slots: Any  # int64[2]: EGT, or fuel flow and rpm
+    mixture_slots: Any  # int64[2]: EGT, fuel flow and rpm, or EGT and OAT
     open_values: Any  # float64[]: the CHT sensor status values meaning "open"
     settings: Any  # CYLINDER_SETTINGS[cylinders]
     state: Any  # CYLINDER_STATE[cylinders]
@@ -818,7 +820,7 @@ def cylinder_step(
         gamma_q_sd = math.sqrt(max(iso[8], 0.0))
         gamma_d_sd = math.sqrt(max(iso[12], 0.0))
         declared = state == CODE_DEGRADED and region >= 0 and isolable_region(region)  # something to isolate, here
-        call = start_fault_call(st, cfg["start_margin"])
+        call = start_fault_call(st, cfg["start_margin"], time_s - st["on_s"]) if declared else START_CALL_UNTOLD
         if call == START_CALL_NOT_FROM_START:  # the filter's split, where it can be told
             product = gamma_q_sd * gamma_d_sd
             correlation = iso[9] / product if product > 0.0 else -1.0
@@ -895,48 +897,75 @@ def _add_to(sums: Any, excess: float, margin: float, st: Any) -> None:
 
 
 @njit(nogil=False)
-def start_fault_call(st: Any, start_margin: float) -> int:
-    """The cause of a fault present from engine start, from the regions' excess symptoms: START_CALL_NOT_FROM_START
-    when the start region's mean excess over the reference is not above ``start_margin`` (NOMINAL_SPREAD_Z
-    spreads of the nominal flights' start means; nan: no reference there), nothing airborne was seen in the
-    START_S after the start region, the airborne excess there is not above the reference test's margin
-    (NOMINAL_SPREAD_Z spreads of the nominal flights there: the fault is not there airborne), or the ratio
-    below fits neither pattern within a factor of 2 (a start that ran a little warm, and a later onset), or
-    the start region's first half holds less than half the excess the heat's pattern predicts from its second
-    half (an onset within the start region and a gamma_D fault look alike there: the filter decides, which
-    follows an onset's transient and is not biased against gamma_D); else START_CALL_HEAT (gamma_Q),
-    START_CALL_LOSS (gamma_D) or START_CALL_UNTOLD.
+def _pattern_misfit(e0: float, e1: float, e2: float, p0: float, p1: float, p2: float, s0: float, s1: float,
+                    s2: float) -> float:  # fmt: skip
+    """How badly the excesses e (degC/s: the start region's first half, its second half, the airborne window)
+    fit one fault's pattern p (the same places; excess = g x p, g >= 0 fitted), each with the nominal spread s:
+    the sum of the squared residuals in spreads (chi-square), the smaller of two readings: the fault there from
+    engine start (all three), and an onset within the start region (g fitted on the second half and the
+    airborne window; the first half then holds at most g x p0, and only an excess above that counts)."""
+    w0, w1, w2 = p0 / (s0 * s0), p1 / (s1 * s1), p2 / (s2 * s2)
+    weight = p0 * w0 + p1 * w1 + p2 * w2
+    g = max((e0 * w0 + e1 * w1 + e2 * w2) / weight, 0.0) if weight > 0.0 else 0.0
+    from_start = ((e0 - g * p0) / s0) ** 2 + ((e1 - g * p1) / s1) ** 2 + ((e2 - g * p2) / s2) ** 2
+    weight = p1 * w1 + p2 * w2
+    g = max((e1 * w1 + e2 * w2) / weight, 0.0) if weight > 0.0 else 0.0
+    onset = max((e0 - g * p0) / s0, 0.0) ** 2 + ((e1 - g * p1) / s1) ** 2 + ((e2 - g * p2) / s2) ** 2
+    return min(from_start, onset)
 
-    A gamma_Q fault's symptom follows the heat into the head, a gamma_D fault's the heat out of it. At the
-    start the head is cold: the heat out is a smaller part of the heat in than airborne. So the ratio of the
-    start's mean excess to the airborne one is near the heat's ratio (start / airborne) for gamma_Q and near
-    the loss's ratio for gamma_D; the call is the nearer one (the observed ratio above or below their geometric
-    mean). Untold when the two ratios do not differ (the heat's not above the loss's)."""
+
+@njit(nogil=False)
+def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
+    """The cause of a fault present from engine start, ``elapsed_s`` (s) after engine start, from the regions'
+    excess symptoms over the reference: START_CALL_HEAT (gamma_Q), START_CALL_LOSS (gamma_D), START_CALL_UNTOLD
+    (present from start, or maybe, but the two causes fit within NOMINAL_SPREAD_Z spreads of each other), or
+    START_CALL_NOT_FROM_START (the isolation filter's split holds: a fault that began after the start region).
+
+    Not from start without a reference at the start (``start_margin`` nan; else NOMINAL_SPREAD_Z spreads of the
+    nominal flights' start means). Untold until the airborne window (the START_S after the start region) has
+    ended. Then: not from start when nothing airborne was seen in that window or its excess is not above the
+    reference test's margin there (the fault is not there airborne). With the start region's mean excess not
+    above ``start_margin``: not from start when neither pattern fits (a later onset), else untold (a small
+    fault from start and a later onset look alike; the filter's split leans to gamma_D on a fault from
+    start). Above it, the fault was there at the start: untold when neither pattern fits.
+
+    A gamma_Q fault's excess symptom follows the heat into the head, a gamma_D fault's the heat out of it
+    (docs/detection_isolation.md section 1). At the start the head is cold: the heat out is a smaller part of
+    the heat in than airborne. The three excesses (the start region's halves and the airborne window) are
+    fitted to each pattern with the nominal spreads (the start's split evenly between its halves, the
+    airborne regions' as the reference test has them: ``start_margin`` and the sums' margins over
+    NOMINAL_SPREAD_Z), each pattern allowed an onset within the start region (:func:`_pattern_misfit`); a
+    cause is named when the other pattern fits worse by NOMINAL_SPREAD_Z squared (a likelihood ratio of
+    exp(NOMINAL_SPREAD_Z^2 / 2)); neither fits when the better one misses by more than that per degree of
+    freedom (two)."""
     start = st["start_sums"]
     air = st["air_sums"]
-    if math.isnan(start_margin) or start[0] < 1.0 or air[0] < 1.0 or not start[1] / start[0] > start_margin:
+    if math.isnan(start_margin) or start[0] < 1.0:
         return START_CALL_NOT_FROM_START
-    excess_air = air[1] / air[0]
-    heat_air = air[2] / air[0]
-    loss_air = air[3] / air[0]
-    if not (excess_air > 0.0 and excess_air > air[4] / air[0]):
-        return START_CALL_NOT_FROM_START
-    if not (heat_air > 0.0 and loss_air > 0.0):
+    if elapsed_s < 2.0 * START_S:  # the airborne window is still filling: from start or not is not known yet
         return START_CALL_UNTOLD
-    heat_ratio = (start[2] / start[0]) / heat_air
-    loss_ratio = (start[3] / start[0]) / loss_air
-    if not heat_ratio > loss_ratio or not loss_ratio > 0.0:
-        return START_CALL_UNTOLD
-    observed = (start[1] / start[0]) / excess_air
-    if not 0.5 * loss_ratio <= observed <= 2.0 * heat_ratio:  # fits neither: a warm start, and a later onset
-        return START_CALL_NOT_FROM_START
     early = st["early_sums"]
     late = start - early
-    if early[0] < 1.0 or late[0] < 1.0 or not late[1] > 0.0 or not late[3] > 0.0:
+    if air[0] < 1.0 or not (air[1] > 0.0 and air[1] > air[4]) or early[0] < 1.0 or late[0] < 1.0:
         return START_CALL_NOT_FROM_START
-    if not (early[1] / early[0]) / (late[1] / late[0]) >= 0.5 * (early[2] / early[0]) / (late[2] / late[0]):
-        return START_CALL_NOT_FROM_START  # a fault that grew within the start region
-    return START_CALL_HEAT if observed > math.sqrt(heat_ratio * loss_ratio) else START_CALL_LOSS
+    half_spread = start_margin / NOMINAL_SPREAD_Z * math.sqrt(2.0)
+    air_spread = air[4] / air[0] / NOMINAL_SPREAD_Z
+    e0, e1, e2 = early[1] / early[0], late[1] / late[0], air[1] / air[0]
+    heat = _pattern_misfit(e0, e1, e2, early[2] / early[0], late[2] / late[0], air[2] / air[0], half_spread,
+                           half_spread, air_spread)  # fmt: skip
+    loss = _pattern_misfit(e0, e1, e2, early[3] / early[0], late[3] / late[0], air[3] / air[0], half_spread,
+                           half_spread, air_spread)  # fmt: skip
+    evidence = NOMINAL_SPREAD_Z * NOMINAL_SPREAD_Z
+    fits = min(heat, loss) <= 2.0 * evidence
+    if not start[1] / start[0] > start_margin:  # the start within its spread: a later onset, or a small fault
+        return START_CALL_UNTOLD if fits else START_CALL_NOT_FROM_START
+    if not fits:  # there at the start, and airborne, in neither pattern: nothing to name it by
+        return START_CALL_UNTOLD
+    if loss - heat >= evidence:
+        return START_CALL_HEAT
+    if heat - loss >= evidence:
+        return START_CALL_LOSS
+    return START_CALL_UNTOLD
 
 
 @njit(nogil=False)
@@ -1041,6 +1070,8 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
         u[5] = eng_values[eng_mixture_slots[0]]
     elif clock["mixture"] == 2:  # fuel per revolution, mL/rev
         u[5] = eng_values[eng_mixture_slots[0]] * (1000.0 / 60.0) / max(eng_values[eng_mixture_slots[1]], 100.0)
+    elif clock["mixture"] == 3:  # the EGT's rise over the intake air, degC
+        u[5] = eng_values[eng_mixture_slots[0]] - eng_values[eng_mixture_slots[1]]
     else:
         u[5] = np.nan
     call = k % clock["filter_period"] == 0

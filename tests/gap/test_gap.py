@@ -182,7 +182,7 @@ def test_nominal_candidates_search_only_values_the_model_accepts() -> None:
 def test_effect_candidates_come_from_the_effects_and_search_only_values_they_accept() -> None:
     # each model effect's candidate is made from its declarations; a refit at a bound builds a valid effect
     from ecu_monitor.identify.library import CANDIDATES, effects_for
-    from ecu_monitor.model import EFFECT_TYPES, Effects
+    from ecu_monitor.model import EFFECT_TYPES, AirspeedCooling, Effects
 
     effect_entries = [entry for entry in CANDIDATES if entry.effect != "nominal"]
     assert [entry.id for entry in effect_entries] == list(EFFECT_TYPES)
@@ -191,7 +191,9 @@ def test_effect_candidates_come_from_the_effects_and_search_only_values_they_acc
         assert entry.description == EFFECT_TYPES[entry.effect].GAP_TEXT and entry.free
         for bound in ("low", "high"):
             values = {entry.id: {free.name: getattr(free, bound) for free in entry.free}}
-            effects_for(Effects(), [entry], values, references)  # raises ParameterError outside the valid range
+            # mass_flow_cooling weights airspeed_cooling's air speed: tried on a model that has it
+            base = Effects(airspeed_cooling=AirspeedCooling()) if entry.effect == "mass_flow_cooling" else Effects()
+            effects_for(base, [entry], values, references)  # raises ParameterError outside the valid range
     with pytest.raises(ParameterError, match="reference_egt_c"):
         effects_for(Effects(), [candidate("mixture_index")], {"mixture_index": {"gain": 0.0}}, {})
 
@@ -330,3 +332,19 @@ def test_fold_nominal_forgets_the_heat_map_breakpoints_its_flights_do_not_visit(
     kept = marked.heat_map.values_array()
     assert np.array_equal(forgot[visited], kept[visited])
     assert set(np.unique(forgot[~visited])) <= set(np.unique(kept[visited]))
+
+
+def test_the_gap_reads_the_mixture_index_the_model_carries(tmp_path: Path) -> None:
+    """A nominal model whose mixture index is the EGT's rise over the OAT, on a flight it generated: the gap
+    feeds it that rise (not the raw EGT), so its baseline error on that flight is the probe's round-off."""
+    base = fly(random_mission(6, 600.0), paper_table_a1(), seed=6, record_dt_s=1.0)
+    columns = {name: np.asarray(base[name]) for name in base.names}
+    columns["egt_c"] = 650.0 + 60.0 * np.sin(2.0 * np.pi * base.time_s / 400.0)
+    nominal = paper_table_a1().replace(
+        effects=paper_table_a1().effects.replace("mixture_index", MixtureIndex("egt_rise", 0.004, 640.0))
+    )
+    grid = prepare_flight(FlightLog(columns, source="rise"), nominal.heat_axes, 0.5, nominal.effects.mixture_index)
+    columns["cht_c"] = simulate_probe([nominal], grid)[:, 0]
+    log = FlightLog(columns, source="rise")
+    diag = diagnose(nominal, log, log, GapSettings(candidates=("sensor_lag",), whiteness_estimator=None))
+    assert write_report(diag, tmp_path / "out")["baseline"]["test_rms_c"] < 0.05

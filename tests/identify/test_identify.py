@@ -230,6 +230,27 @@ def test_heat_map_grid_from_data_quantiles_and_visits():
     assert weight.sum() == pytest.approx(log.duration_s + 1.0)  # every sample carries its interval
     with pytest.raises(ParameterError):
         heat_map_breakpoints([log], ("throttle_pct", "rpm"), (1, 3))
+    # a fuel-flow axis of two breakpoints (heat linear in fuel) spans from no fuel to beyond the largest
+    # flow: the line carries on past one flight; a finer one keeps its quantiles
+    fuel = np.asarray(log["throttle_pct"]) * 0.4
+    fueled = log.with_columns(fuel_flow_lph=fuel)
+    xb, _ = heat_map_breakpoints([fueled], ("fuel_flow_lph", "rpm"), (2, 2))
+    assert xb == (0.0, pytest.approx(1.25 * fuel.max(), abs=1e-6))
+    xb, _ = heat_map_breakpoints([fueled], ("fuel_flow_lph", "rpm"), (3, 2))
+    assert xb == pytest.approx(tuple(np.quantile(fuel, [0.01, 0.5, 0.99])), abs=1e-6)
+
+
+def test_the_radiation_term_is_switched_off_only_when_named():
+    """-radiation: the T^4 term off (terms_off) and alpha_r_e no longer fitted; the term search leaves it."""
+    from ecu_monitor.identify.select import AUTO_TERMS, model_form, parse_terms, term_is_on
+
+    log = _synthetic_flight(3, 300)
+    dark, free = model_form(paper_table_a1(), [log], parse_terms("-radiation,airspeed_cooling"))
+    assert not dark.term_on("radiation") and not term_is_on(dark, "radiation")
+    assert "alpha_r_e" not in free and "effects.airspeed_cooling.gain_per_mps" in free
+    lit, free = model_form(dark, [log], {"radiation": True})
+    assert lit.term_on("radiation") and "alpha_r_e" in free
+    assert "radiation" not in AUTO_TERMS and "radiation_kelvin" in AUTO_TERMS
 
 
 # --------------------------------------------------------------------------------------------------
@@ -382,8 +403,8 @@ def test_terms_switch_on_and_off_and_parse():
     fuel = fuel.with_columns(throttle_pct=np.full(len(log), np.nan))
     mixed, names = model_form(paper_table_a1(), [fuel], {"mixture_index": True})
     mixture = mixed.effects.mixture_index
-    assert mixture is not None and mixture.source == "egt_c" and "effects.mixture_index.gain" in names
-    assert mixture.reference == pytest.approx(float(np.median(fuel["egt_c"])))
+    assert mixture is not None and mixture.source == "egt_rise" and "effects.mixture_index.gain" in names
+    assert mixture.reference == pytest.approx(float(np.median(fuel["egt_c"] - np.asarray(fuel["oat_c"]))))
     with pytest.raises(ParameterError, match="needs"):
         split_halves(_synthetic_flight(13, 600))
 

@@ -46,7 +46,7 @@ def _flight(seed: int, heat_scale: float, duration_s: int = 2400) -> FlightLog:
     probe = simulate_compiled(fine, coefficients(truth), 0.2, 60.0, record_every=5).probe_c
     measured = np.round(probe + 0.3 * rng.standard_normal(probe.size))
     columns = {"time_s": t, "throttle_pct": throttle, "rpm": rpm, "altitude_m": altitude, "airspeed_mps": airspeed,
-               "oat_c": oat, "cht_c": measured}  # fmt: skip
+               "oat_c": oat, "cht_c": measured, "fuel_flow_lph": 0.4 * throttle}  # fmt: skip
     return FlightLog(columns, source=f"airframe-{heat_scale:g}-{seed}")
 
 
@@ -169,7 +169,11 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
                  "--out", str(out), *quick]) == 0  # fmt: skip
     type_params = load_model(out)
     assert type_params.engine_type == "type" and [a.id for a in type_params.airframes] == ["A", "B"]
-    assert "airframe B:" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "airframe B:" in printed
+    b_line = printed.split("airframe B:")[1]  # B (heat scale 1.15) against A at the same inputs: hotter
+    assert "at the steady operating points it shares with the others" in b_line and "its head +" in b_line
+    assert "a new airframe with no flight of its own can be as far from the type as" in b_line
     adapted = tmp_path / "c.yaml"
     args = ["identify", "--base", str(out), paths[2], "--airframe", "C=*", "--first-minutes", "20"]
     assert main([*args, "--out", str(adapted), *quick]) == 0

@@ -24,6 +24,7 @@ from ecu_monitor.model import (
     Effects,
     EngineSpeedCooling,
     InputSeries,
+    MassFlowCooling,
     MixtureCooling,
     MixtureIndex,
     SensorLag,
@@ -56,6 +57,9 @@ def _random_params(rng: np.random.Generator, kelvin: bool) -> ThermalParams:
         ),
         density_cooling=DensityCooling(
             exponent=float(rng.uniform(0.2, 0.9)), reference_kg_m3=float(rng.uniform(1, 1.3))
+        ),
+        mass_flow_cooling=MassFlowCooling(
+            exponent=float(rng.uniform(0.3, 1.2)), reference_kg_m3=float(rng.uniform(0.9, 1.3))
         ),
         engine_speed_cooling=EngineSpeedCooling(
             gain=float(rng.uniform(-0.3, 1.0)), reference_rpm=float(rng.uniform(1500, 6000))

@@ -118,7 +118,7 @@ ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
 
 def test_detector_calibrated_for_is_kept(tmp_path: Path) -> None:
     data = _base()
-    data.setdefault("detector", {})["calibrated_for"] = "0123456789abcdef"
+    data["detector"] = {"calibrated_for": "0123456789abcdef"}  # in place of the shipped detector file
     path = tmp_path / "calibrated.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     assert load_config(path).detector_calibrated_for == "0123456789abcdef"
@@ -197,6 +197,45 @@ def test_shipped_example_threshold_is_marked_for_the_model_it_names():
     for name in ("example.yaml", "multicast.yaml"):
         config = load_config(shipped_file("config", name))
         assert config.detector_calibrated_for == model_fingerprint(config.load_params()), name
+
+
+#: The shipped configs that run the virtual ECU's engine: one detector file, the same detector and reference.
+VIRTUAL_ENGINE_CONFIGS = ("example.yaml", "dronecan.yaml", "mavlink.yaml", "multicast.yaml", "manifold.yaml")
+
+
+@pytest.mark.parametrize("name", VIRTUAL_ENGINE_CONFIGS)
+def test_the_virtual_engines_configs_share_one_detector_file(name: str) -> None:
+    from ecu_monitor.offline.calibration import model_fingerprint
+    from ecu_monitor.shipped import shipped_file
+
+    shared = yaml.safe_load(shipped_file("detector", "virtual_ecu.yaml").read_text(encoding="utf-8"))["detector"]
+    config = load_config(shipped_file("config", name))
+    assert config.detector.reference_on and list(config.detector.nominal_mean) == shared["nominal_mean"]
+    assert config.detector.nominal_threshold == shared["nominal_threshold"]
+    assert config.detector_calibrated_for == shared["calibrated_for"] == model_fingerprint(config.load_params())
+    raw = yaml.safe_load(shipped_file("config", name).read_text(encoding="utf-8"))["detector"]
+    assert raw["file"] == "virtual_ecu.yaml" and not set(raw) & set(shared)  # named, not copied
+
+
+def test_a_detector_file_beside_the_config_and_its_errors(tmp_path: Path) -> None:
+    data = _base()
+    data["detector"] = {"symptom": "estimator", "file": "mine.yaml"}
+    (tmp_path / "svc.yaml").write_text(yaml.safe_dump(data), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"svc\.yaml: detector\.file: .*mine\.yaml: no such detector file"):
+        load_config(tmp_path / "svc.yaml")
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(yaml.safe_dump({"detector": {"threshold": 3.5, "calibrated_for": "0123456789abcdef"}}), "utf-8")
+    config = load_config(tmp_path / "svc.yaml")
+    assert config.detector.threshold == 3.5 and config.detector_calibrated_for == "0123456789abcdef"
+    mine.write_text(yaml.safe_dump({"detector": {"treshold": 3.5}}), "utf-8")
+    with pytest.raises(ConfigError, match=r"mine\.yaml: detector\.treshold: unknown key 'treshold'"):
+        load_config(tmp_path / "svc.yaml")
+    mine.write_text(yaml.safe_dump({"detector": {"threshold": 3.5}, "model": "x"}), "utf-8")
+    with pytest.raises(ConfigError, match=r"mine\.yaml: model: unknown key"):
+        load_config(tmp_path / "svc.yaml")
+    mine.write_text(yaml.safe_dump({"detector": {"symptom": "isolation"}}), "utf-8")
+    with pytest.raises(ConfigError, match=r"svc\.yaml: detector\.symptom: given here and in the detector file"):
+        load_config(tmp_path / "svc.yaml")
 
 
 # --- the schema (msgspec): its errors, in our one-line form, and what it gives back ----------------------
