@@ -15,7 +15,8 @@ nominal model (as in the blind cases); then, timed as ``ecu-monitor gap`` runs t
   then), and the report;
 * without ``--model`` and with ``--leave-one-out`` over the train flights (one identification on all of
   them, each fold's nominal model warm-started from it: :mod:`ecu_monitor.gap.folds`; every candidate
-  re-identified jointly per fold), reported as a ratio to the plain run without ``--model``;
+  re-identified jointly per fold), reported as a ratio to the plain run without ``--model`` (a variant:
+  ``gap --leave-one-out`` itself keeps a swarm per fold, docs/performance.md says why);
 * with ``--model`` and ``--leave-one-out`` over the train flights (each held out in turn, every
   candidate refitted on the others, the refits of all folds and candidates on every core), reported as
   a ratio to the plain ``--model`` run above (issue 28's target: at most 3x);
