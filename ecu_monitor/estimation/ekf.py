@@ -60,6 +60,7 @@ from ecu_monitor.model import (
     unpack_coefficients,
 )
 from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_into
 
 __all__ = [
     "COMPLEX_STEP",
@@ -399,6 +400,7 @@ class ThermalEKF:
         self._state_vec = np.zeros(len(FilterState._fields))
         self._drive_vec = np.zeros(len(Drive._fields))
         self._next_drive = np.zeros(len(Drive._fields))
+        self._inputs = np.zeros(len(InputSeries._fields))
         self._out = np.zeros(3)
 
     @property
@@ -495,7 +497,8 @@ class ThermalEKF:
         s = self.settings
         state = self._state_vec
         out = self._out
-        self._next_drive[:] = scalar_drive(u, self._coeffs)
+        self._inputs[:] = u
+        drive_into(self._next_drive, self._inputs, *self._packed_coeffs)
         live_steps(
             state, self._drive_vec, self._next_drive, out, z, measured, *self._packed_coeffs, s.dt_s, s.process_var,
             s.measurement_var, s.sigmoid_a, s.sigmoid_b, s.quantum_c, s.deviation_time_s, self.use_deviation,

@@ -56,12 +56,14 @@ from ecu_monitor.model import (
     InputSeries,
     ThermalParams,
     coefficients,
+    pack_coefficients,
     scalar_coefficients,
 )
 from ecu_monitor.model.compiled import compute_drive_compiled
 from ecu_monitor.model.equations import derivatives, rk4
 from ecu_monitor.model.inputs import flight_inputs
 from ecu_monitor.model.kernels import njit
+from ecu_monitor.model.thermal import drive_into
 
 __all__ = [
     "ESTIMATOR_NAME",
@@ -348,6 +350,8 @@ class IsolationFilter:
         # the live call's drive, scratch and outputs, preallocated (estimate() allocates no array)
         self._drive_vec = np.zeros(len(Drive._fields))
         self._next_drive = np.zeros(len(Drive._fields))
+        self._inputs = np.zeros(len(InputSeries._fields))
+        self._packed_coeffs = pack_coefficients(self._coeffs)
         self._out = np.zeros(3)
 
     def _require(self) -> tuple[NDArray[np.float64], Drive]:
@@ -403,7 +407,8 @@ class IsolationFilter:
         measured = z_cht_c is not None and math.isfinite(z_cht_c)
         z = float(z_cht_c) if measured and z_cht_c is not None else math.nan
         out = self._out
-        self._next_drive[:] = scalar_drive(u, self._coeffs)
+        self._inputs[:] = u
+        drive_into(self._next_drive, self._inputs, *self._packed_coeffs)
         live_steps(s, self._drive_vec, self._next_drive, out, z, measured, steps, self._model, self._cfg)
         innovation, nis, deviation = float(out[0]), float(out[1]), float(out[2])
         self._time_s = float(t_s)

@@ -253,6 +253,18 @@ def drive_at(u: Any, coeffs: Any) -> tuple[float, float, float, float, float]:
 _drive_compiled = njit()(drive_at)
 
 
+@njit(nogil=False)
+def drive_into(
+    out: Any, inputs: Any, coeff_scalars: Any, heat_values_w: Any, x_breakpoints: Any, y_breakpoints: Any
+) -> None:
+    """:func:`drive_at` of the six ``inputs`` (float64[6], InputSeries order) into ``out`` (float64[5], Drive
+    order), the coefficients packed (``pack_coefficients``): the held filters' next drive in one cheap compiled
+    call from Python (a scalar :func:`compute_drive` boxes every coefficient)."""
+    coeffs = unpack_coefficients(coeff_scalars, heat_values_w, x_breakpoints, y_breakpoints)
+    u = (inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5])
+    out[0], out[1], out[2], out[3], out[4] = drive_at(u, coeffs)
+
+
 def _compute_drive_scalar(inputs: InputSeries, coeffs: Coefficients) -> Drive:
     """compute_drive for floats: :func:`drive_at` compiled, so a Python filter drives its model exactly as
     the compiled ones do."""
