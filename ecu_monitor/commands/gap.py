@@ -263,19 +263,18 @@ def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> Th
     return params
 
 
-def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> list[ThermalParams]:
-    """For each flight, the nominal model identified on the others (PSO; the folds on every core).
+def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> tuple[list[ThermalParams], ThermalParams]:
+    """For each flight, the nominal model identified on the others, and the one on every flight (PSO; the
+    swarms on every core at once, :func:`ecu_monitor.gap.folds.swarm_nominals`).
 
-    Not warm-started from the fit on every flight (:mod:`ecu_monitor.gap.folds`): on the real N550ND
-    flights that saved no CPU (the joint refits dominate) and moved the held-out baselines towards the
-    held-out flights (docs/results/gap_real.md)."""
-    from ecu_monitor.identify import DEFAULT_FREE, PsoSettings
-    from ecu_monitor.identify.select import leave_one_flight_out
-    from ecu_monitor.model import paper_table_a1
+    Not warm-started from the fit on every flight (:func:`ecu_monitor.gap.folds.fold_nominals`): on the
+    real N550ND flights that saved no CPU (the joint refits dominate) and moved the held-out baselines
+    towards the held-out flights (docs/results/gap_real.md)."""
+    from ecu_monitor.gap.folds import swarm_nominals
+    from ecu_monitor.identify import PsoSettings
 
-    _say(f"no --model: identifying one nominal model per held-out flight (PSO, heat axes {','.join(axes)})")
-    cv = leave_one_flight_out(trains, paper_table_a1(), DEFAULT_FREE, axes, None, PsoSettings(), progress=_say)
-    return [fold.params for fold in cv.folds]
+    _say(f"no --model: one nominal model per held-out flight and one on all (PSO, heat axes {','.join(axes)})")
+    return swarm_nominals(trains, axes, PsoSettings(), progress=_say)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -298,8 +297,7 @@ def _run(args: argparse.Namespace) -> int:
     settings = _settings(args, candidates_for(axes, [*trains, *tests]))
     started = time.perf_counter()
     if args.leave_one_out:
-        nominals = [nominal] * len(trains) if nominal is not None else _fold_nominals(trains, axes)
-        final = nominal or _identify(trains, axes, "all flights: ")
+        nominals, final = ([nominal] * len(trains), nominal) if nominal is not None else _fold_nominals(trains, axes)
         diag = cross_validate(nominals, trains, final, settings, progress=_say)
     else:
         nominal = nominal or _identify(trains, axes, "")

@@ -210,13 +210,15 @@ class _FitWork:
     settings: GapSettings
 
 
-def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...]]) -> FitResult:
-    """The candidates ``ids`` (none: the control) refitted on fold ``k`` (the settings' refit mode)."""
-    k, ids = task
+def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...], ThermalParams | None]) -> FitResult:
+    """The candidates ``ids`` (none: the control) refitted on fold ``k`` (the settings' refit mode); a
+    re-identification starts from ``start`` when given (a fit on the same fold), else the fold's nominal."""
+    k, ids, start = task
     fold, settings = work.folds[k], work.settings
     entries = [candidate(cid) for cid in ids]
     if settings.refit_mode == "reidentify":
-        return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
+        begin = fold.nominal if start is None else start
+        return reidentify(begin, fold.trains, entries, fold.references, settings.refit, settings.pso)
     return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
 
 
@@ -268,10 +270,13 @@ def _diagnose(
 
     work = _FitWork(tuple(folds), settings)
 
-    def fit_batch(label: str, batch: Sequence[tuple[str, ...]]) -> list[list[FitResult]]:
-        """Every candidate set of ``batch`` refitted on every fold, on every core: one list of fold fits per set."""
+    def fit_batch(
+        label: str, batch: Sequence[tuple[str, ...]], starts: Sequence[FitResult] | None = None
+    ) -> list[list[FitResult]]:
+        """Every candidate set of ``batch`` refitted on every fold, on every core: one list of fold fits per
+        set (``starts``: one fit per fold to start each re-identification from)."""
         n = len(folds)
-        tasks = [(k, ids) for ids in batch for k in range(n)]
+        tasks = [(k, ids, None if starts is None else starts[k].params) for ids in batch for k in range(n)]
         fits = run_tasks(_fit_task, work, tasks, label, say)
         return [fits[i * n : (i + 1) * n] for i in range(len(batch))]
 
@@ -289,7 +294,7 @@ def _diagnose(
         if len(folds) > 1:
             say(f"refit: {winner.label} on all {len(trains)} flights (model.yaml)")
             final = _FitWork((RefitFold(final_nominal, trains, references, ()),), settings)
-            model = _fit_task(final, (0, winner.fit.ids)).params
+            model = _fit_task(final, (0, winner.fit.ids, None)).params
     else:
         gain = {}
         winner_segment = where[0].segment
@@ -359,7 +364,10 @@ def _search(
             (winner, "pair", len(others)) if winner is not None else (control, "pair_vs_control", n_tests + len(others))
         )
         say(f"refit: pairs {first}+ {', '.join(others)}")
-        pair_fits = fit_batch("pair refits", [(first, cid) for cid in others])
+        # re-identified from the lead's own fit on each fold (the same flights, nothing held out in it):
+        # the first effect and the whole model start where the lead's joint fit left them
+        starts = (lead.fold_fits or (lead.fit,)) if settings.refit_mode == "reidentify" else None
+        pair_fits = fit_batch("pair refits", [(first, cid) for cid in others], starts)
         pairs = [score(fits, role, reference, n_pair_tests, pair_test) for fits in pair_fits]
         train_bar = settings.significance.min_shrink_pct
         better = [

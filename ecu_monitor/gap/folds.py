@@ -30,7 +30,7 @@ from ecu_monitor.identify.pso import PsoSettings
 from ecu_monitor.identify.search_settings import MIN_VISIT_S
 from ecu_monitor.model import ThermalParams
 
-__all__ = ["fold_nominals", "forget_unvisited"]
+__all__ = ["fold_nominals", "forget_unvisited", "swarm_nominals"]
 
 
 def forget_unvisited(params: ThermalParams, logs: Sequence[FlightLog]) -> ThermalParams:
@@ -74,3 +74,35 @@ def fold_nominals(
     ``pso`` (the module doc; the folds on every core)."""
     work = _FoldWork(tuple(logs), identified, pso)
     return run_tasks(_fold_task, work, range(len(logs)), "fold nominal models (warm-started)", progress)
+
+
+@dataclass(frozen=True)
+class _SwarmWork:
+    """What every swarm task reads (a forked worker inherits it)."""
+
+    logs: tuple[FlightLog, ...]
+    heat_axes: tuple[str, str]
+    pso: PsoSettings
+
+
+def _swarm_task(work: _SwarmWork, k: int) -> ThermalParams:
+    """The nominal model identified (PSO and polish, from the paper's model) on every flight but ``k``."""
+    flights = [log for i, log in enumerate(work.logs) if i != k]
+    return identify(flights, heat_axes=work.heat_axes, settings=work.pso).params
+
+
+def swarm_nominals(
+    logs: Sequence[FlightLog],
+    heat_axes: tuple[str, str],
+    pso: PsoSettings,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[list[ThermalParams], ThermalParams]:
+    """For each flight k the nominal model identified by its own swarm on the others (nothing of flight k
+    in it), and the one identified on every flight: all the swarms at once on every core, the longest (every
+    flight) first so that it never runs alone at the end."""
+    work = _SwarmWork(tuple(logs), heat_axes, pso)
+    n = len(logs)
+    fits = run_tasks(
+        _swarm_task, work, [n, *range(n)], "nominal models (one swarm per fold, one on every flight)", progress
+    )
+    return fits[1:], fits[0]

@@ -19,6 +19,7 @@ from ecu_monitor.gap.localise import (
 from ecu_monitor.gap.segments import SEGMENT_NAMES
 from ecu_monitor.gap.significance import SignificanceSettings, improvement_test
 from ecu_monitor.identify.library import candidate
+from ecu_monitor.identify.parallel import run_tasks
 from ecu_monitor.identify.refit import (
     FitResult,
     PreparedFlight,
@@ -77,13 +78,18 @@ def score_fits(
     )
 
 
+def _innovations(work: tuple[ThermalParams, tuple[FlightLog, ...], str], k: int) -> np.ndarray:
+    """The estimator's innovations on flight ``k``, one per CHT reading (degC)."""
+    nominal, logs, estimator = work
+    innovation = np.asarray(run_estimator(logs[k], nominal, estimator).innovation, dtype=float)
+    return innovation[np.isfinite(innovation)]
+
+
 def innovation_whiteness(nominal: ThermalParams, logs: Sequence[FlightLog], estimator: str | None) -> dict[str, Any]:
+    """Ljung-Box whiteness of ``estimator``'s innovations on ``logs`` with ``nominal`` (the flights on every core)."""
     if estimator is None:
         return {"estimator": None}
-    parts = []
-    for log in logs:
-        innovation = np.asarray(run_estimator(log, nominal, estimator).innovation, dtype=float)
-        parts.append(innovation[np.isfinite(innovation)])  # one per CHT reading
+    parts = run_tasks(_innovations, (nominal, tuple(logs), estimator), range(len(logs)), "innovations")
     innovation = np.concatenate(parts)
     result: dict[str, Any] = {"estimator": estimator, **ljung_box(innovation, lags=20)}
     result["innovation_rms_c"] = float(np.sqrt(np.mean(innovation**2))) if innovation.size else 0.0

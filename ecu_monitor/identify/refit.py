@@ -342,8 +342,9 @@ def reidentify(
     settings = settings or RefitSettings()
     pso = pso or PsoSettings()
     flights = _flights(train)
-    start = {e.id: {p.name: p.start for p in e.free} for e in entries if e.effect != "nominal"}
-    effect_entries = [e for e in entries if e.effect != "nominal"]
+    # an effect the given model already has on keeps its fitted values (a warm start, as in refit)
+    effect_entries = [e for e in entries if e.effect != "nominal" and getattr(nominal.effects, e.effect) is None]
+    start = {e.id: {p.name: p.start for p in e.free} for e in effect_entries}
     base = nominal.replace(effects=effects_for(nominal.effects, effect_entries, start, references))
     free = list(DEFAULT_FREE)
     for e in entries:
