@@ -7,7 +7,8 @@
    and every library candidate refitted on the train flight only, each scored on the test flight;
    a candidate counts when its held-out gain over the control is significant and material
    (:mod:`ecu_monitor.gap.significance`). The best counting candidate is kept; when it leaves a
-   structured residual (test RMS above ``pair_threshold_c``), pairs with it are tried greedily and a
+   structured residual (test RMS above ``pair_threshold_c``), pairs with it are tried greedily (in
+   "reidentify" mode each re-identified from that effect's own joint fit on the same flights) and a
    pair counts only if it beats the single effect by the same test and also shrinks the single's
    TRAIN RMS materially (a second effect must explain the flights it was fitted on, not only some
    accident of the held-out ones). When no single effect counts but
@@ -49,6 +50,7 @@ from ecu_monitor.gap.scoring import RefitFold, innovation_whiteness, score_fits,
 from ecu_monitor.gap.segments import Segmentation, segment_flight
 from ecu_monitor.identify.library import candidate, flight_references
 from ecu_monitor.identify.parallel import run_tasks
+from ecu_monitor.identify.pso import PsoSettings
 from ecu_monitor.identify.refit import (
     FitResult,
     PreparedFlight,
@@ -129,7 +131,10 @@ def diagnose(
         say = progress or (lambda message: None)
         say(f"choosing the verdict by leave-one-flight-out over the {len(train_logs)} train flights (not the test)")
         if settings.refit_mode == "reidentify":  # the nominal model was identified on these flights
-            nominals = fold_nominals(train_logs, nominal, settings.pso, progress)
+            # the identification's whole polish (not the candidates' shorter one): the fold's nominal model
+            # should keep as little of its start, the fit on every flight, as the polish can shed
+            whole = dataclasses.replace(settings.pso, polish_evaluations=PsoSettings().polish_evaluations)
+            nominals = fold_nominals(train_logs, nominal, whole, progress)
         else:
             nominals = [nominal] * len(train_logs)
         inner = dataclasses.replace(settings, whiteness_estimator=None)  # only its verdict is used

@@ -1,8 +1,10 @@
-"""One nominal model per held-out flight, warm-started from the identification on every flight.
+"""One nominal model per held-out flight: by its own swarm, or warm-started from the identification on
+every flight.
 
 A leave-one-out without ``--model`` needs, for each flight k, a nominal model that has not seen flight
-k (here: the inner leave-one-out of ``gap --choose-on-train``; ``gap --leave-one-out`` keeps a swarm
-per fold, docs/performance.md says why). Instead of a swarm per fold, the swarm runs once, on every
+k. ``gap --leave-one-out`` gives each fold its own swarm on the other flights (:func:`swarm_nominals`,
+every swarm and the one on all the flights at once on every core). The inner leave-one-out of ``gap
+--choose-on-train`` warm-starts them instead (:func:`fold_nominals`): the swarm runs once, on every
 flight, and each fold's nominal model is that fit re-identified on the fold's own flights by the joint
 least squares the candidate refits use (:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start
 polished over the whole search space).

@@ -337,7 +337,8 @@ def reidentify(
     This is the refit to use when the nominal model was itself identified on the train flight: its
     heat map has then absorbed whatever part of an effect the operating point can mimic (a hot ground
     run becomes "more heat at low fuel flow"), and only a joint fit can give it back to the effect.
-    The control is the same identification with no candidate (same PSO seed).
+    The control is the same identification with no candidate (same PSO seed). An effect ``nominal``
+    already has on starts at its values there (a pair re-identified from its first effect's fit).
     """
     settings = settings or RefitSettings()
     pso = pso or PsoSettings()
