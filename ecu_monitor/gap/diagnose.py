@@ -8,7 +8,8 @@
    a candidate counts when its held-out gain over the control is significant and material
    (:mod:`ecu_monitor.gap.significance`). The best counting candidate is kept; when it leaves a
    structured residual (test RMS above ``pair_threshold_c``), pairs with it are tried greedily (in
-   "reidentify" mode each re-identified from that effect's own joint fit on the same flights) and a
+   "reidentify" mode each re-identified from that effect's own joint fit on the same flights, with a
+   shorter polish: :data:`ecu_monitor.gap.diagnosis.PAIR_POLISH_EVALUATIONS`) and a
    pair counts only if it beats the single effect by the same test and also shrinks the single's
    TRAIN RMS materially (a second effect must explain the flights it was fitted on, not only some
    accident of the held-out ones). When no single effect counts but
@@ -36,7 +37,15 @@ import numpy as np
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.gap.diagnosis import JOINT_REFIT, EffectScore, GapDiagnosis, GapSettings, HeldOutFlight, rms_of
+from ecu_monitor.gap.diagnosis import (
+    JOINT_REFIT,
+    PAIR_POLISH_EVALUATIONS,
+    EffectScore,
+    GapDiagnosis,
+    GapSettings,
+    HeldOutFlight,
+    rms_of,
+)
 from ecu_monitor.gap.folds import fold_nominals
 from ecu_monitor.gap.localise import (
     correlations,
@@ -50,7 +59,6 @@ from ecu_monitor.gap.scoring import RefitFold, innovation_whiteness, score_fits,
 from ecu_monitor.gap.segments import Segmentation, segment_flight
 from ecu_monitor.identify.library import candidate, flight_references
 from ecu_monitor.identify.parallel import run_tasks
-from ecu_monitor.identify.pso import PsoSettings
 from ecu_monitor.identify.refit import (
     FitResult,
     PreparedFlight,
@@ -131,10 +139,7 @@ def diagnose(
         say = progress or (lambda message: None)
         say(f"choosing the verdict by leave-one-flight-out over the {len(train_logs)} train flights (not the test)")
         if settings.refit_mode == "reidentify":  # the nominal model was identified on these flights
-            # the identification's whole polish (not the candidates' shorter one): the fold's nominal model
-            # should keep as little of its start, the fit on every flight, as the polish can shed
-            whole = dataclasses.replace(settings.pso, polish_evaluations=PsoSettings().polish_evaluations)
-            nominals = fold_nominals(train_logs, nominal, whole, progress)
+            nominals = fold_nominals(train_logs, nominal, settings.pso, progress)
         else:
             nominals = [nominal] * len(train_logs)
         inner = dataclasses.replace(settings, whiteness_estimator=None)  # only its verdict is used
@@ -222,8 +227,11 @@ def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...], ThermalParams | 
     fold, settings = work.folds[k], work.settings
     entries = [candidate(cid) for cid in ids]
     if settings.refit_mode == "reidentify":
-        begin = fold.nominal if start is None else start
-        return reidentify(begin, fold.trains, entries, fold.references, settings.refit, settings.pso)
+        if start is None:
+            return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
+        polish = min(settings.pso.polish_evaluations, PAIR_POLISH_EVALUATIONS)
+        pso = dataclasses.replace(settings.pso, polish_evaluations=polish)
+        return reidentify(start, fold.trains, entries, fold.references, settings.refit, pso)
     return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
 
 
