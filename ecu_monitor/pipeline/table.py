@@ -54,8 +54,8 @@ def csv_bytes(table: Sequence[TableColumn]) -> bytes:
     return text.getvalue().encode("ascii")
 
 
-#: Rows formatted and written at a time.
-_BLOCK_ROWS = 8192
+#: Rows formatted and written at a time (one ``%`` operation: the GIL is held for its length).
+_BLOCK_ROWS = 2048
 
 
 def _write_csv(table: Sequence[TableColumn], handle: TextIO) -> None:
