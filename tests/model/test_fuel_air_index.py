@@ -13,21 +13,9 @@ from ecu_monitor.model import InputSeries, MixtureIndex, coefficients, compute_d
 from ecu_monitor.model.atmosphere import air_density_kg_m3, isa_pressure_pa
 from ecu_monitor.model.effects import Effects, fuel_air_index, mixture_index, volumetric_efficiency
 from ecu_monitor.model.kernels import njit
+from tests.helpers.columns import NamedColumns
 
 COLUMNS = ("fuel_flow_lph", "rpm", "manifold_pressure_kpa", "oat_c", "altitude_m")
-
-
-class _Columns:
-    """What a start rule reads: named columns."""
-
-    def __init__(self, columns: dict[str, np.ndarray]) -> None:
-        self.columns = columns
-
-    def has(self, name: str) -> bool:
-        return name in self.columns
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.columns[name]
 
 
 @njit()
@@ -87,8 +75,8 @@ def test_the_start_reads_the_fuel_air_ratio_where_the_manifold_pressure_is_logge
         "altitude_m": np.array([1000.0, 500.0, 0.0]),
         "egt_c": np.array([700.0, 720.0, 690.0]),
     }
-    start = MixtureIndex.start([_Columns(columns)])
+    start = MixtureIndex.start([NamedColumns(columns)])
     assert start.source == "fuel_air" and start.gain == 0.0
     assert start.reference == pytest.approx(float(np.median(mixture_index("fuel_air", columns))), rel=1e-12)
     without = {name: values for name, values in columns.items() if name != "manifold_pressure_kpa"}
-    assert MixtureIndex.start([_Columns(without)]).source == "egt_rise"
+    assert MixtureIndex.start([NamedColumns(without)]).source == "egt_rise"
