@@ -1482,17 +1482,27 @@ def replay_loop(
     return n
 
 
+@njit(nogil=True)
+def replay_loop_released(
+    eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
+) -> int:
+    """:func:`replay_loop` with the GIL released, for a whole log: another thread (health.csv's writer)
+    runs meanwhile."""
+    return replay_loop(eng, rows, traces, frame_time_s, first_value, slots, values, start)
+
+
 # ------------------------------------------------------------------------------------------------ compiling
 
 
 def compiled() -> Any:
     """The step's compiled entry points (each function here carries ``@njit``; numba compiles it on first
-    call or loads it from the disk cache): a namespace with ``replay_loop``, ``headroom_s``,
+    call or loads it from the disk cache): a namespace with ``replay_loop``, ``replay_loop_released``, ``headroom_s``,
     ``detector_step``, ``stop_cylinder``, ``close_events``."""
     from types import SimpleNamespace
 
     return SimpleNamespace(
         replay_loop=replay_loop,
+        replay_loop_released=replay_loop_released,
         headroom_s=headroom_s,
         detector_step=detector_step,
         stop_cylinder=_stop_cylinder,
