@@ -60,16 +60,13 @@ from numpy.typing import NDArray
 
 from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.model.atmosphere import (
-    ISA_PRESSURE_EXPONENT,
     KELVIN_OFFSET,
-    LAPSE_RATE_K_PER_M,
     SEA_LEVEL_DENSITY_KG_M3,
     SEA_LEVEL_PRESSURE_PA,
-    SEA_LEVEL_TEMPERATURE_K,
     air_density_kg_m3,
     isa_pressure_pa,
 )
-from ecu_monitor.model.equations import equation, exp, log, maximum
+from ecu_monitor.model.equations import equation, exp, isa_log_pressure_ratio, log, maximum
 
 __all__ = [
     "EFFECT_COEFFICIENTS",
@@ -423,8 +420,7 @@ def fuel_air_index(fuel_flow_lph: Any, rpm: Any, manifold_pressure_kpa: Any, oat
     per_rev = fuel_flow_lph * (1000.0 / 60.0) / maximum(rpm, _MIN_RPM)
     manifold_pa = 1000.0 * maximum(manifold_pressure_kpa, _MIN_MANIFOLD_KPA)
     charge = manifold_pa / (_AIR_GAS_CONSTANT * (oat_c + KELVIN_OFFSET))
-    ambient_ratio = maximum(1.0 - LAPSE_RATE_K_PER_M * altitude_m / SEA_LEVEL_TEMPERATURE_K, 1e-6)
-    ambient_pa = SEA_LEVEL_PRESSURE_PA * exp(ISA_PRESSURE_EXPONENT * log(ambient_ratio))
+    ambient_pa = SEA_LEVEL_PRESSURE_PA * exp(isa_log_pressure_ratio(altitude_m))
     fresh = maximum(volumetric_efficiency(ambient_pa / manifold_pa), 0.05)
     return log(maximum(per_rev, 0.0) / (charge * fresh))
 
