@@ -182,8 +182,12 @@ def _run(args: argparse.Namespace) -> int:
     if mismatch:
         print(f"warning: {mismatch}")
     result: ReplayResult
+    streamed = not args.live and (tlog or not args.history)  # health.csv written by the replay as it runs
     if tlog:
-        result = replay_live(config, models, tlog_messages(path)) if args.live else replay_tlog(path, config, models)
+        if args.live:
+            result = replay_live(config, models, tlog_messages(path))
+        else:
+            result = replay_tlog(path, config, models, out=args.out)
         if len(result) == 0:
             raise FlightLogError(f"{path}: nothing to replay: no health period of the mapped messages")
     else:
@@ -196,11 +200,14 @@ def _run(args: argparse.Namespace) -> int:
             result = _replay_into_history(config, models, frames, path, Path(args.history))
         else:
             live = args.live
-            result = replay_live(config, models, frames.messages()) if live else replay_frames(config, models, frames)
+            if live:
+                result = replay_live(config, models, frames.messages())
+            else:
+                result = replay_frames(config, models, frames, out=args.out)
         if len(result) == 0:
             span = float(np.max(frames.time_s) - np.min(frames.time_s)) if len(frames) else 0.0
             raise FlightLogError(f"{path}: nothing to replay: the frames span {span:.2f} s, not one health period")
-    rows = result.write_csv(args.out)
+    rows = len(result) if streamed else result.write_csv(args.out)
     print(_summary(args.out, path, config.estimator_name, result, rows, time.perf_counter() - started))
     if args.events:
         from ecu_monitor.pipeline.events import events_csv

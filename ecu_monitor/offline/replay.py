@@ -1,10 +1,12 @@
 """Replay: the live pipeline over a recorded log, as fast as the machine allows.
 
 The log is read into arrays (:func:`ecu_monitor.bus.canlog.read_frames`, the one CAN-log reader) and
-decoded with numpy (:meth:`Decoder.decode_batch`, the live decoder's checks on whole arrays); then one
-compiled call (:meth:`Pipeline.run_frames`) runs the live loop over it: for each frame, the clock advanced
-to its time and its values held, every step the one step the daemon runs. :func:`replay_live` feeds the
-same frames one by one through :meth:`Pipeline.feed` and :meth:`Pipeline.advance_to` (``--live``).
+decoded with numpy (:meth:`Decoder.decode_batch`, the live decoder's checks on whole arrays); then the
+compiled loop (:meth:`Pipeline.run_frames`) runs the live loop over it: for each frame, the clock advanced
+to its time and its values held, every step the one step the daemon runs. The loop hands over its rows a
+block at a time; with ``out``, a second thread formats and writes them (health.csv) while the loop, which
+releases the GIL, goes on. :func:`replay_live` feeds the same frames one by one through
+:meth:`Pipeline.feed` and :meth:`Pipeline.advance_to` (``--live``).
 
 A canonical flight CSV is replayed through the same path: :func:`frames_from_flight` turns its rows into
 the frames the ECU would have sent.
@@ -12,6 +14,7 @@ the frames the ECU would have sent.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 from collections.abc import Callable, Iterable, Sequence
@@ -36,12 +39,14 @@ from ecu_monitor.pipeline.outputs import (
     ReferenceFeed,
     ReplayResult,
     empty_columns,
+    health_table_columns,
     rows_to_columns,
     write_health_csv,
 )
 from ecu_monitor.pipeline.schedule import MAX_CLOCK_S
 from ecu_monitor.pipeline.step import Rows, Traces
 from ecu_monitor.pipeline.supervision import CODE_FAULT, CODE_NOMINAL
+from ecu_monitor.pipeline.table import table_stream
 
 __all__ = [
     "ReplayResult",
@@ -91,11 +96,14 @@ def replay_frames(
     *,
     keep_feeds: bool = False,
     keep_reference: bool = False,
+    out: str | os.PathLike[str] | None = None,
 ) -> ReplayResult:
     """The replay of ``frames`` in one compiled call (module docstring); rows equal to :func:`replay_live`.
     ``params``: the model of every cylinder, or one per cylinder. ``keep_feeds``: also keep what the
     detectors were fed per step (:attr:`ReplayResult.detector_feed`, ``cross_feeds``; calibrate's input);
-    ``keep_reference``: also the open-loop reference per step (:attr:`ReplayResult.reference_feed`)."""
+    ``keep_reference``: also the open-loop reference per step (:attr:`ReplayResult.reference_feed`).
+    ``out``: health.csv (or Parquet / Arrow by the suffix), written as the loop runs; nothing is written
+    when no row is."""
     pipeline = Pipeline(config, params, rows="status")
     count = pipeline.cylinder_count
     counters = dict(pipeline.counters)
@@ -117,7 +125,7 @@ def replay_frames(
     counters["bus_errors"] = int(np.count_nonzero(frames.ignored))
     first_value, slots, values = _values_by_frame(pipeline.names, batch.values, n)
     return _run(pipeline, config, frames.time_s, first_value, slots, values, counters, tuple(time_gaps(stamps)),
-                keep_feeds, keep_reference)  # fmt: skip
+                keep_feeds, keep_reference, out)  # fmt: skip
 
 
 def replay_tlog(
@@ -127,10 +135,11 @@ def replay_tlog(
     *,
     keep_feeds: bool = False,
     keep_reference: bool = False,
+    out: str | os.PathLike[str] | None = None,
 ) -> ReplayResult:
     """The replay of a MAVLink telemetry log (``.tlog``, as ground stations record it) with a ``protocol:
     mavlink`` config: each message decoded (bus/mavlink.py) at its log time, then the same compiled loop as
-    a CAN log's."""
+    a CAN log's (``out`` as :func:`replay_frames`)."""
     from ecu_monitor.bus.mavlink_log import iter_tlog
 
     if config.protocol != "mavlink":
@@ -152,7 +161,7 @@ def replay_tlog(
     if time_arr.size == 0:
         return ReplayResult(empty_columns(pipeline.cylinder_count), counters)
     return _run(pipeline, config, time_arr, np.array(first, dtype=np.int64), np.array(slots, dtype=np.int64),
-                np.array(values, dtype=np.float64), counters, (), keep_feeds, keep_reference)  # fmt: skip
+                np.array(values, dtype=np.float64), counters, (), keep_feeds, keep_reference, out)  # fmt: skip
 
 
 def tlog_messages(path: str | os.PathLike[str]) -> Iterable[Any]:
@@ -175,15 +184,27 @@ def _run(
     gaps: tuple[tuple[float, float], ...],
     keep_feeds: bool,
     keep_reference: bool,
+    out: str | os.PathLike[str] | None,
 ) -> ReplayResult:
-    """The compiled loop over decoded frames, and the replay's result from its output table."""
+    """The compiled loop over decoded frames, and the replay's result from its output table, a block of
+    rows at a time (written to ``out`` by a second thread while the loop goes on)."""
     count = pipeline.cylinder_count
     traces = keep_feeds or keep_reference
-    rows, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces)
+    blocks: list[dict[str, NDArray[Any]]] = []
+    with table_stream(out) if out is not None else contextlib.nullcontext(None) as write:
+
+        def on_rows(rows: Rows, a: int, b: int) -> None:
+            blocks.append(_columns(rows, a, b, count, config.spread_limit_c, pipeline.stale_bits))
+            if write is not None:
+                write(health_table_columns(blocks[-1], count))
+
+        _, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces, on_rows=on_rows)
     events = tuple(finished(pipeline.close_events()))
     for key in ("steps", "clock_restarts", "events_dropped"):
         counters[key] = pipeline.counters[key]
-    columns = _columns(rows, count, config.spread_limit_c, pipeline.stale_bits)
+    columns = empty_columns(count)
+    if blocks:
+        columns = {name: np.concatenate([b[name] for b in blocks]) for name in blocks[0]}
     feeds: tuple[_Feed, ...] = ()
     cross: tuple[tuple[_Feed, ...], ...] = ()
     reference: tuple[ReferenceFeed, ...] = ()
@@ -235,12 +256,12 @@ def _by_frame(
 
 
 def _columns(
-    rows: Rows, count: int, spread_limit_c: float | None, stale_bits: Callable[[NDArray[np.int64]], NDArray[np.int64]]
-) -> dict[str, NDArray[Any]]:
-    """The replay's columns from its output table (ReplayResult.columns)."""
-    m = int(rows.count[0])
-    results = rows.cylinders[:m]
-    out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[:m].copy(), "stale_inputs": stale_bits(rows.stale[:m])}
+    rows: Rows, a: int, b: int, count: int, spread_limit_c: float | None,
+    stale_bits: Callable[[NDArray[np.int64]], NDArray[np.int64]],
+) -> dict[str, NDArray[Any]]:  # fmt: skip
+    """The replay's columns (ReplayResult.columns) of rows ``a`` to ``b`` of its output table."""
+    results = rows.cylinders[a:b]
+    out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[a:b].copy(), "stale_inputs": stale_bits(rows.stale[a:b])}
     if count == 1:
         r = results[:, 0]
         out.update({name: r[name].copy() for name, _ in output_fields()})
@@ -296,16 +317,17 @@ def replay_file(
     params: ThermalParams | Sequence[ThermalParams],
     *,
     keep_feeds: bool = False,
+    out: str | os.PathLike[str] | None = None,
 ) -> ReplayResult:
-    """Replay a python-can log or a canonical flight CSV."""
+    """Replay a python-can log, a MAVLink log or a canonical flight CSV (``out`` as :func:`replay_frames`)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".tlog":
-        return replay_tlog(path, config, params, keep_feeds=keep_feeds)
+        return replay_tlog(path, config, params, keep_feeds=keep_feeds, out=out)
     if suffix in CAN_LOG_SUFFIXES:
-        return replay_frames(config, params, read_frames(path), keep_feeds=keep_feeds)
+        return replay_frames(config, params, read_frames(path), keep_feeds=keep_feeds, out=out)
     if suffix == ".csv":
         first = params if isinstance(params, ThermalParams) else params[0]
         needed = (*model_input_names(first, config.input_names), *config.cylinder_inputs)
         return replay_frames(config, params, frames_from_flight(load_flight(path), config, needed),
-                             keep_feeds=keep_feeds)  # fmt: skip
+                             keep_feeds=keep_feeds, out=out)  # fmt: skip
     raise FlightLogError(f"{path}: unknown log format '{suffix}' (expected .csv, .tlog, {', '.join(CAN_LOG_SUFFIXES)})")

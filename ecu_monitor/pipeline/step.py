@@ -1509,14 +1509,15 @@ def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
                 eng_state[i]["readings"] += 1
 
 
-@njit(nogil=False)
+@njit(nogil=True)
 def replay_loop(
     eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
 ) -> int:
     """The loop over frames, live (a frame at a time) and replay (a whole log): for each frame from
     ``start``, :func:`advance_to` its time then :func:`feed_values` its decoded values
     (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame to resume from when ``rows`` filled
-    up, or the frame count when done."""
+    up, or the frame count when done. Runs without the GIL: in replay, health.csv's writer thread formats
+    the rows already written meanwhile; live, the daemon's other threads are idle nearly always."""
     eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     n = frame_time_s.shape[0]
     for f in range(start, n):

@@ -10,10 +10,12 @@ part of the daemon's install.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import io
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
 
@@ -28,6 +30,7 @@ __all__ = [
     "TableColumn",
     "check_table_path",
     "csv_bytes",
+    "table_stream",
     "write_health_table",
 ]
 
@@ -51,20 +54,30 @@ def csv_bytes(table: Sequence[TableColumn]) -> bytes:
     return text.getvalue().encode("ascii")
 
 
-#: Rows formatted and written at a time.
-_BLOCK_ROWS = 8192
+#: Rows formatted and written at a time (one ``%`` operation: the GIL is held for its length).
+_BLOCK_ROWS = 2048
 
 
 def _write_csv(table: Sequence[TableColumn], handle: TextIO) -> None:
-    """Header, then a block of rows at a time: one ``%`` format of the block (``%.10g`` a number, ``%s`` a
-    label), then every non-finite number after the first column blanked. A cell is "nan", "inf" or "-inf"
-    only when it is such a number (no label starts with them: checked)."""
-    handle.write(",".join(c.name for c in table) + "\n")
+    """Header, then the rows (:func:`_write_csv_rows`)."""
+    handle.write(_csv_header(table))
+    _write_csv_rows(table, handle)
+
+
+def _csv_header(table: Sequence[TableColumn]) -> str:
+    """The header line; FlightLogError if a label would read as a number."""
+    for column in table:
+        if column.labels is not None and any(str(t).startswith(_NOT_FINITE) for t in column.labels):
+            raise FlightLogError(f"health.csv: a label starting with one of {_NOT_FINITE} reads as a number")
+    return ",".join(c.name for c in table) + "\n"
+
+
+def _write_csv_rows(table: Sequence[TableColumn], handle: TextIO) -> None:
+    """The rows, a block at a time: one ``%`` format of the block (``%.10g`` a number, ``%s`` a label), then
+    every non-finite number after the first column blanked. A cell is "nan", "inf" or "-inf" only when it
+    is such a number (no label starts with them: :func:`_csv_header` checks)."""
     line = ",".join("%.10g" if c.labels is None else "%s" for c in table) + "\n"
     labels = [None if c.labels is None else np.asarray(c.labels, dtype=object) for c in table]
-    for texts in labels:
-        if texts is not None and any(str(t).startswith(_NOT_FINITE) for t in texts):
-            raise FlightLogError(f"health.csv: a label starting with one of {_NOT_FINITE} reads as a number")
     rows = int(np.size(table[0].values))
     for start in range(0, rows, _BLOCK_ROWS):
         stop = min(start + _BLOCK_ROWS, rows)
@@ -78,6 +91,46 @@ def _write_csv(table: Sequence[TableColumn], handle: TextIO) -> None:
         for word in _NOT_FINITE:
             text = text.replace("," + word, ",")
         handle.write(text)
+
+
+@contextlib.contextmanager
+def table_stream(path: str | os.PathLike[str]) -> Iterator[Callable[[Sequence[TableColumn]], None]]:
+    """Write a health table a block of rows at a time: ``write(block)`` for each block, in row order (the
+    same columns each time). A CSV is formatted and written by a second thread while the caller goes on
+    (the replay's compiled loop releases the GIL, so the two use two cores); Parquet and Arrow are written
+    whole at the end. The file is there only if the ``with`` block ends without an error and a block had
+    rows (a table without rows: nothing written). FlightLogError if it cannot be written."""
+    form = check_table_path(path)
+    blocks: list[Sequence[TableColumn]] = []
+    if form != "csv":
+        yield blocks.append
+        if blocks and any(np.size(b[0].values) for b in blocks):
+            write_health_table(_joined(blocks), path)
+        return
+    with contextlib.ExitStack() as stack:  # on the way out: the writes waited for, then the file closed
+        handle: TextIO | None = None
+        pool: ThreadPoolExecutor | None = None
+        pending: list[Future[None]] = []
+
+        def write(block: Sequence[TableColumn]) -> None:
+            nonlocal handle, pool
+            if not np.size(block[0].values):
+                return
+            if handle is None or pool is None:  # the first rows: the file (atomic), its header, the writer
+                handle = stack.enter_context(atomic_output(path, FlightLogError, text=True))
+                handle.write(_csv_header(block))
+                pool = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="health-csv"))
+            pending.append(pool.submit(_write_csv_rows, block, handle))
+
+        yield write
+        for future in pending:
+            future.result()
+
+
+def _joined(blocks: Sequence[Sequence[TableColumn]]) -> list[TableColumn]:
+    """The blocks' columns end to end."""
+    first = blocks[0]
+    return [c._replace(values=np.concatenate([b[j].values for b in blocks])) for j, c in enumerate(first)]
 
 
 #: How %.10g spells the non-finite numbers (blank cells in health.csv, except in the first column).

@@ -124,3 +124,28 @@ def test_a_missing_pyarrow_or_an_unknown_suffix_is_one_line_exit_2(
         assert main(["replay", str(log), "--out", str(tmp_path / out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0] and out in err[0]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_a_table_streamed_in_blocks_is_the_table_written_whole(suffix: str, tmp_path: Path) -> None:
+    if suffix != ".csv":
+        pytest.importorskip("pyarrow")
+    columns = _columns(2500, seed=5, cylinders=2)
+    whole = tmp_path / f"whole{suffix}"
+    ReplayResult(columns, {}).write_csv(whole)
+    streamed = tmp_path / f"streamed{suffix}"
+    with health_table.table_stream(streamed) as write:
+        for a, b in ((0, 1000), (1000, 1000), (1000, 2499), (2499, 2500)):  # an empty block among them
+            write(health_table_columns({k: v[a:b] for k, v in columns.items()}, 2))
+    assert streamed.read_bytes() == whole.read_bytes()
+
+
+def test_a_stream_that_fails_or_has_no_rows_leaves_no_file(tmp_path: Path) -> None:
+    columns = _columns(100, seed=6)
+    out = tmp_path / "health.csv"
+    with pytest.raises(RuntimeError, match="the replay stopped"), health_table.table_stream(out) as write:
+        write(health_table_columns(columns, 1))
+        raise RuntimeError("the replay stopped")
+    with health_table.table_stream(out) as write:
+        write(health_table_columns({k: v[:0] for k, v in columns.items()}, 1))
+    assert list(tmp_path.iterdir()) == []
