@@ -80,8 +80,7 @@ NOMINAL_SPREAD_Z = 2.0
 #: spread: the start (the head's warm-up from cold), whose symptom follows the start's initial conditions (head
 #: and outside temperature, the filters' first state) more than the engine: on nominal virtual flights its
 #: flight means were the most spread and heavy-tailed, and it raised every false DEGRADED while tested
-#: (docs/results/detection.md, "The reference without the start region"). The isolation of a fault present
-#: from engine start reads it (pipeline/step.py, docs/detection_isolation.md section 4).
+#: (docs/results/detection.md, "The reference without the start region").
 UNTESTED_REGIONS: tuple[int, ...] = (REGION_START,)
 #: The start fits of the isolation of a fault present from engine start (pipeline/step.py, docs/detection_isolation.md
 #: section 4), each a gamma - 1 fitted to the open-loop residual: the cold start's heat factor, the settle's loss

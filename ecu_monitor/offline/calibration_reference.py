@@ -2,7 +2,7 @@
 symptom looks like in each operating region (:mod:`ecu_monitor.estimation.regions`) on a healthy engine, and
 the threshold of the test that measures each flight against it from engine start (from the end of the start
 region: the test leaves the :data:`~ecu_monitor.estimation.detection.UNTESTED_REGIONS` out, though their mean
-and spread are learned: the isolation of a fault present from engine start reads the start's).
+and spread are learned and printed).
 
 Per flight and region, the mean of the symptom the service fed its detector (degC/s for the CBEKF's
 deviation); per region, the mean of these flight means (``nominal_mean``) and their standard deviation
