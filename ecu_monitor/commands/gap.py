@@ -84,7 +84,7 @@ def add_subparser(subparsers: Any) -> None:
         metavar="IDS",
         help="comma-separated candidate effects (default: the library's default set, plus the ones the logged"
         " columns call for: no_altitude_factor with a heat map on fuel flow, mixture_index when every flight logs"
-        " egt_c; an unknown name lists the known)",
+        " manifold_pressure_kpa (the fuel/air ratio) or egt_c; an unknown name lists the known)",
     )
     parser.add_argument(
         "--refit",

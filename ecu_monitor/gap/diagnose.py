@@ -134,7 +134,7 @@ def diagnose(
             nominals = [nominal] * len(train_logs)
         inner = dataclasses.replace(settings, whiteness_estimator=None)  # only its verdict is used
         chosen_by = cross_validate(nominals, train_logs, nominal, inner, progress)
-    mixture = nominal.effects.mixture_index  # the index the model reads (None: the EGT, for the candidate)
+    mixture = nominal.effects.mixture_index  # the index the model reads (None: the candidate's)
     trains = tuple(prepare_flight(log, nominal.heat_axes, settings.refit.dt_s, mixture) for log in train_logs)
     fold = RefitFold(nominal, trains, _references(train_logs, settings), tuple(range(len(test_logs))))
     return _diagnose([fold], trains, test_logs, [nominal] * len(test_logs), nominal, settings, progress, chosen_by)
@@ -221,7 +221,8 @@ def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...]]) -> FitResult:
 
 
 def _references(logs: Sequence[FlightLog], settings: GapSettings) -> dict[str, float]:
-    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c", "rpm", "egt_c"))
+    pooled = _end_to_end(logs, ("airspeed_mps", "altitude_m", "oat_c", "rpm", "egt_c", "fuel_flow_lph",
+                                "manifold_pressure_kpa"))  # fmt: skip
     return flight_references(pooled, settings.segments.ground_airspeed_mps)
 
 

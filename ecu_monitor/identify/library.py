@@ -27,9 +27,10 @@ Added for real data (not in the default set, :data:`DEFAULT_CANDIDATE_IDS`; ask 
   ``g(z) = (p/p_SL)^a (T_SL/T_e)^b`` (no new term: the model's own parameters, started from the
   nominal values). It is the candidate for a heat map on fuel flow, where the fuel flow already
   carries the charge density and the paper's throttle-based exponents (a 1.55, b 2) double-count it.
-- ``mixture_index``: heat ``x exp(gain (EGT - EGT_ref))``, the mixture read from the logged exhaust
-  gas temperature (a richer mixture, lower EGT, cools the head); free gain; EGT_ref = median EGT of
-  the train flights. Tried by default when every flight logs ``egt_c``.
+- ``mixture_index``: heat ``x exp(gain (index - index_ref))``, the mixture read from the fuel/air ratio
+  where the flights log the manifold pressure (the heat per unit of fuel a power of the ratio), else from
+  the logged exhaust gas temperature (a richer mixture, lower EGT, cools the head); free gain;
+  index_ref = the index's median over the train flights. Tried by default when every flight logs either.
 - ``no_altitude_factor``: a removal candidate: the same altitude factor switched off (a = b = 0,
   nothing new fitted), the simpler answer to the same double count.
 """
@@ -39,23 +40,26 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.model import EFFECT_TYPES, Effects, air_density_kg_m3, isa_pressure_pa
-from ecu_monitor.model.effects import Effect, running_rpm
+from ecu_monitor.model.effects import MIXTURE_COLUMNS, MIXTURE_SOURCES, Effect, MixtureIndex, mixture_index, running_rpm
 
 __all__ = [
     "CANDIDATES",
     "CANDIDATE_IDS",
+    "CANDIDATE_SOURCES",
     "DEFAULT_CANDIDATE_IDS",
     "REFERENCE_KEYS",
     "RETUNED_NOMINAL",
     "Candidate",
     "FreeParameter",
     "candidate",
+    "candidate_index",
     "candidates_for",
     "effects_for",
     "flight_references",
@@ -146,13 +150,28 @@ def candidates_for(heat_axes: Sequence[str], flights: Sequence[FlightLog]) -> tu
     """The candidates tried when the user names none: :data:`DEFAULT_CANDIDATE_IDS`, plus the removal
     ``no_altitude_factor`` when the heat map is on fuel flow (the fuel flow already carries the charge
     density that the altitude factor models: the paper's form may double-count it), plus
-    ``mixture_index`` when every flight logs its EGT (``egt_c``)."""
+    ``mixture_index`` when every flight logs a mixture reading (:func:`candidate_index`)."""
     ids = list(DEFAULT_CANDIDATE_IDS)
     if "fuel_flow_lph" in heat_axes:
         ids.append("no_altitude_factor")
-    if flights and all(log.has("egt_c") for log in flights):
+    if flights and candidate_index(flights) is not None:
         ids.append("mixture_index")
     return tuple(ids)
+
+
+#: The indices the mixture_index candidate reads, the first whose columns every flight logs: the fuel/air
+#: ratio (with the manifold pressure), else the EGT as logged.
+CANDIDATE_SOURCES: tuple[str, ...] = ("fuel_air", "egt_c")
+
+
+def candidate_index(flights: Sequence[FlightLog]) -> MixtureIndex | None:
+    """The mixture index the flights give the mixture_index candidate (:data:`CANDIDATE_SOURCES`; None: no
+    reading), when the model has none of its own; its gain and reference are unused (each model carries its own,
+    fixed from :func:`flight_references`)."""
+    for source in CANDIDATE_SOURCES:
+        if all(log.has(name) for log in flights for name in MIXTURE_COLUMNS[source]):
+            return MixtureIndex(source=source, gain=0.0, reference=MIXTURE_SOURCES[source][1])
+    return None
 
 
 def candidate(candidate_id: str) -> Candidate:
@@ -165,7 +184,8 @@ def candidate(candidate_id: str) -> Candidate:
 
 def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> dict[str, float]:
     """Reference conditions of the train flight: median airborne airspeed (m/s), median density (kg/m^3),
-    median running engine speed (rev/min), and the median EGT (degC) when it is logged."""
+    median running engine speed (rev/min), and the median of the mixture_index candidate's index when it is
+    logged (``reference_<source>``: the log of the fuel/air ratio, or the EGT in degC)."""
     airspeed = np.asarray(train["airspeed_mps"], dtype=float)
     airborne = airspeed[airspeed >= ground_airspeed_mps]
     reference_mps = float(np.median(airborne)) if airborne.size else 23.0
@@ -176,8 +196,11 @@ def flight_references(train: FlightLog, ground_airspeed_mps: float = 12.0) -> di
         "reference_kg_m3": float(np.clip(np.median(density), 0.3, 1.6)),
         "reference_rpm": running_rpm([train]),
     }
-    if train.has("egt_c"):
-        references["reference_egt_c"] = float(np.clip(np.median(np.asarray(train["egt_c"], dtype=float)), 0.0, 1200.0))
+    mixture = candidate_index([train])
+    if mixture is not None:
+        index = mixture_index(mixture.source, {name: train[name] for name in MIXTURE_COLUMNS[mixture.source]})
+        _unit, low, high, _swing = MIXTURE_SOURCES[mixture.source]
+        references[f"reference_{mixture.source}"] = float(np.clip(np.nanmedian(index), low, high))
     return references
 
 
@@ -188,13 +211,19 @@ REFERENCE_KEYS: dict[str, dict[str, str]] = {
     "density_cooling": {"reference_kg_m3": "reference_kg_m3"},
     "mass_flow_cooling": {"reference_kg_m3": "reference_kg_m3"},
     "engine_speed_cooling": {"reference_rpm": "reference_rpm"},
-    "mixture_index": {"reference": "reference_egt_c"},
+    "mixture_index": {"reference": "reference_<source>"},  # the source of candidate_index
 }
 
 
 def _make(entry: Candidate, values: Mapping[str, float], references: Mapping[str, float]) -> Effect:
-    fixed: dict[str, float] = {}
-    for parameter, key in REFERENCE_KEYS.get(entry.effect, {}).items():
+    fixed: dict[str, Any] = {}
+    keys = REFERENCE_KEYS.get(entry.effect, {})
+    if entry.effect == "mixture_index":  # the index whose reference the train flights gave
+        given = [source for source in CANDIDATE_SOURCES if f"reference_{source}" in references]
+        source = given[0] if given else CANDIDATE_SOURCES[-1]
+        fixed["source"] = source
+        keys = {"reference": f"reference_{source}"}
+    for parameter, key in keys.items():
         if key not in references:
             raise ParameterError(f"gap candidate {entry.id!r}: the train flights give no {key}")
         fixed[parameter] = float(references[key])

@@ -67,7 +67,7 @@ from ecu_monitor.identify.search_settings import (
     TIME_CONSTANT_BOUNDS_S,
 )
 from ecu_monitor.model import Coefficients, HeatMap, ThermalParams, coefficients
-from ecu_monitor.model.effects import MIXTURE_SOURCES
+from ecu_monitor.model.effects import MixtureIndex
 
 __all__ = [
     "DEFAULT_FREE",
@@ -452,8 +452,7 @@ def default_space(
             _target, lo, hi, log_scaled = _EFFECT_FIELDS[name]
             mixture = base.effects.mixture_index
             if name == "effects.mixture_index.gain" and mixture is not None:  # |gain| x typical swing <= 3
-                swing = MIXTURE_SOURCES[mixture.source][3]
-                lo, hi = -3.0 / swing, 3.0 / swing
+                lo, hi = -MixtureIndex.gain_reach(mixture.source), MixtureIndex.gain_reach(mixture.source)
             add(name, lo, hi, log_scaled)
     cells: list[tuple[int, int]] = []
     if "heat_map" in free_set:

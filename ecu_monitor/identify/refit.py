@@ -29,7 +29,14 @@ from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.fit import identify
 from ecu_monitor.identify.flights import FlightGrid
 from ecu_monitor.identify.flights import prepare_flight as prepare_grid
-from ecu_monitor.identify.library import RETUNED_BOUNDS, RETUNED_NOMINAL, Candidate, FreeParameter, effects_for
+from ecu_monitor.identify.library import (
+    RETUNED_BOUNDS,
+    RETUNED_NOMINAL,
+    Candidate,
+    FreeParameter,
+    candidate_index,
+    effects_for,
+)
 from ecu_monitor.identify.problem import DEFAULT_FREE, IDENTIFICATION_DT_S, default_space
 from ecu_monitor.identify.pso import PsoSettings
 from ecu_monitor.model import MixtureIndex, ThermalParams, coefficients, simulate, stack_coefficients
@@ -75,20 +82,16 @@ class PreparedFlight(NamedTuple):
     dt_s: float
 
 
-#: How a prepared flight reads the mixture_index candidate's lean/rich index (EGT, when logged); the
-#: gain and reference here are unused (each model carries its own; the effect off is a factor 1).
-EGT_INDEX = MixtureIndex(source="egt_c", gain=0.0, reference=650.0)
-
-
 def prepare_flight(
     log: FlightLog, heat_axes: tuple[str, str], dt_s: float, mixture: MixtureIndex | None = None
 ) -> PreparedFlight:
-    """Put ``log`` on a uniform integration step ``dt_s`` with the index of ``mixture`` (by default its
-    EGT as the mixture index when the log carries one); FlightLogError if a column is missing."""
+    """Put ``log`` on a uniform integration step ``dt_s`` with the index of ``mixture`` (by default the
+    mixture_index candidate's, :func:`candidate_index`, when the log gives one); FlightLogError if a column is
+    missing."""
     if len(log) < 10:
         raise FlightLogError(f"{log.source}: too short for a gap diagnosis ({len(log)} samples)")
     if mixture is None:
-        mixture = EGT_INDEX if log.has("egt_c") else None
+        mixture = candidate_index([log])
     grid = prepare_grid(log, heat_axes, dt_s, record_period_s=max(dt_s, 1.0), mixture=mixture)
     spacing = float(np.median(np.diff(log.time_s)))
     return PreparedFlight(log, grid, np.asarray(grid.measured_c, dtype=float), spacing)
@@ -159,14 +162,25 @@ class _Problem:
         self.measured = np.concatenate([f.cht_c for f in self.flights])
         self.engine = engine
         self.names = [(e.id, p.name) for e in self.entries for p in e.free]
-        self.low = np.array([p.low for e in self.entries for p in e.free] + [RETUNED_BOUNDS[0]] * 2)
-        self.high = np.array([p.high for e in self.entries for p in e.free] + [RETUNED_BOUNDS[1]] * 2)
+        mixture = nominal.effects.mixture_index or candidate_index([f.log for f in self.flights])
+        self.mixture_source = mixture.source if mixture is not None else "egt_c"
+        bounds = [self._bounds(e, p) for e in self.entries for p in e.free]
+        self.low = np.array([low for low, _ in bounds] + [RETUNED_BOUNDS[0]] * 2)
+        self.high = np.array([high for _, high in bounds] + [RETUNED_BOUNDS[1]] * 2)
         starts = [self._start(e, p) for e in self.entries for p in e.free]
         self.start = np.array([*starts, 0.0, 0.0])
         self.steps = 1e-3 * (self.high - self.low)
         self.evaluations = 0
         self.failed = 0
         self.heat_values = nominal.heat_map.values_array()
+
+    def _bounds(self, entry: Candidate, free: FreeParameter) -> tuple[float, float]:
+        """The library's bounds, but a mixture index's gain reaches as far as its index allows
+        (:meth:`MixtureIndex.gain_reach`; the library's are the EGT's)."""
+        if entry.effect == "mixture_index" and free.name == "gain":
+            reach = MixtureIndex.gain_reach(self.mixture_source)
+            return -reach, reach
+        return free.low, free.high
 
     def _start(self, entry: Candidate, free: FreeParameter) -> float:
         """Warm start: the nominal model's own value when it has one (a nominal field, or an effect the
@@ -176,7 +190,7 @@ class _Problem:
         else:
             current = getattr(self.nominal.effects, entry.effect)
             value = float(getattr(current, free.name)) if current is not None else free.start
-        return float(np.clip(value, free.low, free.high))
+        return float(np.clip(value, *self._bounds(entry, free)))
 
     def starts(self) -> list[np.ndarray]:
         """The warm start, then one start per alternative value of each parameter with restarts."""

@@ -29,9 +29,11 @@ identified model. An effect that is ``None`` in :class:`Effects` is off and the 
   ``Q *= 1 - fraction * clip((load - onset) / (1 - onset), 0, 1)``.
 - ``mixture_index``: the heat into the head follows the mixture, read from a logged lean/rich index
   (``source``: the exhaust gas temperature ``egt_c``, its rise over the intake air ``egt_rise`` =
-  egt_c - oat_c, or the fuel per revolution ``fuel_per_rev`` = fuel_flow_lph / rpm in mL/rev):
+  egt_c - oat_c, the fuel per revolution ``fuel_per_rev`` = fuel_flow_lph / rpm in mL/rev, or ``fuel_air``,
+  the log of the fuel per unit of fresh air from the fuel flow, rpm, manifold pressure, OAT and altitude):
   ``Q *= exp(gain * (index - reference))``, smooth, positive, and ``1 + gain * (index - reference)``
-  near the reference. Where the index is not logged (NaN) the factor is 1.
+  near the reference (on ``fuel_air`` a power of the fuel/air ratio: the heat per unit of fuel of a
+  combustion that burns less of a richer mixture). Where the index is not logged (NaN) the factor is 1.
 
 Each effect carries its own definition, as a progpy model carries its own (:class:`Effect`): its
 parameters (:class:`EffectParameter`: the coefficient the equations read, its neutral value, its
@@ -57,7 +59,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ecu_monitor.errors import FlightLogError, ParameterError
-from ecu_monitor.model.atmosphere import SEA_LEVEL_DENSITY_KG_M3, air_density_kg_m3, isa_pressure_pa
+from ecu_monitor.model.atmosphere import (
+    KELVIN_OFFSET,
+    SEA_LEVEL_DENSITY_KG_M3,
+    SEA_LEVEL_PRESSURE_PA,
+    air_density_kg_m3,
+    isa_pressure_pa,
+)
+from ecu_monitor.model.equations import equation, exp, isa_log_pressure_ratio, log, maximum
 
 __all__ = [
     "EFFECT_COEFFICIENTS",
@@ -76,9 +85,11 @@ __all__ = [
     "MixtureCooling",
     "MixtureIndex",
     "SensorLag",
+    "fuel_air_index",
     "median_density",
     "mixture_index",
     "running_rpm",
+    "volumetric_efficiency",
 ]
 
 
@@ -367,20 +378,58 @@ MIXTURE_SOURCES: dict[str, tuple[str, float, float, float]] = {
     "egt_c": ("degC", 0.0, 1200.0, 300.0),  # exhaust gas temperature
     "fuel_per_rev": ("mL/rev", 0.0, 5.0, 0.3),  # fuel_flow_lph / rpm, in mL per revolution
     "egt_rise": ("degC", 0.0, 1200.0, 300.0),  # exhaust gas temperature over the intake air (OAT)
+    "fuel_air": ("ln(mL m^3/(rev kg))", -20.0, 20.0, 0.5),  # log of a fuel/air ratio (fuel per unit of fresh air)
 }
 #: Columns each mixture-index source is computed from.
 MIXTURE_COLUMNS: dict[str, tuple[str, ...]] = {
     "egt_c": ("egt_c",),
     "fuel_per_rev": ("fuel_flow_lph", "rpm"),
     "egt_rise": ("egt_c", "oat_c"),
+    "fuel_air": ("fuel_flow_lph", "rpm", "manifold_pressure_kpa", "oat_c", "altitude_m"),
 }
 #: Below this engine speed (rpm) the fuel per revolution is taken at this speed (engine stopped).
 _MIN_RPM = 100.0
 
 
+#: Below this manifold pressure (kPa) the intake charge's density is taken at this pressure.
+_MIN_MANIFOLD_KPA = 1.0
+#: A spark-ignition engine's ratio of specific heats and compression ratio in :func:`volumetric_efficiency`
+#: (typical of air-cooled aircraft engines, 7-10: from 7 to 10 the efficiency moves 3 % at half throttle).
+_CHARGE_GAMMA = 1.3
+_COMPRESSION_RATIO = 8.5
+_AIR_GAS_CONSTANT = 287.053  # J/(kg K), as atmosphere.air_density_kg_m3
+
+
+@equation
+def volumetric_efficiency(exhaust_over_intake: Any) -> Any:
+    """The ideal cycle's volumetric efficiency at an exhaust over intake pressure ratio (dimensionless): 1 with
+    the throttle open at the ambient pressure, lower at part throttle, where the burnt gas left in the cylinder
+    at the exhaust's pressure expands into the intake stroke and takes the place of fresh air:
+    (gamma - 1)/gamma + (r - p_e/p_i) / (gamma (r - 1))."""
+    return (_CHARGE_GAMMA - 1.0) / _CHARGE_GAMMA + (_COMPRESSION_RATIO - exhaust_over_intake) / (
+        _CHARGE_GAMMA * (_COMPRESSION_RATIO - 1.0)
+    )
+
+
+@equation
+def fuel_air_index(fuel_flow_lph: Any, rpm: Any, manifold_pressure_kpa: Any, oat_c: Any, altitude_m: Any) -> Any:
+    """ln of the fuel per revolution (mL/rev) over the fresh air a revolution draws in per unit of swept volume
+    (kg/m^3): the intake charge's density (manifold pressure at the OAT) times :func:`volumetric_efficiency` with
+    the exhaust at the ambient pressure (ISA at the pressure altitude). The log of the fuel/air ratio up to a
+    constant of the engine (half its swept volume). No fuel (the engine stopped): -inf, not finite."""
+    per_rev = fuel_flow_lph * (1000.0 / 60.0) / maximum(rpm, _MIN_RPM)
+    manifold_pa = 1000.0 * maximum(manifold_pressure_kpa, _MIN_MANIFOLD_KPA)
+    charge = manifold_pa / (_AIR_GAS_CONSTANT * (oat_c + KELVIN_OFFSET))
+    ambient_pa = SEA_LEVEL_PRESSURE_PA * exp(isa_log_pressure_ratio(altitude_m))
+    fresh = maximum(volumetric_efficiency(ambient_pa / manifold_pa), 0.05)
+    return log(maximum(per_rev, 0.0) / (charge * fresh))
+
+
 def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64]:
     """The lean/rich index of ``source`` from its columns: EGT (degC) as logged, its rise over the intake air
-    egt_c - oat_c (degC), or the fuel per revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h)."""
+    egt_c - oat_c (degC), the fuel per revolution fuel_flow_lph / rpm in mL/rev (1000 mL/L / 60 min/h), or
+    :func:`fuel_air_index`, the log of a fuel/air ratio (a power of the ratio in the effect's exp; NaN where no
+    fuel flows, so that the effect's factor is 1 with the engine stopped)."""
     if source == "egt_c":
         return np.asarray(columns["egt_c"], dtype=float)
     if source == "egt_rise":
@@ -388,6 +437,10 @@ def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64
     if source == "fuel_per_rev":
         rpm = np.maximum(np.asarray(columns["rpm"], dtype=float), _MIN_RPM)
         return np.asarray(columns["fuel_flow_lph"], dtype=float) * (1000.0 / 60.0) / rpm
+    if source == "fuel_air":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            index = fuel_air_index(*(np.asarray(columns[name], dtype=float) for name in MIXTURE_COLUMNS[source]))
+        return np.where(np.isfinite(index), index, np.nan)
     raise FlightLogError(f"mixture_index: unknown source {source!r}")
 
 
@@ -395,13 +448,16 @@ def mixture_index(source: str, columns: Mapping[str, Any]) -> NDArray[np.float64
 class MixtureIndex(Effect):
     """Heat into the head follows a logged lean/rich index: Q *= exp(gain * (index - reference)).
 
-    source: the index, one of :data:`MIXTURE_SOURCES`: "egt_c" (degC), "egt_rise" (EGT over the OAT, degC)
-        or "fuel_per_rev" (mL/rev). The rise is what the combustion sets (the exhaust starts from the intake
-        air's temperature): on the rich side of peak EGT, where engines are run, a lower rise is a richer
-        mixture that burns less of its fuel and puts less heat per unit of fuel into the head.
-    gain: relative change of the heat per unit of the index (1/degC or rev/mL); a richer mixture
-        (lower EGT, more fuel per revolution) cools the head.
-    reference: index value at which the nominal heat map holds (degC or mL/rev).
+    source: the index, one of :data:`MIXTURE_SOURCES`: "egt_c" (degC), "egt_rise" (EGT over the OAT, degC),
+        "fuel_per_rev" (mL/rev) or "fuel_air" (the log of a fuel/air ratio, :func:`fuel_air_index`). The rise is
+        what the combustion sets (the exhaust starts from the intake air's temperature): on the rich side of peak
+        EGT, where engines are run, a lower rise is a richer mixture that burns less of its fuel and puts less
+        heat per unit of fuel into the head; near peak EGT the rise barely moves while the burnt share of the fuel
+        still does. The fuel/air ratio reads the mixture itself: on the rich side the heat per unit of fuel
+        falls as a power of it (the gain, about -1 where the air, not the fuel, sets how much burns).
+    gain: relative change of the heat per unit of the index (1/degC, rev/mL, or the power of the fuel/air
+        ratio); a richer mixture (lower EGT, more fuel per revolution or per unit of air) cools the head.
+    reference: index value at which the nominal heat map holds (degC, mL/rev or the log of the ratio).
     """
 
     source: str = "egt_c"
@@ -414,13 +470,28 @@ class MixtureIndex(Effect):
         "reference": EffectParameter("mixture_reference", 0.0, None, (0.0, 1200.0)),
     }
     FREE: ClassVar[tuple[str, ...]] = ("gain",)
-    GAP_TEXT: ClassVar[str] = "heat into the head follows the mixture, read from the logged EGT"
+    GAP_TEXT: ClassVar[str] = "heat into the head follows the mixture (a logged fuel/air ratio or EGT)"
+
+    @staticmethod
+    def gain_reach(source: str) -> float:
+        """The largest |gain| on an index of ``source``: 3 over its typical swing over a flight (the factor stays
+        within e^-3..e^3); the range identification searches and the gap refits (its declared +-0.01 is the
+        EGT's)."""
+        return 3.0 / MIXTURE_SOURCES[source][3]
+
+    @staticmethod
+    def source_for(flights: Sequence[Columns]) -> str:
+        """The index the flights give, the first whose columns every flight logs: the fuel/air ratio (with the
+        manifold pressure), the EGT's rise over the OAT, else the fuel per revolution."""
+        for source in ("fuel_air", "egt_rise"):
+            if all(log.has(name) for log in flights for name in MIXTURE_COLUMNS[source]):
+                return source
+        return "fuel_per_rev"
 
     @classmethod
     def start(cls, flights: Sequence[Columns]) -> MixtureIndex:
-        """No gain, about the flights' median index: the EGT's rise over the OAT where every flight logs an EGT,
-        else the fuel per revolution."""
-        source = "egt_rise" if all(log.has("egt_c") for log in flights) else "fuel_per_rev"
+        """No gain, about the flights' median index of :meth:`source_for`."""
+        source = cls.source_for(flights)
         index = np.concatenate(
             [mixture_index(source, {name: log[name] for name in MIXTURE_COLUMNS[source]}) for log in flights]
         )
@@ -431,8 +502,8 @@ class MixtureIndex(Effect):
             raise ParameterError(
                 f"effects.mixture_index.source: expected one of {', '.join(MIXTURE_SOURCES)}, got {self.source!r}"
             )
-        unit, low, high, swing = MIXTURE_SOURCES[self.source]
-        reach = 3.0 / swing
+        unit, low, high, _swing = MIXTURE_SOURCES[self.source]
+        reach = self.gain_reach(self.source)
         _check_range("mixture_index", "gain", self.gain, -reach, reach)
         _check_range("mixture_index", f"reference ({unit})", self.reference, low, high)
 

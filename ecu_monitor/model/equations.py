@@ -43,6 +43,7 @@ __all__ = [
     "derivatives",
     "dissipation",
     "drive",
+    "isa_log_pressure_ratio",
     "lag_fraction",
     "probe_step",
     "rk4",
@@ -189,6 +190,12 @@ MIX_REFERENCE = PARAMETER_FIELDS.index("mixture_reference")
 
 
 @equation
+def isa_log_pressure_ratio(altitude_m: Any) -> Any:
+    """log p/p_SL of the ISA troposphere at a pressure altitude (m)."""
+    return ISA_PRESSURE_EXPONENT * log(maximum(1.0 - LAPSE_RATE_K_PER_M * altitude_m / SEA_LEVEL_TEMPERATURE_K, 1e-6))
+
+
+@equation
 def conditions(heat_x: Any, altitude_m: Any, airspeed_mps: Any, oat_c: Any, x_low: float, x_high: float) -> tuple:
     """Per-time quantities shared by every parameter set.
 
@@ -196,8 +203,7 @@ def conditions(heat_x: Any, altitude_m: Any, airspeed_mps: Any, oat_c: Any, x_lo
     (kg/m^3), airspeed clipped at 0 (m/s), load: the first heat-map axis normalised to 0..1 over its
     breakpoints [x_low, x_high]).
     """
-    ratio = maximum(1.0 - LAPSE_RATE_K_PER_M * altitude_m / SEA_LEVEL_TEMPERATURE_K, 1e-6)
-    log_pressure_ratio = ISA_PRESSURE_EXPONENT * log(ratio)
+    log_pressure_ratio = isa_log_pressure_ratio(altitude_m)
     oat_k = oat_c + KELVIN_OFFSET
     log_temperature_ratio = log(SEA_LEVEL_TEMPERATURE_K / oat_k)
     log_density = _LOG_DENSITY_OFFSET + log_pressure_ratio - log(oat_k)

@@ -110,12 +110,12 @@ def make_decoder(config: ServiceConfig, specs: list[SignalSpec]) -> Decoder | Dr
 
 
 #: The step's code of each mixture-index source (pipeline/step.py, engine_step: how it computes the index).
-MIXTURE_CODES: dict[str, int] = {"egt_c": 1, "fuel_per_rev": 2, "egt_rise": 3}
+MIXTURE_CODES: dict[str, int] = {"egt_c": 1, "fuel_per_rev": 2, "egt_rise": 3, "fuel_air": 4}
 
 
 def model_input_names(params: ThermalParams, mapped: Collection[str] = ()) -> tuple[str, ...]:
     """Inputs the service feeds the model: the two heat-map axes, altitude, airspeed, OAT, then the
-    columns of its mixture index (egt_c, fuel_flow_lph and rpm, or egt_c and oat_c) when the model has the mixture_index
+    columns of its mixture index (model/effects.py MIXTURE_COLUMNS) when the model has the mixture_index
     effect and ``mapped`` (the config's input names) holds them all; otherwise the index is not fed and
     the effect's factor is 1."""
     names = (*params.heat_axes, *MODEL_INPUTS)
@@ -271,7 +271,7 @@ class Pipeline:
         sf = config.sensor_fault
         c["min_c"], c["max_c"] = sf.min_c, sf.max_c
         c["cross"] = bool(config.cross_detectors)
-        mixture_slots = np.zeros(2, dtype=np.int64)
+        mixture_slots = np.zeros(max(len(names) for names in MIXTURE_COLUMNS.values()), dtype=np.int64)
         if self._mixture is not None:
             columns = MIXTURE_COLUMNS[self._mixture.source]
             c["mixture"] = MIXTURE_CODES[self._mixture.source]

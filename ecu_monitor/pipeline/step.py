@@ -67,6 +67,7 @@ from ecu_monitor.estimation.regions import (
     power_fraction,
     region_of,
 )
+from ecu_monitor.model.effects import fuel_air_index
 from ecu_monitor.model.equations import derivatives, dissipation, rk4
 from ecu_monitor.model.kernels import njit
 from ecu_monitor.model.thermal import drive_at, unpack_coefficients
@@ -345,7 +346,8 @@ CLOCK = np.dtype(
         ("status_slot", "i8"),  # the ECU's CHT sensor status (-1: none)
         ("min_c", "f8"),  # a plausible CHT reading
         ("max_c", "f8"),
-        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution, 3 EGT - OAT
+        ("mixture", "i8"),  # the model's mixture index: 0 none (nan), 1 EGT, 2 fuel per revolution, 3 EGT - OAT,
+        # 4 the log of the fuel/air ratio
         ("cross", "?"),  # cross-cylinder detectors on
     ]
 )
@@ -362,7 +364,7 @@ class Engine(NamedTuple):
     check_limit_s: Any  # float64[checks]
     check_model: Any  # bool[checks]: a model input (stale: every cylinder's inputs are)
     model_slots: Any  # int64[5]: heat-map x, y, altitude, airspeed, OAT
-    mixture_slots: Any  # int64[2]: EGT, fuel flow and rpm, or EGT and OAT
+    mixture_slots: Any  # int64[5]: the index's columns (model/effects.py MIXTURE_COLUMNS), unused ones 0
     open_values: Any  # float64[]: the CHT sensor status values meaning "open"
     settings: Any  # CYLINDER_SETTINGS[cylinders]
     state: Any  # CYLINDER_STATE[cylinders]
@@ -1123,6 +1125,10 @@ def engine_step(eng: Engine, time_s: float, k: int) -> int:
         u[5] = eng_values[eng_mixture_slots[0]] * (1000.0 / 60.0) / max(eng_values[eng_mixture_slots[1]], 100.0)
     elif clock["mixture"] == 3:  # the EGT's rise over the intake air, degC
         u[5] = eng_values[eng_mixture_slots[0]] - eng_values[eng_mixture_slots[1]]
+    elif clock["mixture"] == 4:  # the log of the fuel/air ratio (no fuel: -inf, the model's factor 1)
+        u[5] = fuel_air_index(eng_values[eng_mixture_slots[0]], eng_values[eng_mixture_slots[1]],
+                              eng_values[eng_mixture_slots[2]], eng_values[eng_mixture_slots[3]],
+                              eng_values[eng_mixture_slots[4]])  # fmt: skip
     else:
         u[5] = np.nan
     call = k % clock["filter_period"] == 0

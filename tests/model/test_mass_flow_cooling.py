@@ -21,21 +21,9 @@ from ecu_monitor.model import (
 )
 from ecu_monitor.model.atmosphere import air_density_kg_m3, isa_pressure_pa
 from ecu_monitor.model.effects import Effects, mixture_index
+from tests.helpers.columns import NamedColumns
 
 AIRSPEED = AirspeedCooling(gain_per_mps=0.02, reference_mps=40.0, floor=0.05, prop_wash_mps=10.0)
-
-
-class _Columns:
-    """What a start rule reads: named columns."""
-
-    def __init__(self, columns: dict[str, np.ndarray]) -> None:
-        self.columns = columns
-
-    def has(self, name: str) -> bool:
-        return name in self.columns
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.columns[name]
 
 
 def _conductance(effects: Effects, inputs: InputSeries) -> np.ndarray:
@@ -74,7 +62,7 @@ def test_needs_airspeed_cooling_and_starts_at_the_median_density() -> None:
         MassFlowCooling(exponent=5.0)
     columns = {"altitude_m": np.array([0.0, 1000.0, 2000.0]), "oat_c": np.array([15.0, 8.0, 2.0])}
 
-    start = MassFlowCooling.start([_Columns(columns)])
+    start = MassFlowCooling.start([NamedColumns(columns)])
     rho = air_density_kg_m3(isa_pressure_pa(1000.0), 8.0)
     assert start.exponent == 1.0 and math.isclose(start.reference_kg_m3, float(rho), rel_tol=1e-12)
 
@@ -96,5 +84,5 @@ def test_the_egt_rise_index_is_the_exhaust_over_the_intake_air() -> None:
     columns = {"egt_c": np.array([700.0, 650.0]), "oat_c": np.array([20.0, -10.0])}
     assert np.array_equal(mixture_index("egt_rise", columns), [680.0, 660.0])
 
-    start = MixtureIndex.start([_Columns(columns)])
+    start = MixtureIndex.start([NamedColumns(columns)])
     assert start.source == "egt_rise" and start.reference == 670.0 and start.gain == 0.0
