@@ -200,6 +200,7 @@ def main() -> None:
         " with the step's arithmetic: a changed reference rule re-scored without flying again (isolation not scored)",
     )
     args = parser.parse_args()
+    from ecu_monitor.estimation.detection import START_FIT_NAMES
     from ecu_monitor.estimation.regions import REGION_NAMES
     from ecu_monitor.offline.calibration_reference import calibrate_reference
 
@@ -224,6 +225,9 @@ def main() -> None:
         for r, name in enumerate(REGION_NAMES):
             print(f"  {name:<13} mean {ref.mean[r]:+.4f} spread {ref.spread[r]:.4f} degC/s")
         print(f"  reference test h = {settings.nominal_threshold:g} ({ref.calibration.hours} whole hours)")
+        learned = zip(START_FIT_NAMES, ref.fit_mean, ref.fit_spread, strict=False)  # empty: not learned
+        fits = ", ".join(f"{n} {m:+.4f} spread {s:.4f}" for n, m, s in learned)
+        print(f"  start fits: {fits or 'not learned'}")
         if args.replays:
             faulty = [(seed, fault) for seed, fault in scored if fault is not None]
             results = _scored(pool, [(seed, fault, settings) for seed, fault in faulty])

@@ -59,6 +59,7 @@ from ecu_monitor.estimation.regions import REGION_COUNT, REGION_NAMES, REGION_ST
 
 __all__ = [
     "NOMINAL_SPREAD_Z",
+    "START_FIT_NAMES",
     "UNTESTED_REGIONS",
     "DetectorSettings",
     "ThresholdCalibration",
@@ -79,9 +80,12 @@ NOMINAL_SPREAD_Z = 2.0
 #: spread: the start (the head's warm-up from cold), whose symptom follows the start's initial conditions (head
 #: and outside temperature, the filters' first state) more than the engine: on nominal virtual flights its
 #: flight means were the most spread and heavy-tailed, and it raised every false DEGRADED while tested
-#: (docs/results/detection.md, "The reference without the start region"). The isolation of a fault present
-#: from engine start reads it (pipeline/step.py, docs/detection_isolation.md section 4).
+#: (docs/results/detection.md, "The reference without the start region").
 UNTESTED_REGIONS: tuple[int, ...] = (REGION_START,)
+#: The start fits of the isolation of a fault present from engine start (pipeline/step.py, docs/detection_isolation.md
+#: section 4), each a gamma - 1 fitted to the open-loop residual: the cold start's heat factor, the settle's loss
+#: factor, the flight's product; calibrate learns their mean and spread over nominal flights.
+START_FIT_NAMES: tuple[str, ...] = ("cold_heat", "settle_loss", "flight_product")
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,9 @@ class DetectorSettings:
         unit (nan: no nominal data in that region, not tested there).
     nominal_spread: per region the spread across flights of each flight's mean there (standard deviation),
         symptom unit. The level tested against is mean + NOMINAL_SPREAD_Z x spread.
+    start_fit_mean, start_fit_spread: the start fits (START_FIT_NAMES order) over nominal flights: their mean and
+        standard deviation across flights (empty: not learned; the isolation of a fault present from engine
+        start then leaves it to the isolation filter).
 
     The defaults are the variant kept by ``ecu-monitor evaluate`` for the CBEKF's model deviation on the
     paper's Table A1 model (docs/results/detection.md: h calibrated on 53 nominal flight hours for 1
@@ -129,6 +136,8 @@ class DetectorSettings:
     nominal_threshold: float = 0.0
     nominal_mean: tuple[float, ...] = ()
     nominal_spread: tuple[float, ...] = ()
+    start_fit_mean: tuple[float, ...] = ()
+    start_fit_spread: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         self._check_nominal()
@@ -164,7 +173,7 @@ class DetectorSettings:
             raise ConfigError("detector.scale_floor: expected > 0 with scale_s on (ecu-monitor calibrate learns it)")
 
     def _check_nominal(self) -> None:
-        for name in ("nominal_mean", "nominal_spread"):
+        for name in ("nominal_mean", "nominal_spread", "start_fit_mean", "start_fit_spread"):
             values = getattr(self, name)
             if not isinstance(values, list | tuple) or any(
                 isinstance(v, bool) or not isinstance(v, int | float) for v in values
@@ -182,6 +191,12 @@ class DetectorSettings:
                 )
             if any(not (s >= 0.0) and not math.isnan(s) for s in self.nominal_spread):
                 raise ConfigError("detector.nominal_spread: expected values >= 0 (nan: no data)")
+        lengths = {len(self.start_fit_mean), len(self.start_fit_spread)}
+        if lengths not in ({0}, {len(START_FIT_NAMES)}):
+            names = ", ".join(START_FIT_NAMES)
+            raise ConfigError(f"detector.start_fit_mean, start_fit_spread: expected a value each for {names}, or none")
+        if any(not (s >= 0.0) and not math.isnan(s) for s in self.start_fit_spread):
+            raise ConfigError("detector.start_fit_spread: expected values >= 0 (nan: no data)")
 
     @property
     def reference_on(self) -> bool:

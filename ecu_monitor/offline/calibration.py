@@ -567,7 +567,7 @@ def config_copy_yaml(
     detector["baseline_s"] = result.current.baseline_s
     detector["baseline_delay_s"] = result.current.baseline_delay_s
     detector["baseline_freeze"] = result.current.baseline_freeze
-    for key in ("nominal_threshold", "nominal_mean", "nominal_spread"):
+    for key in ("nominal_threshold", "nominal_mean", "nominal_spread", "start_fit_mean", "start_fit_spread"):
         detector[key] = _settings_yaml(result.current)[key]
     detector["calibrated_for"] = calibrated_for
     data["detector"] = detector

@@ -2,13 +2,16 @@
 symptom looks like in each operating region (:mod:`ecu_monitor.estimation.regions`) on a healthy engine, and
 the threshold of the test that measures each flight against it from engine start (from the end of the start
 region: the test leaves the :data:`~ecu_monitor.estimation.detection.UNTESTED_REGIONS` out, though their mean
-and spread are learned: the isolation of a fault present from engine start reads the start's).
+and spread are learned and printed).
 
 Per flight and region, the mean of the symptom the service fed its detector (degC/s for the CBEKF's
 deviation); per region, the mean of these flight means (``nominal_mean``) and their standard deviation
 across flights (``nominal_spread``). The test's level in a region is mean + NOMINAL_SPREAD_Z x spread
 (:meth:`DetectorSettings.nominal_levels`); the test is a plain CUSUM of the symptom minus that level
 (:meth:`DetectorSettings.nominal_settings`), the very detector the step runs.
+
+With it, the start fits' mean and spread across the flights (:func:`flight_start_fits`): what a fault present
+from engine start is isolated against (pipeline/step.py, ``start_fault_call``).
 
 Its threshold is calibrated honestly for flights the reference never saw: each flight in turn is measured
 against the reference learned on the others (leave one flight out), and the hourly maxima of these
@@ -28,6 +31,7 @@ from numpy.typing import NDArray
 
 from ecu_monitor.errors import ConfigError, ParameterError
 from ecu_monitor.estimation.detection import (
+    START_FIT_NAMES,
     DetectorSettings,
     ThresholdCalibration,
     calibrate_threshold,
@@ -42,6 +46,7 @@ __all__ = [
     "ReferenceCalibration",
     "calibrate_reference",
     "flight_region_means",
+    "flight_start_fits",
     "reference_paths",
     "with_reference",
 ]
@@ -72,6 +77,15 @@ def flight_region_means(flight: FlightFeeds) -> NDArray[np.float64]:
     return means
 
 
+def flight_start_fits(flight: FlightFeeds) -> NDArray[np.float64]:
+    """The flight's start fits (START_FIT_NAMES order) at the end of its first clock segment whose fits are all
+    known (nan: none; the fits start afresh with each segment, as the engine's start)."""
+    for fits in flight.start_fits:
+        if np.all(np.isfinite(fits)):
+            return np.asarray(fits, dtype=float)
+    return np.full(len(START_FIT_NAMES), math.nan)
+
+
 def _mean_spread(means: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Per region (columns of flights x regions): the mean over the flights that have it, and the standard
     deviation across them (nan with fewer than two)."""
@@ -84,11 +98,22 @@ def _mean_spread(means: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[f
 
 
 def with_reference(
-    settings: DetectorSettings, mean: Sequence[float], spread: Sequence[float], threshold: float
+    settings: DetectorSettings,
+    mean: Sequence[float],
+    spread: Sequence[float],
+    threshold: float,
+    start_fit_mean: Sequence[float] = (),
+    start_fit_spread: Sequence[float] = (),
 ) -> DetectorSettings:
-    """``settings`` with the reference (per-region mean and spread, the reference test's h)."""
+    """``settings`` with the reference (per-region mean and spread, the reference test's h, the start fits' mean
+    and spread)."""
     return dataclasses.replace(
-        settings, nominal_mean=tuple(mean), nominal_spread=tuple(spread), nominal_threshold=float(threshold)
+        settings,
+        nominal_mean=tuple(mean),
+        nominal_spread=tuple(spread),
+        nominal_threshold=float(threshold),
+        start_fit_mean=tuple(start_fit_mean),
+        start_fit_spread=tuple(start_fit_spread),
     )
 
 
@@ -110,7 +135,8 @@ def reference_paths(
 @dataclass(frozen=True)
 class ReferenceCalibration:
     """The reference and its test: per flight (in the order given) its region means; the reference's mean
-    and spread per region; the test's threshold calibration; the largest held-out statistic per flight."""
+    and spread per region; the test's threshold calibration; the largest held-out statistic per flight; per
+    flight its start fits, and their mean and spread (empty: fewer than two flights with them)."""
 
     flights: tuple[str, ...]
     flight_means: NDArray[np.float64]
@@ -118,10 +144,14 @@ class ReferenceCalibration:
     spread: tuple[float, ...]
     calibration: ThresholdCalibration
     held_out_max: tuple[float, ...]
+    flight_fits: NDArray[np.float64]
+    fit_mean: tuple[float, ...]
+    fit_spread: tuple[float, ...]
 
     def settings(self, settings: DetectorSettings) -> DetectorSettings:
         """``settings`` carrying this reference (h rounded up to 4 decimals, as written)."""
-        return with_reference(settings, self.mean, self.spread, math.ceil(self.calibration.threshold * 1e4) / 1e4)
+        h = math.ceil(self.calibration.threshold * 1e4) / 1e4
+        return with_reference(settings, self.mean, self.spread, h, self.fit_mean, self.fit_spread)
 
 
 def calibrate_reference(
@@ -148,4 +178,9 @@ def calibrate_reference(
     except ConfigError as exc:  # too few whole hours, said as the reference's
         raise ParameterError(f"the engine's reference: {exc}") from None
     mean, spread = _mean_spread(means)
-    return ReferenceCalibration(tuple(f.name for f in flights), means, mean, spread, calibration, tuple(held_out_max))
+    fits = np.array([flight_start_fits(f) for f in flights])
+    fit_mean, fit_spread = _mean_spread(fits)
+    if not all(math.isfinite(s) for s in fit_spread):
+        fit_mean, fit_spread = (), ()
+    return ReferenceCalibration(tuple(f.name for f in flights), means, mean, spread, calibration, tuple(held_out_max),
+                                fits, fit_mean, fit_spread)  # fmt: skip

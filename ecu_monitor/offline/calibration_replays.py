@@ -124,6 +124,7 @@ def nominal_feeds(
         overlays,
         result.reference_feed,
         result.detector_regions,
+        result.start_fits,
     )
 
 
@@ -146,7 +147,8 @@ class FlightFeeds:
     the log's first time, s, and the replays with overlays (empty when not asked or when the flight
     has no room for onsets, see :func:`airborne_onsets`); reference: the nominal replay's open-loop
     reference per clock segment, when kept (``keep_reference``; else empty); regions: the operating region
-    of each step of the feed (per clock segment)."""
+    of each step of the feed (per clock segment); start_fits: the start fits at each clock segment's end
+    (pipeline/step.py, START_FIT_NAMES order)."""
 
     name: str
     feed: Feed
@@ -156,6 +158,7 @@ class FlightFeeds:
     overlays: tuple[OverlayRun, ...]
     reference: tuple[ReferenceFeed, ...] = ()
     regions: tuple[NDArray[np.int64], ...] = ()
+    start_fits: tuple[NDArray[np.float64], ...] = ()
 
     def statistic_for(self, settings: DetectorSettings) -> FlightStatistic:
         """The flight's detector statistic with these settings (no new replay)."""

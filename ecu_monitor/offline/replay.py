@@ -209,9 +209,11 @@ def _run(
     cross: tuple[tuple[_Feed, ...], ...] = ()
     reference: tuple[ReferenceFeed, ...] = ()
     regions: tuple[NDArray[np.int64], ...] = ()
+    fits: tuple[NDArray[np.float64], ...] = ()
     if traces:
-        feeds, cross, reference, regions = _feeds(kept, count, config, keep_reference)
-    return ReplayResult(columns, counters, feeds, gaps, cross, reference, detector_regions=regions, events=events)
+        feeds, cross, reference, regions, fits = _feeds(kept, count, config, keep_reference)
+    return ReplayResult(columns, counters, feeds, gaps, cross, reference, detector_regions=regions, events=events,
+                        start_fits=fits)  # fmt: skip
 
 
 def _values_by_frame(
@@ -272,17 +274,20 @@ def _columns(
     return out
 
 
-def _feeds(
-    kept: Traces, count: int, config: Any, keep_reference: bool
-) -> tuple[tuple[_Feed, ...], tuple[tuple[_Feed, ...], ...], tuple[ReferenceFeed, ...], tuple[NDArray[np.int64], ...]]:
+def _feeds(kept: Traces, count: int, config: Any, keep_reference: bool) -> tuple[
+    tuple[_Feed, ...], tuple[tuple[_Feed, ...], ...], tuple[ReferenceFeed, ...], tuple[NDArray[np.int64], ...],
+    tuple[NDArray[np.float64], ...],
+]:  # fmt: skip
     """Per clock segment whose detectors started: what the first cylinder's detector was fed, what each
-    cylinder's cross-cylinder detector was fed, the open-loop reference, and the first cylinder's regions."""
+    cylinder's cross-cylinder detector was fed, the open-loop reference, the first cylinder's regions and its
+    start fits at the segment's end."""
     n = int(kept.count[0])
     time_s = kept.time_s[:n]
     segments = np.flatnonzero(np.diff(kept.restart[:n])) + 1
     bounds = [0, *segments.tolist(), n]
     feeds: list[_Feed] = []
     regions: list[NDArray[np.int64]] = []
+    fits: list[NDArray[np.float64]] = []
     reference: list[ReferenceFeed] = []
     cross: list[list[_Feed]] = [[] for _ in range(count)]
     for a, b in itertools.pairwise(bounds):
@@ -295,6 +300,7 @@ def _feeds(
             if i == 0:
                 feeds.append((time_s[first:b].copy(), out["fed"].copy()))
                 regions.append(out["region"].astype(np.int64))
+                fits.append(out["start_fit"][-1].copy())
                 if keep_reference:
                     off = out["code"] != CODE_NOMINAL
                     values = (out["cht_meas_c"], kept.model_c[first:b, 0], kept.oat_c[first:b])
@@ -302,7 +308,7 @@ def _feeds(
             if config.cross_detector(i + 1) is not None:
                 cross[i].append((time_s[first:b].copy(), out["cross_fed"].copy()))
     cross_feeds = tuple(tuple(c) for c in cross) if config.cross_detectors else ()
-    return tuple(feeds), cross_feeds, tuple(reference), tuple(regions)
+    return tuple(feeds), cross_feeds, tuple(reference), tuple(regions), tuple(fits)
 
 
 def replay_file(

@@ -24,10 +24,8 @@ from numpy.typing import NDArray
 
 from ecu_monitor.bus.codec import INPUT_NAMES, Decoder, SignalSpec
 from ecu_monitor.errors import ConfigError
-from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
 from ecu_monitor.estimation.ekf import _RESET_CODES, ThermalEKF
 from ecu_monitor.estimation.isolation import IsolationFilter, IsolationSettings, model_vector
-from ecu_monitor.estimation.regions import REGION_START
 from ecu_monitor.estimation.registry import ESTIMATORS, make_estimator
 from ecu_monitor.model import ThermalParams, coefficients, pack_coefficients
 from ecu_monitor.model.effects import MixtureIndex
@@ -334,8 +332,8 @@ class Pipeline:
             e["oil_slot"], e["oil_stale_s"] = self._event_input(config, "oil_temp_c")
             _detector_record(s["nominal"], own.nominal_settings() if own.reference_on else None)
             s["nominal_level"][:] = own.nominal_levels() if own.reference_on else np.nan
-            s["nominal_mean"][:] = own.nominal_mean if own.reference_on else np.nan
-            s["start_margin"] = NOMINAL_SPREAD_Z * own.nominal_spread[REGION_START] if own.reference_on else np.nan
+            s["start_fit_mean"][:] = own.start_fit_mean or np.nan
+            s["start_fit_spread"][:] = own.start_fit_spread or np.nan
             for d in (own, cross):
                 if d is not None:
                     capacity = max(capacity, d.delay_blocks + 1)

@@ -101,6 +101,8 @@ class ReplayResult:
     events: the engine events (pipeline/events.py), their end records in the order the step wrote them.
     detector_regions (batch path only): per clock segment as detector_feed, the operating region of each
     step (estimation/regions.py), what the reference test measures the feed against.
+    start_fits (batch path only): per clock segment as detector_feed, the start fits at its end (pipeline/step.py,
+    START_FIT_NAMES order; nan: a window that never closed), what calibrate learns their nominal spread from.
     """
 
     columns: dict[str, NDArray[Any]]
@@ -111,6 +113,7 @@ class ReplayResult:
     reference_feed: tuple[ReferenceFeed, ...] = ()
     events: tuple[Event, ...] = ()
     detector_regions: tuple[NDArray[np.int64], ...] = ()
+    start_fits: tuple[NDArray[np.float64], ...] = ()
 
     def __len__(self) -> int:
         return int(self.columns["time_s"].size)

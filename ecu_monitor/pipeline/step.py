@@ -34,9 +34,9 @@ The rules, in the order a step applies them:
   degradation is declared (DEGRADED: something to isolate), cruise or high power airborne, both standard
   deviations of the isolation filter at most ISOLATION_SD_MAX and their correlation above
   ISOLATION_CORRELATION_MIN (only the product seen); elsewhere they are nan ("not isolable"). A fault
-  present from engine start (the start region's symptom above its nominal level) is named instead by how
-  its excess over the reference splits between the start and the airborne regions, only where one cause's
-  pattern fits better than the other's by the nominal spreads (:func:`start_fault_call`; nothing in the first
+  present from engine start is named instead from the dynamics: the open-loop reference's residual fitted to
+  its sensitivities to gamma_Q and gamma_D over the cold start (where a heat fault shows alone), the settle
+  after it and the flight, against the fits' nominal spreads (:func:`start_fault_call`; nothing in the first
   10 min); the filter's product gamma_Q gamma_D is then published on the factor it names, 1 on the other;
 * every headroom period: the time to the CHT limit at the held inputs (:func:`headroom_s`);
 * several cylinders: each cylinder's symptom minus the median of the others' feeds its cross-cylinder
@@ -55,14 +55,13 @@ import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic, overload
 
-from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
+from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z, START_FIT_NAMES
 from ecu_monitor.estimation.detection import _cusum_step as cusum_step
 from ecu_monitor.estimation.ekf import live_steps as live_ekf
 from ecu_monitor.estimation.isolation import live_steps as live_isolation
 from ecu_monitor.estimation.quantiser import level_of
 from ecu_monitor.estimation.regions import (
     REGION_COUNT,
-    REGION_START,
     START_S,
     isolable_region,
     power_fraction,
@@ -118,6 +117,26 @@ ARMED_BASELINE = 2
 ISOLATION_SD_MAX = 0.05
 #: The correlation of the gamma_Q and gamma_D estimates at and below which only their product is seen (1).
 ISOLATION_CORRELATION_MIN = -0.9
+#: The cold start, where a heat fault shows alone: from engine start while the open-loop reference's sensitivity
+#: to gamma_D is at most this share of its sensitivity to gamma_Q (the head near the air: its dissipation small
+#: against its heating; about the first minute of a cold ground run).
+COLD_START_LOSS_SHARE = 0.3
+#: The cold start does not end before the heat's sensitivity has reached this, degC per unit gamma_Q (a doubled
+#: heat would have moved the head by a reading's quantum): in the first seconds both sensitivities are tiny and
+#: the heat path's first-order delay, undershooting a throttle step, can flip their ratio.
+COLD_START_MIN_C = 1.0
+#: The cold start's course (CYLINDER_STATE's ``cold``): not begun (the engine not heating yet), holds, over.
+COLD_BEFORE = 0
+COLD_HOLDS = 1
+COLD_OVER = 2
+#: The settle window (from the cold start's end) closes this long after engine start, s; the start call waits for it.
+SETTLE_END_S = 2.0 * START_S
+#: The start fits' windows (rows of CYLINDER_STATE's fit_sums, places of its start_fit: START_FIT_NAMES).
+_FIT_COLD = 0
+_FIT_SETTLE = 1
+_FIT_FLIGHT = 2
+_FIT_SUMS = 10
+START_FIT_COUNT = len(START_FIT_NAMES)
 
 #: The RK4 step of the headroom's march to the limit, s.
 HEADROOM_STEP_S = 2.0
@@ -242,8 +261,8 @@ CYLINDER_SETTINGS = np.dtype(
         ("cross", DETECTOR_SETTINGS),
         ("nominal", DETECTOR_SETTINGS),  # the test against the engine's reference (on: calibrated)
         ("nominal_level", "f8", (REGION_COUNT,)),  # its level per region, symptom unit (nan: none there)
-        ("nominal_mean", "f8", (REGION_COUNT,)),  # the reference's mean per region, symptom unit (nan: none)
-        ("start_margin", "f8"),  # NOMINAL_SPREAD_Z x the start region's spread, symptom unit (nan: none)
+        ("start_fit_mean", "f8", (START_FIT_COUNT,)),  # the reference's start fits (START_FIT_NAMES; nan: none)
+        ("start_fit_spread", "f8", (START_FIT_COUNT,)),  # their spread across its nominal flights
         ("events", EVENT_SETTINGS),
     ]
 )
@@ -275,12 +294,10 @@ CYLINDER_STATE = np.dtype(
         ("cht_rate_c_per_min", "f8"),
         ("detector_on", "?"),  # since the first initialisation
         ("on_s", "f8"),  # when: the engine's start for the regions, s
-        ("heat_rate", "f8"),  # the isolation filter's heat in / C_w and heat out / C_w, degC/s, low-passed as the
-        ("loss_rate", "f8"),  # estimator's deviation is (deviation_time_s): a fault from start's two patterns
-        ("start_sums", "f8", (5,)),  # start region, fed samples: count, sum of excess over the reference, of
-        ("air_sums", "f8", (5,)),  # heat_rate, of loss_rate, of the reference's margin (level - mean); the same
-        # at cruise and high power in the START_S after the start region (air_sums)
-        ("early_sums", "f8", (5,)),  # the start_sums of the start region's first half
+        ("sensitivity", "f8", (2,)),  # the open-loop reference's CHT per unit gamma_Q and gamma_D, degC
+        ("cold", "i8"),  # the cold start (COLD_START_LOSS_SHARE): COLD_BEFORE, COLD_HOLDS, COLD_OVER
+        ("fit_sums", "f8", (3, _FIT_SUMS)),  # per window (cold start, settle, flight) its least squares' sums
+        ("start_fit", "f8", (START_FIT_COUNT,)),  # the fits so far (START_FIT_NAMES; nan: not yet)
         ("detector", DETECTOR_STATE),
         ("cross", DETECTOR_STATE),
         ("nominal", DETECTOR_STATE),
@@ -310,6 +327,7 @@ CYLINDER_OUTPUT = np.dtype(
         ("fed", "f8"),  # what its detector was fed (nan: nothing)
         ("cross_fed", "f8"),
         ("region", "i8"),  # the operating region (estimation/regions.py; -1: not started)
+        ("start_fit", "f8", (START_FIT_COUNT,)),  # the start fits so far (calibrate learns their nominal spread)
     ]
 )
 #: The schedule and its counters.
@@ -603,11 +621,10 @@ def _stop_cylinder(st: Any) -> None:
     st["headroom_s"] = np.nan
     st["cht_rate_c_per_min"] = np.nan
     st["detector_on"] = False
-    st["heat_rate"] = 0.0
-    st["loss_rate"] = 0.0
-    st["start_sums"][:] = 0.0
-    st["air_sums"][:] = 0.0
-    st["early_sums"][:] = 0.0
+    st["sensitivity"][:] = 0.0
+    st["cold"] = COLD_BEFORE
+    st["fit_sums"][:] = 0.0
+    st["start_fit"][:] = np.nan
     _reset_detector(st["detector"])
     _reset_detector(st["cross"])
     _reset_detector(st["nominal"])
@@ -642,6 +659,7 @@ def _initialise_filters(eng: Engine, i: int, u: Any, time_s: float, reading: flo
     st["iso"][8] = cfg["iso_initial_gamma_var"]
     st["iso"][12] = cfg["iso_initial_gamma_var"]
     st["iso_drive"][:] = st["ref_drive"]
+    st["sensitivity"][:] = 0.0  # the reference starts afresh from the reading
     st["last_call_s"] = time_s
 
 
@@ -710,6 +728,7 @@ def cylinder_step(
         steps = round((time_s - st["last_call_s"]) / cfg["dt_s"])
         _drive_at(u, coeffs, drive)
         drive_fresh = True
+        _sensitivity_steps(st, coeffs, steps * cfg["dt_s"])
         _reference_steps(st["ref"], st["ref_drive"], drive, coeffs, cfg["dt_s"], steps)
         model_c = st["ref"][0]
     else:
@@ -734,7 +753,8 @@ def cylinder_step(
             gamma_q = st["iso"][1]
             gamma_d = st["iso"][2]
             iso_deviation = result[2]
-            _fault_rates(st, eng_iso_model[i], steps * cfg["dt_s"], cfg["deviation_time_s"])
+            if measured and st["detector_on"]:
+                _add_fit_sample(st, coeffs, z, time_s - st["on_s"], cfg["measurement_var"])
         st["last_call_s"] = time_s
     st["running"] = sv.running
     st["stale_since_s"] = sv.stale_since_s
@@ -790,8 +810,6 @@ def cylinder_step(
             if not math.isnan(level):
                 armed |= ARMED_REFERENCE
             verdict = max(verdict, detector_step(st["nominal"], cfg["nominal"], eng_rings[i, 2], time_s, fed - level))
-            mean = cfg["nominal_mean"][region]
-            _add_fault_sample(st, region, fed - mean, level - mean, time_s - st["on_s"])
         if code == CODE_NOMINAL:
             state = verdict
     if action == ACTION_NONE or not (
@@ -815,6 +833,7 @@ def cylinder_step(
     out["cross_fed"] = np.nan
     out["region"] = region
     out["detector_armed"] = armed
+    out["start_fit"][:] = st["start_fit"]
     gamma_q_sd = gamma_d_sd = np.nan
     isolable = False
     if st["running"] and math.isfinite(st["gamma_q"]):
@@ -822,7 +841,7 @@ def cylinder_step(
         gamma_q_sd = math.sqrt(max(iso[8], 0.0))
         gamma_d_sd = math.sqrt(max(iso[12], 0.0))
         declared = state == CODE_DEGRADED and region >= 0 and isolable_region(region)  # something to isolate, here
-        call = start_fault_call(st, cfg["start_margin"], time_s - st["on_s"]) if declared else START_CALL_UNTOLD
+        call = start_fault_call(st, cfg, time_s - st["on_s"]) if declared else START_CALL_UNTOLD
         if call == START_CALL_NOT_FROM_START:  # the filter's split, where it can be told
             product = gamma_q_sd * gamma_d_sd
             correlation = iso[9] / product if product > 0.0 else -1.0
@@ -854,118 +873,150 @@ START_CALL_LOSS = 3
 
 
 @njit(nogil=False)
-def _fault_rates(st: Any, model: Any, dt_s: float, time_s: float) -> None:
-    """After an isolation-filter call of ``dt_s`` (s): low-pass (time constant ``time_s``, the estimator's
-    deviation filter) the heat into the head and the heat out of it over C_w (degC/s) at the filter's state and
-    held drive. A gamma_Q fault adds (gamma_Q - 1) x the first to the symptom, a gamma_D fault (1 - 1/gamma_D)
-    x the second (docs/detection_isolation.md section 1)."""
-    iso = st["iso"]
-    drive = st["iso_drive"]
-    c_w = model[0]
-    heat = drive[4] * drive[1] * (iso[3] - drive[0]) / c_w
-    loss = dissipation(iso[0], drive[2], drive[3], model[2], model[3]) / c_w
-    a = 1.0 - math.exp(-dt_s / time_s) if time_s > 0.0 else 1.0
-    st["heat_rate"] += a * (heat - st["heat_rate"])
-    st["loss_rate"] += a * (loss - st["loss_rate"])
+def _sensitivity_steps(st: Any, coeffs: Any, dt_s: float) -> None:
+    """Before the open-loop reference's ``dt_s`` (s) with its held drive: its sensitivities to gamma_Q and gamma_D
+    (degC per unit gamma, at gamma = 1) over the same time, C_w ds/dt = u - D'(T) s with u the heat in (gamma_Q)
+    or the heat out D(T) (gamma_D), exact for u and D' held at the period's start; the cold start ends the first
+    time the loss's sensitivity exceeds COLD_START_LOSS_SHARE of the heat's, the heat's at least COLD_START_MIN_C
+    (its fit is then final); it begins once the heat's exceeds the loss's by that share (the engine heats the
+    head: not before it runs)."""
+    ref = st["ref"]
+    drive = st["ref_drive"]
+    c_w = coeffs.c_w
+    heat = drive[4] * drive[1] * (ref[2] - drive[0]) / c_w
+    lost = dissipation(complex(ref[0], _COMPLEX_STEP), drive[2], drive[3], coeffs.radiative_conductance,
+                       coeffs.radiation_offset_c)  # fmt: skip
+    rate = lost.imag / _COMPLEX_STEP / c_w
+    decay = math.exp(-rate * dt_s)
+    gain = (1.0 - decay) / rate if rate > 0.0 else dt_s
+    sens = st["sensitivity"]
+    sens[0] = sens[0] * decay + heat * gain
+    sens[1] = sens[1] * decay + lost.real / c_w * gain
+    if st["cold"] == COLD_BEFORE and sens[1] < COLD_START_LOSS_SHARE * sens[0]:
+        st["cold"] = COLD_HOLDS
+    elif st["cold"] == COLD_HOLDS and sens[0] >= COLD_START_MIN_C and sens[1] > COLD_START_LOSS_SHARE * sens[0]:
+        st["cold"] = COLD_OVER
 
 
 @njit(nogil=False)
-def _add_fault_sample(st: Any, region: int, excess: float, margin: float, elapsed_s: float) -> None:
-    """One fed sample's excess of the symptom over the reference's mean in its region (nan: none) and the
-    reference test's margin there (its level minus that mean; nan in the start region, not tested), ``elapsed_s``
-    after engine start, into the start region's sums or the airborne cruise/high-power ones (only the START_S
-    after the start region: a fault there from start is there then, a later onset is not), with the low-passed
-    heat and loss rates."""
-    if math.isnan(excess):
-        return
-    if region == REGION_START and elapsed_s < 0.5 * START_S:
-        _add_to(st["early_sums"], excess, margin, st)
-    if region == REGION_START:
-        sums = st["start_sums"]
-    elif isolable_region(region) and elapsed_s < 2.0 * START_S:
-        sums = st["air_sums"]
-    else:
-        return
-    _add_to(sums, excess, margin, st)
-
-
-@njit(nogil=False)
-def _add_to(sums: Any, excess: float, margin: float, st: Any) -> None:
+def _add_sums(sums: Any, x0: float, x1: float, x2: float, r: float) -> None:
+    """One sample into a window's sums: count, the products of its regressors x (upper triangle) and x times r."""
     sums[0] += 1.0
-    sums[1] += excess
-    sums[2] += st["heat_rate"]
-    sums[3] += st["loss_rate"]
-    sums[4] += margin
+    sums[1] += x0 * x0
+    sums[2] += x0 * x1
+    sums[3] += x0 * x2
+    sums[4] += x1 * x1
+    sums[5] += x1 * x2
+    sums[6] += x2 * x2
+    sums[7] += x0 * r
+    sums[8] += x1 * r
+    sums[9] += x2 * r
 
 
 @njit(nogil=False)
-def _pattern_misfit(e0: float, e1: float, e2: float, p0: float, p1: float, p2: float, s0: float, s1: float,
-                    s2: float) -> float:  # fmt: skip
-    """How badly the excesses e (degC/s: the start region's first half, its second half, the airborne window)
-    fit one fault's pattern p (the same places; excess = g x p, g >= 0 fitted), each with the nominal spread s:
-    the sum of the squared residuals in spreads (chi-square), the smaller of two readings: the fault there from
-    engine start (all three), and an onset within the start region (g fitted on the second half and the
-    airborne window; the first half then holds at most g x p0, and only an excess above that counts)."""
-    w0, w1, w2 = p0 / (s0 * s0), p1 / (s1 * s1), p2 / (s2 * s2)
-    weight = p0 * w0 + p1 * w1 + p2 * w2
-    g = max((e0 * w0 + e1 * w1 + e2 * w2) / weight, 0.0) if weight > 0.0 else 0.0
-    from_start = ((e0 - g * p0) / s0) ** 2 + ((e1 - g * p1) / s1) ** 2 + ((e2 - g * p2) / s2) ** 2
-    weight = p1 * w1 + p2 * w2
-    g = max((e1 * w1 + e2 * w2) / weight, 0.0) if weight > 0.0 else 0.0
-    onset = max((e0 - g * p0) / s0, 0.0) ** 2 + ((e1 - g * p1) / s1) ** 2 + ((e2 - g * p2) / s2) ** 2
-    return min(from_start, onset)
+def _fit2(sums: Any, noise_var: float) -> tuple[float, float, float]:
+    """A window's least squares of r on x0 and x1: x0's factor for r, the same for x2 taken as r (what a fault in
+    x2 would read as), and the factor's standard error for white noise of ``noise_var``; nan with fewer than 3
+    samples or x0, x1 not independent."""
+    det = sums[1] * sums[4] - sums[2] * sums[2]
+    if sums[0] < 3.0 or not det > 1e-12 * sums[1] * sums[4]:
+        return np.nan, np.nan, np.nan
+    value = (sums[4] * sums[7] - sums[2] * sums[8]) / det
+    other = (sums[4] * sums[3] - sums[2] * sums[5]) / det
+    return value, other, math.sqrt(noise_var * sums[4] / det)
 
 
 @njit(nogil=False)
-def start_fault_call(st: Any, start_margin: float, elapsed_s: float) -> int:
-    """The cause of a fault present from engine start, ``elapsed_s`` (s) after engine start, from the regions'
-    excess symptoms over the reference: START_CALL_HEAT (gamma_Q), START_CALL_LOSS (gamma_D), START_CALL_UNTOLD
-    (present from start, or maybe, but the two causes fit within NOMINAL_SPREAD_Z spreads of each other), or
-    START_CALL_NOT_FROM_START (the isolation filter's split holds: a fault that began after the start region).
+def _product_fit(sums: Any, noise_var: float) -> tuple[float, float]:
+    """The flight window's least squares of r on (s_Q, s_D, probe lag): the sum of the two gammas' factors (the
+    product's excess, gamma_Q gamma_D - 1 to first order) and its standard error for white noise of ``noise_var``."""
+    a, b, c, d, e, f = sums[1], sums[2], sums[3], sums[4], sums[5], sums[6]
+    c11, c12, c13 = d * f - e * e, c * e - b * f, b * e - c * d  # the cofactors of the symmetric 3 x 3 matrix
+    c22, c23 = a * f - c * c, b * c - a * e
+    det = a * c11 + b * c12 + c * c13
+    if sums[0] < 4.0 or not det > 1e-12 * a * d * f:
+        return np.nan, np.nan
+    value = ((c11 + c12) * sums[7] + (c12 + c22) * sums[8] + (c13 + c23) * sums[9]) / det
+    return value, math.sqrt(max(noise_var * (c11 + 2.0 * c12 + c22) / det, 0.0))
 
-    Not from start without a reference at the start (``start_margin`` nan; else NOMINAL_SPREAD_Z spreads of the
-    nominal flights' start means). Untold until the airborne window (the START_S after the start region) has
-    ended. Then: not from start when nothing airborne was seen in that window or its excess is not above the
-    reference test's margin there (the fault is not there airborne). With the start region's mean excess not
-    above ``start_margin``: not from start when neither pattern fits (a later onset), else untold (a small
-    fault from start and a later onset look alike; the filter's split leans to gamma_D on a fault from
-    start). Above it, the fault was there at the start: untold when neither pattern fits.
 
-    A gamma_Q fault's excess symptom follows the heat into the head, a gamma_D fault's the heat out of it
-    (docs/detection_isolation.md section 1). At the start the head is cold: the heat out is a smaller part of
-    the heat in than airborne. The three excesses (the start region's halves and the airborne window) are
-    fitted to each pattern with the nominal spreads (the start's split evenly between its halves, the
-    airborne regions' as the reference test has them: ``start_margin`` and the sums' margins over
-    NOMINAL_SPREAD_Z), each pattern allowed an onset within the start region (:func:`_pattern_misfit`); a
-    cause is named when the other pattern fits worse by NOMINAL_SPREAD_Z squared (a likelihood ratio of
-    exp(NOMINAL_SPREAD_Z^2 / 2)); neither fits when the better one misses by more than that per degree of
-    freedom (two)."""
-    start = st["start_sums"]
-    air = st["air_sums"]
-    if math.isnan(start_margin) or start[0] < 1.0:
+@njit(nogil=False)
+def _add_fit_sample(st: Any, coeffs: Any, reading: float, elapsed_s: float, noise_var: float) -> None:
+    """One reading fed to the filters (the supervisor let it through), ``elapsed_s`` after engine start, into the
+    start fits' windows: its residual over the open-loop reference against the reference's sensitivities and its
+    rate (the probe lag's regressor: a lagging probe reads T - lag dT/dt). The cold start fits (s_Q, lag), the
+    settle (from the cold start's end to SETTLE_END_S) fits (s_D, lag), the flight after the start region (from
+    START_S: a fault that began in the first minutes is there in full by then) fits (s_Q, s_D, lag);
+    ``start_fit`` holds each fit once its window has closed (the flight's: so far)."""
+    ref = st["ref"]
+    drive = st["ref_drive"]
+    rate, _ = derivatives(ref[0], ref[2], drive[0], drive[4] * drive[1], drive[2], drive[3], coeffs.c_w,
+                          coeffs.tau_w, coeffs.radiative_conductance, coeffs.radiation_offset_c, 1.0, 1.0)  # fmt: skip
+    lag = -rate
+    residual = reading - ref[0]
+    s_q = st["sensitivity"][0]
+    s_d = st["sensitivity"][1]
+    sums = st["fit_sums"]
+    fit = st["start_fit"]
+    if st["cold"] == COLD_HOLDS:
+        _add_sums(sums[_FIT_COLD], s_q, lag, s_d, residual)
+    elif st["cold"] == COLD_OVER:
+        if math.isnan(fit[_FIT_COLD]):
+            fit[_FIT_COLD] = _fit2(sums[_FIT_COLD], noise_var)[0]
+        if elapsed_s < SETTLE_END_S:
+            _add_sums(sums[_FIT_SETTLE], s_d, lag, s_q, residual)
+        elif math.isnan(fit[_FIT_SETTLE]):
+            fit[_FIT_SETTLE] = _fit2(sums[_FIT_SETTLE], noise_var)[0]
+    if elapsed_s >= START_S:
+        _add_sums(sums[_FIT_FLIGHT], s_q, s_d, lag, residual)
+        fit[_FIT_FLIGHT] = _product_fit(sums[_FIT_FLIGHT], noise_var)[0]
+
+
+@njit(nogil=False)
+def start_fault_call(st: Any, cfg: Any, elapsed_s: float) -> int:
+    """The cause of a fault present from engine start, ``elapsed_s`` (s) after engine start, from the start fits
+    (the open-loop residual against the model's sensitivities to gamma_Q and gamma_D, :func:`_add_fit_sample`)
+    measured against their nominal mean and spread (``cfg``'s start_fit_mean and start_fit_spread, learned by
+    calibrate; each spread widened by the fit's own standard error for the reading noise): START_CALL_HEAT
+    (gamma_Q), START_CALL_LOSS (gamma_D), START_CALL_UNTOLD (not told apart), or START_CALL_NOT_FROM_START (the
+    isolation filter's split holds: nothing at the start, a later onset; also without a reference).
+
+    Untold until the settle window has closed (SETTLE_END_S). In the cold start the head is near the air: a heat
+    fault g (the flight's product excess) reads as g on the heat's factor, a dissipation fault as k g (k: what a
+    unit loss fault reads as there, small). A cause is named when the other's prediction misses by
+    NOMINAL_SPREAD_Z^2 more in chi-square (a likelihood ratio of exp(NOMINAL_SPREAD_Z^2 / 2)) and its own
+    prediction is not missed by more than NOMINAL_SPREAD_Z spreads (for gamma_Q: from below; a cold start above
+    it is more heat, not another cause); gamma_D only when, besides, the settle (after the cold start) carries the
+    fault in full (an onset after the cold start would not). Not from start when neither the cold start nor the
+    settle is above NOMINAL_SPREAD_Z spreads."""
+    mean = cfg["start_fit_mean"]
+    spread = cfg["start_fit_spread"]
+    if not (spread[0] >= 0.0 and spread[1] >= 0.0 and spread[2] >= 0.0):
         return START_CALL_NOT_FROM_START
-    if elapsed_s < 2.0 * START_S:  # the airborne window is still filling: from start or not is not known yet
+    if elapsed_s < SETTLE_END_S:
         return START_CALL_UNTOLD
-    early = st["early_sums"]
-    late = start - early
-    if air[0] < 1.0 or not (air[1] > 0.0 and air[1] > air[4]) or early[0] < 1.0 or late[0] < 1.0:
+    sums = st["fit_sums"]
+    noise_var = cfg["measurement_var"]
+    heat_excess, loss_share, heat_se = _fit2(sums[_FIT_COLD], noise_var)
+    settle, _, settle_se = _fit2(sums[_FIT_SETTLE], noise_var)
+    product, product_se = _product_fit(sums[_FIT_FLIGHT], noise_var)
+    if not (math.isfinite(heat_excess) and math.isfinite(loss_share) and math.isfinite(settle)
+            and math.isfinite(product)):  # fmt: skip
+        return START_CALL_UNTOLD
+    a = heat_excess - mean[_FIT_COLD]
+    c = settle - mean[_FIT_SETTLE]
+    g = product - mean[_FIT_FLIGHT]
+    var_a = spread[_FIT_COLD] ** 2 + heat_se**2
+    var_c = spread[_FIT_SETTLE] ** 2 + settle_se**2
+    var_g = spread[_FIT_FLIGHT] ** 2 + product_se**2
+    bound = NOMINAL_SPREAD_Z * NOMINAL_SPREAD_Z
+    if a * a <= bound * var_a and c * c <= bound * var_c:
         return START_CALL_NOT_FROM_START
-    half_spread = start_margin / NOMINAL_SPREAD_Z * math.sqrt(2.0)
-    air_spread = air[4] / air[0] / NOMINAL_SPREAD_Z
-    e0, e1, e2 = early[1] / early[0], late[1] / late[0], air[1] / air[0]
-    heat = _pattern_misfit(e0, e1, e2, early[2] / early[0], late[2] / late[0], air[2] / air[0], half_spread,
-                           half_spread, air_spread)  # fmt: skip
-    loss = _pattern_misfit(e0, e1, e2, early[3] / early[0], late[3] / late[0], air[3] / air[0], half_spread,
-                           half_spread, air_spread)  # fmt: skip
-    evidence = NOMINAL_SPREAD_Z * NOMINAL_SPREAD_Z
-    fits = min(heat, loss) <= 2.0 * evidence
-    if not start[1] / start[0] > start_margin:  # the start within its spread: a later onset, or a small fault
-        return START_CALL_UNTOLD if fits else START_CALL_NOT_FROM_START
-    if not fits:  # there at the start, and airborne, in neither pattern: nothing to name it by
-        return START_CALL_UNTOLD
-    if loss - heat >= evidence:
+    heat = (a - g) ** 2 / (var_a + var_g)
+    loss = (a - loss_share * g) ** 2 / (var_a + loss_share * loss_share * var_g)
+    if loss - heat >= bound and (a >= g or heat <= bound):
         return START_CALL_HEAT
-    if heat - loss >= evidence:
+    if heat - loss >= bound and loss <= bound and (c - g) ** 2 / (var_c + var_g) <= bound:
         return START_CALL_LOSS
     return START_CALL_UNTOLD
 

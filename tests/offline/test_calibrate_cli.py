@@ -34,7 +34,8 @@ from virtual_bus.random_missions import random_mission
 SEEDS = (11, 12)
 
 #: The detector keys of a calibration without an engine reference (too few flights): written off.
-NO_REFERENCE = {"nominal_threshold": 0.0, "nominal_mean": (), "nominal_spread": ()}
+NO_REFERENCE = {"nominal_threshold": 0.0, "nominal_mean": (), "nominal_spread": (), "start_fit_mean": (),
+                "start_fit_spread": ()}  # fmt: skip
 
 
 @pytest.fixture(scope="module")

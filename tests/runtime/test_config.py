@@ -251,7 +251,7 @@ SCHEMA_ERRORS: list[tuple[str, Callable[[dict[str, Any]], None], str]] = [
         _set("cylinders", {"cross_detector": {"treshold": 1.0}}),
         "cylinders.cross_detector.treshold: unknown key 'treshold' (known: calibrated_for, threshold, reference,"
         " warmup_s, suspect_fraction, block_s, baseline_s, baseline_delay_s, baseline_freeze, scale_s, scale_floor,"
-        " nominal_threshold, nominal_mean, nominal_spread)",
+        " nominal_threshold, nominal_mean, nominal_spread, start_fit_mean, start_fit_spread)",
     ),
     ("wrong type", _set("detector.threshold", "abc"), "detector.threshold: expected a number, got str 'abc'"),
     ("wrong type in a list", _set("dbc", ["engine.dbc", 3]), "dbc[1]: expected a file path, got int 3"),
