@@ -56,9 +56,8 @@ def njit(*, fastmath: frozenset[str] | bool = False, nogil: bool = True, inline:
     flags (:data:`SWARM_FASTMATH`); the building blocks numba inlines into the function get its flags.
     ``nogil=False`` for the live path's short calls (tens of microseconds): releasing the GIL around them
     lets another thread take it, and getting it back can then wait for that thread (up to the
-    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain. The step's
-    entry point, ``replay_loop``, releases it: a replay's health.csv writer thread runs beside it, and
-    live the daemon's other threads are idle nearly always (``benchmarks/bench_latency.py`` measures it).
+    interpreter's 5 ms switch interval), which is latency on the bus thread for no gain (a whole log's
+    replay calls the step through a wrapper that releases it: ``step.replay_loop_released``).
     ``inline``: numba inlines the function into its compiled callers (no call, no argument copies)."""
     flags: Any = set(fastmath) if isinstance(fastmath, frozenset) else fastmath
     more: dict[str, Any] = {"inline": "always"} if inline else {}

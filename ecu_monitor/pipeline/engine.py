@@ -604,7 +604,7 @@ class Pipeline:
         count = len(self.cylinder_params)
         rows = _rows(steps // self._row_period + 16, count)
         kept = _traces(steps + 16 if traces else 0, count)
-        loop = self._compiled().replay_loop
+        loop = self._compiled().replay_loop_released
         start = done = 0
         while start < n_frames:
             limit = rows.k.size if on_rows is None else min(rows.k.size, done + ROW_BLOCK)

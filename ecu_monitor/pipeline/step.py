@@ -1515,15 +1515,15 @@ def feed_values(eng: Engine, slots: Any, values: Any, count: int) -> None:
                 eng_state[i]["readings"] += 1
 
 
-@njit(nogil=True)
+@njit(nogil=False)
 def replay_loop(
     eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
 ) -> int:
     """The loop over frames, live (a frame at a time) and replay (a whole log): for each frame from
     ``start``, :func:`advance_to` its time then :func:`feed_values` its decoded values
     (``slots[first_value[f]:first_value[f + 1]]``). Returns the frame to resume from when ``rows`` filled
-    up, or the frame count when done. Runs without the GIL: in replay, health.csv's writer thread formats
-    the rows already written meanwhile; live, the daemon's other threads are idle nearly always."""
+    up, or the frame count when done. Holds the GIL (the live path's short calls); a whole log's replay
+    runs it through :func:`replay_loop_released`."""
     eng, rows, traces = borrowed(eng), borrowed(rows), borrowed(traces)
     n = frame_time_s.shape[0]
     for f in range(start, n):
@@ -1534,17 +1534,27 @@ def replay_loop(
     return n
 
 
+@njit(nogil=True)
+def replay_loop_released(
+    eng: Engine, rows: Rows, traces: Traces, frame_time_s: Any, first_value: Any, slots: Any, values: Any, start: int
+) -> int:
+    """:func:`replay_loop` with the GIL released, for a whole log: health.csv's writer thread formats the rows
+    already written meanwhile."""
+    return replay_loop(eng, rows, traces, frame_time_s, first_value, slots, values, start)
+
+
 # ------------------------------------------------------------------------------------------------ compiling
 
 
 def compiled() -> Any:
     """The step's compiled entry points (each function here carries ``@njit``; numba compiles it on first
-    call or loads it from the disk cache): a namespace with ``replay_loop``, ``headroom_s``,
+    call or loads it from the disk cache): a namespace with ``replay_loop``, ``replay_loop_released``, ``headroom_s``,
     ``detector_step``, ``stop_cylinder``, ``close_events``."""
     from types import SimpleNamespace
 
     return SimpleNamespace(
         replay_loop=replay_loop,
+        replay_loop_released=replay_loop_released,
         headroom_s=headroom_s,
         detector_step=detector_step,
         stop_cylinder=_stop_cylinder,
