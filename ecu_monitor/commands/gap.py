@@ -264,8 +264,8 @@ def _identify(flights: list[FlightLog], axes: tuple[str, str], label: str) -> Th
 
 
 def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> tuple[list[ThermalParams], ThermalParams]:
-    """For each flight, the nominal model identified on the others, and the one on every flight (PSO; the
-    swarms on every core at once, :func:`ecu_monitor.gap.folds.swarm_nominals`).
+    """For each flight, the nominal model identified on the others (PSO; the swarms on every core at once),
+    and the one on every flight (the first fold's polished on all: :func:`ecu_monitor.gap.folds.swarm_nominals`).
 
     Not warm-started from the fit on every flight (:func:`ecu_monitor.gap.folds.fold_nominals`): on the
     real N550ND flights that saved no CPU (the joint refits dominate) and moved the held-out baselines
@@ -273,7 +273,7 @@ def _fold_nominals(trains: list[FlightLog], axes: tuple[str, str]) -> tuple[list
     from ecu_monitor.gap.folds import swarm_nominals
     from ecu_monitor.identify import PsoSettings
 
-    _say(f"no --model: one nominal model per held-out flight and one on all (PSO, heat axes {','.join(axes)})")
+    _say(f"no --model: one nominal model per held-out flight (PSO, heat axes {','.join(axes)}), then one on all")
     return swarm_nominals(trains, axes, PsoSettings(), progress=_say)
 
 

@@ -40,11 +40,13 @@ from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnosis import (
     JOINT_REFIT,
     PAIR_POLISH_EVALUATIONS,
+    SCREEN_POLISH_EVALUATIONS,
     EffectScore,
     GapDiagnosis,
     GapSettings,
     HeldOutFlight,
     rms_of,
+    shrink_percent,
 )
 from ecu_monitor.gap.folds import fold_nominals
 from ecu_monitor.gap.localise import (
@@ -160,7 +162,11 @@ def cross_validate(
     """Leave-one-flight-out diagnosis: for each flight k, every candidate refitted on the other
     flights from ``nominals[k]`` (a nominal model that has not seen flight k) and scored on flight k;
     the scores and the significance test pooled over all the held-out flights (flights and blocks
-    resampled). The winner is then refitted on all the flights from ``final_nominal`` for model.yaml."""
+    resampled). The winner is then refitted on all the flights from ``final_nominal`` for model.yaml.
+
+    First the screen (``settings.screen_min_shrink_pct``, :class:`GapSettings`): every candidate fitted once on
+    all the flights from ``final_nominal``; the folds refit only those that shrink its control's train RMS by
+    the screen's bar."""
     settings = settings or GapSettings()
     logs = _as_logs(logs, "train")
     if len(logs) < 2 or len(nominals) != len(logs):
@@ -173,7 +179,38 @@ def cross_validate(
         others = tuple(f for i, f in enumerate(prepared) if i != k)
         references = _references([log for i, log in enumerate(logs) if i != k], settings)
         folds.append(RefitFold(nominal, others, references, (k,)))
-    return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress, None)
+    screen = (
+        _screen(prepared, logs, final_nominal, settings, progress) if settings.screen_min_shrink_pct is not None else {}
+    )
+    return _diagnose(folds, prepared, logs, list(nominals), final_nominal, settings, progress, None, screen)
+
+
+def _screen(
+    prepared: tuple[PreparedFlight, ...],
+    logs: Sequence[FlightLog],
+    nominal: ThermalParams,
+    settings: GapSettings,
+    progress: Progress | None,
+) -> dict[str, float]:
+    """Each candidate's train RMS shrink (%) against the control, both fitted once on every flight from
+    ``nominal`` (the polish capped at :data:`SCREEN_POLISH_EVALUATIONS`; every core)."""
+    say = progress or (lambda message: None)
+    bar = settings.screen_min_shrink_pct
+    say(
+        f"screen: every candidate fitted once on all {len(logs)} flights; the folds refit those that shrink"
+        f" the control's train RMS by {bar:g} % or more"
+    )
+    polish = min(settings.pso.polish_evaluations, SCREEN_POLISH_EVALUATIONS)
+    capped = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, polish_evaluations=polish))
+    work = _FitWork((RefitFold(nominal, prepared, _references(logs, settings), ()),), capped)
+    tasks = [(0, ids, None) for ids in [(), *((cid,) for cid in settings.candidates)]]
+    control, *fits = run_tasks(_fit_task, work, tasks, "screen fits", say)
+    shrink = {
+        cid: shrink_percent(control.train_rms_c, fit.train_rms_c)
+        for cid, fit in zip(settings.candidates, fits, strict=True)
+    }
+    say("screen: " + ", ".join(f"{cid} {pct:.0f} %" for cid, pct in shrink.items()))
+    return shrink
 
 
 def _train_cost(fits: Sequence[FitResult]) -> float:
@@ -250,6 +287,7 @@ def _diagnose(
     settings: GapSettings,
     progress: Progress | None,
     chosen_by: GapDiagnosis | None,
+    screen: dict[str, float] | None = None,
 ) -> GapDiagnosis:
     say = progress or (lambda message: None)
     engine = settings.refit.engine
@@ -300,7 +338,9 @@ def _diagnose(
     if chosen_by is not None:
         control, effects, winner = _score_chosen(chosen_by, fit_batch, score, settings)
     else:
-        control, effects, winner = _search(folds, tests, fit_batch, score, settings, say)
+        bar = settings.screen_min_shrink_pct
+        tried = tuple(c for c in settings.candidates if not (screen and bar is not None and screen[c] < bar))
+        control, effects, winner = _search(folds, tests, fit_batch, score, settings, say, tried)
     if winner is not None:
         gain = segment_gain_shares(control.test_residual, winner.test_residual, labels)
         winner_segment = max(gain, key=lambda k: gain[k])
@@ -337,6 +377,7 @@ def _diagnose(
         references=references,
         folds=len(folds),
         chosen_by=chosen_by,
+        screen=dict(screen or {}),
     )
 
 
@@ -347,35 +388,41 @@ def _search(
     score: Callable[..., EffectScore],
     settings: GapSettings,
     say: Progress,
+    tried: tuple[str, ...],
 ) -> tuple[EffectScore, list[EffectScore], EffectScore | None]:
-    """The control, every single candidate and the pairs (module doc, step 3): (control, effects sorted
-    by test RMS, winner or None)."""
+    """The control, every single candidate of ``tried`` (the candidates past the screen, or all) and the
+    pairs (module doc, step 3): (control, effects sorted by test RMS, winner or None). The family-wise
+    alpha is spread over every candidate of the settings, tried or not."""
     engine = settings.refit.engine
     fold_note = f", {len(folds)} folds" if len(folds) > 1 else ""
     say(
         f"refit: the control (nominal with R_Ce and heat scale re-tuned on the train flights{fold_note}) and"
-        f" {', '.join(settings.candidates)}"
+        f" {', '.join(tried) or 'no candidate'}"
     )
-    control_fits, *single_fits = fit_batch("refits", [(), *((cid,) for cid in settings.candidates)])
+    control_fits, *single_fits = fit_batch("refits", [(), *((cid,) for cid in tried)])
     control = score(control_fits, "control", None, 1, settings.significance)
     n_tests = len(settings.candidates)
-    shares = train_led_shares([_train_cost(fits) for fits in single_fits])
+    costs = dict(zip(tried, (_train_cost(fits) for fits in single_fits), strict=True))
+    shares = dict(
+        zip(settings.candidates, train_led_shares([costs.get(c, math.inf) for c in settings.candidates]), strict=True)
+    )
     singles = [
-        score(fits, "single", control, 1.0 / share, settings.significance)
-        for fits, share in zip(single_fits, shares, strict=True)
+        score(fits, "single", control, 1.0 / shares[cid], settings.significance)
+        for cid, fits in zip(tried, single_fits, strict=True)
     ]
     counting = [s for s in singles if s.counts]
     winner = min(counting, key=lambda s: s.test_rms_c) if counting else None
     lead = winner if winner is not None else _material_lead(singles)
     pairs: list[EffectScore] = []
-    if lead is not None and settings.try_pairs and lead.test_rms_c > settings.pair_threshold_c:
-        first = lead.fit.ids[0]
-        others = [cid for cid in settings.candidates if cid != first]
+    first = lead.fit.ids[0] if lead is not None else ""
+    others = [cid for cid in tried if cid != first]
+    if lead is not None and others and settings.try_pairs and lead.test_rms_c > settings.pair_threshold_c:
+        n_others = len(settings.candidates) - 1  # the family, as for the singles
         pair_test = dataclasses.replace(settings.significance, min_shrink_pct=settings.pair_min_shrink_pct)
         # a counting single: a pair must beat it; none counts: a pair must beat the control, the
         # family-wise alpha then spread over the singles and the pairs
         reference, role, n_pair_tests = (
-            (winner, "pair", len(others)) if winner is not None else (control, "pair_vs_control", n_tests + len(others))
+            (winner, "pair", n_others) if winner is not None else (control, "pair_vs_control", n_tests + n_others)
         )
         say(f"refit: pairs {first}+ {', '.join(others)}")
         # re-identified from the lead's own fit on each fold (the same flights, nothing held out in it):

@@ -38,6 +38,9 @@ JOINT_REFIT = PsoSettings(particles=4, iterations=0)
 #: out; from the nominal after 100: 3.30 and 3.56. The singles keep the whole polish: after 30
 #: evaluations airspeed_cooling's held-out RMS on 1836 (leave-one-out) was 10.39 degC against 8.64.
 PAIR_POLISH_EVALUATIONS = 30
+#: The polish budget of the leave-one-out's screen (each candidate fitted once on every flight, from the
+#: nominal model on every flight): its train RMS only decides which candidates the folds refit.
+SCREEN_POLISH_EVALUATIONS = 30
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,12 @@ class GapSettings:
     the verdict is chosen by a leave-one-flight-out diagnosis over the train flights alone, then refitted
     on all of them and scored on the test flights: the choice never depends on the test flights, which
     only measure it. Off by default: on the four N550ND folds it did not carry better than the choice on the
-    test flights (docs/results/gap_real.md) and costs a leave-one-out."""
+    test flights (docs/results/gap_real.md) and costs a leave-one-out.
+
+    A leave-one-out first screens the candidates (``screen_min_shrink_pct``, None: no screen): each is fitted
+    once on every flight (the polish capped at :data:`SCREEN_POLISH_EVALUATIONS`), and only those that shrink
+    that fit's control train RMS by at least this percentage are refitted in every fold. The screen sees
+    every flight, so it buys no power: the family-wise alpha stays spread over every candidate."""
 
     candidates: tuple[str, ...] = DEFAULT_CANDIDATE_IDS
     refit: RefitSettings = field(default_factory=RefitSettings)
@@ -75,6 +83,7 @@ class GapSettings:
     refit_mode: str = "local"
     pso: PsoSettings = field(default_factory=lambda: JOINT_REFIT)
     choose_on_train_from: int = 0
+    screen_min_shrink_pct: float | None = 10.0
 
     def __post_init__(self) -> None:
         for cid in self.candidates:
@@ -84,6 +93,13 @@ class GapSettings:
         if not (isinstance(self.choose_on_train_from, int) and self.choose_on_train_from >= 0):
             raise ParameterError(
                 f"gap choose_on_train_from: expected a number of flights >= 0, got {self.choose_on_train_from!r}"
+            )
+        if self.screen_min_shrink_pct is not None and not (
+            isinstance(self.screen_min_shrink_pct, int | float) and 0.0 <= self.screen_min_shrink_pct < 100.0
+        ):
+            raise ParameterError(
+                "gap screen_min_shrink_pct: expected a percentage in [0, 100) or None,"
+                f" got {self.screen_min_shrink_pct!r}"
             )
         if self.refit_mode not in ("local", "reidentify"):
             raise ParameterError(f"gap refit mode: expected 'local' or 'reidentify', got {self.refit_mode!r}")
@@ -173,6 +189,14 @@ class GapDiagnosis:
     references: dict[str, float]
     folds: int = 1  # > 1: leave-one-flight-out (each test flight scored by refits on the others)
     chosen_by: GapDiagnosis | None = None  # the leave-one-flight-out over the train flights that chose the verdict
+    # leave-one-out: each candidate's train RMS shrink (%) vs the control, both fitted once on every flight
+    screen: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def screened_out(self) -> tuple[str, ...]:
+        """The candidates the leave-one-out's screen kept out of the folds (under the screen's bar)."""
+        bar = self.settings.screen_min_shrink_pct
+        return tuple(cid for cid, pct in self.screen.items() if bar is not None and pct < bar)
 
     @property
     def train(self) -> PreparedFlight:

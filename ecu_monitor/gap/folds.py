@@ -3,11 +3,12 @@ every flight.
 
 A leave-one-out without ``--model`` needs, for each flight k, a nominal model that has not seen flight
 k. ``gap --leave-one-out`` gives each fold its own swarm on the other flights (:func:`swarm_nominals`,
-every swarm and the one on all the flights at once on every core). The inner leave-one-out of ``gap
---choose-on-train`` warm-starts them instead (:func:`fold_nominals`): the swarm runs once, on every
-flight, and each fold's nominal model is that fit re-identified on the fold's own flights by the joint
-least squares the candidate refits use (:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start
-polished over the whole search space).
+the swarms at once on every core); the model on every flight, which no held-out figure uses (model.yaml,
+the train baseline), is the first fold's re-identified on all of them by the joint least squares. The
+inner leave-one-out of ``gap --choose-on-train`` warm-starts the folds instead (:func:`fold_nominals`):
+the swarm runs once, on every flight, and each fold's nominal model is that fit re-identified on the
+fold's own flights by the joint least squares the candidate refits use
+(:data:`ecu_monitor.gap.diagnosis.JOINT_REFIT`: the warm start polished over the whole search space).
 
 What the warm start knows of flight k is taken out first: the heat-map breakpoints the fold's flights
 do not visit (under ``MIN_VISIT_S`` of bilinear weight) would keep values fitted to flight k alone, so
@@ -20,11 +21,12 @@ among candidates, not a held-out figure to report.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ecu_monitor.flightlog import FlightLog
+from ecu_monitor.gap.diagnosis import JOINT_REFIT
 from ecu_monitor.identify import identify
 from ecu_monitor.identify.heat_grid import visited_weight_s
 from ecu_monitor.identify.parallel import run_tasks
@@ -100,11 +102,11 @@ def swarm_nominals(
     progress: Callable[[str], None] | None = None,
 ) -> tuple[list[ThermalParams], ThermalParams]:
     """For each flight k the nominal model identified by its own swarm on the others (nothing of flight k
-    in it), and the one identified on every flight: all the swarms at once on every core, the longest (every
-    flight) first so that it never runs alone at the end."""
+    in it; all the swarms at once on every core), and the model on every flight: the first fold's
+    re-identified on all of them by the joint least squares (:data:`JOINT_REFIT`: a polish, not a swarm; it
+    serves model.yaml and the train baseline, never a held-out figure)."""
     work = _SwarmWork(tuple(logs), heat_axes, pso)
-    n = len(logs)
-    fits = run_tasks(
-        _swarm_task, work, [n, *range(n)], "nominal models (one swarm per fold, one on every flight)", progress
-    )
-    return fits[1:], fits[0]
+    folds = run_tasks(_swarm_task, work, range(len(logs)), "nominal models (one swarm per fold)", progress)
+    joint = replace(JOINT_REFIT, dt_s=pso.dt_s, seed=pso.seed)
+    every = identify(list(logs), base=folds[0], heat_axes=heat_axes, settings=joint).params
+    return folds, every

@@ -158,6 +158,7 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
                 "min_shrink_pct": diag.settings.significance.min_shrink_pct,
                 "min_rms_drop_c": diag.settings.significance.min_rms_drop_c,
             },
+            "screen": _screen_entry(diag),
             "flights": {
                 "train": [f.log.source for f in diag.trains],
                 "test": [t.name for t in diag.tests],
@@ -177,6 +178,20 @@ def gap_json(diag: GapDiagnosis) -> dict[str, Any]:
     )
 
 
+def _screen_entry(diag: GapDiagnosis) -> dict[str, Any] | None:
+    """The leave-one-out's screen: each candidate's train RMS shrink vs the control, both fitted once on every
+    flight, the bar, and the candidates it kept out of the folds (None: no screen)."""
+    if not diag.screen:
+        return None
+    return {
+        "rule": "fitted once on every flight; the folds refit a candidate only if it shrinks the control's train RMS"
+        " by min_shrink_pct",
+        "min_shrink_pct": diag.settings.screen_min_shrink_pct,
+        "train_shrink_pct": diag.screen,
+        "not_refitted": list(diag.screened_out),
+    }
+
+
 def _chosen_by_entry(diag: GapDiagnosis) -> dict[str, Any] | None:
     """With enough train flights: the leave-one-flight-out over them that chose the verdict (what it
     named, its pooled held-out shrink over the train flights, each candidate's pooled held-out RMS)."""
@@ -193,6 +208,7 @@ def _chosen_by_entry(diag: GapDiagnosis) -> dict[str, Any] | None:
             {"id": s.label, "held_out_rms_c": s.test_rms_c, "shrink_pct": s.shrink_pct, "significant": s.counts}
             for s in inner.effects
         ],
+        "screen": _screen_entry(inner),
     }
 
 
@@ -520,6 +536,15 @@ def _markdown(diag: GapDiagnosis, doc: dict[str, Any], command: str | None) -> s
             f"{f' / {v.level:.2g}' if v else ''} | "
             f"{'yes' if score.counts else 'no'} | {_params_text(score)} |"
         )
+    if diag.screened_out:
+        bar = diag.settings.screen_min_shrink_pct
+        lines += [
+            "",
+            f"Not refitted in the folds (the screen: fitted once on every flight, under {bar:g} % train RMS shrink"
+            " against the control there): "
+            + ", ".join(f"{cid} {diag.screen[cid]:.0f} %" for cid in diag.screened_out)
+            + ".",
+        ]
     lines += ["", "## Plots", ""]
     for name in PLOT_FILES:
         lines.append(f"![{name}]({name})")

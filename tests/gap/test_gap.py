@@ -348,3 +348,35 @@ def test_the_gap_reads_the_mixture_index_the_model_carries(tmp_path: Path) -> No
     log = FlightLog(columns, source="rise")
     diag = diagnose(nominal, log, log, GapSettings(candidates=("sensor_lag",), whiteness_estimator=None))
     assert write_report(diag, tmp_path / "out")["baseline"]["test_rms_c"] < 0.05
+
+
+def test_the_leave_one_out_refits_in_its_folds_only_the_candidates_past_the_screen() -> None:
+    """Issue 28: each candidate is fitted once on every flight; those under the screen's bar are not refitted
+    in the folds, and the verdict and the test levels of those that are equal the unscreened run's."""
+    from ecu_monitor.gap import cross_validate
+
+    case = blind_case(3, BLIND_SEED, SCHEMA_DURATION_S)  # sensor lag
+    truth = paper_table_a1().replace(effects=case.effects)
+    third = fly(random_mission(11, SCHEMA_DURATION_S), truth, seed=11, record_dt_s=1.0)
+    logs = [case.train, case.test, third]
+    ids = ("sensor_lag", "density_cooling", "mixture_cooling")
+    screened = GapSettings(candidates=ids, whiteness_estimator=None)
+    diag = cross_validate([case.nominal] * 3, logs, case.nominal, screened)
+    everything = cross_validate(
+        [case.nominal] * 3,
+        logs,
+        case.nominal,
+        GapSettings(candidates=ids, whiteness_estimator=None, screen_min_shrink_pct=None),
+    )
+    assert set(diag.screen) == set(ids) and diag.screen["sensor_lag"] >= 10.0
+    assert diag.screened_out and set(diag.screened_out) == {c for c, pct in diag.screen.items() if pct < 10.0}
+    tried = {s.label for s in diag.effects}
+    assert tried.isdisjoint(diag.screened_out) and not everything.screen
+    assert diag.verdict_ids == everything.verdict_ids == ("sensor_lag",)
+    mine = {s.label: s for s in diag.effects}
+    for s in everything.effects:
+        if s.label in mine:  # the same fold fits, the same level: the screen buys no power
+            assert mine[s.label].test_rms_c == pytest.approx(s.test_rms_c)
+            assert mine[s.label].versus.level == pytest.approx(s.versus.level)
+    doc = gap_json(diag)
+    assert doc["screen"]["not_refitted"] == list(diag.screened_out) and gap_json(everything)["screen"] is None
