@@ -99,7 +99,9 @@ def _described(result: Adaptation) -> str:
     """The form an adaptation chose (its heat-map axes), the held-out RMS of each form, and its terms."""
     axes = ",".join(result.params.heat_axes)
     scores = "/".join(f"{v:.2f}" for v in result.held_out_by_type)
-    return f"[{axes}; halves {scores}] {describe_terms(result.fit.terms)}"
+    fit = result.fit
+    heat = f", heat map {fit.heat_values} values at {100 * fit.heat_map_prior:g} %" if fit.heat_values else ""
+    return f"[{axes}; halves {scores}] {describe_terms(fit.terms)}{heat}"
 
 
 def plot_airframe(types: list[ThermalParams], log: FlightLog, path: Path, label: str) -> None:
