@@ -102,8 +102,8 @@ def _described(result: Adaptation) -> str:
     axes = ",".join(result.params.heat_axes)
     scores = "/".join(f"{v:.2f}" for v in result.held_out_by_type)
     fit = result.fit
-    heat = f", heat map {fit.heat_values} values at {100 * fit.heat_map_prior:g} %" if fit.heat_values else ""
-    return f"[{axes}; halves {scores}] {describe_terms(fit.terms)}{heat}"
+    prior = f" (prior {100 * fit.heat_map_prior:g} %)" if fit.heat_values else ""
+    return f"[{axes}; halves {scores}] {describe_terms(fit.terms, fit.heat_values)}{prior}"
 
 
 def plot_airframe(types: list[ThermalParams], log: FlightLog, path: Path, label: str) -> None:

@@ -93,7 +93,7 @@ def flight_airframes(paths: list[str], specs: list[str]) -> list[str]:
 def _fit_lines(name: str, fit: AirframeFit, sources: list[str]) -> list[str]:
     from ecu_monitor.identify.type_model import describe_terms
 
-    lines = [f"airframe {name}: {describe_terms(fit.terms)}"]
+    lines = [f"airframe {name}: {describe_terms(fit.terms, fit.heat_values)}"]
     if fit.held_out:
         tried = ", ".join(f"{'+'.join(k) or 'none'} {v:.2f}" for k, v in fit.held_out.items())
         lines.append(f"  held-out RMS on the second halves, degC, by own terms: {tried}")
@@ -102,7 +102,7 @@ def _fit_lines(name: str, fit: AirframeFit, sources: list[str]) -> list[str]:
     if fit.heat_map_held_out:
         tried = ", ".join(f"{100 * k:g} % {v:.2f}" for k, v in fit.heat_map_held_out.items())
         kept = (
-            f"{fit.heat_values} heat-map values refitted, prior {100 * fit.heat_map_prior:g} % of the type's"
+            f"heat-map values refitted with a prior {100 * fit.heat_map_prior:g} % of the type's"
             if fit.heat_values
             else "the type's heat map kept"
         )

@@ -581,8 +581,9 @@ def _held_out_of_kept(fit: AirframeFit) -> float:
     return next((v for subset, v in fit.held_out.items() if set(subset) == kept), math.nan)
 
 
-def describe_terms(terms: AirframeTerms) -> str:
-    """One airframe's own terms in words ("heat scale 1.042, probe lag 21.0 s" or "no terms of its own")."""
+def describe_terms(terms: AirframeTerms, heat_values: int = 0) -> str:
+    """One airframe's own terms in words ("heat scale 1.042, probe lag 21.0 s" or "no terms of its own"),
+    with the number of heat-map values its adaptation refitted where there are some."""
     kept = [
         f"{label} {value:.3f}" if unit == "" else f"{label} {value:.1f} {unit}"
         for label, value, unit in (
@@ -592,6 +593,8 @@ def describe_terms(terms: AirframeTerms) -> str:
         )
         if value is not None
     ]
+    if heat_values:
+        kept.append(f"{heat_values} heat-map values of its own")
     return ", ".join(kept) or "no terms of its own (the type as is)"
 
 

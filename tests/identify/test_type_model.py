@@ -201,6 +201,7 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
     adapted = tmp_path / "c.yaml"
     args = ["identify", "--base", str(out), paths[2], "--airframe", "C=*", "--first-minutes", "20"]
     assert main([*args, "--out", str(adapted), *quick]) == 0
+    assert "by prior width: 0 % " in capsys.readouterr().out  # the heat-map refit's choice, printed
     model = load_model(adapted)
     assert [a.id for a in model.airframes] == ["C"] and not model.engine_type
     assert main([*args, "--or-base", str(out), "--out", str(adapted), *quick]) == 0  # the same form twice
