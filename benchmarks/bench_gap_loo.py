@@ -64,6 +64,7 @@ def main() -> None:
     train = [p for p in paths if p != test]
     with tempfile.TemporaryDirectory() as scratch:
         out = args.out or Path(scratch)
+        out.mkdir(parents=True, exist_ok=True)
         warm = ["identify", "--mapping", "g1000", "--heat-axes", "fuel_flow_lph,rpm", "--particles", "4"]
         _run([*warm, "--iterations", "2", "--no-lofo", test, "--out", f"{out}/warm.yaml"])
         plain = _run([*COMMAND, "--train", *train, "--test", test, "--out", f"{out}/plain"], out / "plain.log")
