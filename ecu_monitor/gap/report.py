@@ -2,8 +2,8 @@
 
 gap.json holds the contract's four keys (baseline, where, effects, verdict) and, beside them, the
 other breakdowns (segments, regions, correlation, lag_signature, spectrum, innovation_whiteness),
-the control refit and the settings. In ``effects`` each entry's ``significant`` is the decision
-(bootstrap-significant AND material vs the control); ``p_value``, ``material`` and
+the control refit, the settings and the leave-one-out's screen. In ``effects`` each entry's
+``significant`` is the decision (bootstrap-significant AND material vs the control); ``p_value``, ``material`` and
 ``shrink_vs_reference_pct`` show the parts of it. A pair's id is "first+second"; ``verdict.effect``
 is then the first (the best single effect) and ``verdict.effects`` lists both; every effect's
 ``params`` is ``{effect id: {parameter: value}}`` with ``params_std`` beside it.
