@@ -13,7 +13,8 @@ halves); the named form the library's real-data best used (docs/results/real.md)
 altitude factor: the fuel flow carries the charge density; airspeed cooling; the mixture index on EGT);
 the same with engine_speed_cooling; the cooling-air form (:data:`COOLING_AIR`, 2 x 2: the ram air's mass
 flow and the engine-speed conductance, no T^4 term) with its mixture index on the EGT's rise (the flights'
-manifold pressure taken out) and on the fuel/air ratio (the start where the manifold pressure is logged).
+manifold pressure taken out) and on the fuel/air ratio (the start where the manifold pressure is logged); the
+same on a 2 x 1 map (``--grid 2x1``: the heat on the fuel alone, engine speed acting on the cooling only).
 Then the gap diagnosis (``ecu-monitor gap --model`` the paper's form identified on flight 1 ``--train``
 flight 1 ``--test`` flights 2 and 3: local refits) and its verdict, and the same from the cooling-air form
 without its two new terms (:data:`GAP_BASE`), trying them.
