@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
 
 from ecu_monitor.compile_cache import (
     CACHE_ENV,
@@ -21,6 +20,9 @@ from ecu_monitor.compile_cache import (
     default_cache_dir,
     use_cache_dir,
 )
+from ecu_monitor.flightlog import write_csv
+from virtual_bus.missions import mission_from_dict
+from virtual_bus.plant import fly
 
 BIN = Path(sys.executable).parent
 #: A 100 s mission (as in tests/install/test_install.py): every message's frames and a few hundred health rows.
@@ -153,14 +155,9 @@ def test_compile_notice_hears_numba_compile_and_not_a_loaded_kernel() -> None:
 def test_first_replay_says_it_compiles_and_the_second_does_not(tmp_path: Path) -> None:
     """Two ``ecu-monitor replay`` processes on a fresh cache (XDG_CACHE_HOME in tmp_path): the first prints
     the line once and fills $XDG_CACHE_HOME/ecu-monitor/numba, the second loads it and prints neither line."""
-    mission = tmp_path / "short.yaml"
-    mission.write_text(yaml.safe_dump(SHORT_MISSION), encoding="utf-8")
-    flight = tmp_path / "short.csv"
+    flight = tmp_path / "short.csv"  # flown here, on this process's kernels: only the replays meet the fresh cache
+    write_csv(fly(mission_from_dict(SHORT_MISSION)), flight)
     env = _env(tmp_path / "xdg")
-    subprocess.run(
-        [str(BIN / "virtual-ecu"), "record", "--mission", str(mission), "--out", str(flight)],
-        env=env, capture_output=True, text=True, timeout=120, check=True,
-    )  # fmt: skip
     runs = []
     for n in (1, 2):
         done = subprocess.run(
