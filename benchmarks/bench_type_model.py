@@ -19,7 +19,9 @@ altitude factor), then:
 
 ``--one-form`` fits and adapts the first form only (the table before the second form). ``--plot DIR``
 draws, for each held-out airframe, its first flight: the measured CHT and each form's type model as is,
-with the inputs that tell the forms apart (fuel flow, rpm, EGT, airspeed).
+with the inputs that tell the forms apart (fuel flow, rpm, EGT, airspeed); and, for an airframe with
+several flights, the error on its other flights of each whole-flight adaptation, with its own terms only
+and with its heat-map values refitted too.
 
 With several flights of X each of them takes its turn as the adapting flight; the figures are the mean
 RMS over the scored flights of every turn. Scores are open loop from the first CHT sample of the scored
@@ -99,7 +101,9 @@ def _described(result: Adaptation) -> str:
     """The form an adaptation chose (its heat-map axes), the held-out RMS of each form, and its terms."""
     axes = ",".join(result.params.heat_axes)
     scores = "/".join(f"{v:.2f}" for v in result.held_out_by_type)
-    return f"[{axes}; halves {scores}] {describe_terms(result.fit.terms)}"
+    fit = result.fit
+    prior = f" (prior {100 * fit.heat_map_prior:g} %)" if fit.heat_values else ""
+    return f"[{axes}; halves {scores}] {describe_terms(fit.terms, fit.heat_values)}{prior}"
 
 
 def plot_airframe(types: list[ThermalParams], log: FlightLog, path: Path, label: str) -> None:
@@ -134,6 +138,44 @@ def plot_airframe(types: list[ThermalParams], log: FlightLog, path: Path, label:
     axes[3].plot(minutes, log["airspeed_mps"], color="tab:green")
     axes[3].set_ylabel("airspeed, m/s")
     axes[3].set_xlabel("minutes from the log's start")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def plot_adaptations(
+    types: list[ThermalParams], own: list[FlightLog], adapted: list[Adaptation], path: Path, label: str
+) -> None:
+    """An airframe with several flights, adapted from each whole flight in turn: model - measured CHT on its
+    other flights, with the adaptation's own terms only (above) and with its heat-map values refitted too
+    (below)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ecu_monitor.identify import simulate_flight
+    from ecu_monitor.identify.type_model import airframe_model
+
+    fig, axes = plt.subplots(2, 1, figsize=(11, 8), sharex=True, sharey=True)
+    for k, result in enumerate(adapted):
+        terms_only = airframe_model(_plain(types[result.chosen]), result.fit.terms)
+        for j, log in enumerate(own):
+            if j == k:
+                continue
+            minutes = (np.asarray(log.time_s, dtype=float) - float(log.time_s[0])) / 60.0
+            measured = np.asarray(log["cht_c"], dtype=float)
+            for ax, params in zip(axes, (terms_only, result.params), strict=True):
+                error = simulate_flight(params, log, 1.0) - measured
+                rms = float(np.sqrt(np.mean(error**2)))
+                ax.plot(minutes, error, linewidth=0.7, label=f"flight {j + 1} from flight {k + 1}: {rms:.1f}")
+    for ax, title in zip(axes, ("its own terms only", "its own terms and the heat-map values it visits"), strict=True):
+        ax.axhline(0.0, color="black", linewidth=0.5)
+        ax.set_ylabel("model - CHT, degC")
+        ax.set_title(f"{label} adapted from one whole flight: {title} (RMS, degC)")
+        ax.legend(fontsize=6, ncol=4, loc="lower right")
+    axes[1].set_xlabel("minutes from the log's start")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=80)
@@ -193,7 +235,7 @@ def main() -> int:
             plot_airframe(types, own[0], args.plot / f"type_model_{name}.png", LABELS.get(name, name))
         zero = _rms(_plain(types[0]), own)
         zero_forms = [_rms(_plain(t), own) for t in types]
-        short, whole, short_terms, whole_terms = [], [], [], []
+        short, whole, short_terms, whole_terms, adapted = [], [], [], [], []
         for k, log in enumerate(own):
             others = own[:k] + own[k + 1 :]
             started = time.process_time()
@@ -207,6 +249,9 @@ def main() -> int:
             timings["adapt, one flight (CPU s)"].append(time.process_time() - started)
             whole.append(_rms(full.params, others or [second]))
             whole_terms.append(_described(full))
+            adapted.append(full)
+        if args.plot and len(own) > 1:
+            plot_adaptations(types, own, adapted, args.plot / f"type_adapted_{name}.png", LABELS.get(name, name))
         zeros = " / ".join(f"{z:.2f}" for z in zero_forms)
         rows.append((name, len(own), zero, float(np.mean(short)), float(np.mean(whole)), kept, short_terms,
                      whole_terms, zeros))  # fmt: skip

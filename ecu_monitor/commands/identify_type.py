@@ -93,12 +93,20 @@ def flight_airframes(paths: list[str], specs: list[str]) -> list[str]:
 def _fit_lines(name: str, fit: AirframeFit, sources: list[str]) -> list[str]:
     from ecu_monitor.identify.type_model import describe_terms
 
-    lines = [f"airframe {name}: {describe_terms(fit.terms)}"]
+    lines = [f"airframe {name}: {describe_terms(fit.terms, fit.heat_values)}"]
     if fit.held_out:
         tried = ", ".join(f"{'+'.join(k) or 'none'} {v:.2f}" for k, v in fit.held_out.items())
         lines.append(f"  held-out RMS on the second halves, degC, by own terms: {tried}")
     else:
         lines.append("  flights too short to halve: every candidate term kept, held near the type by its prior")
+    if fit.heat_map_held_out:
+        tried = ", ".join(f"{100 * k:g} % {v:.2f}" for k, v in fit.heat_map_held_out.items())
+        kept = (
+            f"heat-map values refitted with a prior {100 * fit.heat_map_prior:g} % of the type's"
+            if fit.heat_values
+            else "the type's heat map kept"
+        )
+        lines.append(f"  {kept}; held-out RMS of the halves both ways, degC, by prior width: {tried}")
     for source, own, as_type in zip(sources, fit.errors, fit.as_type, strict=True):
         lines.append(f"  {Path(source).name}: RMS {own.rms_c:.2f} degC with its terms, {as_type.rms_c:.2f} as the type")
     return lines

@@ -84,6 +84,7 @@ __all__ = [
     "ParameterSpace",
     "default_space",
     "flight_errors",
+    "heat_cell_name",
     "heat_map_breakpoints",
     "model_inputs",
     "observed_rise_map",
@@ -220,7 +221,7 @@ class ParameterSpace:
                 fields_[target] = col.copy()
         heat = np.broadcast_to(self.base.heat_map.values_array(), (p, *self.base.heat_map.shape)).copy()
         if self.heat_cells:
-            rises = np.stack([v[:, self._index[_cell_name(i, j)]] for i, j in self.heat_cells], axis=1)
+            rises = np.stack([v[:, self._index[heat_cell_name(i, j)]] for i, j in self.heat_cells], axis=1)
             values = rises / fields_["r_ce"][:, None]
             for k, (i, j) in enumerate(self.heat_cells):
                 heat[:, i, j] = values[:, k]
@@ -349,7 +350,8 @@ class ParameterSpace:
         return out
 
 
-def _cell_name(i: int, j: int) -> str:
+def heat_cell_name(i: int, j: int) -> str:
+    """The search coordinate of heat-map value (i, j): its temperature rise, degC."""
     return f"heat_rise_c[{i},{j}]"
 
 
@@ -473,7 +475,7 @@ def default_space(
                 f"heat map: no breakpoint is visited for {min_visit_s:g} s by the flights; choose a coarser grid"
             )
         for i, j in cells:
-            add(_cell_name(i, j), 0.0, 4.0 * max_rise, False)
+            add(heat_cell_name(i, j), 0.0, 4.0 * max_rise, False)
     return ParameterSpace(
         base=base,
         names=tuple(names),

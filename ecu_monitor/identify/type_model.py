@@ -19,7 +19,11 @@ Each term carries a prior centred on "no difference from the type" (:data:`SCALE
 :data:`PROBE_LAG_SIGMA_S`), which also keeps the common level of all airframes in the shared heat map.
 
 ``identify --base TYPE.yaml FLIGHT`` (:func:`adapt`) fits only one new airframe's terms on its flight
-(or its first minutes), the type's shared parameters fixed: a few small least-squares fits. Given several
+(or its first minutes), the type's shared parameters fixed: a few small least-squares fits. Then the
+heat-map values its flight visits may move from the type's, each under a prior towards the type's value,
+as far as the halves of its flights (each half predicting the other) show that predicts better
+(:func:`choose_heat_map_prior`): an airframe's head can differ from the type's at some operating points
+and not at others, which no single scale carries. Given several
 type models of one type in other forms (another heat map's axes, other effects: ``--or-base``),
 :func:`adapt_choosing` adapts each and keeps the first unless another predicts the held-out halves of the
 new airframe's flights clearly better (:data:`FORM_MIN_GAIN`): the airframe's own data choose the form, on
@@ -36,7 +40,7 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,10 +50,10 @@ from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.fit import IdentificationResult, polish
 from ecu_monitor.identify.flights import ErrorStats, flight_errors, prepare_flight
-from ecu_monitor.identify.objective import pooled_residuals
-from ecu_monitor.identify.problem import DEFAULT_FREE, ParameterSpace
+from ecu_monitor.identify.objective import SwarmObjective, pooled_residuals
+from ecu_monitor.identify.problem import DEFAULT_FREE, ParameterSpace, heat_cell_name, visited_weight_s
 from ecu_monitor.identify.pso import PsoSettings
-from ecu_monitor.identify.search_settings import PRIOR_SCALE_C
+from ecu_monitor.identify.search_settings import MIN_VISIT_S, PRIOR_SCALE_C
 from ecu_monitor.identify.select import MIN_GAIN, identify_flights
 from ecu_monitor.model import AirframeTerms, Coefficients, SensorLag, ThermalParams, coefficients
 from ecu_monitor.model.equations import PARAMETER_FIELDS
@@ -58,6 +62,7 @@ from ecu_monitor.model.params import SCALE_RANGE
 __all__ = [
     "AIRFRAME_TERMS",
     "FORM_MIN_GAIN",
+    "HEAT_VALUE_SIGMAS",
     "MIN_PART_S",
     "PROBE_LAG_SIGMA_S",
     "SCALE_SIGMA",
@@ -69,10 +74,12 @@ __all__ = [
     "adapt",
     "adapt_choosing",
     "airframe_model",
+    "choose_heat_map_prior",
     "choose_terms",
     "describe_terms",
     "first_minutes",
     "fit_type",
+    "refit_heat_map",
 ]
 
 #: Prior width of an airframe's heat and cooling scales, in their logarithm (10 % from the type costs 1 sigma).
@@ -85,6 +92,9 @@ MIN_PART_S = 300.0
 #: least this fraction (the gap diagnosis's material gain): the halves of 20 minutes are ten minutes each,
 #: and smaller differences between forms there need not hold on the airframe's other flights.
 FORM_MIN_GAIN = 0.20
+#: Prior widths an adaptation tries for the heat-map values its flights visit, each as a fraction of the type's
+#: value there (0: the type's values kept); the halves of its flights choose one (:func:`choose_heat_map_prior`).
+HEAT_VALUE_SIGMAS: tuple[float, ...] = (0.0, 0.05, 0.10, 0.20)
 #: The type model's probe lag where it has none of its own (the prior's centre), s.
 _NO_LAG_S = 0.0
 
@@ -290,6 +300,35 @@ def _fit_airframe(
     return AirframeTerms(airframe, **{TERMS[t].field: float(values[t][0, 0]) for t in terms})
 
 
+def refit_heat_map(
+    params: ThermalParams, flights: Sequence[FlightLog], settings: PsoSettings, sigma: float
+) -> tuple[ThermalParams, int]:
+    """The heat-map values ``flights`` visit (:data:`MIN_VISIT_S` of bilinear weight or more) refitted on them
+    (a least-squares polish), each held towards its value in ``params`` by a Gaussian prior ``sigma`` times
+    that value wide (one sigma costs 1 degC^2 of mean squared error); the other values and every other
+    parameter as they are. Returns (the model, the number of values refitted; none when ``sigma`` is 0)."""
+    weight = visited_weight_s(flights, params.heat_map)
+    cells = tuple((i, j) for i, j in np.argwhere(weight >= MIN_VISIT_S).tolist())
+    if not cells or sigma <= 0.0:
+        return params, 0
+    rise = params.heat_map.values_array() * params.r_ce  # the heat map as degC above the air (the search's unit)
+    low, high = SCALE_RANGE
+    values = [float(rise[i, j]) for i, j in cells]
+    space = ParameterSpace(
+        base=params,
+        names=tuple(heat_cell_name(i, j) for i, j in cells),
+        lower=tuple(low * v for v in values),
+        upper=tuple(high * v for v in values),
+        log_scaled=(True,) * len(cells),
+        prior_mean=tuple(values),
+        prior_sigma=tuple(sigma * v for v in values),
+        heat_cells=cells,
+    )
+    objective = SwarmObjective(flights, space, settings.dt_s)
+    best, _cost = polish(objective, space.to_unit(space.from_params(params)), settings.polish_evaluations)
+    return space.to_params(space.from_unit(best[None, :])[0]), len(cells)
+
+
 def _centred(shared: ThermalParams, values: dict[str, NDArray[np.float64]]) -> ThermalParams:
     """The shared model as the type's typical airframe, the median one (an airframe unlike the others does
     not pull it): its heat map times the airframes' median heat scale, R_Ce divided by their median
@@ -344,6 +383,30 @@ def choose_terms(
     return chosen, scores
 
 
+def choose_heat_map_prior(
+    shared: ThermalParams, flights: Sequence[FlightLog], terms: Sequence[str], settings: PsoSettings
+) -> tuple[float, dict[float, float]]:
+    """How far an adaptation may move the heat-map values its flights visit from the type's: for each prior
+    width of :data:`HEAT_VALUE_SIGMAS`, the airframe's ``terms`` and then its heat-map values
+    (:func:`refit_heat_map`) fitted on one half of each flight and scored on the other half, both ways
+    (the first half predicting the second and the reverse: an operating point one half alone visits is
+    tried once each way); the smallest width whose mean held-out RMS (degC) is within
+    :data:`~ecu_monitor.identify.select.MIN_GAIN` of the best. Returns (the width, the held-out RMS of
+    each); (0, {}) for flights too short to halve (:data:`MIN_PART_S`): the type's heat map kept."""
+    parts = [h for h in (_halves(log) for log in flights) if h is not None]
+    if not parts:
+        return 0.0, {}
+    first, second = [a for a, _ in parts], [b for _, b in parts]
+    totals = dict.fromkeys(HEAT_VALUE_SIGMAS, 0.0)
+    for fit_on, score_on in ((first, second), (second, first)):
+        model = airframe_model(shared, _fit_airframe(shared, fit_on, terms, settings, "-"))
+        for sigma in HEAT_VALUE_SIGMAS:
+            refitted, _cells = refit_heat_map(model, fit_on, settings, sigma)
+            totals[sigma] += _pooled_rms(refitted, score_on, settings.dt_s) / 2.0
+    best = min(totals.values())
+    return next(s for s in HEAT_VALUE_SIGMAS if totals[s] <= best * (1.0 + MIN_GAIN)), totals
+
+
 # --------------------------------------------------------------------------------------------------
 # identify --type and identify --base TYPE.yaml
 # --------------------------------------------------------------------------------------------------
@@ -356,12 +419,18 @@ class AirframeFit:
     terms: its own terms (only the kept ones are set); held_out: held-out RMS (degC) of each subset of
     terms tried (second halves; empty when the flights were too short to halve); errors: the airframe's
     model on each of its flights (the data it was fitted on); as_type: the type model as is on them.
+    From an adaptation also: heat_map_prior, the prior width its heat-map values were refitted with
+    (:func:`choose_heat_map_prior`; 0: the type's kept), heat_map_held_out, the held-out RMS (degC, both
+    ways) of each width tried, and heat_values, the number of heat-map values refitted.
     """
 
     terms: AirframeTerms
     held_out: dict[tuple[str, ...], float]
     errors: tuple[ErrorStats, ...]
     as_type: tuple[ErrorStats, ...]
+    heat_map_prior: float = 0.0
+    heat_map_held_out: dict[float, float] = field(default_factory=dict)
+    heat_values: int = 0
 
 
 @dataclass(frozen=True)
@@ -462,19 +531,24 @@ def adapt(
 ) -> Adaptation:
     """A new airframe's model from a type model and its flights: only its own terms are fitted (the type's
     shared parameters fixed), chosen among ``candidates`` by held-out error on the halves of its flights (as
-    :func:`fit_type` chooses each of its airframes')."""
+    :func:`fit_type` chooses each of its airframes'); then, where those halves show it predicts better, the
+    heat-map values its flights visit are refitted near the type's (:func:`choose_heat_map_prior`)."""
     if not type_params.engine_type:
         raise ParameterError("--base: not a type model (made by identify --type): it has no engine type")
     started = time.perf_counter()
     shared = type_params.replace(engine_type="", airframes=())
     chosen, held_out = choose_terms(shared, flights, candidates, settings)
     terms = _fit_airframe(shared, flights, chosen, settings, airframe)
-    params = airframe_model(shared, terms).replace(engine_type="")
+    prior, by_prior = choose_heat_map_prior(shared, flights, chosen, settings)
+    params, cells = refit_heat_map(airframe_model(shared, terms), flights, settings, prior)
     fit = AirframeFit(
         terms,
         held_out,
         tuple(flight_errors(params, log) for log in flights),
         tuple(flight_errors(shared, log) for log in flights),
+        prior,
+        by_prior,
+        cells,
     )
     return Adaptation(params, fit, time.perf_counter() - started)
 
@@ -507,8 +581,9 @@ def _held_out_of_kept(fit: AirframeFit) -> float:
     return next((v for subset, v in fit.held_out.items() if set(subset) == kept), math.nan)
 
 
-def describe_terms(terms: AirframeTerms) -> str:
-    """One airframe's own terms in words ("heat scale 1.042, probe lag 21.0 s" or "no terms of its own")."""
+def describe_terms(terms: AirframeTerms, heat_values: int = 0) -> str:
+    """One airframe's own terms in words ("heat scale 1.042, probe lag 21.0 s" or "no terms of its own"),
+    with the number of heat-map values its adaptation refitted where there are some."""
     kept = [
         f"{label} {value:.3f}" if unit == "" else f"{label} {value:.1f} {unit}"
         for label, value, unit in (
@@ -518,6 +593,8 @@ def describe_terms(terms: AirframeTerms) -> str:
         )
         if value is not None
     ]
+    if heat_values:
+        kept.append(f"{heat_values} heat-map values of its own")
     return ", ".join(kept) or "no terms of its own (the type as is)"
 
 

@@ -14,7 +14,14 @@ import pytest
 from ecu_monitor.errors import ConfigError, UserInputError
 from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings
-from ecu_monitor.identify.type_model import adapt, adapt_choosing, airframe_model, first_minutes, fit_type
+from ecu_monitor.identify.type_model import (
+    HEAT_VALUE_SIGMAS,
+    adapt,
+    adapt_choosing,
+    airframe_model,
+    first_minutes,
+    fit_type,
+)
 from ecu_monitor.model import (
     AirframeTerms,
     InputSeries,
@@ -29,9 +36,9 @@ from ecu_monitor.model.compiled import simulate_compiled
 SETTINGS = PsoSettings(particles=12, iterations=10, dt_s=1.0, polish_evaluations=40)
 
 
-def _flight(seed: int, heat_scale: float, duration_s: int = 2400) -> FlightLog:
+def _flight(seed: int, heat_scale: float | np.ndarray, duration_s: int = 2400) -> FlightLog:
     """Throttle steps in a random order (rpm following), CHT of the paper's model with the heat map times
-    ``heat_scale``, at 1 Hz with 0.3 degC noise and a 1 degC quantiser."""
+    ``heat_scale`` (a number, or one per heat-map value), at 1 Hz with 0.3 degC noise and a 1 degC quantiser."""
     rng = np.random.default_rng(seed)
     levels = rng.permutation([25.0, 40.0, 55.0, 70.0, 85.0, 100.0, 35.0, 60.0])
     t = np.arange(0.0, duration_s + 0.5, 1.0)
@@ -47,7 +54,7 @@ def _flight(seed: int, heat_scale: float, duration_s: int = 2400) -> FlightLog:
     measured = np.round(probe + 0.3 * rng.standard_normal(probe.size))
     columns = {"time_s": t, "throttle_pct": throttle, "rpm": rpm, "altitude_m": altitude, "airspeed_mps": airspeed,
                "oat_c": oat, "cht_c": measured, "fuel_flow_lph": 0.4 * throttle}  # fmt: skip
-    return FlightLog(columns, source=f"airframe-{heat_scale:g}-{seed}")
+    return FlightLog(columns, source=f"airframe-{np.mean(heat_scale):g}-{seed}")
 
 
 def _scale(terms: AirframeTerms) -> float:
@@ -88,6 +95,23 @@ def test_base_adapts_a_new_airframe_from_its_first_20_minutes(type_fit):
     as_type = flight_errors(type_fit.params.replace(engine_type="", airframes=()), later).rms_c
     assert adapted < 0.5 * as_type
     assert result.params.airframes == (result.fit.terms,) and not result.params.engine_type
+
+
+def test_base_refits_the_heat_map_where_the_halves_show_the_head_differs(type_fit):
+    """Airframe C runs 20 % hotter at high power only (the heat map's top two throttle rows): no one scale
+    carries that; its flight's halves choose to refit the heat-map values it visits, which predicts
+    another flight of C far better than its terms alone."""
+    shape = paper_table_a1().heat_map.shape
+    hotter = np.where(np.arange(shape[0])[:, None] >= 3, 1.2, 1.0) * np.ones(shape)
+    result = adapt(type_fit.params, [_flight(8, hotter, 4800)], "C", SETTINGS, candidates=("heat_scale",))
+    assert result.fit.heat_values > 0 and result.fit.heat_map_prior > 0.0
+    assert set(result.fit.heat_map_held_out) == set(HEAT_VALUE_SIGMAS)
+    from ecu_monitor.identify import flight_errors
+
+    shared = type_fit.params.replace(engine_type="", airframes=())
+    terms_only = airframe_model(shared, result.fit.terms)
+    later = _flight(9, hotter, 2400)  # another flight of C, never seen by the adaptation
+    assert flight_errors(result.params, later).rms_c < 0.7 * flight_errors(terms_only, later).rms_c
 
 
 def _misshapen(type_params):
@@ -177,6 +201,7 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
     adapted = tmp_path / "c.yaml"
     args = ["identify", "--base", str(out), paths[2], "--airframe", "C=*", "--first-minutes", "20"]
     assert main([*args, "--out", str(adapted), *quick]) == 0
+    assert "by prior width: 0 % " in capsys.readouterr().out  # the heat-map refit's choice, printed
     model = load_model(adapted)
     assert [a.id for a in model.airframes] == ["C"] and not model.engine_type
     assert main([*args, "--or-base", str(out), "--out", str(adapted), *quick]) == 0  # the same form twice
