@@ -10,15 +10,20 @@ processes that check the default.
 Before the workers start (pytest-xdist's controller, or the one process of ``-n 0``), the step's compiled
 code is loaded once, which on a fresh clone compiles it into that cache: otherwise every worker, and every
 process a test starts meanwhile, would compile the same code at the same time (numba has no lock for it).
+Meanwhile a second process compiles the kernels most other tests share (tests/helpers/warm_kernels.py), so
+both cores compile on a fresh clone.
 """
 
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from collections.abc import Iterator
 
 import pytest
 
+from tests.helpers import REPO
 from tests.helpers.netns import Namespace, netns_unavailable
 
 os.environ.setdefault("NUMBA_CACHE_DIR", "")
@@ -35,8 +40,16 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     from ecu_monitor.pipeline.engine import Pipeline
     from ecu_monitor.shipped import resolve_file
 
-    config = load_config(resolve_file("example", "config"))
-    Pipeline(config, config.load_cylinder_params()).warm_up()
+    # the kernels most tests share, in a second process meanwhile (tests/helpers/warm_kernels.py: none of
+    # them is one the step's warm-up writes, so the two never write the same cache file)
+    others = subprocess.Popen([sys.executable, "-m", "tests.helpers.warm_kernels"], cwd=REPO, stderr=subprocess.PIPE)
+    try:
+        config = load_config(resolve_file("example", "config"))
+        Pipeline(config, config.load_cylinder_params()).warm_up()
+    finally:
+        _, stderr = others.communicate()
+    if others.returncode != 0:  # not fatal: the tests compile what they need, and say what is broken
+        sys.stderr.write(f"tests/helpers/warm_kernels.py failed:\n{stderr.decode(errors='replace')}\n")
 
 
 @pytest.fixture

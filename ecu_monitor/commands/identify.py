@@ -58,7 +58,11 @@ def add_subparser(subparsers: Any) -> None:
         metavar="COL,COL",
         help="heat-map axes (default throttle_pct,rpm; fuel_flow_lph,rpm for a log without throttle)",
     )
-    parser.add_argument("--grid", metavar="NxM", help="heat-map breakpoints from the data's quantiles, e.g. 4x4")
+    parser.add_argument(
+        "--grid",
+        metavar="NxM",
+        help="heat-map breakpoints from the data's quantiles, e.g. 4x4; 1 on an axis: the heat does not depend on it",
+    )
     parser.add_argument("--base", metavar="MODEL.yaml", help="starting / fixed values (default: paper Table A1)")
     parser.add_argument(
         "--free",
@@ -102,14 +106,14 @@ def parse_heat_axes(text: str) -> tuple[str, str]:
 
 
 def parse_grid(text: str) -> tuple[int, int]:
-    """'NxM' -> (n, m) with 2 <= n, m <= 12; UserInputError otherwise."""
+    """'NxM' -> (n, m) with 1 <= n, m <= 12 (1: the heat does not depend on that axis); UserInputError otherwise."""
     parts = text.lower().split("x")
     try:
         n, m = (int(p) for p in parts)
     except ValueError:
         raise UserInputError(f"--grid: expected NxM such as 4x4, got {text!r}") from None
-    if not (2 <= n <= 12 and 2 <= m <= 12):
-        raise UserInputError(f"--grid: expected 2 to 12 breakpoints per axis, got {text!r}")
+    if not (1 <= n <= 12 and 1 <= m <= 12):
+        raise UserInputError(f"--grid: expected 1 to 12 breakpoints per axis, got {text!r}")
     return n, m
 
 

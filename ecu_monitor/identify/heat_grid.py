@@ -13,7 +13,7 @@ from ecu_monitor.identify.flights import measured_cht, model_inputs
 from ecu_monitor.model import HeatMap
 from ecu_monitor.model.heatmap import heat_cells
 
-__all__ = ["heat_map_breakpoints", "observed_rise_map", "reference_point", "visited_weight_s"]
+__all__ = ["heat_map_breakpoints", "observed_rise_map", "reference_point", "tied_axes", "visited_weight_s"]
 
 # --------------------------------------------------------------------------------------------------
 # Heat-map grid from the data
@@ -40,22 +40,35 @@ def heat_map_breakpoints(
     flights' largest flow (another mission's full-power climb) instead of clamping there. A finer fuel axis
     keeps its breakpoints where the engine ran (its shape is resolved there; stretching its ends cost the
     real N550ND flights 0.1 degC held out, docs/results/jsbsim.md).
+
+    A count of 1 is an axis the heat does not depend on (:func:`tied_axes`): it gets two breakpoints as for 2
+    (the map is always at least 2 x 2), whose values identification ties together.
     """
     out = []
     for axis, count in zip(heat_axes, grid, strict=True):
-        if count < 2:
-            raise ParameterError(f"heat-map grid: expected at least 2 breakpoints per axis, got {count}")
+        if count < 1:
+            raise ParameterError(f"heat-map grid: expected at least 1 breakpoint per axis, got {count}")
         values = np.concatenate([np.asarray(model_inputs(f, heat_axes)[heat_axes.index(axis)]) for f in flights])
-        points = np.quantile(values, np.linspace(0.01, 0.99, count))
+        points = np.quantile(values, np.linspace(0.01, 0.99, max(count, 2)))
         if axis in FUEL_AXES and count == 2:
             points[0], points[-1] = 0.0, FUEL_HEADROOM * float(np.max(values))
         low, high = float(points[0]), float(points[-1])
+        if count == 1 and high - low <= 1e-9 * max(1.0, abs(high)):
+            points = np.array([low, low + max(1.0, abs(low))])  # tied: any two points
+            low, high = float(points[0]), float(points[-1])
         if high - low <= 1e-9 * max(1.0, abs(high)):
             raise ParameterError(f"heat-map axis '{axis}': the data hold one value only ({low:g}); choose another axis")
         if np.any(np.diff(points) <= 1e-6 * (high - low)):
             points = np.linspace(low, high, count)
         out.append(tuple(float(round(p, 6)) for p in points))
     return out[0], out[1]
+
+
+def tied_axes(grid: tuple[int, int] | None) -> tuple[bool, bool]:
+    """Which heat-map axes the heat does not depend on: those given 1 breakpoint in ``grid`` (``--grid 2x1``: the
+    heat follows the first axis alone, e.g. the fuel burnt, and engine speed acts only through the effects that
+    read it). Their breakpoints' values are one value, identified once."""
+    return (False, False) if grid is None else (grid[0] == 1, grid[1] == 1)
 
 
 def observed_rise_map(flights: Sequence[FlightLog], heat_map: HeatMap) -> NDArray[np.float64]:

@@ -51,7 +51,13 @@ from ecu_monitor.identify.flights import (
     prepare_flight,
     simulate_flight,
 )
-from ecu_monitor.identify.heat_grid import heat_map_breakpoints, observed_rise_map, reference_point, visited_weight_s
+from ecu_monitor.identify.heat_grid import (
+    heat_map_breakpoints,
+    observed_rise_map,
+    reference_point,
+    tied_axes,
+    visited_weight_s,
+)
 from ecu_monitor.identify.search_settings import (
     _EFFECT_FIELDS,
     _EFFECT_TYPES,
@@ -460,6 +466,9 @@ def default_space(
     if "heat_map" in free_set:
         weight = visited_weight_s(flights, base.heat_map)
         threshold = 0.0 if heat_prior else min_visit_s
+        tied_x, tied_y = tied_axes(grid)  # a tied axis: its first breakpoint identified, the others copy it
+        weight = weight.sum(axis=0, keepdims=True) if tied_x else weight
+        weight = weight.sum(axis=1, keepdims=True) if tied_y else weight
         cells = [(i, j) for i in range(weight.shape[0]) for j in range(weight.shape[1]) if weight[i, j] >= threshold]
         if not cells:
             raise ParameterError(

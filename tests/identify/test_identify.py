@@ -229,7 +229,14 @@ def test_heat_map_grid_from_data_quantiles_and_visits():
     weight = visited_weight_s([log], space.base.heat_map)
     assert weight.sum() == pytest.approx(log.duration_s + 1.0)  # every sample carries its interval
     with pytest.raises(ParameterError):
-        heat_map_breakpoints([log], ("throttle_pct", "rpm"), (1, 3))
+        heat_map_breakpoints([log], ("throttle_pct", "rpm"), (0, 3))
+    # one breakpoint on an axis: the heat does not depend on it; the map keeps two, identified as one value
+    tied = default_space([log], grid=(3, 1))
+    assert tied.base.heat_map.shape == (3, 2) and sorted(tied.heat_cells) == [(0, 0), (1, 0), (2, 0)]
+    vector = tied.from_params(tied.base)
+    vector[tied.names.index("heat_rise_c[1,0]")] *= 1.5
+    heat = tied.coefficient_arrays(vector[None, :]).heat_values_w[0]
+    assert np.array_equal(heat[:, 0], heat[:, 1]) and len(set(heat[:, 0])) == 3
     # a fuel-flow axis of two breakpoints (heat linear in fuel) spans from no fuel to beyond the largest
     # flow: the line carries on past one flight; a finer one keeps its quantiles
     fuel = np.asarray(log["throttle_pct"]) * 0.4

@@ -97,6 +97,7 @@ def test_identify_without_throttle_uses_fuel_flow_and_a_data_grid(tmp_path, caps
     ("extra", "message"),
     [
         (["--grid", "4by4"], "--grid"),
+        (["--grid", "2x0"], "--grid"),
         (["--heat-axes", "rpm"], "--heat-axes"),
         (["--heat-axes", "egt_c,rpm"], "egt_c"),
         (["--particles", "1"], "particles"),
