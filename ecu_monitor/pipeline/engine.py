@@ -500,6 +500,12 @@ class Pipeline:
         return out
 
     def _step_row(self, k: int, time_s: float, mask: int, cylinders: Any) -> StepRow:
+        names, bits = self._stale_of(mask)
+        return StepRow(k, time_s, names, bits, cylinders)
+
+    def _stale_of(self, mask: int) -> tuple[tuple[str, ...], int]:
+        """A row's stale mask (bit j: stale check j) as the stale inputs' names and their
+        Health_Diag.StaleInputs bits (bit i = INPUT_NAMES[i])."""
         names: list[str] = []
         bits = 0
         for j, name in enumerate(self._check_names):
@@ -507,15 +513,17 @@ class Pipeline:
                 bits |= self._check_bits[j]
                 if name not in names:
                     names.append(name)
-        return StepRow(k, time_s, tuple(names), bits, cylinders)
+        return tuple(names), bits
 
     def stale_bits(self, mask: NDArray[np.int64]) -> NDArray[np.int64]:
         """The output table's stale masks (bit j: stale check j) as Health_Diag.StaleInputs bits (bit i =
         INPUT_NAMES[i])."""
-        bits = np.zeros(mask.shape, dtype=np.int64)
-        for j, bit in enumerate(self._check_bits):
-            bits |= np.where(mask >> j & 1, bit, 0)
-        return bits
+        if mask.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        starts = np.flatnonzero(np.diff(mask, prepend=mask[0] - 1))  # runs of one mask: they change seldom
+        bits: dict[int, int] = {}
+        runs = [bits[m] if m in bits else bits.setdefault(m, self._stale_of(m)[1]) for m in mask[starts].tolist()]
+        return np.repeat(np.array(runs, dtype=np.int64), np.diff(starts, append=mask.size))
 
     def snapshot(self) -> HealthSnapshot:
         """The latest health snapshot (updated every row of the output table)."""
