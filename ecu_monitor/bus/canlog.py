@@ -232,6 +232,12 @@ def _whole_lines_of_cut_text_log(src: str) -> str | None:
     return raw[: raw.rfind(b"\n") + 1].decode("utf-8", errors="replace")
 
 
+def _escaped(text: str) -> str:
+    """``text`` with each character that is not printable (a line break, NUL, ...) written as its escape: a
+    skipped line quoted in a one-line error stays one line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 class _SkippedLines(logging.Filter):
     """While entered, counts and silences what python-can's log readers say about lines they skip (a
     .trc whose body is another version than its header logs one line per frame: tens of thousands)."""
@@ -244,7 +250,7 @@ class _SkippedLines(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         self.count += 1
-        self.first = self.first or record.getMessage()[:120]
+        self.first = self.first or _escaped(record.getMessage()[:120])
         return False
 
     def __enter__(self) -> _SkippedLines:

@@ -13,7 +13,7 @@ import can
 import cantools
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
@@ -228,6 +228,7 @@ def test_a_unit_in_the_signal_map_converts_on_import(tmp_path: Path) -> None:
     cut=st.floats(0.0, 1.0),
     noise=st.binary(max_size=64),
 )
+@example(suffix=".trc", cut=0.0, noise=b"\x00\x0b\x00\n")  # a vertical tab in the skipped line python-can quotes
 def test_any_damage_to_a_log_is_read_or_one_error(tmp_path: Path, suffix: str, cut: float, noise: bytes) -> None:
     """A log cut anywhere, with random bytes appended: frames or a FlightLogError, never anything else."""
     from ecu_monitor.bus.canlog import read_frames
