@@ -521,9 +521,9 @@ class Pipeline:
         if mask.size == 0:
             return np.zeros(0, dtype=np.int64)
         starts = np.flatnonzero(np.diff(mask, prepend=mask[0] - 1))  # runs of one mask: they change seldom
-        bits: dict[int, int] = {}
-        runs = [bits[m] if m in bits else bits.setdefault(m, self._stale_of(m)[1]) for m in mask[starts].tolist()]
-        return np.repeat(np.array(runs, dtype=np.int64), np.diff(starts, append=mask.size))
+        masks = mask[starts].tolist()
+        bits = {m: self._stale_of(m)[1] for m in set(masks)}
+        return np.repeat(np.array([bits[m] for m in masks], dtype=np.int64), np.diff(starts, append=mask.size))
 
     def snapshot(self) -> HealthSnapshot:
         """The latest health snapshot (updated every row of the output table)."""
