@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
 
 from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
@@ -34,7 +35,7 @@ from ecu_monitor.identify.pso import PsoRun, PsoSettings, minimise
 from ecu_monitor.identify.search_settings import BOUND_TOLERANCE
 from ecu_monitor.model import ThermalParams
 
-__all__ = ["IdentificationResult", "identify", "polish"]
+__all__ = ["IdentificationResult", "identify", "one_blas_thread", "polish"]
 
 #: Finite-difference step of the polish's Jacobian, in unit-cube coordinates.
 _FD_STEP = 1e-4
@@ -69,6 +70,14 @@ class IdentificationResult:
     polish_cost: float | None
     restarts: int
     at_bounds: tuple[str, ...] = ()
+
+
+def one_blas_thread() -> threadpool_limits:
+    """A context in which BLAS and LAPACK (numpy's and scipy's OpenBLAS) run on one thread, for least squares:
+    its SVD of the tall Jacobian (every sample x some 20-30 parameters) took 3-4 times the CPU and the wall
+    time on two threads as on one, alone or beside the other fits (docs/performance.md); the fits use the
+    cores as processes (:mod:`ecu_monitor.identify.parallel`)."""
+    return threadpool_limits(limits=1)
 
 
 def polish(
@@ -107,7 +116,8 @@ def polish(
     start_cost = float(np.sqrt(np.sum(start_res**2)))
     if not np.all(np.isfinite(start_res)):
         return start, start_cost
-    solution = least_squares(fun, start, jac=jac, bounds=(0.0, 1.0), method="trf", max_nfev=max_evaluations)
+    with one_blas_thread():
+        solution = least_squares(fun, start, jac=jac, bounds=(0.0, 1.0), method="trf", max_nfev=max_evaluations)
     cost = float(np.sqrt(2.0 * solution.cost))
     if not np.isfinite(cost) or cost >= start_cost:
         return start, start_cost

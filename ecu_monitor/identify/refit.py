@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 
 from ecu_monitor.errors import FlightLogError, ParameterError
 from ecu_monitor.flightlog import FlightLog
-from ecu_monitor.identify.fit import identify
+from ecu_monitor.identify.fit import identify, one_blas_thread
 from ecu_monitor.identify.flights import FlightGrid
 from ecu_monitor.identify.flights import prepare_flight as prepare_grid
 from ecu_monitor.identify.library import (
@@ -293,17 +293,18 @@ def refit(
     problem = _Problem(nominal, entries, references, _flights(train), settings.engine)
     result = None
     for start in problem.starts():
-        attempt = least_squares(
-            problem.fun,
-            start,
-            jac=problem.jac,
-            bounds=(problem.low, problem.high),
-            method="trf",
-            x_scale="jac",
-            max_nfev=settings.max_evaluations,
-            xtol=1e-6,
-            ftol=1e-8,
-        )
+        with one_blas_thread():
+            attempt = least_squares(
+                problem.fun,
+                start,
+                jac=problem.jac,
+                bounds=(problem.low, problem.high),
+                method="trf",
+                x_scale="jac",
+                max_nfev=settings.max_evaluations,
+                xtol=1e-6,
+                ftol=1e-8,
+            )
         if result is None or attempt.cost < result.cost:
             result = attempt
     if result is None:  # starts() always yields the warm start

@@ -443,3 +443,18 @@ def test_a_time_scale_at_its_bound_is_flagged_for_a_second_search():
         hit = inside.copy()
         hit[k] = edge
         assert _time_scale_at_bound(space, hit)
+
+
+def test_least_squares_runs_blas_on_one_thread_and_gives_the_threads_back():
+    """The polish's SVD runs on one BLAS thread (faster than two, docs/performance.md); outside it numpy's and
+    scipy's BLAS keep the threads they had."""
+    from threadpoolctl import threadpool_info
+
+    from ecu_monitor.identify.fit import one_blas_thread
+
+    before = {info["filepath"]: info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"}
+    assert before  # numpy and scipy each load one
+    with one_blas_thread():
+        inside = {info["filepath"]: info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"}
+    after = {info["filepath"]: info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"}
+    assert set(inside.values()) == {1} and after == before
