@@ -74,9 +74,9 @@ class IdentificationResult:
 
 def one_blas_thread() -> threadpool_limits:
     """A context in which BLAS and LAPACK (numpy's and scipy's OpenBLAS) run on one thread, for least squares:
-    its SVD of the tall Jacobian (every sample x some 20-30 parameters) took 3-4 times the CPU and the wall
-    time on two threads as on one, alone or beside the other fits (docs/performance.md); the fits use the
-    cores as processes (:mod:`ecu_monitor.identify.parallel`)."""
+    its SVD of the tall Jacobian (every sample x the free parameters) took several times the CPU and the wall
+    time on two threads as on one, alone or beside the other fits (docs/results/gap_real.md); the fits use
+    the cores as processes (:mod:`ecu_monitor.identify.parallel`)."""
     return threadpool_limits(limits=1)
 
 

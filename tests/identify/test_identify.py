@@ -446,7 +446,7 @@ def test_a_time_scale_at_its_bound_is_flagged_for_a_second_search():
 
 
 def test_least_squares_runs_blas_on_one_thread_and_gives_the_threads_back():
-    """The polish's SVD runs on one BLAS thread (faster than two, docs/performance.md); outside it numpy's and
+    """The polish's SVD runs on one BLAS thread (faster than two, docs/results/gap_real.md); outside it numpy's and
     scipy's BLAS keep the threads they had (two here: the suite itself runs one per worker)."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
