@@ -209,8 +209,9 @@ def print_matched(flights: list[FlightLog], airframes: list[str]) -> None:
 
 
 def print_matched_variants(flights: list[FlightLog], airframes: list[str]) -> None:
-    """The CHT rise against the others binned by each of :data:`BINNINGS`, and for each cylinder alone (the
-    default binning): degC (matched time, s), markdown."""
+    """The CHT rise against the others binned by each of :data:`BINNINGS` and for each cylinder alone (the
+    default binning), against each other airframe alone, and the other readings at rpm x airspeed: degC
+    (matched time, s), markdown."""
     names = sorted(set(airframes))
     print("Each airframe's head against the others' (degC; matched steady time, s), by what sets the operating point:")
     print()
@@ -223,6 +224,18 @@ def print_matched_variants(flights: list[FlightLog], airframes: list[str]) -> No
         result = matched_rise(flights, airframes, widths=widths, cht_column=column)
         cells = [f"{result[n].offset_c:+.1f} ({result[n].matched_s:.0f})" for n in names]
         print(f"| {label} | " + " | ".join(cells) + " |")
+    print()
+    print("Each airframe's head against each other airframe alone (rpm x fuel flow x airspeed; degC, matched s):")
+    print()
+    print("| airframe / against | " + " | ".join(LABELS.get(n, n) for n in names) + " |")
+    print("|---|" + "---:|" * len(names))
+    for name in names:
+        cells = []
+        for other in names:
+            pair = [(f, a) for f, a in zip(flights, airframes, strict=True) if a in (name, other)]
+            m = matched_rise([f for f, _ in pair], [a for _, a in pair])[name] if other != name else None
+            cells.append("" if m is None else f"{m.offset_c:+.1f} ({m.matched_s:.0f})")
+        print(f"| {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     print()
     print("At rpm x airspeed (no fuel flow): the other readings against the others' (degC, L/h):")
     print()

@@ -399,7 +399,7 @@ def airframe_warning(params: ThermalParams, airframe: str | None, model_name: st
         else ""
     )
     return (
-        f"{log_name}: airframe {airframe} is not among those {model_name}, the {params.engine_type} type model,"
-        f" was made for ({', '.join(made_for)}){apart}: the first 20 minutes of one of its flights set its own"
-        " terms (identify --base TYPE.yaml FLIGHT --first-minutes 20 --out AIRFRAME.yaml)"
+        f"{log_name}: airframe {airframe}, but {model_name} is the {params.engine_type} type model made for"
+        f" {', '.join(made_for)}{apart}: the first 20 minutes of one of its flights set its own terms"
+        " (identify --base TYPE.yaml FLIGHT --first-minutes 20 --out AIRFRAME.yaml)"
     )

@@ -240,3 +240,8 @@ def test_replay_warns_when_the_model_was_made_for_another_airframe(tmp_path: Pat
     assert main(["replay", str(log), "--model", str(model), "--out", str(tmp_path / "h.csv")]) == 0
     warned = [line for line in capsys.readouterr().out.splitlines() if "airframe 25BA2E6F4" in line]
     assert len(warned) == 1 and "2E90B4BED" in warned[0] and warned[0].startswith("warning:")
+    made_for = (AirframeTerms("2E90B4BED", head_offset_c=4.9), AirframeTerms("24B6FD7AC", head_offset_c=-12.0))
+    save_model(load_model(model).replace(engine_type="c172", airframes=made_for), tmp_path / "c172.yaml")
+    assert main(["replay", str(log), "--model", str(tmp_path / "c172.yaml"), "--out", str(tmp_path / "h.csv")]) == 0
+    warned = [line for line in capsys.readouterr().out.splitlines() if "airframe 25BA2E6F4" in line]
+    assert len(warned) == 1 and "-12.0 to +4.9 degC" in warned[0] and "--first-minutes 20" in warned[0]
