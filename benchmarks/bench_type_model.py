@@ -208,15 +208,24 @@ def print_matched(flights: list[FlightLog], airframes: list[str]) -> None:
         )
 
 
+def _airframe_table(title: str, corner: str, names: list[str]) -> None:
+    """A markdown table's title and header: one column per airframe."""
+    print(title)
+    print()
+    print(f"| {corner} | " + " | ".join(LABELS.get(n, n) for n in names) + " |")
+    print("|---|" + "---:|" * len(names))
+
+
 def print_matched_variants(flights: list[FlightLog], airframes: list[str]) -> None:
     """The CHT rise against the others binned by each of :data:`BINNINGS` and for each cylinder alone (the
     default binning), against each other airframe alone, and the other readings at rpm x airspeed: degC
     (matched time, s), markdown."""
     names = sorted(set(airframes))
-    print("Each airframe's head against the others' (degC; matched steady time, s), by what sets the operating point:")
-    print()
-    print("| binned by / head | " + " | ".join(LABELS.get(n, n) for n in names) + " |")
-    print("|---|" + "---:|" * len(names))
+    _airframe_table(
+        "Each airframe's head against the others' (degC; matched steady time, s), by what sets the operating point:",
+        "binned by / head",
+        names,
+    )
     cylinders = [c for c in ("cht1_c", "cht2_c", "cht3_c", "cht4_c") if all(log.has(c) for log in flights)]
     rows = [(label, widths, "cht_c") for label, widths in BINNINGS.items()]
     rows += [(f"rpm x fuel flow x airspeed, cylinder {c[3]} alone", BIN_WIDTHS, c) for c in cylinders]
@@ -225,10 +234,11 @@ def print_matched_variants(flights: list[FlightLog], airframes: list[str]) -> No
         cells = [f"{result[n].offset_c:+.1f} ({result[n].matched_s:.0f})" for n in names]
         print(f"| {label} | " + " | ".join(cells) + " |")
     print()
-    print("Each airframe's head against each other airframe alone (rpm x fuel flow x airspeed; degC, matched s):")
-    print()
-    print("| airframe / against | " + " | ".join(LABELS.get(n, n) for n in names) + " |")
-    print("|---|" + "---:|" * len(names))
+    _airframe_table(
+        "Each airframe's head against each other airframe alone (rpm x fuel flow x airspeed; degC, matched s):",
+        "airframe / against",
+        names,
+    )
     for name in names:
         cells = []
         for other in names:
@@ -237,10 +247,9 @@ def print_matched_variants(flights: list[FlightLog], airframes: list[str]) -> No
             cells.append("" if m is None else f"{m.offset_c:+.1f} ({m.matched_s:.0f})")
         print(f"| {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     print()
-    print("At rpm x airspeed (no fuel flow): the other readings against the others' (degC, L/h):")
-    print()
-    print("| reading | " + " | ".join(LABELS.get(n, n) for n in names) + " |")
-    print("|---|" + "---:|" * len(names))
+    _airframe_table(
+        "At rpm x airspeed (no fuel flow): the other readings against the others' (degC, L/h):", "reading", names
+    )
     result = matched_rise(flights, airframes, widths=BINNINGS["rpm x airspeed (no fuel flow)"])
     for label, field in (
         ("fuel flow, L/h", "fuel_offset_lph"),
