@@ -239,6 +239,7 @@ class Pipeline:
         self._rows = _rows(_LIVE_ROWS, len(models))
         self._no_traces = _traces(0, len(models))
         self._functions: Any = None
+        self._live_entry: Callable[..., int] | None = None
         self._pending: list[StepRow] = []  # the health-status rows since drain_rows()
         self._latest: StepRow | None = None
         self._snapshot: HealthSnapshot | None = None
@@ -446,7 +447,6 @@ class Pipeline:
         """Hold the values fed since the last call (as of the clock's time then), then run every fixed step at
         or before ``t_s`` (s); returns the rows of the output table they wrote. One call of the compiled loop
         over two frames: the fed values at the clock's time (which runs no step), then ``t_s``."""
-        loop = self._compiled().replay_loop
         times, bounds = self._frame_times, self._frame_bounds
         times[0] = self._clock_now[0] if self._clock_started[0] else math.nan  # nan: holds, starts nothing
         times[1] = t_s
@@ -454,12 +454,25 @@ class Pipeline:
         out: list[StepRow] = []
         start = 0
         while start < 2:  # the rows filled up: drain them and go on from the frame reached
-            start = loop(self._engine, self._rows, self._no_traces, times, bounds, self._slots_buffer,
-                         self._values_buffer, start)  # fmt: skip
+            args = (self._engine, self._rows, self._no_traces, times, bounds, self._slots_buffer, self._values_buffer)
+            if self._live_entry is None:
+                self._live_entry = self._entry_for(*args, start)
+            start = self._live_entry(*args, start)
             out += self._take_rows()
         self._fed = 0
         self._sync_counters()
         return out
+
+    def _entry_for(self, *args: Any) -> Callable[..., int]:
+        """``replay_loop``'s compiled entry point for these arguments' numba types, found once: a call through
+        the dispatcher checks the types of every array of the records first, which costs several times
+        the call itself (the live path calls it once a frame with arguments of the same types for the
+        pipeline's life: the arrays are only ever replaced by arrays of the same dtype and layout)."""
+        dispatcher = self._compiled().replay_loop
+        signature = tuple(dispatcher.typeof_pyval(arg) for arg in args)
+        if signature not in dispatcher.overloads:
+            dispatcher.compile(signature)
+        return dispatcher.overloads[signature].entry_point  # type: ignore[no-any-return]
 
     def _sync_counters(self) -> None:
         self.counters["steps"] = int(self._clock_steps[0])

@@ -6,7 +6,8 @@ publishers) under one lock:
 * the receive thread: it calls the bus's ``recv`` itself (no python-can Notifier: the Notifier's lock
   and listener dispatch cost ~1-3 us a frame, docs/performance.md "DroneCAN"), each frame is stamped with
   the daemon's monotonic clock, fed to the pipeline, and ``advance_to(now)`` runs at once, so a health
-  frame that falls due is sent within the handling of that frame (the low-latency path);
+  frame that falls due is sent within the handling of that frame, each frame as soon as it is made (the
+  low-latency path: ``frames_until``);
 * the tick thread: ``advance_to(now)`` at each instant a row of the pipeline's output table falls due
   (``tick_s``: ``ecu-monitor run`` gives the row period, the health frames' 100 ms with the shipped rates,
   20 ms on DroneCAN, whose node sends on every step; phased on the clock's start), so the 50 Hz steps and
@@ -59,7 +60,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
@@ -95,6 +96,8 @@ class PipelineLike(Protocol):
     def feed(self, msg: can.Message) -> None: ...
 
     def advance_to(self, t_s: float) -> list[can.Message]: ...
+
+    def frames_until(self, t_s: float) -> Iterable[can.Message]: ...
 
     def snapshot(self) -> Any: ...
 
@@ -287,11 +290,11 @@ class Daemon:
             self.counters["frames_in"] += 1
             self._silence.frame(now)
             self.pipeline.feed(msg)
-            self._send_locked(self.pipeline.advance_to(now))
+            self._send_locked(self.pipeline.frames_until(now))
 
     def _tick(self) -> None:
         with self._lock:
-            self._send_locked(self.pipeline.advance_to(self._clock()))
+            self._send_locked(self.pipeline.frames_until(self._clock()))
 
     def _tick_loop(self, start_s: float) -> None:
         """Tick at ``start_s`` (the pipeline clock's start) + whole periods, ``_TICK_LAG_S`` after each."""
@@ -304,10 +307,9 @@ class Daemon:
             if next_s < now - period:  # fell behind (machine suspended, CPU starved): skip, in phase, no burst
                 next_s += period * math.floor((now - next_s) / period)
 
-    def _send_locked(self, frames: list[can.Message]) -> None:
-        """Send health frames in order (the caller holds the lock, which keeps counters in sequence)."""
-        if not frames:
-            return
+    def _send_locked(self, frames: Iterable[can.Message]) -> None:
+        """Send health frames in order, each as it is made (the caller holds the lock, which keeps counters
+        in sequence)."""
         bus = self._bus
         for frame in frames:
             if bus is None or self._bus_failed.is_set():

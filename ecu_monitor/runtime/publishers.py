@@ -1,5 +1,5 @@
 """Publishers: what the service sends back for each row of the pipeline's output table. Each publisher
-takes the rows and returns the frames they make; :func:`make_publishers` is the one table of them for a
+takes the rows and gives the frames they make, in order; :func:`make_publishers` is the one table of them for a
 config. :class:`LiveMonitor` is the pipeline with its publishers: frames in, health frames out (what the
 daemon and the demo run).
 
@@ -18,7 +18,7 @@ STATUSTEXT (:meth:`~ecu_monitor.pipeline.events.Event.start_text`) with the next
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import can
@@ -127,8 +127,8 @@ def health_signal_sources() -> dict[str, _Source]:
 class Publisher(Protocol):
     """One output of the service: the frames of the rows of the pipeline's output table."""
 
-    def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
-        """The frames the rows make, oldest first."""
+    def publish(self, rows: Sequence[StepRow]) -> Iterable[Any]:
+        """The frames the rows make, oldest first (a generator may make each as it is asked for)."""
         ...
 
     def tell(self, text: str) -> None:
@@ -202,8 +202,9 @@ class DbcHealthFrames:
         values = (EVENT_KINDS.index(event.kind), event.cylinder, _finite_or_zero(event.value), event.limit)
         return [self._frame(EVENT_FRAME, self.pipeline.now_s, values)]
 
-    def publish(self, rows: Sequence[StepRow]) -> list[can.Message]:
-        out: list[can.Message] = []
+    def publish(self, rows: Sequence[StepRow]) -> Iterator[can.Message]:
+        """The frames of the rows, each made as it is asked for (in the config's order: Health_Status first,
+        so the daemon sends it before the rest are made)."""
         for row in rows:
             snap: HealthSnapshot | None = None
             for message, period in self.periods.items():
@@ -212,10 +213,10 @@ class DbcHealthFrames:
                 if snap is None:
                     snap = self.pipeline.snapshot_of(row)
                 if message in self._per_cylinder:
-                    out += [self._frame(message, row.time_s, self.values(message, snap, c)) for c in snap.cylinders]
+                    for cylinder in snap.cylinders:
+                        yield self._frame(message, row.time_s, self.values(message, snap, cylinder))
                 else:
-                    out.append(self._frame(message, row.time_s, self.values(message, snap)))
-        return out
+                    yield self._frame(message, row.time_s, self.values(message, snap))
 
     def _frame(self, message: str, time_s: float, values: tuple[float, ...]) -> can.Message:
         counter = self._counters[message]
@@ -370,21 +371,24 @@ class LiveMonitor:
         self.pipeline.feed(msg)
 
     def advance_to(self, t_s: float) -> list[can.Message]:
-        """Run the steps up to ``t_s`` (s); the frames the publishers make of their rows, then of the engine
-        events that started (:meth:`Publisher.announce`)."""
-        frames: list[can.Message] = []
+        """Run the steps up to ``t_s`` (s); the frames to send (:meth:`frames_until`, all made)."""
+        return list(self.frames_until(t_s))
+
+    def frames_until(self, t_s: float) -> Iterator[can.Message]:
+        """Run the steps up to ``t_s`` (s), then give the frames the publishers make of their rows, then of
+        the engine events that started (:meth:`Publisher.announce`), each made as it is asked for (the
+        daemon sends each before the next is made). Take them all: the rows' state moves as they are made."""
         for row in self.pipeline.advance_to(t_s):
             for publisher in self.publishers:
-                frames += publisher.publish((row,))
+                yield from publisher.publish((row,))
         events = self.pipeline.take_events()
         if events:
             for event in events:
                 if event.ongoing:
                     for publisher in self.publishers:
-                        frames += publisher.announce(event)
+                        yield from publisher.announce(event)
             self._events += events
             del self._events[:-_KEPT_EVENTS]
-        return frames
 
     def drain_events(self) -> list[Event]:
         """The event records (starts and ends, pipeline/events.py) since the last call (the flight recorder's;
