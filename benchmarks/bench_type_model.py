@@ -77,6 +77,15 @@ BINNINGS: dict[str, dict[str, float]] = {
 }
 
 
+def _form(spec: str) -> tuple[tuple[str, str], str]:
+    """``--form AXIS1,AXIS2:EFFECTS`` -> (heat-map axes, --effects)."""
+    axes, sep, effects = spec.partition(":")
+    names = tuple(a.strip() for a in axes.split(","))
+    if not sep or len(names) != 2 or not all(names):
+        raise SystemExit(f"--form: expected AXIS1,AXIS2:EFFECTS, got {spec!r}")
+    return (names[0], names[1]), effects
+
+
 def _load(paths: list[Path]) -> tuple[list[FlightLog], list[str]]:
     flights, airframes = [], []
     for path in paths:
@@ -274,12 +283,21 @@ def main() -> int:
     )
     parser.add_argument("--plot", type=Path, help="draw each held-out airframe's first flight into this directory")
     parser.add_argument(
+        "--form",
+        action="append",
+        metavar="AXIS1,AXIS2:EFFECTS",
+        help="a form to fit instead of FORMS (repeat for several; the first is the zero-flight one), e.g."
+        " rpm,airspeed_mps:altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index",
+    )
+    parser.add_argument(
         "--matched-only", action="store_true", help="only the airframes' heads compared at the same inputs (no fit)"
     )
     args = parser.parse_args()
     g1000 = args.g1000 or args.data.parent / "g1000"
     paths = sorted(args.data.glob("ngafid_c172s_*.csv")) + sorted(args.data.glob("cafuc_c172*.csv"))
     paths += sorted(g1000.glob("log_*.csv"))
+    forms = tuple(_form(spec) for spec in args.form) if args.form else FORMS
+    forms = forms[:1] if args.one_form else forms
     flights, airframes = _load(paths)
     if args.matched_only:
         print_matched(flights, airframes)
@@ -287,7 +305,6 @@ def main() -> int:
         print_matched_variants(flights, airframes)
         return 0
     settings = PsoSettings(particles=24, iterations=10 if args.quick else 30, polish_evaluations=100, dt_s=1.0)
-    forms = FORMS[:1] if args.one_form else FORMS
     names = list(dict.fromkeys(airframes))
     held = args.only.split(",") if args.only else names
     rows = []
