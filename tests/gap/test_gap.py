@@ -207,6 +207,7 @@ def test_gap_settings_reject_unknown_candidates() -> None:
 _CASES = {kind_index: CASE_KINDS[kind_index] for kind_index in (0, 1, 2, 3, 4, 5)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index", sorted(_CASES), ids=[f"{i}-{k}" for i, k in sorted(_CASES.items())])
 def test_blind_case_verdict(index: int) -> None:
     case = blind_case(index, BLIND_SEED, BLIND_DURATION_S)

@@ -14,6 +14,8 @@ from ecu_monitor.research.blind import blind_case
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
 
+pytestmark = pytest.mark.slow  # over a minute in all: scheduled first (tests/conftest.py)
+
 SEED = 1
 DURATION_S = 1500.0
 

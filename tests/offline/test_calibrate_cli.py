@@ -31,6 +31,8 @@ from ecu_monitor.research.evaluation import residual_effects
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
 
+pytestmark = pytest.mark.slow  # over a minute in all: scheduled first (tests/conftest.py)
+
 SEEDS = (11, 12)
 
 #: The detector keys of a calibration without an engine reference (too few flights): written off.

@@ -35,6 +35,8 @@ from tests.helpers import REPO
 from virtual_bus.plant import fly
 from virtual_bus.random_missions import random_mission
 
+pytestmark = pytest.mark.slow  # over a minute in all: scheduled first (tests/conftest.py)
+
 CONFIGS = REPO / "ecu_monitor" / "data" / "configs"
 SEEDS = (11, 12)
 
