@@ -7,8 +7,7 @@ Across processes (default, needs root): in a network namespace made for the run 
 loopback only, deleted at the end), on python-can's udp_multicast interface, three processes:
 
 * the peer: the daemon as ``ecu-monitor run --config`` builds it (LiveMonitor, Daemon with run.py's
-  settings, flight recorder, receive filters in the kernel) at the priority the shipped systemd unit
-  gives it (its ``Nice=``; ``--nice`` to choose another), with one change, its 20 ms tick off, so that
+  settings, flight recorder, receive filters in the kernel) with one change, its 20 ms tick off, so that
   each step is run by the engine frame that makes it fall due; or the echo, a bare receive loop with a
   kernel filter on that frame's id, which answers it with one frame at once (the transport's floor);
 * ``--traffic`` frames/s of other ids (0x400-0x7FF, bursts every 2.5 ms);
@@ -59,15 +58,6 @@ TRIGGER: dict[str, Any] = {
     "dbc": {"can_id": 0x100, "can_mask": 0x7FF, "extended": False},  # ECU_Fast
     "dronecan": {"can_id": 1120 << 8, "can_mask": 0xFFFF80, "extended": True},  # ice.reciprocating.Status
 }
-
-
-def unit_nice() -> int:
-    """The ``Nice=`` of the shipped systemd unit (0 when it sets none): the daemon's priority in the field."""
-    for line in (DATA / "systemd" / "ecu-monitor.service").read_text().splitlines():
-        key, _, value = line.partition("=")
-        if key.strip() == "Nice":
-            return int(value)
-    return 0
 
 
 def period_frames(protocol: str) -> Callable[[int], list[can.Message]]:
@@ -243,8 +233,7 @@ def across_processes(args: argparse.Namespace) -> list[dict[str, Any]]:
 
         try:
             for case in ("echo", "daemon"):
-                daemon = ("daemon", str(space.config), str(args.nice))
-                peer = start("echo", args.protocol) if case == "echo" else start(*daemon)
+                peer = start("echo", args.protocol) if case == "echo" else start("daemon", str(space.config))
                 traffic = start("traffic", str(args.traffic))
                 time.sleep(1.0)
                 row = result(start("measure", str(args.seconds), args.protocol), args.seconds + 60)
@@ -293,8 +282,6 @@ def run_role(role: str, port: str, *argv: str) -> None:
     if role == "daemon":
         from ecu_monitor.config import load_config
 
-        os.nice(int(argv[1]))
-
         config, ready = load_config(argv[0]), threading.Event()
         counts = in_thread(run_daemon, config, lambda: can.Bus(**dict(config.bus)), ready, stop)
         print("ready" if ready.wait(300) else "no bus", flush=True)
@@ -340,15 +327,11 @@ def main() -> None:
     parser.add_argument("--traffic", type=float, default=4000.0, help="other frames per second")
     parser.add_argument("--protocol", choices=("dbc", "dronecan"), default="dbc")
     parser.add_argument("--one-process", action="store_true", help="python-can virtual bus, threads of this process")
-    parser.add_argument("--nice", type=int, default=unit_nice(), help="the daemon's nice value (default: the unit's)")
     args = parser.parse_args()
     if args.one_process:
         rows, where = [one_process(args, case) for case in ("echo", "daemon")], "virtual bus, one process"
     else:
-        rows, where = (
-            across_processes(args),
-            f"udp_multicast across processes in a network namespace, daemon at nice {args.nice}",
-        )
+        rows, where = across_processes(args), "udp_multicast across processes in a network namespace"
     report(rows, f"{where}, {args.protocol}, {args.seconds:g} s per case", across=not args.one_process)
 
 

@@ -27,7 +27,9 @@ With several flights of X each of them takes its turn as the adapting flight; th
 RMS over the scored flights of every turn. Scores are open loop from the first CHT sample of the scored
 part; error is model - mean CHT of the cylinders, degC. Prints a markdown table, each airframe's head
 against the others' at the same steady inputs (:func:`ecu_monitor.identify.matched.matched_rise`: what no
-form of the model can carry to an airframe with zero flights) and the timings.
+form of the model can carry to an airframe with zero flights) and the timings. ``--matched-only`` prints
+only that comparison (in a second), with the operating points binned by other inputs too (without the fuel
+flow, with the EGT or the altitude) and for each cylinder alone: is the difference one of those?
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ import numpy as np
 from ecu_monitor.bus.canlog import load_flight
 from ecu_monitor.flightlog import FlightLog, log_airframe
 from ecu_monitor.identify import PsoSettings, flight_errors
-from ecu_monitor.identify.matched import matched_rise
+from ecu_monitor.identify.matched import BIN_WIDTHS, matched_rise
 from ecu_monitor.identify.select import parse_terms
 from ecu_monitor.identify.type_model import Adaptation, adapt_choosing, describe_terms, first_minutes, fit_type
 from ecu_monitor.model import ThermalParams, load_model, paper_table_a1, save_model
@@ -65,6 +67,23 @@ LABELS = {
     "24B6FD7AC": "C172S (KGFK, 2011)",
 }
 TARGETS = (6.0, 4.0, 3.5)
+#: Other inputs to bin the operating points by for ``--matched-only`` (label -> column: bin width).
+BINNINGS: dict[str, dict[str, float]] = {
+    "rpm x fuel flow x airspeed": BIN_WIDTHS,
+    "rpm x airspeed (no fuel flow)": {"rpm": 150.0, "airspeed_mps": 10.0},
+    "rpm x EGT x airspeed": {"rpm": 150.0, "egt_c": 25.0, "airspeed_mps": 10.0},
+    "rpm x fuel flow x EGT x airspeed": {**BIN_WIDTHS, "egt_c": 25.0},
+    "rpm x airspeed x altitude": {"rpm": 150.0, "airspeed_mps": 10.0, "altitude_m": 500.0},
+}
+
+
+def _form(spec: str) -> tuple[tuple[str, str], str]:
+    """``--form AXIS1,AXIS2:EFFECTS`` -> (heat-map axes, --effects)."""
+    axes, sep, effects = spec.partition(":")
+    names = tuple(a.strip() for a in axes.split(","))
+    if not sep or len(names) != 2 or not all(names):
+        raise SystemExit(f"--form: expected AXIS1,AXIS2:EFFECTS, got {spec!r}")
+    return (names[0], names[1]), effects
 
 
 def _load(paths: list[Path]) -> tuple[list[FlightLog], list[str]]:
@@ -182,6 +201,73 @@ def plot_adaptations(
     plt.close(fig)
 
 
+def print_matched(flights: list[FlightLog], airframes: list[str]) -> None:
+    """Each airframe's head against the others' at the steady operating points they share: markdown."""
+    print("Each airframe against the others at the steady operating points they share (rpm x fuel flow x airspeed):")
+    print()
+    print(
+        "| airframe | CHT rise vs the others, degC (spread over the points) | EGT vs the others, degC"
+        " | oil above the air vs the others, degC | matched / steady time, s |"
+    )
+    print("|---|---:|---:|---:|---:|")
+    for name, m in matched_rise(flights, airframes).items():
+        print(
+            f"| {LABELS.get(name, name)} | {m.offset_c:+.1f} ({m.spread_c:.1f}) | {m.egt_offset_c:+.1f} |"
+            f" {m.oil_offset_c:+.1f} | {m.matched_s:.0f} / {m.steady_s:.0f} in {m.bins} points |"
+        )
+
+
+def _airframe_table(title: str, corner: str, names: list[str]) -> None:
+    """A markdown table's title and header: one column per airframe."""
+    print(title)
+    print()
+    print(f"| {corner} | " + " | ".join(LABELS.get(n, n) for n in names) + " |")
+    print("|---|" + "---:|" * len(names))
+
+
+def print_matched_variants(flights: list[FlightLog], airframes: list[str]) -> None:
+    """The CHT rise against the others binned by each of :data:`BINNINGS` and for each cylinder alone (the
+    default binning), against each other airframe alone, and the other readings at rpm x airspeed: degC
+    (matched time, s), markdown."""
+    names = sorted(set(airframes))
+    _airframe_table(
+        "Each airframe's head against the others' (degC; matched steady time, s), by what sets the operating point:",
+        "binned by / head",
+        names,
+    )
+    cylinders = [c for c in ("cht1_c", "cht2_c", "cht3_c", "cht4_c") if all(log.has(c) for log in flights)]
+    rows = [(label, widths, "cht_c") for label, widths in BINNINGS.items()]
+    rows += [(f"rpm x fuel flow x airspeed, cylinder {c[3]} alone", BIN_WIDTHS, c) for c in cylinders]
+    for label, widths, column in rows:
+        result = matched_rise(flights, airframes, widths=widths, cht_column=column)
+        cells = [f"{result[n].offset_c:+.1f} ({result[n].matched_s:.0f})" for n in names]
+        print(f"| {label} | " + " | ".join(cells) + " |")
+    print()
+    _airframe_table(
+        "Each airframe's head against each other airframe alone (rpm x fuel flow x airspeed; degC, matched s):",
+        "airframe / against",
+        names,
+    )
+    for name in names:
+        cells = []
+        for other in names:
+            pair = [(f, a) for f, a in zip(flights, airframes, strict=True) if a in (name, other)]
+            m = matched_rise([f for f, _ in pair], [a for _, a in pair])[name] if other != name else None
+            cells.append("" if m is None else f"{m.offset_c:+.1f} ({m.matched_s:.0f})")
+        print(f"| {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+    print()
+    _airframe_table(
+        "At rpm x airspeed (no fuel flow): the other readings against the others' (degC, L/h):", "reading", names
+    )
+    result = matched_rise(flights, airframes, widths=BINNINGS["rpm x airspeed (no fuel flow)"])
+    for label, field in (
+        ("fuel flow, L/h", "fuel_offset_lph"),
+        ("EGT", "egt_offset_c"),
+        ("oil above the air", "oil_offset_c"),
+    ):
+        print(f"| {label} | " + " | ".join(f"{getattr(result[n], field):+.1f}" for n in names) + " |")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "real")
@@ -196,13 +282,29 @@ def main() -> int:
         help="read each fold's type models from this directory (written by --save) instead of fitting",
     )
     parser.add_argument("--plot", type=Path, help="draw each held-out airframe's first flight into this directory")
+    parser.add_argument(
+        "--form",
+        action="append",
+        metavar="AXIS1,AXIS2:EFFECTS",
+        help="a form to fit instead of FORMS (repeat for several; the first is the zero-flight one), e.g."
+        " rpm,airspeed_mps:altitude_factor,airspeed_cooling,sensor_lag,density_cooling,mixture_index",
+    )
+    parser.add_argument(
+        "--matched-only", action="store_true", help="only the airframes' heads compared at the same inputs (no fit)"
+    )
     args = parser.parse_args()
     g1000 = args.g1000 or args.data.parent / "g1000"
     paths = sorted(args.data.glob("ngafid_c172s_*.csv")) + sorted(args.data.glob("cafuc_c172*.csv"))
     paths += sorted(g1000.glob("log_*.csv"))
+    forms = tuple(_form(spec) for spec in args.form) if args.form else FORMS
+    forms = forms[:1] if args.one_form else forms
     flights, airframes = _load(paths)
+    if args.matched_only:
+        print_matched(flights, airframes)
+        print()
+        print_matched_variants(flights, airframes)
+        return 0
     settings = PsoSettings(particles=24, iterations=10 if args.quick else 30, polish_evaluations=100, dt_s=1.0)
-    forms = FORMS[:1] if args.one_form else FORMS
     names = list(dict.fromkeys(airframes))
     held = args.only.split(",") if args.only else names
     rows = []
@@ -274,18 +376,7 @@ def main() -> int:
         print(f"- held out {LABELS.get(name, name)}: the type's airframes' own terms: {kept}")
         print(f"  its own terms from 20 min: {' / '.join(short_terms)}; from one flight: {' / '.join(whole_terms)}")
     print()
-    print("Each airframe against the others at the steady operating points they share (rpm x fuel flow x airspeed):")
-    print()
-    print(
-        "| airframe | CHT rise vs the others, degC (spread over the points) | EGT vs the others, degC"
-        " | matched / steady time, s |"
-    )
-    print("|---|---:|---:|---:|")
-    for name, m in matched_rise(flights, airframes).items():
-        print(
-            f"| {LABELS.get(name, name)} | {m.offset_c:+.1f} ({m.spread_c:.1f}) | {m.egt_offset_c:+.1f} |"
-            f" {m.matched_s:.0f} / {m.steady_s:.0f} in {m.bins} points |"
-        )
+    print_matched(flights, airframes)
     print()
     for label, values in timings.items():
         print(f"- {label}: mean {np.mean(values):.1f}, max {np.max(values):.1f} over {len(values)}")

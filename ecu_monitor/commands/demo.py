@@ -88,7 +88,9 @@ def add_subparser(subparsers: Any) -> None:
 class ServiceListener:
     """The service side of the demo: pipeline.advance_to + feed per frame, health frames sent back.
 
-    A python-can message recipient: can.Notifier calls it with each frame, and ``on_error`` on a bus error.
+    A python-can message recipient: can.Notifier calls it with each frame, and ``on_error`` with what a
+    frame's handling raised (kept in :attr:`failure`: the demo's main thread raises it, the flight cannot go
+    on without the service).
     """
 
     def __init__(self, pipeline: LiveMonitor, bus: can.BusABC) -> None:
@@ -100,7 +102,7 @@ class ServiceListener:
         self.lock = threading.Lock()
         self.rows: list[HealthSnapshot] = []
         self.processed = 0
-        self.errors: list[str] = []
+        self.failure: Exception | None = None
 
     def on_message_received(self, msg: can.Message) -> None:
         with self.lock:
@@ -117,7 +119,13 @@ class ServiceListener:
     __call__ = on_message_received
 
     def on_error(self, exc: Exception) -> None:
-        self.errors.append(f"{type(exc).__name__}: {exc}")
+        if self.failure is None:
+            self.failure = exc
+
+    def check(self) -> None:
+        """Raise what the service side raised, if it did."""
+        if self.failure is not None:
+            raise self.failure
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -170,6 +178,7 @@ def _run(args: argparse.Namespace) -> int:
         for block in iter_steps(mission, params, degradation=(injection,), seed=args.seed, cylinders=heads):
             for msg in encoder.frames(block):
                 while counts["sent"] - listener.processed > _MAX_BACKLOG:
+                    listener.check()
                     time.sleep(0.0005)
                 ecu_bus.send(msg)
                 counts["sent"] += 1
@@ -182,7 +191,9 @@ def _run(args: argparse.Namespace) -> int:
         log: FlightLog = collect(fly(), record_every(0.02, 0.1), source=f"demo:{mission.name}:seed={args.seed}")
         deadline = time.perf_counter() + 30.0
         while listener.processed < counts["sent"] and time.perf_counter() < deadline:
+            listener.check()
             time.sleep(0.01)
+        listener.check()
     finally:
         notifier.stop()
         while ecu_bus.recv(timeout=0.05) is not None:
@@ -203,8 +214,6 @@ def _run(args: argparse.Namespace) -> int:
     plots = _write_report(
         args, out, log, rows, mission=mission.name, cht_limit_c=params.cht_limit_c, cylinders=bool(heads)
     )
-    if listener.errors:
-        print(f"bus errors in the service listener: {len(listener.errors)} (first: {listener.errors[0]})")
     print(f"wrote {out}/flight.csv, health.csv ({len(rows)} rows){plots}")
     return 0
 

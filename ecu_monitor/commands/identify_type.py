@@ -112,25 +112,24 @@ def _fit_lines(name: str, fit: AirframeFit, sources: list[str]) -> list[str]:
     return lines
 
 
-def _matched(flights: list[FlightLog], airframes: list[str]) -> dict[str, list[str]]:
-    """Per airframe, its head against the other airframes' at the steady operating points they share (the
+def _matched_lines(fit: AirframeFit) -> list[str]:
+    """An airframe's head against the other airframes' at the steady operating points they share (the
     difference no form of the model carries to an airframe with no flight of its own); nothing where the
     flights lack a column it reads."""
-    from ecu_monitor.identify.matched import MATCH_COLUMNS, matched_rise
-
-    if not all(log.has(name) for log in flights for name in MATCH_COLUMNS):
-        return {}
-    out: dict[str, list[str]] = {}
-    for airframe, m in matched_rise(flights, airframes).items():
-        if m.bins == 0:
-            out[airframe] = ["  shares no steady operating point (rpm x fuel flow x airspeed) with the other airframes"]
-            continue
-        egt = f", EGT {m.egt_offset_c:+.0f} degC" if math.isfinite(m.egt_offset_c) else ""
-        out[airframe] = [
-            f"  at the steady operating points it shares with the others ({m.matched_s:.0f} s): its head"
-            f" {m.offset_c:+.1f} degC against theirs (spread {m.spread_c:.1f}){egt}"
-        ]
-    return out
+    m = fit.matched
+    if m is None:
+        return []
+    if m.bins == 0:
+        return ["  shares no steady operating point (rpm x fuel flow x airspeed) with the other airframes"]
+    others = [
+        f", {label} {value:+.0f} degC"
+        for label, value in (("EGT", m.egt_offset_c), ("oil above the air", m.oil_offset_c))
+        if math.isfinite(value)
+    ]
+    return [
+        f"  at the steady operating points it shares with the others ({m.matched_s:.0f} s): its head"
+        f" {m.offset_c:+.1f} degC against theirs (spread {m.spread_c:.1f}){''.join(others)}"
+    ]
 
 
 #: After the airframes' matched lines: what they mean.
@@ -179,11 +178,10 @@ def run_type(
         f"type model {name}: {len(flights)} flights of {len(fit.airframes)} airframes, {fit.elapsed_s:.0f} s"
         + (f"; joint polish cost {fit.joint_cost:.3f} degC" if fit.joint_cost is not None else ""),
     ]
-    matched = _matched(flights, airframes)
     for airframe, airframe_fit in fit.airframes.items():
         sources = [log.source for log, a in zip(flights, airframes, strict=True) if a == airframe]
-        lines += _fit_lines(airframe, airframe_fit, sources) + matched.get(airframe, [])
-    if matched:
+        lines += _fit_lines(airframe, airframe_fit, sources) + _matched_lines(airframe_fit)
+    if any(f.matched is not None for f in fit.airframes.values()):
         lines.append(_MATCHED_NOTE)
     _write(fit.params, out, lines)
     for line in lines[1:]:

@@ -31,11 +31,15 @@ the halves that choose its terms.
 
 A CHT offset (the same degrees at every operating point) is not among the terms: the model, and so the
 estimator, replay and run, has no output offset; the heat and cooling scales are the terms that move an
-airframe's head temperature at its operating points.
+airframe's head temperature at its operating points. What a type fit records instead is each airframe's head
+against the others' at the steady inputs they share (``head_offset_c``, measured from the flights, not
+applied): how far a new airframe of the type can be from the type model with no flight of its own, which
+replay's warning for a type model on a new airframe states (``ecu_monitor.model.airframe_warning``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import time
@@ -50,6 +54,7 @@ from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.identify.fit import IdentificationResult, polish
 from ecu_monitor.identify.flights import ErrorStats, flight_errors, prepare_flight
+from ecu_monitor.identify.matched import MATCH_COLUMNS, MatchedRise, matched_rise
 from ecu_monitor.identify.objective import SwarmObjective, pooled_residuals
 from ecu_monitor.identify.problem import DEFAULT_FREE, ParameterSpace, heat_cell_name, visited_weight_s
 from ecu_monitor.identify.pso import PsoSettings
@@ -421,7 +426,9 @@ class AirframeFit:
     model on each of its flights (the data it was fitted on); as_type: the type model as is on them.
     From an adaptation also: heat_map_prior, the prior width its heat-map values were refitted with
     (:func:`choose_heat_map_prior`; 0: the type's kept), heat_map_held_out, the held-out RMS (degC, both
-    ways) of each width tried, and heat_values, the number of heat-map values refitted.
+    ways) of each width tried, and heat_values, the number of heat-map values refitted. From a type fit also:
+    matched, its head against the type's other airframes at the steady inputs they share (None where the
+    flights lack a column that reads; its offset is also ``terms.head_offset_c``).
     """
 
     terms: AirframeTerms
@@ -431,6 +438,7 @@ class AirframeFit:
     heat_map_prior: float = 0.0
     heat_map_held_out: dict[float, float] = field(default_factory=dict)
     heat_values: int = 0
+    matched: MatchedRise | None = None
 
 
 @dataclass(frozen=True)
@@ -463,7 +471,9 @@ def fit_type(
 ) -> TypeFit:
     """The type model of ``flights`` (``airframes[f]``: the airframe of flight f; two or more airframes):
     the shared identification, the joint polish with every airframe's terms, then each airframe's terms
-    chosen by held-out error and refitted on its flights (module doc)."""
+    chosen by held-out error and refitted on its flights (module doc); each airframe's head is compared with
+    the others' at the steady inputs they share (:func:`~ecu_monitor.identify.matched.matched_rise`) and the
+    offset recorded with its terms."""
     names = sorted(set(airframes))
     if len(names) < 2:
         raise ParameterError(f"a type model needs flights of two airframes or more, got {', '.join(names) or 'none'}")
@@ -492,16 +502,25 @@ def fit_type(
             shared = _centred(fitted, {term: v[0] for term, v in values.items()})
             joint_cost = cost
     fits: dict[str, AirframeFit] = {}
+    matched = (
+        matched_rise(flights, airframes)
+        if all(log.has(column) for log in flights for column in MATCH_COLUMNS)
+        else dict.fromkeys(names)
+    )
     for name in names:
         own = [log for log, a in zip(flights, airframes, strict=True) if a == name]
         chosen, held_out = choose_terms(shared, own, candidates, settings)
         kept = _fit_airframe(shared, own, chosen, settings, name)
         model = airframe_model(shared, kept)
+        head = matched[name]
+        if head is not None and head.bins:
+            kept = dataclasses.replace(kept, head_offset_c=head.offset_c)
         fits[name] = AirframeFit(
             kept,
             held_out,
             tuple(flight_errors(model, log) for log in own),
             tuple(flight_errors(shared, log) for log in own),
+            matched=head,
         )
         say(f"airframe {name}: {describe_terms(kept)}")
     params = shared.replace(engine_type=engine_type, airframes=tuple(fits[n].terms for n in names))

@@ -80,11 +80,13 @@ MAX_STEADY_RISE_C = 2000.0
 #: Accepted range of an airframe's heat and cooling scales (:class:`AirframeTerms`), dimensionless.
 SCALE_RANGE: tuple[float, float] = (0.5, 2.0)
 
-#: The terms an airframe may have of its own (:class:`AirframeTerms` fields) and their accepted ranges.
+#: The fields of an airframe entry besides its id (:class:`AirframeTerms`: its own terms, then its head's
+#: measured offset) and their accepted ranges.
 _AIRFRAME_TERM_RANGES: dict[str, tuple[float, float]] = {
     "heat_scale": SCALE_RANGE,
     "cooling_scale": SCALE_RANGE,
     "probe_lag_s": (0.0, 300.0),
+    "head_offset_c": (-200.0, 200.0),
 }
 
 
@@ -98,6 +100,10 @@ class AirframeTerms:
     cooling_scale: the airframe's convective conductance 1/R_Ce relative to the type's (dimensionless),
         None when the airframe does not need its own.
     probe_lag_s: the airframe's CHT probe time constant (s), None when it does not need its own.
+    head_offset_c: measured, not a term: its head's rise above the air against the type's other airframes' at
+        the steady operating points they share (degC, ``ecu_monitor.identify.matched``), recorded by
+        ``identify --type`` (None: not measured). No model applies it: it says how far apart the heads of
+        the type's airframes run at the same inputs, so how far a new airframe's can be from the type's.
 
     In a type model (``engine_type`` set) the terms apply on top of the type's shared parameters
     (``ecu_monitor.identify.type_model.airframe_model``); in any other model they are a record of
@@ -108,6 +114,7 @@ class AirframeTerms:
     heat_scale: float | None = None
     cooling_scale: float | None = None
     probe_lag_s: float | None = None
+    head_offset_c: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.id, str) or not self.id.strip():
@@ -123,7 +130,7 @@ class AirframeTerms:
             object.__setattr__(self, name, float(value))
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict for YAML: the id and the terms the airframe has."""
+        """Plain dict for YAML: the id and the fields the airframe has."""
         terms = {name: getattr(self, name) for name in _AIRFRAME_TERM_RANGES if getattr(self, name) is not None}
         return {"id": self.id, **terms}
 
@@ -373,12 +380,26 @@ def save_model(params: ThermalParams, path: str | Path, comment: str | None = No
 
 def airframe_warning(params: ThermalParams, airframe: str | None, model_name: str, log_name: str) -> str | None:
     """One line when a model made for other airframes (``params.airframes``) is used on a log or an engine of
-    another (``airframe``: its G1000 system_id or engine serial); None when either is unknown or they agree."""
+    another (``airframe``: its G1000 system_id or engine serial); None when either is unknown or they agree.
+    For a type model it says how far apart its airframes' heads ran at the same inputs (where recorded:
+    :attr:`AirframeTerms.head_offset_c`) and how the new airframe's own terms are set."""
     made_for = [a.id for a in params.airframes]
     if not airframe or not made_for or airframe in made_for:
         return None
-    kind = f"the {params.engine_type} type model" if params.engine_type else "a model"
+    if not params.engine_type:
+        return (
+            f"{log_name}: airframe {airframe}, but {model_name} is a model made for {', '.join(made_for)}:"
+            " expect a larger error (identify --base TYPE.yaml adapts a type model to an airframe)"
+        )
+    offsets = [a.head_offset_c for a in params.airframes if a.head_offset_c is not None]
+    apart = (
+        f"; at the same inputs its airframes' heads ran {min(offsets):+.1f} to {max(offsets):+.1f} degC from the"
+        " others', and a new airframe's can be as far from the model"
+        if offsets
+        else ""
+    )
     return (
-        f"{log_name}: airframe {airframe}, but {model_name} is {kind} made for {', '.join(made_for)}:"
-        " expect a larger error (identify --base TYPE.yaml adapts a type model to an airframe)"
+        f"{log_name}: airframe {airframe}, but {model_name} is the {params.engine_type} type model made for"
+        f" {', '.join(made_for)}{apart}: the first 20 minutes of one of its flights set its own terms"
+        " (identify --base TYPE.yaml FLIGHT --first-minutes 20 --out AIRFRAME.yaml)"
     )

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import msgspec
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -469,6 +470,8 @@ class Pipeline:
         the call itself (the live path calls it once a frame with arguments of the same types for the
         pipeline's life: the arrays are only ever replaced by arrays of the same dtype and layout)."""
         dispatcher = self._compiled().replay_loop
+        if numba.config.DISABLE_JIT:  # NUMBA_DISABLE_JIT=1: the plain Python function, nothing to resolve
+            return dispatcher  # type: ignore[no-any-return]
         signature = tuple(dispatcher.typeof_pyval(arg) for arg in args)
         if signature not in dispatcher.overloads:
             dispatcher.compile(signature)

@@ -139,14 +139,14 @@ def test_the_new_airframes_halves_choose_between_type_models(type_fit):
 
 
 def test_airframe_model_applies_the_terms_and_round_trips(tmp_path: Path):
-    terms = AirframeTerms("X", heat_scale=1.1, cooling_scale=0.8, probe_lag_s=20.0)
+    terms = AirframeTerms("X", heat_scale=1.1, cooling_scale=0.8, probe_lag_s=20.0, head_offset_c=-3.5)
     type_params = paper_table_a1().replace(engine_type="c172", airframes=(terms,))
     path = tmp_path / "type.yaml"
     save_model(type_params, path)
     assert load_model(path) == type_params
     model = airframe_model(type_params, type_params.airframes[0])
     assert np.allclose(model.heat_map.values_array(), 1.1 * type_params.heat_map.values_array())
-    assert model.r_ce == pytest.approx(type_params.r_ce / 0.8)  # 20 % less cooling
+    assert model.r_ce == pytest.approx(type_params.r_ce / 0.8)  # 20 % less cooling; the head's offset a record only
     assert model.effects.sensor_lag is not None and model.effects.sensor_lag.time_constant_s == 20.0
     (tmp_path / "bad.yaml").write_text(path.read_text().replace("heat_scale: 1.1", "heat_scale: 9.0"))
     with pytest.raises(ConfigError, match="heat_scale"):
@@ -166,6 +166,10 @@ def test_a_model_of_another_airframe_is_named_in_one_line(tmp_path: Path):
     assert line is not None and "25BA2E6F4" in line and "2E90B4BED" in line and "\n" not in line
     assert airframe_warning(model, "2E90B4BED", "n550nd.yaml", log.name) is None
     assert airframe_warning(paper_table_a1(), "25BA2E6F4", "paper", log.name) is None  # made for no airframe
+    made_for = (AirframeTerms("2E90B4BED", head_offset_c=4.9), AirframeTerms("24B6FD7AC", head_offset_c=-12.0))
+    type_line = airframe_warning(model.replace(engine_type="c172", airframes=made_for), "25BA2E6F4", "c172.yaml", "f")
+    assert type_line is not None and "-12.0 to +4.9 degC" in type_line and "--first-minutes 20" in type_line
+    assert "\n" not in type_line
 
 
 def test_fleet_options_fail_before_the_work(tmp_path: Path):
@@ -193,6 +197,8 @@ def test_identify_type_and_base_on_the_command_line(tmp_path: Path, capsys: pyte
                  "--out", str(out), *quick]) == 0  # fmt: skip
     type_params = load_model(out)
     assert type_params.engine_type == "type" and [a.id for a in type_params.airframes] == ["A", "B"]
+    offsets = [a.head_offset_c for a in type_params.airframes]  # B's heat map 15 % above A's: its head hotter
+    assert offsets[0] is not None and offsets[1] is not None and offsets[1] > 5.0 and offsets[0] < -5.0
     printed = capsys.readouterr().out
     assert "airframe B:" in printed
     b_line = printed.split("airframe B:")[1]  # B (heat scale 1.15) against A at the same inputs: hotter
@@ -234,3 +240,8 @@ def test_replay_warns_when_the_model_was_made_for_another_airframe(tmp_path: Pat
     assert main(["replay", str(log), "--model", str(model), "--out", str(tmp_path / "h.csv")]) == 0
     warned = [line for line in capsys.readouterr().out.splitlines() if "airframe 25BA2E6F4" in line]
     assert len(warned) == 1 and "2E90B4BED" in warned[0] and warned[0].startswith("warning:")
+    made_for = (AirframeTerms("2E90B4BED", head_offset_c=4.9), AirframeTerms("24B6FD7AC", head_offset_c=-12.0))
+    save_model(load_model(model).replace(engine_type="c172", airframes=made_for), tmp_path / "c172.yaml")
+    assert main(["replay", str(log), "--model", str(tmp_path / "c172.yaml"), "--out", str(tmp_path / "h.csv")]) == 0
+    warned = [line for line in capsys.readouterr().out.splitlines() if "airframe 25BA2E6F4" in line]
+    assert len(warned) == 1 and "-12.0 to +4.9 degC" in warned[0] and "--first-minutes 20" in warned[0]

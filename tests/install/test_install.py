@@ -167,7 +167,6 @@ def _run(bin_dir: Path, command: str, args: list[str], cwd: Path) -> subprocess.
 
 @pytest.mark.slow
 @pytest.mark.install
-@pytest.mark.timeout(900)  # three commands uncompiled (NUMBA_DISABLE_JIT): ~100 s alone, 300 s at load 7
 def test_wheel_runs_record_replay_and_demo_from_an_empty_directory(installed: Path, tmp_path: Path) -> None:
     work = tmp_path / "empty"
     work.mkdir()

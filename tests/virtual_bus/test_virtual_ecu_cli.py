@@ -135,6 +135,22 @@ def test_record_refuses_a_zero_or_nan_step_in_one_line(tmp_path: Path, capsys: A
 
 
 @pytest.mark.slow
+def test_demo_raises_what_the_service_side_raised_instead_of_waiting(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A failure in the service's frame handling (a bug) stops the demo with it: the ECU side must not wait
+    for ever for a service that no longer takes frames."""
+    from ecu_monitor.cli import main as ecu_main
+    from ecu_monitor.runtime.publishers import LiveMonitor
+
+    def broken(self: LiveMonitor, t_s: float) -> list[can.Message]:
+        raise RuntimeError("the step broke")
+
+    monkeypatch.setattr(LiveMonitor, "advance_to", broken)
+    with pytest.raises(RuntimeError, match="the step broke"):
+        ecu_main(["demo", "--out", str(tmp_path / "demo"), "--mission", "short_hop"])
+
+
 def test_demo_writes_csv_and_plot(tmp_path: Path, capsys: Any):
     """The demo as a user runs it, on a short mission to keep the suite fast (the default mission is
     the same code path, ~70 min of flight)."""
