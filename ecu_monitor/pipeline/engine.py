@@ -472,10 +472,8 @@ class Pipeline:
         dispatcher = self._compiled().replay_loop
         if numba.config.DISABLE_JIT:  # NUMBA_DISABLE_JIT=1: the plain Python function, nothing to resolve
             return dispatcher  # type: ignore[no-any-return]
-        signature = tuple(dispatcher.typeof_pyval(arg) for arg in args)
-        if signature not in dispatcher.overloads:
-            dispatcher.compile(signature)
-        return dispatcher.overloads[signature].entry_point  # type: ignore[no-any-return]
+        # compile(): the entry point of the overload for these types (loaded or compiled if it is not there yet)
+        return dispatcher.compile(tuple(dispatcher.typeof_pyval(arg) for arg in args))  # type: ignore[no-any-return]
 
     def _sync_counters(self) -> None:
         self.counters["steps"] = int(self._clock_steps[0])

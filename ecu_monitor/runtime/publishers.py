@@ -375,9 +375,10 @@ class LiveMonitor:
         return list(self.frames_until(t_s))
 
     def frames_until(self, t_s: float) -> Iterator[can.Message]:
-        """Run the steps up to ``t_s`` (s), then give the frames the publishers make of their rows, then of
-        the engine events that started (:meth:`Publisher.announce`), each made as it is asked for (the
-        daemon sends each before the next is made). Take them all: the rows' state moves as they are made."""
+        """A generator: on the first frame asked for, run the steps up to ``t_s`` (s); then the frames the
+        publishers make of their rows, then of the engine events that started (:meth:`Publisher.announce`),
+        each made as it is asked for (the daemon sends each before the next is made). Nothing runs until it
+        is iterated, and it must be iterated to the end: the publishers' state moves as the frames are made."""
         for row in self.pipeline.advance_to(t_s):
             for publisher in self.publishers:
                 yield from publisher.publish((row,))
