@@ -140,7 +140,7 @@ _BARO_SCALE_M = 44307.694
 def pressure_altitude_m(pressure_kpa: Any) -> Any:
     """Pressure altitude (m, standard datum 101.325 kPa) of a static pressure (kPa); a float or a numpy
     array. A pressure of 0 or below, or NaN, gives NaN (no altitude), never an exception. A float is
-    computed with Python's float power (C ``pow``, as numpy's for one value: the same result, 40x faster; the
+    computed with Python's float power (C ``pow``, as numpy's for one value: the same result, much faster; the
     DroneCAN decoder calls it per StaticPressure message)."""
     if isinstance(pressure_kpa, float):
         if not pressure_kpa > 0.0:

@@ -10,7 +10,7 @@ schedule of gamma_Q (heat in) and gamma_D (dissipation). The CHT probe follows t
 
 Speed: the pilot decides once per control period (1 s = 50 steps); the airframe response and the
 model's drive quantities for the whole period are computed as numpy arrays, and only the RK4
-arithmetic runs per step, on Python floats (about 3 us a step: a 1 h mission in about 1 s).
+arithmetic runs per step, on Python floats (figures: docs/performance.md, "Virtual ECU").
 
 :func:`iter_steps` streams :class:`StepBlock` objects (one per control period, every step's truth
 and measurements), so a 16 h flight never has to be in memory; :func:`fly` collects them into a

@@ -19,7 +19,7 @@ with a damaged or unusual log (each repair is logged with ``logging.warning``):
   import writes no row inside one.
 
 A .blf holding only classic CAN frames (the usual case, and every log the virtual ECU writes) is read
-straight into arrays (no Message objects, about 4x faster than python-can's reader); anything else
+straight into arrays (no Message objects: several times faster than python-can's reader); anything else
 goes through python-can's ``LogReader``.
 
 :func:`import_can_log` decodes the frames with the one decoder (:class:`~ecu_monitor.bus.codec.Decoder`,

@@ -416,7 +416,7 @@ class Decoder:
 
 def _crc8_rows(payload: np.ndarray) -> np.ndarray:
     """CRC-8/SAE-J1850 of bytes 0..6 of every row of an (N, 8) uint8 array (frame_checksum of each row),
-    compiled (numba, loaded on the first batch decode; 16 h log: 4 M frames)."""
+    compiled (numba, loaded on the first batch decode)."""
     out = np.empty(len(payload), dtype=np.uint8)
     _compiled_crc8()(np.ascontiguousarray(payload, dtype=np.uint8), out)
     return out

@@ -3,8 +3,8 @@
 Three threads share one :class:`~ecu_monitor.runtime.publishers.LiveMonitor` (the pipeline and its
 publishers) under one lock:
 
-* the receive thread: it calls the bus's ``recv`` itself (no python-can Notifier: the Notifier's lock
-  and listener dispatch cost ~1-3 us a frame, docs/performance.md "DroneCAN"), each frame is stamped with
+* the receive thread: it calls the bus's ``recv`` itself (no python-can Notifier: its lock and listener
+  dispatch cost time on every frame), each frame is stamped with
   the daemon's monotonic clock, fed to the pipeline, and ``advance_to(now)`` runs at once, so a health
   frame that falls due is sent within the handling of that frame, each frame as soon as it is made (the
   low-latency path: ``frames_until``);
