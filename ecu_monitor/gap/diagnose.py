@@ -9,7 +9,7 @@
    (:mod:`ecu_monitor.gap.significance`). The best counting candidate is kept; when it leaves a
    structured residual (test RMS above ``pair_threshold_c``), pairs with it are tried greedily (in
    "reidentify" mode each re-identified from that effect's own joint fit on the same flights, with a
-   shorter polish: :data:`ecu_monitor.gap.diagnosis.PAIR_POLISH_EVALUATIONS`) and a
+   longer polish: :data:`ecu_monitor.gap.diagnosis.PAIR_POLISH_FACTOR`) and a
    pair counts only if it beats the single effect by the same test and also shrinks the single's
    TRAIN RMS materially (a second effect must explain the flights it was fitted on, not only some
    accident of the held-out ones). When no single effect counts but
@@ -39,7 +39,7 @@ from ecu_monitor.errors import ParameterError
 from ecu_monitor.flightlog import FlightLog
 from ecu_monitor.gap.diagnosis import (
     JOINT_REFIT,
-    PAIR_POLISH_EVALUATIONS,
+    PAIR_POLISH_FACTOR,
     SCREEN_POLISH_EVALUATIONS,
     EffectScore,
     GapDiagnosis,
@@ -264,11 +264,11 @@ def _fit_task(work: _FitWork, task: tuple[int, tuple[str, ...], ThermalParams | 
     fold, settings = work.folds[k], work.settings
     entries = [candidate(cid) for cid in ids]
     if settings.refit_mode == "reidentify":
-        if start is None:
-            return reidentify(fold.nominal, fold.trains, entries, fold.references, settings.refit, settings.pso)
-        polish = min(settings.pso.polish_evaluations, PAIR_POLISH_EVALUATIONS)
-        pso = dataclasses.replace(settings.pso, polish_evaluations=polish)
-        return reidentify(start, fold.trains, entries, fold.references, settings.refit, pso)
+        pso = settings.pso
+        if len(ids) > 1:  # a pair: the longer polish
+            pso = dataclasses.replace(pso, polish_evaluations=pso.polish_evaluations * PAIR_POLISH_FACTOR)
+        base = fold.nominal if start is None else start
+        return reidentify(base, fold.trains, entries, fold.references, settings.refit, pso)
     return refit(fold.nominal, fold.trains, entries, fold.references, settings.refit)
 
 
