@@ -43,3 +43,16 @@ def test_architecture_page_lists_the_contract_layers() -> None:
     assert block, "docs/architecture.md: the layers block is missing"
     listed = [re.split(r"\s{2,}", line.strip())[0] for line in block.group(1).splitlines() if line.strip()]
     assert listed == list(layers["layers"]), "docs/architecture.md lists other layers than pyproject.toml"  # type: ignore[call-overload]
+
+
+def test_architecture_page_lists_every_module() -> None:
+    """The page's one-line index names every module of the package and the virtual bus, and no other."""
+    page = (REPO / "docs" / "architecture.md").read_text(encoding="utf-8")
+    block = re.search(r"<!-- modules:.*?-->\n(.*?)<!-- /modules -->", page, re.DOTALL)
+    assert block, "docs/architecture.md: the module index is missing"
+    listed = set(re.findall(r"^- `([^`]+\.py)`", block.group(1), re.MULTILINE))
+    package = REPO / "ecu_monitor"
+    sources = [p for p in package.rglob("*.py") if p.name != "__init__.py" and "data" not in p.parts]
+    modules = {str(p.relative_to(package)) for p in sources}
+    modules |= {f"../{p.relative_to(REPO)}" for p in (REPO / "virtual_bus").rglob("*.py") if p.name != "__init__.py"}
+    assert listed == modules, f"missing: {sorted(modules - listed)}; gone: {sorted(listed - modules)}"

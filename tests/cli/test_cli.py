@@ -28,6 +28,15 @@ def test_no_command_prints_help_and_exits_2(capsys):
     assert "COMMAND" in capsys.readouterr().out
 
 
+def test_version_prints_the_installed_version(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"ecu-monitor {version('ecu-monitor')}"
+
+
 def test_unknown_command_exits_2_with_one_line():
     result = subprocess.run(
         [sys.executable, "-m", "ecu_monitor.cli", "warp-drive"], capture_output=True, text=True, timeout=60
