@@ -1,5 +1,5 @@
 """Leave-one-out without ``--model``: every fold's own swarm (nothing of its held-out flight in it), and
-pairs re-identified from the lead's joint fit on the same fold."""
+pairs re-identified from the lead's joint fit on the same fold, with the longer polish."""
 
 from __future__ import annotations
 
@@ -55,3 +55,32 @@ def test_a_pair_re_identified_from_the_lead_starts_from_the_leads_fit(logs: list
     entries = [candidate("airspeed_cooling"), candidate("sensor_lag")]
     pair = reidentify(lead.params, trains, entries, refs, RefitSettings(dt_s=1.0, max_evaluations=1), frozen)
     assert pair.values["airspeed_cooling"][start.name] == pytest.approx(fitted, rel=1e-6)
+
+
+def test_a_pair_is_polished_longer_than_a_single(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A pair's joint re-identification (from the lead's fit, or from the nominal model for model.yaml)
+    polishes PAIR_POLISH_FACTOR times the singles' budget; a single and the control the budget itself."""
+    import importlib
+
+    from ecu_monitor.gap.diagnosis import PAIR_POLISH_FACTOR, GapSettings
+    from ecu_monitor.gap.scoring import RefitFold
+
+    gap_diagnose = importlib.import_module("ecu_monitor.gap.diagnose")  # the package's `diagnose` is the function
+    budgets: list[tuple[tuple[str, ...], object, int]] = []
+
+    def record(base, trains, entries, references, settings, pso):  # type: ignore[no-untyped-def]
+        budgets.append((tuple(e.id for e in entries), base, pso.polish_evaluations))
+
+    monkeypatch.setattr(gap_diagnose, "reidentify", record)
+    nominal, lead = paper_table_a1(), paper_table_a1().replace(tau_w=12.0)
+    settings = GapSettings(refit_mode="reidentify", pso=PsoSettings(particles=4, iterations=0, polish_evaluations=40))
+    work = gap_diagnose._FitWork((RefitFold(nominal, (), {}, ()),), settings)
+    pair = ("airspeed_cooling", "no_altitude_factor")
+    for task in [(0, (), None), (0, ("airspeed_cooling",), None), (0, pair, lead), (0, pair, None)]:
+        gap_diagnose._fit_task(work, task)
+    assert budgets == [
+        ((), nominal, 40),
+        (("airspeed_cooling",), nominal, 40),
+        (pair, lead, 40 * PAIR_POLISH_FACTOR),
+        (pair, nominal, 40 * PAIR_POLISH_FACTOR),
+    ]
