@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from ecu_monitor import __version__
 from ecu_monitor.compile_cache import use_cache_dir
 from ecu_monitor.errors import TOOLS_MODULES, run_command
 
@@ -56,16 +57,6 @@ def _requested_command(argv: Sequence[str]) -> str | None:
     return None
 
 
-def _installed_version() -> str:
-    """The installed distribution's version (pyproject.toml's), or "unknown" when run from a bare checkout."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("ecu-monitor")
-    except PackageNotFoundError:
-        return "unknown"
-
-
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The top-level parser with every subcommand registered (or just ``only``, when it is known)."""
     parser = argparse.ArgumentParser(
@@ -74,7 +65,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on error")
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING or ERROR")
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_installed_version()}")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     names = [only] if only in COMMANDS else list(COMMANDS)
     for name in names:
