@@ -31,7 +31,7 @@ from ecu_monitor.errors import FlightLogError
 from ecu_monitor.model import ThermalParams
 from ecu_monitor.offline.flight_frames import frames_from_flight
 from ecu_monitor.pipeline.cylinders import engine_columns
-from ecu_monitor.pipeline.engine import Pipeline, model_input_names
+from ecu_monitor.pipeline.engine import SLOT_DTYPE, Pipeline, model_input_names
 from ecu_monitor.pipeline.events import Event, finished
 from ecu_monitor.pipeline.output_table import output_fields
 from ecu_monitor.pipeline.outputs import (
@@ -178,7 +178,7 @@ def _run(
     config: Any,
     frame_time_s: NDArray[np.float64],
     first_value: NDArray[np.int64],
-    slots: NDArray[np.int64],
+    slots: NDArray[np.int16],
     values: NDArray[np.float64],
     counters: dict[str, int],
     gaps: tuple[tuple[float, float], ...],
@@ -218,40 +218,43 @@ def _run(
 
 def _values_by_frame(
     names: tuple[str, ...], decoded: dict[str, tuple[NDArray[np.int64], NDArray[np.float64]]], n: int
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-    """The decoded values in frame order: (index of each frame's first value, n + 1; slot; value). Within
-    a frame, the values keep the order of ``names`` (a compiled merge of the per-name runs, each in frame
-    order)."""
+) -> tuple[NDArray[np.int64], NDArray[np.int16], NDArray[np.float64]]:
+    """The decoded values in frame order: (index of each frame's first value, n + 1; slot, as
+    :data:`SLOT_DTYPE`; value). Within a frame, the values keep the order of ``names`` (a compiled merge of
+    the per-name runs, each in frame order, read where the decoder left them: no joined copy)."""
     if not names:
-        return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
-    frame = np.concatenate([decoded[name][0] for name in names]).astype(np.int64, copy=False)
-    values = np.concatenate([decoded[name][1] for name in names]).astype(np.float64, copy=False)
-    offsets = np.cumsum([0, *(decoded[name][0].size for name in names)]).astype(np.int64)
-    return _by_frame(frame, values, offsets, n)
+        return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=SLOT_DTYPE), np.zeros(0)
+    frames = tuple(np.ascontiguousarray(decoded[name][0], dtype=np.int64) for name in names)
+    values = tuple(np.ascontiguousarray(decoded[name][1], dtype=np.float64) for name in names)
+    return _by_frame(frames, values, n)
 
 
 @numba.njit(cache=True, nogil=True)
 def _by_frame(
-    frame: NDArray[np.int64], values: NDArray[np.float64], offsets: NDArray[np.int64], n: int
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:  # pragma: no cover - compiled
-    """Merge the runs ``frame[offsets[j]:offsets[j + 1]]`` (slot j's frames, ascending) into frame order."""
+    frames: tuple[NDArray[np.int64], ...], values: tuple[NDArray[np.float64], ...], n: int
+) -> tuple[NDArray[np.int64], NDArray[np.int16], NDArray[np.float64]]:  # pragma: no cover - compiled
+    """Merge the runs ``frames[j]`` (slot j's frames, ascending; its values ``values[j]``) into frame order:
+    a counting sort, slot by slot (each run read once, from its tuple once)."""
     first = np.zeros(n + 1, dtype=np.int64)
-    out_slots = np.empty(frame.size, dtype=np.int64)
-    out_values = np.empty(frame.size)
-    cursor = offsets[:-1].copy()
-    end = offsets[1:]
-    at = 0
+    for j in range(len(frames)):  # first[f + 1]: frame f's count, then the running sum: f's first value
+        run = frames[j]
+        for c in range(run.size):
+            first[run[c] + 1] += 1
     for f in range(n):
-        first[f] = at
-        for j in range(cursor.size):
-            c = cursor[j]
-            while c < end[j] and frame[c] == f:
-                out_slots[at] = j
-                out_values[at] = values[c]
-                at += 1
-                c += 1
-            cursor[j] = c
-    first[n] = at
+        first[f + 1] += first[f]
+    out_slots = np.empty(first[n], dtype=SLOT_DTYPE)
+    out_values = np.empty(first[n])
+    for j in range(len(frames)):  # first[f]: where frame f's next value goes, moved on as it is filled
+        run = frames[j]
+        vals = values[j]
+        for c in range(run.size):
+            at = first[run[c]]
+            out_slots[at] = j
+            out_values[at] = vals[c]
+            first[run[c]] = at + 1
+    for f in range(n, 0, -1):  # each first[f] now holds frame f + 1's start: shifted back by one
+        first[f] = first[f - 1]
+    first[0] = 0
     return first, out_slots, out_values
 
 

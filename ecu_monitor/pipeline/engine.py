@@ -77,6 +77,9 @@ MODEL_INPUTS: tuple[str, ...] = ("altitude_m", "airspeed_mps", "oat_c")
 CHT_INPUT = "cht_c"
 #: Rows the live pipeline's output table holds between two drains.
 _LIVE_ROWS = 8192
+#: The integer type of the decoded values' slots (an index into :attr:`Pipeline.names`) the compiled loop
+#: reads, live and in replay alike (one type: the loop is compiled once).
+SLOT_DTYPE = np.int16
 #: Events the step's buffer holds between two :meth:`Pipeline.take_events` (more are counted, dropped).
 _EVENT_CAPACITY = 4096
 
@@ -245,7 +248,7 @@ class Pipeline:
         self._latest: StepRow | None = None
         self._snapshot: HealthSnapshot | None = None
         # values decoded since the last compiled call (feed_values), held by the next advance_to
-        self._slots_buffer = np.zeros(64, dtype=np.int64)
+        self._slots_buffer = np.zeros(64, dtype=SLOT_DTYPE)
         self._values_buffer = np.zeros(64)
         self._fed = 0
         self._frame_times = np.zeros(2)  # advance_to's two frames: the fed values, then the clock reading
@@ -608,7 +611,7 @@ class Pipeline:
     # ------------------------------------------------------------------ replay
 
     def run_frames(
-        self, frame_time_s: NDArray[np.float64], first_value: NDArray[np.int64], slots: NDArray[np.int64],
+        self, frame_time_s: NDArray[np.float64], first_value: NDArray[np.int64], slots: NDArray[np.int16],
         values: NDArray[np.float64], *, traces: bool = False, on_rows: Callable[[Rows, int, int], None] | None = None,
     ) -> tuple[Rows, Traces]:  # fmt: skip
         """The live loop over a whole log in compiled calls: for each frame, advance the clock to its time
