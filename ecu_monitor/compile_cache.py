@@ -85,7 +85,8 @@ def use_cache_dir(environ: MutableMapping[str, str] | None = None) -> str | None
 
 
 def _print_stderr(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
+    sys.stderr.write(line + "\n")  # one write: the lines of two processes never mix on one line
+    sys.stderr.flush()
 
 
 class CompileClock:
@@ -93,17 +94,41 @@ class CompileClock:
 
     ``start``/``end``: numba's ``numba:compile`` events (nested ones, a kernel compiling its callees,
     count once). The line comes from a timer thread while a compile runs (one that ends first cancels
-    it), so the line means "compiling now, for a second already"."""
+    it), so the line means "compiling now, for a second already". Processes forked from this one (the
+    parallel fits of identify and gap) hear their own compiles with a copy of the clock: the line is said
+    once across them all (a flag in shared memory), and :attr:`shared_total_s` adds up every process's
+    compiling."""
 
     def __init__(self, say: Callable[[str], None], after_s: float = NOTICE_AFTER_S) -> None:
+        import multiprocessing  # not at the top: the command line's start stays light
+
         self.say = say
         self.after_s = after_s
-        self.total_s = 0.0  # finished compiles
+        self.total_s = 0.0  # finished compiles, this process
         self.announced = False
         self._depth = 0
         self._since = 0.0
         self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
+        # [line said by any process, seconds compiled by every process, processes that compiled]
+        self._shared = multiprocessing.get_context("fork").Array("d", 3)
+        self._pid = os.getpid()
+        self._compiled_here = False
+
+    @property
+    def shared_total_s(self) -> float:
+        """Seconds compiled by this process and every process forked from it so far."""
+        return float(self._shared[1])
+
+    @property
+    def said(self) -> bool:
+        """Whether this process or one forked from it has said the line."""
+        return bool(self._shared[0])
+
+    @property
+    def processes(self) -> int:
+        """How many processes (this one and those forked from it) have compiled."""
+        return int(self._shared[2])
 
     def start(self) -> None:
         with self._lock:
@@ -128,8 +153,14 @@ class CompileClock:
             self._depth -= 1
             if self._depth > 0:
                 return
-            self.total_s += time.perf_counter() - self._since
+            elapsed = time.perf_counter() - self._since
+            self.total_s += elapsed
             self._cancel()
+            with self._shared.get_lock():
+                self._shared[1] += elapsed
+                if not self._compiled_here or os.getpid() != self._pid:
+                    self._compiled_here, self._pid = True, os.getpid()
+                    self._shared[2] += 1
 
     def close(self) -> None:
         """Stop the timer (the command is over)."""
@@ -148,6 +179,10 @@ class CompileClock:
 
     def _announce(self) -> None:
         self.announced = True
+        with self._shared.get_lock():
+            if self._shared[0]:  # another process said it
+                return
+            self._shared[0] = 1
         self.say(COMPILING_LINE)
 
 
@@ -175,9 +210,10 @@ def compile_notice(say: Callable[[str], None] | None = None, after_s: float = NO
     finally:
         event.unregister("numba:compile", listener)
         clock.close()
-    if clock.announced:
+    if clock.said:
         where = getattr(config, "CACHE_DIR", "") or "numba's default cache (__pycache__ or ~/.cache/numba)"
-        tell(f"compiled in {clock.total_s:.1f} s, cached in {where}: later runs load it")
+        spent = f"{clock.shared_total_s:.1f} s" + (f" in {clock.processes} processes" if clock.processes > 1 else "")
+        tell(f"compiled in {spent}, cached in {where}: later runs load it")
 
 
 def announce_compiles(command: F) -> F:

@@ -173,3 +173,32 @@ def test_first_replay_says_it_compiles_and_the_second_does_not(tmp_path: Path) -
     cache = tmp_path / "xdg" / "ecu-monitor" / "numba"
     assert list(cache.rglob("*.nbi"))  # numba's index files, in the default directory
     assert (tmp_path / "health1.csv").read_bytes() == (tmp_path / "health2.csv").read_bytes()
+
+
+def test_forked_processes_say_the_line_once_and_their_compiling_is_added_up() -> None:
+    # identify and gap fit in forked processes, each hearing its own compiles with a copy of the clock:
+    # two of them compiling past the limit give one line, and the parent's total counts theirs
+    import multiprocessing
+
+    said = multiprocessing.get_context("fork").Queue()
+    clock = CompileClock(said.put, after_s=0.05)
+
+    def compile_for_a_while() -> None:
+        clock.start()
+        time.sleep(0.3)
+        clock.end()
+        clock.close()
+
+    workers = [multiprocessing.get_context("fork").Process(target=compile_for_a_while) for _ in range(2)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join(10)
+        assert worker.exitcode == 0
+    lines = [said.get(timeout=5)]
+    time.sleep(0.2)  # the workers have exited: anything else they said is in the pipe by now
+    while not said.empty():
+        lines.append(said.get(timeout=1))
+    assert lines == [COMPILING_LINE]
+    assert clock.said and not clock.announced  # said by a worker, not by this process
+    assert clock.processes == 2 and clock.shared_total_s >= 0.6 and clock.total_s == 0.0
