@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import mmap
 import os
+import struct
 import sys
 import threading
 import time
@@ -84,6 +86,28 @@ def use_cache_dir(environ: MutableMapping[str, str] | None = None) -> str | None
     return env[CACHE_ENV]
 
 
+class _SharedFigures:
+    """A few floats in anonymous shared memory (``mmap``: no file), seen by every process forked after it was
+    made, and a lock they share: a POSIX semaphore, or a thread lock where the system has none (then two
+    processes may each say the line)."""
+
+    def __init__(self, count: int = 3) -> None:
+        self._memory = mmap.mmap(-1, 8 * count)
+        self.lock: Any
+        try:
+            import multiprocessing  # not at the top: the command line's start stays light
+
+            self.lock = multiprocessing.get_context("fork").Lock()
+        except (ImportError, OSError):  # no working sem_open (a container without /dev/shm)
+            self.lock = threading.Lock()
+
+    def get(self, index: int) -> float:
+        return float(struct.unpack_from("d", self._memory, 8 * index)[0])
+
+    def add(self, index: int, value: float) -> None:
+        struct.pack_into("d", self._memory, 8 * index, self.get(index) + value)
+
+
 def _print_stderr(line: str) -> None:
     sys.stderr.write(line + "\n")  # one write: the lines of two processes never mix on one line
     sys.stderr.flush()
@@ -100,8 +124,6 @@ class CompileClock:
     compiling."""
 
     def __init__(self, say: Callable[[str], None], after_s: float = NOTICE_AFTER_S) -> None:
-        import multiprocessing  # not at the top: the command line's start stays light
-
         self.say = say
         self.after_s = after_s
         self.total_s = 0.0  # finished compiles, this process
@@ -110,25 +132,26 @@ class CompileClock:
         self._since = 0.0
         self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
-        # [line said by any process, seconds compiled by every process, processes that compiled]
-        self._shared = multiprocessing.get_context("fork").Array("d", 3)
+        # [line said by any process, seconds compiled by every process, processes that compiled]: anonymous
+        # shared memory (no file: a full disk cannot stop a command here), which forked processes share
+        self._shared = _SharedFigures()
         self._pid = os.getpid()
         self._compiled_here = False
 
     @property
     def shared_total_s(self) -> float:
         """Seconds compiled by this process and every process forked from it so far."""
-        return float(self._shared[1])
+        return self._shared.get(1)
 
     @property
     def said(self) -> bool:
         """Whether this process or one forked from it has said the line."""
-        return bool(self._shared[0])
+        return bool(self._shared.get(0))
 
     @property
     def processes(self) -> int:
         """How many processes (this one and those forked from it) have compiled."""
-        return int(self._shared[2])
+        return int(self._shared.get(2))
 
     def start(self) -> None:
         with self._lock:
@@ -156,11 +179,11 @@ class CompileClock:
             elapsed = time.perf_counter() - self._since
             self.total_s += elapsed
             self._cancel()
-            with self._shared.get_lock():
-                self._shared[1] += elapsed
+            with self._shared.lock:
+                self._shared.add(1, elapsed)
                 if not self._compiled_here or os.getpid() != self._pid:
                     self._compiled_here, self._pid = True, os.getpid()
-                    self._shared[2] += 1
+                    self._shared.add(2, 1.0)
 
     def close(self) -> None:
         """Stop the timer (the command is over)."""
@@ -179,10 +202,10 @@ class CompileClock:
 
     def _announce(self) -> None:
         self.announced = True
-        with self._shared.get_lock():
-            if self._shared[0]:  # another process said it
+        with self._shared.lock:
+            if self._shared.get(0):  # another process said it
                 return
-            self._shared[0] = 1
+            self._shared.add(0, 1.0)
         self.say(COMPILING_LINE)
 
 
