@@ -135,8 +135,7 @@ class CompileClock:
         # [line said by any process, seconds compiled by every process, processes that compiled]: anonymous
         # shared memory (no file: a full disk cannot stop a command here), which forked processes share
         self._shared = _SharedFigures()
-        self._pid = os.getpid()
-        self._compiled_here = False
+        self._counted_pid = 0  # the process last counted among those that compiled (a fork copies the clock)
 
     @property
     def shared_total_s(self) -> float:
@@ -181,8 +180,8 @@ class CompileClock:
             self._cancel()
             with self._shared.lock:
                 self._shared.add(1, elapsed)
-                if not self._compiled_here or os.getpid() != self._pid:
-                    self._compiled_here, self._pid = True, os.getpid()
+                if self._counted_pid != os.getpid():
+                    self._counted_pid = os.getpid()
                     self._shared.add(2, 1.0)
 
     def close(self) -> None:
