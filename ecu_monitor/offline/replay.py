@@ -193,8 +193,8 @@ def _run(
     blocks: list[dict[str, NDArray[Any]]] = []
     with table_stream(out) if out is not None else contextlib.nullcontext(None) as write:
 
-        def on_rows(rows: Rows, a: int, b: int) -> None:
-            blocks.append(_columns(rows, a, b, count, config.spread_limit_c, pipeline.stale_bits))
+        def on_rows(rows: Rows, n: int) -> None:
+            blocks.append(_columns(rows, n, count, config.spread_limit_c, pipeline.stale_bits))
             if write is not None:
                 write(health_table_columns(blocks[-1], count))
 
@@ -259,12 +259,12 @@ def _by_frame(
 
 
 def _columns(
-    rows: Rows, a: int, b: int, count: int, spread_limit_c: float | None,
+    rows: Rows, n: int, count: int, spread_limit_c: float | None,
     stale_bits: Callable[[NDArray[np.int64]], NDArray[np.int64]],
 ) -> dict[str, NDArray[Any]]:  # fmt: skip
-    """The replay's columns (ReplayResult.columns) of rows ``a`` to ``b`` of its output table."""
-    results = rows.cylinders[a:b]
-    out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[a:b].copy(), "stale_inputs": stale_bits(rows.stale[a:b])}
+    """The replay's columns (ReplayResult.columns) of the first ``n`` rows of its output table (copies)."""
+    results = rows.cylinders[:n]
+    out: dict[str, NDArray[Any]] = {"time_s": rows.time_s[:n].copy(), "stale_inputs": stale_bits(rows.stale[:n])}
     if count == 1:
         r = results[:, 0]
         out.update({name: r[name].copy() for name, _ in output_fields()})

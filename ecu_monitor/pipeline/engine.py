@@ -612,14 +612,15 @@ class Pipeline:
 
     def run_frames(
         self, frame_time_s: NDArray[np.float64], first_value: NDArray[np.int64], slots: NDArray[np.int16],
-        values: NDArray[np.float64], *, traces: bool = False, on_rows: Callable[[Rows, int, int], None] | None = None,
+        values: NDArray[np.float64], *, traces: bool = False, on_rows: Callable[[Rows, int], None] | None = None,
     ) -> tuple[Rows, Traces]:  # fmt: skip
         """The live loop over a whole log in compiled calls: for each frame, advance the clock to its time
         (``frame_time_s``, s) and feed its decoded values (``slots[first_value[f]:first_value[f + 1]]``).
         Returns the output table (every ``row_period`` steps) and, with ``traces``, every step's results.
-        ``on_rows(rows, a, b)``: called with each block of :data:`ROW_BLOCK` rows (rows ``a`` to ``b`` of
-        ``rows``) as the loop writes them; the loop releases the GIL, so a thread the callback feeds (the
-        health.csv writer) runs beside it."""
+        ``on_rows(rows, n)``: called with each block of up to :data:`ROW_BLOCK` rows (the first ``n`` of
+        ``rows``) as the loop writes them; the table is then written over by the next block (the callback
+        copies what it keeps; the table returned holds the last block only). The loop releases the GIL, so a
+        thread the callback feeds (the health.csv writer) runs beside it."""
         n_frames = frame_time_s.size
         span = 0.0
         finite = frame_time_s[np.isfinite(frame_time_s)]
@@ -627,18 +628,18 @@ class Pipeline:
             span = float(np.max(finite) - np.min(finite))
         steps = int(span / self.dt_s) + 16
         count = len(self.cylinder_params)
-        rows = _rows(steps // self._row_period + 16, count)
+        rows = _rows(steps // self._row_period + 16 if on_rows is None else ROW_BLOCK, count)
         kept = _traces(steps + 16 if traces else 0, count)
         loop = self._compiled().replay_loop_released
-        start = done = 0
+        start = 0
         while start < n_frames:
-            limit = rows.k.size if on_rows is None else min(rows.k.size, done + ROW_BLOCK)
-            start = int(loop(self._engine, _head(rows, limit), kept, frame_time_s, first_value, slots, values, start))
+            start = int(loop(self._engine, rows, kept, frame_time_s, first_value, slots, values, start))
             written = int(rows.count[0])
-            if on_rows is not None and written > done:
-                on_rows(rows, done, written)
-                done = written
-            if start < n_frames and written >= rows.k.size:
+            if on_rows is not None:  # the block handed over, the table's room used again
+                if written:
+                    on_rows(rows, written)
+                rows.count[0] = 0
+            elif start < n_frames and written >= rows.k.size:
                 rows = _grow(rows)
         self._sync_counters()
         return rows, kept
@@ -646,13 +647,6 @@ class Pipeline:
 
 #: Rows of the output table handed to ``run_frames``' ``on_rows`` at a time.
 ROW_BLOCK = 32768
-
-
-def _head(rows: Rows, limit: int) -> Rows:
-    """The table with room for its first ``limit`` rows only (views: the loop returns when they are full)."""
-    if limit == rows.k.size:
-        return rows
-    return Rows(rows.count, rows.k[:limit], rows.time_s[:limit], rows.stale[:limit], rows.cylinders[:limit])
 
 
 def _rows(capacity: int, cylinders: int) -> Rows:

@@ -151,6 +151,26 @@ def test_blf_and_its_canonical_csv_give_the_same_health_csv(flight: dict[str, Pa
     assert abs(alarm(flight_csv) - alarm(blf)) <= 1.0 and 150.0 < alarm(blf) < 210.0
 
 
+def test_replay_in_blocks_of_a_few_rows_gives_the_same_table_and_health_csv(
+    flight: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The loop hands its rows over a block at a time and writes the next block over the last: with blocks
+    of 7 rows (hundreds of hand-overs), the table and health.csv are those of one block for the whole flight."""
+    from ecu_monitor.pipeline import engine
+
+    config = load_config(flight["config"])
+    params = config.load_params()
+    frames = read_frames(flight["blf"])
+    whole = replay_frames(config, params, frames, out=tmp_path / "whole.csv")
+    monkeypatch.setattr(engine, "ROW_BLOCK", 7)
+    small = replay_frames(config, params, frames, out=tmp_path / "small.csv")
+    assert len(whole.rows) > 2500 and len(whole.rows) % 7 != 0
+    assert whole.columns.keys() == small.columns.keys()
+    for name, column in whole.columns.items():
+        assert np.array_equal(column, small.columns[name], equal_nan=column.dtype.kind == "f"), name
+    assert (tmp_path / "whole.csv").read_bytes() == (tmp_path / "small.csv").read_bytes()
+
+
 def test_replay_of_a_csv_runs_the_same_path(flight: dict[str, Path]) -> None:
     config = load_config(flight["config"])
     result = replay_file(flight["csv"], config, config.load_params())
