@@ -32,11 +32,11 @@ cylinders.models, else its model); --out gets ``cylinders: detectors:``, one det
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
 
+from ecu_monitor.commands.names import CALIBRATE_RATE_PER_100H
 from ecu_monitor.compile_cache import announce_compiles
 from ecu_monitor.errors import ConfigError, FlightLogError, ParameterError
 from ecu_monitor.shipped import DEFAULT_CONFIG, resolve_file
@@ -68,7 +68,10 @@ def add_subparser(subparsers: Any) -> None:
         " (default: its cylinders.models, else its model)",
     )
     parser.add_argument(
-        "--rate", type=float, default=1.0, help="false alarms per 100 flight hours to calibrate for (default 1)"
+        "--rate",
+        type=float,
+        default=CALIBRATE_RATE_PER_100H,
+        help=f"false alarms per 100 flight hours to calibrate for (default {CALIBRATE_RATE_PER_100H:g})",
     )
     parser.add_argument(
         "--baseline-s",
@@ -118,14 +121,7 @@ def _run(args: argparse.Namespace) -> int:
         if not Path(flight).is_file():
             raise FlightLogError(f"{flight}: {'not a file' if Path(flight).exists() else 'no such file'}")
 
-    import yaml
-
-    from ecu_monitor.offline.calibration import (
-        config_copy_yaml,
-        detector_fragment_yaml,
-        model_fingerprint,
-        wear_fragment,
-    )
+    from ecu_monitor.offline.calibration import config_copy_yaml, detector_fragment_yaml, model_fingerprint
 
     sources = [str(Path(p).resolve()) for p in args.flights]
     if len(config.cylinder_inputs) > 1:
@@ -138,12 +134,9 @@ def _run(args: argparse.Namespace) -> int:
             config_path, out, result, args.rate, sources, model_fingerprint(params), args.model, wear=wear
         )
     else:
-        text = detector_fragment_yaml(result, config.detector_symptom, args.rate, sources, model_fingerprint(params))
-        if wear is not None:
-            text += (
-                "# the engine's nominal wear index over these flights: the across-flight detector's reference\n"
-                + yaml.safe_dump(wear_fragment(wear), sort_keys=False, default_flow_style=False)
-            )
+        text = detector_fragment_yaml(
+            result, config.detector_symptom, args.rate, sources, model_fingerprint(params), wear=wear
+        )
     _write(out, text)
     print(f"wrote {out} ({'full config' if args.write_config else 'detector fragment'})")
     if args.plot:
@@ -239,45 +232,32 @@ def _calibrate_cross(args: argparse.Namespace, config: Any, params: list[Any]) -
 def _calibrate_channel(
     args: argparse.Namespace, config: Any, params: Any, candidates: list[float], cylinder: int | None = None
 ) -> tuple[Any, list[Any], Any]:
-    """One CHT channel: the baseline choice and the threshold on the flights (prints the tables), and the
-    nominal wear reference of the across-flight detector (None: fewer than 3 flights with a wear index);
-    ``cylinder``: the flights' ``cht<cylinder>_c`` is the channel (``config`` maps it as ``cht_c``)."""
-    from tqdm import tqdm
+    """One CHT channel: the baseline choice and the threshold on the flights (offline/calibration_channel.py;
+    prints the tables as it goes), and the nominal wear reference of the across-flight detector (None: fewer
+    than 3 flights with a wear index); ``cylinder``: the flights' ``cht<cylinder>_c`` is the channel (``config``
+    maps it as ``cht_c``)."""
+    from ecu_monitor.offline.calibration import SettingsChoice
+    from ecu_monitor.offline.calibration_channel import calibrate_channel, replay_and_choose
 
-    from ecu_monitor.offline.calibration import (
-        SettingsChoice,
-        calibrate_flights,
-        choose_settings,
-        cross_validation_blocker,
-        flight_feeds,
-        wear_reference,
-    )
-
-    feeds = []
-    for path in tqdm(args.flights, desc="flights", unit="flight", file=sys.stderr, leave=False, disable=None):
-        feeds.append(flight_feeds(path, config, params, overlays=False, cylinder=cylinder, keep_reference=True))
-    indices, wear = wear_reference(feeds, config.wear)
-    feeds = [dataclasses.replace(f, reference=()) for f in feeds]  # the per-step reference is not needed further
-    choose = args.baseline_s is None
-    if choose and cross_validation_blocker(feeds, config.detector) is None:  # replay again with the overlays
-        feeds = []
-        for path in tqdm(args.flights, desc="overlays", unit="flight", file=sys.stderr, leave=False, disable=None):
-            feeds.append(flight_feeds(path, config, params, cylinder=cylinder))
-    if choose:
-        choice = choose_settings(feeds, config.detector, args.rate, candidates)
+    given = None
+    if args.baseline_s is not None:
+        settings = _with_baseline(config.detector, args.baseline_s)
+        given = SettingsChoice(settings, f"baseline_s {args.baseline_s:g} s given by --baseline-s", (), False)
+    replayed = replay_and_choose(args.flights, config, params, args.rate, candidates, given=given, cylinder=cylinder,
+                                 replay_map=_replay_with_progress_bar)  # fmt: skip
+    choice = replayed.choice
+    if given is None:
         for line in candidate_table(choice):
             print(line)
         print(f"chosen: {choice.reason}")
     else:
-        settings = _with_baseline(config.detector, args.baseline_s)
-        choice = SettingsChoice(settings, f"baseline_s {args.baseline_s:g} s given by --baseline-s", (), False)
         print(f"detector settings: {choice.reason} (no cross-validation)")
-    settings = choice.settings
-    flights = [f.statistic_for(settings) for f in feeds]
-    for line in _table(flights, config.detector.threshold, settings.block_s):
+    flights = list(replayed.statistics)
+    for line in _table(flights, config.detector.threshold, choice.settings.block_s):
         print(line)
-    result = calibrate_flights(flights, args.rate, settings, choice)
-    result = _with_engine_reference(result, feeds, settings, args.rate)
+    calibrated = calibrate_channel(replayed, args.rate)
+    _print_reference(calibrated, len(replayed.feeds))
+    result = calibrated.result
     c = result.calibration
     print(
         f"threshold h = {c.threshold:.3f} for {args.rate:g} false alarm(s) per 100 h"
@@ -293,7 +273,8 @@ def _calibrate_channel(
             f" be shown on these flights; h is kept at or above the empirical bound, 1.1 x the largest statistic"
             f" seen ({c.empirical_max:.3f})"
         )
-    shown = ", ".join("-" if i is None else f"{100.0 * i:+.2f} %" for i in indices)
+    wear = replayed.wear
+    shown = ", ".join("-" if i is None else f"{100.0 * i:+.2f} %" for i in replayed.wear_indices)
     if wear is None:
         print(f"wear index per flight: {shown}; no wear reference (fewer than 3 flights with one)")
     else:
@@ -302,22 +283,24 @@ def _calibrate_channel(
     return result, flights, wear
 
 
-def _with_engine_reference(result: Any, feeds: list[Any], settings: Any, rate: float) -> Any:
-    """``result`` whose settings carry the engine's reference learned on the flights (printed per region), or
-    none (and why) when the flights are too few: never the config's, which is another engine's (the shipped
-    one is the virtual ECU's)."""
-    import dataclasses
+def _replay_with_progress_bar(replay: Any, flights: Any, what: str) -> list[Any]:
+    """The flights replayed in turn under a progress bar on stderr named ``what`` (a calibration ReplayMap)."""
+    from tqdm import tqdm
 
+    return [replay(f) for f in tqdm(flights, desc=what, unit="flight", file=sys.stderr, leave=False, disable=None)]
+
+
+def _print_reference(calibrated: Any, flight_count: int) -> None:
+    """The engine's reference learned per region (per flight, mean, spread) and its test's h, or why none."""
     from ecu_monitor.estimation.detection import NOMINAL_SPREAD_Z
     from ecu_monitor.estimation.regions import REGION_NAMES
-    from ecu_monitor.offline.calibration_reference import calibrate_reference, with_reference
 
-    try:
-        ref = calibrate_reference(feeds, settings, rate)
-    except ParameterError as exc:
-        print(f"engine reference: none ({exc}); the detector tests against its in-flight baseline only")
-        return dataclasses.replace(result, current=with_reference(result.current, (), (), 0.0))
-    print(f"engine reference (symptom per region over {len(feeds)} nominal flights; level = mean + "
+    ref = calibrated.reference
+    if ref is None:
+        print(f"engine reference: none ({calibrated.no_reference}); the detector tests against its in-flight"
+              " baseline only")  # fmt: skip
+        return
+    print(f"engine reference (symptom per region over {flight_count} nominal flights; level = mean + "
           f"{NOMINAL_SPREAD_Z:g} x spread across flights):")  # fmt: skip
     print("  region         " + "".join(f"{n[:12]:>13}" for n in ref.flights) + "         mean       spread")
     for r, name in enumerate(REGION_NAMES):
@@ -327,7 +310,6 @@ def _with_engine_reference(result: Any, feeds: list[Any], settings: Any, rate: f
     worst = ", ".join(f"{n} {m:.2f}" for n, m in zip(ref.flights, ref.held_out_max, strict=True))
     print(f"reference test h = {c.threshold:.3f} ({c.hours} whole hours, each flight against the others' reference;"
           f" largest statistic per flight: {worst})")  # fmt: skip
-    return dataclasses.replace(result, current=ref.settings(result.current))
 
 
 def _write(out: Path, text: str) -> None:

@@ -13,8 +13,9 @@ alerted engine's line.
 
 ``query``: SQL over DIR with DuckDB; the views ``engines``, ``flights``, ``events``, ``failures``.
 
-``demo``: a virtual fleet from nothing in DIR (FLEET.yaml, the logs, the type's wear reference): 20
-engines, 200 random-mission flights, three of them slowly degrading; then ``fleet run`` it.
+``demo``: a virtual fleet from nothing in DIR (FLEET.yaml, the logs, the engine type's detector calibrated as
+``calibrate`` does on hour-long reference flights of a sister engine): 20 engines, 200 random-mission
+flights, three of them slowly degrading; then ``fleet run`` it.
 
 Needs the fleet extra: ``pip install 'ecu-monitor[fleet]'`` (dask[distributed], pyarrow, duckdb).
 """

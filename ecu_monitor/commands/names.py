@@ -10,6 +10,7 @@ identification's terms) are not copied: their help says an unknown name lists th
 from __future__ import annotations
 
 __all__ = [
+    "CALIBRATE_RATE_PER_100H",
     "ESTIMATOR_NAMES",
     "IDENTIFY_DEFAULT_FREE",
     "PSO_DT_S",
@@ -18,6 +19,8 @@ __all__ = [
     "SIMULATE_DT_S",
 ]
 
+#: ecu_monitor.offline.calibration_channel.DEFAULT_RATE_PER_100H: calibrate's false alarms per 100 flight hours.
+CALIBRATE_RATE_PER_100H = 1.0
 #: ecu_monitor.estimation.ESTIMATORS (the shipped estimators; register_estimator may add more).
 ESTIMATOR_NAMES: tuple[str, ...] = ("ekf", "cbekf", "cbekf-au", "cbekf-iso")
 #: ecu_monitor.identify.DEFAULT_FREE.

@@ -468,19 +468,32 @@ def uncalibrated_detectors(config: ServiceConfig, models: Sequence[ThermalParams
 
 
 def detector_fragment_yaml(
-    result: CalibrationResult, symptom: str, rate_per_100h: float, sources: Sequence[str], calibrated_for: str
+    result: CalibrationResult,
+    symptom: str,
+    rate_per_100h: float,
+    sources: Sequence[str],
+    calibrated_for: str,
+    wear: WearReference | None = None,
 ) -> str:
     """A ``detector:`` YAML fragment with comments, to merge into a service config: the symptom, the new
     threshold and every other detector setting it was calibrated with (a threshold holds only for the
     baseline, delay, reference, warm-up and block it was computed with; merging the whole block keeps
-    them together), and ``calibrated_for``, the :func:`model_fingerprint` of the model used."""
+    them together), and ``calibrated_for``, the :func:`model_fingerprint` of the model used. With ``wear``,
+    the engine's nominal wear reference after it (:func:`wear_fragment`): what ``ecu-monitor calibrate --out``
+    writes, a detector file a config or a fleet names."""
     settings = dataclasses.replace(result.current, threshold=_rounded(result.calibration.threshold))
     body = yaml.safe_dump(
         {"detector": {"symptom": symptom, **_settings_yaml(settings), "calibrated_for": calibrated_for}},
         sort_keys=False,
         default_flow_style=False,
     )
-    return "\n".join(_header(result, rate_per_100h, sources)) + "\n" + body
+    text = "\n".join(_header(result, rate_per_100h, sources)) + "\n" + body
+    if wear is not None:
+        text += (
+            "# the engine's nominal wear index over these flights: the across-flight detector's reference\n"
+            + yaml.safe_dump(wear_fragment(wear), sort_keys=False, default_flow_style=False)
+        )
+    return text
 
 
 def config_copy_yaml(

@@ -67,6 +67,7 @@ def test_help_lists_equal_their_sources() -> None:
     from ecu_monitor.commands import names
     from ecu_monitor.estimation.registry import ESTIMATORS
     from ecu_monitor.identify import DEFAULT_FREE, REFERENCE_DT_S, PsoSettings
+    from ecu_monitor.offline.calibration_channel import DEFAULT_RATE_PER_100H
 
     assert set(names.ESTIMATOR_NAMES) <= set(ESTIMATORS)
     assert names.IDENTIFY_DEFAULT_FREE == DEFAULT_FREE
@@ -77,6 +78,7 @@ def test_help_lists_equal_their_sources() -> None:
         defaults.dt_s,
     ) == (names.PSO_PARTICLES, names.PSO_ITERATIONS, names.PSO_DT_S)
     assert names.SIMULATE_DT_S == REFERENCE_DT_S
+    assert names.CALIBRATE_RATE_PER_100H == DEFAULT_RATE_PER_100H
 
 
 def test_shipped_estimators_are_all_named() -> None:
