@@ -198,7 +198,7 @@ def _run(
             if write is not None:
                 write(health_table_columns(blocks[-1], count))
 
-        _, kept = pipeline.run_frames(frame_time_s, first_value, slots, values, traces=traces, on_rows=on_rows)
+        kept = pipeline.run_frames(frame_time_s, first_value, slots, values, on_rows, traces=traces)
     events = tuple(finished(pipeline.close_events()))
     for key in ("steps", "clock_restarts", "events_dropped"):
         counters[key] = pipeline.counters[key]

@@ -612,15 +612,14 @@ class Pipeline:
 
     def run_frames(
         self, frame_time_s: NDArray[np.float64], first_value: NDArray[np.int64], slots: NDArray[np.int16],
-        values: NDArray[np.float64], *, traces: bool = False, on_rows: Callable[[Rows, int], None] | None = None,
-    ) -> tuple[Rows, Traces]:  # fmt: skip
+        values: NDArray[np.float64], on_rows: Callable[[Rows, int], None], *, traces: bool = False,
+    ) -> Traces:  # fmt: skip
         """The live loop over a whole log in compiled calls: for each frame, advance the clock to its time
         (``frame_time_s``, s) and feed its decoded values (``slots[first_value[f]:first_value[f + 1]]``).
-        Returns the output table (every ``row_period`` steps) and, with ``traces``, every step's results.
-        ``on_rows(rows, n)``: called with each block of up to :data:`ROW_BLOCK` rows (the first ``n`` of
-        ``rows``) as the loop writes them; the table is then written over by the next block (the callback
-        copies what it keeps; the table returned holds the last block only). The loop releases the GIL, so a
-        thread the callback feeds (the health.csv writer) runs beside it."""
+        ``on_rows(rows, n)``: called with each block of up to :data:`ROW_BLOCK` rows of the output table (the
+        first ``n`` of ``rows``, every ``row_period`` steps) as the loop writes them; the next block is written
+        over it (the callback copies what it keeps). The loop releases the GIL, so a thread the callback feeds
+        (the health.csv writer) runs beside it. Returns, with ``traces``, every step's results."""
         n_frames = frame_time_s.size
         span = 0.0
         finite = frame_time_s[np.isfinite(frame_time_s)]
@@ -628,21 +627,17 @@ class Pipeline:
             span = float(np.max(finite) - np.min(finite))
         steps = int(span / self.dt_s) + 16
         count = len(self.cylinder_params)
-        rows = _rows(steps // self._row_period + 16 if on_rows is None else ROW_BLOCK, count)
+        rows = _rows(ROW_BLOCK, count)
         kept = _traces(steps + 16 if traces else 0, count)
         loop = self._compiled().replay_loop_released
         start = 0
         while start < n_frames:
             start = int(loop(self._engine, rows, kept, frame_time_s, first_value, slots, values, start))
-            written = int(rows.count[0])
-            if on_rows is not None:  # the block handed over, the table's room used again
-                if written:
-                    on_rows(rows, written)
-                rows.count[0] = 0
-            elif start < n_frames and written >= rows.k.size:
-                rows = _grow(rows)
+            if rows.count[0]:
+                on_rows(rows, int(rows.count[0]))
+            rows.count[0] = 0
         self._sync_counters()
-        return rows, kept
+        return kept
 
 
 #: Rows of the output table handed to ``run_frames``' ``on_rows`` at a time.
@@ -657,19 +652,6 @@ def _rows(capacity: int, cylinders: int) -> Rows:
         stale=np.zeros(capacity, dtype=np.int64),
         cylinders=np.zeros((capacity, cylinders), dtype=CYLINDER_OUTPUT),
     )
-
-
-def _grow(rows: Rows) -> Rows:
-    """The same table with twice the room (the rows written kept)."""
-    capacity = rows.k.size * 2
-    bigger = _rows(capacity, rows.cylinders.shape[1])
-    n = int(rows.count[0])
-    bigger.count[0] = n
-    bigger.k[:n] = rows.k[:n]
-    bigger.time_s[:n] = rows.time_s[:n]
-    bigger.stale[:n] = rows.stale[:n]
-    bigger.cylinders[:n] = rows.cylinders[:n]
-    return bigger
 
 
 def _traces(capacity: int, cylinders: int) -> Traces:
